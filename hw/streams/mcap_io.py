@@ -1,0 +1,278 @@
+"""MCAP recordings with ROS 2 message schemas (CDR, `ros2msg` schema encoding).
+
+Topics (what Foxglove and `ros2 bag` see):
+
+| topic                       | type                          | content                        |
+|-----------------------------|-------------------------------|--------------------------------|
+| /camera/color/image/compressed | sensor_msgs/CompressedImage | JPEG colour                    |
+| /camera/depth/image         | sensor_msgs/Image (16UC1)     | depth in mm, 0 = invalid, registered to colour |
+| /camera/color/camera_info   | sensor_msgs/CameraInfo        | K of the colour image          |
+| /odom                       | nav_msgs/Odometry             | T_odom_base                    |
+| /ground_truth/camera_pose   | geometry_msgs/PoseStamped     | T_world_camera (evaluation)    |
+
+The parts of one RGB-D frame share the header stamp; a frame is emitted when its
+colour, camera info and (if the recording has a depth channel) depth have all arrived.
+Log time = header stamp, so `iter_messages(log_time_order=True)` replays in time order.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+from types import TracebackType
+from typing import Any, BinaryIO
+
+import cv2
+import numpy as np
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from mcap.writer import CompressionType, Writer
+
+from litevloc.hw import ros_msgs
+from litevloc.hw.messages import (
+    GroundTruthPose,
+    Message,
+    Odometry,
+    RgbdFrame,
+    StreamError,
+    StreamStats,
+    depth_from_millimetres,
+    depth_to_millimetres,
+)
+from litevloc.hw.streams.base import select_indices
+from litevloc.hw.streams.posed_folder import decode_color
+
+TOPIC_COLOR = "/camera/color/image/compressed"
+TOPIC_DEPTH = "/camera/depth/image"
+TOPIC_INFO = "/camera/color/camera_info"
+TOPIC_ODOM = "/odom"
+TOPIC_GT = "/ground_truth/camera_pose"
+
+TOPIC_TYPES = {
+    TOPIC_COLOR: ros_msgs.COMPRESSED_IMAGE,
+    TOPIC_DEPTH: ros_msgs.IMAGE,
+    TOPIC_INFO: ros_msgs.CAMERA_INFO,
+    TOPIC_ODOM: ros_msgs.ODOMETRY,
+    TOPIC_GT: ros_msgs.POSE_STAMPED,
+}
+_FRAME_TOPICS = (TOPIC_COLOR, TOPIC_DEPTH, TOPIC_INFO)
+
+
+class McapRecorder:
+    """Write `Message`s to an MCAP file (zstd chunks). Use as a context manager."""
+
+    def __init__(self, path: str | Path, jpeg_quality: int = 95, metadata: dict[str, str] | None = None) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.jpeg_quality = int(jpeg_quality)
+        self._fh: BinaryIO = open(self.path, "wb")  # noqa: SIM115 - closed in close()
+        self._writer = Writer(self._fh, compression=CompressionType.ZSTD)
+        self._writer.start(profile="ros2", library="litevloc")
+        self._channels: dict[str, int] = {}
+        self._seq: dict[str, int] = {}
+        self.counts: dict[str, int] = {}
+        if metadata:
+            self._writer.add_metadata("litevloc", {str(k): str(v) for k, v in metadata.items()})
+
+    def _channel(self, topic: str) -> int:
+        if topic not in self._channels:
+            typename = TOPIC_TYPES[topic]
+            schema_id = self._writer.register_schema(
+                name=typename, encoding="ros2msg", data=ros_msgs.msgdef(typename).encode()
+            )
+            self._channels[topic] = self._writer.register_channel(
+                topic=topic, message_encoding="cdr", schema_id=schema_id
+            )
+        return self._channels[topic]
+
+    def _put(self, topic: str, t_ns: int, msg: Any) -> None:
+        ch = self._channel(topic)
+        seq = self._seq.get(topic, 0)
+        self._seq[topic] = seq + 1
+        self._writer.add_message(
+            channel_id=ch, log_time=t_ns, publish_time=t_ns, sequence=seq,
+            data=ros_msgs.serialize(msg, TOPIC_TYPES[topic]),
+        )
+        self.counts[topic] = self.counts.get(topic, 0) + 1
+
+    def write(self, msg: Message) -> None:
+        """Append one message (frames write camera_info, depth, then colour)."""
+        if isinstance(msg, RgbdFrame):
+            h, w = msg.color.shape[:2]
+            self._put(TOPIC_INFO, msg.t_ns, ros_msgs.camera_info_msg(msg.t_ns, msg.K, w, h, msg.frame_id))
+            if msg.depth is not None:
+                if msg.depth.shape != (h, w):
+                    raise StreamError(f"frame {msg.index}: depth {msg.depth.shape} does not match colour {(h, w)}")
+                self._put(TOPIC_DEPTH, msg.t_ns, ros_msgs.depth_image_msg(msg.t_ns, depth_to_millimetres(msg.depth), msg.frame_id))
+            jpeg = msg.color_jpeg
+            if jpeg is None:
+                ok, enc = cv2.imencode(".jpg", msg.color[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality])
+                if not ok:
+                    raise StreamError(f"frame {msg.index}: JPEG encoding failed")
+                jpeg = enc.tobytes()
+            self._put(TOPIC_COLOR, msg.t_ns, ros_msgs.compressed_image_msg(msg.t_ns, jpeg, "jpeg", msg.frame_id))
+        elif isinstance(msg, Odometry):
+            self._put(
+                TOPIC_ODOM, msg.t_ns,
+                ros_msgs.odometry_msg(msg.t_ns, msg.T_odom_base, msg.frame_id, msg.child_frame_id, msg.covariance),
+            )
+        elif isinstance(msg, GroundTruthPose):
+            self._put(TOPIC_GT, msg.t_ns, ros_msgs.pose_stamped_msg(msg.t_ns, msg.T_world_camera, msg.frame_id))
+        else:  # pragma: no cover - Message is a closed union
+            raise TypeError(f"cannot record {type(msg).__name__}")
+
+    def close(self) -> None:
+        if not self._fh.closed:
+            self._writer.finish()
+            self._fh.close()
+
+    def __enter__(self) -> McapRecorder:
+        return self
+
+    def __exit__(self, et: type[BaseException] | None, ev: BaseException | None, tb: TracebackType | None) -> None:
+        self.close()
+
+
+class McapSource:
+    """Replay an MCAP recording as `Message`s.
+
+    `strict=True` (offline tools): any malformed message or time going backwards raises
+    `StreamError` naming the file, topic and time. `strict=False` (live/replay into a
+    running service): such messages are counted in `stats.skipped` and dropped.
+    """
+
+    def __init__(self, path: str | Path, frames: slice = slice(None), strict: bool = True) -> None:
+        self.path = Path(path)
+        self.name = f"mcap:{self.path.name}"
+        self.stats = StreamStats()
+        self.strict = strict
+        if not self.path.is_file():
+            raise StreamError(f"recording not found: {self.path}")
+        try:
+            with open(self.path, "rb") as fh:
+                summary = make_reader(fh).get_summary()
+        except (McapError, ValueError, EOFError, OSError) as exc:
+            raise StreamError(f"{self.path}: not a readable MCAP file: {exc}") from exc
+        if summary is None or summary.statistics is None:
+            raise StreamError(f"{self.path}: MCAP file has no summary/statistics (truncated or unfinished recording?)")
+        self.topics = {ch.topic: ch.id for ch in summary.channels.values()}
+        counts = summary.statistics.channel_message_counts
+        self.topic_counts = {ch.topic: int(counts.get(ch.id, 0)) for ch in summary.channels.values()}
+        self.start_ns = int(summary.statistics.message_start_time)
+        self.end_ns = int(summary.statistics.message_end_time)
+        self.has_depth = TOPIC_DEPTH in self.topics
+        n_frames = self.topic_counts.get(TOPIC_COLOR, 0)
+        self._frames = frames
+        self._selected = select_indices(n_frames, frames)
+        self._window: tuple[int, int] | None = None
+        if frames != slice(None) and self._selected:
+            stamps = self._color_stamps()
+            self._window = (stamps[self._selected[0]], stamps[self._selected[-1]])
+
+    def frame_count(self) -> int:
+        return len(self._selected)
+
+    def duration_s(self) -> float:
+        return (self.end_ns - self.start_ns) * 1e-9
+
+    def _color_stamps(self) -> list[int]:
+        with open(self.path, "rb") as fh:
+            try:
+                return [m.log_time for _, _, m in make_reader(fh).iter_messages(topics=[TOPIC_COLOR], log_time_order=True)]
+            except (McapError, ValueError, EOFError) as exc:
+                raise StreamError(f"{self.path}: corrupt MCAP data: {exc}") from exc
+
+    def _fail(self, reason: str, detail: str) -> None:
+        if self.strict:
+            raise StreamError(f"{self.path}: {reason}: {detail}")
+        self.stats.skip(reason)
+
+    def __iter__(self) -> Iterator[Message]:
+        selected = set(self._selected)
+        pending: dict[int, dict[str, Any]] = {}
+        frame_counter = 0
+        last_t: dict[str, int] = {}
+        lo, hi = self._window if self._window else (None, None)
+        with open(self.path, "rb") as fh:
+            reader = make_reader(fh)
+            it = reader.iter_messages(log_time_order=True)
+            while True:
+                try:
+                    item = next(it)
+                except StopIteration:
+                    break
+                except (McapError, ValueError, EOFError, KeyError) as exc:
+                    raise StreamError(f"{self.path}: corrupt MCAP data: {exc}") from exc
+                _, channel, raw = item
+                topic = channel.topic
+                if topic not in TOPIC_TYPES:
+                    self.stats.skip(f"unknown topic {topic}")
+                    continue
+                try:
+                    msg = ros_msgs.deserialize(raw.data, TOPIC_TYPES[topic])
+                    t_ns = ros_msgs.stamp_ns(msg.header)
+                except ros_msgs.MessageDecodeError as exc:
+                    self._fail(f"undecodable {topic} message", str(exc))
+                    continue
+                key = "frame" if topic in _FRAME_TOPICS else topic
+                if topic != TOPIC_DEPTH and topic != TOPIC_INFO and t_ns < last_t.get(key, -1):
+                    self._fail(f"timestamps go backwards on {topic}", f"{t_ns} ns after {last_t[key]} ns")
+                    continue
+                last_t[key] = max(t_ns, last_t.get(key, -1))
+                if topic in _FRAME_TOPICS:
+                    parts = pending.setdefault(t_ns, {})
+                    parts[topic] = msg
+                    if topic == TOPIC_COLOR:
+                        parts["index"] = frame_counter
+                        frame_counter += 1
+                    if TOPIC_COLOR in parts and TOPIC_INFO in parts and (TOPIC_DEPTH in parts or not self.has_depth):
+                        del pending[t_ns]
+                        if parts["index"] in selected:
+                            frame = self._make_frame(t_ns, parts)
+                            if frame is not None:
+                                self.stats.messages += 1
+                                yield frame
+                    continue
+                if lo is not None and hi is not None and not (lo <= t_ns <= hi):
+                    continue
+                out = self._make_other(topic, t_ns, msg)
+                if out is not None:
+                    self.stats.messages += 1
+                    yield out
+        for t_ns, parts in pending.items():
+            if parts.get("index") in selected or TOPIC_COLOR not in parts:
+                self._fail("incomplete frame (missing colour, depth or camera_info)", f"stamp {t_ns}")
+
+    def _make_frame(self, t_ns: int, parts: dict[str, Any]) -> RgbdFrame | None:
+        try:
+            cmsg = parts[TOPIC_COLOR]
+            jpeg = bytes(np.asarray(cmsg.data, dtype=np.uint8).tobytes())
+            color = decode_color(jpeg, f"{self.path} colour at {t_ns} ns")
+            K = ros_msgs.camera_info_K(parts[TOPIC_INFO])
+            depth = None
+            if TOPIC_DEPTH in parts:
+                mm = ros_msgs.depth_image_to_mm(parts[TOPIC_DEPTH])
+                if mm.shape != color.shape[:2]:
+                    raise StreamError(
+                        f"depth {mm.shape[1]}x{mm.shape[0]} does not match colour {color.shape[1]}x{color.shape[0]} at {t_ns} ns"
+                    )
+                depth = depth_from_millimetres(mm)
+        except (StreamError, ros_msgs.MessageDecodeError) as exc:
+            self._fail("bad frame", str(exc))
+            return None
+        return RgbdFrame(
+            t_ns=t_ns, color=color, depth=depth, K=K, index=int(parts["index"]),
+            frame_id=cmsg.header.frame_id or "camera",
+            color_jpeg=jpeg if cmsg.format.lower().startswith("jpeg") or cmsg.format.lower().startswith("jpg") else None,
+        )
+
+    def _make_other(self, topic: str, t_ns: int, msg: Any) -> Message | None:
+        try:
+            if topic == TOPIC_ODOM:
+                t, T, cov = ros_msgs.odometry_to_matrix(msg)
+                return Odometry(t, T, cov, frame_id=msg.header.frame_id, child_frame_id=msg.child_frame_id)
+            if topic == TOPIC_GT:
+                return GroundTruthPose(t_ns, ros_msgs.pose_to_matrix(msg.pose), frame_id=msg.header.frame_id)
+        except ros_msgs.MessageDecodeError as exc:
+            self._fail(f"bad {topic} message", str(exc))
+        return None

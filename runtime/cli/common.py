@@ -1,0 +1,66 @@
+"""Helpers shared by subcommands: the common flags, JSON summaries, progress bars."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from tqdm import tqdm
+
+from litevloc.config import LiteVLocConfig, load_config
+from litevloc.hw.streams.base import parse_frames
+
+
+def add_frames_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--frames", default=None, metavar="A:B", help="take part of the input: a Python slice over frame indices")
+
+
+def add_json_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--json", type=Path, default=None, metavar="PATH", help="write a machine-readable summary here")
+
+
+def add_config_args(p: argparse.ArgumentParser, required: bool = False) -> None:
+    p.add_argument("--config", default=None, required=required, help="preset name (see `litevloc info`) or YAML file")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override one config value, e.g. --set replay.rate=2 (repeatable)")
+
+
+def frames_of(args: argparse.Namespace) -> slice:
+    try:
+        return parse_frames(getattr(args, "frames", None))
+    except ValueError as exc:
+        from litevloc.runtime.cli.main import UserError
+
+        raise UserError(str(exc)) from exc
+
+
+def config_of(args: argparse.Namespace) -> LiteVLocConfig:
+    return load_config(getattr(args, "config", None), getattr(args, "overrides", []))
+
+
+def write_json(path: Path | None, data: dict[str, Any]) -> None:
+    if path is None:
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(data, indent=2, sort_keys=True, default=_jsonable) + "\n")
+
+
+def _jsonable(o: Any) -> Any:
+    import numpy as np
+
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def progress(total: int | None, desc: str, unit: str = "frame") -> tqdm:
+    """A progress bar on stderr (quiet when stderr is not a terminal, except in CI logs)."""
+    return tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, dynamic_ncols=True, mininterval=0.5,
+                disable=None)

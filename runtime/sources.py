@@ -1,0 +1,72 @@
+"""Open any supported input as a `StreamSource`, adding simulated odometry where asked.
+
+Folders are detected (7-Scenes, TUM RGB-D); `.mcap` files are recordings. For posed
+datasets without odometry, `with_simulated_odometry` interleaves drift-model odometry
+(`pipelines.odometry_drift`) with the frames in time order. Camera and base_link are
+related by `T_BASE_CAMERA_OPTICAL` (base_link = the camera, in REP-103 body axes).
+"""
+
+from __future__ import annotations
+
+import heapq
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from litevloc.hw.messages import Message, Odometry, StreamError, StreamStats
+from litevloc.hw.streams.base import StreamSource
+from litevloc.hw.streams.mcap_io import McapSource
+from litevloc.hw.streams.posed_folder import PosedFolderSource
+from litevloc.hw.streams.sevenscenes import SevenScenesSource, is_sevenscenes_folder
+from litevloc.hw.streams.tum import TumRgbdSource, is_tum_folder
+from litevloc.pipelines.geometry import invert
+from litevloc.pipelines.odometry_drift import T_BASE_CAMERA_OPTICAL, DriftParams, simulate_odometry
+
+
+def open_source(path: str | Path, frames: slice = slice(None), strict: bool = True) -> StreamSource:
+    """Open a dataset folder or recording; StreamError with a clear message otherwise."""
+    p = Path(path)
+    if not p.exists():
+        raise StreamError(f"input not found: {p}")
+    if p.is_file():
+        if p.suffix.lower() == ".mcap":
+            return McapSource(p, frames, strict=strict)
+        raise StreamError(f"{p}: unsupported file type (expected a .mcap recording)")
+    if is_sevenscenes_folder(p):
+        return SevenScenesSource(p, frames, strict=strict)
+    if is_tum_folder(p):
+        return TumRgbdSource(p, frames, strict=strict)
+    raise StreamError(f"{p}: not a 7-Scenes folder (frame-NNNNNN.color.jpg) nor a TUM folder (rgb.txt)")
+
+
+class SimulatedOdometrySource:
+    """A posed folder source plus drift-model odometry, merged in time order."""
+
+    def __init__(self, inner: PosedFolderSource, rate_hz: float, params: DriftParams, seed: int) -> None:
+        self.inner = inner
+        self.name = inner.name + f"+odom@{rate_hz:g}Hz"
+        self.stats: StreamStats = inner.stats
+        times, T_world_cam = inner.ground_truth()
+        if len(times) < 2:
+            raise StreamError(f"{inner.name}: need >= 2 ground-truth poses to simulate odometry")
+        T_world_base = T_world_cam @ invert(T_BASE_CAMERA_OPTICAL)
+        self.odom_times, self.T_odom_base = simulate_odometry(times, T_world_base, rate_hz, params, seed)
+
+    def frame_count(self) -> int:
+        return self.inner.frame_count()
+
+    def _odometry(self) -> Iterator[Message]:
+        for t, T in zip(self.odom_times, self.T_odom_base, strict=True):
+            yield Odometry(int(t), np.asarray(T))
+
+    def __iter__(self) -> Iterator[Message]:
+        # Odometry sorts before a frame with the same stamp (key ties broken by order).
+        return heapq.merge(self._odometry(), iter(self.inner), key=lambda m: m.t_ns)
+
+
+def with_simulated_odometry(src: StreamSource, rate_hz: float, params: DriftParams, seed: int) -> StreamSource:
+    """Add simulated odometry to a posed folder source; recordings are returned unchanged."""
+    if rate_hz <= 0 or not isinstance(src, PosedFolderSource):
+        return src
+    return SimulatedOdometrySource(src, rate_hz, params, seed)

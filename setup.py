@@ -1,0 +1,25 @@
+"""Map the design card's top-level folders onto the `litevloc.*` namespace.
+
+`runtime/` -> `litevloc.runtime`, `pipelines/` -> `litevloc.pipelines`, `hw/` ->
+`litevloc.hw`, `models/` -> `litevloc.models`, `config/` -> `litevloc.config`.
+Sub-packages are discovered, so adding a folder with an `__init__.py` needs no edit here.
+Works for normal and editable (`pip install -e .`) installs.
+"""
+
+from setuptools import find_packages, setup
+
+FOLDERS = ("runtime", "pipelines", "hw", "models", "config")
+
+packages: list[str] = []
+package_dir: dict[str, str] = {}
+for folder in FOLDERS:
+    packages.append(f"litevloc.{folder}")
+    package_dir[f"litevloc.{folder}"] = folder
+    packages += [f"litevloc.{folder}.{sub}" for sub in find_packages(folder)]
+
+setup(
+    packages=packages,
+    package_dir=package_dir,
+    package_data={"litevloc.config": ["presets/*.yaml", "worlds/*.yaml"]},
+    include_package_data=False,
+)
