@@ -25,9 +25,8 @@ def resolve_config_path(name_or_path: str | Path) -> Path:
         if p.is_file():
             return p
         shipped = PRESETS_DIR / p.name
-        if p.parent == Path(".") or str(p.parent) == "config":
-            if shipped.is_file():
-                return shipped
+        if (p.parent == Path(".") or str(p.parent) == "config") and shipped.is_file():
+            return shipped
         raise ConfigError(f"config file not found: {p}")
     preset = PRESETS_DIR / f"{name_or_path}.yaml"
     if preset.is_file():

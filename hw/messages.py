@@ -87,11 +87,20 @@ class StreamStats:
         return sum(self.skipped.values())
 
 
+def depth_from_units(raw: NDArray[np.integer], units_per_metre: float) -> NDArray[np.float32]:
+    """Integer depth (0 = invalid) -> float32 metres with NaN for invalid.
+
+    The one conversion every reader uses, so the same stored value always gives the
+    same float (bit-exact round trips through recordings).
+    """
+    d = np.asarray(raw).astype(np.float32) / np.float32(units_per_metre)
+    d[np.asarray(raw) == 0] = np.nan
+    return d
+
+
 def depth_from_millimetres(depth_mm: NDArray[np.integer]) -> NDArray[np.float32]:
     """uint16 millimetres (0 = invalid) -> float32 metres with NaN for invalid."""
-    d = np.asarray(depth_mm).astype(np.float32) * np.float32(0.001)
-    d[np.asarray(depth_mm) == 0] = np.nan
-    return d
+    return depth_from_units(depth_mm, 1000.0)
 
 
 def depth_to_millimetres(depth_m: NDArray[np.floating]) -> NDArray[np.uint16]:

@@ -78,10 +78,10 @@ def is_rigid(T: NDArray[np.floating], atol: float = 1e-6) -> bool:
 
 def check_rigid(T: NDArray[np.floating], name: str = "transform", atol: float = 1e-5) -> F64:
     """Return T as float64 or raise GeometryError naming `name` if it is not rigid."""
-    T = np.asarray(T, dtype=np.float64)
-    if not is_rigid(T, atol=atol):
-        raise GeometryError(f"{name} is not a finite 4x4 rigid transform: {T.tolist()}")
-    return T
+    out: F64 = np.asarray(T, dtype=np.float64)
+    if not is_rigid(out, atol=atol):
+        raise GeometryError(f"{name} is not a finite 4x4 rigid transform: {out.tolist()}")
+    return out
 
 
 def project_to_so3(R: NDArray[np.floating]) -> F64:

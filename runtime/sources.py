@@ -13,7 +13,6 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
-
 from litevloc.hw.messages import Message, Odometry, StreamError, StreamStats
 from litevloc.hw.streams.base import StreamSource
 from litevloc.hw.streams.mcap_io import McapSource

@@ -24,10 +24,6 @@ from typing import Any, BinaryIO
 
 import cv2
 import numpy as np
-from mcap.exceptions import McapError
-from mcap.reader import make_reader
-from mcap.writer import CompressionType, Writer
-
 from litevloc.hw import ros_msgs
 from litevloc.hw.messages import (
     GroundTruthPose,
@@ -41,6 +37,9 @@ from litevloc.hw.messages import (
 )
 from litevloc.hw.streams.base import select_indices
 from litevloc.hw.streams.posed_folder import decode_color
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from mcap.writer import CompressionType, Writer
 
 TOPIC_COLOR = "/camera/color/image/compressed"
 TOPIC_DEPTH = "/camera/depth/image"
@@ -103,7 +102,8 @@ class McapRecorder:
             if msg.depth is not None:
                 if msg.depth.shape != (h, w):
                     raise StreamError(f"frame {msg.index}: depth {msg.depth.shape} does not match colour {(h, w)}")
-                self._put(TOPIC_DEPTH, msg.t_ns, ros_msgs.depth_image_msg(msg.t_ns, depth_to_millimetres(msg.depth), msg.frame_id))
+                depth_msg = ros_msgs.depth_image_msg(msg.t_ns, depth_to_millimetres(msg.depth), msg.frame_id)
+                self._put(TOPIC_DEPTH, msg.t_ns, depth_msg)
             jpeg = msg.color_jpeg
             if jpeg is None:
                 ok, enc = cv2.imencode(".jpg", msg.color[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality])
@@ -178,7 +178,8 @@ class McapSource:
     def _color_stamps(self) -> list[int]:
         with open(self.path, "rb") as fh:
             try:
-                return [m.log_time for _, _, m in make_reader(fh).iter_messages(topics=[TOPIC_COLOR], log_time_order=True)]
+                it = make_reader(fh).iter_messages(topics=[TOPIC_COLOR], log_time_order=True)
+                return [m.log_time for _, _, m in it]
             except (McapError, ValueError, EOFError) as exc:
                 raise StreamError(f"{self.path}: corrupt MCAP data: {exc}") from exc
 
@@ -254,7 +255,8 @@ class McapSource:
                 mm = ros_msgs.depth_image_to_mm(parts[TOPIC_DEPTH])
                 if mm.shape != color.shape[:2]:
                     raise StreamError(
-                        f"depth {mm.shape[1]}x{mm.shape[0]} does not match colour {color.shape[1]}x{color.shape[0]} at {t_ns} ns"
+                        f"depth {mm.shape[1]}x{mm.shape[0]} does not match colour "
+                        f"{color.shape[1]}x{color.shape[0]} at {t_ns} ns"
                     )
                 depth = depth_from_millimetres(mm)
         except (StreamError, ros_msgs.MessageDecodeError) as exc:
@@ -263,7 +265,7 @@ class McapSource:
         return RgbdFrame(
             t_ns=t_ns, color=color, depth=depth, K=K, index=int(parts["index"]),
             frame_id=cmsg.header.frame_id or "camera",
-            color_jpeg=jpeg if cmsg.format.lower().startswith("jpeg") or cmsg.format.lower().startswith("jpg") else None,
+            color_jpeg=jpeg if cmsg.format.lower().startswith(("jpeg", "jpg")) else None,
         )
 
     def _make_other(self, topic: str, t_ns: int, msg: Any) -> Message | None:

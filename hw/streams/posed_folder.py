@@ -15,16 +15,16 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from numpy.typing import NDArray
-
 from litevloc.hw.messages import (
     GroundTruthPose,
     Message,
     RgbdFrame,
     StreamError,
     StreamStats,
+    depth_from_units,
 )
 from litevloc.hw.streams.base import check_monotonic, select_indices
+from numpy.typing import NDArray
 
 
 @dataclass(frozen=True)
@@ -76,7 +76,7 @@ def read_depth_raw(path: Path) -> NDArray[np.uint16]:
         raise StreamError(f"depth image is corrupt or not an image: {path}")
     if img.ndim != 2 or img.dtype != np.uint16:
         raise StreamError(f"depth image must be single-channel 16-bit, got {img.dtype} {img.shape}: {path}")
-    return img
+    return np.asarray(img, dtype=np.uint16)
 
 
 def read_matrix_4x4(path: Path) -> NDArray[np.float64]:
@@ -136,8 +136,7 @@ class PosedFolderSource:
                     f"depth size {raw.shape[1]}x{raw.shape[0]} differs from colour size "
                     f"{color.shape[1]}x{color.shape[0]}: {rec.depth_path}"
                 )
-            depth = raw.astype(np.float32) / np.float32(self.depth_scale)
-            depth[raw == 0] = np.nan
+            depth = depth_from_units(raw, self.depth_scale)
         return RgbdFrame(
             t_ns=rec.t_ns, color=color, depth=depth, K=self.K, index=rec.index,
             color_jpeg=data if is_jpeg else None,

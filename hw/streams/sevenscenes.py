@@ -7,6 +7,10 @@ present, else the published fx = fy = 585, cx = 320, cy = 240.
 7-Scenes has no timestamps: frames are assumed at **30 Hz** (Kinect v1 rate), so frame i
 has `t_ns = i * 1e9 / 30` (rounded to ns). The colour and depth cameras are not
 registered; the same intrinsics are used for both (a few cm of systematic error).
+
+The published pose matrices are not exactly orthonormal (rotation blocks deviate from
+SO(3) by up to ~1e-4). They are projected onto SO(3) (nearest rotation, SVD) on read, so
+every pose is a proper rigid transform and survives quaternion round trips exactly.
 """
 
 from __future__ import annotations
@@ -15,9 +19,9 @@ import re
 from pathlib import Path
 
 import numpy as np
-
 from litevloc.hw.messages import StreamError
 from litevloc.hw.streams.posed_folder import FrameRecord, PosedFolderSource, read_matrix_4x4
+from litevloc.pipelines.geometry import project_to_so3
 
 FPS = 30.0
 DEFAULT_K = np.array([[585.0, 0.0, 320.0], [0.0, 585.0, 240.0], [0.0, 0.0, 1.0]])
@@ -58,6 +62,7 @@ class SevenScenesSource(PosedFolderSource):
             stem = root / f"frame-{m.group(1)}"
             try:
                 T = read_matrix_4x4(Path(f"{stem}.pose.txt"))
+                T[:3, :3] = project_to_so3(T[:3, :3])
             except StreamError as exc:
                 if strict:
                     raise
@@ -66,7 +71,7 @@ class SevenScenesSource(PosedFolderSource):
             records.append(
                 FrameRecord(
                     index=idx,
-                    t_ns=int(round(idx * 1e9 / FPS)),
+                    t_ns=round(idx * 1e9 / FPS),
                     color_path=root / m.group(0),
                     depth_path=Path(f"{stem}.depth.png"),
                     T_world_camera=T,

@@ -17,11 +17,15 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
-
 from litevloc.hw.messages import StreamError
 from litevloc.hw.streams.posed_folder import FrameRecord, PosedFolderSource
-from litevloc.pipelines.geometry import GeometryError, interpolate_pose_at, make_T, quat_xyzw_to_matrix
+from litevloc.pipelines.geometry import (
+    GeometryError,
+    interpolate_pose_at,
+    make_T,
+    quat_xyzw_to_matrix,
+)
+from numpy.typing import NDArray
 
 # Published TUM intrinsics (fx, fy, cx, cy) per Kinect.
 TUM_INTRINSICS = {
@@ -57,7 +61,7 @@ def _ts_ns(s: str, where: str) -> int:
         raise StreamError(f"{where}: bad timestamp {s!r}") from exc
     if not np.isfinite(v):
         raise StreamError(f"{where}: non-finite timestamp {s!r}")
-    return int(round(v * 1e9))
+    return round(v * 1e9)
 
 
 def _intrinsics(root: Path) -> NDArray[np.float64]:

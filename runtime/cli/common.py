@@ -8,14 +8,14 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from tqdm import tqdm
-
 from litevloc.config import LiteVLocConfig, load_config
 from litevloc.hw.streams.base import parse_frames
+from tqdm import tqdm
 
 
 def add_frames_arg(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--frames", default=None, metavar="A:B", help="take part of the input: a Python slice over frame indices")
+    p.add_argument("--frames", default=None, metavar="A:B",
+                   help="take part of the input: a Python slice over frame indices")
 
 
 def add_json_arg(p: argparse.ArgumentParser) -> None:

@@ -9,7 +9,13 @@ from pathlib import Path
 from litevloc.hw.messages import GroundTruthPose, Odometry, RgbdFrame
 from litevloc.hw.streams.mcap_io import McapRecorder
 from litevloc.runtime.cli.common import (
-    add_config_args, add_frames_arg, add_json_arg, config_of, frames_of, progress, write_json,
+    add_config_args,
+    add_frames_arg,
+    add_json_arg,
+    config_of,
+    frames_of,
+    progress,
+    write_json,
 )
 from litevloc.runtime.cli.main import UserError
 from litevloc.runtime.sources import open_source, with_simulated_odometry
@@ -38,7 +44,8 @@ def run(args: argparse.Namespace) -> int:
     seed = cfg.odometry_sim.seed if args.seed is None else args.seed
     if rate < 0:
         raise UserError("--odometry-rate must be >= 0")
-    src = with_simulated_odometry(open_source(args.src, frames_of(args), strict=True), rate, cfg.odometry_sim.drift, seed)
+    src = open_source(args.src, frames_of(args), strict=True)
+    src = with_simulated_odometry(src, rate, cfg.odometry_sim.drift, seed)
     t0 = time.perf_counter()
     tmp = args.dst.with_suffix(".mcap.partial")
     counts = {"frames": 0, "odometry": 0, "ground_truth": 0}

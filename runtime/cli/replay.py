@@ -7,7 +7,15 @@ import time
 from pathlib import Path
 
 from litevloc.hw.messages import GroundTruthPose, Odometry, RgbdFrame
-from litevloc.runtime.cli.common import add_config_args, add_frames_arg, add_json_arg, config_of, frames_of, progress, write_json
+from litevloc.runtime.cli.common import (
+    add_config_args,
+    add_frames_arg,
+    add_json_arg,
+    config_of,
+    frames_of,
+    progress,
+    write_json,
+)
 from litevloc.runtime.pacing import paced
 from litevloc.runtime.sources import open_source
 
@@ -15,7 +23,8 @@ from litevloc.runtime.sources import open_source
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("replay", help="play a recording (or dataset folder) with its recorded timing")
     p.add_argument("rec", type=Path, help=".mcap recording (or dataset folder)")
-    p.add_argument("--rate", type=float, default=None, help="real-time factor (default from config: 1; 0 = as fast as possible)")
+    p.add_argument("--rate", type=float, default=None,
+                   help="real-time factor (default from config: 1; 0 = as fast as possible)")
     add_frames_arg(p)
     add_config_args(p)
     add_json_arg(p)
@@ -45,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
             elif isinstance(msg, GroundTruthPose):
                 counts["ground_truth"] += 1
     wall = time.perf_counter() - t0
-    sensor_s = 0.0 if first is None else (last - first) * 1e-9  # type: ignore[operator]
+    sensor_s = 0.0 if first is None or last is None else (last - first) * 1e-9
     fps = counts["frames"] / max(wall, 1e-9)
     skipped = src.stats.skipped
     print(

@@ -1,0 +1,95 @@
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from litevloc.hw.messages import GroundTruthPose, RgbdFrame, StreamError
+from litevloc.hw.streams.base import parse_frames
+from litevloc.hw.streams.sevenscenes import SevenScenesSource
+
+
+def small_copy(src: Path, dst: Path, n: int = 4) -> Path:
+    dst.mkdir()
+    shutil.copy(src / "camera-intrinsics.txt", dst)
+    for i in range(n):
+        for ext in ("color.jpg", "depth.png", "pose.txt"):
+            shutil.copy(src / f"frame-{i:06d}.{ext}", dst)
+    return dst
+
+
+def test_reads_frames_and_poses(seven_scenes_dir: Path) -> None:
+    src = SevenScenesSource(seven_scenes_dir, parse_frames("10:13"))
+    msgs = list(src)
+    frames = [m for m in msgs if isinstance(m, RgbdFrame)]
+    poses = [m for m in msgs if isinstance(m, GroundTruthPose)]
+    assert [f.index for f in frames] == [10, 11, 12] and len(poses) == 3 and src.frame_count() == 3
+    f = frames[0]
+    assert f.color.shape == (480, 640, 3) and f.color.dtype == np.uint8
+    assert f.depth is not None and f.depth.dtype == np.float32 and f.depth.shape == (480, 640)
+    invalid = np.isnan(f.depth).mean()
+    assert 0.0 < invalid < 0.3 and np.nanmax(f.depth) < 10
+    assert np.allclose(f.K, [[585, 0, 320], [0, 585, 240], [0, 0, 1]])
+    assert f.t_ns == round(10 * 1e9 / 30) and f.color_jpeg is not None
+    expected = np.loadtxt(seven_scenes_dir / "frame-000010.pose.txt")
+    assert np.allclose(poses[0].T_world_camera, expected, atol=1e-3)
+    assert np.array_equal(poses[0].T_world_camera[:3, 3], expected[:3, 3])
+    from litevloc.pipelines.geometry import is_rigid
+
+    assert is_rigid(poses[0].T_world_camera, atol=1e-9)
+
+
+def test_missing_folder() -> None:
+    with pytest.raises(StreamError, match="not found"):
+        SevenScenesSource("/nonexistent/7scenes")
+
+
+def test_empty_folder(tmp_path: Path) -> None:
+    with pytest.raises(StreamError, match="not a 7-Scenes folder"):
+        SevenScenesSource(tmp_path)
+
+
+def test_truncated_jpeg_is_an_error_or_counted_skip(seven_scenes_dir: Path, tmp_path: Path) -> None:
+    d = small_copy(seven_scenes_dir, tmp_path / "s")
+    jpg = d / "frame-000001.color.jpg"
+    jpg.write_bytes(jpg.read_bytes()[:5000])
+    with pytest.raises(StreamError, match=r"truncated.*frame-000001\.color\.jpg"):
+        list(SevenScenesSource(d))
+    src = SevenScenesSource(d, strict=False)
+    frames = [m for m in src if isinstance(m, RgbdFrame)]
+    assert [f.index for f in frames] == [0, 2, 3] and src.stats.total_skipped == 1
+
+
+def test_garbage_image_and_wrong_depth_size(seven_scenes_dir: Path, tmp_path: Path) -> None:
+    import cv2
+
+    d = small_copy(seven_scenes_dir, tmp_path / "s")
+    (d / "frame-000000.color.jpg").write_bytes(b"not an image at all")
+    with pytest.raises(StreamError, match="corrupt or not an image"):
+        list(SevenScenesSource(d, parse_frames("0:1")))
+    cv2.imwrite(str(d / "frame-000002.depth.png"), np.zeros((240, 320), np.uint16))
+    with pytest.raises(StreamError, match=r"depth size 320x240 differs.*frame-000002"):
+        list(SevenScenesSource(d, parse_frames("2:3")))
+    (d / "frame-000003.depth.png").unlink()
+    with pytest.raises(StreamError, match="depth image missing"):
+        list(SevenScenesSource(d, parse_frames("3:4")))
+
+
+def test_bad_pose_file(seven_scenes_dir: Path, tmp_path: Path) -> None:
+    d = small_copy(seven_scenes_dir, tmp_path / "s")
+    (d / "frame-000001.pose.txt").write_text("1 2 3\n")
+    with pytest.raises(StreamError, match=r"4x4.*frame-000001\.pose\.txt"):
+        SevenScenesSource(d)
+    src = SevenScenesSource(d, strict=False)
+    assert src.stats.total_skipped == 1
+
+
+def test_frames_spec_parsing() -> None:
+    assert parse_frames("0:500") == slice(0, 500)
+    assert parse_frames("500:") == slice(500, None)
+    assert parse_frames(None) == slice(None)
+    assert parse_frames("::5") == slice(None, None, 5)
+    for bad in ("a:b", "5", "1:2:0"):
+        with pytest.raises(ValueError):
+            parse_frames(bad)
