@@ -23,7 +23,7 @@ def require_7scenes() -> Path:
 
 def stats_ms(samples_s: list[float]) -> dict[str, float]:
     a = np.asarray(samples_s) * 1e3
-    return {"median_ms": float(np.median(a)), "p90_ms": float(np.percentile(a, 90)), "n": int(len(a))}
+    return {"median_ms": float(np.median(a)), "p90_ms": float(np.percentile(a, 90)), "n": len(a)}
 
 
 def print_table(title: str, header: list[str], rows: list[list[Any]]) -> None:

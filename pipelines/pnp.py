@@ -1,0 +1,182 @@
+"""Metric pose from 3D-2D matches: OpenCV PnP + RANSAC, LM refinement, acceptance gates.
+
+Used by covisibility verification (map building) and by local/global localization:
+points lifted from one camera's depth (frame `source`) are matched to pixels of another
+camera (frame `target`); the result `T_target_source` maps source-frame points into the
+target camera frame. RANSAC is seeded (`cv2.setRNGSeed`) so results are reproducible.
+
+Covariance estimate (documented model, used as the VLoc measurement noise):
+    Sigma = s^2 * (J^T J)^-1 over the inliers, s^2 = sum(r^2) / (2n - 6),
+with J the 2n x 6 Jacobian of the reprojection w.r.t. a right-multiplied perturbation of
+T_source_target = (rotation vector, translation) of the *target camera in the source
+frame*; returned in ROS order (x y z roll pitch yaw approx: translation first, then
+rotation), clamped below by `min_sigma_*` so a lucky fit is never over-confident.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import cv2
+import numpy as np
+from litevloc.pipelines.geometry import invert, make_T, project, so3_exp
+from numpy.typing import NDArray
+
+PnpMethod = Literal["p3p", "ap3p", "sqpnp", "epnp", "usac_magsac"]
+_FLAGS = {"p3p": cv2.SOLVEPNP_P3P, "ap3p": cv2.SOLVEPNP_AP3P, "sqpnp": cv2.SOLVEPNP_SQPNP, "epnp": cv2.SOLVEPNP_EPNP}
+
+
+@dataclass(frozen=True)
+class PnpParams:
+    """RANSAC settings and acceptance gates (defaults follow the published system)."""
+
+    method: PnpMethod = "ap3p"
+    reprojection_px: float = 3.0
+    iterations: int = 1000
+    confidence: float = 0.9999
+    refine_lm: bool = True
+    min_inliers: int = 50
+    min_inlier_ratio: float = 0.2
+    max_median_reprojection_px: float = 2.0
+    seed: int = 0
+    min_sigma_trans_m: float = 0.01
+    min_sigma_rot_rad: float = float(np.radians(0.5))
+
+    def __post_init__(self) -> None:
+        if self.method not in ("p3p", "ap3p", "sqpnp", "epnp", "usac_magsac"):
+            raise ValueError(f"unknown PnP method {self.method!r}")
+        if self.reprojection_px <= 0 or self.iterations <= 0 or not (0 < self.confidence < 1):
+            raise ValueError("reprojection_px and iterations must be > 0, confidence in (0, 1)")
+        if self.min_inliers < 4 or not (0 <= self.min_inlier_ratio <= 1):
+            raise ValueError("min_inliers must be >= 4 and min_inlier_ratio in [0, 1]")
+
+
+@dataclass(frozen=True, eq=False)
+class PnpResult:
+    """Outcome of one PnP attempt; `accepted` only if every gate passed."""
+
+    accepted: bool
+    reason: str
+    T_target_source: NDArray[np.float64] | None = None
+    inliers: NDArray[np.intp] = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
+    n_matches: int = 0
+    median_reprojection_px: float = float("nan")
+    covariance: NDArray[np.float64] | None = None  # 6x6, (tx ty tz rx ry rz) of T_source_target
+
+    @property
+    def n_inliers(self) -> int:
+        return len(self.inliers)
+
+    @property
+    def inlier_ratio(self) -> float:
+        return self.n_inliers / self.n_matches if self.n_matches else 0.0
+
+
+def _ransac(obj: NDArray[np.float64], img: NDArray[np.float64], K: NDArray[np.float64], p: PnpParams):  # type: ignore[no-untyped-def]
+    cv2.setRNGSeed(p.seed)
+    if p.method == "usac_magsac":
+        up = cv2.UsacParams()
+        up.sampler = cv2.SAMPLING_UNIFORM
+        up.score = cv2.SCORE_METHOD_MAGSAC
+        up.threshold = p.reprojection_px
+        up.confidence = p.confidence
+        up.maxIterations = p.iterations
+        up.loMethod = cv2.LOCAL_OPTIM_SIGMA
+        up.loIterations = 10
+        up.loSampleSize = 20
+        up.randomGeneratorState = p.seed
+        ok, _, rvec, tvec, inl = cv2.solvePnPRansac(obj, img, K.copy(), None, params=up)
+        return ok, rvec, tvec, inl
+    ok, rvec, tvec, inl = cv2.solvePnPRansac(
+        obj, img, K, None, iterationsCount=p.iterations, reprojectionError=p.reprojection_px,
+        confidence=p.confidence, flags=_FLAGS[p.method],
+    )
+    return ok, rvec, tvec, inl
+
+
+def pose_covariance(
+    points_source: NDArray[np.float64], pixels: NDArray[np.float64], K: NDArray[np.float64],
+    T_target_source: NDArray[np.float64], p: PnpParams,
+) -> NDArray[np.float64]:
+    """6x6 covariance of T_source_target (translation, rotation vector) from inlier residuals."""
+    T_st = invert(T_target_source)
+    n = len(points_source)
+
+    def residuals(T_st_: NDArray[np.float64]) -> NDArray[np.float64]:
+        pc = (points_source - T_st_[:3, 3]) @ T_st_[:3, :3]  # source -> target camera
+        return (project(K, pc) - pixels).reshape(-1)
+
+    r0 = residuals(T_st)
+    J = np.zeros((2 * n, 6))
+    eps = 1e-6
+    for k in range(6):
+        d = np.zeros(6)
+        d[k] = eps
+        dT = make_T(so3_exp(d[3:]), d[:3])
+        J[:, k] = (residuals(T_st @ dT) - r0) / eps
+    dof = max(2 * n - 6, 1)
+    s2 = max(float(r0 @ r0) / dof, 0.25)  # at least (0.5 px)^2: keypoints are not exact
+    try:
+        cov = s2 * np.linalg.inv(J.T @ J)
+    except np.linalg.LinAlgError:
+        cov = np.diag([1e2] * 6)
+    floor = np.array([p.min_sigma_trans_m] * 3 + [p.min_sigma_rot_rad] * 3) ** 2
+    cov = 0.5 * (cov + cov.T)
+    cov[np.diag_indices(6)] = np.maximum(np.diag(cov), floor)
+    return cov
+
+
+def solve_pnp(
+    points_source: NDArray[np.floating], pixels_target: NDArray[np.floating], K_target: NDArray[np.floating],
+    params: PnpParams = PnpParams(),
+) -> PnpResult:
+    """Pose of the target camera from source-frame 3D points and their target pixels.
+
+    Args:
+        points_source: (N, 3) metres in the source frame (e.g. the live camera, from depth).
+        pixels_target: (N, 2) pixels in the target image (same order).
+        K_target: 3x3 intrinsics of the target image.
+    Returns:
+        PnpResult; `T_target_source` is set whenever RANSAC found a model, `accepted` only
+        if inlier count, inlier ratio and median reprojection error pass the gates.
+    """
+    obj = np.ascontiguousarray(points_source, dtype=np.float64).reshape(-1, 3)
+    img = np.ascontiguousarray(pixels_target, dtype=np.float64).reshape(-1, 2)
+    K = np.asarray(K_target, dtype=np.float64)
+    n = len(obj)
+    if len(img) != n:
+        raise ValueError(f"{n} points but {len(img)} pixels")
+    finite = np.all(np.isfinite(obj), axis=1) & np.all(np.isfinite(img), axis=1)
+    if not np.all(finite):
+        raise ValueError("points and pixels must be finite (filter invalid depth first)")
+    if n < max(p_min := params.min_inliers, 4):
+        return PnpResult(False, f"too few matches with depth ({n} < {p_min})", n_matches=n)
+    try:
+        ok, rvec, tvec, inl = _ransac(obj, img, K, params)
+    except cv2.error as exc:
+        return PnpResult(False, f"PnP failed: {exc.err}", n_matches=n)
+    if not ok or inl is None or len(inl) < 4:
+        return PnpResult(False, "RANSAC found no pose", n_matches=n)
+    idx = np.sort(np.asarray(inl, dtype=np.intp).reshape(-1))
+    if params.refine_lm:
+        rvec, tvec = cv2.solvePnPRefineLM(obj[idx], img[idx], K, None, rvec, tvec)
+    R, _ = cv2.Rodrigues(rvec)
+    T = make_T(R, tvec.reshape(3))
+    pc = obj @ R.T + T[:3, 3]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        err = np.linalg.norm(project(K, pc) - img, axis=1)
+    err[pc[:, 2] <= 0] = np.inf
+    inliers = np.nonzero(err <= params.reprojection_px)[0]  # re-scored with the refined pose
+    med = float(np.median(err[inliers])) if len(inliers) else float("inf")
+    cov = pose_covariance(obj[inliers], img[inliers], K, T, params) if len(inliers) >= 6 else None
+    ratio = len(inliers) / n
+    if len(inliers) < params.min_inliers:
+        reason = f"too few inliers ({len(inliers)} < {params.min_inliers})"
+    elif ratio < params.min_inlier_ratio:
+        reason = f"inlier ratio too low ({ratio:.2f} < {params.min_inlier_ratio})"
+    elif med > params.max_median_reprojection_px:
+        reason = f"median reprojection error too high ({med:.2f} px > {params.max_median_reprojection_px})"
+    else:
+        reason = "ok"
+    return PnpResult(reason == "ok", reason, T, inliers, n, med, cov)

@@ -1,0 +1,1 @@
+"""The map-lite topo-metric map: keyframes, covisibility and connectivity graphs, I/O."""

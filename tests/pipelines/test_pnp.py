@@ -1,0 +1,67 @@
+"""PnP + acceptance on synthetic geometry where the truth is known exactly."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from litevloc.pipelines import geometry as g
+from litevloc.pipelines.pnp import PnpParams, solve_pnp
+
+K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
+
+
+def scene(n: int = 300, outlier_frac: float = 0.3, noise_px: float = 0.5, seed: int = 0):  # type: ignore[no-untyped-def]
+    rng = np.random.default_rng(seed)
+    pts_src = np.column_stack([rng.uniform(-2, 2, n), rng.uniform(-1.5, 1.5, n), rng.uniform(2, 6, n)])
+    T_tgt_src = g.make_T(g.so3_exp(np.array([0.05, -0.2, 0.03])), [0.3, -0.05, 0.2])
+    pix = g.project(K, g.transform_points(T_tgt_src, pts_src)) + rng.normal(0, noise_px, (n, 2))
+    n_out = int(outlier_frac * n)
+    pix[:n_out] = rng.uniform([0, 0], [640, 480], (n_out, 2))
+    return pts_src, pix, T_tgt_src, n_out
+
+
+@pytest.mark.parametrize("method", ["p3p", "ap3p", "sqpnp", "epnp", "usac_magsac"])
+def test_recovers_pose_with_outliers(method: str) -> None:
+    pts, pix, T_true, n_out = scene()
+    res = solve_pnp(pts, pix, K, PnpParams(method=method))
+    assert res.accepted, res.reason
+    dt, dr = g.relative_pose_error(res.T_target_source, T_true)
+    assert dt < 0.02 and dr < 0.3
+    assert res.n_inliers >= 0.9 * (len(pts) - n_out)
+    assert np.count_nonzero(res.inliers < n_out) <= 5  # outliers are (almost all) rejected
+    assert res.covariance is not None and np.all(np.linalg.eigvalsh(res.covariance) > 0)
+
+
+def test_deterministic_given_seed() -> None:
+    pts, pix, _, _ = scene(outlier_frac=0.5)
+    a = solve_pnp(pts, pix, K, PnpParams(seed=3))
+    b = solve_pnp(pts, pix, K, PnpParams(seed=3))
+    assert np.array_equal(a.T_target_source, b.T_target_source) and np.array_equal(a.inliers, b.inliers)
+
+
+def test_acceptance_gates_reject() -> None:
+    pts, pix, _, _ = scene(n=40, outlier_frac=0.0)
+    res = solve_pnp(pts, pix, K, PnpParams(min_inliers=50))
+    assert not res.accepted and "too few" in res.reason
+    pts, pix, _, _ = scene(n=300, outlier_frac=0.85, seed=2)
+    res = solve_pnp(pts, pix, K, PnpParams(min_inliers=10, min_inlier_ratio=0.3))
+    assert not res.accepted and "ratio" in res.reason
+    rng = np.random.default_rng(1)
+    junk = solve_pnp(rng.uniform(1, 5, (200, 3)), rng.uniform(0, 640, (200, 2)), K, PnpParams())
+    assert not junk.accepted
+
+
+def test_covariance_grows_with_noise() -> None:
+    pts, pix, _, _ = scene(outlier_frac=0.0, noise_px=0.3)
+    pts2, pix2, _, _ = scene(outlier_frac=0.0, noise_px=1.5)
+    p = PnpParams(min_sigma_trans_m=0.0, min_sigma_rot_rad=0.0, max_median_reprojection_px=3)
+    c1 = solve_pnp(pts, pix, K, p).covariance
+    c2 = solve_pnp(pts2, pix2, K, p).covariance
+    assert c1 is not None and c2 is not None and np.trace(c2[:3, :3]) > 4 * np.trace(c1[:3, :3])
+
+
+def test_bad_input() -> None:
+    with pytest.raises(ValueError, match="finite"):
+        solve_pnp(np.full((10, 3), np.nan), np.zeros((10, 2)), K)
+    with pytest.raises(ValueError, match="pixels"):
+        solve_pnp(np.zeros((10, 3)), np.zeros((9, 2)), K)
