@@ -73,7 +73,9 @@ class PnpResult:
         return self.n_inliers / self.n_matches if self.n_matches else 0.0
 
 
-def _ransac(obj: NDArray[np.float64], img: NDArray[np.float64], K: NDArray[np.float64], p: PnpParams):  # type: ignore[no-untyped-def]
+def _ransac(
+    obj: NDArray[np.float64], img: NDArray[np.float64], K: NDArray[np.float64], p: PnpParams
+) -> tuple[bool, NDArray[np.float64], NDArray[np.float64], NDArray[np.int32] | None]:
     cv2.setRNGSeed(p.seed)
     if p.method == "usac_magsac":
         up = cv2.UsacParams()

@@ -17,7 +17,7 @@ Connectivity (CnG, for planning), the rule:
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from litevloc.pipelines.geometry import backproject_pixels
@@ -37,7 +37,9 @@ class CovisibilityParams:
     max_angle_deg: float = 90.0
     min_inliers: int = 30
     weight_saturation: int = 200
-    pnp: PnpParams = PnpParams(min_inliers=10, min_inlier_ratio=0.0, max_median_reprojection_px=3.0)
+    pnp: PnpParams = field(
+        default_factory=lambda: PnpParams(min_inliers=10, min_inlier_ratio=0.0, max_median_reprojection_px=3.0)
+    )
 
     def __post_init__(self) -> None:
         if self.max_distance_m <= 0 or not (0 < self.max_angle_deg <= 180):

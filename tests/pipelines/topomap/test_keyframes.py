@@ -43,7 +43,7 @@ def test_coverage_keys_distinguish_viewing_direction() -> None:
     one_bin = KeyframeParams(cell_m=0.5, heading_bins=1)
     assert np.array_equal(coverage_keys(wall, np.zeros(3), up, 0.5, one_bin),
                           coverage_keys(wall, np.array([3.0, 0, 0]), up, 0.5, one_bin))
-    high = wall + [0, 0, 5.0]  # outside the height band
+    high = wall + np.array([0, 0, 5.0])  # outside the height band
     assert len(coverage_keys(high, np.zeros(3), up, 0.5, params)) == 0
 
 
