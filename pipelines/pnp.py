@@ -6,21 +6,22 @@ camera (frame `target`); the result `T_target_source` maps source-frame points i
 target camera frame. RANSAC is seeded (`cv2.setRNGSeed`) so results are reproducible.
 
 Covariance estimate (documented model, used as the VLoc measurement noise):
-    Sigma = s^2 * (J^T J)^-1 over the inliers, s^2 = sum(r^2) / (2n - 6),
-with J the 2n x 6 Jacobian of the reprojection w.r.t. a right-multiplied perturbation of
-T_source_target = (rotation vector, translation) of the *target camera in the source
-frame*; returned in ROS order (x y z roll pitch yaw approx: translation first, then
-rotation), clamped below by `min_sigma_*` so a lucky fit is never over-confident.
+    Sigma = s^2 * (J^T J)^-1 over the inliers, s^2 = max(sum(r^2) / (2n - 6), 0.25 px^2),
+with J the 2n x 6 Jacobian of the inlier reprojections w.r.t. a right (source-frame)
+perturbation `T_target_source @ exp(d)`, d = (tx, ty, tz, rx, ry, rz) — translation first,
+rotation vector second. When the source is the live camera this is the covariance of
+`T_map_camera` perturbed in the camera frame. Diagonal entries are clamped below by
+`min_sigma_*` so that a lucky fit is never over-confident.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 import cv2
 import numpy as np
-from litevloc.pipelines.geometry import invert, make_T, project, so3_exp
+from litevloc.pipelines.geometry import make_T, project, so3_exp
 from numpy.typing import NDArray
 
 PnpMethod = Literal["p3p", "ap3p", "sqpnp", "epnp", "usac_magsac"]
@@ -62,7 +63,7 @@ class PnpResult:
     inliers: NDArray[np.intp] = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
     n_matches: int = 0
     median_reprojection_px: float = float("nan")
-    covariance: NDArray[np.float64] | None = None  # 6x6, (tx ty tz rx ry rz) of T_source_target
+    covariance: NDArray[np.float64] | None = None  # 6x6, right perturbation of T_target_source, (t, rotvec)
 
     @property
     def n_inliers(self) -> int:
@@ -75,7 +76,7 @@ class PnpResult:
 
 def _ransac(
     obj: NDArray[np.float64], img: NDArray[np.float64], K: NDArray[np.float64], p: PnpParams
-) -> tuple[bool, NDArray[np.float64], NDArray[np.float64], NDArray[np.int32] | None]:
+) -> tuple[bool, Any, Any, Any]:
     cv2.setRNGSeed(p.seed)
     if p.method == "usac_magsac":
         up = cv2.UsacParams()
@@ -101,22 +102,20 @@ def pose_covariance(
     points_source: NDArray[np.float64], pixels: NDArray[np.float64], K: NDArray[np.float64],
     T_target_source: NDArray[np.float64], p: PnpParams,
 ) -> NDArray[np.float64]:
-    """6x6 covariance of T_source_target (translation, rotation vector) from inlier residuals."""
-    T_st = invert(T_target_source)
+    """6x6 covariance of a right perturbation of T_target_source, order (t, rotvec)."""
     n = len(points_source)
 
-    def residuals(T_st_: NDArray[np.float64]) -> NDArray[np.float64]:
-        pc = (points_source - T_st_[:3, 3]) @ T_st_[:3, :3]  # source -> target camera
+    def residuals(T_ts: NDArray[np.float64]) -> NDArray[np.float64]:
+        pc = points_source @ T_ts[:3, :3].T + T_ts[:3, 3]
         return (project(K, pc) - pixels).reshape(-1)
 
-    r0 = residuals(T_st)
+    r0 = residuals(T_target_source)
     J = np.zeros((2 * n, 6))
     eps = 1e-6
     for k in range(6):
         d = np.zeros(6)
         d[k] = eps
-        dT = make_T(so3_exp(d[3:]), d[:3])
-        J[:, k] = (residuals(T_st @ dT) - r0) / eps
+        J[:, k] = (residuals(T_target_source @ make_T(so3_exp(d[3:]), d[:3])) - r0) / eps
     dof = max(2 * n - 6, 1)
     s2 = max(float(r0 @ r0) / dof, 0.25)  # at least (0.5 px)^2: keypoints are not exact
     try:
@@ -163,8 +162,8 @@ def solve_pnp(
     idx = np.sort(np.asarray(inl, dtype=np.intp).reshape(-1))
     if params.refine_lm:
         rvec, tvec = cv2.solvePnPRefineLM(obj[idx], img[idx], K, None, rvec, tvec)
-    R, _ = cv2.Rodrigues(rvec)
-    T = make_T(R, tvec.reshape(3))
+    R, _ = cv2.Rodrigues(np.asarray(rvec, dtype=np.float64))
+    T = make_T(np.asarray(R), np.asarray(tvec, dtype=np.float64).reshape(3))
     pc = obj @ R.T + T[:3, 3]
     with np.errstate(invalid="ignore", divide="ignore"):
         err = np.linalg.norm(project(K, pc) - img, axis=1)

@@ -152,7 +152,9 @@ def _read_verified(folder: Path, rel: str, entry: Any) -> bytes:
     p = folder / rel
     if not p.is_file():
         raise _fail(folder, rel, "missing")
-    well_formed = isinstance(entry, dict) and isinstance(entry.get("sha256"), str) and isinstance(entry.get("bytes"), int)
+    well_formed = (
+        isinstance(entry, dict) and isinstance(entry.get("sha256"), str) and isinstance(entry.get("bytes"), int)
+    )
     if not well_formed:
         raise _fail(folder, MANIFEST, f"entry for {rel} must have sha256 and bytes")
     data = p.read_bytes()

@@ -1,0 +1,1 @@
+"""Coarse-to-fine visual localization (GL + LL) and its state machine."""

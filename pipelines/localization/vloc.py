@@ -1,0 +1,287 @@
+"""Coarse-to-fine visual localization against a map-lite `TopoMap`.
+
+* Global localization (GL): VPR top-k retrieval over the map's descriptors, then each
+  candidate is verified geometrically (match live vs cached map features, lift the live
+  keypoints with the live depth, PnP + RANSAC into the map keyframe). The best verified
+  candidate (most PnP inliers) is accepted only if it passes every gate; otherwise the
+  result says "not localized" — never a guess.
+* Local localization (LL): from a prior `T_map_camera`, the nearest map node and its
+  covisibility neighbours within `candidate_radius_m` and `max_view_angle_deg` are ranked
+  by descriptor similarity; candidates are tried in that order until one is accepted
+  (a rejected candidate hands over to the next).
+* `VisualLocalizer.process` runs the state machine INIT -> GLOBAL -> TRACKING -> LOST ->
+  GLOBAL, exposing each transition with its reason.
+
+Pose chain: PnP gives `T_node_live` (live camera -> map keyframe camera), hence
+`T_map_live = T_map_node @ T_node_live`. The covariance is that of a right (camera-frame)
+perturbation of `T_map_live`, order (tx, ty, tz, rx, ry, rz), see `pipelines.pnp`.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+import numpy as np
+from litevloc.pipelines.depth_lookup import DepthLookupParams, depth_at
+from litevloc.pipelines.geometry import backproject_pixels, check_rigid
+from litevloc.pipelines.pnp import PnpParams, PnpResult, solve_pnp
+from litevloc.pipelines.topomap.types import FeatureSet, TopoMap
+from numpy.typing import NDArray
+
+ExtractFn = Callable[[NDArray[np.uint8]], FeatureSet]
+DescribeFn = Callable[[NDArray[np.uint8]], NDArray[np.float32]]
+MatchFn = Callable[[FeatureSet, FeatureSet], tuple[NDArray[np.int64], NDArray[np.int64]]]
+
+
+class TrackingState(StrEnum):
+    INIT = "INIT"
+    GLOBAL = "GLOBAL"
+    TRACKING = "TRACKING"
+    LOST = "LOST"
+
+
+@dataclass(frozen=True)
+class LocalizationParams:
+    """Parameters of GL, LL and the state machine (metres, degrees)."""
+
+    gl_top_k: int = 5
+    gl_early_accept_inliers: int = 0  # > 0: stop GL at the first candidate with this many inliers
+    candidate_radius_m: float = 3.0
+    max_view_angle_deg: float = 90.0
+    ll_max_candidates: int = 3
+    ll_failures_before_lost: int = 3
+    gl_trigger_distance_m: float = 7.5  # prior farther than this from every node -> GL
+    max_distance_to_node_m: float = 5.0  # an accepted pose must lie this close to its node
+    min_matches: int = 20
+    pnp: PnpParams = field(default_factory=PnpParams)
+    depth: DepthLookupParams = field(default_factory=DepthLookupParams)
+
+    def __post_init__(self) -> None:
+        if self.gl_top_k < 1 or self.ll_max_candidates < 1 or self.ll_failures_before_lost < 1:
+            raise ValueError("gl_top_k, ll_max_candidates and ll_failures_before_lost must be >= 1")
+        if self.candidate_radius_m <= 0 or not (0 < self.max_view_angle_deg <= 180):
+            raise ValueError("candidate_radius_m > 0 and max_view_angle_deg in (0, 180] required")
+
+
+@dataclass(frozen=True)
+class CandidateAttempt:
+    """One map node tried for a query, and why it was accepted or rejected."""
+
+    node: int
+    similarity: float
+    matches: int
+    inliers: int
+    reason: str
+
+
+@dataclass(frozen=True, eq=False)
+class LocalizationResult:
+    """Outcome of one query. `accepted` False means "not localized" (pose is None)."""
+
+    t_ns: int
+    mode: str  # "global" | "local"
+    accepted: bool
+    reason: str
+    T_map_camera: NDArray[np.float64] | None = None
+    covariance: NDArray[np.float64] | None = None  # 6x6, camera-frame perturbation (t, rotvec)
+    ref_node: int = -1
+    n_matches: int = 0
+    n_inliers: int = 0
+    inlier_ratio: float = 0.0
+    median_reprojection_px: float = float("nan")
+    attempts: tuple[CandidateAttempt, ...] = ()
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Transition:
+    t_ns: int
+    from_state: TrackingState
+    to_state: TrackingState
+    reason: str
+
+
+class _Timer:
+    def __init__(self) -> None:
+        self.ms: dict[str, float] = {}
+
+    def add(self, key: str, t0: float) -> None:
+        self.ms[key] = self.ms.get(key, 0.0) + (time.perf_counter() - t0) * 1e3
+
+
+class VisualLocalizer:
+    """GL + LL against one map with injected model callables (no I/O, no threads)."""
+
+    def __init__(
+        self, topomap: TopoMap, params: LocalizationParams, extract: ExtractFn, describe: DescribeFn, match: MatchFn
+    ) -> None:
+        self.map = topomap
+        self.params = params
+        self.extract, self.describe, self.match = extract, describe, match
+        self.state = TrackingState.INIT
+        self.failures = 0
+        self.last_pose: NDArray[np.float64] | None = None
+        self.transitions: deque[Transition] = deque(maxlen=100)
+        self._neighbours = [[n for n, _ in topomap.covisible_neighbours(i)] for i in range(topomap.n_nodes)]
+
+    # ---------------------------------------------------------------- building blocks
+    def _verify(
+        self, node: int, live_feats: FeatureSet, depth: NDArray[np.float32], K: NDArray[np.float64],
+        similarity: float, timer: _Timer,
+    ) -> tuple[PnpResult | None, CandidateAttempt]:
+        t0 = time.perf_counter()
+        i_live, i_map = self.match(live_feats, self.map.features[node])
+        timer.add("match", t0)
+        if len(i_live) < self.params.min_matches:
+            return None, CandidateAttempt(node, similarity, len(i_live), 0, f"too few matches ({len(i_live)})")
+        t0 = time.perf_counter()
+        uv = np.asarray(live_feats.keypoints, dtype=np.float64)[i_live]
+        z = depth_at(depth, uv, self.params.depth)
+        ok = np.isfinite(z)
+        timer.add("lift", t0)
+        if ok.sum() < self.params.min_matches:
+            return None, CandidateAttempt(node, similarity, len(i_live), 0, f"too few matches with depth ({ok.sum()})")
+        t0 = time.perf_counter()
+        pts = backproject_pixels(K, uv[ok], z[ok].astype(np.float64))
+        res = solve_pnp(pts, self.map.features[node].keypoints[i_map[ok]], self.map.K[node], self.params.pnp)
+        timer.add("pnp", t0)
+        reason = res.reason
+        if res.accepted and res.T_target_source is not None:
+            # The translation of T_node_live is the live camera centre in the node's frame.
+            dist = float(np.linalg.norm(res.T_target_source[:3, 3]))
+            if dist > self.params.max_distance_to_node_m:
+                reason = f"pose {dist:.1f} m from its reference node (> {self.params.max_distance_to_node_m})"
+                res = PnpResult(False, reason, res.T_target_source, res.inliers, res.n_matches,
+                                res.median_reprojection_px, res.covariance)
+        return res, CandidateAttempt(node, similarity, res.n_matches, res.n_inliers, reason)
+
+    def _result(
+        self, t_ns: int, mode: str, best: tuple[int, PnpResult] | None, attempts: list[CandidateAttempt],
+        timer: _Timer, fail_reason: str,
+    ) -> LocalizationResult:
+        if best is None:
+            return LocalizationResult(t_ns, mode, False, fail_reason, attempts=tuple(attempts), timings_ms=timer.ms)
+        node, res = best
+        assert res.T_target_source is not None
+        T = self.map.T_map_camera[node] @ res.T_target_source
+        return LocalizationResult(
+            t_ns, mode, True, "ok", T, res.covariance, node, res.n_matches, res.n_inliers, res.inlier_ratio,
+            res.median_reprojection_px, tuple(attempts), timer.ms,
+        )
+
+    def _prepare(
+        self, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, timer: _Timer
+    ) -> tuple[FeatureSet, NDArray[np.float32], NDArray[np.float32]]:
+        """Live features and VPR descriptor; the depth image, checked."""
+        if depth is None or depth.shape != color.shape[:2]:
+            raise ValueError("localization needs a depth image registered to the colour image")
+        t0 = time.perf_counter()
+        feats = self.extract(color)
+        timer.add("extract", t0)
+        t0 = time.perf_counter()
+        desc = np.asarray(self.describe(color), dtype=np.float32)
+        timer.add("vpr", t0)
+        return feats, desc, depth
+
+    # ---------------------------------------------------------------- GL and LL
+    def localize_global(
+        self, t_ns: int, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64]
+    ) -> LocalizationResult:
+        """VPR top-k + geometric verification; the best accepted candidate wins."""
+        timer = _Timer()
+        t_all = time.perf_counter()
+        feats, desc, dimg = self._prepare(color, depth, timer)
+        sims = self.map.vpr @ desc
+        order = np.argsort(-sims, kind="stable")[: self.params.gl_top_k]
+        attempts: list[CandidateAttempt] = []
+        best: tuple[int, PnpResult] | None = None
+        for node in order:
+            res, att = self._verify(int(node), feats, dimg, K, float(sims[node]), timer)
+            attempts.append(att)
+            if res is not None and res.accepted and (best is None or res.n_inliers > best[1].n_inliers):
+                best = (int(node), res)
+                if 0 < self.params.gl_early_accept_inliers <= res.n_inliers:
+                    break
+        timer.add("total", t_all)
+        return self._result(t_ns, "global", best, attempts, timer, "not localized: no VPR candidate verified")
+
+    def local_candidates(self, prior: NDArray[np.float64], desc: NDArray[np.float32]) -> list[tuple[int, float]]:
+        """(node, similarity) candidates for a prior pose, best first; empty if none is near."""
+        pos = self.map.positions
+        d = np.linalg.norm(pos - prior[:3, 3], axis=1)
+        nearest = int(np.argmin(d))
+        if d[nearest] > self.params.gl_trigger_distance_m:
+            return []
+        z_prior = prior[:3, 2]
+        cos_max = np.cos(np.radians(self.params.max_view_angle_deg))
+        cand = {nearest} | set(self._neighbours[nearest])
+        cand |= {int(i) for i in np.nonzero(d <= self.params.candidate_radius_m)[0]}
+        keep = [i for i in cand if d[i] <= max(self.params.candidate_radius_m, d[nearest])
+                and float(self.map.T_map_camera[i][:3, 2] @ z_prior) >= cos_max]
+        sims = self.map.vpr[keep] @ desc if keep else np.zeros(0)
+        ranked = sorted(zip(keep, sims.tolist(), strict=True), key=lambda x: (-x[1], x[0]))
+        return ranked[: self.params.ll_max_candidates]
+
+    def localize_local(
+        self, t_ns: int, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64],
+        prior_T_map_camera: NDArray[np.float64],
+    ) -> LocalizationResult:
+        """LL from a prior pose; candidates tried in similarity order until one is accepted."""
+        prior = check_rigid(prior_T_map_camera, "prior T_map_camera", atol=1e-4)
+        timer = _Timer()
+        t_all = time.perf_counter()
+        feats, desc, dimg = self._prepare(color, depth, timer)
+        attempts: list[CandidateAttempt] = []
+        best: tuple[int, PnpResult] | None = None
+        cands = self.local_candidates(prior, desc)
+        for node, sim in cands:
+            res, att = self._verify(node, feats, dimg, K, sim, timer)
+            attempts.append(att)
+            if res is not None and res.accepted:
+                best = (node, res)
+                break
+        timer.add("total", t_all)
+        reason = "no map node near the prior" if not cands else "not localized: no candidate verified"
+        return self._result(t_ns, "local", best, attempts, timer, reason)
+
+    # ---------------------------------------------------------------- state machine
+    def _go(self, t_ns: int, to: TrackingState, reason: str) -> None:
+        if to != self.state:
+            self.transitions.append(Transition(t_ns, self.state, to, reason))
+            self.state = to
+
+    def process(
+        self, t_ns: int, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64],
+        prior_T_map_camera: NDArray[np.float64] | None = None,
+    ) -> LocalizationResult:
+        """One frame through the state machine. The prior (e.g. the fused pose at `t_ns`)
+        is used in TRACKING; without one, the last accepted VLoc pose is the prior."""
+        if self.state in (TrackingState.INIT, TrackingState.LOST):
+            why = "start-up" if self.state == TrackingState.INIT else "recover from LOST"
+            self._go(t_ns, TrackingState.GLOBAL, why)
+        if self.state == TrackingState.TRACKING:
+            prior = prior_T_map_camera if prior_T_map_camera is not None else self.last_pose
+            assert prior is not None
+            res = self.localize_local(t_ns, color, depth, K, prior)
+            if res.accepted:
+                self.failures = 0
+                self.last_pose = res.T_map_camera
+                return res
+            if res.reason == "no map node near the prior":
+                self._go(t_ns, TrackingState.GLOBAL, "prior far from every map node")
+            else:
+                self.failures += 1
+                if self.failures >= self.params.ll_failures_before_lost:
+                    self._go(t_ns, TrackingState.LOST, f"{self.failures} consecutive LL failures")
+                    self.failures = 0
+                return res
+        res = self.localize_global(t_ns, color, depth, K)
+        if res.accepted:
+            self.failures = 0
+            self.last_pose = res.T_map_camera
+            self._go(t_ns, TrackingState.TRACKING, f"GL verified node {res.ref_node} ({res.n_inliers} inliers)")
+        return res

@@ -1,0 +1,179 @@
+"""GL, LL, candidate fallback and the state machine on synthetic geometry (exact truth).
+
+World: random 3D points; each point has a unique descriptor (its id one-hot-ish), so a
+matcher that pairs equal descriptors is perfect; tests inject failures explicitly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+from litevloc.pipelines import geometry as g
+from litevloc.pipelines.localization.vloc import LocalizationParams, TrackingState, VisualLocalizer
+from litevloc.pipelines.pnp import PnpParams
+from litevloc.pipelines.topomap.types import NodeFeatures, OccupancyGrid, TopoMap
+from numpy.typing import NDArray
+
+W, H = 320, 240
+K = np.array([[250.0, 0, 160], [0, 250, 120], [0, 0, 1]])
+RNG = np.random.default_rng(0)
+POINTS = np.column_stack([RNG.uniform(-6, 6, 3000), RNG.uniform(-1.5, 1.5, 3000), RNG.uniform(4, 9, 3000)])
+
+
+@dataclass(frozen=True, eq=False)
+class Feats:
+    keypoints: NDArray[np.float32]
+    descriptors: NDArray[np.float32]
+    scores: NDArray[np.float32]
+    ids: NDArray[np.int64]
+
+
+def observe(T_world_cam: NDArray[np.float64]) -> tuple[Feats, NDArray[np.float32]]:
+    pc = g.transform_points(g.invert(T_world_cam), POINTS)
+    front = pc[:, 2] > 0.5
+    uv = np.full((len(pc), 2), -1.0)
+    uv[front] = g.project(K, pc[front])
+    vis = front & (uv[:, 0] > 2) & (uv[:, 0] < W - 3) & (uv[:, 1] > 2) & (uv[:, 1] < H - 3)
+    ids = np.nonzero(vis)[0]
+    depth = np.full((H, W), np.nan, np.float32)
+    for i in ids:
+        u, v = np.round(uv[i]).astype(int)
+        depth[v - 1 : v + 2, u - 1 : u + 2] = pc[i, 2]
+    desc = np.zeros((len(ids), 8), np.float32)
+    desc[:, 0] = ids
+    return Feats(uv[ids].astype(np.float32), desc, np.ones(len(ids), np.float32), ids), depth
+
+
+def match_by_id(a: Feats, b: NodeFeatures) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    ia = {int(d): k for k, d in enumerate(a.descriptors[:, 0])}
+    pairs = [(ia[int(d)], k) for k, d in enumerate(b.descriptors[:, 0]) if int(d) in ia]
+    arr = np.array(pairs, dtype=np.int64).reshape(-1, 2)
+    return arr[:, 0], arr[:, 1]
+
+
+def pose(x: float, yaw_deg: float = 0.0) -> NDArray[np.float64]:
+    return g.make_T(g.so3_exp(np.array([0, np.radians(yaw_deg), 0])), [x, 0, 0])
+
+
+def make_map(xs: list[float]) -> TopoMap:
+    T = np.stack([pose(x) for x in xs])
+    feats, vpr = [], []
+    for i, Ti in enumerate(T):
+        f, _ = observe(Ti)
+        feats.append(NodeFeatures(f.keypoints, f.descriptors, f.scores, (W, H)))
+        v = np.zeros(len(xs), np.float32)
+        v[i] = 1
+        vpr.append(v)
+    n = len(xs)
+    edges = np.array([(i, i + 1) for i in range(n - 1)], np.int64).reshape(-1, 2)
+    grid = OccupancyGrid(np.zeros((2, 2), np.uint8), np.zeros(2), 1.0, np.array([0, -1.0, 0]), np.eye(3)[[0, 2]])
+    return TopoMap(T, np.stack([K] * n), np.array([[W, H]] * n, np.int32), np.arange(n, dtype=np.int64),
+                   np.arange(n, dtype=np.int64), np.stack(vpr), feats, [b""] * n, edges, np.full(n - 1, 100, np.int32),
+                   np.ones(n - 1, np.float32), edges, np.ones(n - 1, np.float32), grid)
+
+
+class Scene:
+    """Injected callables whose output is set per query (the 'camera')."""
+
+    def __init__(self, topomap: TopoMap) -> None:
+        self.map = topomap
+        self.current: Feats | None = None
+        self.vpr = np.zeros(topomap.n_nodes, np.float32)
+        self.broken_nodes: set[int] = set()
+
+    def look(self, T: NDArray[np.float64], vpr_best: int) -> NDArray[np.float32]:
+        self.current, depth = observe(T)
+        self.vpr = np.full(self.map.n_nodes, 0.1, np.float32)
+        self.vpr[vpr_best] = 1.0
+        return depth
+
+    def extract(self, _img: NDArray[np.uint8]) -> Feats:
+        assert self.current is not None
+        return self.current
+
+    def describe(self, _img: NDArray[np.uint8]) -> NDArray[np.float32]:
+        return self.vpr / np.linalg.norm(self.vpr)
+
+    def match(self, a: Feats, b: NodeFeatures) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        node = next(i for i, f in enumerate(self.map.features) if f is b)
+        if node in self.broken_nodes:  # e.g. a changed scene: matches are garbage
+            rng = np.random.default_rng(node)
+            return rng.integers(0, len(a.keypoints), 200), rng.integers(0, len(b.keypoints), 200)
+        return match_by_id(a, b)
+
+
+IMG = np.zeros((H, W, 3), np.uint8)
+PARAMS = LocalizationParams(pnp=PnpParams(min_inliers=30), gl_top_k=3)
+
+
+def test_global_localization_exact() -> None:
+    m = make_map([0.0, 1.0, 2.0, 3.0])
+    s = Scene(m)
+    loc = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)
+    T_true = pose(1.3, 5.0)
+    depth = s.look(T_true, vpr_best=1)
+    r = loc.localize_global(0, IMG, depth, K)
+    assert r.accepted and r.ref_node in (1, 2) and r.mode == "global"  # most inliers among the top-3 wins
+    dt, dr = g.relative_pose_error(r.T_map_camera, T_true)
+    assert dt < 0.005 and dr < 0.2
+    assert {"extract", "vpr", "match", "pnp", "total"} <= set(r.timings_ms)
+
+
+def test_global_reports_not_localized_instead_of_guessing() -> None:
+    m = make_map([0.0, 1.0, 2.0])
+    s = Scene(m)
+    s.broken_nodes = {0, 1, 2}
+    loc = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)
+    r = loc.localize_global(0, IMG, s.look(pose(1.0), 1), K)
+    assert not r.accepted and r.T_map_camera is None and "not localized" in r.reason
+    assert len(r.attempts) == 3
+
+
+def test_local_candidate_fallback() -> None:
+    m = make_map([0.0, 1.0, 2.0, 3.0])
+    s = Scene(m)
+    loc = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)
+    T_true = pose(2.1)
+    depth = s.look(T_true, vpr_best=2)
+    s.broken_nodes = {2}  # the most similar candidate fails verification...
+    r = loc.localize_local(0, IMG, depth, K, prior_T_map_camera=pose(2.3))
+    assert r.accepted and r.ref_node != 2  # ...and hands over to the next one
+    assert r.attempts[0].node == 2 and r.attempts[0].reason != "ok"
+    assert g.relative_pose_error(r.T_map_camera, T_true)[0] < 0.005
+
+
+def test_state_machine_transitions() -> None:
+    m = make_map([0.0, 1.0, 2.0, 3.0])
+    s = Scene(m)
+    loc = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)
+    assert loc.state == TrackingState.INIT
+    r = loc.process(1, IMG, s.look(pose(0.5), 0), K)
+    assert r.accepted and r.mode == "global" and loc.state == TrackingState.TRACKING
+    r = loc.process(2, IMG, s.look(pose(0.8), 1), K)
+    assert r.accepted and r.mode == "local"
+    s.broken_nodes = {0, 1, 2, 3}
+    for t in range(3, 6):
+        r = loc.process(t, IMG, s.look(pose(0.9), 1), K)
+        assert not r.accepted and r.mode == "local"
+    assert loc.state == TrackingState.LOST
+    s.broken_nodes = set()
+    r = loc.process(6, IMG, s.look(pose(2.0), 2), K)
+    assert r.accepted and r.mode == "global" and loc.state == TrackingState.TRACKING
+    states = [(tr.from_state.value, tr.to_state.value) for tr in loc.transitions]
+    assert states == [("INIT", "GLOBAL"), ("GLOBAL", "TRACKING"), ("TRACKING", "LOST"), ("LOST", "GLOBAL"),
+                      ("GLOBAL", "TRACKING")]
+    assert "3 consecutive LL failures" in loc.transitions[2].reason
+    # A prior far from every node sends the machine back to GL.
+    r = loc.process(7, IMG, s.look(pose(3.0), 3), K, prior_T_map_camera=pose(50.0))
+    assert r.mode == "global" and r.accepted
+
+
+def test_missing_depth_is_an_error() -> None:
+    m = make_map([0.0, 1.0])
+    s = Scene(m)
+    loc = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)
+    s.look(pose(0.0), 0)
+    with pytest.raises(ValueError, match="depth"):
+        loc.localize_global(0, IMG, None, K)
