@@ -11,7 +11,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Literal
 
+from litevloc.pipelines.localization.vloc import LocalizationParams
 from litevloc.pipelines.odometry_drift import DriftParams
+from litevloc.pipelines.topomap.build import MappingParams
 
 
 @dataclass(frozen=True)
@@ -62,3 +64,5 @@ class LiteVLocConfig:
     source: SourceConfig = field(default_factory=SourceConfig)
     odometry_sim: OdometrySimConfig = field(default_factory=OdometrySimConfig)
     replay: ReplayConfig = field(default_factory=ReplayConfig)
+    mapping: MappingParams = field(default_factory=MappingParams)
+    localization: LocalizationParams = field(default_factory=LocalizationParams)

@@ -35,9 +35,15 @@ DescribeFn = Callable[[NDArray[np.uint8]], NDArray[np.float32]]
 
 @dataclass(frozen=True)
 class MappingParams:
-    """All map-building parameters. `up` is the unit up vector of the map frame."""
+    """All map-building parameters. `up` is the unit up vector of the map frame.
+
+    `covisibility_matcher` names the matcher the caller should inject for covisibility
+    verification (mutual-NN by default: PnP-RANSAC verification makes the cheap matcher
+    good enough, and it is ~100x faster than LightGlue over all keyframe pairs).
+    """
 
     up: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    covisibility_matcher: str = "mnn"
     keyframes: KeyframeParams = field(default_factory=KeyframeParams)
     occupancy: OccupancyParams = field(default_factory=OccupancyParams)
     covisibility: CovisibilityParams = field(default_factory=CovisibilityParams)

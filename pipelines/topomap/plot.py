@@ -1,0 +1,56 @@
+"""Top-down PNG of a map: occupancy grid, nodes with headings, both edge sets."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from litevloc.pipelines.topomap.types import OccupancyGrid, TopoMap
+
+
+def plot_map(
+    m: TopoMap, out_png: str | Path, title: str = "",
+    extra_paths: dict[str, NDArray[np.float64]] | None = None,
+) -> Path:
+    """Write the top-down view; `extra_paths` maps a legend label to (N,3) map-frame points."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    g = m.grid
+    fig, ax = plt.subplots(figsize=(8, 8), dpi=110)
+    H, W = g.cells.shape
+    rgb = np.ones((H, W, 3))
+    rgb[g.cells == OccupancyGrid.UNKNOWN] = (0.85, 0.85, 0.85)
+    rgb[g.cells == OccupancyGrid.FREE] = (1.0, 1.0, 1.0)
+    rgb[g.cells == OccupancyGrid.OCCUPIED] = (0.25, 0.25, 0.25)
+    extent = (g.origin[0], g.origin[0] + W * g.resolution, g.origin[1], g.origin[1] + H * g.resolution)
+    ax.imshow(rgb, origin="lower", extent=extent, interpolation="nearest")
+    xy = g.to_plane(m.positions)
+    for (i, j), w in zip(m.covis_edges, m.covis_weight, strict=True):
+        ax.plot(xy[[i, j], 0], xy[[i, j], 1], color="tab:blue", alpha=0.25 + 0.6 * float(w), lw=1.2)
+    for i, j in m.conn_edges:
+        ax.plot(xy[[i, j], 0], xy[[i, j], 1], color="tab:green", ls="--", lw=1.0)
+    fwd = g.to_plane(m.positions + 0.25 * m.T_map_camera[:, :3, 2]) - xy
+    ax.quiver(xy[:, 0], xy[:, 1], fwd[:, 0], fwd[:, 1], color="tab:red", angles="xy", scale_units="xy", scale=1,
+              width=0.004)
+    ax.scatter(xy[:, 0], xy[:, 1], s=18, color="tab:red", zorder=3, label=f"keyframes ({m.n_nodes})")
+    for k, (label, pts) in enumerate((extra_paths or {}).items()):
+        p = g.to_plane(np.asarray(pts))
+        ax.plot(p[:, 0], p[:, 1], lw=1.0, color=f"C{k + 4}", label=label)
+    ax.plot([], [], color="tab:blue", label=f"covisibility ({len(m.covis_edges)})")
+    ax.plot([], [], color="tab:green", ls="--", label=f"connectivity ({len(m.conn_edges)})")
+    ax.set_aspect("equal")
+    ax.set_xlabel("plane axis a (m)")
+    ax.set_ylabel("plane axis b (m)")
+    ax.set_title(title or "LiteVLoc map (grey: occupied, white: free)")
+    ax.legend(loc="upper right", fontsize=8)
+    out = Path(out_png)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(out)
+    plt.close(fig)
+    return out

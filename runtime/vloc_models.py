@@ -1,0 +1,77 @@
+"""Glue: the model layer's objects as the callables the pure pipelines take.
+
+`pipelines` never imports onnxruntime; this module builds extractor, matcher and place
+recognizer from the `models` config and exposes `extract`, `match` (index arrays) and
+`describe` with the signatures `pipelines.topomap` and `pipelines.localization` expect.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from litevloc.models.config import ModelsConfig
+from litevloc.models.registry import ModelError, load_extractor, load_matcher, load_place_recognizer
+from litevloc.models.types import FeatureExtractor, Features, Matcher, PlaceRecognizer
+from litevloc.pipelines.topomap.types import FeatureSet, TopoMap
+
+
+def as_features(f: FeatureSet, image_size: tuple[int, int] | None = None) -> Features:
+    """Any FeatureSet (e.g. the map's cached NodeFeatures) as the model layer's Features."""
+    if isinstance(f, Features):
+        return f
+    size = image_size if image_size is not None else getattr(f, "image_size", None)
+    if size is None:
+        raise ValueError("features need an image size for the matcher")
+    return Features(np.asarray(f.keypoints, np.float32), np.asarray(f.descriptors), np.asarray(f.scores, np.float32),
+                    (int(size[0]), int(size[1])))
+
+
+@dataclass
+class ModelBundle:
+    """Extractor + matcher + place recognizer, with pipeline-shaped call signatures."""
+
+    extractor: FeatureExtractor
+    matcher: Matcher
+    vpr: PlaceRecognizer
+
+    def extract(self, image_rgb: NDArray[np.uint8]) -> Features:
+        return self.extractor.extract(image_rgb)
+
+    def match(self, f0: FeatureSet, f1: FeatureSet) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        m = self.matcher.match(as_features(f0), as_features(f1))
+        return m.idx0, m.idx1
+
+    def describe(self, image_rgb: NDArray[np.uint8]) -> NDArray[np.float32]:
+        return self.vpr.describe(image_rgb)
+
+
+def load_bundle(
+    cfg: ModelsConfig, extractor: str | None = None, matcher: str | None = None, vpr: str | None = None
+) -> ModelBundle:
+    """Load the configured models (names override the config); ModelError if one is missing."""
+    return ModelBundle(
+        load_extractor(extractor or cfg.extractor, cfg),
+        load_matcher(matcher or cfg.matcher, cfg),
+        load_place_recognizer(vpr or cfg.place_recognizer, cfg),
+    )
+
+
+def check_map_models(topomap: TopoMap, bundle: ModelBundle) -> TopoMap:
+    """Refuse a map built with other models; return it with features ready for the matcher."""
+    if topomap.extractor and topomap.extractor != bundle.extractor.name:
+        raise ModelError(
+            f"the map's cached features come from {topomap.extractor!r} but the runtime uses "
+            f"{bundle.extractor.name!r}: set models.extractor to match, or rebuild the map"
+        )
+    if topomap.vpr_model and topomap.vpr_model != bundle.vpr.name:
+        raise ModelError(
+            f"the map's place descriptors come from {topomap.vpr_model!r} but the runtime uses "
+            f"{bundle.vpr.name!r}: set models.place_recognizer to match, or rebuild the map"
+        )
+    if topomap.vpr.shape[1] != bundle.vpr.dim:
+        raise ModelError(f"map descriptors are {topomap.vpr.shape[1]}-d, the place recognizer gives {bundle.vpr.dim}-d")
+    return dataclasses.replace(topomap, features=[as_features(f) for f in topomap.features])
