@@ -5,9 +5,8 @@ from __future__ import annotations
 from collections.abc import Iterable, Iterator
 
 import numpy as np
-from numpy.typing import NDArray
-
 from litevloc.hw.messages import GroundTruthPose, Message, RgbdFrame
+from numpy.typing import NDArray
 
 
 def posed_frames(

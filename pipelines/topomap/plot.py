@@ -5,9 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
-
 from litevloc.pipelines.topomap.types import OccupancyGrid, TopoMap
+from numpy.typing import NDArray
 
 
 def plot_map(

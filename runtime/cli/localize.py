@@ -11,12 +11,17 @@ import argparse
 from pathlib import Path
 
 import numpy as np
-
 from litevloc.pipelines.geometry import relative_pose_error
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map
 from litevloc.runtime.cli.common import (
-    add_config_args, add_frames_arg, add_json_arg, config_of, frames_of, progress, write_json,
+    add_config_args,
+    add_frames_arg,
+    add_json_arg,
+    config_of,
+    frames_of,
+    progress,
+    write_json,
 )
 from litevloc.runtime.posed import posed_frames
 from litevloc.runtime.sources import open_source

@@ -10,7 +10,13 @@ from litevloc.pipelines.topomap.build import MapBuilder
 from litevloc.pipelines.topomap.io import load_map, save_map, storage_summary
 from litevloc.pipelines.topomap.plot import plot_map
 from litevloc.runtime.cli.common import (
-    add_config_args, add_frames_arg, add_json_arg, config_of, frames_of, progress, write_json,
+    add_config_args,
+    add_frames_arg,
+    add_json_arg,
+    config_of,
+    frames_of,
+    progress,
+    write_json,
 )
 from litevloc.runtime.cli.main import UserError
 from litevloc.runtime.posed import posed_frames
