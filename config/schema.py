@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Literal
 
+from litevloc.models.config import ModelsConfig
 from litevloc.pipelines.localization.vloc import LocalizationParams
 from litevloc.pipelines.odometry_drift import DriftParams
 from litevloc.pipelines.topomap.build import MappingParams
@@ -64,5 +65,6 @@ class LiteVLocConfig:
     source: SourceConfig = field(default_factory=SourceConfig)
     odometry_sim: OdometrySimConfig = field(default_factory=OdometrySimConfig)
     replay: ReplayConfig = field(default_factory=ReplayConfig)
+    models: ModelsConfig = field(default_factory=ModelsConfig)
     mapping: MappingParams = field(default_factory=MappingParams)
     localization: LocalizationParams = field(default_factory=LocalizationParams)

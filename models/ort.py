@@ -1,0 +1,53 @@
+"""onnxruntime session construction: providers from config, explicit threads, full graph opt."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import onnxruntime as ort
+
+log = logging.getLogger(__name__)
+
+PROVIDER_NAMES = {
+    "cpu": "CPUExecutionProvider",
+    "cuda": "CUDAExecutionProvider",
+    "tensorrt": "TensorrtExecutionProvider",
+}
+
+
+def resolve_providers(wanted: Sequence[str]) -> list[str]:
+    """Config names (cpu/cuda/tensorrt) -> available ORT provider names, CPU always last."""
+    available = set(ort.get_available_providers())
+    out: list[str] = []
+    for name in wanted:
+        if name not in PROVIDER_NAMES:
+            raise ValueError(
+                f"unknown execution provider {name!r}; known: {sorted(PROVIDER_NAMES)}"
+            )
+        full = PROVIDER_NAMES[name]
+        if full not in available:
+            log.info("onnxruntime provider %s is not available here; skipped", full)
+        elif full not in out:
+            out.append(full)
+    if "CPUExecutionProvider" in out:
+        out.remove("CPUExecutionProvider")
+    out.append("CPUExecutionProvider")
+    return out
+
+
+def make_session(path: Path, providers: Sequence[str] = ("cpu",), intra_op_threads: int = 2) -> Any:
+    """An `onnxruntime.InferenceSession` for `path` with explicit threading.
+
+    intra_op_threads: threads of one operator (the CPU cores this session may use);
+    inter-op parallelism is off (sequential execution), graph optimisation is ORT_ENABLE_ALL.
+    """
+    so = ort.SessionOptions()
+    so.intra_op_num_threads = int(intra_op_threads)
+    so.inter_op_num_threads = 1
+    so.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+    so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    so.log_severity_level = 3
+    return ort.InferenceSession(str(path), sess_options=so, providers=resolve_providers(providers))

@@ -1,0 +1,183 @@
+"""Model registry: finds exported ONNX files in the cache, checks them against the manifest,
+and builds extractors / matchers / place recognizers by method name from `ModelsConfig`.
+
+Cache layout: ``<cache>/<model id>.onnx`` and ``<cache>/manifest.json``::
+
+    {"format": 1, "models": {"<id>": {"file": "<id>.onnx", "onnx_sha256": ..., "kind": ...,
+     "arch": ..., "input_hw": [h, w] | null, "top_k": k | null, "opset": 19,
+     "export_version": 1, "source": {"package": ..., "path": ..., "sha256": ...}, ...}}}
+
+A missing or mismatched model raises `ModelError` naming `litevloc models export`.
+No torch here.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from litevloc.models.catalog import EXPORT_VERSION, OPSET, ModelSpec, aliked_id, spec_for, vpr_id
+from litevloc.models.config import ModelsConfig
+from litevloc.models.types import FeatureExtractor, Matcher, PlaceRecognizer
+
+MANIFEST = "manifest.json"
+MANIFEST_FORMAT = 1
+
+
+class ModelError(RuntimeError):
+    """A model is missing from the cache or does not match the manifest / request."""
+
+
+def default_cache_dir() -> Path:
+    """$LITEVLOC_MODEL_CACHE, else $XDG_CACHE_HOME/litevloc/models, else ~/.cache/litevloc/models.
+
+    (The first that is set wins; nothing is created here.)
+    """
+    env = os.environ.get("LITEVLOC_MODEL_CACHE")
+    if env:
+        return Path(env).expanduser()
+    xdg = os.environ.get("XDG_CACHE_HOME")
+    base = Path(xdg).expanduser() if xdg else Path.home() / ".cache"
+    return base / "litevloc" / "models"
+
+
+def cache_dir_of(cfg: ModelsConfig | None) -> Path:
+    if cfg is not None and cfg.cache_dir:
+        return Path(cfg.cache_dir).expanduser()
+    return default_cache_dir()
+
+
+def sha256_file(path: Path, chunk: int = 1 << 20) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while block := f.read(chunk):
+            h.update(block)
+    return h.hexdigest()
+
+
+def read_manifest(cache: Path) -> dict[str, Any]:
+    """The manifest's dict ({"format", "models"}); an empty one when the file is absent."""
+    p = cache / MANIFEST
+    if not p.is_file():
+        return {"format": MANIFEST_FORMAT, "models": {}}
+    try:
+        data = json.loads(p.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ModelError(
+            f"{p}: unreadable model manifest ({exc}); run `litevloc models export --force`"
+        ) from exc
+    if (
+        not isinstance(data, dict)
+        or data.get("format") != MANIFEST_FORMAT
+        or not isinstance(data.get("models"), dict)
+    ):
+        raise ModelError(f"{p}: unknown manifest format; run `litevloc models export --force`")
+    return data
+
+
+def write_manifest(cache: Path, data: dict[str, Any]) -> None:
+    cache.mkdir(parents=True, exist_ok=True)
+    tmp = cache / (MANIFEST + ".tmp")
+    tmp.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n")
+    tmp.replace(cache / MANIFEST)
+
+
+def _export_hint(model_id: str, cache: Path) -> str:
+    extra = "" if os.environ.get("LITEVLOC_MODEL_CACHE") else f" --cache {cache}"
+    return f"run `litevloc models export --model {model_id}{extra}`"
+
+
+def locate(
+    model_id: str, cfg: ModelsConfig | None = None, verify_sha: bool = True
+) -> tuple[Path, dict[str, Any]]:
+    """Path of the exported model `model_id` and its manifest entry, checked.
+
+    Raises ModelError when the file or its manifest entry is missing, the manifest's export
+    version / opset / input size differ from what this code expects, or the file's sha256
+    differs from the manifest's (when `verify_sha`).
+    """
+    spec: ModelSpec = spec_for(model_id)
+    cache = cache_dir_of(cfg)
+    entry = read_manifest(cache)["models"].get(model_id)
+    path = cache / spec.filename
+    hint = _export_hint(model_id, cache)
+    if entry is None or not path.is_file():
+        raise ModelError(f"model {model_id} is not in the model cache {cache}; {hint}")
+    expected = {
+        "export_version": EXPORT_VERSION,
+        "opset": OPSET,
+        "kind": spec.kind,
+        "arch": spec.arch,
+        "input_hw": list(spec.input_hw) if spec.input_hw else None,
+        "top_k": spec.top_k,
+    }
+    for key, want in expected.items():
+        if entry.get(key) != want:
+            raise ModelError(
+                f"model {model_id} in {cache} was exported with {key}={entry.get(key)!r}, "
+                f"this code needs {want!r}; {hint} --force"
+            )
+    if verify_sha and sha256_file(path) != entry.get("onnx_sha256"):
+        raise ModelError(
+            f"{path} does not match the sha256 in {cache / MANIFEST} (changed or corrupt); "
+            f"{hint} --force"
+        )
+    return path, entry
+
+
+def load_extractor(name: str, cfg: ModelsConfig | None = None) -> FeatureExtractor:
+    """ "aliked-t16" | "aliked-n16" (ONNX, size and top-k from cfg) | "sift" | "orb" (OpenCV)."""
+    cfg = cfg or ModelsConfig()
+    if name in ("aliked-t16", "aliked-n16"):
+        from litevloc.models.aliked import AlikedOnnx
+
+        path, _ = locate(aliked_id(name, cfg.extractor_size, cfg.max_keypoints), cfg)
+        return AlikedOnnx(path, name, cfg.extractor_size, cfg.providers, cfg.intra_op_threads)
+    if name in ("sift", "orb"):
+        from litevloc.models.classical import OpenCVExtractor
+
+        return OpenCVExtractor(name, cfg.extractor_size, cfg.max_keypoints, cfg.intra_op_threads)
+    raise ModelError(
+        f"unknown feature extractor {name!r}; known: aliked-t16, aliked-n16, sift, orb"
+    )
+
+
+def load_matcher(name: str, cfg: ModelsConfig | None = None) -> Matcher:
+    """ "lightglue" (ONNX, for ALIKED) | "mnn" (mutual nearest neighbour) | "nn-ratio" (Lowe)."""
+    cfg = cfg or ModelsConfig()
+    if name == "lightglue":
+        from litevloc.models.lightglue import LightGlueOnnx
+
+        path, _ = locate("lightglue-aliked", cfg)
+        return LightGlueOnnx(path, cfg.match_threshold, cfg.providers, cfg.intra_op_threads)
+    if name == "mnn":
+        from litevloc.models.classical import MutualNNMatcher
+
+        return MutualNNMatcher()
+    if name == "nn-ratio":
+        from litevloc.models.classical import RatioMatcher
+
+        return RatioMatcher(cfg.ratio)
+    raise ModelError(f"unknown matcher {name!r}; known: lightglue, mnn, nn-ratio")
+
+
+def load_place_recognizer(name: str, cfg: ModelsConfig | None = None) -> PlaceRecognizer:
+    """ "effnet-gem" (embedded default) | "cosplace" (needs an exported official checkpoint)."""
+    cfg = cfg or ModelsConfig()
+    from litevloc.models.vpr import OnnxPlaceRecognizer
+
+    if name == "effnet-gem":
+        path, _ = locate(vpr_id("effnet-gem", cfg.vpr_size), cfg)
+        return OnnxPlaceRecognizer(path, name, cfg.vpr_size, cfg.providers, cfg.intra_op_threads)
+    if name == "cosplace":
+        try:
+            path, _ = locate(vpr_id("cosplace-r18", cfg.vpr_size), cfg)
+        except ModelError as exc:
+            raise ModelError(
+                f"{exc} (CosPlace needs the official checkpoint: add --cosplace-checkpoint PATH)"
+            ) from exc
+        return OnnxPlaceRecognizer(path, name, cfg.vpr_size, cfg.providers, cfg.intra_op_threads)
+    raise ModelError(f"unknown place recognizer {name!r}; known: effnet-gem, cosplace")
