@@ -113,6 +113,49 @@ class _Timer:
         self.ms[key] = self.ms.get(key, 0.0) + (time.perf_counter() - t0) * 1e3
 
 
+def relative_pose(
+    live_feats: FeatureSet, live_depth: NDArray[np.float32], K_live: NDArray[np.float64],
+    ref_feats: FeatureSet, K_ref: NDArray[np.float64], match: MatchFn, params: LocalizationParams,
+    timings_ms: dict[str, float] | None = None,
+) -> tuple[PnpResult | None, int, str]:
+    """Pose of the live camera relative to a reference image: `T_ref_live` in the result.
+
+    Matches live vs reference features, lifts the matched live keypoints with the live
+    depth (`pipelines.depth_lookup`), solves PnP into the reference image and applies the
+    acceptance gates plus the distance gate. Returns (PnpResult or None if too few matches,
+    number of matches, reason).
+    """
+    t = timings_ms if timings_ms is not None else {}
+
+    def add(key: str, t0: float) -> None:
+        t[key] = t.get(key, 0.0) + (time.perf_counter() - t0) * 1e3
+
+    t0 = time.perf_counter()
+    i_live, i_ref = match(live_feats, ref_feats)
+    add("match", t0)
+    if len(i_live) < params.min_matches:
+        return None, len(i_live), f"too few matches ({len(i_live)})"
+    t0 = time.perf_counter()
+    uv = np.asarray(live_feats.keypoints, dtype=np.float64)[i_live]
+    z = depth_at(live_depth, uv, params.depth)
+    ok = np.isfinite(z)
+    add("lift", t0)
+    if ok.sum() < params.min_matches:
+        return None, len(i_live), f"too few matches with depth ({ok.sum()})"
+    t0 = time.perf_counter()
+    pts = backproject_pixels(K_live, uv[ok], z[ok].astype(np.float64))
+    res = solve_pnp(pts, np.asarray(ref_feats.keypoints)[i_ref[ok]], K_ref, params.pnp)
+    add("pnp", t0)
+    if res.accepted and res.T_target_source is not None:
+        # The translation of T_ref_live is the live camera centre in the reference frame.
+        dist = float(np.linalg.norm(res.T_target_source[:3, 3]))
+        if dist > params.max_distance_to_node_m:
+            reason = f"pose {dist:.1f} m from its reference node (> {params.max_distance_to_node_m})"
+            res = PnpResult(False, reason, res.T_target_source, res.inliers, res.n_matches,
+                            res.median_reprojection_px, res.covariance)
+    return res, len(i_live), res.reason
+
+
 class VisualLocalizer:
     """GL + LL against one map with injected model callables (no I/O, no threads)."""
 
@@ -133,31 +176,10 @@ class VisualLocalizer:
         self, node: int, live_feats: FeatureSet, depth: NDArray[np.float32], K: NDArray[np.float64],
         similarity: float, timer: _Timer,
     ) -> tuple[PnpResult | None, CandidateAttempt]:
-        t0 = time.perf_counter()
-        i_live, i_map = self.match(live_feats, self.map.features[node])
-        timer.add("match", t0)
-        if len(i_live) < self.params.min_matches:
-            return None, CandidateAttempt(node, similarity, len(i_live), 0, f"too few matches ({len(i_live)})")
-        t0 = time.perf_counter()
-        uv = np.asarray(live_feats.keypoints, dtype=np.float64)[i_live]
-        z = depth_at(depth, uv, self.params.depth)
-        ok = np.isfinite(z)
-        timer.add("lift", t0)
-        if ok.sum() < self.params.min_matches:
-            return None, CandidateAttempt(node, similarity, len(i_live), 0, f"too few matches with depth ({ok.sum()})")
-        t0 = time.perf_counter()
-        pts = backproject_pixels(K, uv[ok], z[ok].astype(np.float64))
-        res = solve_pnp(pts, self.map.features[node].keypoints[i_map[ok]], self.map.K[node], self.params.pnp)
-        timer.add("pnp", t0)
-        reason = res.reason
-        if res.accepted and res.T_target_source is not None:
-            # The translation of T_node_live is the live camera centre in the node's frame.
-            dist = float(np.linalg.norm(res.T_target_source[:3, 3]))
-            if dist > self.params.max_distance_to_node_m:
-                reason = f"pose {dist:.1f} m from its reference node (> {self.params.max_distance_to_node_m})"
-                res = PnpResult(False, reason, res.T_target_source, res.inliers, res.n_matches,
-                                res.median_reprojection_px, res.covariance)
-        return res, CandidateAttempt(node, similarity, res.n_matches, res.n_inliers, reason)
+        res, n_matches, reason = relative_pose(
+            live_feats, depth, K, self.map.features[node], self.map.K[node], self.match, self.params, timer.ms
+        )
+        return res, CandidateAttempt(node, similarity, n_matches, res.n_inliers if res else 0, reason)
 
     def _result(
         self, t_ns: int, mode: str, best: tuple[int, PnpResult] | None, attempts: list[CandidateAttempt],

@@ -29,10 +29,10 @@ def plot_map(
     extent = (g.origin[0], g.origin[0] + W * g.resolution, g.origin[1], g.origin[1] + H * g.resolution)
     ax.imshow(rgb, origin="lower", extent=extent, interpolation="nearest")
     xy = g.to_plane(m.positions)
-    for (i, j), w in zip(m.covis_edges, m.covis_weight, strict=True):
-        ax.plot(xy[[i, j], 0], xy[[i, j], 1], color="tab:blue", alpha=0.25 + 0.6 * float(w), lw=1.2)
     for i, j in m.conn_edges:
-        ax.plot(xy[[i, j], 0], xy[[i, j], 1], color="tab:green", ls="--", lw=1.0)
+        ax.plot(xy[[i, j], 0], xy[[i, j], 1], color="tab:green", ls="--", lw=0.8, alpha=0.7)
+    for (i, j), w in zip(m.covis_edges, m.covis_weight, strict=True):
+        ax.plot(xy[[i, j], 0], xy[[i, j], 1], color="tab:blue", alpha=0.3 + 0.7 * float(w), lw=2.0)
     fwd = g.to_plane(m.positions + 0.25 * m.T_map_camera[:, :3, 2]) - xy
     ax.quiver(xy[:, 0], xy[:, 1], fwd[:, 0], fwd[:, 1], color="tab:red", angles="xy", scale_units="xy", scale=1,
               width=0.004)

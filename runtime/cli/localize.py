@@ -47,7 +47,10 @@ def run(args: argparse.Namespace) -> int:
     topomap = check_map_models(load_map(args.map), bundle)
     loc = VisualLocalizer(topomap, cfg.localization, bundle.extract, bundle.describe, bundle.match)
     src = open_source(args.src, frames_of(args), strict=True)
-    times, poses, errors, lat = [], [], [], {"global": [], "local": []}
+    times: list[float] = []
+    poses: list = []
+    errors: list[tuple[float, float]] = []
+    lat: dict[str, list[float]] = {"global": [], "local": []}
     counts = {"queries": 0, "accepted": 0, "rejected": 0, "global": 0, "local": 0}
     reasons: dict[str, int] = {}
     with progress(src.frame_count(), "localize") as bar:

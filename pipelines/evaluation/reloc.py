@@ -1,0 +1,89 @@
+"""Relocalization metrics in the style of the map-free relocalization benchmark.
+
+Per query: the pose relative to its reference keyframe is estimated (or not); errors are
+the translation distance (m) and rotation angle (deg) to the ground-truth relative pose.
+Reported per method: % estimated, median and max errors over estimated queries, and
+precision at [5 cm, 5 deg], [25 cm, 5 deg], [1 m, 10 deg] — counted over ALL queries
+(a query without an estimate is a miss), and over estimated ones only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from litevloc.pipelines.geometry import invert, matrix_to_quat_xyzw
+from numpy.typing import NDArray
+
+THRESHOLDS: tuple[tuple[float, float], ...] = ((0.05, 5.0), (0.25, 5.0), (1.0, 10.0))
+
+
+@dataclass(frozen=True)
+class RelocMetrics:
+    """Summary of one method over a query set."""
+
+    queries: int
+    estimated: int
+    pct_estimated: float
+    median_trans_m: float
+    median_rot_deg: float
+    max_trans_m: float
+    max_rot_deg: float
+    precision_5cm_5deg: float
+    precision_25cm_5deg: float
+    precision_1m_10deg: float
+    precision_estimated_25cm_5deg: float
+    time_median_ms: float
+    time_p90_ms: float
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def reloc_metrics(
+    trans_err_m: NDArray[np.floating], rot_err_deg: NDArray[np.floating], times_ms: NDArray[np.floating]
+) -> RelocMetrics:
+    """Errors are (N,) arrays with NaN where the method gave no estimate."""
+    t = np.asarray(trans_err_m, dtype=np.float64)
+    r = np.asarray(rot_err_deg, dtype=np.float64)
+    if t.shape != r.shape or t.ndim != 1:
+        raise ValueError("trans_err_m and rot_err_deg must be equal-length vectors")
+    n = len(t)
+    est = np.isfinite(t) & np.isfinite(r)
+    k = int(est.sum())
+
+    def within(tt: float, rr: float, over: NDArray[np.bool_]) -> float:
+        ok = est & (np.nan_to_num(t, nan=np.inf) <= tt) & (np.nan_to_num(r, nan=np.inf) <= rr)
+        return float(ok[over].sum() / max(int(over.sum()), 1))
+
+    allq = np.ones(n, dtype=bool)
+    nan = float("nan")
+    times = np.asarray(times_ms, dtype=np.float64)
+    return RelocMetrics(
+        queries=n, estimated=k, pct_estimated=100.0 * k / max(n, 1),
+        median_trans_m=float(np.median(t[est])) if k else nan, median_rot_deg=float(np.median(r[est])) if k else nan,
+        max_trans_m=float(t[est].max()) if k else nan, max_rot_deg=float(r[est].max()) if k else nan,
+        precision_5cm_5deg=within(0.05, 5.0, allq), precision_25cm_5deg=within(0.25, 5.0, allq),
+        precision_1m_10deg=within(1.0, 10.0, allq), precision_estimated_25cm_5deg=within(0.25, 5.0, est),
+        time_median_ms=float(np.median(times)) if len(times) else nan,
+        time_p90_ms=float(np.percentile(times, 90)) if len(times) else nan,
+    )
+
+
+def write_mapfree_poses(path: str | Path, rows: list[tuple[str, NDArray[np.float64], float]]) -> None:
+    """Write `frame qw qx qy qz tx ty tz confidence` lines (map-free submission format).
+
+    Each row is (frame name, T_ref_query, confidence). Map-free poses map reference-frame
+    points into the query camera, so the written transform is T_query_ref = inv(T_ref_query).
+    """
+    lines = []
+    for name, T_ref_query, conf in rows:
+        T = invert(T_ref_query)
+        x, y, z, w = matrix_to_quat_xyzw(T[:3, :3])
+        tx, ty, tz = T[:3, 3]
+        lines.append(f"{name} {w:.9f} {x:.9f} {y:.9f} {z:.9f} {tx:.9f} {ty:.9f} {tz:.9f} {conf:.3f}")
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    p.write_text("\n".join(lines) + ("\n" if lines else ""))

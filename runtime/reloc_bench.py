@@ -1,0 +1,118 @@
+"""The relocalization benchmark (paper protocol) over several matcher methods.
+
+For each query frame with ground truth, the reference keyframe is the map node closest
+to the query's true position among nodes whose optical axis is within 90 deg of the
+query's (the node LL would try first with a perfect prior). The method estimates
+`T_ref_query` from its own features on both images (the reference image is the map's
+stored keyframe JPEG), the live depth and PnP + RANSAC; errors are against the ground
+truth relative pose. Methods are `EXTRACTOR+MATCHER@HxW`, e.g. `aliked-n16+lightglue@240x320`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from litevloc.config import LiteVLocConfig
+from litevloc.hw.streams.base import StreamSource
+from litevloc.models.registry import load_extractor, load_matcher
+from litevloc.models.types import Features
+from litevloc.pipelines.evaluation.reloc import reloc_metrics, write_mapfree_poses
+from litevloc.pipelines.geometry import invert, relative_pose_error
+from litevloc.pipelines.localization.vloc import relative_pose
+from litevloc.pipelines.topomap.types import TopoMap
+from litevloc.runtime.posed import posed_frames
+
+DEFAULT_METHODS = (
+    "aliked-t16+lightglue@240x320", "aliked-n16+lightglue@240x320", "aliked-n16+mnn@240x320",
+    "sift+nn-ratio@240x320", "orb+nn-ratio@240x320",
+    "aliked-t16+lightglue@480x640", "aliked-n16+lightglue@480x640", "aliked-n16+mnn@480x640",
+    "sift+nn-ratio@480x640", "orb+nn-ratio@480x640",
+)
+_METHOD_RE = re.compile(r"^([a-z0-9-]+)\+([a-z-]+)@(\d+)x(\d+)$")
+
+
+@dataclass(frozen=True)
+class Method:
+    extractor: str
+    matcher: str
+    size_hw: tuple[int, int]
+
+    @property
+    def name(self) -> str:
+        return f"{self.extractor}+{self.matcher}@{self.size_hw[0]}x{self.size_hw[1]}"
+
+
+def parse_method(spec: str) -> Method:
+    m = _METHOD_RE.match(spec.strip())
+    if not m:
+        raise ValueError(f"method {spec!r} must look like EXTRACTOR+MATCHER@HxW, e.g. aliked-n16+lightglue@240x320")
+    return Method(m.group(1), m.group(2), (int(m.group(3)), int(m.group(4))))
+
+
+def reference_node(topomap: TopoMap, T_map_query: np.ndarray) -> int:
+    """Nearest node by position among those looking the same way (angle < 90 deg)."""
+    d = np.linalg.norm(topomap.positions - T_map_query[:3, 3], axis=1)
+    facing = topomap.T_map_camera[:, :3, 2] @ T_map_query[:3, 2] > 0
+    d[~facing] = np.inf
+    return int(np.argmin(d))
+
+
+def _decode(jpeg: bytes) -> np.ndarray:
+    img = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_COLOR)
+    if img is None:
+        raise ValueError("a map keyframe image does not decode")
+    return np.ascontiguousarray(img[:, :, ::-1])
+
+
+def run_reloc(
+    topomap: TopoMap, source: StreamSource, methods: list[Method], cfg: LiteVLocConfig, out_dir: Path | None,
+    on_query: Callable[[], None] | None = None,
+) -> dict[str, Any]:
+    """Run every method over the posed queries of `source`; returns metrics per method."""
+    queries = [(f, T) for f, T in posed_frames(source) if T is not None and f.depth is not None]
+    if not queries:
+        raise ValueError("no query frame has both a ground-truth pose and depth")
+    refs = [reference_node(topomap, T) for _, T in queries]
+    ref_images = {i: _decode(topomap.images_jpeg[i]) for i in sorted(set(refs))}
+    results: dict[str, Any] = {"queries": len(queries), "reference_nodes": len(ref_images), "methods": {}}
+    for method in methods:
+        topk = 512 if method.size_hw[0] * method.size_hw[1] <= 240 * 320 else 1024
+        mcfg = dataclasses.replace(cfg.models, extractor_size=method.size_hw, max_keypoints=topk)
+        extractor = load_extractor(method.extractor, mcfg)
+        matcher = load_matcher(method.matcher, mcfg)
+
+        def match(a: Any, b: Any) -> tuple[np.ndarray, np.ndarray]:
+            m = matcher.match(a, b)  # noqa: B023 - used within this iteration only
+            return m.idx0, m.idx1
+
+        ref_feats: dict[int, Features] = {i: extractor.extract(img) for i, img in ref_images.items()}
+        te, re_, times, rows = [], [], [], []
+        for (frame, T_gt), ref in zip(queries, refs, strict=True):
+            t0 = time.perf_counter()
+            feats = extractor.extract(frame.color)
+            res, _, _ = relative_pose(feats, frame.depth, frame.K, ref_feats[ref], topomap.K[ref], match,
+                                      cfg.localization)
+            times.append((time.perf_counter() - t0) * 1e3)
+            T_ref_gt = invert(topomap.T_map_camera[ref]) @ T_gt
+            if res is not None and res.accepted and res.T_target_source is not None:
+                dt, dr = relative_pose_error(res.T_target_source, T_ref_gt)
+                rows.append((f"frame-{frame.index:06d}", res.T_target_source, float(res.n_inliers)))
+            else:
+                dt, dr = float("nan"), float("nan")
+            te.append(dt)
+            re_.append(dr)
+            if on_query is not None:
+                on_query()
+        metrics = reloc_metrics(np.array(te), np.array(re_), np.array(times))
+        results["methods"][method.name] = metrics.as_dict()
+        if out_dir is not None:
+            write_mapfree_poses(out_dir / f"pose_{method.name.replace('@', '_').replace('+', '_')}.txt", rows)
+    return results
