@@ -61,6 +61,8 @@ F64 = NDArray[np.float64]
 
 # ROS (tx, ty, tz, rx, ry, rz) <-> GTSAM (rx, ry, rz, tx, ty, tz)
 _PERM = np.array([3, 4, 5, 0, 1, 2])
+_I3 = np.eye(3)
+_ROW3 = np.array([0.0, 0.0, 0.0, 1.0])
 
 
 def ros_to_gtsam_cov(cov: NDArray[np.floating]) -> F64:
@@ -106,7 +108,7 @@ class FusionParams:
     reinit_after_rejects: int = 5
     covariance_period_s: float = 1.0  # at most one marginal covariance per this time
     odom_buffer_s: float = 5.0  # odometry kept for late VLoc (>= lag_s)
-    max_future_s: float = 0.05  # a VLoc stamped this much after the newest odometry is still used
+    max_future_s: float = 0.05  # a VLoc up to this much newer than the newest odometry: extrapolated
 
     def __post_init__(self) -> None:
         positive = (
@@ -177,18 +179,34 @@ class VlocUpdate:
 
 
 def _valid_pose(T: NDArray[np.floating]) -> F64 | None:
+    """T as a float64 4x4 rigid transform (rotation re-orthonormalised if off by > 1e-9),
+    or None if it is not finite / not rigid within 1e-4."""
     A = np.asarray(T, dtype=np.float64)
-    if A.shape != (4, 4) or not np.all(np.isfinite(A)):
+    if A.shape != (4, 4) or not np.isfinite(A).all():
         return None
     R = A[:3, :3]
-    if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or abs(np.linalg.det(R) - 1.0) > 1e-3:
-        return None
-    if not np.allclose(A[3], [0, 0, 0, 1], atol=1e-6):
+    err = float(np.abs(R @ R.T - _I3).max())
+    if err > 1e-4 or np.linalg.det(R) < 0 or float(np.abs(A[3] - _ROW3).max()) > 1e-6:
         return None
     out = A.copy()
-    U, _, Vt = np.linalg.svd(R)  # remove round-off so GTSAM gets an exact rotation
-    out[:3, :3] = U @ Vt
+    if err > 1e-9:  # remove round-off so GTSAM gets an exact rotation
+        U, _, Vt = np.linalg.svd(R)
+        out[:3, :3] = U @ Vt
     return out
+
+
+def _inv(T: F64) -> F64:
+    """Inverse of one 4x4 rigid transform (cheaper than geometry.invert for a single one)."""
+    out = np.eye(4)
+    Rt = T[:3, :3].T
+    out[:3, :3] = Rt
+    out[:3, 3] = -Rt @ T[:3, 3]
+    return out
+
+
+def _angle(R: F64) -> float:
+    """Rotation angle (rad) from the trace; accurate enough for noise models and thresholds."""
+    return math.acos(max(-1.0, min(1.0, (R[0, 0] + R[1, 1] + R[2, 2] - 1.0) * 0.5)))
 
 
 def _valid_cov(C: NDArray[np.floating] | None) -> F64 | None:
@@ -299,8 +317,8 @@ class OnlineFusion:
         return gauss
 
     def _odom_cov(self, T_a: F64, T_b: F64) -> F64:
-        D = invert(T_a) @ T_b
-        s = self.params.odom_sigmas(float(np.linalg.norm(D[:3, 3])), rotation_angle(D[:3, :3]))
+        D = _inv(T_a) @ T_b
+        s = self.params.odom_sigmas(math.sqrt(float(D[:3, 3] @ D[:3, 3])), _angle(D[:3, :3]))
         return np.diag(s**2)
 
     def _initialise(self, c: _Candidate, reason: str) -> VlocUpdate:
@@ -330,12 +348,12 @@ class OnlineFusion:
 
     def _maybe_keyframe(self, t_ns: int, T_odom_base: F64) -> None:
         key_prev, t_prev, T_prev = self._keys[-1]
-        D = invert(T_prev) @ T_odom_base
+        D = _inv(T_prev) @ T_odom_base
         p = self.params
         due = (
             (t_ns - t_prev) >= p.keyframe_period_s * 1e9
-            or np.linalg.norm(D[:3, 3]) >= p.keyframe_dist_m
-            or rotation_angle(D[:3, :3]) >= math.radians(p.keyframe_angle_deg)
+            or float(D[:3, 3] @ D[:3, 3]) >= p.keyframe_dist_m**2
+            or _angle(D[:3, :3]) >= math.radians(p.keyframe_angle_deg)
         )
         if not due:
             return
@@ -365,7 +383,12 @@ class OnlineFusion:
         if t_ns < t_first:
             return None
         if t_ns >= t_last:
-            return self._odom[-1][1] if t_ns - t_last <= self.params.max_future_s * 1e9 else None
+            if t_ns - t_last > self.params.max_future_s * 1e9:
+                return None
+            if t_ns == t_last or len(self._odom) < 2:
+                return self._odom[-1][1]
+            (tp, Tp), (tl, Tl) = self._odom[-2], self._odom[-1]
+            return interpolate_pose(Tp, Tl, (t_ns - tp) / (tl - tp))  # s > 1: constant-velocity extrapolation
         times = [t for t, _ in self._odom]  # bounded (odom_buffer_s of messages)
         i = int(np.searchsorted(times, t_ns, side="right"))
         t0, T0 = self._odom[i - 1]
@@ -415,7 +438,7 @@ class OnlineFusion:
     def _output(self, t_ns: int, T_odom_base: F64) -> FusedPose:
         assert self._last_est is not None
         _, _, T_key_odom = self._keys[-1]
-        T_map_odom = self._last_est @ invert(T_key_odom)
+        T_map_odom = self._last_est @ _inv(T_key_odom)
         T_map_base = T_map_odom @ T_odom_base
         cov = self._cov_state + self._odom_cov(self._cov_key_T_odom, T_odom_base)
         return FusedPose(t_ns, T_map_base, T_map_odom, gtsam_to_ros_cov(cov), True)
