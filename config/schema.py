@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from litevloc.models.config import ModelsConfig
+from litevloc.pipelines.fusion.online import FusionParams
 from litevloc.pipelines.localization.vloc import LocalizationParams
 from litevloc.pipelines.odometry_drift import DriftParams
 from litevloc.pipelines.topomap.build import MappingParams
@@ -58,6 +59,35 @@ class ReplayConfig:
 
 
 @dataclass(frozen=True)
+class FusionConfig:
+    """Pose SLAM (VLoc + odometry fusion) and the camera extrinsics it needs.
+
+    `base_camera_*`: pose of the camera optical frame in base_link (`T_base_camera`);
+    the default is a camera at the base origin looking along base x (REP-103 body axes),
+    as used for datasets where base_link is the camera.
+    """
+
+    params: FusionParams = field(default_factory=FusionParams)
+    base_camera_translation: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    base_camera_quat_xyzw: tuple[float, float, float, float] = (-0.5, 0.5, -0.5, 0.5)
+
+    def __post_init__(self) -> None:
+        import math
+
+        if not all(math.isfinite(v) for v in (*self.base_camera_translation, *self.base_camera_quat_xyzw)):
+            raise ValueError("base_camera_translation / base_camera_quat_xyzw must be finite")
+        n = math.sqrt(sum(v * v for v in self.base_camera_quat_xyzw))
+        if abs(n - 1.0) > 1e-3:
+            raise ValueError(f"base_camera_quat_xyzw must be a unit quaternion (x, y, z, w), norm is {n:.6f}")
+
+    def T_base_camera(self):  # type: ignore[no-untyped-def]
+        """4x4 float64 T_base_camera from the configured translation and quaternion."""
+        from litevloc.pipelines.geometry import make_T, quat_xyzw_to_matrix
+
+        return make_T(quat_xyzw_to_matrix(self.base_camera_quat_xyzw), self.base_camera_translation)
+
+
+@dataclass(frozen=True)
 class LiteVLocConfig:
     """Root of the configuration tree."""
 
@@ -68,3 +98,4 @@ class LiteVLocConfig:
     models: ModelsConfig = field(default_factory=ModelsConfig)
     mapping: MappingParams = field(default_factory=MappingParams)
     localization: LocalizationParams = field(default_factory=LocalizationParams)
+    fusion: FusionConfig = field(default_factory=FusionConfig)

@@ -1,0 +1,197 @@
+"""Batch refinement of a whole session (the paper's PS-Opt) with Levenberg-Marquardt.
+
+Same factors as `OnlineFusion`: states at keyframes decimated from odometry (same
+`keyframe_*` rules) **plus a state at every VLoc capture time** (odometry interpolated
+there), BetweenFactorPose3 from odometry increments, a PriorFactorPose3 per VLoc pose
+(camera -> base with `T_base_camera`), the configured robust kernel. Gating, offline:
+after a first LM solve, priors whose squared Mahalanobis residual against the solution
+exceeds `gate_chi2` are dropped and LM runs again (repeated until none is dropped, at
+most 3 times). Initial values: odometry mapped by the `T_map_odom` that most VLoc
+results agree with (a consensus vote, so an outlier cannot seed the solution).
+
+Output: `T_map_base` at every odometry time (the preceding state composed with the
+odometry increment since it).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from litevloc.pipelines.fusion.online import FusionParams, _valid_pose, ros_to_gtsam_cov
+from litevloc.pipelines.geometry import interpolate_pose_at, invert, rotation_angle
+
+F64 = NDArray[np.float64]
+I64 = NDArray[np.int64]
+
+
+@dataclass(frozen=True)
+class BatchInfo:
+    """Diagnostics of one `batch_refine` run."""
+
+    states: int
+    priors_used: int
+    priors_gated: int
+    priors_outside: int  # VLoc results outside the odometry time span (ignored)
+    iterations: int
+
+
+def _keyframes(times: I64, T_odom: F64, p: FusionParams) -> list[int]:
+    keep = [0]
+    for i in range(1, len(times)):
+        D = invert(T_odom[keep[-1]]) @ T_odom[i]
+        if (
+            times[i] - times[keep[-1]] >= p.keyframe_period_s * 1e9
+            or np.linalg.norm(D[:3, 3]) >= p.keyframe_dist_m
+            or rotation_angle(D[:3, :3]) >= math.radians(p.keyframe_angle_deg)
+        ):
+            keep.append(i)
+    if keep[-1] != len(times) - 1:
+        keep.append(len(times) - 1)
+    return keep
+
+
+def _consensus_map_odom(T_map_odom: F64, p: FusionParams) -> F64:
+    best, best_n = 0, -1
+    for i in range(len(T_map_odom)):
+        n = 0
+        for j in range(len(T_map_odom)):
+            D = invert(T_map_odom[i]) @ T_map_odom[j]
+            if (np.linalg.norm(T_map_odom[i][:3, 3] - T_map_odom[j][:3, 3]) <= p.init_max_trans_m
+                    and rotation_angle(D[:3, :3]) <= math.radians(p.init_max_rot_deg)):
+                n += 1
+        if n > best_n:
+            best, best_n = i, n
+    return T_map_odom[best]
+
+
+@dataclass(frozen=True)
+class BatchResult:
+    """`refine_session` output: (N,) times, (N, 4, 4) T_map_base, diagnostics."""
+
+    times_ns: I64
+    T_map_base: F64
+    info: BatchInfo
+
+
+def batch_refine(
+    odom_times_ns: NDArray[np.integer],
+    T_odom_base: NDArray[np.floating],
+    vloc_times_ns: NDArray[np.integer],
+    T_map_camera: NDArray[np.floating],
+    vloc_covariances: NDArray[np.floating] | None,
+    params: FusionParams,
+    T_base_camera: NDArray[np.floating],
+) -> tuple[I64, F64]:
+    """`refine_session` returning only (times, T_map_base); see there for arguments."""
+    r = refine_session(odom_times_ns, T_odom_base, vloc_times_ns, T_map_camera, vloc_covariances, params,
+                       T_base_camera)
+    return r.times_ns, r.T_map_base
+
+
+def refine_session(
+    odom_times_ns: NDArray[np.integer],
+    T_odom_base: NDArray[np.floating],
+    vloc_times_ns: NDArray[np.integer],
+    T_map_camera: NDArray[np.floating],
+    vloc_covariances: NDArray[np.floating] | None,
+    params: FusionParams,
+    T_base_camera: NDArray[np.floating],
+) -> BatchResult:
+    """Optimise a session offline.
+
+    Args:
+        odom_times_ns: (N,) increasing int ns; T_odom_base: (N, 4, 4).
+        vloc_times_ns: (M,) capture times int ns; T_map_camera: (M, 4, 4).
+        vloc_covariances: (M, 6, 6) ROS order (x, y, z, rx, ry, rz) of T_map_camera, or
+            None for the `vloc_sigma_*` defaults.
+        params: the same FusionParams as the online filter.
+        T_base_camera: 4x4 camera (optical) extrinsics in base_link.
+
+    Returns:
+        BatchResult: (N,) times, (N, 4, 4) T_map_base at every odometry time, BatchInfo.
+    Raises:
+        ValueError: no usable VLoc result, bad shapes or non-rigid poses.
+    """
+    t = np.asarray(odom_times_ns, dtype=np.int64)
+    To = np.asarray(T_odom_base, dtype=np.float64)
+    tv = np.asarray(vloc_times_ns, dtype=np.int64)
+    Tv = np.asarray(T_map_camera, dtype=np.float64)
+    if t.ndim != 1 or len(t) < 2 or To.shape != (len(t), 4, 4):
+        raise ValueError(f"need (N>=2,) odometry times and (N,4,4) poses, got {t.shape} and {To.shape}")
+    if np.any(np.diff(t) <= 0):
+        raise ValueError("odometry times must be strictly increasing")
+    if tv.ndim != 1 or Tv.shape != (len(tv), 4, 4):
+        raise ValueError(f"need (M,) VLoc times and (M,4,4) poses, got {tv.shape} and {Tv.shape}")
+    T_bc = _valid_pose(T_base_camera)
+    if T_bc is None:
+        raise ValueError("T_base_camera must be a finite 4x4 rigid transform")
+    Ad = gtsam.Pose3(T_bc).AdjointMap()
+    T_cb = invert(T_bc)
+
+    inside = (tv >= t[0]) & (tv <= t[-1])
+    vidx = np.nonzero(inside)[0]
+    if len(vidx) == 0:
+        raise ValueError("no VLoc result falls inside the odometry time span")
+    # State times: decimated odometry keyframes plus VLoc capture times.
+    kf = _keyframes(t, To, params)
+    st_t = np.unique(np.concatenate([t[kf], tv[vidx]]))
+    st_T = np.stack([interpolate_pose_at(int(x), t, To) for x in st_t])
+    vl_T_mb = np.stack([Tv[i] @ T_cb for i in vidx])
+    vl_state = np.searchsorted(st_t, tv[vidx])
+    T_map_odom0 = _consensus_map_odom(np.stack([vl_T_mb[k] @ invert(st_T[s]) for k, s in enumerate(vl_state)]),
+                                      params)
+
+    def cov_of(i: int) -> F64:
+        if vloc_covariances is None:
+            c = params.vloc_cov_gtsam()
+        else:
+            c = ros_to_gtsam_cov(np.asarray(vloc_covariances, dtype=np.float64)[i])
+        return Ad @ c @ Ad.T
+
+    def noise(c: F64) -> gtsam.noiseModel.Base:
+        g = gtsam.noiseModel.Gaussian.Covariance(c)
+        if params.robust_kernel == "huber":
+            return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(params.robust_k), g)
+        if params.robust_kernel == "cauchy":
+            return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy.Create(params.robust_k), g)
+        return g
+
+    base = gtsam.NonlinearFactorGraph()
+    values = gtsam.Values()
+    for k in range(len(st_t)):
+        values.insert(k, gtsam.Pose3(T_map_odom0 @ st_T[k]))
+        if k > 0:
+            D = invert(st_T[k - 1]) @ st_T[k]
+            s = params.odom_sigmas(float(np.linalg.norm(D[:3, 3])), rotation_angle(D[:3, :3]))
+            base.add(gtsam.BetweenFactorPose3(k - 1, k, gtsam.Pose3(D), gtsam.noiseModel.Diagonal.Sigmas(s)))
+    covs = [cov_of(int(i)) for i in vidx]
+    active = np.ones(len(vidx), dtype=bool)
+    iterations = 0
+    result = values
+    for _round in range(4):
+        graph = gtsam.NonlinearFactorGraph(base)
+        for k in np.nonzero(active)[0]:
+            graph.add(gtsam.PriorFactorPose3(int(vl_state[k]), gtsam.Pose3(vl_T_mb[k]), noise(covs[k])))
+        lm = gtsam.LevenbergMarquardtOptimizer(graph, result, gtsam.LevenbergMarquardtParams())
+        result = lm.optimize()
+        iterations += lm.iterations()
+        if params.gate_chi2 <= 0:
+            break
+        m2 = np.array([
+            float(np.sum(np.square(np.linalg.solve(np.linalg.cholesky(covs[k]), gtsam.Pose3.Logmap(
+                result.atPose3(int(vl_state[k])).between(gtsam.Pose3(vl_T_mb[k]))))))) for k in range(len(vidx))
+        ])
+        new_active = m2 <= params.gate_chi2
+        if not new_active.any() or np.array_equal(new_active, active):
+            break
+        active = new_active
+    est = np.stack([result.atPose3(k).matrix() for k in range(len(st_t))])
+    prev = np.clip(np.searchsorted(st_t, t, side="right") - 1, 0, len(st_t) - 1)
+    out = est[prev] @ invert(st_T[prev]) @ To
+    info = BatchInfo(len(st_t), int(active.sum()), int((~active).sum()), int((~inside).sum()), iterations)
+    return BatchResult(t, out, info)

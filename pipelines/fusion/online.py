@@ -1,0 +1,567 @@
+"""Online pose-graph fusion of late, low-rate VLoc poses with high-rate odometry (GTSAM).
+
+Model
+-----
+* **States** `x_k` are `T_map_base` at *keyframe* times: an odometry message becomes a
+  keyframe when `keyframe_period_s` has passed or the robot moved `keyframe_dist_m` /
+  `keyframe_angle_deg` since the last one (100-200 Hz odometry -> ~10 states/s).
+* **Odometry**: a `BetweenFactorPose3(x_k-1, x_k, inv(T_odom_base(k-1)) T_odom_base(k))`
+  per keyframe; sigmas grow with the increment (`odom_sigma_*`, see FusionParams).
+* **VLoc**: a camera pose `T_map_camera` captured at `t_ns` becomes a base pose
+  `T_map_base = T_map_camera @ inv(T_base_camera)` (covariance mapped with the adjoint of
+  `T_base_camera`). It is applied **at its own capture time**: the odometry between `t_ns`
+  and the nearest keyframe time `t_k` (interpolated from the buffered odometry,
+  |t_k - t_ns| <= keyframe period / 2) transports it to a `PriorFactorPose3` on `x_k`:
+  `T_map_base(t_k) = T_map_base(t_ns) @ inv(T_odom_base(t_ns)) @ T_odom_base(t_k)`, with
+  that short gap's odometry noise added to its covariance. A result older than the
+  smoother window is rejected (`too_old`), never applied to the newest state.
+* **Outliers**: chi-square gating of the Mahalanobis distance between the measurement and
+  the predicted state (`S = P_pred + R`, 6 dof), then a robust kernel (Huber or Cauchy)
+  on the accepted prior. `P_pred` is the marginal covariance of the newest state, computed
+  at most every `covariance_period_s` (never per update) and propagated with the
+  odometry noise since.
+* **Bounded graph**: GTSAM's `IncrementalFixedLagSmoother` (iSAM2 that marginalises
+  states older than `lag_s`): states in the graph ~ lag_s / keyframe_period_s.
+* **Initialisation**: from the first VLoc pose that `init_votes - 1` further VLoc poses
+  confirm (their `T_map_odom` agree within `init_max_trans_m` / `init_max_rot_deg`);
+  `init_votes = 1` initialises from the very first one. After `reinit_after_rejects`
+  consecutive gated rejections that agree among themselves, the filter re-initialises
+  from them (recovers from a wrong start or a kidnapping).
+* **Output** at every odometry message: the newest optimised state composed with the
+  odometry increments since (`T_map_base`), and the REP-105 correction
+  `T_map_odom = T_map_base @ inv(T_odom_base)`.
+
+Frames and orders
+-----------------
+Poses are 4x4 float64, `T_a_b` maps points from b to a. **Covariances are 6x6 in ROS
+order (x, y, z, rot_x, rot_y, rot_z)** — translation first, metres and radians — as a
+right (body-frame) perturbation of the pose, like `geometry_msgs/PoseWithCovariance`.
+Internally GTSAM uses (rot, trans); the conversion happens at the API boundary.
+Odometry noise comes from the `odom_sigma_*` model (a covariance passed to
+`add_odometry` is validated, not used).
+
+All GTSAM calls hold the GIL; each update touches a bounded window (tens of states).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import Counter, deque
+from dataclasses import dataclass
+from typing import Literal
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+
+from litevloc.pipelines.geometry import interpolate_pose, invert, rotation_angle
+
+F64 = NDArray[np.float64]
+
+# ROS (tx, ty, tz, rx, ry, rz) <-> GTSAM (rx, ry, rz, tx, ty, tz)
+_PERM = np.array([3, 4, 5, 0, 1, 2])
+_I3 = np.eye(3)
+_ROW3 = np.array([0.0, 0.0, 0.0, 1.0])
+
+
+def ros_to_gtsam_cov(cov: NDArray[np.floating]) -> F64:
+    """6x6 covariance, ROS order (trans, rot) -> GTSAM order (rot, trans)."""
+    c = np.asarray(cov, dtype=np.float64)
+    return c[np.ix_(_PERM, _PERM)]
+
+
+def gtsam_to_ros_cov(cov: NDArray[np.floating]) -> F64:
+    """6x6 covariance, GTSAM order (rot, trans) -> ROS order (trans, rot)."""
+    c = np.asarray(cov, dtype=np.float64)
+    inv = np.argsort(_PERM)
+    return c[np.ix_(inv, inv)]
+
+
+@dataclass(frozen=True)
+class FusionParams:
+    """Parameters of `OnlineFusion` and `batch_refine` (lengths m, angles deg, times s).
+
+    Odometry increment noise (per axis, 1 sigma) for an increment of length d metres and
+    rotation a radians: trans = odom_sigma_trans_floor + odom_sigma_trans_per_m * d,
+    rot = odom_sigma_rot_floor_deg + odom_sigma_rot_per_m_deg * d + odom_sigma_rot_per_rad * a.
+    VLoc sigmas are used when `add_vloc` gets no covariance.
+    """
+
+    keyframe_period_s: float = 0.1
+    keyframe_dist_m: float = 0.25
+    keyframe_angle_deg: float = 10.0
+    lag_s: float = 3.0  # smoother window; must exceed the worst VLoc latency
+    odom_sigma_trans_floor: float = 0.002
+    odom_sigma_trans_per_m: float = 0.04
+    odom_sigma_rot_floor_deg: float = 0.05
+    odom_sigma_rot_per_m_deg: float = 1.5
+    odom_sigma_rot_per_rad: float = 0.02
+    vloc_sigma_trans: float = 0.05
+    vloc_sigma_rot_deg: float = 2.0
+    robust_kernel: Literal["huber", "cauchy", "none"] = "cauchy"
+    robust_k: float = 2.5  # kernel width in whitened units (sigmas)
+    gate_chi2: float = 22.46  # 6-dof chi-square, p = 0.999; 0 disables gating
+    init_votes: int = 2
+    init_max_trans_m: float = 0.5
+    init_max_rot_deg: float = 10.0
+    reinit_after_rejects: int = 5
+    covariance_period_s: float = 1.0  # at most one marginal covariance per this time
+    odom_buffer_s: float = 5.0  # odometry kept for late VLoc (>= lag_s)
+    max_future_s: float = 0.05  # a VLoc up to this much newer than the newest odometry: extrapolated
+
+    def __post_init__(self) -> None:
+        positive = (
+            "keyframe_period_s", "keyframe_dist_m", "keyframe_angle_deg", "lag_s", "odom_sigma_trans_floor",
+            "odom_sigma_rot_floor_deg", "vloc_sigma_trans", "vloc_sigma_rot_deg", "robust_k",
+            "init_max_trans_m", "init_max_rot_deg", "covariance_period_s", "odom_buffer_s",
+        )
+        for name in positive:
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {v}")
+        for name in ("odom_sigma_trans_per_m", "odom_sigma_rot_per_m_deg", "odom_sigma_rot_per_rad",
+                     "gate_chi2", "max_future_s"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"{name} must be a finite number >= 0, got {v}")
+        if self.robust_kernel not in ("huber", "cauchy", "none"):
+            raise ValueError(f"robust_kernel must be huber, cauchy or none, got {self.robust_kernel!r}")
+        if self.init_votes < 1:
+            raise ValueError(f"init_votes must be >= 1, got {self.init_votes}")
+        if self.reinit_after_rejects < 0:
+            raise ValueError(f"reinit_after_rejects must be >= 0, got {self.reinit_after_rejects}")
+        if self.lag_s < 2 * self.keyframe_period_s:
+            raise ValueError(f"lag_s ({self.lag_s}) must be >= 2 * keyframe_period_s ({self.keyframe_period_s})")
+        if self.odom_buffer_s < self.lag_s:
+            raise ValueError(f"odom_buffer_s ({self.odom_buffer_s}) must be >= lag_s ({self.lag_s})")
+
+    def odom_sigmas(self, dist_m: float, angle_rad: float) -> F64:
+        """Per-axis sigmas of an odometry increment, GTSAM order (rot rad x3, trans m x3)."""
+        rot = math.radians(self.odom_sigma_rot_floor_deg + self.odom_sigma_rot_per_m_deg * dist_m)
+        rot += self.odom_sigma_rot_per_rad * angle_rad
+        trans = self.odom_sigma_trans_floor + self.odom_sigma_trans_per_m * dist_m
+        return np.array([rot, rot, rot, trans, trans, trans])
+
+    def vloc_cov_gtsam(self) -> F64:
+        """Default VLoc covariance, GTSAM order."""
+        r = math.radians(self.vloc_sigma_rot_deg) ** 2
+        t = self.vloc_sigma_trans**2
+        return np.diag([r, r, r, t, t, t])
+
+
+@dataclass(frozen=True)
+class FusedPose:
+    """Fused output for one odometry message.
+
+    `T_map_base`, `T_map_odom`: 4x4 float64. `covariance`: 6x6 of `T_map_base`, ROS order
+    (x, y, z, rot_x, rot_y, rot_z), body-frame perturbation, m^2 / rad^2 — the newest
+    state's marginal (refreshed every `covariance_period_s`) plus odometry noise since.
+    """
+
+    t_ns: int
+    T_map_base: F64
+    T_map_odom: F64
+    covariance: F64
+    initialised: bool
+
+
+@dataclass(frozen=True)
+class VlocUpdate:
+    """What happened to one VLoc result. `reason`: accepted | initialised | reinitialised |
+    awaiting_init | gated | too_old | ahead_of_odometry | no_odometry | invalid_pose |
+    invalid_covariance | time_not_finite. `mahalanobis2`: squared Mahalanobis distance to
+    the prediction (6 dof) where it was computed."""
+
+    accepted: bool
+    reason: str
+    mahalanobis2: float | None = None
+
+
+def _valid_pose(T: NDArray[np.floating]) -> F64 | None:
+    """T as a float64 4x4 rigid transform (rotation re-orthonormalised if off by > 1e-9),
+    or None if it is not finite / not rigid within 1e-4."""
+    A = np.asarray(T, dtype=np.float64)
+    if A.shape != (4, 4) or not np.isfinite(A).all():
+        return None
+    R = A[:3, :3]
+    err = float(np.abs(R @ R.T - _I3).max())
+    if err > 1e-4 or np.linalg.det(R) < 0 or float(np.abs(A[3] - _ROW3).max()) > 1e-6:
+        return None
+    out = A.copy()
+    if err > 1e-9:  # remove round-off so GTSAM gets an exact rotation
+        U, _, Vt = np.linalg.svd(R)
+        out[:3, :3] = U @ Vt
+    return out
+
+
+def _inv(T: F64) -> F64:
+    """Inverse of one 4x4 rigid transform (cheaper than geometry.invert for a single one)."""
+    out = np.eye(4)
+    Rt = T[:3, :3].T
+    out[:3, :3] = Rt
+    out[:3, 3] = -Rt @ T[:3, 3]
+    return out
+
+
+def _angle(R: F64) -> float:
+    """Rotation angle (rad) from the trace; accurate enough for noise models and thresholds."""
+    return math.acos(max(-1.0, min(1.0, (R[0, 0] + R[1, 1] + R[2, 2] - 1.0) * 0.5)))
+
+
+def _valid_cov(C: NDArray[np.floating] | None) -> F64 | None:
+    if C is None:
+        return None
+    A = np.asarray(C, dtype=np.float64)
+    if A.shape != (6, 6) or not np.all(np.isfinite(A)):
+        raise ValueError("covariance must be a finite 6x6 matrix")
+    A = 0.5 * (A + A.T)
+    if np.linalg.eigvalsh(A).min() <= 0:
+        raise ValueError("covariance must be positive definite")
+    return A
+
+
+def _pose3(T: F64) -> gtsam.Pose3:
+    return gtsam.Pose3(T)
+
+
+def _percentile(values: deque[float], q: float) -> float | None:
+    if not values:
+        return None
+    return float(np.percentile(np.fromiter(values, dtype=np.float64), q))
+
+
+def _map_odom_close(A: F64, B: F64, max_trans: float, max_rot_rad: float) -> bool:
+    D = invert(A) @ B
+    return float(np.linalg.norm(A[:3, 3] - B[:3, 3])) <= max_trans and rotation_angle(D[:3, :3]) <= max_rot_rad
+
+
+@dataclass
+class _Candidate:
+    t_ns: int
+    T_map_base: F64
+    T_odom_base: F64
+    cov: F64  # gtsam order
+
+    @property
+    def T_map_odom(self) -> F64:
+        return self.T_map_base @ invert(self.T_odom_base)
+
+
+class OnlineFusion:
+    """Fixed-lag pose-graph fusion; see the module docstring for the model.
+
+    Not thread-safe: call it from one thread (the runtime's fusion stage).
+    `T_base_camera`: 4x4 extrinsics of the camera (optical) in base_link, from config.
+    """
+
+    def __init__(self, params: FusionParams, T_base_camera: NDArray[np.floating]) -> None:
+        T = _valid_pose(T_base_camera)
+        if T is None:
+            raise ValueError("T_base_camera must be a finite 4x4 rigid transform")
+        self.params = params
+        self.T_base_camera = T
+        self.T_camera_base = invert(T)
+        self._Ad_bc = gtsam.Pose3(T).AdjointMap()  # maps camera-frame twists to base frame
+        self._odom: deque[tuple[int, F64]] = deque()
+        self._last_odom_t: int | None = None
+        self._counts: Counter[str] = Counter()
+        self._vloc_reasons: Counter[str] = Counter()
+        self._odom_rejects: Counter[str] = Counter()
+        self._update_ms: deque[float] = deque(maxlen=20000)
+        self._candidates: deque[_Candidate] = deque(maxlen=max(params.init_votes, 1))
+        self._rejected: deque[_Candidate] = deque(maxlen=max(params.reinit_after_rejects, 1))
+        self._consecutive_rejects = 0
+        self._reset_graph()
+
+    # ------------------------------------------------------------------ graph state
+    def _reset_graph(self) -> None:
+        isam = gtsam.ISAM2Params()
+        isam.setRelinearizeThreshold(0.01)
+        isam.relinearizeSkip = 1
+        isam.findUnusedFactorSlots = True  # keeps the factor table from growing
+        self._smoother = gtsam.IncrementalFixedLagSmoother(self.params.lag_s, isam)
+        self._keys: deque[tuple[int, int, F64]] = deque()  # (key, t_ns, T_odom_base) in the window
+        self._next_index = 0
+        self._t0_ns: int | None = None
+        self._initialised = False
+        self._last_est: F64 | None = None  # T_map_base of the newest key
+        self._cov_state: F64 = np.zeros((6, 6))  # gtsam order, marginal of the newest key at _cov_t
+        self._cov_t: int | None = None
+        self._cov_key_T_odom: F64 = np.eye(4)
+
+    def _stamp(self, t_ns: int) -> float:
+        assert self._t0_ns is not None
+        return (t_ns - self._t0_ns) * 1e-9
+
+    def _update(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, stamps: dict[int, float]) -> None:
+        ts = gtsam.FixedLagSmootherKeyTimestampMap()
+        for k, s in stamps.items():
+            ts.insert((k, s))
+        t0 = time.perf_counter()
+        self._smoother.update(graph, values, ts)
+        newest_key = self._keys[-1][0]
+        self._last_est = self._smoother.calculateEstimatePose3(newest_key).matrix()
+        self._update_ms.append((time.perf_counter() - t0) * 1e3)
+        horizon = self._keys[-1][1] - int(self.params.lag_s * 1e9)
+        while self._keys and self._keys[0][1] < horizon:  # mirror what the smoother marginalised
+            self._keys.popleft()
+
+    def _vloc_noise(self, cov_gtsam: F64) -> gtsam.noiseModel.Base:
+        gauss = gtsam.noiseModel.Gaussian.Covariance(cov_gtsam)
+        p = self.params
+        if p.robust_kernel == "huber":
+            return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(p.robust_k), gauss)
+        if p.robust_kernel == "cauchy":
+            return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy.Create(p.robust_k), gauss)
+        return gauss
+
+    def _odom_cov(self, T_a: F64, T_b: F64) -> F64:
+        D = _inv(T_a) @ T_b
+        s = self.params.odom_sigmas(math.sqrt(float(D[:3, 3] @ D[:3, 3])), _angle(D[:3, :3]))
+        return np.diag(s**2)
+
+    def _initialise(self, c: _Candidate, reason: str) -> VlocUpdate:
+        self._reset_graph()
+        self._t0_ns = c.t_ns
+        key = gtsam.symbol("x", self._next_index)
+        self._next_index += 1
+        self._keys.append((key, c.t_ns, c.T_odom_base))
+        graph = gtsam.NonlinearFactorGraph()
+        graph.add(gtsam.PriorFactorPose3(key, _pose3(c.T_map_base), gtsam.noiseModel.Gaussian.Covariance(c.cov)))
+        values = gtsam.Values()
+        values.insert(key, _pose3(c.T_map_base))
+        self._update(graph, values, {key: 0.0})
+        self._initialised = True
+        self._cov_state = c.cov.copy()
+        self._cov_t = c.t_ns
+        self._cov_key_T_odom = c.T_odom_base
+        self._candidates.clear()
+        self._rejected.clear()
+        self._consecutive_rejects = 0
+        self._counts[reason] += 1
+        # Odometry that arrived after the capture time becomes keyframes now.
+        for t, T in list(self._odom):
+            if t > c.t_ns:
+                self._maybe_keyframe(t, T)
+        return VlocUpdate(True, reason, None)
+
+    def _maybe_keyframe(self, t_ns: int, T_odom_base: F64) -> None:
+        key_prev, t_prev, T_prev = self._keys[-1]
+        D = _inv(T_prev) @ T_odom_base
+        p = self.params
+        due = (
+            (t_ns - t_prev) >= p.keyframe_period_s * 1e9
+            or float(D[:3, 3] @ D[:3, 3]) >= p.keyframe_dist_m**2
+            or _angle(D[:3, :3]) >= math.radians(p.keyframe_angle_deg)
+        )
+        if not due:
+            return
+        key = gtsam.symbol("x", self._next_index)
+        self._next_index += 1
+        graph = gtsam.NonlinearFactorGraph()
+        noise = gtsam.noiseModel.Gaussian.Covariance(self._odom_cov(T_prev, T_odom_base))
+        graph.add(gtsam.BetweenFactorPose3(key_prev, key, _pose3(D), noise))
+        values = gtsam.Values()
+        assert self._last_est is not None
+        values.insert(key, _pose3(self._last_est @ D))
+        self._keys.append((key, t_ns, T_odom_base))
+        self._counts["keyframes"] += 1
+        self._update(graph, values, {key: self._stamp(t_ns)})
+        if self._cov_t is None or t_ns - self._cov_t >= p.covariance_period_s * 1e9:
+            self._cov_state = np.asarray(self._smoother.marginalCovariance(key), dtype=np.float64)
+            self._cov_t = t_ns
+            self._cov_key_T_odom = T_odom_base
+            self._counts["covariance_computations"] += 1
+
+    # ------------------------------------------------------------------ odometry
+    def _odom_at(self, t_ns: int) -> F64 | None:
+        """T_odom_base at t_ns interpolated from the buffer (None outside it)."""
+        if not self._odom:
+            return None
+        t_first, t_last = self._odom[0][0], self._odom[-1][0]
+        if t_ns < t_first:
+            return None
+        if t_ns >= t_last:
+            if t_ns - t_last > self.params.max_future_s * 1e9:
+                return None
+            if t_ns == t_last or len(self._odom) < 2:
+                return self._odom[-1][1]
+            (tp, Tp), (tl, Tl) = self._odom[-2], self._odom[-1]
+            return interpolate_pose(Tp, Tl, (t_ns - tp) / (tl - tp))  # s > 1: constant-velocity extrapolation
+        times = [t for t, _ in self._odom]  # bounded (odom_buffer_s of messages)
+        i = int(np.searchsorted(times, t_ns, side="right"))
+        t0, T0 = self._odom[i - 1]
+        t1, T1 = self._odom[i]
+        return interpolate_pose(T0, T1, (t_ns - t0) / (t1 - t0))
+
+    def add_odometry(
+        self, t_ns: int, T_odom_base: NDArray[np.floating], covariance: NDArray[np.floating] | None = None
+    ) -> FusedPose | None:
+        """Feed one odometry message; returns the fused pose at t_ns (None before init).
+
+        A message with a non-finite or non-rigid pose, a bad covariance, or a time not
+        after the previous message is rejected, counted in `stats()["odometry_rejected"]`,
+        and answered with None. Every valid message after initialisation gets a FusedPose.
+        `covariance` (optional, 6x6 ROS order, of the increment since the previous message)
+        is validated; the between-factor noise comes from the `odom_sigma_*` model, because
+        driver-reported odometry covariances are rarely calibrated.
+        """
+        self._counts["odometry"] += 1
+        t_ns = int(t_ns)
+        T = _valid_pose(T_odom_base)
+        if T is None:
+            self._odom_rejects["invalid_pose"] += 1
+            return None
+        try:
+            cov = _valid_cov(covariance)
+        except ValueError:
+            self._odom_rejects["invalid_covariance"] += 1
+            return None
+        if self._last_odom_t is not None and t_ns <= self._last_odom_t:
+            self._odom_rejects["time_not_increasing"] += 1
+            return None
+        self._last_odom_t = t_ns
+        self._odom.append((t_ns, T))
+        horizon = t_ns - int(self.params.odom_buffer_s * 1e9)
+        while len(self._odom) > 2 and self._odom[1][0] < horizon:
+            self._odom.popleft()
+        if cov is not None:
+            self._counts["odometry_with_covariance"] += 1  # validated; the model sets the noise
+        if not self._initialised:
+            return None
+        self._maybe_keyframe(t_ns, T)
+        out = self._output(t_ns, T)
+        self._counts["fused_outputs"] += 1
+        return out
+
+    def _output(self, t_ns: int, T_odom_base: F64) -> FusedPose:
+        assert self._last_est is not None
+        _, _, T_key_odom = self._keys[-1]
+        T_map_odom = self._last_est @ _inv(T_key_odom)
+        T_map_base = T_map_odom @ T_odom_base
+        cov = self._cov_state + self._odom_cov(self._cov_key_T_odom, T_odom_base)
+        return FusedPose(t_ns, T_map_base, T_map_odom, gtsam_to_ros_cov(cov), True)
+
+    def current(self) -> FusedPose | None:
+        """The fused pose at the newest odometry time (None before initialisation)."""
+        if not self._initialised or not self._odom:
+            return None
+        t, T = self._odom[-1]
+        return self._output(t, T)
+
+    def covariance_now(self) -> F64 | None:
+        """Marginal covariance (ROS order) of the newest state, computed now (on demand)."""
+        if not self._initialised:
+            return None
+        return gtsam_to_ros_cov(np.asarray(self._smoother.marginalCovariance(self._keys[-1][0])))
+
+    # ------------------------------------------------------------------ VLoc
+    def add_vloc(
+        self, t_ns: int, T_map_camera: NDArray[np.floating], covariance: NDArray[np.floating] | None = None
+    ) -> VlocUpdate:
+        """Fuse one VLoc result captured at `t_ns` (may be older than the newest odometry).
+
+        `covariance`: 6x6 ROS order of `T_map_camera` (body-frame perturbation); None uses
+        the `vloc_sigma_*` parameters. Returns what happened (also counted in `stats()`).
+        """
+        self._counts["vloc"] += 1
+        res = self._add_vloc(int(t_ns), T_map_camera, covariance)
+        self._vloc_reasons[res.reason] += 1
+        return res
+
+    def _add_vloc(self, t_ns: int, T_map_camera: NDArray[np.floating], covariance: NDArray[np.floating] | None
+                  ) -> VlocUpdate:
+        p = self.params
+        T_mc = _valid_pose(T_map_camera)
+        if T_mc is None:
+            return VlocUpdate(False, "invalid_pose")
+        try:
+            cov_c = _valid_cov(covariance)
+        except ValueError:
+            return VlocUpdate(False, "invalid_covariance")
+        cov = p.vloc_cov_gtsam() if cov_c is None else ros_to_gtsam_cov(cov_c)
+        cov = self._Ad_bc @ cov @ self._Ad_bc.T
+        T_mb = T_mc @ self.T_camera_base
+        if not self._odom:
+            return VlocUpdate(False, "no_odometry")
+        T_ob = self._odom_at(t_ns)
+        if T_ob is None:
+            return VlocUpdate(False, "too_old" if t_ns < self._odom[0][0] else "ahead_of_odometry")
+        cand = _Candidate(t_ns, T_mb, T_ob, cov)
+        if not self._initialised:
+            return self._try_init(cand)
+        # Target: the window keyframe nearest in time to the capture time.
+        horizon = self._keys[-1][1] - int((p.lag_s - p.keyframe_period_s) * 1e9)
+        if t_ns < max(self._keys[0][1], horizon) - int(p.keyframe_period_s * 0.5e9):
+            return VlocUpdate(False, "too_old")
+        key, t_key, T_key_odom = min(
+            (k for k in self._keys if k[1] >= horizon), key=lambda k: abs(k[1] - t_ns)
+        )
+        D = invert(T_ob) @ T_key_odom  # odometry from capture time to keyframe time
+        meas = T_mb @ D
+        cov_meas = cov + self._odom_cov(T_ob, T_key_odom)
+        pred = self._smoother.calculateEstimatePose3(key)
+        xi = gtsam.Pose3.Logmap(pred.between(_pose3(meas)))
+        S = self._cov_state + self._odom_cov(self._cov_key_T_odom, self._keys[-1][2]) + cov_meas
+        m2 = float(xi @ np.linalg.solve(S, xi))
+        if p.gate_chi2 > 0 and m2 > p.gate_chi2:
+            self._consecutive_rejects += 1
+            self._rejected.append(cand)
+            if (
+                p.reinit_after_rejects > 0
+                and self._consecutive_rejects >= p.reinit_after_rejects
+                and self._agree(list(self._rejected))
+            ):
+                return self._initialise(self._rejected[-1], "reinitialised")
+            return VlocUpdate(False, "gated", m2)
+        self._consecutive_rejects = 0
+        self._rejected.clear()
+        graph = gtsam.NonlinearFactorGraph()
+        graph.add(gtsam.PriorFactorPose3(key, _pose3(meas), self._vloc_noise(cov_meas)))
+        self._update(graph, gtsam.Values(), {})
+        self._counts["priors"] += 1
+        return VlocUpdate(True, "accepted", m2)
+
+    def _agree(self, cands: list[_Candidate]) -> bool:
+        p = self.params
+        ref = cands[-1].T_map_odom
+        return all(
+            _map_odom_close(ref, c.T_map_odom, p.init_max_trans_m, math.radians(p.init_max_rot_deg)) for c in cands
+        )
+
+    def _try_init(self, cand: _Candidate) -> VlocUpdate:
+        self._candidates.append(cand)
+        if len(self._candidates) >= self.params.init_votes and self._agree(list(self._candidates)):
+            return self._initialise(cand, "initialised")
+        return VlocUpdate(False, "awaiting_init")
+
+    # ------------------------------------------------------------------ diagnostics
+    @property
+    def initialised(self) -> bool:
+        return self._initialised
+
+    def states_in_graph(self) -> int:
+        """Number of pose variables currently in the smoother."""
+        return int(self._smoother.calculateEstimate().size()) if self._initialised else 0
+
+    def stats(self) -> dict:
+        """Counters and timings (ms) of smoother updates (keyframes, priors, init)."""
+        return {
+            "odometry": self._counts["odometry"],
+            "odometry_rejected": dict(self._odom_rejects),
+            "fused_outputs": self._counts["fused_outputs"],
+            "vloc": self._counts["vloc"],
+            "vloc_accepted": sum(v for k, v in self._vloc_reasons.items() if k in ("accepted", "initialised",
+                                                                                   "reinitialised")),
+            "vloc_by_reason": dict(self._vloc_reasons),
+            "keyframes": self._counts["keyframes"],
+            "states_in_graph": self.states_in_graph(),
+            "window_keys": len(self._keys) if self._initialised else 0,
+            "covariance_computations": self._counts["covariance_computations"],
+            "reinitialisations": self._counts["reinitialised"],
+            "update_ms_p50": _percentile(self._update_ms, 50),
+            "update_ms_p99": _percentile(self._update_ms, 99),
+            "update_ms_max": max(self._update_ms) if self._update_ms else None,
+            "updates_timed": len(self._update_ms),
+        }

@@ -1,0 +1,169 @@
+"""OnlineFusion: outlier robustness, late VLoc at capture time, no dropped odometry, bounds."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from litevloc.pipelines.evaluation.trajectory import ate
+from litevloc.pipelines.fusion.online import FusionParams, OnlineFusion, gtsam_to_ros_cov, ros_to_gtsam_cov
+from litevloc.pipelines.fusion.simulate import run_online, simulate_vloc, synthetic_trajectory
+from litevloc.pipelines.geometry import interpolate_pose_at, make_T, so3_exp
+from litevloc.pipelines.odometry_drift import T_BASE_CAMERA_OPTICAL, DriftParams, simulate_odometry
+
+T_BC = T_BASE_CAMERA_OPTICAL
+
+
+@pytest.fixture(scope="module")
+def session() -> dict:
+    """90 s synthetic session: GT at 30 Hz, drift odometry at 100 Hz (seed 0)."""
+    gt_t, T_wb = synthetic_trajectory(90.0, 30.0, seed=2)
+    ot, oT = simulate_odometry(gt_t, T_wb, 100.0, DriftParams(), seed=0)
+    gt_o = np.stack([interpolate_pose_at(int(t), gt_t, T_wb) for t in ot])
+    return {"gt_t": gt_t, "T_wb": T_wb, "ot": ot, "oT": oT, "gt_o": gt_o}
+
+
+def _fused_ate(s: dict, params: FusionParams, outliers: float, seed: int = 7) -> float:
+    vl = simulate_vloc(s["gt_t"], s["T_wb"] @ T_BC, 1.0, params.vloc_sigma_trans, params.vloc_sigma_rot_deg,
+                       outliers, seed=seed)
+    run = run_online(params, T_BC, s["ot"], s["oT"], vl)
+    m = run.initialised
+    assert m.sum() > 0.9 * len(m)
+    return ate(run.T_map_base[m], s["gt_o"][m], align=False).rmse
+
+
+def test_outliers_do_not_hurt_with_robust_kernel_and_gating(session: dict) -> None:
+    p = FusionParams()
+    clean = _fused_ate(session, p, 0.0)
+    dirty = _fused_ate(session, p, 0.1)
+    naive = _fused_ate(session, dataclasses.replace(p, robust_kernel="none", gate_chi2=0.0), 0.1)
+    assert dirty <= 1.5 * clean, (clean, dirty)
+    assert naive >= 2.0 * dirty, (dirty, naive)  # without kernel and gate, outliers pull it off
+
+
+def _straight_line_run(capture_delay_ns: int, stamp_at_arrival: bool) -> np.ndarray:
+    """1 m/s along x; odometry over-reads by 10 %; exact VLoc every 1 s, arriving late."""
+    p = FusionParams(vloc_sigma_trans=0.005, vloc_sigma_rot_deg=0.2, gate_chi2=0.0, robust_kernel="none",
+                     init_votes=1)
+    f = OnlineFusion(p, np.eye(4))
+    t_ns = np.arange(0, 8_000_000_001, 10_000_000, dtype=np.int64)  # 100 Hz, 8 s
+    vloc_capture = [int(0.5e9) + k * int(1e9) for k in range(7)]
+    pending = [(c + capture_delay_ns, c) for c in vloc_capture]
+    out = None
+    for t in t_ns:
+        while pending and pending[0][0] <= t:
+            arrival, capture = pending.pop(0)
+            truth = make_T(np.eye(3), [capture * 1e-9, 0.0, 0.0])
+            res = f.add_vloc(arrival if stamp_at_arrival else capture, truth)
+            assert res.accepted, res
+        T_odom = make_T(np.eye(3), [1.1 * t * 1e-9, 0.0, 0.0])
+        fused = f.add_odometry(int(t), T_odom)
+        if fused is not None:
+            out = fused.T_map_base
+    assert out is not None
+    return out
+
+
+def test_late_vloc_is_applied_at_its_capture_time() -> None:
+    on_time = _straight_line_run(0, stamp_at_arrival=False)
+    late = _straight_line_run(800_000_000, stamp_at_arrival=False)
+    wrong = _straight_line_run(800_000_000, stamp_at_arrival=True)  # what a naive filter does
+    truth_x = 8.0
+    # The last VLoc was captured at 6.5 s: 1.5 s of 10 % over-reading odometry since.
+    assert abs(late[0, 3] - on_time[0, 3]) < 0.01
+    assert abs(late[0, 3] - (truth_x + 0.15)) < 0.03
+    assert abs(wrong[0, 3] - truth_x) > 0.5  # treating capture as arrival time is 0.8 m off
+
+
+def test_no_odometry_message_is_dropped_and_bad_input_is_counted(session: dict) -> None:
+    s = session
+    p = FusionParams()
+    f = OnlineFusion(p, T_BC)
+    vl = simulate_vloc(s["gt_t"], s["T_wb"] @ T_BC, 1.0, outlier_ratio=0.1, seed=3)
+    order = np.argsort(vl.t_arrival_ns)
+    j = 0
+    outputs = after_init = 0
+    n = 3000
+    for i in range(n):
+        t = int(s["ot"][i])
+        while j < len(order) and vl.t_arrival_ns[order[j]] <= t:
+            k = order[j]
+            f.add_vloc(int(vl.t_capture_ns[k]), vl.T_map_camera[k])
+            f.add_vloc(int(vl.t_capture_ns[k]), np.full((4, 4), np.nan))  # junk VLoc between messages
+            j += 1
+        was_init = f.initialised
+        out = f.add_odometry(t, s["oT"][i])
+        if f.initialised:
+            after_init += 1
+            assert out is not None and out.t_ns == t and out.initialised
+            assert out.covariance.shape == (6, 6)
+            assert np.all(np.linalg.eigvalsh(out.covariance) > 0)
+            np.testing.assert_allclose(out.T_map_odom @ s["oT"][i], out.T_map_base, atol=1e-9)
+            outputs += 1
+        else:
+            assert out is None and not was_init
+    assert outputs == after_init > 0.9 * n
+    bad = np.eye(4)
+    bad[0, 0] = np.nan
+    assert f.add_odometry(int(s["ot"][n]), bad) is None
+    assert f.add_odometry(int(s["ot"][n - 5]), s["oT"][n - 5]) is None  # time going backwards
+    st = f.stats()
+    assert st["odometry_rejected"] == {"invalid_pose": 1, "time_not_increasing": 1}
+    assert st["fused_outputs"] == outputs
+    assert st["vloc_by_reason"]["invalid_pose"] == j
+    assert st["vloc_by_reason"].get("gated", 0) >= 1
+
+
+def test_state_count_is_bounded(session: dict) -> None:
+    s = session
+    p = FusionParams()
+    counts: list[int] = []
+
+    def probe(i: int, fusion: OnlineFusion) -> None:
+        if i % 500 == 0 and fusion.initialised:
+            counts.append(fusion.states_in_graph())
+
+    vl = simulate_vloc(s["gt_t"], s["T_wb"] @ T_BC, 1.0, outlier_ratio=0.1, seed=4)
+    run = run_online(p, T_BC, s["ot"], s["oT"], vl, on_sample=probe)
+    bound = p.lag_s / p.keyframe_period_s + 10
+    assert max(counts) <= bound
+    assert run.stats["keyframes"] > 5 * bound  # many more states were created than kept
+    assert run.stats["covariance_computations"] <= 90 / p.covariance_period_s + 2  # not per update
+
+
+def test_first_vloc_outlier_does_not_seed_the_filter() -> None:
+    f = OnlineFusion(FusionParams(init_votes=2), np.eye(4))
+    for k in range(50):
+        f.add_odometry(k * 10_000_000, np.eye(4))
+    assert f.add_vloc(100_000_000, make_T(so3_exp(np.array([0, 0, 1.0])), [3.0, 1.0, 0.0])).reason == "awaiting_init"
+    assert f.add_vloc(200_000_000, np.eye(4)).reason == "awaiting_init"  # disagrees with the first
+    r = f.add_vloc(300_000_000, make_T(np.eye(3), [0.01, 0, 0]))
+    assert r.accepted and r.reason == "initialised"
+    out = f.add_odometry(500_000_000, np.eye(4))
+    assert out is not None and np.linalg.norm(out.T_map_base[:3, 3]) < 0.05
+
+
+def test_vloc_older_than_window_is_rejected_not_misapplied() -> None:
+    p = FusionParams(init_votes=1, lag_s=1.0, odom_buffer_s=1.0)
+    f = OnlineFusion(p, np.eye(4))
+    f.add_odometry(0, np.eye(4))
+    assert f.add_vloc(0, np.eye(4)).reason == "initialised"
+    for k in range(1, 301):
+        f.add_odometry(k * 10_000_000, np.eye(4))
+    assert f.add_vloc(500_000_000, np.eye(4)).reason == "too_old"
+    assert f.add_vloc(3_500_000_000, np.eye(4)).reason == "ahead_of_odometry"
+    assert f.add_vloc(2_900_000_000, np.eye(4)).reason == "accepted"
+
+
+def test_params_and_covariance_order() -> None:
+    with pytest.raises(ValueError, match="robust_kernel"):
+        FusionParams(robust_kernel="tukey")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="lag_s"):
+        FusionParams(lag_s=0.1, keyframe_period_s=0.1)
+    C = np.diag([1.0, 2, 3, 4, 5, 6])  # ROS: x y z rx ry rz
+    np.testing.assert_array_equal(np.diag(ros_to_gtsam_cov(C)), [4, 5, 6, 1, 2, 3])
+    np.testing.assert_array_equal(gtsam_to_ros_cov(ros_to_gtsam_cov(C)), C)
+    with pytest.raises(ValueError, match="T_base_camera"):
+        OnlineFusion(FusionParams(), np.zeros((4, 4)))
