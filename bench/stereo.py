@@ -83,7 +83,7 @@ def main() -> None:
     rgb = cv2.resize(left, (640, 480))
 
     def jpeg_round_trip() -> None:
-        ok, enc = cv2.imencode(".jpg", rgb[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, 95])
+        _ok, enc = cv2.imencode(".jpg", rgb[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, 95])
         cv2.imdecode(enc, cv2.IMREAD_COLOR)
 
     t_jpeg = _time(jpeg_round_trip, max(args.repeats, 20))

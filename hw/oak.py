@@ -39,15 +39,12 @@ import time
 from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Literal
+from typing import Any, Literal
 
 import cv2
 import numpy as np
 from litevloc.hw.messages import Message, RgbdFrame, StreamError, StreamStats, depth_from_millimetres
 from numpy.typing import NDArray
-
-if TYPE_CHECKING:  # pragma: no cover
-    import depthai as dai
 
 log = logging.getLogger(__name__)
 

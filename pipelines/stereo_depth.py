@@ -72,7 +72,7 @@ class SgbmParams:
 
 def _matcher(params: SgbmParams, channels: int) -> cv2.StereoSGBM:
     area = channels * params.block_size**2
-    return cv2.StereoSGBM_create(
+    return cv2.StereoSGBM_create(  # type: ignore[attr-defined]
         minDisparity=params.min_disparity,
         numDisparities=params.num_disparities,
         blockSize=params.block_size,

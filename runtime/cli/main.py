@@ -14,7 +14,7 @@ import sys
 from collections.abc import Sequence
 
 # Subcommand modules (litevloc.runtime.cli.<name>), in help order.
-COMMANDS = ("info", "convert", "replay")
+COMMANDS = ("info", "convert", "replay", "record")
 
 
 class UserError(Exception):
