@@ -37,7 +37,7 @@ import datetime
 import logging
 import time
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -129,15 +129,18 @@ def import_depthai() -> Any:
 # ----------------------------------------------------------------------------- discovery
 
 
-def find_device(cfg: CameraConfig, list_devices: Any = None) -> Any:
+def find_device(cfg: CameraConfig, list_devices: Any = None, list_connected: Any = None) -> Any:
     """Return the `dai.DeviceInfo` of the configured device, polling up to `discovery_timeout_s`.
 
-    `list_devices` (for tests) replaces `dai.Device.getAllAvailableDevices`. Raises
-    `OakNotFoundError` with the devices that were seen, never blocks on the ~11 s default
-    device search.
+    `list_devices`/`list_connected` (for tests) replace `dai.Device.getAllAvailableDevices`
+    and `getAllConnectedDevices` (the latter, asked once on failure, tells a device that is
+    present but held by another process). Raises `OakNotFoundError` naming the devices
+    seen; never blocks on the ~11 s default device search.
     """
     if list_devices is None:
         list_devices = import_depthai().Device.getAllAvailableDevices
+    if list_connected is None:
+        list_connected = import_depthai().Device.getAllConnectedDevices
     deadline = time.monotonic() + cfg.discovery_timeout_s
     seen: list[str] = []
     while True:
@@ -149,6 +152,14 @@ def find_device(cfg: CameraConfig, list_devices: Any = None) -> Any:
         if time.monotonic() + 0.2 >= deadline:
             break
         time.sleep(0.2)
+    busy = [i for i in list_connected()
+            if (not cfg.device_id or cfg.device_id in (_info_id(i), _info_name(i)))
+            and _info_id(i) not in {_info_id(j) for j in infos}]
+    if busy:
+        raise OakNotFoundError(
+            f"OAK device {_info_id(busy[0])} is connected but not available (in use by another process?); "
+            "close the other program (or unplug and replug the camera)"
+        )
     if cfg.device_id:
         raise OakNotFoundError(
             f"no OAK device found with id or name {cfg.device_id!r} within {cfg.discovery_timeout_s:g} s "
@@ -432,31 +443,49 @@ class OakSource:
             clock = HostClock.measure(cfg.clock)
             log.info("%s started: %dx%d @ %g fps, depth %s, clock %s", self.name, cfg.width, cfg.height,
                      cfg.fps, cfg.depth, cfg.clock)
-            index = 0
-            last_t: int | None = None
+            yield from self.frames_from_queues(pipeline.isRunning, q, imu_q, clock)
+
+    def frames_from_queues(self, running: Callable[[], bool], q: Any, imu_q: Any | None,
+                           clock: HostClock) -> Iterator[RgbdFrame]:
+        """The receive loop over the pipeline's output queues (device-free; tested with host frames).
+
+        `q.get(timedelta)` returns a `dai.MessageGroup` {"rgb", "depth"} (or a colour
+        `ImgFrame` when depth is off) or None on timeout. Raises StreamError when no frame
+        arrives for `first_frame_timeout_s` (before the first) / `frame_timeout_s` (after).
+        """
+        cfg = self.cfg
+        index = 0
+        last_t: int | None = None
+        waited_since = time.monotonic()
+        K_checked = False
+        while running():
+            if imu_q is not None:
+                for m in imu_q.tryGetAll():
+                    self.imu.extend(imu_samples_from_dai(m, clock))
+            msg = q.get(datetime.timedelta(milliseconds=100))
+            if msg is None:
+                limit = cfg.first_frame_timeout_s if index == 0 else cfg.frame_timeout_s
+                if time.monotonic() - waited_since > limit:
+                    raise StreamError(f"{self.name}: no frame for {limit:g} s (device stalled or unplugged)")
+                continue
             waited_since = time.monotonic()
-            while pipeline.isRunning():
-                if imu_q is not None:
-                    for m in imu_q.tryGetAll():
-                        self.imu.extend(imu_samples_from_dai(m, clock))
-                msg = q.get(datetime.timedelta(milliseconds=100))
-                if msg is None:
-                    limit = cfg.first_frame_timeout_s if index == 0 else cfg.frame_timeout_s
-                    if time.monotonic() - waited_since > limit:
-                        raise StreamError(f"{self.name}: no frame for {limit:g} s (device stalled or unplugged)")
-                    continue
-                waited_since = time.monotonic()
+            try:
                 color, depth = (msg["rgb"], msg["depth"]) if cfg.depth == "aligned" else (msg, None)
-                try:
-                    frame = rgbd_from_dai(color, depth, clock, self.K, index, cfg.frame_id, cfg.timestamp_at,
-                                          cfg.jpeg_quality)
-                except StreamError as exc:
-                    self._skip("bad frame", str(exc))
-                    continue
-                if last_t is not None and frame.t_ns <= last_t:
-                    self._skip("timestamp not increasing", f"{frame.t_ns} ns after {last_t} ns")
-                    continue
-                last_t = frame.t_ns
-                index += 1
-                self.stats.messages += 1
-                yield frame
+                frame = rgbd_from_dai(color, depth, clock, self.K, index, cfg.frame_id, cfg.timestamp_at,
+                                      cfg.jpeg_quality)
+            except (StreamError, KeyError, RuntimeError) as exc:
+                self._skip("bad frame", str(exc))
+                continue
+            if last_t is not None and frame.t_ns <= last_t:
+                self._skip("timestamp not increasing", f"{frame.t_ns} ns after {last_t} ns")
+                continue
+            if not K_checked and self.K is not None:
+                K_checked = True
+                if not np.allclose(frame.K, self.K, rtol=0.02):
+                    log.warning("%s: colour intrinsics of the frames %s differ from the scaled EEPROM calibration "
+                                "%s; using the frames' (they follow the sensor mode's crop)", self.name,
+                                np.round(frame.K, 2).tolist(), np.round(self.K, 2).tolist())
+            last_t = frame.t_ns
+            index += 1
+            self.stats.messages += 1
+            yield frame

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import datetime
 import time
+from collections import deque
 from pathlib import Path
 
 import numpy as np
 import pytest
 from litevloc.config import ConfigError, load_config
 from litevloc.config.loader import from_mapping
-from litevloc.hw.messages import StreamError
+from litevloc.hw.messages import StreamError, StreamStats
 from litevloc.hw.oak import (
     CameraConfig,
     HostClock,
@@ -78,11 +79,17 @@ class _Info:
 
 def test_find_device_picks_configured_id_or_first() -> None:
     infos = [_Info("18443010A1", "1.1"), _Info("19443010B2", "1.2")]
-    assert find_device(CameraConfig(), lambda: infos) is infos[0]
-    assert find_device(CameraConfig(device_id="19443010B2"), lambda: infos) is infos[1]
-    assert find_device(CameraConfig(device_id="1.2"), lambda: infos) is infos[1]
+    assert find_device(CameraConfig(), lambda: infos, lambda: infos) is infos[0]
+    assert find_device(CameraConfig(device_id="19443010B2"), lambda: infos, lambda: infos) is infos[1]
+    assert find_device(CameraConfig(device_id="1.2"), lambda: infos, lambda: infos) is infos[1]
     with pytest.raises(OakNotFoundError, match=r"no OAK device found with id or name 'XYZ'.*18443010A1"):
-        find_device(CameraConfig(device_id="XYZ", discovery_timeout_s=0.3), lambda: infos)
+        find_device(CameraConfig(device_id="XYZ", discovery_timeout_s=0.3), lambda: infos, lambda: infos)
+
+
+def test_find_device_tells_a_busy_device() -> None:
+    busy = [_Info("18443010A1", "1.1")]
+    with pytest.raises(OakNotFoundError, match="18443010A1 is connected but not available"):
+        find_device(CameraConfig(discovery_timeout_s=0.3), lambda: [], lambda: busy)
 
 
 def test_find_device_polls_until_the_device_appears() -> None:
@@ -92,7 +99,7 @@ def test_find_device_polls_until_the_device_appears() -> None:
         calls["n"] += 1
         return [_Info("A", "a")] if calls["n"] >= 3 else []
 
-    assert find_device(CameraConfig(discovery_timeout_s=5.0), appears_late).deviceId == "A"
+    assert find_device(CameraConfig(discovery_timeout_s=5.0), appears_late, list).deviceId == "A"
     assert calls["n"] == 3
 
 
@@ -238,3 +245,68 @@ def test_imu_packets_convert() -> None:
     data.packets = [pkt]
     samples = imu_samples_from_dai(data, HostClock("monotonic", 0))
     assert len(samples) == 1 and samples[0].accel.shape == (3,) and samples[0].gyro.shape == (3,)
+
+
+# ----------------------------------------------------------------------------- receive loop
+
+
+class _Queue:
+    """Stands in for a `dai.MessageQueue`: hands out prepared messages, then None (timeouts)."""
+
+    def __init__(self, msgs: list[object]) -> None:
+        self.msgs = list(msgs)
+
+    def get(self, timeout: datetime.timedelta) -> object | None:
+        if self.msgs:
+            return self.msgs.pop(0)
+        time.sleep(min(timeout.total_seconds(), 0.01))
+        return None
+
+
+def _group(rgb: np.ndarray, mm: np.ndarray, steady_us: int) -> object:
+    g = dai.MessageGroup()
+    g["rgb"] = _color_frame(rgb, steady_us)
+    g["depth"] = _depth_frame(mm)
+    return g
+
+
+def _source(**kw: object) -> OakSource:
+    src = OakSource.__new__(OakSource)  # skip discovery: the loop needs no device
+    src.cfg = CameraConfig(**kw)  # type: ignore[arg-type]
+    src.strict = False
+    src.stats = StreamStats()
+    src.name = "oak:test"
+    src.imu = deque()
+    src.K = np.array([[5.0, 0, 3], [0, 5.0, 2], [0, 0, 1]])
+    return src
+
+
+def test_receive_loop_yields_frames_and_counts_skips() -> None:
+    rgb = np.full((4, 6, 3), 7, np.uint8)
+    mm = np.full((4, 6), 1500, np.uint16)
+    msgs = [
+        _group(rgb, mm, 1_000),
+        _group(rgb, np.ones((2, 3), np.uint16), 2_000),  # depth not aligned -> skipped
+        _group(rgb, mm, 3_000),
+        _group(rgb, mm, 2_500),  # time going backwards -> skipped
+    ]
+    src = _source(jpeg_quality=0, frame_timeout_s=0.2)
+    out = []
+    with pytest.raises(StreamError, match=r"no frame for 0\.2 s"):
+        for f in src.frames_from_queues(lambda: True, _Queue(msgs), None, HostClock("monotonic", 0)):
+            out.append(f)
+    assert [f.t_ns for f in out] == [1_000_000, 3_000_000]
+    assert [f.index for f in out] == [0, 1]
+    assert np.allclose(out[0].depth, 1.5)
+    assert src.stats.skipped == {"bad frame": 1, "timestamp not increasing": 1}
+    assert src.stats.messages == 2
+
+
+def test_receive_loop_strict_raises_and_stops_when_pipeline_stops() -> None:
+    rgb = np.zeros((4, 6, 3), np.uint8)
+    src = _source(jpeg_quality=0)
+    src.strict = True
+    bad = [_group(rgb, np.ones((2, 3), np.uint16), 1)]
+    with pytest.raises(StreamError, match="not aligned"):
+        list(src.frames_from_queues(lambda: True, _Queue(bad), None, HostClock("monotonic", 0)))
+    assert list(src.frames_from_queues(lambda: False, _Queue([]), None, HostClock("monotonic", 0))) == []
