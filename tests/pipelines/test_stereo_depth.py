@@ -78,7 +78,7 @@ def test_shape_and_dtype_errors() -> None:
 def test_middlebury_motorcycle_accuracy(moto_scores: dict[str, object]) -> None:
     lr = moto_scores["lr"]
     raw = moto_scores["raw"]
-    # Measured (opencv 4.x, defaults): bad-3px 15.3 % of GT pixels (missing = bad), 4.4 % of
+    # Measured (opencv-python-headless 5.0, defaults): bad-3px 15.3 % of GT pixels (missing = bad), 4.4 % of
     # estimated pixels, density 0.886, median depth error 7.0 mm. Thresholds leave a margin
     # but catch a broken matcher or a lost border band.
     assert lr.bad_3px < 0.18  # type: ignore[attr-defined]
