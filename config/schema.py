@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Literal
 
+from litevloc.hw.oak import CameraConfig
 from litevloc.models.config import ModelsConfig
 from litevloc.pipelines.fusion.online import FusionParams
 from litevloc.pipelines.localization.vloc import LocalizationParams
@@ -95,6 +96,7 @@ class LiteVLocConfig:
     source: SourceConfig = field(default_factory=SourceConfig)
     odometry_sim: OdometrySimConfig = field(default_factory=OdometrySimConfig)
     replay: ReplayConfig = field(default_factory=ReplayConfig)
+    camera: CameraConfig = field(default_factory=CameraConfig)  # live OAK-D (source.kind: oak-d)
     models: ModelsConfig = field(default_factory=ModelsConfig)
     mapping: MappingParams = field(default_factory=MappingParams)
     localization: LocalizationParams = field(default_factory=LocalizationParams)
