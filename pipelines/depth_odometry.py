@@ -34,9 +34,8 @@ from typing import Literal
 
 import cv2
 import numpy as np
-from numpy.typing import NDArray
-
 from litevloc.pipelines.geometry import invert
+from numpy.typing import NDArray
 
 F64 = NDArray[np.float64]
 

@@ -17,9 +17,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
-
 from litevloc.pipelines.geometry import GeometryError, invert, make_T, matrix_to_quat_xyzw, quat_xyzw_to_matrix
+from numpy.typing import NDArray
 
 F64 = NDArray[np.float64]
 

@@ -53,9 +53,8 @@ from typing import Literal
 
 import gtsam
 import numpy as np
-from numpy.typing import NDArray
-
 from litevloc.pipelines.geometry import interpolate_pose, invert, rotation_angle
+from numpy.typing import NDArray
 
 F64 = NDArray[np.float64]
 

@@ -6,7 +6,6 @@ import dataclasses
 
 import numpy as np
 import pytest
-
 from litevloc.pipelines.evaluation.trajectory import ate
 from litevloc.pipelines.fusion.online import FusionParams, OnlineFusion, gtsam_to_ros_cov, ros_to_gtsam_cov
 from litevloc.pipelines.fusion.simulate import run_online, simulate_vloc, synthetic_trajectory

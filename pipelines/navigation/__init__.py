@@ -1,0 +1,1 @@
+"""Image-goal navigation on the map: goal localization, Dijkstra, subgoal tracking."""

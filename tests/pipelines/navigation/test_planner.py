@@ -1,0 +1,64 @@
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from litevloc.pipelines import geometry as g
+from litevloc.pipelines.navigation.planner import (
+    GoalParams,
+    NavigationError,
+    SubgoalTracker,
+    TrackerParams,
+    localize_goal,
+    shortest_path,
+)
+
+from tests.pipelines.localization.test_vloc import K, match_by_id, observe, pose
+from tests.pipelines.localization.test_vloc import make_map as make_vloc_map
+
+
+def grid_map(edges: list[tuple[int, int, float]], n: int):  # type: ignore[no-untyped-def]
+    m = make_vloc_map([float(i) for i in range(n)])
+    import dataclasses
+
+    e = np.array([(a, b) for a, b, _ in edges], np.int64).reshape(-1, 2)
+    w = np.array([c for _, _, c in edges], np.float32)
+    return dataclasses.replace(m, conn_edges=e, conn_metres=w)
+
+
+def test_dijkstra_prefers_short_total_length() -> None:
+    m = grid_map([(0, 1, 1.0), (1, 3, 1.0), (0, 2, 0.5), (2, 3, 5.0), (3, 4, 1.0)], 5)
+    path, length = shortest_path(m, 0, 4)
+    assert path == [0, 1, 3, 4] and np.isclose(length, 3.0)
+    assert shortest_path(m, 2, 2) == ([2], 0.0)
+    m2 = grid_map([(0, 1, 1.0)], 3)
+    with pytest.raises(NavigationError, match="no path"):
+        shortest_path(m2, 0, 2)
+
+
+def test_tracker_advances_replans_and_reaches() -> None:
+    m = grid_map([(0, 1, 1.0), (1, 2, 1.0), (2, 3, 1.0)], 4)
+    tr = SubgoalTracker(m, TrackerParams(reach_m=0.3, stray_m=1.5))
+    st = tr.set_goal(3, np.array([0.1, 0, 0]))
+    assert st.state == "planned" and st.path == (0, 1, 2, 3)
+    st = tr.update(np.array([0.05, 0, 0]))
+    assert st.subgoal == 1
+    st = tr.update(np.array([2.0, 0, 3.0]))  # strayed 3 m off the path
+    assert tr.replans == 1 and st.state == "planned"
+    for x in (1.0, 2.0, 3.0):
+        st = tr.update(np.array([x, 0, 0]))
+    assert st.state == "reached"
+
+
+def test_goal_localization_verifies_geometry() -> None:
+    m = make_vloc_map([0.0, 1.0, 2.0, 3.0])
+    feats, _ = observe(pose(2.1))
+    desc = np.zeros(4, np.float32)
+    desc[0] = 1.0
+    desc[2] = 0.9
+    res = localize_goal(feats, desc / np.linalg.norm(desc), K, m, match_by_id, GoalParams(top_k=4))
+    assert res.reason == "ok" and len(res.candidates) == 4
+    assert res.node == max(res.candidates, key=lambda c: c[2])[0]  # the best-verified candidate wins
+    behind = g.make_T(g.so3_exp(np.array([0, np.pi, 0])), [0.0, 0.0, 0.0])
+    far, _ = observe(behind)  # looks away from every map point: nothing verifies
+    res2 = localize_goal(far, desc / np.linalg.norm(desc), K, m, match_by_id)
+    assert res2.node is None and "matches no map place" in res2.reason
