@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Literal
 
+from litevloc.hw.sim.params import SimParams
 from litevloc.pipelines.odometry_drift import DriftParams
 
 
@@ -62,3 +63,4 @@ class LiteVLocConfig:
     source: SourceConfig = field(default_factory=SourceConfig)
     odometry_sim: OdometrySimConfig = field(default_factory=OdometrySimConfig)
     replay: ReplayConfig = field(default_factory=ReplayConfig)
+    sim: SimParams = field(default_factory=SimParams)

@@ -23,8 +23,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
-
 from litevloc.pipelines.geometry import (
     GeometryError,
     interpolate_pose_at,
@@ -33,6 +31,7 @@ from litevloc.pipelines.geometry import (
     rotation_angle,
     so3_exp,
 )
+from numpy.typing import NDArray
 
 
 @dataclass(frozen=True)
@@ -63,7 +62,7 @@ def resample_times(t_start_ns: int, t_end_ns: int, rate_hz: float) -> NDArray[np
     """Timestamps from t_start to t_end (inclusive when it falls on the grid) at rate_hz."""
     if rate_hz <= 0:
         raise ValueError(f"odometry rate must be > 0 Hz, got {rate_hz}")
-    step = int(round(1e9 / rate_hz))
+    step = round(1e9 / rate_hz)
     return np.arange(t_start_ns, t_end_ns + 1, step, dtype=np.int64)
 
 
@@ -128,7 +127,7 @@ class IncrementalDrift:
         self.T_odom_base = np.eye(4)
 
     def step(self, D: NDArray[np.float64], dt: float) -> NDArray[np.float64]:
-        """Apply one ground-truth base_link increment D (4x4) over dt seconds; returns T_odom_base."""
+        """Apply one ground-truth base_link increment D (4x4) over dt s; returns T_odom_base."""
         p = self.params
         D = np.asarray(D, dtype=np.float64)
         d = float(np.linalg.norm(D[:3, 3]))

@@ -7,13 +7,16 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from litevloc.hw.sim.world import World
 from numpy.typing import NDArray
 
-from litevloc.hw.sim.world import World
 
-
-def plot_world(world: World, path: str | Path, trajectories: Sequence[tuple[str, NDArray[np.float64]]] = (),
-               title: str | None = None) -> Path:
+def plot_world(
+    world: World,
+    path: str | Path,
+    trajectories: Sequence[tuple[str, NDArray[np.float64]]] = (),
+    title: str | None = None,
+) -> Path:
     """Top-down PNG: walls, doors, boxes, posters, goal places and (N, 2) xy trajectories."""
     import matplotlib
 
@@ -25,15 +28,26 @@ def plot_world(world: World, path: str | Path, trajectories: Sequence[tuple[str,
     fig, ax = plt.subplots(figsize=(max(6.0, (x1 - x0) / 3), max(4.0, (y1 - y0) / 3)), dpi=100)
     for r in world.regions.values():
         bx0, by0, bx1, by1 = r.bbox
-        ax.text((bx0 + bx1) / 2, (by0 + by1) / 2, f"{r.name}\n{r.material}", ha="center", va="center",
-                fontsize=6, color="0.5")
+        ax.text(
+            (bx0 + bx1) / 2,
+            (by0 + by1) / 2,
+            f"{r.name}\n{r.material}",
+            ha="center",
+            va="center",
+            fontsize=6,
+            color="0.5",
+        )
     for f in world.faces:
         if f.kind != "wall":
             continue
         xs, ys = ((f.c, f.c), (f.lo, f.hi)) if f.axis == 0 else ((f.lo, f.hi), (f.c, f.c))
         ax.plot(xs, ys, color="k", lw=1.5)
     for bx0, by0, bx1, by1, h in world.boxes:
-        ax.add_patch(Rectangle((bx0, by0), bx1 - bx0, by1 - by0, color="tab:brown", alpha=0.3 + 0.2 * min(h / 2, 1)))
+        ax.add_patch(
+            Rectangle(
+                (bx0, by0), bx1 - bx0, by1 - by0, color="tab:brown", alpha=0.3 + 0.2 * min(h / 2, 1)
+            )
+        )
     for p in world.posters:
         f = world.faces[p.face]
         from litevloc.hw.sim.world import _s_increasing
@@ -73,7 +87,9 @@ def depth_to_rgb(depth: NDArray[np.float32], max_m: float = 8.0) -> NDArray[np.u
     return rgb
 
 
-def contact_sheet(tiles: Sequence[tuple[str, NDArray[np.uint8]]], path: str | Path, cols: int = 4) -> Path:
+def contact_sheet(
+    tiles: Sequence[tuple[str, NDArray[np.uint8]]], path: str | Path, cols: int = 4
+) -> Path:
     """Grid of labelled RGB tiles (all the same size) written as a PNG."""
     if not tiles:
         raise ValueError("no images for the contact sheet")
@@ -84,7 +100,16 @@ def contact_sheet(tiles: Sequence[tuple[str, NDArray[np.uint8]]], path: str | Pa
         r, c = divmod(k, cols)
         y, x = r * (h + 16), c * w
         sheet[y + 16 : y + 16 + h, x : x + w] = img
-        cv2.putText(sheet, label[:48], (x + 2, y + 12), cv2.FONT_HERSHEY_SIMPLEX, 0.38, (0, 0, 0), 1, cv2.LINE_AA)
+        cv2.putText(
+            sheet,
+            label[:48],
+            (x + 2, y + 12),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            0.38,
+            (0, 0, 0),
+            1,
+            cv2.LINE_AA,
+        )
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     cv2.imwrite(str(out), sheet[:, :, ::-1])

@@ -38,14 +38,22 @@ class RealismParams:
                 raise ValueError(f"{name} must be [lo, hi] with 0 <= lo <= hi, got {(lo, hi)}")
         if self.brightness[0] <= 0 or self.gamma[0] <= 0:
             raise ValueError("brightness and gamma must be > 0")
-        for name in ("color_cast", "noise_sigma", "depth_noise_per_m2", "edge_hole_prob", "dropout"):
+        for name in (
+            "color_cast",
+            "noise_sigma",
+            "depth_noise_per_m2",
+            "edge_hole_prob",
+            "dropout",
+        ):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
                 raise ValueError(f"{name} must be >= 0, got {v}")
         if self.edge_hole_prob > 1 or self.dropout > 1:
             raise ValueError("edge_hole_prob and dropout are probabilities in [0, 1]")
         if not (0 <= self.depth_min < self.depth_max):
-            raise ValueError(f"need 0 <= depth_min < depth_max, got {self.depth_min}, {self.depth_max}")
+            raise ValueError(
+                f"need 0 <= depth_min < depth_max, got {self.depth_min}, {self.depth_max}"
+            )
 
 
 @dataclass(frozen=True)
@@ -61,12 +69,17 @@ class Lighting:
 def sample_lighting(params: RealismParams, rng: np.random.Generator) -> Lighting:
     """Draw a sequence's lighting from the ranges in `params`."""
     cast = 1.0 + rng.uniform(-params.color_cast, params.color_cast, 3)
-    return Lighting(float(rng.uniform(*params.brightness)), float(rng.uniform(*params.gamma)),
-                    (float(cast[0]), float(cast[1]), float(cast[2])), float(rng.uniform(*params.blur_sigma)))
+    return Lighting(
+        float(rng.uniform(*params.brightness)),
+        float(rng.uniform(*params.gamma)),
+        (float(cast[0]), float(cast[1]), float(cast[2])),
+        float(rng.uniform(*params.blur_sigma)),
+    )
 
 
-def apply_color(color: NDArray[np.uint8], lighting: Lighting, params: RealismParams,
-                rng: np.random.Generator) -> NDArray[np.uint8]:
+def apply_color(
+    color: NDArray[np.uint8], lighting: Lighting, params: RealismParams, rng: np.random.Generator
+) -> NDArray[np.uint8]:
     """HxWx3 uint8 RGB -> degraded HxWx3 uint8 RGB (lighting, blur, noise)."""
     if not params.enabled:
         return color
@@ -75,21 +88,32 @@ def apply_color(color: NDArray[np.uint8], lighting: Lighting, params: RealismPar
     for ch in range(3):
         img[..., ch] = (lut * lighting.cast[ch]).astype(np.float32)[color[..., ch]]
     if lighting.blur_sigma > 0.05:
-        img = cv2.GaussianBlur(img, (0, 0), lighting.blur_sigma)
+        img = np.asarray(cv2.GaussianBlur(img, (0, 0), lighting.blur_sigma), dtype=np.float32)
     if params.noise_sigma > 0:
-        img += rng.standard_normal(img.shape[:2] + (1,), dtype=np.float32) * np.float32(params.noise_sigma * 0.6)
-        img += rng.standard_normal(img.shape, dtype=np.float32) * np.float32(params.noise_sigma * 0.5)
+        img += rng.standard_normal((*img.shape[:2], 1), dtype=np.float32) * np.float32(
+            params.noise_sigma * 0.6
+        )
+        img += rng.standard_normal(img.shape, dtype=np.float32) * np.float32(
+            params.noise_sigma * 0.5
+        )
     return np.clip(img + 0.5, 0, 255).astype(np.uint8)
 
 
-def apply_depth(depth: NDArray[np.float32], params: RealismParams, rng: np.random.Generator) -> NDArray[np.float32]:
+def apply_depth(
+    depth: NDArray[np.float32], params: RealismParams, rng: np.random.Generator
+) -> NDArray[np.float32]:
     """HxW float32 metres -> noisy depth with NaN holes (range limits, edges, dropout)."""
     if not params.enabled:
         return depth
     d = depth.astype(np.float32, copy=True)
     finite = np.isfinite(d)
     z = np.where(finite, d, 0).astype(np.float32)
-    d += rng.standard_normal(d.shape, dtype=np.float32) * np.float32(params.depth_noise_per_m2) * z * z
+    d += (
+        rng.standard_normal(d.shape, dtype=np.float32)
+        * np.float32(params.depth_noise_per_m2)
+        * z
+        * z
+    )
     # holes at depth discontinuities (stereo/ToF mixed pixels), slightly dilated
     gx = np.abs(np.diff(z, axis=1, prepend=z[:, :1]))
     gy = np.abs(np.diff(z, axis=0, prepend=z[:1, :]))

@@ -20,11 +20,10 @@ from functools import lru_cache
 
 import cv2
 import numpy as np
-from numpy.typing import NDArray
-
 from litevloc.hw.sim.textures import MIP_LEVELS, BakedTextures, bake
 from litevloc.hw.sim.world import World, _s_increasing
 from litevloc.pipelines.geometry import PinholeIntrinsics, check_rigid
+from numpy.typing import NDArray
 
 KIND_VOID, KIND_WALL, KIND_FLOOR, KIND_CEIL, KIND_SIDE, KIND_TOP = 0, 1, 2, 3, 4, 5
 
@@ -41,7 +40,7 @@ def baked_textures(world: World) -> BakedTextures:
     tex = getattr(world, "_baked", None)
     if tex is None:
         tex = bake(world)
-        world._baked = tex  # type: ignore[attr-defined]
+        world._baked = tex
     return tex
 
 
@@ -85,7 +84,9 @@ class Renderer:
         self._fppm = fppm
 
     # ------------------------------------------------------------------ public
-    def render(self, T_world_camera: NDArray[np.floating], intrinsics: PinholeIntrinsics) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
+    def render(
+        self, T_world_camera: NDArray[np.floating], intrinsics: PinholeIntrinsics
+    ) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
         """Colour (HxWx3 uint8 RGB) and z-depth (HxW float32 m, NaN = no hit) at a camera pose.
 
         Args:
@@ -127,11 +128,12 @@ class Renderer:
         color = cv2.remap(col_v, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         rng_t = cv2.remap(rng_v, map_x, map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
         depth = rng_t / np.linalg.norm(rays, axis=-1).astype(np.float32)
-        return color, depth.astype(np.float32)
+        return np.asarray(color, dtype=np.uint8), depth.astype(np.float32)
 
-    def render_stereo(self, T_world_camera: NDArray[np.floating], intrinsics: PinholeIntrinsics,
-                      baseline: float) -> tuple[NDArray[np.uint8], NDArray[np.uint8], NDArray[np.float32]]:
-        """Rectified stereo pair: (left colour, right colour, left depth); right = +x by `baseline` m."""
+    def render_stereo(
+        self, T_world_camera: NDArray[np.floating], intrinsics: PinholeIntrinsics, baseline: float
+    ) -> tuple[NDArray[np.uint8], NDArray[np.uint8], NDArray[np.float32]]:
+        """Stereo pair (left colour, right colour, left depth); right = +x by `baseline`."""
         T = np.asarray(T_world_camera, dtype=np.float64)
         T_r = T.copy()
         T_r[:3, 3] = T[:3, 3] + T[:3, 0] * baseline
@@ -140,7 +142,9 @@ class Renderer:
         return left, right, depth
 
     # --------------------------------------------------------------- internals
-    def _walls(self, p: NDArray[np.float64], d: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.intp], NDArray[np.float64]]:
+    def _walls(
+        self, p: NDArray[np.float64], d: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64], NDArray[np.intp], NDArray[np.float64]]:
         """Nearest wall per column ray: param t, face index, texture coordinate s (m)."""
         n = len(d)
         best_t = np.full(n, np.inf)
@@ -155,7 +159,12 @@ class Renderer:
             with np.errstate(divide="ignore", invalid="ignore"):
                 t = (self._c[idx][None, :] - p[axis]) / da
             coord = p[other] + t * d[:, other : other + 1]
-            ok = (t > 1e-6) & (coord >= self._lo[idx]) & (coord <= self._hi[idx]) & (self._normal[idx] * da < 0)
+            ok = (
+                (t > 1e-6)
+                & (coord >= self._lo[idx])
+                & (coord <= self._hi[idx])
+                & (self._normal[idx] * da < 0)
+            )
             t = np.where(ok, t, np.inf)
             k = np.argmin(t, axis=1)
             tk = t[np.arange(n), k]
@@ -168,7 +177,7 @@ class Renderer:
             best_s = np.where(better, sk, best_s)
         return best_t, best_f, best_s
 
-    def _boxes(self, p: NDArray[np.float64], d: NDArray[np.float64], t_wall: NDArray[np.float64]):  # type: ignore[no-untyped-def]
+    def _boxes(self, p: NDArray[np.float64], d: NDArray[np.float64], t_wall: NDArray[np.float64]):
         """Boxes hit before the wall, nearest first: (K, n) t_in, t_out, height, face, s, box."""
         B = self.world.boxes
         if len(B) == 0:
@@ -208,8 +217,14 @@ class Renderer:
         h = self.world.boxes[bidx, 4]
         return ti.T, to.T, h.T, face.T, s.T, bidx.T, valid.T
 
-    def _render_level(self, p: NDArray[np.float64], R_wv: NDArray[np.float64], xn: NDArray[np.float64],
-                      yn: NDArray[np.float64], f: float) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
+    def _render_level(
+        self,
+        p: NDArray[np.float64],
+        R_wv: NDArray[np.float64],
+        xn: NDArray[np.float64],
+        yn: NDArray[np.float64],
+        f: float,
+    ) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
         """Render a level camera at p with columns xn and rows yn (normalised coordinates).
 
         Returns colour (len(yn), len(xn), 3) uint8 and range (m, float32, NaN = no hit).
@@ -237,7 +252,9 @@ class Renderer:
         t[below] = tf[below]
         t[above] = tc[above]
         kind[~np.isfinite(t)] = KIND_VOID
-        acol = np.broadcast_to((self.tex.face_offset[np.maximum(f_wall, 0)] + s_wall * self.tex.ppm)[None, :], (hh, ww)).copy()
+        acol = np.broadcast_to(
+            (self.tex.face_offset[np.maximum(f_wall, 0)] + s_wall * self.tex.ppm)[None, :], (hh, ww)
+        ).copy()
         top_box = np.zeros((hh, ww), np.intp)
         boxes = self._boxes(p, d, t_wall)
         if boxes is not None:
@@ -248,17 +265,26 @@ class Renderer:
                 side = valid[k][None, :] & (z_in >= 0) & (z_in <= hb[k][None, :]) & (tik < t)
                 with np.errstate(divide="ignore"):
                     t_top = np.where(Y > 0, (h - hb[k][None, :]) / Y, np.inf)
-                top = valid[k][None, :] & (z_in > hb[k][None, :]) & (t_top <= to[k][None, :]) & (t_top < t)
+                top = (
+                    valid[k][None, :]
+                    & (z_in > hb[k][None, :])
+                    & (t_top <= to[k][None, :])
+                    & (t_top < t)
+                )
                 t = np.where(side, np.broadcast_to(tik, t.shape), t)
                 t = np.where(top, t_top, t)
                 kind[side] = KIND_SIDE
                 kind[top] = KIND_TOP
-                acol_k = np.broadcast_to((self.tex.face_offset[face[k]] + s[k] * self.tex.ppm)[None, :], acol.shape)
+                acol_k = np.broadcast_to(
+                    (self.tex.face_offset[face[k]] + s[k] * self.tex.ppm)[None, :], acol.shape
+                )
                 acol[side] = acol_k[side]
                 top_box[top] = np.broadcast_to(bidx[k][None, :], top_box.shape)[top]
         rng = t * np.sqrt(1.0 + xn[None, :] ** 2 + Y**2)
         color = np.zeros((hh, ww, 3), np.float32)
-        lvl = np.clip(np.round(np.log2(np.maximum(rng * self.tex.ppm / f, 1e-6))), 0, MIP_LEVELS - 1).astype(np.int8)
+        lvl = np.clip(
+            np.round(np.log2(np.maximum(rng * self.tex.ppm / f, 1e-6))), 0, MIP_LEVELS - 1
+        ).astype(np.int8)
         # walls and box sides: atlas
         m = (kind == KIND_WALL) | (kind == KIND_SIDE)
         if m.any():
@@ -281,7 +307,9 @@ class Renderer:
             wx = p[0] + t * d[None, :, 0]
             wy = p[1] + t * d[None, :, 1]
             if mf.any():
-                flvl = np.clip(np.round(np.log2(np.maximum(rng * self._fppm / f, 1e-6))), 0, 2).astype(np.int8)
+                flvl = np.clip(
+                    np.round(np.log2(np.maximum(rng * self._fppm / f, 1e-6))), 0, 2
+                ).astype(np.int8)
                 for L in range(3):
                     mm = mf & (flvl == L)
                     if not mm.any():
@@ -305,6 +333,8 @@ class Renderer:
                 color[mt] = T_[r_, c_] * self.tex.top_color[top_box[mt]]
         color[kind == KIND_VOID] = 128
         if self.light_falloff > 0:
-            color *= (1.0 - self.light_falloff * np.clip(rng / 10.0, 0, 1))[..., None].astype(np.float32)
+            color *= (1.0 - self.light_falloff * np.clip(rng / 10.0, 0, 1))[..., None].astype(
+                np.float32
+            )
         out_rng = np.where(kind == KIND_VOID, np.nan, rng).astype(np.float32)
         return np.clip(color, 0, 255).astype(np.uint8), out_rng

@@ -12,8 +12,6 @@ from __future__ import annotations
 from collections.abc import Iterator
 
 import numpy as np
-from numpy.typing import NDArray
-
 from litevloc.hw.messages import GroundTruthPose, Message, Odometry, StreamStats
 from litevloc.hw.sim.realism import Lighting, sample_lighting
 from litevloc.hw.sim.render import Renderer
@@ -21,6 +19,7 @@ from litevloc.hw.sim.simulator import SimParams, camera_pose, render_frame
 from litevloc.hw.sim.trajectory import FollowResult, PassName, follow, pass_tasks
 from litevloc.hw.sim.world import World
 from litevloc.pipelines.geometry import interpolate_pose_at
+from numpy.typing import NDArray
 
 
 class SimSequenceSource:
@@ -34,8 +33,14 @@ class SimSequenceSource:
         params: robot/camera parameters.
     """
 
-    def __init__(self, world: World, pass_name: PassName, seed: int, duration: float | None = None,
-                 params: SimParams | None = None) -> None:
+    def __init__(
+        self,
+        world: World,
+        pass_name: PassName,
+        seed: int,
+        duration: float | None = None,
+        params: SimParams | None = None,
+    ) -> None:
         if pass_name not in ("map", "query"):
             raise ValueError(f"pass must be 'map' or 'query', got {pass_name!r}")
         if duration is not None and not (duration > 0):
@@ -47,12 +52,14 @@ class SimSequenceSource:
         self.name = f"sim:{world.spec.name}:{pass_name}:seed{seed}"
         self.stats = StreamStats()
         seq_seed = self.seed * 2 + (0 if pass_name == "map" else 1)
-        self.lighting: Lighting = sample_lighting(self.params.realism, np.random.default_rng([seq_seed, 11]))
+        self.lighting: Lighting = sample_lighting(
+            self.params.realism, np.random.default_rng([seq_seed, 11])
+        )
         self._noise_seed = seq_seed
         start, tasks = pass_tasks(world, pass_name, self.seed, self.params)
         self.run: FollowResult = follow(world, self.params, seq_seed, start, tasks, duration)
         t = self.run.t_ns
-        period = int(round(1e9 / self.params.camera_rate_hz))
+        period = round(1e9 / self.params.camera_rate_hz)
         self.frame_times: NDArray[np.int64] = np.arange(0, int(t[-1]) + 1, period, dtype=np.int64)
         self._renderer: Renderer | None = None
 
@@ -72,13 +79,21 @@ class SimSequenceSource:
         k = min(int(np.searchsorted(self.run.t_ns, t_ns)), len(self.run.speed) - 1)
         return camera_pose(T_base, t_ns * 1e-9, float(self.run.speed[k]), self.params)
 
-    def frame(self, index: int):  # type: ignore[no-untyped-def]
+    def frame(self, index: int):
         """Render frame `index` (deterministic: same seed -> identical arrays)."""
         if self._renderer is None:
             self._renderer = Renderer(self.world)
         t = int(self.frame_times[index])
-        return render_frame(self._renderer, self._cam_pose(t), self.params.intrinsics, self.params.realism,
-                            self.lighting, np.random.default_rng([self._noise_seed, 13, index]), t, index)
+        return render_frame(
+            self._renderer,
+            self._cam_pose(t),
+            self.params.intrinsics,
+            self.params.realism,
+            self.lighting,
+            np.random.default_rng([self._noise_seed, 13, index]),
+            t,
+            index,
+        )
 
     def __iter__(self) -> Iterator[Message]:
         odo_t, odo_T = self.run.t_ns, self.run.T_odom_base

@@ -37,8 +37,17 @@ if TYPE_CHECKING:
     from litevloc.hw.sim.world import Face, World
 
 POSTER_IMAGES = (
-    "astronaut.png", "rocket.jpg", "hubble_deep_field.jpg", "camera.png", "chelsea.png", "coffee.png",
-    "coins.png", "clock_motion.png", "text.png", "retina.jpg", "cell.png",
+    "astronaut.png",
+    "rocket.jpg",
+    "hubble_deep_field.jpg",
+    "camera.png",
+    "chelsea.png",
+    "coffee.png",
+    "coins.png",
+    "clock_motion.png",
+    "text.png",
+    "retina.jpg",
+    "cell.png",
 )
 MATERIAL_IMAGES = ("brick.png", "gravel.png", "grass.png")
 MIP_LEVELS = 4
@@ -52,7 +61,9 @@ def data_dir() -> Path:
     """scikit-image's shipped data folder."""
     spec = importlib.util.find_spec("skimage")
     if spec is None or not spec.submodule_search_locations:
-        raise TextureError("scikit-image is not installed; the simulator takes its textures from its data folder")
+        raise TextureError(
+            "scikit-image is not installed; the simulator takes its textures from its data folder"
+        )
     return Path(next(iter(spec.submodule_search_locations))) / "data"
 
 
@@ -65,10 +76,12 @@ def load_image(name: str) -> NDArray[np.uint8]:
         raise TextureError(f"cannot read texture {path}")
     img = np.ascontiguousarray(img[:, :, ::-1])
     img.setflags(write=False)
-    return img
+    return np.asarray(img, dtype=np.uint8)
 
 
-def tile(img: NDArray[np.uint8], h: int, w: int, texel: float, oy: float = 0.0, ox: float = 0.0) -> NDArray[np.float32]:
+def tile(
+    img: NDArray[np.uint8], h: int, w: int, texel: float, oy: float = 0.0, ox: float = 0.0
+) -> NDArray[np.float32]:
     """Tile `img` over an h x w patch, `texel` image pixels per patch pixel; float32 0..255."""
     ih, iw = img.shape[:2]
     rows = ((np.arange(h) * texel + oy) % ih).astype(np.intp)
@@ -76,7 +89,15 @@ def tile(img: NDArray[np.uint8], h: int, w: int, texel: float, oy: float = 0.0, 
     return img[np.ix_(rows, cols)].astype(np.float32)
 
 
-def tint(patch: NDArray[np.float32], rgb: tuple[float, float, float], contrast: float = 1.0) -> NDArray[np.float32]:
+def _blur(
+    img: NDArray[np.float32], ksize: tuple[int, int], sigmaX: float, sigmaY: float = 0.0
+) -> NDArray[np.float32]:
+    return np.asarray(cv2.GaussianBlur(img, ksize, sigmaX=sigmaX, sigmaY=sigmaY), dtype=np.float32)
+
+
+def tint(
+    patch: NDArray[np.float32], rgb: tuple[float, float, float], contrast: float = 1.0
+) -> NDArray[np.float32]:
     """Grey-level texture -> coloured: mean-preserving contrast, multiplied by a colour."""
     g = patch.mean(axis=2, keepdims=True)
     m = float(g.mean())
@@ -84,7 +105,11 @@ def tint(patch: NDArray[np.float32], rgb: tuple[float, float, float], contrast: 
     return np.clip(g / max(m, 1.0) * np.array(rgb, np.float32), 0, 255)
 
 
-def _pastel(rng: np.random.Generator, sat: tuple[float, float] = (0.05, 0.3), val: tuple[float, float] = (0.65, 0.92)) -> tuple[float, float, float]:
+def _pastel(
+    rng: np.random.Generator,
+    sat: tuple[float, float] = (0.05, 0.3),
+    val: tuple[float, float] = (0.65, 0.92),
+) -> tuple[float, float, float]:
     r, g, b = colorsys.hsv_to_rgb(rng.random(), rng.uniform(*sat), rng.uniform(*val))
     return (r * 255, g * 255, b * 255)
 
@@ -93,11 +118,18 @@ def hue_shift(img: NDArray[np.uint8], shift_deg: float, sat: float = 1.0) -> NDA
     hsv = cv2.cvtColor(img, cv2.COLOR_RGB2HSV).astype(np.int32)
     hsv[..., 0] = (hsv[..., 0] + int(shift_deg / 2)) % 180
     hsv[..., 1] = np.clip(hsv[..., 1] * sat, 0, 255)
-    return cv2.cvtColor(hsv.astype(np.uint8), cv2.COLOR_HSV2RGB)
+    return np.asarray(cv2.cvtColor(hsv.astype(np.uint8), cv2.COLOR_HSV2RGB), dtype=np.uint8)
 
 
-def _material(kind: str, h: int, w: int, ppm: float, rng: np.random.Generator, colour: tuple[float, float, float],
-              scale: float) -> NDArray[np.float32]:
+def _material(
+    kind: str,
+    h: int,
+    w: int,
+    ppm: float,
+    rng: np.random.Generator,
+    colour: tuple[float, float, float],
+    scale: float,
+) -> NDArray[np.float32]:
     """A wall material patch h x w (atlas pixels at `ppm` per metre)."""
     if kind == "painted":
         base = np.empty((h, w, 3), np.float32)
@@ -106,17 +138,44 @@ def _material(kind: str, h: int, w: int, ppm: float, rng: np.random.Generator, c
         return base
     if kind == "brick":
         # brick.png spans about 1.6 m of wall
-        return tint(tile(load_image("brick.png"), h, w, 512 / (1.6 * scale * ppm), rng.uniform(0, 512), rng.uniform(0, 512)),
-                    colour, 0.8)
+        return tint(
+            tile(
+                load_image("brick.png"),
+                h,
+                w,
+                512 / (1.6 * scale * ppm),
+                rng.uniform(0, 512),
+                rng.uniform(0, 512),
+            ),
+            colour,
+            0.8,
+        )
     if kind == "plaster":
-        p = tile(load_image("gravel.png"), h, w, 512 / (2.0 * scale * ppm), rng.uniform(0, 512), rng.uniform(0, 512))
-        return tint(cv2.GaussianBlur(p, (0, 0), 2.5), colour, 0.35)
+        p = tile(
+            load_image("gravel.png"),
+            h,
+            w,
+            512 / (2.0 * scale * ppm),
+            rng.uniform(0, 512),
+            rng.uniform(0, 512),
+        )
+        return tint(_blur(p, (0, 0), 2.5), colour, 0.35)
     if kind == "wallpaper":
-        return tint(tile(load_image("grass.png"), h, w, 512 / (1.2 * scale * ppm), rng.uniform(0, 512), rng.uniform(0, 512)),
-                    colour, 0.8)
+        return tint(
+            tile(
+                load_image("grass.png"),
+                h,
+                w,
+                512 / (1.2 * scale * ppm),
+                rng.uniform(0, 512),
+                rng.uniform(0, 512),
+            ),
+            colour,
+            0.8,
+        )
     if kind == "panel":
         grain = tile(load_image("gravel.png"), h, w, 0.5, rng.uniform(0, 512), rng.uniform(0, 512))
-        wood = tint(cv2.GaussianBlur(grain, (0, 0), sigmaX=0.5, sigmaY=6), (150, 105, 70), 0.8)
+        wood = tint(_blur(grain, (0, 0), sigmaX=0.5, sigmaY=6), (150, 105, 70), 0.8)
         plank = max(4, int(0.3 * ppm * scale))
         cols = np.arange(w) % plank
         wood[:, cols == 0] *= 0.55
@@ -149,9 +208,11 @@ def _books(h: int, w: int, ppm: float, rng: np.random.Generator) -> NDArray[np.f
     return out
 
 
-def _cabinet(h: int, w: int, ppm: float, rng: np.random.Generator, colour: tuple[float, float, float]) -> NDArray[np.float32]:
+def _cabinet(
+    h: int, w: int, ppm: float, rng: np.random.Generator, colour: tuple[float, float, float]
+) -> NDArray[np.float32]:
     grain = tile(load_image("gravel.png"), h, w, 0.4, rng.uniform(0, 512), rng.uniform(0, 512))
-    out = tint(cv2.GaussianBlur(grain, (0, 0), 2.0), colour, 0.4)
+    out = tint(_blur(grain, (0, 0), 2.0), colour, 0.4)
     n_draw = int(rng.integers(2, 5))
     for k in range(1, n_draw):
         r = int(k * h / n_draw)
@@ -219,7 +280,9 @@ def bake(world: World) -> BakedTextures:
     for r in world.regions.values():
         colour = _pastel(rng)
         if r.material == "brick":  # red-brown to grey bricks
-            rr, gg, bb = colorsys.hsv_to_rgb(rng.uniform(0.0, 0.08), rng.uniform(0.1, 0.5), rng.uniform(0.6, 0.85))
+            rr, gg, bb = colorsys.hsv_to_rgb(
+                rng.uniform(0.0, 0.08), rng.uniform(0.1, 0.5), rng.uniform(0.6, 0.85)
+            )
             colour = (rr * 255, gg * 255, bb * 255)
         looks[r.label] = (r.material, colour, float(rng.uniform(0.8, 1.25)))
     z_row = H - (np.arange(rows) + 0.5) / ppm  # height of each atlas row
@@ -245,7 +308,9 @@ def bake(world: World) -> BakedTextures:
                 sub = _cabinet(bh, w, ppm, rng, _pastel(rng, (0.1, 0.5), (0.35, 0.8)))
             patch[r0:] = sub
         # soft shading near floor and ceiling
-        patch *= (0.8 + 0.2 * np.clip(z_row / 0.5, 0, 1) * np.clip((H - z_row) / 0.4, 0, 1))[:, None, None]
+        patch *= (0.8 + 0.2 * np.clip(z_row / 0.5, 0, 1) * np.clip((H - z_row) / 0.4, 0, 1))[
+            :, None, None
+        ]
         atlas[:, o : o + w] = patch
     for p in world.posters:
         f = world.faces[p.face]
@@ -257,20 +322,37 @@ def bake(world: World) -> BakedTextures:
     shade = np.ones(atlas.shape[1], np.float32)
     for fi, f in enumerate(world.faces):
         o = int(offsets[fi])
-        shade[o : o + widths[fi]] = (0.86 if f.normal > 0 else 0.94) if f.axis == 0 else (1.0 if f.normal > 0 else 0.9)
+        shade[o : o + widths[fi]] = (
+            (0.86 if f.normal > 0 else 0.94) if f.axis == 0 else (1.0 if f.normal > 0 else 0.9)
+        )
     atlas *= shade[None, :, None]
     atlas_u8 = np.clip(atlas, 0, 255).astype(np.uint8)
     mips = [atlas_u8]
     for _ in range(1, MIP_LEVELS):
-        mips.append(cv2.pyrDown(mips[-1]))
+        mips.append(np.asarray(cv2.pyrDown(mips[-1]), dtype=np.uint8))
     floor, fppm = _bake_floor(world, rng)
     ceiling, cppm = _bake_ceiling(world, rng)
     top_ppm = 64.0
     grain = tile(load_image("gravel.png"), 128, 128, 0.5)
     top_tile = cv2.GaussianBlur(grain, (0, 0), sigmaX=6, sigmaY=0.7).mean(axis=2, keepdims=True)
-    top_tile = (0.75 + 0.25 * (top_tile - top_tile.mean()) / max(float(top_tile.std()), 1e-3) * 0.5).astype(np.float32)
-    top_color = np.array([_pastel(rng, (0.2, 0.5), (0.4, 0.8)) for _ in range(len(world.boxes))], np.float32).reshape(-1, 3)
-    return BakedTextures(ppm, mips, offsets, floor, fppm, ceiling, cppm, np.repeat(top_tile, 3, axis=2), top_ppm, top_color)
+    top_tile = (
+        0.75 + 0.25 * (top_tile - top_tile.mean()) / max(float(top_tile.std()), 1e-3) * 0.5
+    ).astype(np.float32)
+    top_color = np.array(
+        [_pastel(rng, (0.2, 0.5), (0.4, 0.8)) for _ in range(len(world.boxes))], np.float32
+    ).reshape(-1, 3)
+    return BakedTextures(
+        ppm,
+        mips,
+        offsets,
+        floor,
+        fppm,
+        ceiling,
+        cppm,
+        np.repeat(top_tile, 3, axis=2),
+        top_ppm,
+        top_color,
+    )
 
 
 def _bake_floor(world: World, rng: np.random.Generator) -> tuple[NDArray[np.uint8], float]:
@@ -278,16 +360,30 @@ def _bake_floor(world: World, rng: np.random.Generator) -> tuple[NDArray[np.uint
     x0, y0, x1, y1 = world.bounds
     W, Hh = int(np.ceil((x1 - x0) * fppm)), int(np.ceil((y1 - y0) * fppm))
     out = np.zeros((Hh, W, 3), np.float32)
-    lab = cv2.resize(world.labels.astype(np.float32), (W, Hh), interpolation=cv2.INTER_NEAREST).astype(np.int32)
+    lab = cv2.resize(
+        world.labels.astype(np.float32), (W, Hh), interpolation=cv2.INTER_NEAREST
+    ).astype(np.int32)
     for r in world.regions.values():
         bx0, by0, bx1, by1 = (int(v * fppm) for v in r.bbox)
         h, w = by1 - by0, bx1 - bx0
-        kind = "tiles" if r.kind == "corridor" else str(rng.choice(["carpet", "wood", "tiles", "carpet"]))
+        kind = (
+            "tiles"
+            if r.kind == "corridor"
+            else str(rng.choice(["carpet", "wood", "tiles", "carpet"]))
+        )
         if kind == "carpet":
-            p = tint(tile(load_image("gravel.png"), h, w, 512 / (1.5 * fppm), rng.uniform(0, 512)), _pastel(rng, (0.15, 0.5), (0.3, 0.6)), 0.7)
+            p = tint(
+                tile(load_image("gravel.png"), h, w, 512 / (1.5 * fppm), rng.uniform(0, 512)),
+                _pastel(rng, (0.15, 0.5), (0.3, 0.6)),
+                0.7,
+            )
         elif kind == "wood":
             grain = tile(load_image("gravel.png"), h, w, 0.6, rng.uniform(0, 512))
-            p = tint(cv2.GaussianBlur(grain, (0, 0), sigmaX=5, sigmaY=0.5), _pastel(rng, (0.35, 0.55), (0.45, 0.7)), 0.8)
+            p = tint(
+                _blur(grain, (0, 0), sigmaX=5, sigmaY=0.5),
+                _pastel(rng, (0.35, 0.55), (0.45, 0.7)),
+                0.8,
+            )
             plank = int(0.18 * fppm)
             p[(np.arange(h) % plank) == 0] *= 0.6
         else:

@@ -17,10 +17,9 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from numpy.typing import NDArray
-
 from litevloc.hw.sim.simulator import SimParams, Simulator, base_pose
 from litevloc.hw.sim.world import World
+from numpy.typing import NDArray
 
 PassName = Literal["map", "query"]
 
@@ -36,7 +35,9 @@ class Task:
     angle: float = 0.0  # signed radians for turn
 
 
-def plan_path(world: World, start: NDArray[np.floating], goal: NDArray[np.floating], radius: float) -> NDArray[np.float64]:
+def plan_path(
+    world: World, start: NDArray[np.floating], goal: NDArray[np.floating], radius: float
+) -> NDArray[np.float64]:
     """(N, 2) waypoints (m, ~0.3 m apart) from start to goal avoiding walls and boxes."""
     from skimage.graph import route_through_array
 
@@ -50,7 +51,9 @@ def plan_path(world: World, start: NDArray[np.floating], goal: NDArray[np.floati
             raise PlanningError(f"{name} {(j * res, i * res)} is not free")
     idx, total = route_through_array(cost, s, g, fully_connected=True, geometric=True)
     if total >= 1e6:
-        raise PlanningError(f"no path from {tuple(start)} to {tuple(goal)} with {margin:.2f} m clearance")
+        raise PlanningError(
+            f"no path from {tuple(start)} to {tuple(goal)} with {margin:.2f} m clearance"
+        )
     pts = (np.array(idx, dtype=np.float64)[:, ::-1] + 0.5) * res
     pts = pts[::3]
     if len(pts) >= 3:  # light smoothing, endpoints fixed
@@ -69,11 +72,17 @@ def _door_graph(world: World) -> dict[int, list[int]]:
     return g
 
 
-def _random_spot(world: World, label: int, rng: np.random.Generator, min_clear: float) -> NDArray[np.float64]:
+def _random_spot(
+    world: World, label: int, rng: np.random.Generator, min_clear: float
+) -> NDArray[np.float64]:
     import cv2
 
     dist, res = world.clearance_grid
-    lab = cv2.resize(world.labels.astype(np.float32), (dist.shape[1], dist.shape[0]), interpolation=cv2.INTER_NEAREST)
+    lab = cv2.resize(
+        world.labels.astype(np.float32),
+        (dist.shape[1], dist.shape[0]),
+        interpolation=cv2.INTER_NEAREST,
+    )
     ii, jj = np.nonzero((lab == label) & (dist > min_clear))
     if len(ii) == 0:
         return world.room_centre(label)
@@ -81,7 +90,9 @@ def _random_spot(world: World, label: int, rng: np.random.Generator, min_clear: 
     return np.array([(jj[k] + 0.5) * res, (ii[k] + 0.5) * res])
 
 
-def pass_tasks(world: World, pass_name: PassName, seed: int, params: SimParams) -> tuple[NDArray[np.float64], list[Task]]:
+def pass_tasks(
+    world: World, pass_name: PassName, seed: int, params: SimParams
+) -> tuple[NDArray[np.float64], list[Task]]:
     """Start pose (4x4) and the task list of a map or query pass."""
     rng = np.random.default_rng([seed, 17, 0 if pass_name == "map" else 1])
     rooms = [k for k, r in world.regions.items() if r.kind == "room"]
@@ -132,8 +143,14 @@ class FollowResult:
     collisions: int
 
 
-def follow(world: World, params: SimParams, seed: int, start: NDArray[np.float64], tasks: list[Task],
-           duration_s: float | None = None) -> FollowResult:
+def follow(
+    world: World,
+    params: SimParams,
+    seed: int,
+    start: NDArray[np.float64],
+    tasks: list[Task],
+    duration_s: float | None = None,
+) -> FollowResult:
     """Drive the tasks with a pure-pursuit controller on a non-rendering `Simulator`."""
     sim = Simulator(world, params, seed, render=False)
     step = sim.reset(start)
@@ -147,16 +164,23 @@ def follow(world: World, params: SimParams, seed: int, start: NDArray[np.float64
         idx = 0
         turned = 0.0
         while ts[-1] < max_t:
-            x, y, yaw = sim._state  # type: ignore[misc]
+            x, y, yaw = sim._state
             if task.kind == "turn":
                 remaining = task.angle - turned
                 if abs(remaining) < 0.02:
                     break
-                v_cmd, w_cmd = 0.0, float(np.sign(remaining) * min(params.cruise_omega, 2.0 * abs(remaining) + 0.1))
+                v_cmd, w_cmd = (
+                    0.0,
+                    float(
+                        np.sign(remaining) * min(params.cruise_omega, 2.0 * abs(remaining) + 0.1)
+                    ),
+                )
             else:
                 path = task.path
                 assert path is not None
-                while idx < len(path) - 1 and np.hypot(path[idx, 0] - x, path[idx, 1] - y) < lookahead:
+                while (
+                    idx < len(path) - 1 and np.hypot(path[idx, 0] - x, path[idx, 1] - y) < lookahead
+                ):
                     idx += 1
                 tx, ty = path[idx]
                 dist_goal = np.hypot(path[-1, 0] - x, path[-1, 1] - y)
@@ -166,14 +190,20 @@ def follow(world: World, params: SimParams, seed: int, start: NDArray[np.float64
                 if abs(err) > 0.7:
                     v_cmd, w_cmd = 0.0, float(np.sign(err) * params.cruise_omega)
                 else:
-                    v_cmd = params.cruise_speed * (1 - 0.6 * abs(err) / 0.7) * min(1.0, dist_goal / 0.5 + 0.3)
-                    w_cmd = float(np.clip(2.0 * err, -params.cruise_omega * 1.5, params.cruise_omega * 1.5))
+                    v_cmd = (
+                        params.cruise_speed
+                        * (1 - 0.6 * abs(err) / 0.7)
+                        * min(1.0, dist_goal / 0.5 + 0.3)
+                    )
+                    w_cmd = float(
+                        np.clip(2.0 * err, -params.cruise_omega * 1.5, params.cruise_omega * 1.5)
+                    )
             # acceleration limits
             v_cmd = float(np.clip(v_cmd, v_prev - 1.0 * dt, v_prev + 1.0 * dt))
             w_cmd = float(np.clip(w_cmd, w_prev - 4.0 * dt, w_prev + 4.0 * dt))
-            yaw_before = sim._state[2]  # type: ignore[index]
+            yaw_before = sim._state[2]
             step = sim.step(v_cmd, w_cmd, dt)
-            turned += sim._state[2] - yaw_before  # type: ignore[index]
+            turned += sim._state[2] - yaw_before
             v_prev, w_prev = (0.0, 0.0) if step.collided else (v_cmd, w_cmd)
             collisions += int(step.collided)
             for o in step.odometry:
@@ -185,4 +215,6 @@ def follow(world: World, params: SimParams, seed: int, start: NDArray[np.float64
                 break
         if ts[-1] >= max_t:
             break
-    return FollowResult(np.array(ts, np.int64), np.stack(Ts), np.array(sp), np.stack(odo), collisions)
+    return FollowResult(
+        np.array(ts, np.int64), np.stack(Ts), np.array(sp), np.stack(odo), collisions
+    )

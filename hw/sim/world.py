@@ -29,9 +29,9 @@ from typing import Literal
 
 import cv2
 import numpy as np
+from litevloc.config.loader import ConfigError, from_mapping, load_yaml
 from numpy.typing import NDArray
 
-from litevloc.config.loader import ConfigError, from_mapping, load_yaml
 
 def _worlds_dir() -> Path:
     import litevloc.config as cfg
@@ -71,7 +71,9 @@ class WorldSpec:
         if not self.name:
             raise ValueError("name must not be empty")
         if self.rows < 1 or self.cols < 1 or self.rows * self.cols > 400:
-            raise ValueError(f"rows, cols must be >= 1 with at most 400 rooms, got {self.rows}x{self.cols}")
+            raise ValueError(
+                f"rows, cols must be >= 1 with at most 400 rooms, got {self.rows}x{self.cols}"
+            )
         if not (0.05 <= self.cell <= 1.0):
             raise ValueError(f"cell must be in [0.05, 1] m, got {self.cell}")
         if min(self.room_size) < 2.0 or max(self.room_size) > 50:
@@ -82,7 +84,9 @@ class WorldSpec:
             if self.corridor_width == 0:
                 raise ValueError("layout 'loop' needs corridor_width > 0")
             if min(self.loop_size) < 2 * self.corridor_width + 4 or max(self.loop_size) > 200:
-                raise ValueError(f"loop_size {self.loop_size} too small for the corridor, or > 200 m")
+                raise ValueError(
+                    f"loop_size {self.loop_size} too small for the corridor, or > 200 m"
+                )
         if not (1.5 <= self.wall_height <= 6):
             raise ValueError(f"wall_height must be in [1.5, 6] m, got {self.wall_height}")
         if not (0.6 <= self.door_width <= 3):
@@ -94,7 +98,9 @@ class WorldSpec:
         for name in ("furniture_per_room", "posters_per_room"):
             lo, hi = getattr(self, name)
             if lo < 0 or hi < lo or hi > 20:
-                raise ValueError(f"{name} must be [min, max] with 0 <= min <= max <= 20, got {(lo, hi)}")
+                raise ValueError(
+                    f"{name} must be [min, max] with 0 <= min <= max <= 20, got {(lo, hi)}"
+                )
         if not (16 <= self.texels_per_m <= 256):
             raise ValueError(f"texels_per_m must be in [16, 256], got {self.texels_per_m}")
 
@@ -117,7 +123,9 @@ def resolve_world_path(name_or_path: str | Path) -> Path:
     shipped = _worlds_dir() / f"{name_or_path}.yaml"
     if shipped.is_file():
         return shipped
-    raise ConfigError(f"unknown world {str(name_or_path)!r}: not a file, and shipped worlds are {world_names()}")
+    raise ConfigError(
+        f"unknown world {str(name_or_path)!r}: not a file, and shipped worlds are {world_names()}"
+    )
 
 
 def load_world_spec(name_or_path: str | Path) -> WorldSpec:
@@ -198,7 +206,7 @@ class World:
         return 0.0, 0.0, self.labels.shape[1] * c, self.labels.shape[0] * c
 
     def _cells(self, metres: float) -> int:
-        return max(1, int(round(metres / self.spec.cell)))
+        return max(1, round(metres / self.spec.cell))
 
     def _layout(self) -> tuple[NDArray[np.int32], dict[int, Region]]:
         s = self.spec
@@ -238,11 +246,11 @@ class World:
                     label += 1
         # pad with one solid cell on every side so the outside is label 0
         lab = np.pad(lab, 1)
-        c = s.cell
+        cs = s.cell
         for k, reg in regions.items():
             ys_, xs_ = np.nonzero(lab == k)
             reg.cells = len(xs_)
-            reg.bbox = (xs_.min() * c, ys_.min() * c, (xs_.max() + 1) * c, (ys_.max() + 1) * c)
+            reg.bbox = (xs_.min() * cs, ys_.min() * cs, (xs_.max() + 1) * cs, (ys_.max() + 1) * cs)
         return lab, regions
 
     def _boundary_runs(self, a: int, b: int) -> list[list[tuple[int, int, int]]]:
@@ -257,12 +265,20 @@ class World:
         m = ((up == a) & (down == b)) | ((up == b) & (down == a))
         for i, row in enumerate(m):
             js = np.nonzero(row)[0]
-            runs += [[(0, i + 1, int(j)) for j in g] for g in np.split(js, np.nonzero(np.diff(js) > 1)[0] + 1) if len(g)]
+            runs += [
+                [(0, i + 1, int(j)) for j in g]
+                for g in np.split(js, np.nonzero(np.diff(js) > 1)[0] + 1)
+                if len(g)
+            ]
         le, ri = lab[:, :-1], lab[:, 1:]
         m = ((le == a) & (ri == b)) | ((le == b) & (ri == a))
         for j, col in enumerate(m.T):
             is_ = np.nonzero(col)[0]
-            runs += [[(1, int(i), j + 1) for i in g] for g in np.split(is_, np.nonzero(np.diff(is_) > 1)[0] + 1) if len(g)]
+            runs += [
+                [(1, int(i), j + 1) for i in g]
+                for g in np.split(is_, np.nonzero(np.diff(is_) > 1)[0] + 1)
+                if len(g)
+            ]
         return runs
 
     def _make_doors(self) -> None:
@@ -284,7 +300,10 @@ class World:
         chosen: set[tuple[int, int]] = set()
         start = min(self.regions)
         seen = {start}
-        heap = [(weights[(min(start, n), max(start, n))], min(start, n), max(start, n)) for n in self.regions[start].neighbours]
+        heap = [
+            (weights[(min(start, n), max(start, n))], min(start, n), max(start, n))
+            for n in self.regions[start].neighbours
+        ]
         heapq.heapify(heap)
         while heap:
             _, a, b = heapq.heappop(heap)
@@ -295,7 +314,9 @@ class World:
             chosen.add((a, b))
             for n in self.regions[new].neighbours:
                 if n not in seen:
-                    heapq.heappush(heap, (weights[(min(new, n), max(new, n))], min(new, n), max(new, n)))
+                    heapq.heappush(
+                        heap, (weights[(min(new, n), max(new, n))], min(new, n), max(new, n))
+                    )
         for a, b in pairs_sorted:
             corr = self.regions[a].kind == "corridor" or self.regions[b].kind == "corridor"
             p = 0.85 if corr else self.spec.extra_door_prob
@@ -317,7 +338,7 @@ class World:
         self._door_edges.update(edges)
         c = self.spec.cell
         o, i, j = edges[0]
-        o2, i2, j2 = edges[-1]
+        _o2, i2, j2 = edges[-1]
         if o == 0:
             self.doors.append((a, b, j * c, i * c, (j2 + 1) * c, i * c))
         else:
@@ -333,7 +354,9 @@ class World:
             la, lb = lab[:, j - 1], lab[:, j]
             self._merge_edges(1, j, la, lb, c, H)
 
-    def _merge_edges(self, o: int, line: int, la: NDArray[np.int32], lb: NDArray[np.int32], c: float, H: float) -> None:
+    def _merge_edges(
+        self, o: int, line: int, la: NDArray[np.int32], lb: NDArray[np.int32], c: float, H: float
+    ) -> None:
         n = len(la)
         k = 0
         while k < n:
@@ -361,9 +384,15 @@ class World:
     def _make_furniture(self) -> None:
         s = self.spec
         boxes: list[tuple[float, float, float, float, float]] = []
-        door_pts = np.array([((d[2] + d[4]) / 2, (d[3] + d[5]) / 2) for d in self.doors]).reshape(-1, 2)
-        kinds = [("cabinet", (0.6, 1.4), (0.4, 0.6), (0.8, 1.1)), ("shelf", (0.8, 1.8), (0.3, 0.45), (1.6, 2.1)),
-                 ("desk", (1.0, 1.8), (0.6, 0.8), (0.72, 0.78)), ("pillar", (0.4, 0.6), (0.4, 0.6), (s.wall_height, s.wall_height))]
+        door_pts = np.array([((d[2] + d[4]) / 2, (d[3] + d[5]) / 2) for d in self.doors]).reshape(
+            -1, 2
+        )
+        kinds = [
+            ("cabinet", (0.6, 1.4), (0.4, 0.6), (0.8, 1.1)),
+            ("shelf", (0.8, 1.8), (0.3, 0.45), (1.6, 2.1)),
+            ("desk", (1.0, 1.8), (0.6, 0.8), (0.72, 0.78)),
+            ("pillar", (0.4, 0.6), (0.4, 0.6), (s.wall_height, s.wall_height)),
+        ]
         for reg in self.regions.values():
             if reg.kind != "room":
                 continue
@@ -372,8 +401,14 @@ class World:
             for _ in range(n * 6):
                 if n <= 0:
                     break
-                kind, (la, lb), (da, db), (ha, hb) = kinds[int(self.rng.choice(4, p=[0.35, 0.3, 0.3, 0.05]))]
-                length, depth, h = self.rng.uniform(la, lb), self.rng.uniform(da, db), self.rng.uniform(ha, hb)
+                kind, (la, lb), (da, db), (ha, hb) = kinds[
+                    int(self.rng.choice(4, p=[0.35, 0.3, 0.3, 0.05]))
+                ]
+                length, depth, h = (
+                    self.rng.uniform(la, lb),
+                    self.rng.uniform(da, db),
+                    self.rng.uniform(ha, hb),
+                )
                 side = int(self.rng.integers(4))
                 gap = 0.05
                 if side in (0, 1):  # against the west / east wall
@@ -389,10 +424,19 @@ class World:
                     by0 = y0 + gap if side == 2 else y1 - gap - depth
                     box = (bx0, by0, bx0 + length, by0 + depth, h)
                 if kind == "pillar":
-                    cx, cy = self.rng.uniform(x0 + 1.5, x1 - 1.5), self.rng.uniform(y0 + 1.5, y1 - 1.5)
+                    cx, cy = (
+                        self.rng.uniform(x0 + 1.5, x1 - 1.5),
+                        self.rng.uniform(y0 + 1.5, y1 - 1.5),
+                    )
                     if x1 - x0 < 5 or y1 - y0 < 5:
                         continue
-                    box = (cx - depth / 2, cy - length / 2 * 0.5, cx + depth / 2, cy + length / 2 * 0.5, h)
+                    box = (
+                        cx - depth / 2,
+                        cy - length / 2 * 0.5,
+                        cx + depth / 2,
+                        cy + length / 2 * 0.5,
+                        h,
+                    )
                 bx = np.array(box[:4])
                 # keep doors clear (1.3 m) and boxes 0.9 m apart (passages stay open)
                 if len(door_pts):
@@ -400,8 +444,13 @@ class World:
                     dy = np.maximum(np.maximum(bx[1] - door_pts[:, 1], door_pts[:, 1] - bx[3]), 0)
                     if np.any(np.hypot(dx, dy) < 1.3):
                         continue
-                if any(bx[0] < o[2] + 0.9 and o[0] < bx[2] + 0.9 and bx[1] < o[3] + 0.9 and o[1] < bx[3] + 0.9
-                       for o in boxes):
+                if any(
+                    bx[0] < o[2] + 0.9
+                    and o[0] < bx[2] + 0.9
+                    and bx[1] < o[3] + 0.9
+                    and o[1] < bx[3] + 0.9
+                    for o in boxes
+                ):
                     continue
                 boxes.append(box)
                 n -= 1
@@ -411,16 +460,24 @@ class World:
             self.faces.append(Face(0, bx1, by0, by1, +1, h, 0, "box", k))
             self.faces.append(Face(1, by0, bx0, bx1, -1, h, 0, "box", k))
             self.faces.append(Face(1, by1, bx0, bx1, +1, h, 0, "box", k))
-        self.box_kinds = ["pillar" if h >= s.wall_height - 1e-6 else "desk" if h < 0.8 else "shelf" if h > 1.5
-                          else "cabinet" for h in self.boxes[:, 4]]
+        self.box_kinds = [
+            "pillar"
+            if h >= s.wall_height - 1e-6
+            else "desk"
+            if h < 0.8
+            else "shelf"
+            if h > 1.5
+            else "cabinet"
+            for h in self.boxes[:, 4]
+        ]
 
     # --------------------------------------------------------------- materials
     def _assign_materials(self) -> None:
         s = self.spec
         rooms = [r for r in self.regions.values() if r.kind == "room"]
         order = self.rng.permutation(len(rooms))
-        n_poor = int(round(s.texture_poor_fraction * len(rooms)))
-        n_rep = int(round(s.repetitive_fraction * len(rooms)))
+        n_poor = round(s.texture_poor_fraction * len(rooms))
+        n_rep = round(s.repetitive_fraction * len(rooms))
         for rank, idx in enumerate(order):
             r = rooms[int(idx)]
             if rank < n_poor:
@@ -456,7 +513,10 @@ class World:
                 hgt = w * self.rng.uniform(0.6, 1.0)
                 s0 = self.rng.uniform(0.2, f.hi - f.lo - w - 0.2)
                 z0 = self.rng.uniform(0.9, max(0.95, min(2.0, self.wall_height - 0.2) - hgt))
-                if any(p.face == fi and p.s0 < s0 + w + 0.1 and s0 < p.s0 + p.width + 0.1 for p in self.posters):
+                if any(
+                    p.face == fi and p.s0 < s0 + w + 0.1 and s0 < p.s0 + p.width + 0.1
+                    for p in self.posters
+                ):
                     continue
                 self.posters.append(Poster(fi, s0, z0, w, hgt, str(self.rng.choice(POSTER_IMAGES))))
 
@@ -509,13 +569,19 @@ class World:
         S = self.wall_segments
         a, b = S[None, :, :2], S[None, :, 2:]
         ab = b - a
-        t = np.clip(np.sum((P[:, None, :] - a) * ab, -1) / np.maximum(np.sum(ab * ab, -1), 1e-12), 0, 1)
+        t = np.clip(
+            np.sum((P[:, None, :] - a) * ab, -1) / np.maximum(np.sum(ab * ab, -1), 1e-12), 0, 1
+        )
         d = np.linalg.norm(P[:, None, :] - (a + t[..., None] * ab), axis=-1).min(axis=1)
         inside = np.array([self.region_at(p) > 0 for p in P])
         if len(self.boxes):
             B = self.boxes
-            in_box = ((P[:, None, 0] > B[None, :, 0]) & (P[:, None, 0] < B[None, :, 2])
-                      & (P[:, None, 1] > B[None, :, 1]) & (P[:, None, 1] < B[None, :, 3])).any(axis=1)
+            in_box = (
+                (P[:, None, 0] > B[None, :, 0])
+                & (P[:, None, 0] < B[None, :, 2])
+                & (P[:, None, 1] > B[None, :, 1])
+                & (P[:, None, 1] < B[None, :, 3])
+            ).any(axis=1)
             inside &= ~in_box
         return np.where(inside, d, 0.0)
 
@@ -524,7 +590,9 @@ class World:
         dist, res = self.clearance_grid
         i, j = int(xy[1] / res), int(xy[0] / res)
         if 0 <= i < dist.shape[0] and 0 <= j < dist.shape[1] and dist[i, j] > radius + 2.5 * res:
-            return True  # far from everything on the grid (grid error < 2 cells): skip the exact test
+            return (
+                True  # far from everything on the grid (grid error < 2 cells): skip the exact test
+            )
         return bool(self.clearance(np.asarray(xy, dtype=np.float64)[:2])[0] > radius)
 
     @cached_property
@@ -537,28 +605,46 @@ class World:
         lab_up = cv2.resize(self.labels.astype(np.float32), (W, H), interpolation=cv2.INTER_NEAREST)
         occ[lab_up == 0] = 0
         for sx0, sy0, sx1, sy1 in self.wall_segments:
-            p0 = (int(round(sx0 / res)), int(round(sy0 / res)))
-            p1 = (int(round(sx1 / res)), int(round(sy1 / res)))
+            p0 = (round(sx0 / res), round(sy0 / res))
+            p1 = (round(sx1 / res), round(sy1 / res))
             cv2.line(occ, p0, p1, 0, 1)
         for bx0, by0, bx1, by1, _ in self.boxes:
-            cv2.rectangle(occ, (int(bx0 / res), int(by0 / res)), (int(np.ceil(bx1 / res)), int(np.ceil(by1 / res))), 0, -1)
+            cv2.rectangle(
+                occ,
+                (int(bx0 / res), int(by0 / res)),
+                (int(np.ceil(bx1 / res)), int(np.ceil(by1 / res))),
+                0,
+                -1,
+            )
         dist = cv2.distanceTransform(occ, cv2.DIST_L2, 5).astype(np.float32) * res
         return dist, res
 
     def room_centre(self, label: int) -> NDArray[np.float64]:
         """The point of a region farthest from walls and boxes."""
         dist, res = self.clearance_grid
-        lab_up = cv2.resize(self.labels.astype(np.float32), (dist.shape[1], dist.shape[0]), interpolation=cv2.INTER_NEAREST)
+        lab_up = cv2.resize(
+            self.labels.astype(np.float32),
+            (dist.shape[1], dist.shape[0]),
+            interpolation=cv2.INTER_NEAREST,
+        )
         d = np.where(lab_up == label, dist, -1)
         i, j = np.unravel_index(int(np.argmax(d)), d.shape)
         return np.array([(j + 0.5) * res, (i + 0.5) * res])
 
     def summary(self) -> dict[str, object]:
         x0, y0, x1, y1 = self.bounds
-        return {"name": self.spec.name, "seed": self.spec.seed, "size_m": [x1 - x0, y1 - y0],
-                "regions": len(self.regions), "rooms": sum(r.kind == "room" for r in self.regions.values()),
-                "doors": len(self.doors), "faces": len(self.faces), "boxes": len(self.boxes),
-                "posters": len(self.posters), "goal_places": sorted(self.goal_places)}
+        return {
+            "name": self.spec.name,
+            "seed": self.spec.seed,
+            "size_m": [x1 - x0, y1 - y0],
+            "regions": len(self.regions),
+            "rooms": sum(r.kind == "room" for r in self.regions.values()),
+            "doors": len(self.doors),
+            "faces": len(self.faces),
+            "boxes": len(self.boxes),
+            "posters": len(self.posters),
+            "goal_places": sorted(self.goal_places),
+        }
 
 
 def _s_increasing(f: Face) -> bool:

@@ -16,33 +16,48 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-
 from litevloc.hw.messages import GroundTruthPose, Odometry, RgbdFrame
 from litevloc.runtime.cli.common import add_json_arg, progress, write_json
 from litevloc.runtime.cli.main import UserError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("sim", help="simulated indoor worlds: record passes, plot plans, goal images")
+    p = sub.add_parser(
+        "sim", help="simulated indoor worlds: record passes, plot plans, goal images"
+    )
     ss = p.add_subparsers(dest="sim_command", metavar="SIMCOMMAND")
     ss.required = True
     r = ss.add_parser("record", help="record a simulated pass through a world to MCAP")
     r.add_argument("world", help="world name (see config/worlds) or YAML file")
     r.add_argument("-o", "--output", type=Path, required=True, help="output .mcap")
-    r.add_argument("--seed", type=int, default=0, help="seed of route (query), lighting, drift and noise")
+    r.add_argument(
+        "--seed", type=int, default=0, help="seed of route (query), lighting, drift and noise"
+    )
     r.add_argument("--world-seed", type=int, default=None, help="override the world's own seed")
-    r.add_argument("--duration", type=float, default=None, metavar="S", help="at most S seconds (default: whole pass)")
+    r.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        metavar="S",
+        help="at most S seconds (default: whole pass)",
+    )
     r.add_argument("--pass", dest="pass_name", choices=("map", "query"), default="map")
-    r.add_argument("--plot", type=Path, default=None, help="also write a top-down PNG with the trajectory")
+    r.add_argument(
+        "--plot", type=Path, default=None, help="also write a top-down PNG with the trajectory"
+    )
     add_json_arg(r)
     r.set_defaults(func=run_record)
-    pl = ss.add_parser("plot", help="top-down PNG of a world with map/query trajectories, and a contact sheet")
+    pl = ss.add_parser(
+        "plot", help="top-down PNG of a world with map/query trajectories, and a contact sheet"
+    )
     pl.add_argument("world")
     pl.add_argument("-o", "--output", type=Path, required=True, help="output PNG (plan)")
     pl.add_argument("--seed", type=int, default=0)
     pl.add_argument("--world-seed", type=int, default=None)
     pl.add_argument("--duration", type=float, default=None, metavar="S")
-    pl.add_argument("--sheet", type=Path, default=None, help="also write a contact sheet of frames here")
+    pl.add_argument(
+        "--sheet", type=Path, default=None, help="also write a contact sheet of frames here"
+    )
     pl.set_defaults(func=run_plot)
     g = ss.add_parser("goals", help="render the world's goal images (PNG) and their poses (JSON)")
     g.add_argument("world")
@@ -52,7 +67,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.set_defaults(func=run_goals)
 
 
-def _world(args: argparse.Namespace):  # type: ignore[no-untyped-def]
+def _world(args: argparse.Namespace):
     from litevloc.hw.sim.world import load_world
 
     return load_world(args.world, seed=args.world_seed)
@@ -70,13 +85,22 @@ def run_record(args: argparse.Namespace) -> int:
     world = _world(args)
     src = SimSequenceSource(world, args.pass_name, args.seed, args.duration)
     t_plan = time.perf_counter() - t0
-    meta = {"source": src.name, "world": json.dumps(world.summary()), "seed": str(args.seed), "pass": args.pass_name,
-            "lighting": repr(src.lighting), "params": repr(src.params)}
+    meta = {
+        "source": src.name,
+        "world": json.dumps(world.summary()),
+        "seed": str(args.seed),
+        "pass": args.pass_name,
+        "lighting": repr(src.lighting),
+        "params": repr(src.params),
+    }
     counts = {"frames": 0, "odometry": 0, "ground_truth": 0}
     tmp = args.output.with_suffix(".mcap.partial")
     t1 = time.perf_counter()
     try:
-        with McapRecorder(tmp, metadata=meta) as rec, progress(src.frame_count(), f"sim {args.pass_name}") as bar:
+        with (
+            McapRecorder(tmp, metadata=meta) as rec,
+            progress(src.frame_count(), f"sim {args.pass_name}") as bar,
+        ):
             for msg in src:
                 rec.write(msg)
                 if isinstance(msg, RgbdFrame):
@@ -95,12 +119,27 @@ def run_record(args: argparse.Namespace) -> int:
 
         plot_world(world, args.plot, [(args.pass_name, src.run.T_world_base[:, :2, 3])])
     size = args.output.stat().st_size
-    print(f"wrote {args.output}: {counts['frames']} frames, {counts['odometry']} odometry, {counts['ground_truth']} "
-          f"ground-truth poses, {src.duration_s:.1f} s simulated, {size / 1e6:.1f} MB in {dt:.1f} s "
-          f"({counts['frames'] / max(dt, 1e-9):.1f} frames/s; planning {t_plan:.1f} s)")
-    write_json(args.json, {"output": str(args.output), **counts, "bytes": size, "seconds": dt,
-                           "planning_seconds": t_plan, "simulated_seconds": src.duration_s, "seed": args.seed,
-                           "pass": args.pass_name, "world": world.summary(), "collisions": src.run.collisions})
+    print(
+        f"wrote {args.output}: {counts['frames']} frames, {counts['odometry']} odometry, "
+        f"{counts['ground_truth']} "
+        f"ground-truth poses, {src.duration_s:.1f} s simulated, {size / 1e6:.1f} MB in {dt:.1f} s "
+        f"({counts['frames'] / max(dt, 1e-9):.1f} frames/s; planning {t_plan:.1f} s)"
+    )
+    write_json(
+        args.json,
+        {
+            "output": str(args.output),
+            **counts,
+            "bytes": size,
+            "seconds": dt,
+            "planning_seconds": t_plan,
+            "simulated_seconds": src.duration_s,
+            "seed": args.seed,
+            "pass": args.pass_name,
+            "world": world.summary(),
+            "collisions": src.run.collisions,
+        },
+    )
     return 0
 
 
@@ -110,7 +149,9 @@ def run_plot(args: argparse.Namespace) -> int:
 
     world = _world(args)
     srcs = {p: SimSequenceSource(world, p, args.seed, args.duration) for p in ("map", "query")}
-    out = plot_world(world, args.output, [(p, s.run.T_world_base[:, :2, 3]) for p, s in srcs.items()])
+    out = plot_world(
+        world, args.output, [(p, s.run.T_world_base[:, :2, 3]) for p, s in srcs.items()]
+    )
     print(f"wrote {out}")
     if args.sheet is not None:
         tiles = []
@@ -139,10 +180,25 @@ def run_goals(args: argparse.Namespace) -> int:
     poses = {}
     for k, (name, T_base) in enumerate(sorted(world.goal_places.items())):
         T_cam = camera_pose(T_base, 0.0, 0.0, params)
-        f = render_frame(ren, T_cam, params.intrinsics, params.realism, light,
-                         np.random.default_rng([args.seed, 19, k]), 0, k)
+        f = render_frame(
+            ren,
+            T_cam,
+            params.intrinsics,
+            params.realism,
+            light,
+            np.random.default_rng([args.seed, 19, k]),
+            0,
+            k,
+        )
         cv2.imwrite(str(args.output / f"{name}.png"), f.color[:, :, ::-1])
-        poses[name] = {"T_world_base": T_base.tolist(), "T_world_camera": T_cam.tolist(), "image": f"{name}.png"}
-    write_json(args.output / "goals.json", {"world": world.spec.name, "K": params.intrinsics.K, "goals": poses})
+        poses[name] = {
+            "T_world_base": T_base.tolist(),
+            "T_world_camera": T_cam.tolist(),
+            "image": f"{name}.png",
+        }
+    write_json(
+        args.output / "goals.json",
+        {"world": world.spec.name, "K": params.intrinsics.K, "goals": poses},
+    )
     print(f"wrote {len(poses)} goal images and goals.json to {args.output}")
     return 0
