@@ -22,10 +22,11 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from collections.abc import Sequence
+from typing import Any
 
 import cv2
 import numpy as np
-
 from litevloc.hw.sim.params import SimParams
 from litevloc.hw.sim.render import Renderer
 from litevloc.hw.sim.source import SimSequenceSource
@@ -33,12 +34,17 @@ from litevloc.hw.sim.world import load_world
 from litevloc.pipelines.geometry import backproject_pixels, invert, relative_pose_error
 
 
-def _pct(x: list[float] | np.ndarray) -> dict[str, float]:
+def _pct(x: Sequence[float] | np.ndarray) -> dict[str, float]:
     a = np.asarray(x, dtype=np.float64)
     if len(a) == 0:
         return {"n": 0}
-    return {"n": int(len(a)), "p10": float(np.percentile(a, 10)), "p50": float(np.median(a)),
-            "p90": float(np.percentile(a, 90)), "mean": float(a.mean())}
+    return {
+        "n": len(a),
+        "p10": float(np.percentile(a, 10)),
+        "p50": float(np.median(a)),
+        "p90": float(np.percentile(a, 90)),
+        "mean": float(a.mean()),
+    }
 
 
 def bench_render(world_name: str, n: int) -> dict[str, dict[str, float]]:
@@ -64,8 +70,12 @@ def bench_render(world_name: str, n: int) -> dict[str, dict[str, float]]:
             src.frame(int(i))
             full.append(time.perf_counter() - t0)
         mi, mf = float(np.median(ideal)) * 1e3, float(np.median(full)) * 1e3
-        out[f"{w}x{h}"] = {"render_ms_p50": mi, "frame_ms_p50": mf, "frame_vs_render": mf / mi,
-                           "render_ms_p90": float(np.percentile(ideal, 90)) * 1e3}
+        out[f"{w}x{h}"] = {
+            "render_ms_p50": mi,
+            "frame_ms_p50": mf,
+            "frame_vs_render": mf / mi,
+            "render_ms_p90": float(np.percentile(ideal, 90)) * 1e3,
+        }
     return out
 
 
@@ -75,17 +85,39 @@ def bench_record(seconds: float) -> dict[str, float]:
     with tempfile.TemporaryDirectory() as d:
         js = Path(d) / "r.json"
         t0 = time.perf_counter()
-        rc = main(["sim", "record", "office", "-o", str(Path(d) / "r.mcap"), "--duration", str(seconds),
-                   "--json", str(js)])
+        rc = main(
+            [
+                "sim",
+                "record",
+                "office",
+                "-o",
+                str(Path(d) / "r.mcap"),
+                "--duration",
+                str(seconds),
+                "--json",
+                str(js),
+            ]
+        )
         wall = time.perf_counter() - t0
         info = json.loads(js.read_text())
     assert rc == 0
-    return {"simulated_s": info["simulated_seconds"], "frames": info["frames"], "wall_s": wall,
-            "planning_s": info["planning_seconds"], "mb": info["bytes"] / 1e6,
-            "realtime_factor": info["simulated_seconds"] / wall}
+    return {
+        "simulated_s": info["simulated_seconds"],
+        "frames": info["frames"],
+        "wall_s": wall,
+        "planning_s": info["planning_seconds"],
+        "mb": info["bytes"] / 1e6,
+        "realtime_factor": info["simulated_seconds"] / wall,
+    }
 
 
-def bench_orb(world_name: str, n_query: int, seed: int = 0) -> dict[str, object]:
+def _fmt(d: dict[str, float], digits: int = 0) -> str:
+    if not d.get("n"):
+        return "n=0"
+    return f"n={d['n']} " + "/".join(f"{d[k]:.{digits}f}" for k in ("p10", "p50", "p90"))
+
+
+def bench_orb(world_name: str, n_query: int, seed: int = 0) -> dict[str, Any]:
     world = load_world(world_name)
     params = SimParams()
     K = params.intrinsics.K
@@ -95,7 +127,7 @@ def bench_orb(world_name: str, n_query: int, seed: int = 0) -> dict[str, object]
     m_poses = mp.camera_poses()[m_idx]
     q_all = qp.camera_poses()
     q_idx = np.linspace(0, qp.frame_count() - 1, n_query).astype(int)
-    orb = cv2.ORB_create(1000)
+    orb = cv2.ORB_create(1000)  # type: ignore[attr-defined]
     bf = cv2.BFMatcher(cv2.NORM_HAMMING)
     cache: dict[int, tuple] = {}
 
@@ -113,32 +145,47 @@ def bench_orb(world_name: str, n_query: int, seed: int = 0) -> dict[str, object]
         (_, kq, dq), (fm, km, dm) = q, m
         if dq is None or dm is None or len(kq) < 8 or len(km) < 8:
             return 0, None
-        good = [a for a, b in (p for p in bf.knnMatch(dq, dm, k=2) if len(p) == 2) if a.distance < 0.8 * b.distance]
+        good = [
+            a
+            for a, b in (p for p in bf.knnMatch(dq, dm, k=2) if len(p) == 2)
+            if a.distance < 0.8 * b.distance
+        ]
         if len(good) < 6:
             return 0, None
         uv_m = np.array([km[g.trainIdx].pt for g in good])
         uv_q = np.array([kq[g.queryIdx].pt for g in good])
-        z = fm.depth[np.clip(uv_m[:, 1].round().astype(int), 0, fm.height - 1),
-                     np.clip(uv_m[:, 0].round().astype(int), 0, fm.width - 1)]
+        z = fm.depth[
+            np.clip(uv_m[:, 1].round().astype(int), 0, fm.height - 1),
+            np.clip(uv_m[:, 0].round().astype(int), 0, fm.width - 1),
+        ]
         ok = np.isfinite(z)
         if ok.sum() < 6:
             return 0, None
         P = backproject_pixels(K, uv_m[ok], z[ok])
-        res = cv2.solvePnPRansac(P, uv_q[ok], K, None, iterationsCount=200, reprojectionError=3.0,
-                                 flags=cv2.SOLVEPNP_EPNP)
+        res = cv2.solvePnPRansac(
+            P,
+            uv_q[ok],
+            K,
+            None,
+            iterationsCount=200,
+            reprojectionError=3.0,
+            flags=cv2.SOLVEPNP_EPNP,
+        )
         if not res[0] or res[3] is None:
             return 0, None
         R, _ = cv2.Rodrigues(res[1])
         T_q_m = np.eye(4)
         T_q_m[:3, :3], T_q_m[:3, 3] = R, res[2].ravel()
-        return int(len(res[3])), T_q_m
+        return len(res[3]), T_q_m
 
     rng = np.random.default_rng(1)
     same, diff, t_err, r_err, dists = [], [], [], [], []
     for qi in q_idx:
         Tq = q_all[qi]
         d = np.linalg.norm(m_poses[:, :2, 3] - Tq[:2, 3], axis=1)
-        ang = np.degrees(np.arccos(np.clip(np.einsum("ij,j->i", m_poses[:, :3, 2], Tq[:3, 2]), -1, 1)))
+        ang = np.degrees(
+            np.arccos(np.clip(np.einsum("ij,j->i", m_poses[:, :3, 2], Tq[:3, 2]), -1, 1))
+        )
         score = d + ang / 30.0
         j = int(np.argmin(score))
         if d[j] > 1.0 or ang[j] > 30:
@@ -158,21 +205,28 @@ def bench_orb(world_name: str, n_query: int, seed: int = 0) -> dict[str, object]
             diff.append(pnp(q, feats(mp, int(m_idx[k]), int(m_idx[k])))[0])
     thr = 12
     return {
-        "world": world_name, "pairs_same": len(same), "pairs_diff": len(diff),
-        "same_place_inliers": _pct(same), "different_room_inliers": _pct(diff),
+        "world": world_name,
+        "pairs_same": len(same),
+        "pairs_diff": len(diff),
+        "same_place_inliers": _pct(same),
+        "different_room_inliers": _pct(diff),
         "same_frac_ge_thr": float(np.mean(np.array(same) >= thr)) if same else 0.0,
         "diff_frac_ge_thr": float(np.mean(np.array(diff) >= thr)) if diff else 0.0,
-        "inlier_threshold": thr, "same_pose_err_m": _pct(t_err), "same_pose_err_deg": _pct(r_err),
+        "inlier_threshold": thr,
+        "same_pose_err_m": _pct(t_err),
+        "same_pose_err_deg": _pct(r_err),
         "same_pair_distance_m": _pct(dists),
     }
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--quick", action="store_true", help="fewer samples")
     args = ap.parse_args()
     n = 10 if args.quick else 30
-    results: dict[str, object] = {}
+    results: dict[str, Any] = {}
     print("== render time per frame (one core, median ms) ==")
     for wn in ("office", "loop"):
         r = bench_render(wn, n)
@@ -180,24 +234,31 @@ def main() -> int:
         print(f"{wn:8s} bake {r['bake_s']['value']:.2f} s")
         for size in ("320x240", "640x480"):
             v = r[size]
-            print(f"  {size}: render p50 {v['render_ms_p50']:.1f} ms (p90 {v['render_ms_p90']:.1f}), "
-                  f"full frame p50 {v['frame_ms_p50']:.1f} ms (x{v['frame_vs_render']:.2f} of render)")
+            print(
+                f"  {size}: render p50 {v['render_ms_p50']:.1f} ms (p90 {v['render_ms_p90']:.1f}), "
+                f"full frame p50 {v['frame_ms_p50']:.1f} ms (x{v['frame_vs_render']:.2f} of render)"
+            )
     print("== record a pass to MCAP (office) ==")
     rec = bench_record(20.0 if args.quick else 60.0)
     results["record_office"] = rec
-    print(f"  {rec['simulated_s']:.0f} s simulated, {rec['frames']} frames, {rec['mb']:.1f} MB in {rec['wall_s']:.1f} s "
-          f"(x{rec['realtime_factor']:.2f} real time, planning {rec['planning_s']:.1f} s)")
-    print("== ORB + PnP place matching, map pass vs query pass ==")
+    print(
+        f"  {rec['simulated_s']:.0f} s simulated, {rec['frames']} frames, {rec['mb']:.1f} MB "
+        f"in {rec['wall_s']:.1f} s (x{rec['realtime_factor']:.2f} real time, "
+        f"planning {rec['planning_s']:.1f} s)"
+    )
+    print("== ORB + PnP place matching, map pass vs query pass (verified inliers p10/p50/p90) ==")
     for wn in ("office", "floor"):
         o = bench_orb(wn, 25 if args.quick else 80)
         results[f"orb_{wn}"] = o
-        s, d = o["same_place_inliers"], o["different_room_inliers"]
-        print(f"  {wn}: same place n={s.get('n')} inliers p10/p50/p90 = {s.get('p10', 0):.0f}/{s.get('p50', 0):.0f}/"
-              f"{s.get('p90', 0):.0f}; different rooms n={d.get('n')} p10/p50/p90 = {d.get('p10', 0):.0f}/"
-              f"{d.get('p50', 0):.0f}/{d.get('p90', 0):.0f}; >= {o['inlier_threshold']} inliers: "
-              f"same {o['same_frac_ge_thr']:.2f}, different {o['diff_frac_ge_thr']:.2f}; "
-              f"same-place pose error p50 {o['same_pose_err_m'].get('p50', float('nan')):.3f} m / "
-              f"{o['same_pose_err_deg'].get('p50', float('nan')):.2f} deg")
+        print(
+            f"  {wn}: same place {_fmt(o['same_place_inliers'])}; different rooms "
+            f"{_fmt(o['different_room_inliers'])}"
+        )
+        print(
+            f"    >= {o['inlier_threshold']} inliers: same {o['same_frac_ge_thr']:.2f}, different "
+            f"{o['diff_frac_ge_thr']:.2f}; same-place PnP error m {_fmt(o['same_pose_err_m'], 3)}, "
+            f"deg {_fmt(o['same_pose_err_deg'], 2)}"
+        )
     out = Path("out/bench/sim.json")
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(results, indent=2, sort_keys=True) + "\n")

@@ -45,11 +45,16 @@ def baked_textures(world: World) -> BakedTextures:
 
 
 @lru_cache(maxsize=8)
-def _pixel_rays(fx: float, fy: float, cx: float, cy: float, w: int, h: int) -> NDArray[np.float64]:
+def _pixel_rays(
+    fx: float, fy: float, cx: float, cy: float, w: int, h: int
+) -> tuple[NDArray[np.float64], NDArray[np.float32]]:
+    """(H, W, 3) rays (x/z, y/z, 1) of every pixel and their (H, W) lengths."""
     u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
     d = np.stack([(u - cx) / fx, (v - cy) / fy, np.ones_like(u)], axis=-1)
+    n = np.linalg.norm(d, axis=-1).astype(np.float32)
     d.setflags(write=False)
-    return d
+    n.setflags(write=False)
+    return d, n
 
 
 class Renderer:
@@ -104,13 +109,13 @@ class Renderer:
         f2 = fwd[:2] / horiz
         R_wv = np.array([[f2[1], 0.0, f2[0]], [-f2[0], 0.0, f2[1]], [0.0, -1.0, 0.0]])
         R_vc = R_wv.T @ R_wc
-        rays = _pixel_rays(K.fx, K.fy, K.cx, K.cy, K.width, K.height)
+        rays, ray_len = _pixel_rays(K.fx, K.fy, K.cx, K.cy, K.width, K.height)
         level = np.allclose(R_vc, np.eye(3), atol=1e-9)
         if level:
             xn = (np.arange(K.width) - K.cx) / K.fx
             yn = (np.arange(K.height) - K.cy) / K.fy
             col, rng_ = self._render_level(p, R_wv, xn, yn, K.fx)
-            depth = rng_ / np.linalg.norm(rays, axis=-1).astype(np.float32)
+            depth = rng_ / ray_len
             return col, depth.astype(np.float32)
         dv = rays @ R_vc.T
         if np.any(dv[..., 2] <= 1e-3):
@@ -127,7 +132,7 @@ class Renderer:
         map_y = (K.fy * yv - i0).astype(np.float32)
         color = cv2.remap(col_v, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         rng_t = cv2.remap(rng_v, map_x, map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
-        depth = rng_t / np.linalg.norm(rays, axis=-1).astype(np.float32)
+        depth = rng_t / ray_len
         return np.asarray(color, dtype=np.uint8), depth.astype(np.float32)
 
     def render_stereo(

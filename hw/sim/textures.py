@@ -291,6 +291,11 @@ def bake(world: World) -> BakedTextures:
         o = int(offsets[fi])
         if f.kind == "wall":
             mat, colour, scale = looks.get(f.region, ("painted", (170.0, 170.0, 170.0), 1.0))
+            reg = world.regions.get(f.region)
+            if reg is not None and reg.kind == "corridor" and rng.random() < 0.5:
+                # long corridors: wall sections vary, so places along them differ
+                mat = str(rng.choice(["painted", "plaster", "panel", "painted"]))
+                colour = _pastel(rng)
             patch = _material(mat, rows, w, ppm, rng, colour, scale)
             skirting = z_row < 0.08
             patch[skirting] = np.array(colour, np.float32) * 0.45

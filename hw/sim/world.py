@@ -505,7 +505,7 @@ class World:
             if r.material == "painted" and r.kind == "room":
                 n = min(n, 1)
             if r.kind == "corridor":
-                n = max(1, int(sum(self.faces[i].hi - self.faces[i].lo for i in cand) / 12.0))
+                n = max(1, int(sum(self.faces[i].hi - self.faces[i].lo for i in cand) / 6.0))
             for _ in range(n):
                 fi = int(self.rng.choice(cand))
                 f = self.faces[fi]

@@ -113,3 +113,22 @@ def test_spec_validation() -> None:
         WorldSpec(name="x", room_size=(1.0, 4.0))
     with pytest.raises(ValueError, match="door_width"):
         WorldSpec(name="x", door_width=0.2)
+
+
+@pytest.mark.parametrize("name", ["office", "floor", "loop"])
+def test_shipped_worlds_connected_through_doors(name: str) -> None:
+    w = load_world(name)
+    graph: dict[int, set[int]] = {k: set() for k in w.regions}
+    for a, b, *_ in w.doors:
+        graph[a].add(b)
+        graph[b].add(a)
+    seen, todo = set(), [next(iter(w.regions))]
+    while todo:
+        k = todo.pop()
+        if k not in seen:
+            seen.add(k)
+            todo += graph[k]
+    assert seen == set(w.regions)
+    # doors are wide enough for the robot: the door centre is free with a 0.3 m radius
+    for _, _, x0, y0, x1, y1 in w.doors:
+        assert w.is_free(np.array([(x0 + x1) / 2, (y0 + y1) / 2]), 0.3)
