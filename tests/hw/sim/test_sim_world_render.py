@@ -93,6 +93,12 @@ def test_render_depth_is_metric(office) -> None:
     assert np.all(np.isfinite(depth_t))
     assert depth_t[-1].mean() < depth_t[24].mean()
     assert color_t.std() > 10  # textured, not a flat image
+    # stereo: the right camera (+x) sees a wall point f * b / z pixels further left
+    left, right, depth_l = ren.render_stereo(T_cam, K, 0.2)
+    assert left.shape == right.shape == (48, 64, 3) and depth_l.shape == (48, 64)
+    z = float(depth_l[10, 40])
+    shift = 50.0 * 0.2 / z
+    assert np.isfinite(z) and shift > 1.0
     T_up = T_cam.copy()
     T_up[:3, :3] = T_up[:3, :3] @ np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]])
     with pytest.raises(RenderError):
