@@ -4,6 +4,9 @@
     litevloc sim plot WORLD -o PLAN.png [--seed N] [--duration S] [--sheet SHEET.png]
     litevloc sim goals WORLD -o DIR [--seed N]
 
+Simulator parameters (image size, rates, camera mount, realism) come from the config
+section `sim` (`--config PRESET`, `--set sim.width=640 --set sim.height=480`).
+
 WORLD is a shipped world name (`office`, `floor`, `loop`) or a YAML file.
 """
 
@@ -17,7 +20,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 from litevloc.hw.messages import GroundTruthPose, Odometry, RgbdFrame
-from litevloc.runtime.cli.common import add_json_arg, progress, write_json
+from litevloc.runtime.cli.common import (
+    add_config_args,
+    add_json_arg,
+    config_of,
+    progress,
+    write_json,
+)
 from litevloc.runtime.cli.main import UserError
 
 
@@ -45,6 +54,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument(
         "--plot", type=Path, default=None, help="also write a top-down PNG with the trajectory"
     )
+    add_config_args(r)
     add_json_arg(r)
     r.set_defaults(func=run_record)
     pl = ss.add_parser(
@@ -58,12 +68,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     pl.add_argument(
         "--sheet", type=Path, default=None, help="also write a contact sheet of frames here"
     )
+    add_config_args(pl)
     pl.set_defaults(func=run_plot)
     g = ss.add_parser("goals", help="render the world's goal images (PNG) and their poses (JSON)")
     g.add_argument("world")
     g.add_argument("-o", "--output", type=Path, required=True, help="output folder")
     g.add_argument("--seed", type=int, default=0, help="lighting/noise seed")
     g.add_argument("--world-seed", type=int, default=None)
+    add_config_args(g)
     g.set_defaults(func=run_goals)
 
 
@@ -83,7 +95,7 @@ def run_record(args: argparse.Namespace) -> int:
         raise UserError("--duration must be > 0")
     t0 = time.perf_counter()
     world = _world(args)
-    src = SimSequenceSource(world, args.pass_name, args.seed, args.duration)
+    src = SimSequenceSource(world, args.pass_name, args.seed, args.duration, config_of(args).sim)
     t_plan = time.perf_counter() - t0
     meta = {
         "source": src.name,
@@ -148,7 +160,10 @@ def run_plot(args: argparse.Namespace) -> int:
     from litevloc.hw.sim.source import SimSequenceSource
 
     world = _world(args)
-    srcs = {p: SimSequenceSource(world, p, args.seed, args.duration) for p in ("map", "query")}
+    params = config_of(args).sim
+    srcs = {
+        p: SimSequenceSource(world, p, args.seed, args.duration, params) for p in ("map", "query")
+    }
     out = plot_world(
         world, args.output, [(p, s.run.T_world_base[:, :2, 3]) for p, s in srcs.items()]
     )
@@ -170,10 +185,10 @@ def run_plot(args: argparse.Namespace) -> int:
 def run_goals(args: argparse.Namespace) -> int:
     from litevloc.hw.sim.realism import sample_lighting
     from litevloc.hw.sim.render import Renderer
-    from litevloc.hw.sim.simulator import SimParams, camera_pose, render_frame
+    from litevloc.hw.sim.simulator import camera_pose, render_frame
 
     world = _world(args)
-    params = SimParams()
+    params = config_of(args).sim
     ren = Renderer(world)
     light = sample_lighting(params.realism, np.random.default_rng([args.seed, 11]))
     args.output.mkdir(parents=True, exist_ok=True)

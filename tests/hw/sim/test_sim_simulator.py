@@ -145,5 +145,23 @@ def test_cli_record_and_plot(tmp_path: Path) -> None:
     assert sum(isinstance(m, Odometry) for m in msgs) == 201
     assert (tmp_path / "plan.png").stat().st_size > 1000
     assert main(["sim", "record", "office", "-o", str(tmp_path / "x.txt")]) == 2
-    assert main(["sim", "goals", "office", "-o", str(tmp_path / "goals")]) == 0
+    assert (
+        main(
+            [
+                "sim",
+                "goals",
+                "office",
+                "-o",
+                str(tmp_path / "goals"),
+                "--set",
+                "sim.width=80",
+                "--set",
+                "sim.height=60",
+            ]
+        )
+        == 0
+    )
+    import cv2
+
+    assert cv2.imread(str(next((tmp_path / "goals").glob("room_*.png")))).shape == (60, 80, 3)
     assert (tmp_path / "goals" / "goals.json").is_file()
