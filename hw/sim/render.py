@@ -57,6 +57,32 @@ def _pixel_rays(
     return d, n
 
 
+def _sample(
+    A: NDArray[np.uint8], r: NDArray[np.float64], c: NDArray[np.float64], bilinear: bool
+) -> NDArray[np.float32]:
+    """Texels of A (h, w, 3) at continuous (row, col) coordinates (texel centres at +0.5)."""
+    h, w = A.shape[:2]
+    if not bilinear:
+        ri = np.clip(r.astype(np.intp), 0, h - 1)
+        ci = np.clip(c.astype(np.intp), 0, w - 1)
+        return A.reshape(-1, 3).take(ri * w + ci, axis=0).astype(np.float32)
+    r = r - 0.5
+    c = c - 0.5
+    r0 = np.floor(r)
+    c0 = np.floor(c)
+    fr = (r - r0).astype(np.float32)[:, None]
+    fc = (c - c0).astype(np.float32)[:, None]
+    r0i = np.clip(r0.astype(np.intp), 0, h - 1)
+    c0i = np.clip(c0.astype(np.intp), 0, w - 1)
+    dr = np.where(r0i < h - 1, w, 0)
+    dc = np.where(c0i < w - 1, 1, 0)
+    flat = A.reshape(-1, 3)
+    i00 = r0i * w + c0i
+    top = flat.take(i00, axis=0) * (1 - fc) + flat.take(i00 + dc, axis=0) * fc
+    bot = flat.take(i00 + dr, axis=0) * (1 - fc) + flat.take(i00 + dr + dc, axis=0) * fc
+    return np.asarray(top * (1 - fr) + bot * fr, dtype=np.float32)
+
+
 class Renderer:
     """Render RGB-D images of a `World` (see module docstring).
 
@@ -287,23 +313,22 @@ class Renderer:
                 top_box[top] = np.broadcast_to(bidx[k][None, :], top_box.shape)[top]
         rng = t * np.sqrt(1.0 + xn[None, :] ** 2 + Y**2)
         color = np.zeros((hh, ww, 3), np.float32)
+        # texture level per pixel from its footprint in texels; -1 = magnified: bilinear level 0
         lvl = np.clip(
-            np.round(np.log2(np.maximum(rng * self.tex.ppm / f, 1e-6))), 0, MIP_LEVELS - 1
+            np.round(np.log2(np.maximum(rng * self.tex.ppm / f, 1e-6))), -1, MIP_LEVELS - 1
         ).astype(np.int8)
         # walls and box sides: atlas
         m = (kind == KIND_WALL) | (kind == KIND_SIDE)
         if m.any():
             zz = h - Y * t
             arow = (H - zz) * self.tex.ppm
-            for L in range(MIP_LEVELS):
+            for L in range(-1, MIP_LEVELS):
                 mm = m & (lvl == L)
                 if not mm.any():
                     continue
-                A = self.tex.atlas[L]
-                sc = 0.5**L
-                r_ = np.clip((arow[mm] * sc).astype(np.intp), 0, A.shape[0] - 1)
-                c_ = np.clip((acol[mm] * sc).astype(np.intp), 0, A.shape[1] - 1)
-                color[mm] = A[r_, c_]
+                A = self.tex.atlas[max(L, 0)]
+                sc = 0.5 ** max(L, 0)
+                color[mm] = _sample(A, arow[mm] * sc, acol[mm] * sc, bilinear=L < 0)
         # floor and box tops: world-aligned maps
         mf = kind == KIND_FLOOR
         mt = kind == KIND_TOP
@@ -313,17 +338,15 @@ class Renderer:
             wy = p[1] + t * d[None, :, 1]
             if mf.any():
                 flvl = np.clip(
-                    np.round(np.log2(np.maximum(rng * self._fppm / f, 1e-6))), 0, 2
+                    np.round(np.log2(np.maximum(rng * self._fppm / f, 1e-6))), -1, 2
                 ).astype(np.int8)
-                for L in range(3):
+                for L in range(-1, 3):
                     mm = mf & (flvl == L)
                     if not mm.any():
                         continue
-                    A = self._floor_mips[L]
-                    sc = self._fppm * 0.5**L
-                    r_ = np.clip((wy[mm] * sc).astype(np.intp), 0, A.shape[0] - 1)
-                    c_ = np.clip((wx[mm] * sc).astype(np.intp), 0, A.shape[1] - 1)
-                    color[mf & (flvl == L)] = A[r_, c_]
+                    A = self._floor_mips[max(L, 0)]
+                    sc = self._fppm * 0.5 ** max(L, 0)
+                    color[mm] = _sample(A, wy[mm] * sc, wx[mm] * sc, bilinear=L < 0)
             if mc.any():
                 A = self.tex.ceiling
                 sc = self.tex.ceiling_ppm
