@@ -16,7 +16,7 @@ from litevloc.hw.messages import GroundTruthPose, Message, Odometry, StreamStats
 from litevloc.hw.sim.realism import Lighting, sample_lighting
 from litevloc.hw.sim.render import Renderer
 from litevloc.hw.sim.simulator import SimParams, camera_pose, render_frame
-from litevloc.hw.sim.trajectory import FollowResult, PassName, follow, pass_tasks
+from litevloc.hw.sim.trajectory import PASS_NAMES, FollowResult, PassName, follow, pass_tasks
 from litevloc.hw.sim.world import World
 from litevloc.pipelines.geometry import interpolate_pose_at
 from numpy.typing import NDArray
@@ -27,7 +27,8 @@ class SimSequenceSource:
 
     Args:
         world: the world.
-        pass_name: "map" (visits every room, full turns) or "query" (other order, spots, lighting).
+        pass_name: "map" (visits every room, full turns), "query" (other order, spots and
+            lighting) or "loop" (laps the ring corridor of a layout-"loop" world).
         seed: seeds the route (query), lighting, odometry drift and image noise.
         duration: seconds to simulate at most (None = the whole pass).
         params: robot/camera parameters.
@@ -41,8 +42,8 @@ class SimSequenceSource:
         duration: float | None = None,
         params: SimParams | None = None,
     ) -> None:
-        if pass_name not in ("map", "query"):
-            raise ValueError(f"pass must be 'map' or 'query', got {pass_name!r}")
+        if pass_name not in PASS_NAMES:
+            raise ValueError(f"pass must be one of {PASS_NAMES}, got {pass_name!r}")
         if duration is not None and not (duration > 0):
             raise ValueError(f"duration must be > 0 s, got {duration}")
         self.world = world
@@ -51,7 +52,7 @@ class SimSequenceSource:
         self.params = params or SimParams()
         self.name = f"sim:{world.spec.name}:{pass_name}:seed{seed}"
         self.stats = StreamStats()
-        seq_seed = self.seed * 2 + (0 if pass_name == "map" else 1)
+        seq_seed = self.seed * 3 + PASS_NAMES.index(pass_name)
         self.lighting: Lighting = sample_lighting(
             self.params.realism, np.random.default_rng([seq_seed, 11])
         )

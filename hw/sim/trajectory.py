@@ -13,6 +13,7 @@
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 from typing import Literal
 
@@ -21,7 +22,8 @@ from litevloc.hw.sim.simulator import SimParams, Simulator, base_pose
 from litevloc.hw.sim.world import World
 from numpy.typing import NDArray
 
-PassName = Literal["map", "query"]
+PassName = Literal["map", "query", "loop"]
+PASS_NAMES: tuple[str, ...] = ("map", "query", "loop")
 
 
 class PlanningError(RuntimeError):
@@ -93,7 +95,13 @@ def _random_spot(
 def pass_tasks(
     world: World, pass_name: PassName, seed: int, params: SimParams
 ) -> tuple[NDArray[np.float64], list[Task]]:
-    """Start pose (4x4) and the task list of a map or query pass."""
+    """Start pose (4x4) and the task list of a map, query or loop pass.
+
+    "loop" (layout "loop" worlds only): laps the ring corridor once and drives 10 m past
+    the start again, for drift and loop-closure tests.
+    """
+    if pass_name == "loop":
+        return _loop_tasks(world, params)
     rng = np.random.default_rng([seed, 17, 0 if pass_name == "map" else 1])
     rooms = [k for k, r in world.regions.items() if r.kind == "room"]
     graph = _door_graph(world)
@@ -126,6 +134,25 @@ def pass_tasks(
         else:
             tasks.append(Task("turn", angle=float(rng.uniform(-1.5, 1.5))))
     return base_pose(float(start_xy[0]), float(start_xy[1]), yaw0), tasks
+
+
+def _loop_tasks(world: World, params: SimParams) -> tuple[NDArray[np.float64], list[Task]]:
+    corridors = [r for r in world.regions.values() if r.kind == "corridor"]
+    if world.spec.layout != "loop" or not corridors:
+        raise PlanningError(
+            f"pass 'loop' needs a world with layout 'loop'; "
+            f"{world.spec.name} is '{world.spec.layout}'"
+        )
+    x0, y0, x1, y1 = corridors[0].bbox
+    h = world.spec.corridor_width / 2
+    corners = np.array([[x0 + h, y0 + h], [x1 - h, y0 + h], [x1 - h, y1 - h], [x0 + h, y1 - h]])
+    start = np.array([x0 + h + 5.0, y0 + h])
+    pts = [start, *corners[1:], corners[0], start, start + np.array([10.0, 0.0])]
+    tasks = [
+        Task("goto", plan_path(world, a, b, params.robot_radius))
+        for a, b in itertools.pairwise(pts)
+    ]
+    return base_pose(float(start[0]), float(start[1]), 0.0), tasks
 
 
 def _wrap(a: float) -> float:

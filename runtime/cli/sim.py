@@ -1,6 +1,7 @@
 """`litevloc sim`: simulated worlds -> MCAP recordings, plans and contact sheets.
 
-    litevloc sim record WORLD -o REC.mcap [--seed N] [--duration S] [--pass map|query] [--json PATH]
+    litevloc sim record WORLD -o REC.mcap [--seed N] [--duration S] [--pass map|query|loop]
+                        [--json PATH] [--plot PNG]
     litevloc sim plot WORLD -o PLAN.png [--seed N] [--duration S] [--sheet SHEET.png]
     litevloc sim goals WORLD -o DIR [--seed N]
 
@@ -50,7 +51,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="S",
         help="at most S seconds (default: whole pass)",
     )
-    r.add_argument("--pass", dest="pass_name", choices=("map", "query"), default="map")
+    r.add_argument(
+        "--pass",
+        dest="pass_name",
+        choices=("map", "query", "loop"),
+        default="map",
+        help="map: every room with full turns; query: other route and lighting; "
+        "loop: lap the ring corridor (layout-loop worlds)",
+    )
     r.add_argument(
         "--plot", type=Path, default=None, help="also write a top-down PNG with the trajectory"
     )

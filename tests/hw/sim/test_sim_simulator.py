@@ -163,5 +163,6 @@ def test_cli_record_and_plot(tmp_path: Path) -> None:
     )
     import cv2
 
-    assert cv2.imread(str(next((tmp_path / "goals").glob("room_*.png")))).shape == (60, 80, 3)
+    img = cv2.imread(str(next((tmp_path / "goals").glob("room_*.png"))))
+    assert img is not None and img.shape == (60, 80, 3)
     assert (tmp_path / "goals" / "goals.json").is_file()

@@ -138,3 +138,19 @@ def test_shipped_worlds_connected_through_doors(name: str) -> None:
     # doors are wide enough for the robot: the door centre is free with a 0.3 m radius
     for _, _, x0, y0, x1, y1 in w.doors:
         assert w.is_free(np.array([(x0 + x1) / 2, (y0 + y1) / 2]), 0.3)
+
+
+def test_loop_pass_laps_the_ring_corridor(office) -> None:
+    from litevloc.hw.sim.trajectory import PlanningError, pass_tasks
+
+    loop = load_world("loop")
+    start, tasks = pass_tasks(loop, "loop", 0, SimParams())
+    length = sum(
+        float(np.linalg.norm(np.diff(t.path, axis=0), axis=1).sum())
+        for t in tasks
+        if t.path is not None
+    )
+    assert 190 <= length <= 215  # ~192 m centre line + 10 m overlap past the start
+    assert np.allclose(tasks[-2].path[-1], start[:2, 3])  # back at the start before the overlap
+    with pytest.raises(PlanningError, match="layout 'loop'"):
+        pass_tasks(office, "loop", 0, SimParams())
