@@ -112,3 +112,39 @@ class SimSequenceSource:
             self.stats.messages += 1
             yield Odometry(int(odo_t[k]), odo_T[k].copy())
             k += 1
+
+
+def open_sim_source(uri: str, params: SimParams | None = None) -> SimSequenceSource:
+    """`sim:WORLD[?pass=map|query|loop&seed=N&duration=S&world_seed=M]` -> a sequence source.
+
+    WORLD is a shipped world name or a YAML path, e.g. `sim:office?pass=query&seed=2`.
+    ValueError (naming the problem) on a malformed URI.
+    """
+    from urllib.parse import parse_qs, urlsplit
+
+    from litevloc.hw.sim.world import load_world
+
+    if not uri.startswith("sim:"):
+        raise ValueError(f"simulator source must look like sim:WORLD?pass=map&seed=0, got {uri!r}")
+    parts = urlsplit(uri[4:])
+    world_name = parts.path
+    if not world_name:
+        raise ValueError(f"{uri!r}: no world named (sim:WORLD...)")
+    query = {k: v[-1] for k, v in parse_qs(parts.query, strict_parsing=bool(parts.query)).items()}
+    unknown = sorted(set(query) - {"pass", "seed", "duration", "world_seed"})
+    if unknown:
+        raise ValueError(
+            f"{uri!r}: unknown option(s) {unknown}; allowed: pass, seed, duration, world_seed"
+        )
+    try:
+        seed = int(query.get("seed", "0"))
+        duration = float(query["duration"]) if "duration" in query else None
+        world_seed = int(query["world_seed"]) if "world_seed" in query else None
+    except ValueError as exc:
+        raise ValueError(f"{uri!r}: {exc}") from exc
+    pass_name = query.get("pass", "map")
+    if pass_name not in PASS_NAMES:
+        raise ValueError(f"{uri!r}: pass must be one of {PASS_NAMES}")
+    return SimSequenceSource(
+        load_world(world_name, seed=world_seed), pass_name, seed, duration, params
+    )

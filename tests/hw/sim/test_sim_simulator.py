@@ -166,3 +166,19 @@ def test_cli_record_and_plot(tmp_path: Path) -> None:
     img = cv2.imread(str(next((tmp_path / "goals").glob("room_*.png"))))
     assert img is not None and img.shape == (60, 80, 3)
     assert (tmp_path / "goals" / "goals.json").is_file()
+
+
+def test_open_sim_source_uri() -> None:
+    from litevloc.hw.sim.source import open_sim_source
+
+    src = open_sim_source("sim:office?pass=query&seed=2&duration=0.5", TINY)
+    assert src.pass_name == "query" and src.seed == 2 and src.frame_count() == 8
+    for bad in (
+        "office",
+        "sim:",
+        "sim:office?pass=nope",
+        "sim:office?speed=2",
+        "sim:office?seed=x",
+    ):
+        with pytest.raises(ValueError):
+            open_sim_source(bad, TINY)
