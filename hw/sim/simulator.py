@@ -10,6 +10,15 @@ height oscillation at the gait frequency); ground truth includes it, odometry do
 stops at walls/boxes (`collided`), emits drift-model odometry
 (`pipelines.odometry_drift.IncrementalDrift`) at every odometry tick and renders a
 frame when a camera tick falls in the step.
+
+Example (closed loop)::
+
+    world = load_world("office")
+    sim = Simulator(world, SimParams(), seed=0)
+    step = sim.reset(world.goal_places["room_00"])        # 4x4 T_world_base
+    while ...:
+        step = sim.step(v=0.4, omega=0.1, dt=1 / 15)       # -> SimStep
+        step.frame, step.odometry, step.ground_truth, step.collided
 """
 
 from __future__ import annotations
