@@ -63,7 +63,7 @@ def resample_times(t_start_ns: int, t_end_ns: int, rate_hz: float) -> NDArray[np
     """Timestamps from t_start to t_end (inclusive when it falls on the grid) at rate_hz."""
     if rate_hz <= 0:
         raise ValueError(f"odometry rate must be > 0 Hz, got {rate_hz}")
-    step = round(1e9 / rate_hz)
+    step = int(round(1e9 / rate_hz))
     return np.arange(t_start_ns, t_end_ns + 1, step, dtype=np.int64)
 
 
