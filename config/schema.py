@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from litevloc.hw.oak import CameraConfig
+from litevloc.hw.sim.params import SimParams
 from litevloc.models.config import ModelsConfig
 from litevloc.pipelines.fusion.online import FusionParams
 from litevloc.pipelines.localization.vloc import LocalizationParams
@@ -101,3 +102,4 @@ class LiteVLocConfig:
     mapping: MappingParams = field(default_factory=MappingParams)
     localization: LocalizationParams = field(default_factory=LocalizationParams)
     fusion: FusionConfig = field(default_factory=FusionConfig)
+    sim: SimParams = field(default_factory=SimParams)

@@ -111,3 +111,31 @@ def simulate_odometry(
         T = T @ D @ N
         out[k] = T
     return out_t, out
+
+
+class IncrementalDrift:
+    """The drift model of `simulate_odometry`, fed one ground-truth increment at a time.
+
+    For closed-loop simulation, where the trajectory is not known in advance. Fed the
+    increments `D_k = inv(T_k-1) T_k` of the same resampled ground truth with the same
+    seed, it returns exactly the poses `simulate_odometry` returns (tested).
+    """
+
+    def __init__(self, params: DriftParams, seed: int) -> None:
+        self.params = params
+        self.rng = np.random.default_rng(seed)
+        self.T_odom_base = np.eye(4)
+
+    def step(self, D: NDArray[np.float64], dt: float) -> NDArray[np.float64]:
+        """Apply one ground-truth base_link increment D (4x4) over dt s; returns T_odom_base."""
+        p = self.params
+        D = np.asarray(D, dtype=np.float64)
+        d = float(np.linalg.norm(D[:3, 3]))
+        a = rotation_angle(D[:3, :3])
+        sig_t = np.sqrt((p.sigma_trans_per_m * d) ** 2 + p.sigma_trans_floor**2 * dt)
+        sig_r = p.sigma_rot_per_m * d + p.sigma_rot_per_rad * a
+        noise_t = self.rng.normal(0.0, 1.0, 3) * sig_t
+        noise_r = self.rng.normal(0.0, 1.0, 3) * sig_r
+        noise_r[2] += p.yaw_bias_per_m * d
+        self.T_odom_base = self.T_odom_base @ D @ make_T(so3_exp(noise_r), noise_t)
+        return self.T_odom_base.copy()

@@ -14,7 +14,7 @@ import sys
 from collections.abc import Sequence
 
 # Subcommand modules (litevloc.runtime.cli.<name>), in help order.
-COMMANDS = ("info", "convert", "replay", "record", "models", "map", "localize", "bench")
+COMMANDS = ("info", "convert", "replay", "record", "sim", "models", "map", "localize", "bench")
 
 
 class UserError(Exception):
@@ -44,6 +44,14 @@ def _user_errors() -> tuple[type[BaseException], ...]:
         from litevloc.models.registry import ModelError
 
         errors.append(ModelError)
+    except ImportError:
+        pass
+    try:
+        from litevloc.hw.sim.render import RenderError
+        from litevloc.hw.sim.textures import TextureError
+        from litevloc.hw.sim.trajectory import PlanningError
+
+        errors += [RenderError, TextureError, PlanningError]
     except ImportError:
         pass
     try:

@@ -1,0 +1,227 @@
+"""`litevloc sim`: simulated worlds -> MCAP recordings, plans and contact sheets.
+
+    litevloc sim record WORLD -o REC.mcap [--seed N] [--duration S] [--pass map|query|loop]
+                        [--json PATH] [--plot PNG]
+    litevloc sim plot WORLD -o PLAN.png [--seed N] [--duration S] [--sheet SHEET.png]
+    litevloc sim goals WORLD -o DIR [--seed N]
+
+Simulator parameters (image size, rates, camera mount, realism) come from the config
+section `sim` (`--config PRESET`, `--set sim.width=640 --set sim.height=480`).
+
+WORLD is a shipped world name (`office`, `floor`, `loop`) or a YAML file.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+from litevloc.hw.messages import GroundTruthPose, Odometry, RgbdFrame
+from litevloc.runtime.cli.common import (
+    add_config_args,
+    add_json_arg,
+    config_of,
+    progress,
+    write_json,
+)
+from litevloc.runtime.cli.main import UserError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "sim", help="simulated indoor worlds: record passes, plot plans, goal images"
+    )
+    ss = p.add_subparsers(dest="sim_command", metavar="SIMCOMMAND")
+    ss.required = True
+    r = ss.add_parser("record", help="record a simulated pass through a world to MCAP")
+    r.add_argument("world", help="world name (see config/worlds) or YAML file")
+    r.add_argument("-o", "--output", type=Path, required=True, help="output .mcap")
+    r.add_argument(
+        "--seed", type=int, default=0, help="seed of route (query), lighting, drift and noise"
+    )
+    r.add_argument("--world-seed", type=int, default=None, help="override the world's own seed")
+    r.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        metavar="S",
+        help="at most S seconds (default: whole pass)",
+    )
+    r.add_argument(
+        "--pass",
+        dest="pass_name",
+        choices=("map", "query", "loop"),
+        default="map",
+        help="map: every room with full turns; query: other route and lighting; "
+        "loop: lap the ring corridor (layout-loop worlds)",
+    )
+    r.add_argument(
+        "--plot", type=Path, default=None, help="also write a top-down PNG with the trajectory"
+    )
+    add_config_args(r)
+    add_json_arg(r)
+    r.set_defaults(func=run_record)
+    pl = ss.add_parser(
+        "plot", help="top-down PNG of a world with map/query trajectories, and a contact sheet"
+    )
+    pl.add_argument("world")
+    pl.add_argument("-o", "--output", type=Path, required=True, help="output PNG (plan)")
+    pl.add_argument("--seed", type=int, default=0)
+    pl.add_argument("--world-seed", type=int, default=None)
+    pl.add_argument("--duration", type=float, default=None, metavar="S")
+    pl.add_argument(
+        "--sheet", type=Path, default=None, help="also write a contact sheet of frames here"
+    )
+    add_config_args(pl)
+    pl.set_defaults(func=run_plot)
+    g = ss.add_parser("goals", help="render the world's goal images (PNG) and their poses (JSON)")
+    g.add_argument("world")
+    g.add_argument("-o", "--output", type=Path, required=True, help="output folder")
+    g.add_argument("--seed", type=int, default=0, help="lighting/noise seed")
+    g.add_argument("--world-seed", type=int, default=None)
+    add_config_args(g)
+    g.set_defaults(func=run_goals)
+
+
+def _world(args: argparse.Namespace):
+    from litevloc.hw.sim.world import load_world
+
+    return load_world(args.world, seed=args.world_seed)
+
+
+def run_record(args: argparse.Namespace) -> int:
+    from litevloc.hw.sim.source import SimSequenceSource
+    from litevloc.hw.streams.mcap_io import McapRecorder
+
+    if args.output.suffix.lower() != ".mcap":
+        raise UserError(f"output must be a .mcap file, got {args.output}")
+    if args.duration is not None and args.duration <= 0:
+        raise UserError("--duration must be > 0")
+    t0 = time.perf_counter()
+    world = _world(args)
+    src = SimSequenceSource(world, args.pass_name, args.seed, args.duration, config_of(args).sim)
+    t_plan = time.perf_counter() - t0
+    meta = {
+        "source": src.name,
+        "world": json.dumps(world.summary()),
+        "seed": str(args.seed),
+        "pass": args.pass_name,
+        "lighting": repr(src.lighting),
+        "params": repr(src.params),
+    }
+    counts = {"frames": 0, "odometry": 0, "ground_truth": 0}
+    tmp = args.output.with_suffix(".mcap.partial")
+    t1 = time.perf_counter()
+    try:
+        with (
+            McapRecorder(tmp, metadata=meta) as rec,
+            progress(src.frame_count(), f"sim {args.pass_name}") as bar,
+        ):
+            for msg in src:
+                rec.write(msg)
+                if isinstance(msg, RgbdFrame):
+                    counts["frames"] += 1
+                    bar.update(1)
+                elif isinstance(msg, Odometry):
+                    counts["odometry"] += 1
+                elif isinstance(msg, GroundTruthPose):
+                    counts["ground_truth"] += 1
+        tmp.replace(args.output)
+    finally:
+        tmp.unlink(missing_ok=True)
+    dt = time.perf_counter() - t1
+    if args.plot is not None:
+        from litevloc.hw.sim.plot import plot_world
+
+        plot_world(world, args.plot, [(args.pass_name, src.run.T_world_base[:, :2, 3])])
+    size = args.output.stat().st_size
+    print(
+        f"wrote {args.output}: {counts['frames']} frames, {counts['odometry']} odometry, "
+        f"{counts['ground_truth']} "
+        f"ground-truth poses, {src.duration_s:.1f} s simulated, {size / 1e6:.1f} MB in {dt:.1f} s "
+        f"({counts['frames'] / max(dt, 1e-9):.1f} frames/s; planning {t_plan:.1f} s)"
+    )
+    write_json(
+        args.json,
+        {
+            "output": str(args.output),
+            **counts,
+            "bytes": size,
+            "seconds": dt,
+            "planning_seconds": t_plan,
+            "simulated_seconds": src.duration_s,
+            "seed": args.seed,
+            "pass": args.pass_name,
+            "world": world.summary(),
+            "collisions": src.run.collisions,
+        },
+    )
+    return 0
+
+
+def run_plot(args: argparse.Namespace) -> int:
+    from litevloc.hw.sim.plot import contact_sheet, depth_to_rgb, plot_world
+    from litevloc.hw.sim.source import SimSequenceSource
+
+    world = _world(args)
+    params = config_of(args).sim
+    srcs = {
+        p: SimSequenceSource(world, p, args.seed, args.duration, params) for p in ("map", "query")
+    }
+    out = plot_world(
+        world, args.output, [(p, s.run.T_world_base[:, :2, 3]) for p, s in srcs.items()]
+    )
+    print(f"wrote {out}")
+    if args.sheet is not None:
+        tiles = []
+        for p, s in srcs.items():
+            n = s.frame_count()
+            for i in np.linspace(0, n - 1, 6).astype(int):
+                f = s.frame(int(i))
+                tiles.append((f"{p} #{i}", f.color))
+                if p == "map" and len(tiles) % 4 == 1:
+                    assert f.depth is not None
+                    tiles.append((f"{p} #{i} depth", depth_to_rgb(f.depth)))
+        print(f"wrote {contact_sheet(tiles, args.sheet)}")
+    return 0
+
+
+def run_goals(args: argparse.Namespace) -> int:
+    from litevloc.hw.sim.realism import sample_lighting
+    from litevloc.hw.sim.render import Renderer
+    from litevloc.hw.sim.simulator import camera_pose, render_frame
+
+    world = _world(args)
+    params = config_of(args).sim
+    ren = Renderer(world)
+    light = sample_lighting(params.realism, np.random.default_rng([args.seed, 11]))
+    args.output.mkdir(parents=True, exist_ok=True)
+    poses = {}
+    for k, (name, T_base) in enumerate(sorted(world.goal_places.items())):
+        T_cam = camera_pose(T_base, 0.0, 0.0, params)
+        f = render_frame(
+            ren,
+            T_cam,
+            params.intrinsics,
+            params.realism,
+            light,
+            np.random.default_rng([args.seed, 19, k]),
+            0,
+            k,
+        )
+        cv2.imwrite(str(args.output / f"{name}.png"), f.color[:, :, ::-1])
+        poses[name] = {
+            "T_world_base": T_base.tolist(),
+            "T_world_camera": T_cam.tolist(),
+            "image": f"{name}.png",
+        }
+    write_json(
+        args.output / "goals.json",
+        {"world": world.spec.name, "K": params.intrinsics.K, "goals": poses},
+    )
+    print(f"wrote {len(poses)} goal images and goals.json to {args.output}")
+    return 0

@@ -1,0 +1,184 @@
+"""Closed-loop simulator, incremental drift consistency, sequence source and CLI."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from litevloc.hw.messages import GroundTruthPose, Odometry, RgbdFrame
+from litevloc.hw.sim.simulator import SimParams, Simulator
+from litevloc.hw.sim.source import SimSequenceSource
+from litevloc.hw.sim.world import load_world, pose2d
+from litevloc.hw.streams.mcap_io import McapSource
+from litevloc.pipelines.geometry import GeometryError, interpolate_pose_at, invert
+from litevloc.pipelines.odometry_drift import (
+    DriftParams,
+    IncrementalDrift,
+    resample_times,
+    simulate_odometry,
+)
+from litevloc.runtime.cli.main import main
+
+TINY = SimParams(width=48, height=36)
+
+
+@pytest.fixture(scope="module")
+def office():
+    return load_world("office")
+
+
+def test_incremental_drift_matches_batch_model() -> None:
+    times = np.arange(0, 3_000_000_000, 100_000_000, dtype=np.int64)
+    poses = np.stack([pose2d(0.3 * k, 0.05 * k * k, 0.2 * k) for k in range(len(times))])
+    params = DriftParams(yaw_bias_per_m=0.01)
+    t_out, T_batch = simulate_odometry(times, poses, 50.0, params, seed=4)
+    assert np.array_equal(t_out, resample_times(int(times[0]), int(times[-1]), 50.0))
+    gt = np.stack([interpolate_pose_at(int(t), times, poses) for t in t_out])
+    inc = IncrementalDrift(params, seed=4)
+    out = [np.eye(4)]
+    for k in range(1, len(t_out)):
+        out.append(inc.step(invert(gt[k - 1]) @ gt[k], (t_out[k] - t_out[k - 1]) * 1e-9))
+    assert np.allclose(np.stack(out), T_batch, atol=1e-12)
+    # and it drifts: the end differs from the ground-truth motion
+    assert np.linalg.norm(T_batch[-1][:3, 3] - (invert(gt[0]) @ gt[-1])[:3, 3]) > 1e-4
+
+
+def test_closed_loop_rates_motion_and_collision(office) -> None:
+    sim = Simulator(office, TINY, seed=1)
+    c = office.room_centre(1)
+    s0 = sim.reset(pose2d(c[0], c[1], 0.0))
+    assert s0.frame is not None and s0.frame.color.shape == (36, 48, 3)
+    assert s0.ground_truth.T_world_camera[2, 3] == pytest.approx(0.5, abs=0.02)
+    frames, odoms = 0, 0
+    for _ in range(50):  # 1 s at 0.3 m/s
+        st = sim.step(0.3, 0.0, 0.02)
+        frames += st.frame is not None
+        odoms += len(st.odometry)
+        assert not st.collided
+    assert frames == 14 and odoms == 200  # + the reset frame: 15 frames in [0, 1] s
+    assert st.T_world_base[0, 3] - c[0] == pytest.approx(0.3, abs=1e-6)
+    assert st.t_ns == 1_000_000_000
+    assert st.odometry[-1].T_odom_base[0, 3] == pytest.approx(0.3, abs=0.05)
+    # drive into a wall: the robot stops before it and reports the collision
+    collided = False
+    for _ in range(200):
+        st = sim.step(1.0, 0.0, 0.1)
+        if st.collided:
+            collided = True
+            break
+    assert collided
+    assert office.is_free(st.T_world_base[:2, 3], TINY.robot_radius)
+    with pytest.raises(GeometryError):
+        sim.reset(pose2d(-5.0, -5.0, 0.0))
+    with pytest.raises(ValueError):
+        sim.step(0.1, 0.0, -1.0)
+
+
+def test_sequence_source_is_ordered_and_deterministic(office) -> None:
+    a = SimSequenceSource(office, "query", seed=3, duration=2.0, params=TINY)
+    msgs = list(a)
+    ts = [m.t_ns for m in msgs]
+    assert ts == sorted(ts)
+    frames = [m for m in msgs if isinstance(m, RgbdFrame)]
+    assert len(frames) == a.frame_count() == 30
+    assert sum(isinstance(m, GroundTruthPose) for m in msgs) == 30
+    assert sum(isinstance(m, Odometry) for m in msgs) >= 400
+    b = SimSequenceSource(office, "query", seed=3, duration=2.0, params=TINY)
+    fb = [m for m in b if isinstance(m, RgbdFrame)]
+    assert all(
+        x.color.tobytes() == y.color.tobytes() and x.depth.tobytes() == y.depth.tobytes()
+        for x, y in zip(frames, fb, strict=True)
+    )
+    c = SimSequenceSource(office, "query", seed=4, duration=2.0, params=TINY)
+    assert c.frame(5).color.tobytes() != frames[5].color.tobytes()
+    d = frames[10].depth
+    assert d is not None and np.isnan(d).any() and np.isfinite(d).mean() > 0.5
+
+
+def test_cli_record_and_plot(tmp_path: Path) -> None:
+    out = tmp_path / "seq.mcap"
+    assert (
+        main(
+            [
+                "sim",
+                "record",
+                "office",
+                "-o",
+                str(out),
+                "--duration",
+                "1",
+                "--pass",
+                "query",
+                "--seed",
+                "2",
+                "--json",
+                str(tmp_path / "s.json"),
+                "--plot",
+                str(tmp_path / "plan.png"),
+            ]
+        )
+        == 0
+    )
+    again = tmp_path / "again.mcap"
+    assert (
+        main(
+            [
+                "sim",
+                "record",
+                "office",
+                "-o",
+                str(again),
+                "--duration",
+                "1",
+                "--pass",
+                "query",
+                "--seed",
+                "2",
+            ]
+        )
+        == 0
+    )
+    assert out.read_bytes() == again.read_bytes()  # same seed -> byte-identical recording
+    msgs = list(McapSource(out))
+    assert sum(isinstance(m, RgbdFrame) for m in msgs) == 15
+    assert sum(isinstance(m, Odometry) for m in msgs) == 201
+    assert (tmp_path / "plan.png").stat().st_size > 1000
+    assert main(["sim", "record", "office", "-o", str(tmp_path / "x.txt")]) == 2
+    assert (
+        main(
+            [
+                "sim",
+                "goals",
+                "office",
+                "-o",
+                str(tmp_path / "goals"),
+                "--set",
+                "sim.width=80",
+                "--set",
+                "sim.height=60",
+            ]
+        )
+        == 0
+    )
+    import cv2
+
+    img = cv2.imread(str(next((tmp_path / "goals").glob("room_*.png"))))
+    assert img is not None and img.shape == (60, 80, 3)
+    assert (tmp_path / "goals" / "goals.json").is_file()
+
+
+def test_open_sim_source_uri() -> None:
+    from litevloc.hw.sim.source import open_sim_source
+
+    src = open_sim_source("sim:office?pass=query&seed=2&duration=0.5", TINY)
+    assert src.pass_name == "query" and src.seed == 2 and src.frame_count() == 8
+    for bad in (
+        "office",
+        "sim:",
+        "sim:office?pass=nope",
+        "sim:office?speed=2",
+        "sim:office?seed=x",
+    ):
+        with pytest.raises(ValueError):
+            open_sim_source(bad, TINY)
