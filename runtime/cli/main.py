@@ -14,7 +14,7 @@ import sys
 from collections.abc import Sequence
 
 # Subcommand modules (litevloc.runtime.cli.<name>), in help order.
-COMMANDS = ("info", "convert", "replay", "record", "sim", "models", "map", "localize", "bench")
+COMMANDS = ("info", "demo", "convert", "replay", "record", "sim", "models", "map", "localize", "bench")
 
 
 class UserError(Exception):
