@@ -34,13 +34,16 @@ from typing import Literal
 
 import cv2
 import numpy as np
-from numpy.typing import NDArray
-
 from litevloc.pipelines.geometry import invert
+from numpy.typing import NDArray
 
 F64 = NDArray[np.float64]
 
-_TYPES = {"depth": cv2.OdometryType_DEPTH, "rgb": cv2.OdometryType_RGB, "rgbd": cv2.OdometryType_RGB_DEPTH}
+_TYPES = {
+    "depth": cv2.OdometryType_DEPTH,
+    "rgb": cv2.OdometryType_RGB,
+    "rgbd": cv2.OdometryType_RGB_DEPTH,
+}
 
 
 @dataclass(frozen=True)
@@ -105,7 +108,9 @@ class DepthOdometry:
         self.steps = 0
         self.failures = 0
 
-    def _frame(self, color: NDArray[np.uint8] | None, depth: NDArray[np.floating]) -> cv2.OdometryFrame:
+    def _frame(
+        self, color: NDArray[np.uint8] | None, depth: NDArray[np.floating]
+    ) -> cv2.OdometryFrame:
         d = np.asarray(depth, dtype=np.float32)
         if d.ndim != 2:
             raise ValueError(f"depth must be HxW, got shape {d.shape}")
@@ -119,7 +124,9 @@ class DepthOdometry:
                 raise ValueError(f"method {self.params.method!r} needs a colour image")
             c = np.asarray(color)
             if c.shape[:2] != d.shape or c.ndim != 3 or c.dtype != np.uint8:
-                raise ValueError(f"colour must be HxWx3 uint8 matching depth {d.shape}, got {c.dtype} {c.shape}")
+                raise ValueError(
+                    f"colour must be HxWx3 uint8 matching depth {d.shape}, got {c.dtype} {c.shape}"
+                )
             f = cv2.OdometryFrame(depth=d, image=cv2.cvtColor(c, cv2.COLOR_RGB2GRAY))
         self._odo.prepareFrame(f)
         self._shape = d.shape

@@ -23,14 +23,13 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
-
 from litevloc.pipelines.evaluation.trajectory import ate
 from litevloc.pipelines.fusion.batch import refine_session
 from litevloc.pipelines.fusion.online import FusionParams
 from litevloc.pipelines.fusion.simulate import run_online, simulate_vloc, synthetic_trajectory
 from litevloc.pipelines.geometry import interpolate_pose_at, invert
 from litevloc.pipelines.odometry_drift import DriftParams, simulate_odometry
+from numpy.typing import NDArray
 
 F64 = NDArray[np.float64]
 
@@ -79,8 +78,15 @@ def posed_sequence_experiment(
         put(rates, "odometry", (len(ot) - 1) / dur)
         for name, v in VARIANTS.items():
             p = dataclasses.replace(p0, **v["params"])
-            vl = simulate_vloc(gt_t, T_world_camera, vloc_rate_hz, p0.vloc_sigma_trans, p0.vloc_sigma_rot_deg,
-                               v["outliers"], seed=1000 + s)
+            vl = simulate_vloc(
+                gt_t,
+                T_world_camera,
+                vloc_rate_hz,
+                p0.vloc_sigma_trans,
+                p0.vloc_sigma_rot_deg,
+                v["outliers"],
+                seed=1000 + s,
+            )
             if name in ("robust", "outlier_free"):
                 T_vb = vl.T_map_camera @ invert(T_base_camera)
                 put(per, f"vloc_{name}", ate(T_vb, _gt_at(vl.t_capture_ns, gt_t, T_wb)).rmse)
@@ -90,8 +96,16 @@ def posed_sequence_experiment(
             put(per, f"fused_{name}", ate(run.T_map_base[m], gt_o[m]).rmse)
             put(per, f"fused_{name}_unaligned", ate(run.T_map_base[m], gt_o[m], align=False).rmse)
             put(rates, f"fused_{name}", (m.sum() - 1) / max((ot[m][-1] - ot[m][0]) * 1e-9, 1e-9))
-            put(timing, f"fused_{name}_odometry_call_ms_p50", np.percentile(run.odometry_call_ms, 50))
-            put(timing, f"fused_{name}_odometry_call_ms_p99", np.percentile(run.odometry_call_ms, 99))
+            put(
+                timing,
+                f"fused_{name}_odometry_call_ms_p50",
+                np.percentile(run.odometry_call_ms, 50),
+            )
+            put(
+                timing,
+                f"fused_{name}_odometry_call_ms_p99",
+                np.percentile(run.odometry_call_ms, 99),
+            )
             put(timing, f"fused_{name}_init_delay_s", (ot[m][0] - ot[0]) * 1e-9)
             t0 = time.perf_counter()
             b = refine_session(ot, oT, vl.t_capture_ns, vl.T_map_camera, None, p, T_base_camera)
@@ -123,9 +137,11 @@ def posed_sequence_experiment(
         "fusion_params": dataclasses.asdict(p0),
         "drift_params": dataclasses.asdict(drift),
         "inputs": {
-            "odometry": f"simulate_odometry(rate {odom_rate_hz:g} Hz, DriftParams(), seed=s), s in 0..{seeds - 1}",
-            "vloc": f"simulate_vloc({vloc_rate_hz:g} Hz, sigma {p0.vloc_sigma_trans} m / {p0.vloc_sigma_rot_deg} deg,"
-                    " 10 % outliers 0.5-3 m / 10-60 deg, latency U(0.1, 1.0) s, seed=1000+s)",
+            "odometry": f"simulate_odometry(rate {odom_rate_hz:g} Hz, DriftParams(), seed=s),"
+            f" s in 0..{seeds - 1}",
+            "vloc": f"simulate_vloc({vloc_rate_hz:g} Hz, sigma {p0.vloc_sigma_trans} m /"
+            f" {p0.vloc_sigma_rot_deg} deg, 10 % outliers 0.5-3 m / 10-60 deg,"
+            " latency U(0.1, 1.0) s, seed=1000+s)",
             "ate": "translation RMSE after SE(3) Umeyama alignment (no scale); median over seeds",
         },
     }
@@ -143,8 +159,13 @@ def _rss_mib() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def long_run_experiment(minutes: float = 30.0, params: FusionParams | None = None, seed: int = 0,
-                        blocks: int = 6, progress: Callable[[int], None] | None = None) -> dict:
+def long_run_experiment(
+    minutes: float = 30.0,
+    params: FusionParams | None = None,
+    seed: int = 0,
+    blocks: int = 6,
+    progress: Callable[[int], None] | None = None,
+) -> dict:
     """Synthetic endurance run: 100 Hz odometry + 1 Hz VLoc (10 % outliers) for `minutes`.
 
     Reports per block (of `blocks` equal time blocks): p50/p99/max of `add_odometry` and
@@ -155,8 +176,15 @@ def long_run_experiment(minutes: float = 30.0, params: FusionParams | None = Non
 
     gt_t, T_wb = synthetic_trajectory(minutes * 60.0, 30.0, seed=seed)
     ot, oT = simulate_odometry(gt_t, T_wb, 100.0, DriftParams(), seed=seed)
-    vl = simulate_vloc(gt_t, T_wb @ T_BASE_CAMERA_OPTICAL, 1.0, p.vloc_sigma_trans, p.vloc_sigma_rot_deg, 0.1,
-                       seed=1000 + seed)
+    vl = simulate_vloc(
+        gt_t,
+        T_wb @ T_BASE_CAMERA_OPTICAL,
+        1.0,
+        p.vloc_sigma_trans,
+        p.vloc_sigma_rot_deg,
+        0.1,
+        seed=1000 + seed,
+    )
     n = len(ot)
     edges = np.linspace(0, n, blocks + 1).astype(int)
     states = np.zeros(n, dtype=np.int32)
@@ -181,15 +209,20 @@ def long_run_experiment(minutes: float = 30.0, params: FusionParams | None = Non
         om = run.odometry_call_ms[a:z]
         vm = run.vloc_call_ms[(vblock >= a) & (vblock < z)]
         st = states[a:z:100]
-        out_blocks.append({
-            "minutes": [float((ot[a] - ot[0]) * 1e-9 / 60), float((ot[z - 1] - ot[0]) * 1e-9 / 60)],
-            "odometry_call_ms_p50": float(np.percentile(om, 50)),
-            "odometry_call_ms_p99": float(np.percentile(om, 99)),
-            "odometry_call_ms_max": float(om.max()),
-            "vloc_call_ms_p50": float(np.percentile(vm, 50)) if len(vm) else None,
-            "vloc_call_ms_p99": float(np.percentile(vm, 99)) if len(vm) else None,
-            "states_max": int(st.max()),
-        })
+        out_blocks.append(
+            {
+                "minutes": [
+                    float((ot[a] - ot[0]) * 1e-9 / 60),
+                    float((ot[z - 1] - ot[0]) * 1e-9 / 60),
+                ],
+                "odometry_call_ms_p50": float(np.percentile(om, 50)),
+                "odometry_call_ms_p99": float(np.percentile(om, 99)),
+                "odometry_call_ms_max": float(om.max()),
+                "vloc_call_ms_p50": float(np.percentile(vm, 50)) if len(vm) else None,
+                "vloc_call_ms_p99": float(np.percentile(vm, 99)) if len(vm) else None,
+                "states_max": int(st.max()),
+            }
+        )
     m = run.initialised
     gt_o = _gt_at(ot[m][::10], gt_t, T_wb)
     return {
@@ -200,7 +233,9 @@ def long_run_experiment(minutes: float = 30.0, params: FusionParams | None = Non
         "blocks": out_blocks,
         "odometry_call_ms_p99": float(np.percentile(run.odometry_call_ms, 99)),
         "vloc_call_ms_p99": float(np.percentile(run.vloc_call_ms, 99)),
-        "all_calls_ms_p99": float(np.percentile(np.concatenate([run.odometry_call_ms, run.vloc_call_ms]), 99)),
+        "all_calls_ms_p99": float(
+            np.percentile(np.concatenate([run.odometry_call_ms, run.vloc_call_ms]), 99)
+        ),
         "states_in_graph_max": int(states.max()),
         "rss_mib_start": rss.get("start"),
         "rss_mib_end": rss["end"],

@@ -49,15 +49,23 @@ import math
 import time
 from collections import Counter, deque
 from dataclasses import dataclass
-from typing import Literal
 
 import gtsam
 import numpy as np
+from litevloc.pipelines.fusion.params import FusionParams
+from litevloc.pipelines.geometry import interpolate_pose, invert, rotation_angle
 from numpy.typing import NDArray
 
-from litevloc.pipelines.geometry import interpolate_pose, invert, rotation_angle
-
 F64 = NDArray[np.float64]
+
+__all__ = [
+    "FusedPose",
+    "FusionParams",
+    "OnlineFusion",
+    "VlocUpdate",
+    "gtsam_to_ros_cov",
+    "ros_to_gtsam_cov",
+]
 
 # ROS (tx, ty, tz, rx, ry, rz) <-> GTSAM (rx, ry, rz, tx, ty, tz)
 _PERM = np.array([3, 4, 5, 0, 1, 2])
@@ -76,78 +84,6 @@ def gtsam_to_ros_cov(cov: NDArray[np.floating]) -> F64:
     c = np.asarray(cov, dtype=np.float64)
     inv = np.argsort(_PERM)
     return c[np.ix_(inv, inv)]
-
-
-@dataclass(frozen=True)
-class FusionParams:
-    """Parameters of `OnlineFusion` and `batch_refine` (lengths m, angles deg, times s).
-
-    Odometry increment noise (per axis, 1 sigma) for an increment of length d metres and
-    rotation a radians: trans = odom_sigma_trans_floor + odom_sigma_trans_per_m * d,
-    rot = odom_sigma_rot_floor_deg + odom_sigma_rot_per_m_deg * d + odom_sigma_rot_per_rad * a.
-    VLoc sigmas are used when `add_vloc` gets no covariance.
-    """
-
-    keyframe_period_s: float = 0.1
-    keyframe_dist_m: float = 0.25
-    keyframe_angle_deg: float = 10.0
-    lag_s: float = 3.0  # smoother window; must exceed the worst VLoc latency
-    odom_sigma_trans_floor: float = 0.002
-    odom_sigma_trans_per_m: float = 0.04
-    odom_sigma_rot_floor_deg: float = 0.05
-    odom_sigma_rot_per_m_deg: float = 1.5
-    odom_sigma_rot_per_rad: float = 0.02
-    vloc_sigma_trans: float = 0.05
-    vloc_sigma_rot_deg: float = 2.0
-    robust_kernel: Literal["huber", "cauchy", "none"] = "cauchy"
-    robust_k: float = 2.5  # kernel width in whitened units (sigmas)
-    gate_chi2: float = 22.46  # 6-dof chi-square, p = 0.999; 0 disables gating
-    init_votes: int = 2
-    init_max_trans_m: float = 0.5
-    init_max_rot_deg: float = 10.0
-    reinit_after_rejects: int = 5
-    covariance_period_s: float = 1.0  # at most one marginal covariance per this time
-    odom_buffer_s: float = 5.0  # odometry kept for late VLoc (>= lag_s)
-    max_future_s: float = 0.05  # a VLoc up to this much newer than the newest odometry: extrapolated
-
-    def __post_init__(self) -> None:
-        positive = (
-            "keyframe_period_s", "keyframe_dist_m", "keyframe_angle_deg", "lag_s", "odom_sigma_trans_floor",
-            "odom_sigma_rot_floor_deg", "vloc_sigma_trans", "vloc_sigma_rot_deg", "robust_k",
-            "init_max_trans_m", "init_max_rot_deg", "covariance_period_s", "odom_buffer_s",
-        )
-        for name in positive:
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be a finite number > 0, got {v}")
-        for name in ("odom_sigma_trans_per_m", "odom_sigma_rot_per_m_deg", "odom_sigma_rot_per_rad",
-                     "gate_chi2", "max_future_s"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v >= 0):
-                raise ValueError(f"{name} must be a finite number >= 0, got {v}")
-        if self.robust_kernel not in ("huber", "cauchy", "none"):
-            raise ValueError(f"robust_kernel must be huber, cauchy or none, got {self.robust_kernel!r}")
-        if self.init_votes < 1:
-            raise ValueError(f"init_votes must be >= 1, got {self.init_votes}")
-        if self.reinit_after_rejects < 0:
-            raise ValueError(f"reinit_after_rejects must be >= 0, got {self.reinit_after_rejects}")
-        if self.lag_s < 2 * self.keyframe_period_s:
-            raise ValueError(f"lag_s ({self.lag_s}) must be >= 2 * keyframe_period_s ({self.keyframe_period_s})")
-        if self.odom_buffer_s < self.lag_s:
-            raise ValueError(f"odom_buffer_s ({self.odom_buffer_s}) must be >= lag_s ({self.lag_s})")
-
-    def odom_sigmas(self, dist_m: float, angle_rad: float) -> F64:
-        """Per-axis sigmas of an odometry increment, GTSAM order (rot rad x3, trans m x3)."""
-        rot = math.radians(self.odom_sigma_rot_floor_deg + self.odom_sigma_rot_per_m_deg * dist_m)
-        rot += self.odom_sigma_rot_per_rad * angle_rad
-        trans = self.odom_sigma_trans_floor + self.odom_sigma_trans_per_m * dist_m
-        return np.array([rot, rot, rot, trans, trans, trans])
-
-    def vloc_cov_gtsam(self) -> F64:
-        """Default VLoc covariance, GTSAM order."""
-        r = math.radians(self.vloc_sigma_rot_deg) ** 2
-        t = self.vloc_sigma_trans**2
-        return np.diag([r, r, r, t, t, t])
 
 
 @dataclass(frozen=True)
@@ -233,7 +169,10 @@ def _percentile(values: deque[float], q: float) -> float | None:
 
 def _map_odom_close(A: F64, B: F64, max_trans: float, max_rot_rad: float) -> bool:
     D = invert(A) @ B
-    return float(np.linalg.norm(A[:3, 3] - B[:3, 3])) <= max_trans and rotation_angle(D[:3, :3]) <= max_rot_rad
+    return (
+        float(np.linalg.norm(A[:3, 3] - B[:3, 3])) <= max_trans
+        and rotation_angle(D[:3, :3]) <= max_rot_rad
+    )
 
 
 @dataclass
@@ -294,7 +233,9 @@ class OnlineFusion:
         assert self._t0_ns is not None
         return (t_ns - self._t0_ns) * 1e-9
 
-    def _update(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, stamps: dict[int, float]) -> None:
+    def _update(
+        self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, stamps: dict[int, float]
+    ) -> None:
         ts = gtsam.FixedLagSmootherKeyTimestampMap()
         for k, s in stamps.items():
             ts.insert((k, s))
@@ -311,9 +252,13 @@ class OnlineFusion:
         gauss = gtsam.noiseModel.Gaussian.Covariance(cov_gtsam)
         p = self.params
         if p.robust_kernel == "huber":
-            return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(p.robust_k), gauss)
+            return gtsam.noiseModel.Robust.Create(
+                gtsam.noiseModel.mEstimator.Huber.Create(p.robust_k), gauss
+            )
         if p.robust_kernel == "cauchy":
-            return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy.Create(p.robust_k), gauss)
+            return gtsam.noiseModel.Robust.Create(
+                gtsam.noiseModel.mEstimator.Cauchy.Create(p.robust_k), gauss
+            )
         return gauss
 
     def _odom_cov(self, T_a: F64, T_b: F64) -> F64:
@@ -328,7 +273,11 @@ class OnlineFusion:
         self._next_index += 1
         self._keys.append((key, c.t_ns, c.T_odom_base))
         graph = gtsam.NonlinearFactorGraph()
-        graph.add(gtsam.PriorFactorPose3(key, _pose3(c.T_map_base), gtsam.noiseModel.Gaussian.Covariance(c.cov)))
+        graph.add(
+            gtsam.PriorFactorPose3(
+                key, _pose3(c.T_map_base), gtsam.noiseModel.Gaussian.Covariance(c.cov)
+            )
+        )
         values = gtsam.Values()
         values.insert(key, _pose3(c.T_map_base))
         self._update(graph, values, {key: 0.0})
@@ -388,7 +337,9 @@ class OnlineFusion:
             if t_ns == t_last or len(self._odom) < 2:
                 return self._odom[-1][1]
             (tp, Tp), (tl, Tl) = self._odom[-2], self._odom[-1]
-            return interpolate_pose(Tp, Tl, (t_ns - tp) / (tl - tp))  # s > 1: constant-velocity extrapolation
+            return interpolate_pose(
+                Tp, Tl, (t_ns - tp) / (tl - tp)
+            )  # s > 1: constant-velocity extrapolation
         times = [t for t, _ in self._odom]  # bounded (odom_buffer_s of messages)
         i = int(np.searchsorted(times, t_ns, side="right"))
         t0, T0 = self._odom[i - 1]
@@ -396,7 +347,10 @@ class OnlineFusion:
         return interpolate_pose(T0, T1, (t_ns - t0) / (t1 - t0))
 
     def add_odometry(
-        self, t_ns: int, T_odom_base: NDArray[np.floating], covariance: NDArray[np.floating] | None = None
+        self,
+        t_ns: int,
+        T_odom_base: NDArray[np.floating],
+        covariance: NDArray[np.floating] | None = None,
     ) -> FusedPose | None:
         """Feed one odometry message; returns the fused pose at t_ns (None before init).
 
@@ -458,7 +412,10 @@ class OnlineFusion:
 
     # ------------------------------------------------------------------ VLoc
     def add_vloc(
-        self, t_ns: int, T_map_camera: NDArray[np.floating], covariance: NDArray[np.floating] | None = None
+        self,
+        t_ns: int,
+        T_map_camera: NDArray[np.floating],
+        covariance: NDArray[np.floating] | None = None,
     ) -> VlocUpdate:
         """Fuse one VLoc result captured at `t_ns` (may be older than the newest odometry).
 
@@ -470,8 +427,9 @@ class OnlineFusion:
         self._vloc_reasons[res.reason] += 1
         return res
 
-    def _add_vloc(self, t_ns: int, T_map_camera: NDArray[np.floating], covariance: NDArray[np.floating] | None
-                  ) -> VlocUpdate:
+    def _add_vloc(
+        self, t_ns: int, T_map_camera: NDArray[np.floating], covariance: NDArray[np.floating] | None
+    ) -> VlocUpdate:
         p = self.params
         T_mc = _valid_pose(T_map_camera)
         if T_mc is None:
@@ -495,7 +453,7 @@ class OnlineFusion:
         horizon = self._keys[-1][1] - int((p.lag_s - p.keyframe_period_s) * 1e9)
         if t_ns < max(self._keys[0][1], horizon) - int(p.keyframe_period_s * 0.5e9):
             return VlocUpdate(False, "too_old")
-        key, t_key, T_key_odom = min(
+        key, _, T_key_odom = min(
             (k for k in self._keys if k[1] >= horizon), key=lambda k: abs(k[1] - t_ns)
         )
         D = invert(T_ob) @ T_key_odom  # odometry from capture time to keyframe time
@@ -527,7 +485,8 @@ class OnlineFusion:
         p = self.params
         ref = cands[-1].T_map_odom
         return all(
-            _map_odom_close(ref, c.T_map_odom, p.init_max_trans_m, math.radians(p.init_max_rot_deg)) for c in cands
+            _map_odom_close(ref, c.T_map_odom, p.init_max_trans_m, math.radians(p.init_max_rot_deg))
+            for c in cands
         )
 
     def _try_init(self, cand: _Candidate) -> VlocUpdate:
@@ -552,8 +511,11 @@ class OnlineFusion:
             "odometry_rejected": dict(self._odom_rejects),
             "fused_outputs": self._counts["fused_outputs"],
             "vloc": self._counts["vloc"],
-            "vloc_accepted": sum(v for k, v in self._vloc_reasons.items() if k in ("accepted", "initialised",
-                                                                                   "reinitialised")),
+            "vloc_accepted": sum(
+                v
+                for k, v in self._vloc_reasons.items()
+                if k in ("accepted", "initialised", "reinitialised")
+            ),
             "vloc_by_reason": dict(self._vloc_reasons),
             "keyframes": self._counts["keyframes"],
             "states_in_graph": self.states_in_graph(),

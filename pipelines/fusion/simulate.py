@@ -17,17 +17,17 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
-
 from litevloc.pipelines.fusion.online import FusionParams, OnlineFusion
 from litevloc.pipelines.geometry import interpolate_pose_at, make_T, so3_exp
+from numpy.typing import NDArray
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 
 
-def synthetic_trajectory(duration_s: float, rate_hz: float = 30.0, seed: int = 0, speed: float = 0.5
-                         ) -> tuple[I64, F64]:
+def synthetic_trajectory(
+    duration_s: float, rate_hz: float = 30.0, seed: int = 0, speed: float = 0.5
+) -> tuple[I64, F64]:
     """Planar base_link trajectory: a random smooth closed-ish wander at ~`speed` m/s.
 
     Heading follows the velocity (x forward, z up). Returns (N,) int ns times from 0 and
@@ -45,8 +45,12 @@ def synthetic_trajectory(duration_s: float, rate_hz: float = 30.0, seed: int = 0
         x += a * np.sin(2 * np.pi * f * t + rng.uniform(0, 2 * np.pi))
         y += a * np.cos(2 * np.pi * f * t + rng.uniform(0, 2 * np.pi))
     yaw = np.unwrap(np.arctan2(np.gradient(y), np.gradient(x)))
-    poses = np.stack([make_T(so3_exp(np.array([0.0, 0.0, h])), np.array([xi, yi, 0.3]))
-                      for xi, yi, h in zip(x, y, yaw, strict=True)])
+    poses = np.stack(
+        [
+            make_T(so3_exp(np.array([0.0, 0.0, h])), np.array([xi, yi, 0.3]))
+            for xi, yi, h in zip(x, y, yaw, strict=True)
+        ]
+    )
     return np.round(t * 1e9).astype(np.int64), poses
 
 
@@ -73,7 +77,7 @@ def simulate_vloc(
 ) -> VlocSim:
     """VLoc results at `rate_hz` over the ground-truth span (see module docstring)."""
     rng = np.random.default_rng(seed)
-    step = int(round(1e9 / rate_hz))
+    step = round(1e9 / rate_hz)
     tc = np.arange(int(times_ns[0]) + step // 2, int(times_ns[-1]) + 1, step, dtype=np.int64)
     out = np.empty((len(tc), 4, 4))
     flags = rng.random(len(tc)) < outlier_ratio
@@ -143,5 +147,11 @@ def run_online(
             init[i] = True
         if callable(on_sample):
             on_sample(i, fusion)
-    return OnlineRun(np.asarray(odom_times_ns, dtype=np.int64), poses, init, odo_ms, np.array(vloc_ms),
-                     fusion.stats())
+    return OnlineRun(
+        np.asarray(odom_times_ns, dtype=np.int64),
+        poses,
+        init,
+        odo_ms,
+        np.array(vloc_ms),
+        fusion.stats(),
+    )

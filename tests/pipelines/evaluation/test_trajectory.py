@@ -6,7 +6,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from litevloc.pipelines.evaluation.trajectory import (
     TrajectoryError,
     associate,
@@ -58,10 +57,15 @@ def test_associate_nearest_unique_within_max_dt() -> None:
     a = np.array([0.0, 1.0, 2.0, 3.0, 4.0])
     b = np.array([0.004, 1.02, 1.995, 2.003, 9.0])
     ia, ib = associate(a, b, 0.01)
-    assert ia.tolist() == [0, 2] and ib.tolist() == [0, 3]  # 1.02 is too far; 2.003 is nearer than 1.995
+    assert ia.tolist() == [0, 2] and ib.tolist() == [
+        0,
+        3,
+    ]  # 1.02 is too far; 2.003 is nearer than 1.995
     ia, ib = associate(a, b, 0.05)
     assert ia.tolist() == [0, 1, 2] and ib.tolist() == [0, 1, 3]
-    ia, ib = associate(np.array([1.0, 1.004]), np.array([1.003]), 0.01)  # one b, two a: the closer a wins
+    ia, ib = associate(
+        np.array([1.0, 1.004]), np.array([1.003]), 0.01
+    )  # one b, two a: the closer a wins
     assert ia.tolist() == [1] and ib.tolist() == [0]
 
 
@@ -95,8 +99,14 @@ def test_ate_agrees_with_evo(tmp_path: Path) -> None:
     # Estimate: other frame, noisy, at shifted times (2 ms) and with gaps.
     T = _random_T(rng)
     keep = np.sort(rng.choice(len(G), size=len(G) * 2 // 3, replace=False))
-    E = np.stack([np.linalg.inv(T) @ g @ make_T(so3_exp(rng.normal(size=3) * 0.01), rng.normal(size=3) * 0.03)
-                  for g in G[keep]])
+    E = np.stack(
+        [
+            np.linalg.inv(T)
+            @ g
+            @ make_T(so3_exp(rng.normal(size=3) * 0.01), rng.normal(size=3) * 0.03)
+            for g in G[keep]
+        ]
+    )
     t_est = t_ref[keep] + 0.002
     write_tum(tmp_path / "ref.txt", t_ref, G)
     write_tum(tmp_path / "est.txt", t_est, E)

@@ -6,15 +6,27 @@ import json
 from pathlib import Path
 
 import pytest
-
 from litevloc.runtime.cli.main import main
 
 
 @pytest.mark.shared_data
-def test_bench_fusion_writes_the_table_json(seven_scenes_dir: Path, tmp_path: Path,
-                                            capsys: pytest.CaptureFixture[str]) -> None:
+def test_bench_fusion_writes_the_table_json(
+    seven_scenes_dir: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     out = tmp_path / "fusion.json"
-    rc = main(["bench", "fusion", str(seven_scenes_dir), "--frames", "500:800", "--seeds", "1", "--json", str(out)])
+    rc = main(
+        [
+            "bench",
+            "fusion",
+            str(seven_scenes_dir),
+            "--frames",
+            "500:800",
+            "--seeds",
+            "1",
+            "--json",
+            str(out),
+        ]
+    )
     assert rc == 0
     d = json.loads(out.read_text())
     for k in ("odometry", "vloc", "fused", "batch"):
