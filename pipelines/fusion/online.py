@@ -106,7 +106,7 @@ class FusedPose:
 class VlocUpdate:
     """What happened to one VLoc result. `reason`: accepted | initialised | reinitialised |
     awaiting_init | gated | too_old | ahead_of_odometry | no_odometry | invalid_pose |
-    invalid_covariance | time_not_finite. `mahalanobis2`: squared Mahalanobis distance to
+    invalid_covariance | solver_error. `mahalanobis2`: squared Mahalanobis distance to
     the prediction (6 dof) where it was computed."""
 
     accepted: bool
@@ -235,18 +235,25 @@ class OnlineFusion:
 
     def _update(
         self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, stamps: dict[int, float]
-    ) -> None:
+    ) -> bool:
+        """One smoother update; False (counted, filter reset to uninitialised) if GTSAM throws."""
         ts = gtsam.FixedLagSmootherKeyTimestampMap()
         for k, s in stamps.items():
             ts.insert((k, s))
         t0 = time.perf_counter()
-        self._smoother.update(graph, values, ts)
-        newest_key = self._keys[-1][0]
-        self._last_est = self._smoother.calculateEstimatePose3(newest_key).matrix()
+        try:
+            self._smoother.update(graph, values, ts)
+            newest_key = self._keys[-1][0]
+            self._last_est = self._smoother.calculateEstimatePose3(newest_key).matrix()
+        except RuntimeError:  # e.g. an indeterminant system: start over from the next VLoc
+            self._counts["solver_errors"] += 1
+            self._reset_graph()
+            return False
         self._update_ms.append((time.perf_counter() - t0) * 1e3)
         horizon = self._keys[-1][1] - int(self.params.lag_s * 1e9)
         while self._keys and self._keys[0][1] < horizon:  # mirror what the smoother marginalised
             self._keys.popleft()
+        return True
 
     def _vloc_noise(self, cov_gtsam: F64) -> gtsam.noiseModel.Base:
         gauss = gtsam.noiseModel.Gaussian.Covariance(cov_gtsam)
@@ -280,7 +287,8 @@ class OnlineFusion:
         )
         values = gtsam.Values()
         values.insert(key, _pose3(c.T_map_base))
-        self._update(graph, values, {key: 0.0})
+        if not self._update(graph, values, {key: 0.0}):
+            return VlocUpdate(False, "solver_error")
         self._initialised = True
         self._cov_state = c.cov.copy()
         self._cov_t = c.t_ns
@@ -316,9 +324,15 @@ class OnlineFusion:
         values.insert(key, _pose3(self._last_est @ D))
         self._keys.append((key, t_ns, T_odom_base))
         self._counts["keyframes"] += 1
-        self._update(graph, values, {key: self._stamp(t_ns)})
+        if not self._update(graph, values, {key: self._stamp(t_ns)}):
+            return
         if self._cov_t is None or t_ns - self._cov_t >= p.covariance_period_s * 1e9:
-            self._cov_state = np.asarray(self._smoother.marginalCovariance(key), dtype=np.float64)
+            try:
+                self._cov_state = np.asarray(
+                    self._smoother.marginalCovariance(key), dtype=np.float64
+                )
+            except RuntimeError:  # keep the previous covariance; counted
+                self._counts["solver_errors"] += 1
             self._cov_t = t_ns
             self._cov_key_T_odom = T_odom_base
             self._counts["covariance_computations"] += 1
@@ -385,6 +399,8 @@ class OnlineFusion:
         if not self._initialised:
             return None
         self._maybe_keyframe(t_ns, T)
+        if not self._initialised:  # the solver failed on this keyframe (counted)
+            return None
         out = self._output(t_ns, T)
         self._counts["fused_outputs"] += 1
         return out
@@ -477,7 +493,8 @@ class OnlineFusion:
         self._rejected.clear()
         graph = gtsam.NonlinearFactorGraph()
         graph.add(gtsam.PriorFactorPose3(key, _pose3(meas), self._vloc_noise(cov_meas)))
-        self._update(graph, gtsam.Values(), {})
+        if not self._update(graph, gtsam.Values(), {}):
+            return VlocUpdate(False, "solver_error", m2)
         self._counts["priors"] += 1
         return VlocUpdate(True, "accepted", m2)
 
@@ -522,6 +539,7 @@ class OnlineFusion:
             "window_keys": len(self._keys) if self._initialised else 0,
             "covariance_computations": self._counts["covariance_computations"],
             "reinitialisations": self._counts["reinitialised"],
+            "solver_errors": self._counts["solver_errors"],
             "update_ms_p50": _percentile(self._update_ms, 50),
             "update_ms_p99": _percentile(self._update_ms, 99),
             "update_ms_max": max(self._update_ms) if self._update_ms else None,

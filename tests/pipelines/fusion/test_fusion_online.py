@@ -188,3 +188,20 @@ def test_params_and_covariance_order() -> None:
     np.testing.assert_array_equal(gtsam_to_ros_cov(ros_to_gtsam_cov(C)), C)
     with pytest.raises(ValueError, match="T_base_camera"):
         OnlineFusion(FusionParams(), np.zeros((4, 4)))
+
+
+def test_solver_error_is_counted_and_the_filter_restarts() -> None:
+    f = OnlineFusion(FusionParams(init_votes=1), np.eye(4))
+    f.add_odometry(0, np.eye(4))
+    assert f.add_vloc(0, np.eye(4)).accepted
+
+    class Broken:
+        def update(self, *args: object) -> None:
+            raise RuntimeError("Indeterminant linear system")
+
+    f._smoother = Broken()  # type: ignore[assignment]
+    assert f.add_odometry(200_000_000, np.eye(4)) is None  # the keyframe update failed
+    st = f.stats()
+    assert st["solver_errors"] == 1 and not f.initialised
+    assert f.add_vloc(200_000_000, np.eye(4)).reason == "initialised"  # recovers from the next VLoc
+    assert f.add_odometry(300_000_000, np.eye(4)) is not None
