@@ -18,6 +18,7 @@ update-time percentiles per block, graph size and RSS at start and end.
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -106,6 +107,7 @@ def posed_sequence_experiment(
                 f"fused_{name}_odometry_call_ms_p99",
                 np.percentile(run.odometry_call_ms, 99),
             )
+            put(timing, f"fused_{name}_odometry_cpu_ms_p99", np.percentile(run.odometry_cpu_ms, 99))
             put(timing, f"fused_{name}_init_delay_s", (ot[m][0] - ot[0]) * 1e-9)
             t0 = time.perf_counter()
             b = refine_session(ot, oT, vl.t_capture_ns, vl.T_map_camera, None, p, T_base_camera)
@@ -199,6 +201,7 @@ def long_run_experiment(
         if progress is not None and i % step == 0:
             progress(step)
 
+    load = os.getloadavg()
     run = run_online(p, T_BASE_CAMERA_OPTICAL, ot, oT, vl, on_sample=probe)
     rss["end"] = _rss_mib()
     varr = vl.t_arrival_ns[np.argsort(vl.t_arrival_ns, kind="stable")]
@@ -207,7 +210,10 @@ def long_run_experiment(
     for b in range(blocks):
         a, z = edges[b], edges[b + 1]
         om = run.odometry_call_ms[a:z]
-        vm = run.vloc_call_ms[(vblock >= a) & (vblock < z)]
+        oc = run.odometry_cpu_ms[a:z]
+        vsel = (vblock >= a) & (vblock < z)
+        vm = run.vloc_call_ms[vsel]
+        vc = run.vloc_cpu_ms[vsel]
         st = states[a:z:100]
         out_blocks.append(
             {
@@ -218,6 +224,8 @@ def long_run_experiment(
                 "odometry_call_ms_p50": float(np.percentile(om, 50)),
                 "odometry_call_ms_p99": float(np.percentile(om, 99)),
                 "odometry_call_ms_max": float(om.max()),
+                "odometry_cpu_ms_p99": float(np.percentile(oc, 99)),
+                "vloc_cpu_ms_p99": float(np.percentile(vc, 99)) if len(vc) else None,
                 "vloc_call_ms_p50": float(np.percentile(vm, 50)) if len(vm) else None,
                 "vloc_call_ms_p99": float(np.percentile(vm, 99)) if len(vm) else None,
                 "states_max": int(st.max()),
@@ -236,9 +244,15 @@ def long_run_experiment(
         "all_calls_ms_p99": float(
             np.percentile(np.concatenate([run.odometry_call_ms, run.vloc_call_ms]), 99)
         ),
+        "all_calls_cpu_ms_p99": float(
+            np.percentile(np.concatenate([run.odometry_cpu_ms, run.vloc_cpu_ms]), 99)
+        ),
+        "smoother_update_ms_p99": run.stats["update_ms_p99"],
+        "load_average_1min": [load[0], os.getloadavg()[0]],
         "states_in_graph_max": int(states.max()),
         "rss_mib_start": rss.get("start"),
         "rss_mib_end": rss["end"],
         "fused_ate_m": ate(run.T_map_base[m][::10], gt_o).rmse,
+        "odometry_ate_m": ate(oT[m][::10], gt_o).rmse,
         "stats": run.stats,
     }
