@@ -24,7 +24,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
-from litevloc.pipelines.evaluation.trajectory import ate
+from litevloc.pipelines.evaluation.trajectory import ate, write_tum
 from litevloc.pipelines.fusion.batch import refine_session
 from litevloc.pipelines.fusion.online import FusionParams
 from litevloc.pipelines.fusion.simulate import run_online, simulate_vloc, synthetic_trajectory
@@ -58,8 +58,13 @@ def posed_sequence_experiment(
     vloc_rate_hz: float = 1.0,
     drift: DriftParams | None = None,
     progress: Callable[[], None] | None = None,
+    tum_dir: Path | None = None,
 ) -> dict:
-    """Run every variant for `seeds` seeds; returns a JSON-ready dict (see module doc)."""
+    """Run every variant for `seeds` seeds; returns a JSON-ready dict (see module doc).
+
+    With `tum_dir`, seed 0's trajectories (base_link) are written there as TUM files:
+    ground_truth, odometry, vloc, fused_<variant>, batch_<variant> (times in seconds).
+    """
     p0 = params or FusionParams()
     drift = drift or DriftParams()
     gt_t = np.asarray(gt_times_ns, dtype=np.int64)
@@ -111,6 +116,14 @@ def posed_sequence_experiment(
             put(timing, f"fused_{name}_init_delay_s", (ot[m][0] - ot[0]) * 1e-9)
             t0 = time.perf_counter()
             b = refine_session(ot, oT, vl.t_capture_ns, vl.T_map_camera, None, p, T_base_camera)
+            if tum_dir is not None and s == 0:
+                if name == "robust":
+                    write_tum(tum_dir / "ground_truth.txt", gt_t * 1e-9, T_wb)
+                    write_tum(tum_dir / "odometry.txt", ot * 1e-9, oT)
+                    T_vb = vl.T_map_camera @ invert(T_base_camera)
+                    write_tum(tum_dir / "vloc.txt", vl.t_capture_ns * 1e-9, T_vb)
+                write_tum(tum_dir / f"fused_{name}.txt", ot[m] * 1e-9, run.T_map_base[m])
+                write_tum(tum_dir / f"batch_{name}.txt", b.times_ns * 1e-9, b.T_map_base)
             put(timing, f"batch_{name}_seconds", time.perf_counter() - t0)
             put(per, f"batch_{name}", ate(b.T_map_base, gt_o).rmse)
             put(rates, f"batch_{name}", (len(b.times_ns) - 1) / dur)

@@ -53,6 +53,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="M",
         help="also run the synthetic endurance test for M minutes (0 = skip)",
     )
+    p.add_argument(
+        "--tum-dir",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="write seed 0's trajectories here as TUM files (for evo and plots)",
+    )
     add_config_args(p)
     add_json_arg(p)
     p.set_defaults(func=run)
@@ -142,6 +149,7 @@ def run(args: argparse.Namespace) -> int:
             seeds=args.seeds,
             drift=cfg.odometry_sim.drift,
             progress=lambda: bar.update(1),
+            tum_dir=args.tum_dir,
         )
     res["source"] = src.name
     res["frames"] = args.frames
