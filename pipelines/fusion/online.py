@@ -273,7 +273,21 @@ class OnlineFusion:
         s = self.params.odom_sigmas(math.sqrt(float(D[:3, 3] @ D[:3, 3])), _angle(D[:3, :3]))
         return np.diag(s**2)
 
-    def _initialise(self, c: _Candidate, reason: str) -> VlocUpdate:
+    def _initialise(self, cands: list[_Candidate], reason: str) -> VlocUpdate:
+        """Start the graph from mutually consistent VLoc results (`cands`, newest last).
+
+        The first state sits at the oldest usable capture time (within lag_s / 2 of the
+        newest and inside the odometry buffer); buffered odometry since then becomes
+        keyframes, and the other results are added as ordinary (ungated) priors, so all
+        the votes inform the start instead of only one.
+        """
+        newest = cands[-1]
+        p = self.params
+        oldest_ok = max(newest.t_ns - int(p.lag_s * 0.5e9), self._odom[0][0])
+        usable = sorted((c for c in cands if c.t_ns >= oldest_ok), key=lambda c: c.t_ns)
+        if not usable:
+            usable = [newest]
+        c = usable[0]
         self._reset_graph()
         self._t0_ns = c.t_ns
         key = gtsam.symbol("x", self._next_index)
@@ -293,14 +307,19 @@ class OnlineFusion:
         self._cov_state = c.cov.copy()
         self._cov_t = c.t_ns
         self._cov_key_T_odom = c.T_odom_base
+        # Odometry that arrived after the capture time becomes keyframes now.
+        for t, T in list(self._odom):
+            if t > c.t_ns and self._initialised:
+                self._maybe_keyframe(t, T)
+        for other in usable[1:]:
+            if self._initialised:
+                self._attach_prior(other, gate=False)
+        if not self._initialised:
+            return VlocUpdate(False, "solver_error")
         self._candidates.clear()
         self._rejected.clear()
         self._consecutive_rejects = 0
         self._counts[reason] += 1
-        # Odometry that arrived after the capture time becomes keyframes now.
-        for t, T in list(self._odom):
-            if t > c.t_ns:
-                self._maybe_keyframe(t, T)
         return VlocUpdate(True, reason, None)
 
     def _maybe_keyframe(self, t_ns: int, T_odom_base: F64) -> None:
@@ -465,6 +484,12 @@ class OnlineFusion:
         cand = _Candidate(t_ns, T_mb, T_ob, cov)
         if not self._initialised:
             return self._try_init(cand)
+        return self._attach_prior(cand, gate=True)
+
+    def _attach_prior(self, cand: _Candidate, gate: bool) -> VlocUpdate:
+        """Gate `cand` against the prediction and add it as a prior on the nearest state."""
+        p = self.params
+        t_ns, T_mb, T_ob, cov = cand.t_ns, cand.T_map_base, cand.T_odom_base, cand.cov
         # Target: the window keyframe nearest in time to the capture time.
         horizon = self._keys[-1][1] - int((p.lag_s - p.keyframe_period_s) * 1e9)
         if t_ns < max(self._keys[0][1], horizon) - int(p.keyframe_period_s * 0.5e9):
@@ -479,7 +504,7 @@ class OnlineFusion:
         xi = gtsam.Pose3.Logmap(pred.between(_pose3(meas)))
         S = self._cov_state + self._odom_cov(self._cov_key_T_odom, self._keys[-1][2]) + cov_meas
         m2 = float(xi @ np.linalg.solve(S, xi))
-        if p.gate_chi2 > 0 and m2 > p.gate_chi2:
+        if gate and p.gate_chi2 > 0 and m2 > p.gate_chi2:
             self._consecutive_rejects += 1
             self._rejected.append(cand)
             if (
@@ -487,7 +512,7 @@ class OnlineFusion:
                 and self._consecutive_rejects >= p.reinit_after_rejects
                 and self._agree(list(self._rejected))
             ):
-                return self._initialise(self._rejected[-1], "reinitialised")
+                return self._initialise(list(self._rejected), "reinitialised")
             return VlocUpdate(False, "gated", m2)
         self._consecutive_rejects = 0
         self._rejected.clear()
@@ -509,7 +534,7 @@ class OnlineFusion:
     def _try_init(self, cand: _Candidate) -> VlocUpdate:
         self._candidates.append(cand)
         if len(self._candidates) >= self.params.init_votes and self._agree(list(self._candidates)):
-            return self._initialise(cand, "initialised")
+            return self._initialise(list(self._candidates), "initialised")
         return VlocUpdate(False, "awaiting_init")
 
     # ------------------------------------------------------------------ diagnostics
