@@ -22,11 +22,15 @@ Model
   odometry noise since.
 * **Bounded graph**: GTSAM's `IncrementalFixedLagSmoother` (iSAM2 that marginalises
   states older than `lag_s`): states in the graph ~ lag_s / keyframe_period_s.
-* **Initialisation**: from the first VLoc pose that `init_votes - 1` further VLoc poses
-  confirm (their `T_map_odom` agree within `init_max_trans_m` / `init_max_rot_deg`);
-  `init_votes = 1` initialises from the very first one. After `reinit_after_rejects`
-  consecutive gated rejections that agree among themselves, the filter re-initialises
-  from them (recovers from a wrong start or a kidnapping).
+* **Initialisation**: once `init_votes` consecutive VLoc poses agree (their `T_map_odom`
+  within `init_max_trans_m` / `init_max_rot_deg`; `init_votes = 1` takes the very first
+  one), the first state is put at the oldest vote's capture time with its prior, the
+  buffered odometry since becomes keyframes, and the other votes are added as priors.
+  Before that, `add_odometry` returns None (the message is still buffered and counted).
+  After `reinit_after_rejects` consecutive gated rejections that agree among themselves,
+  the filter re-initialises from them (recovers from a wrong start or a kidnapping).
+  A GTSAM exception (counted as `solver_errors`) also returns the filter to
+  uninitialised, so a numerical failure never kills the fusion stage.
 * **Output** at every odometry message: the newest optimised state composed with the
   odometry increments since (`T_map_base`), and the REP-105 correction
   `T_map_odom = T_map_base @ inv(T_odom_base)`.
