@@ -11,13 +11,15 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Literal
 
+import numpy as np
 from litevloc.hw.oak import CameraConfig
 from litevloc.hw.sim.params import SimParams
 from litevloc.models.config import ModelsConfig
-from litevloc.pipelines.fusion.online import FusionParams
+from litevloc.pipelines.fusion.params import FusionParams
 from litevloc.pipelines.localization.vloc import LocalizationParams
 from litevloc.pipelines.odometry_drift import DriftParams
 from litevloc.pipelines.topomap.build import MappingParams
+from numpy.typing import NDArray
 
 
 @dataclass(frozen=True)
@@ -76,13 +78,16 @@ class FusionConfig:
     def __post_init__(self) -> None:
         import math
 
-        if not all(math.isfinite(v) for v in (*self.base_camera_translation, *self.base_camera_quat_xyzw)):
+        vals = (*self.base_camera_translation, *self.base_camera_quat_xyzw)
+        if not all(math.isfinite(v) for v in vals):
             raise ValueError("base_camera_translation / base_camera_quat_xyzw must be finite")
         n = math.sqrt(sum(v * v for v in self.base_camera_quat_xyzw))
         if abs(n - 1.0) > 1e-3:
-            raise ValueError(f"base_camera_quat_xyzw must be a unit quaternion (x, y, z, w), norm is {n:.6f}")
+            raise ValueError(
+                f"base_camera_quat_xyzw must be a unit quaternion (x, y, z, w), norm is {n:.6f}"
+            )
 
-    def T_base_camera(self):  # type: ignore[no-untyped-def]
+    def T_base_camera(self) -> NDArray[np.float64]:
         """4x4 float64 T_base_camera from the configured translation and quaternion."""
         from litevloc.pipelines.geometry import make_T, quat_xyzw_to_matrix
 

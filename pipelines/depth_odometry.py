@@ -2,24 +2,26 @@
 
 A thin wrapper over OpenCV 5's `cv2.Odometry` (3d/ptcloud module): dense ICP on depth
 (`method="depth"`, the default), photometric (`"rgb"`) or both (`"rgbd"`). We do not
-hand-write ICP. Measured on 7-Scenes redkitchen frames 500-619 (this machine, OpenCV
-5.0.0, 640x480, 2 threads), error of each frame-to-frame estimate vs ground truth:
+hand-write ICP. Measured with `bench/depth_odometry.py` on the 7-Scenes query pass
+(frames 500-999, 640x480, OpenCV 5.0.0, 2 threads, shared 2-core machine); errors of
+each frame-to-frame estimate vs ground truth, medians:
 
-| method | step | median trans. err | median rot. err | time/pair |
-|---|---|---|---|---|
-| depth (ICP) | 1 (30 Hz) | 3.4 mm (motion 8.7 mm) | 0.13 deg (motion 0.44) | ~43 ms |
-| depth (ICP) | 3 (10 Hz) | 3.5 mm (motion 22 mm) | 0.13 deg (motion 1.06) | ~40 ms |
-| rgb | 3 | 8.3 mm | 0.25 deg | ~32 ms |
-| rgbd | 3 | 6.8 mm | 0.24 deg | ~78 ms |
+| method | step | trans. err (motion) | rot. err (motion) | fails | ms | chained ATE | RPE |
+|---|---|---|---|---|---|---|---|
+| depth | 1 (30 Hz) | 3.7 mm (7.0) | 0.15 deg (0.49) | 18/499 | 40 | 0.149 m | 0.25 m/m |
+| depth | 3 (10 Hz) | 4.0 mm (18.3) | 0.15 deg (1.21) | 12/166 | 39 | 0.173 m | 0.28 m/m |
+| rgb | 1 | 4.2 mm | 0.13 deg | 18/499 | 31 | 0.140 m | 0.21 m/m |
+| rgbd | 1 | 3.4 mm | 0.12 deg | 18/499 | 69 | 0.131 m | 0.22 m/m |
 
-ICP's error does not grow with the step, so running it at ~10 Hz (every 3rd frame)
-drifts least per metre; RGB terms do not help on this data (colour and depth of
-7-Scenes are not registered). 7-Scenes ground truth is itself from KinectFusion, so
-millimetre-level "errors" are partly the reference's. Over the whole query pass
-(frames 500-999 every 3rd, 3.15 m of path) chained ICP odometry reaches ATE RMSE
-~0.17 m (aligned), RPE ~0.26 m/m median; OpenCV reports failure on 12 of 166 pairs
-(7 %, at 1-2.5 deg rotations; no setting of depth-diff/points-part changed that) —
-a failed step holds the pose and is counted. Defaults are OpenCV's.
+Per-step error barely depends on the step (it is not proportional to motion), so ICP at
+~10 Hz gives the best error per metre of motion per CPU-second; "rgbd" is slightly more
+accurate at 30 Hz for 1.7x the time. Chained over 3.15 m the drift is large (ATE
+0.13-0.17 m): this is a fallback for short gaps between VLoc fixes, not a substitute
+for proprioceptive odometry. 7-Scenes ground truth is itself from KinectFusion and its
+colour/depth are unregistered, so millimetre-level "errors" are partly the reference's.
+OpenCV reports failure on 2-7 % of pairs — the same pairs for all three methods, and not
+because of the max translation/rotation limits (raising them changes nothing); a failed
+step holds the pose and is counted in `failures`. Defaults are OpenCV's.
 
 Conventions: depth HxW float32 metres, NaN (or <= 0) invalid; colour HxWx3 uint8 RGB;
 `K` 3x3. Output poses are of the camera (optical) frame: `T_prev_curr` per step and
@@ -39,7 +41,11 @@ from numpy.typing import NDArray
 
 F64 = NDArray[np.float64]
 
-_TYPES = {"depth": cv2.OdometryType_DEPTH, "rgb": cv2.OdometryType_RGB, "rgbd": cv2.OdometryType_RGB_DEPTH}
+_TYPES = {
+    "depth": cv2.OdometryType_DEPTH,
+    "rgb": cv2.OdometryType_RGB,
+    "rgbd": cv2.OdometryType_RGB_DEPTH,
+}
 
 
 @dataclass(frozen=True)
@@ -104,7 +110,9 @@ class DepthOdometry:
         self.steps = 0
         self.failures = 0
 
-    def _frame(self, color: NDArray[np.uint8] | None, depth: NDArray[np.floating]) -> cv2.OdometryFrame:
+    def _frame(
+        self, color: NDArray[np.uint8] | None, depth: NDArray[np.floating]
+    ) -> cv2.OdometryFrame:
         d = np.asarray(depth, dtype=np.float32)
         if d.ndim != 2:
             raise ValueError(f"depth must be HxW, got shape {d.shape}")
@@ -118,7 +126,9 @@ class DepthOdometry:
                 raise ValueError(f"method {self.params.method!r} needs a colour image")
             c = np.asarray(color)
             if c.shape[:2] != d.shape or c.ndim != 3 or c.dtype != np.uint8:
-                raise ValueError(f"colour must be HxWx3 uint8 matching depth {d.shape}, got {c.dtype} {c.shape}")
+                raise ValueError(
+                    f"colour must be HxWx3 uint8 matching depth {d.shape}, got {c.dtype} {c.shape}"
+                )
             f = cv2.OdometryFrame(depth=d, image=cv2.cvtColor(c, cv2.COLOR_RGB2GRAY))
         self._odo.prepareFrame(f)
         self._shape = d.shape

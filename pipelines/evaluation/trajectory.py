@@ -17,7 +17,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from litevloc.pipelines.geometry import GeometryError, invert, make_T, matrix_to_quat_xyzw, quat_xyzw_to_matrix
+from litevloc.pipelines.geometry import (
+    GeometryError,
+    invert,
+    make_T,
+    matrix_to_quat_xyzw,
+    quat_xyzw_to_matrix,
+)
 from numpy.typing import NDArray
 
 F64 = NDArray[np.float64]
@@ -40,7 +46,9 @@ def read_tum(path: str | Path) -> tuple[F64, F64]:
             continue
         parts = s.replace(",", " ").split()
         if len(parts) != 8:
-            raise TrajectoryError(f"{p}:{lineno}: expected 8 numbers 't tx ty tz qx qy qz qw', got {len(parts)}")
+            raise TrajectoryError(
+                f"{p}:{lineno}: expected 8 numbers 't tx ty tz qx qy qz qw', got {len(parts)}"
+            )
         try:
             v = np.array([float(x) for x in parts])
         except ValueError as exc:
@@ -71,14 +79,17 @@ def write_tum(path: str | Path, times_s: NDArray[np.floating], poses: NDArray[np
     for ti, T in zip(t, P, strict=True):
         q = matrix_to_quat_xyzw(T[:3, :3])
         x, y, z = T[:3, 3]
-        lines.append(f"{ti:.9f} {x:.9f} {y:.9f} {z:.9f} {q[0]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f}")
+        lines.append(
+            f"{ti:.9f} {x:.9f} {y:.9f} {z:.9f} {q[0]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f}"
+        )
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
     p.write_text("\n".join(lines) + "\n", encoding="utf-8")
 
 
-def associate(t_a: NDArray[np.floating], t_b: NDArray[np.floating], max_dt: float) -> tuple[NDArray[np.intp],
-                                                                                          NDArray[np.intp]]:
+def associate(
+    t_a: NDArray[np.floating], t_b: NDArray[np.floating], max_dt: float
+) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
     """Match timestamps of two sorted series: for each a, the nearest b within max_dt.
 
     Returns index arrays (ia, ib) of equal length, each b used at most once (the closer
@@ -116,7 +127,9 @@ def umeyama_se3(src: NDArray[np.floating], dst: NDArray[np.floating]) -> F64:
     X = np.asarray(src, dtype=np.float64)
     Y = np.asarray(dst, dtype=np.float64)
     if X.shape != Y.shape or X.ndim != 2 or X.shape[1] != 3 or len(X) < 3:
-        raise TrajectoryError(f"umeyama needs two (N>=3, 3) arrays of equal shape, got {X.shape} and {Y.shape}")
+        raise TrajectoryError(
+            f"umeyama needs two (N>=3, 3) arrays of equal shape, got {X.shape} and {Y.shape}"
+        )
     mx, my = X.mean(0), Y.mean(0)
     C = (Y - my).T @ (X - mx) / len(X)
     U, _, Vt = np.linalg.svd(C)
@@ -142,7 +155,13 @@ class ErrorStats:
         e = np.asarray(e, dtype=np.float64)
         if len(e) == 0:
             raise TrajectoryError("no errors to summarise (empty association)")
-        return cls(float(np.sqrt(np.mean(e**2))), float(np.mean(e)), float(np.median(e)), float(np.max(e)), len(e))
+        return cls(
+            float(np.sqrt(np.mean(e**2))),
+            float(np.mean(e)),
+            float(np.median(e)),
+            float(np.max(e)),
+            len(e),
+        )
 
 
 @dataclass(frozen=True)
@@ -156,7 +175,9 @@ def _check_pair(est: NDArray[np.floating], ref: NDArray[np.floating]) -> tuple[F
     E = np.asarray(est, dtype=np.float64)
     G = np.asarray(ref, dtype=np.float64)
     if E.ndim != 3 or E.shape[1:] != (4, 4) or E.shape != G.shape:
-        raise TrajectoryError(f"need two (N,4,4) pose arrays of equal length, got {E.shape} and {G.shape}")
+        raise TrajectoryError(
+            f"need two (N,4,4) pose arrays of equal length, got {E.shape} and {G.shape}"
+        )
     return E, G
 
 
@@ -174,7 +195,9 @@ def ate(est: NDArray[np.floating], ref: NDArray[np.floating], align: bool = True
     return AteResult(s.rmse, s.mean, s.median, s.max, s.n, T)
 
 
-def rpe_per_metre(est: NDArray[np.floating], ref: NDArray[np.floating], delta_m: float = 1.0) -> ErrorStats:
+def rpe_per_metre(
+    est: NDArray[np.floating], ref: NDArray[np.floating], delta_m: float = 1.0
+) -> ErrorStats:
     """Relative translation error per metre travelled over segments of >= delta_m path.
 
     est, ref: associated (N, 4, 4) poses. Raises TrajectoryError when the reference path
@@ -188,7 +211,9 @@ def rpe_per_metre(est: NDArray[np.floating], ref: NDArray[np.floating], delta_m:
     j = np.searchsorted(s, s + delta_m, side="left")
     i = np.nonzero(j < len(s))[0]
     if len(i) == 0:
-        raise TrajectoryError(f"reference path ({s[-1]:.3f} m) is shorter than delta_m = {delta_m} m")
+        raise TrajectoryError(
+            f"reference path ({s[-1]:.3f} m) is shorter than delta_m = {delta_m} m"
+        )
     j = j[i]
     dG = invert(G[i]) @ G[j]
     dE = invert(E[i]) @ E[j]

@@ -60,8 +60,11 @@ def _consensus_map_odom(T_map_odom: F64, p: FusionParams) -> F64:
         n = 0
         for j in range(len(T_map_odom)):
             D = invert(T_map_odom[i]) @ T_map_odom[j]
-            if (np.linalg.norm(T_map_odom[i][:3, 3] - T_map_odom[j][:3, 3]) <= p.init_max_trans_m
-                    and rotation_angle(D[:3, :3]) <= math.radians(p.init_max_rot_deg)):
+            if np.linalg.norm(
+                T_map_odom[i][:3, 3] - T_map_odom[j][:3, 3]
+            ) <= p.init_max_trans_m and rotation_angle(D[:3, :3]) <= math.radians(
+                p.init_max_rot_deg
+            ):
                 n += 1
         if n > best_n:
             best, best_n = i, n
@@ -87,8 +90,15 @@ def batch_refine(
     T_base_camera: NDArray[np.floating],
 ) -> tuple[I64, F64]:
     """`refine_session` returning only (times, T_map_base); see there for arguments."""
-    r = refine_session(odom_times_ns, T_odom_base, vloc_times_ns, T_map_camera, vloc_covariances, params,
-                       T_base_camera)
+    r = refine_session(
+        odom_times_ns,
+        T_odom_base,
+        vloc_times_ns,
+        T_map_camera,
+        vloc_covariances,
+        params,
+        T_base_camera,
+    )
     return r.times_ns, r.T_map_base
 
 
@@ -121,7 +131,9 @@ def refine_session(
     tv = np.asarray(vloc_times_ns, dtype=np.int64)
     Tv = np.asarray(T_map_camera, dtype=np.float64)
     if t.ndim != 1 or len(t) < 2 or To.shape != (len(t), 4, 4):
-        raise ValueError(f"need (N>=2,) odometry times and (N,4,4) poses, got {t.shape} and {To.shape}")
+        raise ValueError(
+            f"need (N>=2,) odometry times and (N,4,4) poses, got {t.shape} and {To.shape}"
+        )
     if np.any(np.diff(t) <= 0):
         raise ValueError("odometry times must be strictly increasing")
     if tv.ndim != 1 or Tv.shape != (len(tv), 4, 4):
@@ -142,8 +154,9 @@ def refine_session(
     st_T = np.stack([interpolate_pose_at(int(x), t, To) for x in st_t])
     vl_T_mb = np.stack([Tv[i] @ T_cb for i in vidx])
     vl_state = np.searchsorted(st_t, tv[vidx])
-    T_map_odom0 = _consensus_map_odom(np.stack([vl_T_mb[k] @ invert(st_T[s]) for k, s in enumerate(vl_state)]),
-                                      params)
+    T_map_odom0 = _consensus_map_odom(
+        np.stack([vl_T_mb[k] @ invert(st_T[s]) for k, s in enumerate(vl_state)]), params
+    )
 
     def cov_of(i: int) -> F64:
         if vloc_covariances is None:
@@ -155,9 +168,13 @@ def refine_session(
     def noise(c: F64) -> gtsam.noiseModel.Base:
         g = gtsam.noiseModel.Gaussian.Covariance(c)
         if params.robust_kernel == "huber":
-            return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(params.robust_k), g)
+            return gtsam.noiseModel.Robust.Create(
+                gtsam.noiseModel.mEstimator.Huber.Create(params.robust_k), g
+            )
         if params.robust_kernel == "cauchy":
-            return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy.Create(params.robust_k), g)
+            return gtsam.noiseModel.Robust.Create(
+                gtsam.noiseModel.mEstimator.Cauchy.Create(params.robust_k), g
+            )
         return g
 
     base = gtsam.NonlinearFactorGraph()
@@ -167,24 +184,45 @@ def refine_session(
         if k > 0:
             D = invert(st_T[k - 1]) @ st_T[k]
             s = params.odom_sigmas(float(np.linalg.norm(D[:3, 3])), rotation_angle(D[:3, :3]))
-            base.add(gtsam.BetweenFactorPose3(k - 1, k, gtsam.Pose3(D), gtsam.noiseModel.Diagonal.Sigmas(s)))
+            base.add(
+                gtsam.BetweenFactorPose3(
+                    k - 1, k, gtsam.Pose3(D), gtsam.noiseModel.Diagonal.Sigmas(s)
+                )
+            )
     covs = [cov_of(int(i)) for i in vidx]
     active = np.ones(len(vidx), dtype=bool)
     iterations = 0
     result = values
     for _round in range(4):
         graph = gtsam.NonlinearFactorGraph(base)
-        for k in np.nonzero(active)[0]:
-            graph.add(gtsam.PriorFactorPose3(int(vl_state[k]), gtsam.Pose3(vl_T_mb[k]), noise(covs[k])))
+        for kk in np.nonzero(active)[0]:
+            graph.add(
+                gtsam.PriorFactorPose3(int(vl_state[kk]), gtsam.Pose3(vl_T_mb[kk]), noise(covs[kk]))
+            )
         lm = gtsam.LevenbergMarquardtOptimizer(graph, result, gtsam.LevenbergMarquardtParams())
         result = lm.optimize()
         iterations += lm.iterations()
         if params.gate_chi2 <= 0:
             break
-        m2 = np.array([
-            float(np.sum(np.square(np.linalg.solve(np.linalg.cholesky(covs[k]), gtsam.Pose3.Logmap(
-                result.atPose3(int(vl_state[k])).between(gtsam.Pose3(vl_T_mb[k]))))))) for k in range(len(vidx))
-        ])
+        m2 = np.array(
+            [
+                float(
+                    np.sum(
+                        np.square(
+                            np.linalg.solve(
+                                np.linalg.cholesky(covs[k]),
+                                gtsam.Pose3.Logmap(
+                                    result.atPose3(int(vl_state[k])).between(
+                                        gtsam.Pose3(vl_T_mb[k])
+                                    )
+                                ),
+                            )
+                        )
+                    )
+                )
+                for k in range(len(vidx))
+            ]
+        )
         new_active = m2 <= params.gate_chi2
         if not new_active.any() or np.array_equal(new_active, active):
             break
@@ -192,5 +230,7 @@ def refine_session(
     est = np.stack([result.atPose3(k).matrix() for k in range(len(st_t))])
     prev = np.clip(np.searchsorted(st_t, t, side="right") - 1, 0, len(st_t) - 1)
     out = est[prev] @ invert(st_T[prev]) @ To
-    info = BatchInfo(len(st_t), int(active.sum()), int((~active).sum()), int((~inside).sum()), iterations)
+    info = BatchInfo(
+        len(st_t), int(active.sum()), int((~active).sum()), int((~inside).sum()), iterations
+    )
     return BatchResult(t, out, info)

@@ -18,12 +18,13 @@ update-time percentiles per block, graph size and RSS at start and end.
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
-from litevloc.pipelines.evaluation.trajectory import ate
+from litevloc.pipelines.evaluation.trajectory import ate, write_tum
 from litevloc.pipelines.fusion.batch import refine_session
 from litevloc.pipelines.fusion.online import FusionParams
 from litevloc.pipelines.fusion.simulate import run_online, simulate_vloc, synthetic_trajectory
@@ -57,8 +58,13 @@ def posed_sequence_experiment(
     vloc_rate_hz: float = 1.0,
     drift: DriftParams | None = None,
     progress: Callable[[], None] | None = None,
+    tum_dir: Path | None = None,
 ) -> dict:
-    """Run every variant for `seeds` seeds; returns a JSON-ready dict (see module doc)."""
+    """Run every variant for `seeds` seeds; returns a JSON-ready dict (see module doc).
+
+    With `tum_dir`, seed 0's trajectories (base_link) are written there as TUM files:
+    ground_truth, odometry, vloc, fused_<variant>, batch_<variant> (times in seconds).
+    """
     p0 = params or FusionParams()
     drift = drift or DriftParams()
     gt_t = np.asarray(gt_times_ns, dtype=np.int64)
@@ -78,8 +84,15 @@ def posed_sequence_experiment(
         put(rates, "odometry", (len(ot) - 1) / dur)
         for name, v in VARIANTS.items():
             p = dataclasses.replace(p0, **v["params"])
-            vl = simulate_vloc(gt_t, T_world_camera, vloc_rate_hz, p0.vloc_sigma_trans, p0.vloc_sigma_rot_deg,
-                               v["outliers"], seed=1000 + s)
+            vl = simulate_vloc(
+                gt_t,
+                T_world_camera,
+                vloc_rate_hz,
+                p0.vloc_sigma_trans,
+                p0.vloc_sigma_rot_deg,
+                v["outliers"],
+                seed=1000 + s,
+            )
             if name in ("robust", "outlier_free"):
                 T_vb = vl.T_map_camera @ invert(T_base_camera)
                 put(per, f"vloc_{name}", ate(T_vb, _gt_at(vl.t_capture_ns, gt_t, T_wb)).rmse)
@@ -89,11 +102,28 @@ def posed_sequence_experiment(
             put(per, f"fused_{name}", ate(run.T_map_base[m], gt_o[m]).rmse)
             put(per, f"fused_{name}_unaligned", ate(run.T_map_base[m], gt_o[m], align=False).rmse)
             put(rates, f"fused_{name}", (m.sum() - 1) / max((ot[m][-1] - ot[m][0]) * 1e-9, 1e-9))
-            put(timing, f"fused_{name}_odometry_call_ms_p50", np.percentile(run.odometry_call_ms, 50))
-            put(timing, f"fused_{name}_odometry_call_ms_p99", np.percentile(run.odometry_call_ms, 99))
+            put(
+                timing,
+                f"fused_{name}_odometry_call_ms_p50",
+                np.percentile(run.odometry_call_ms, 50),
+            )
+            put(
+                timing,
+                f"fused_{name}_odometry_call_ms_p99",
+                np.percentile(run.odometry_call_ms, 99),
+            )
+            put(timing, f"fused_{name}_odometry_cpu_ms_p99", np.percentile(run.odometry_cpu_ms, 99))
             put(timing, f"fused_{name}_init_delay_s", (ot[m][0] - ot[0]) * 1e-9)
             t0 = time.perf_counter()
             b = refine_session(ot, oT, vl.t_capture_ns, vl.T_map_camera, None, p, T_base_camera)
+            if tum_dir is not None and s == 0:
+                if name == "robust":
+                    write_tum(tum_dir / "ground_truth.txt", gt_t * 1e-9, T_wb)
+                    write_tum(tum_dir / "odometry.txt", ot * 1e-9, oT)
+                    T_vb = vl.T_map_camera @ invert(T_base_camera)
+                    write_tum(tum_dir / "vloc.txt", vl.t_capture_ns * 1e-9, T_vb)
+                write_tum(tum_dir / f"fused_{name}.txt", ot[m] * 1e-9, run.T_map_base[m])
+                write_tum(tum_dir / f"batch_{name}.txt", b.times_ns * 1e-9, b.T_map_base)
             put(timing, f"batch_{name}_seconds", time.perf_counter() - t0)
             put(per, f"batch_{name}", ate(b.T_map_base, gt_o).rmse)
             put(rates, f"batch_{name}", (len(b.times_ns) - 1) / dur)
@@ -122,9 +152,11 @@ def posed_sequence_experiment(
         "fusion_params": dataclasses.asdict(p0),
         "drift_params": dataclasses.asdict(drift),
         "inputs": {
-            "odometry": f"simulate_odometry(rate {odom_rate_hz:g} Hz, DriftParams(), seed=s), s in 0..{seeds - 1}",
-            "vloc": f"simulate_vloc({vloc_rate_hz:g} Hz, sigma {p0.vloc_sigma_trans} m / {p0.vloc_sigma_rot_deg} deg,"
-                    " 10 % outliers 0.5-3 m / 10-60 deg, latency U(0.1, 1.0) s, seed=1000+s)",
+            "odometry": f"simulate_odometry(rate {odom_rate_hz:g} Hz, DriftParams(), seed=s),"
+            f" s in 0..{seeds - 1}",
+            "vloc": f"simulate_vloc({vloc_rate_hz:g} Hz, sigma {p0.vloc_sigma_trans} m /"
+            f" {p0.vloc_sigma_rot_deg} deg, 10 % outliers 0.5-3 m / 10-60 deg,"
+            " latency U(0.1, 1.0) s, seed=1000+s)",
             "ate": "translation RMSE after SE(3) Umeyama alignment (no scale); median over seeds",
         },
     }
@@ -142,8 +174,13 @@ def _rss_mib() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def long_run_experiment(minutes: float = 30.0, params: FusionParams | None = None, seed: int = 0,
-                        blocks: int = 6, progress: Callable[[int], None] | None = None) -> dict:
+def long_run_experiment(
+    minutes: float = 30.0,
+    params: FusionParams | None = None,
+    seed: int = 0,
+    blocks: int = 6,
+    progress: Callable[[int], None] | None = None,
+) -> dict:
     """Synthetic endurance run: 100 Hz odometry + 1 Hz VLoc (10 % outliers) for `minutes`.
 
     Reports per block (of `blocks` equal time blocks): p50/p99/max of `add_odometry` and
@@ -154,8 +191,15 @@ def long_run_experiment(minutes: float = 30.0, params: FusionParams | None = Non
 
     gt_t, T_wb = synthetic_trajectory(minutes * 60.0, 30.0, seed=seed)
     ot, oT = simulate_odometry(gt_t, T_wb, 100.0, DriftParams(), seed=seed)
-    vl = simulate_vloc(gt_t, T_wb @ T_BASE_CAMERA_OPTICAL, 1.0, p.vloc_sigma_trans, p.vloc_sigma_rot_deg, 0.1,
-                       seed=1000 + seed)
+    vl = simulate_vloc(
+        gt_t,
+        T_wb @ T_BASE_CAMERA_OPTICAL,
+        1.0,
+        p.vloc_sigma_trans,
+        p.vloc_sigma_rot_deg,
+        0.1,
+        seed=1000 + seed,
+    )
     n = len(ot)
     edges = np.linspace(0, n, blocks + 1).astype(int)
     states = np.zeros(n, dtype=np.int32)
@@ -170,6 +214,7 @@ def long_run_experiment(minutes: float = 30.0, params: FusionParams | None = Non
         if progress is not None and i % step == 0:
             progress(step)
 
+    load = os.getloadavg()
     run = run_online(p, T_BASE_CAMERA_OPTICAL, ot, oT, vl, on_sample=probe)
     rss["end"] = _rss_mib()
     varr = vl.t_arrival_ns[np.argsort(vl.t_arrival_ns, kind="stable")]
@@ -178,17 +223,27 @@ def long_run_experiment(minutes: float = 30.0, params: FusionParams | None = Non
     for b in range(blocks):
         a, z = edges[b], edges[b + 1]
         om = run.odometry_call_ms[a:z]
-        vm = run.vloc_call_ms[(vblock >= a) & (vblock < z)]
+        oc = run.odometry_cpu_ms[a:z]
+        vsel = (vblock >= a) & (vblock < z)
+        vm = run.vloc_call_ms[vsel]
+        vc = run.vloc_cpu_ms[vsel]
         st = states[a:z:100]
-        out_blocks.append({
-            "minutes": [float((ot[a] - ot[0]) * 1e-9 / 60), float((ot[z - 1] - ot[0]) * 1e-9 / 60)],
-            "odometry_call_ms_p50": float(np.percentile(om, 50)),
-            "odometry_call_ms_p99": float(np.percentile(om, 99)),
-            "odometry_call_ms_max": float(om.max()),
-            "vloc_call_ms_p50": float(np.percentile(vm, 50)) if len(vm) else None,
-            "vloc_call_ms_p99": float(np.percentile(vm, 99)) if len(vm) else None,
-            "states_max": int(st.max()),
-        })
+        out_blocks.append(
+            {
+                "minutes": [
+                    float((ot[a] - ot[0]) * 1e-9 / 60),
+                    float((ot[z - 1] - ot[0]) * 1e-9 / 60),
+                ],
+                "odometry_call_ms_p50": float(np.percentile(om, 50)),
+                "odometry_call_ms_p99": float(np.percentile(om, 99)),
+                "odometry_call_ms_max": float(om.max()),
+                "odometry_cpu_ms_p99": float(np.percentile(oc, 99)),
+                "vloc_cpu_ms_p99": float(np.percentile(vc, 99)) if len(vc) else None,
+                "vloc_call_ms_p50": float(np.percentile(vm, 50)) if len(vm) else None,
+                "vloc_call_ms_p99": float(np.percentile(vm, 99)) if len(vm) else None,
+                "states_max": int(st.max()),
+            }
+        )
     m = run.initialised
     gt_o = _gt_at(ot[m][::10], gt_t, T_wb)
     return {
@@ -199,10 +254,18 @@ def long_run_experiment(minutes: float = 30.0, params: FusionParams | None = Non
         "blocks": out_blocks,
         "odometry_call_ms_p99": float(np.percentile(run.odometry_call_ms, 99)),
         "vloc_call_ms_p99": float(np.percentile(run.vloc_call_ms, 99)),
-        "all_calls_ms_p99": float(np.percentile(np.concatenate([run.odometry_call_ms, run.vloc_call_ms]), 99)),
+        "all_calls_ms_p99": float(
+            np.percentile(np.concatenate([run.odometry_call_ms, run.vloc_call_ms]), 99)
+        ),
+        "all_calls_cpu_ms_p99": float(
+            np.percentile(np.concatenate([run.odometry_cpu_ms, run.vloc_cpu_ms]), 99)
+        ),
+        "smoother_update_ms_p99": run.stats["update_ms_p99"],
+        "load_average_1min": [load[0], os.getloadavg()[0]],
         "states_in_graph_max": int(states.max()),
         "rss_mib_start": rss.get("start"),
         "rss_mib_end": rss["end"],
         "fused_ate_m": ate(run.T_map_base[m][::10], gt_o).rmse,
+        "odometry_ate_m": ate(oT[m][::10], gt_o).rmse,
         "stats": run.stats,
     }

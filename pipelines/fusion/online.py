@@ -22,11 +22,15 @@ Model
   odometry noise since.
 * **Bounded graph**: GTSAM's `IncrementalFixedLagSmoother` (iSAM2 that marginalises
   states older than `lag_s`): states in the graph ~ lag_s / keyframe_period_s.
-* **Initialisation**: from the first VLoc pose that `init_votes - 1` further VLoc poses
-  confirm (their `T_map_odom` agree within `init_max_trans_m` / `init_max_rot_deg`);
-  `init_votes = 1` initialises from the very first one. After `reinit_after_rejects`
-  consecutive gated rejections that agree among themselves, the filter re-initialises
-  from them (recovers from a wrong start or a kidnapping).
+* **Initialisation**: once `init_votes` consecutive VLoc poses agree (their `T_map_odom`
+  within `init_max_trans_m` / `init_max_rot_deg`; `init_votes = 1` takes the very first
+  one), the first state is put at the oldest vote's capture time with its prior, the
+  buffered odometry since becomes keyframes, and the other votes are added as priors.
+  Before that, `add_odometry` returns None (the message is still buffered and counted).
+  After `reinit_after_rejects` consecutive gated rejections that agree among themselves,
+  the filter re-initialises from them (recovers from a wrong start or a kidnapping).
+  A GTSAM exception (counted as `solver_errors`) also returns the filter to
+  uninitialised, so a numerical failure never kills the fusion stage.
 * **Output** at every odometry message: the newest optimised state composed with the
   odometry increments since (`T_map_base`), and the REP-105 correction
   `T_map_odom = T_map_base @ inv(T_odom_base)`.
@@ -49,14 +53,23 @@ import math
 import time
 from collections import Counter, deque
 from dataclasses import dataclass
-from typing import Literal
 
 import gtsam
 import numpy as np
+from litevloc.pipelines.fusion.params import FusionParams
 from litevloc.pipelines.geometry import interpolate_pose, invert, rotation_angle
 from numpy.typing import NDArray
 
 F64 = NDArray[np.float64]
+
+__all__ = [
+    "FusedPose",
+    "FusionParams",
+    "OnlineFusion",
+    "VlocUpdate",
+    "gtsam_to_ros_cov",
+    "ros_to_gtsam_cov",
+]
 
 # ROS (tx, ty, tz, rx, ry, rz) <-> GTSAM (rx, ry, rz, tx, ty, tz)
 _PERM = np.array([3, 4, 5, 0, 1, 2])
@@ -75,78 +88,6 @@ def gtsam_to_ros_cov(cov: NDArray[np.floating]) -> F64:
     c = np.asarray(cov, dtype=np.float64)
     inv = np.argsort(_PERM)
     return c[np.ix_(inv, inv)]
-
-
-@dataclass(frozen=True)
-class FusionParams:
-    """Parameters of `OnlineFusion` and `batch_refine` (lengths m, angles deg, times s).
-
-    Odometry increment noise (per axis, 1 sigma) for an increment of length d metres and
-    rotation a radians: trans = odom_sigma_trans_floor + odom_sigma_trans_per_m * d,
-    rot = odom_sigma_rot_floor_deg + odom_sigma_rot_per_m_deg * d + odom_sigma_rot_per_rad * a.
-    VLoc sigmas are used when `add_vloc` gets no covariance.
-    """
-
-    keyframe_period_s: float = 0.1
-    keyframe_dist_m: float = 0.25
-    keyframe_angle_deg: float = 10.0
-    lag_s: float = 3.0  # smoother window; must exceed the worst VLoc latency
-    odom_sigma_trans_floor: float = 0.002
-    odom_sigma_trans_per_m: float = 0.04
-    odom_sigma_rot_floor_deg: float = 0.05
-    odom_sigma_rot_per_m_deg: float = 1.5
-    odom_sigma_rot_per_rad: float = 0.02
-    vloc_sigma_trans: float = 0.05
-    vloc_sigma_rot_deg: float = 2.0
-    robust_kernel: Literal["huber", "cauchy", "none"] = "cauchy"
-    robust_k: float = 2.5  # kernel width in whitened units (sigmas)
-    gate_chi2: float = 22.46  # 6-dof chi-square, p = 0.999; 0 disables gating
-    init_votes: int = 2
-    init_max_trans_m: float = 0.5
-    init_max_rot_deg: float = 10.0
-    reinit_after_rejects: int = 5
-    covariance_period_s: float = 1.0  # at most one marginal covariance per this time
-    odom_buffer_s: float = 5.0  # odometry kept for late VLoc (>= lag_s)
-    max_future_s: float = 0.05  # a VLoc up to this much newer than the newest odometry: extrapolated
-
-    def __post_init__(self) -> None:
-        positive = (
-            "keyframe_period_s", "keyframe_dist_m", "keyframe_angle_deg", "lag_s", "odom_sigma_trans_floor",
-            "odom_sigma_rot_floor_deg", "vloc_sigma_trans", "vloc_sigma_rot_deg", "robust_k",
-            "init_max_trans_m", "init_max_rot_deg", "covariance_period_s", "odom_buffer_s",
-        )
-        for name in positive:
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be a finite number > 0, got {v}")
-        for name in ("odom_sigma_trans_per_m", "odom_sigma_rot_per_m_deg", "odom_sigma_rot_per_rad",
-                     "gate_chi2", "max_future_s"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v >= 0):
-                raise ValueError(f"{name} must be a finite number >= 0, got {v}")
-        if self.robust_kernel not in ("huber", "cauchy", "none"):
-            raise ValueError(f"robust_kernel must be huber, cauchy or none, got {self.robust_kernel!r}")
-        if self.init_votes < 1:
-            raise ValueError(f"init_votes must be >= 1, got {self.init_votes}")
-        if self.reinit_after_rejects < 0:
-            raise ValueError(f"reinit_after_rejects must be >= 0, got {self.reinit_after_rejects}")
-        if self.lag_s < 2 * self.keyframe_period_s:
-            raise ValueError(f"lag_s ({self.lag_s}) must be >= 2 * keyframe_period_s ({self.keyframe_period_s})")
-        if self.odom_buffer_s < self.lag_s:
-            raise ValueError(f"odom_buffer_s ({self.odom_buffer_s}) must be >= lag_s ({self.lag_s})")
-
-    def odom_sigmas(self, dist_m: float, angle_rad: float) -> F64:
-        """Per-axis sigmas of an odometry increment, GTSAM order (rot rad x3, trans m x3)."""
-        rot = math.radians(self.odom_sigma_rot_floor_deg + self.odom_sigma_rot_per_m_deg * dist_m)
-        rot += self.odom_sigma_rot_per_rad * angle_rad
-        trans = self.odom_sigma_trans_floor + self.odom_sigma_trans_per_m * dist_m
-        return np.array([rot, rot, rot, trans, trans, trans])
-
-    def vloc_cov_gtsam(self) -> F64:
-        """Default VLoc covariance, GTSAM order."""
-        r = math.radians(self.vloc_sigma_rot_deg) ** 2
-        t = self.vloc_sigma_trans**2
-        return np.diag([r, r, r, t, t, t])
 
 
 @dataclass(frozen=True)
@@ -169,7 +110,7 @@ class FusedPose:
 class VlocUpdate:
     """What happened to one VLoc result. `reason`: accepted | initialised | reinitialised |
     awaiting_init | gated | too_old | ahead_of_odometry | no_odometry | invalid_pose |
-    invalid_covariance | time_not_finite. `mahalanobis2`: squared Mahalanobis distance to
+    invalid_covariance | solver_error. `mahalanobis2`: squared Mahalanobis distance to
     the prediction (6 dof) where it was computed."""
 
     accepted: bool
@@ -232,7 +173,10 @@ def _percentile(values: deque[float], q: float) -> float | None:
 
 def _map_odom_close(A: F64, B: F64, max_trans: float, max_rot_rad: float) -> bool:
     D = invert(A) @ B
-    return float(np.linalg.norm(A[:3, 3] - B[:3, 3])) <= max_trans and rotation_angle(D[:3, :3]) <= max_rot_rad
+    return (
+        float(np.linalg.norm(A[:3, 3] - B[:3, 3])) <= max_trans
+        and rotation_angle(D[:3, :3]) <= max_rot_rad
+    )
 
 
 @dataclass
@@ -293,26 +237,39 @@ class OnlineFusion:
         assert self._t0_ns is not None
         return (t_ns - self._t0_ns) * 1e-9
 
-    def _update(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, stamps: dict[int, float]) -> None:
+    def _update(
+        self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, stamps: dict[int, float]
+    ) -> bool:
+        """One smoother update; False (counted, filter reset to uninitialised) if GTSAM throws."""
         ts = gtsam.FixedLagSmootherKeyTimestampMap()
         for k, s in stamps.items():
             ts.insert((k, s))
         t0 = time.perf_counter()
-        self._smoother.update(graph, values, ts)
-        newest_key = self._keys[-1][0]
-        self._last_est = self._smoother.calculateEstimatePose3(newest_key).matrix()
+        try:
+            self._smoother.update(graph, values, ts)
+            newest_key = self._keys[-1][0]
+            self._last_est = self._smoother.calculateEstimatePose3(newest_key).matrix()
+        except RuntimeError:  # e.g. an indeterminant system: start over from the next VLoc
+            self._counts["solver_errors"] += 1
+            self._reset_graph()
+            return False
         self._update_ms.append((time.perf_counter() - t0) * 1e3)
         horizon = self._keys[-1][1] - int(self.params.lag_s * 1e9)
         while self._keys and self._keys[0][1] < horizon:  # mirror what the smoother marginalised
             self._keys.popleft()
+        return True
 
     def _vloc_noise(self, cov_gtsam: F64) -> gtsam.noiseModel.Base:
         gauss = gtsam.noiseModel.Gaussian.Covariance(cov_gtsam)
         p = self.params
         if p.robust_kernel == "huber":
-            return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(p.robust_k), gauss)
+            return gtsam.noiseModel.Robust.Create(
+                gtsam.noiseModel.mEstimator.Huber.Create(p.robust_k), gauss
+            )
         if p.robust_kernel == "cauchy":
-            return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy.Create(p.robust_k), gauss)
+            return gtsam.noiseModel.Robust.Create(
+                gtsam.noiseModel.mEstimator.Cauchy.Create(p.robust_k), gauss
+            )
         return gauss
 
     def _odom_cov(self, T_a: F64, T_b: F64) -> F64:
@@ -320,29 +277,53 @@ class OnlineFusion:
         s = self.params.odom_sigmas(math.sqrt(float(D[:3, 3] @ D[:3, 3])), _angle(D[:3, :3]))
         return np.diag(s**2)
 
-    def _initialise(self, c: _Candidate, reason: str) -> VlocUpdate:
+    def _initialise(self, cands: list[_Candidate], reason: str) -> VlocUpdate:
+        """Start the graph from mutually consistent VLoc results (`cands`, newest last).
+
+        The first state sits at the oldest usable capture time (within lag_s / 2 of the
+        newest and inside the odometry buffer); buffered odometry since then becomes
+        keyframes, and the other results are added as ordinary (ungated) priors, so all
+        the votes inform the start instead of only one.
+        """
+        newest = cands[-1]
+        p = self.params
+        oldest_ok = max(newest.t_ns - int(p.lag_s * 0.5e9), self._odom[0][0])
+        usable = sorted((c for c in cands if c.t_ns >= oldest_ok), key=lambda c: c.t_ns)
+        if not usable:
+            usable = [newest]
+        c = usable[0]
         self._reset_graph()
         self._t0_ns = c.t_ns
         key = gtsam.symbol("x", self._next_index)
         self._next_index += 1
         self._keys.append((key, c.t_ns, c.T_odom_base))
         graph = gtsam.NonlinearFactorGraph()
-        graph.add(gtsam.PriorFactorPose3(key, _pose3(c.T_map_base), gtsam.noiseModel.Gaussian.Covariance(c.cov)))
+        graph.add(
+            gtsam.PriorFactorPose3(
+                key, _pose3(c.T_map_base), gtsam.noiseModel.Gaussian.Covariance(c.cov)
+            )
+        )
         values = gtsam.Values()
         values.insert(key, _pose3(c.T_map_base))
-        self._update(graph, values, {key: 0.0})
+        if not self._update(graph, values, {key: 0.0}):
+            return VlocUpdate(False, "solver_error")
         self._initialised = True
         self._cov_state = c.cov.copy()
         self._cov_t = c.t_ns
         self._cov_key_T_odom = c.T_odom_base
+        # Odometry that arrived after the capture time becomes keyframes now.
+        for t, T in list(self._odom):
+            if t > c.t_ns and self._initialised:
+                self._maybe_keyframe(t, T)
+        for other in usable[1:]:
+            if self._initialised:
+                self._attach_prior(other, gate=False)
+        if not self._initialised:
+            return VlocUpdate(False, "solver_error")
         self._candidates.clear()
         self._rejected.clear()
         self._consecutive_rejects = 0
         self._counts[reason] += 1
-        # Odometry that arrived after the capture time becomes keyframes now.
-        for t, T in list(self._odom):
-            if t > c.t_ns:
-                self._maybe_keyframe(t, T)
         return VlocUpdate(True, reason, None)
 
     def _maybe_keyframe(self, t_ns: int, T_odom_base: F64) -> None:
@@ -366,9 +347,15 @@ class OnlineFusion:
         values.insert(key, _pose3(self._last_est @ D))
         self._keys.append((key, t_ns, T_odom_base))
         self._counts["keyframes"] += 1
-        self._update(graph, values, {key: self._stamp(t_ns)})
+        if not self._update(graph, values, {key: self._stamp(t_ns)}):
+            return
         if self._cov_t is None or t_ns - self._cov_t >= p.covariance_period_s * 1e9:
-            self._cov_state = np.asarray(self._smoother.marginalCovariance(key), dtype=np.float64)
+            try:
+                self._cov_state = np.asarray(
+                    self._smoother.marginalCovariance(key), dtype=np.float64
+                )
+            except RuntimeError:  # keep the previous covariance; counted
+                self._counts["solver_errors"] += 1
             self._cov_t = t_ns
             self._cov_key_T_odom = T_odom_base
             self._counts["covariance_computations"] += 1
@@ -387,7 +374,9 @@ class OnlineFusion:
             if t_ns == t_last or len(self._odom) < 2:
                 return self._odom[-1][1]
             (tp, Tp), (tl, Tl) = self._odom[-2], self._odom[-1]
-            return interpolate_pose(Tp, Tl, (t_ns - tp) / (tl - tp))  # s > 1: constant-velocity extrapolation
+            return interpolate_pose(
+                Tp, Tl, (t_ns - tp) / (tl - tp)
+            )  # s > 1: constant-velocity extrapolation
         times = [t for t, _ in self._odom]  # bounded (odom_buffer_s of messages)
         i = int(np.searchsorted(times, t_ns, side="right"))
         t0, T0 = self._odom[i - 1]
@@ -395,7 +384,10 @@ class OnlineFusion:
         return interpolate_pose(T0, T1, (t_ns - t0) / (t1 - t0))
 
     def add_odometry(
-        self, t_ns: int, T_odom_base: NDArray[np.floating], covariance: NDArray[np.floating] | None = None
+        self,
+        t_ns: int,
+        T_odom_base: NDArray[np.floating],
+        covariance: NDArray[np.floating] | None = None,
     ) -> FusedPose | None:
         """Feed one odometry message; returns the fused pose at t_ns (None before init).
 
@@ -430,6 +422,8 @@ class OnlineFusion:
         if not self._initialised:
             return None
         self._maybe_keyframe(t_ns, T)
+        if not self._initialised:  # the solver failed on this keyframe (counted)
+            return None
         out = self._output(t_ns, T)
         self._counts["fused_outputs"] += 1
         return out
@@ -457,7 +451,10 @@ class OnlineFusion:
 
     # ------------------------------------------------------------------ VLoc
     def add_vloc(
-        self, t_ns: int, T_map_camera: NDArray[np.floating], covariance: NDArray[np.floating] | None = None
+        self,
+        t_ns: int,
+        T_map_camera: NDArray[np.floating],
+        covariance: NDArray[np.floating] | None = None,
     ) -> VlocUpdate:
         """Fuse one VLoc result captured at `t_ns` (may be older than the newest odometry).
 
@@ -469,8 +466,9 @@ class OnlineFusion:
         self._vloc_reasons[res.reason] += 1
         return res
 
-    def _add_vloc(self, t_ns: int, T_map_camera: NDArray[np.floating], covariance: NDArray[np.floating] | None
-                  ) -> VlocUpdate:
+    def _add_vloc(
+        self, t_ns: int, T_map_camera: NDArray[np.floating], covariance: NDArray[np.floating] | None
+    ) -> VlocUpdate:
         p = self.params
         T_mc = _valid_pose(T_map_camera)
         if T_mc is None:
@@ -490,11 +488,17 @@ class OnlineFusion:
         cand = _Candidate(t_ns, T_mb, T_ob, cov)
         if not self._initialised:
             return self._try_init(cand)
+        return self._attach_prior(cand, gate=True)
+
+    def _attach_prior(self, cand: _Candidate, gate: bool) -> VlocUpdate:
+        """Gate `cand` against the prediction and add it as a prior on the nearest state."""
+        p = self.params
+        t_ns, T_mb, T_ob, cov = cand.t_ns, cand.T_map_base, cand.T_odom_base, cand.cov
         # Target: the window keyframe nearest in time to the capture time.
         horizon = self._keys[-1][1] - int((p.lag_s - p.keyframe_period_s) * 1e9)
         if t_ns < max(self._keys[0][1], horizon) - int(p.keyframe_period_s * 0.5e9):
             return VlocUpdate(False, "too_old")
-        key, t_key, T_key_odom = min(
+        key, _, T_key_odom = min(
             (k for k in self._keys if k[1] >= horizon), key=lambda k: abs(k[1] - t_ns)
         )
         D = invert(T_ob) @ T_key_odom  # odometry from capture time to keyframe time
@@ -504,7 +508,7 @@ class OnlineFusion:
         xi = gtsam.Pose3.Logmap(pred.between(_pose3(meas)))
         S = self._cov_state + self._odom_cov(self._cov_key_T_odom, self._keys[-1][2]) + cov_meas
         m2 = float(xi @ np.linalg.solve(S, xi))
-        if p.gate_chi2 > 0 and m2 > p.gate_chi2:
+        if gate and p.gate_chi2 > 0 and m2 > p.gate_chi2:
             self._consecutive_rejects += 1
             self._rejected.append(cand)
             if (
@@ -512,13 +516,14 @@ class OnlineFusion:
                 and self._consecutive_rejects >= p.reinit_after_rejects
                 and self._agree(list(self._rejected))
             ):
-                return self._initialise(self._rejected[-1], "reinitialised")
+                return self._initialise(list(self._rejected), "reinitialised")
             return VlocUpdate(False, "gated", m2)
         self._consecutive_rejects = 0
         self._rejected.clear()
         graph = gtsam.NonlinearFactorGraph()
         graph.add(gtsam.PriorFactorPose3(key, _pose3(meas), self._vloc_noise(cov_meas)))
-        self._update(graph, gtsam.Values(), {})
+        if not self._update(graph, gtsam.Values(), {}):
+            return VlocUpdate(False, "solver_error", m2)
         self._counts["priors"] += 1
         return VlocUpdate(True, "accepted", m2)
 
@@ -526,13 +531,14 @@ class OnlineFusion:
         p = self.params
         ref = cands[-1].T_map_odom
         return all(
-            _map_odom_close(ref, c.T_map_odom, p.init_max_trans_m, math.radians(p.init_max_rot_deg)) for c in cands
+            _map_odom_close(ref, c.T_map_odom, p.init_max_trans_m, math.radians(p.init_max_rot_deg))
+            for c in cands
         )
 
     def _try_init(self, cand: _Candidate) -> VlocUpdate:
         self._candidates.append(cand)
         if len(self._candidates) >= self.params.init_votes and self._agree(list(self._candidates)):
-            return self._initialise(cand, "initialised")
+            return self._initialise(list(self._candidates), "initialised")
         return VlocUpdate(False, "awaiting_init")
 
     # ------------------------------------------------------------------ diagnostics
@@ -551,14 +557,18 @@ class OnlineFusion:
             "odometry_rejected": dict(self._odom_rejects),
             "fused_outputs": self._counts["fused_outputs"],
             "vloc": self._counts["vloc"],
-            "vloc_accepted": sum(v for k, v in self._vloc_reasons.items() if k in ("accepted", "initialised",
-                                                                                   "reinitialised")),
+            "vloc_accepted": sum(
+                v
+                for k, v in self._vloc_reasons.items()
+                if k in ("accepted", "initialised", "reinitialised")
+            ),
             "vloc_by_reason": dict(self._vloc_reasons),
             "keyframes": self._counts["keyframes"],
             "states_in_graph": self.states_in_graph(),
             "window_keys": len(self._keys) if self._initialised else 0,
             "covariance_computations": self._counts["covariance_computations"],
             "reinitialisations": self._counts["reinitialised"],
+            "solver_errors": self._counts["solver_errors"],
             "update_ms_p50": _percentile(self._update_ms, 50),
             "update_ms_p99": _percentile(self._update_ms, 99),
             "update_ms_max": max(self._update_ms) if self._update_ms else None,

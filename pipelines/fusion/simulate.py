@@ -25,8 +25,9 @@ F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 
 
-def synthetic_trajectory(duration_s: float, rate_hz: float = 30.0, seed: int = 0, speed: float = 0.5
-                         ) -> tuple[I64, F64]:
+def synthetic_trajectory(
+    duration_s: float, rate_hz: float = 30.0, seed: int = 0, speed: float = 0.5
+) -> tuple[I64, F64]:
     """Planar base_link trajectory: a random smooth closed-ish wander at ~`speed` m/s.
 
     Heading follows the velocity (x forward, z up). Returns (N,) int ns times from 0 and
@@ -44,8 +45,12 @@ def synthetic_trajectory(duration_s: float, rate_hz: float = 30.0, seed: int = 0
         x += a * np.sin(2 * np.pi * f * t + rng.uniform(0, 2 * np.pi))
         y += a * np.cos(2 * np.pi * f * t + rng.uniform(0, 2 * np.pi))
     yaw = np.unwrap(np.arctan2(np.gradient(y), np.gradient(x)))
-    poses = np.stack([make_T(so3_exp(np.array([0.0, 0.0, h])), np.array([xi, yi, 0.3]))
-                      for xi, yi, h in zip(x, y, yaw, strict=True)])
+    poses = np.stack(
+        [
+            make_T(so3_exp(np.array([0.0, 0.0, h])), np.array([xi, yi, 0.3]))
+            for xi, yi, h in zip(x, y, yaw, strict=True)
+        ]
+    )
     return np.round(t * 1e9).astype(np.int64), poses
 
 
@@ -72,7 +77,7 @@ def simulate_vloc(
 ) -> VlocSim:
     """VLoc results at `rate_hz` over the ground-truth span (see module docstring)."""
     rng = np.random.default_rng(seed)
-    step = int(round(1e9 / rate_hz))
+    step = round(1e9 / rate_hz)
     tc = np.arange(int(times_ns[0]) + step // 2, int(times_ns[-1]) + 1, step, dtype=np.int64)
     out = np.empty((len(tc), 4, 4))
     flags = rng.random(len(tc)) < outlier_ratio
@@ -98,8 +103,10 @@ class OnlineRun:
     times_ns: I64
     T_map_base: F64
     initialised: NDArray[np.bool_]
-    odometry_call_ms: F64
-    vloc_call_ms: F64
+    odometry_call_ms: F64  # wall time per add_odometry call
+    vloc_call_ms: F64  # wall time per add_vloc call
+    odometry_cpu_ms: F64  # thread CPU time per add_odometry call (immune to preemption)
+    vloc_cpu_ms: F64
     stats: dict
 
 
@@ -122,7 +129,9 @@ def run_online(
     poses = np.full((n, 4, 4), np.nan)
     init = np.zeros(n, dtype=bool)
     odo_ms = np.empty(n)
+    odo_cpu = np.empty(n)
     vloc_ms: list[float] = []
+    vloc_cpu: list[float] = []
     order = np.argsort(vloc.t_arrival_ns, kind="stable")
     arr = vloc.t_arrival_ns[order]
     j = 0
@@ -130,17 +139,29 @@ def run_online(
         t = int(odom_times_ns[i])
         while j < len(arr) and arr[j] <= t:
             k = order[j]
+            c0 = time.thread_time_ns()
             t0 = time.perf_counter()
             fusion.add_vloc(int(vloc.t_capture_ns[k]), vloc.T_map_camera[k])
             vloc_ms.append((time.perf_counter() - t0) * 1e3)
+            vloc_cpu.append((time.thread_time_ns() - c0) * 1e-6)
             j += 1
+        c0 = time.thread_time_ns()
         t0 = time.perf_counter()
         out = fusion.add_odometry(t, T_odom_base[i])
         odo_ms[i] = (time.perf_counter() - t0) * 1e3
+        odo_cpu[i] = (time.thread_time_ns() - c0) * 1e-6
         if out is not None:
             poses[i] = out.T_map_base
             init[i] = True
         if callable(on_sample):
             on_sample(i, fusion)
-    return OnlineRun(np.asarray(odom_times_ns, dtype=np.int64), poses, init, odo_ms, np.array(vloc_ms),
-                     fusion.stats())
+    return OnlineRun(
+        np.asarray(odom_times_ns, dtype=np.int64),
+        poses,
+        init,
+        odo_ms,
+        np.array(vloc_ms),
+        odo_cpu,
+        np.array(vloc_cpu),
+        fusion.stats(),
+    )

@@ -7,7 +7,12 @@ import dataclasses
 import numpy as np
 import pytest
 from litevloc.pipelines.evaluation.trajectory import ate
-from litevloc.pipelines.fusion.online import FusionParams, OnlineFusion, gtsam_to_ros_cov, ros_to_gtsam_cov
+from litevloc.pipelines.fusion.online import (
+    FusionParams,
+    OnlineFusion,
+    gtsam_to_ros_cov,
+    ros_to_gtsam_cov,
+)
 from litevloc.pipelines.fusion.simulate import run_online, simulate_vloc, synthetic_trajectory
 from litevloc.pipelines.geometry import interpolate_pose_at, make_T, so3_exp
 from litevloc.pipelines.odometry_drift import T_BASE_CAMERA_OPTICAL, DriftParams, simulate_odometry
@@ -25,8 +30,15 @@ def session() -> dict:
 
 
 def _fused_ate(s: dict, params: FusionParams, outliers: float, seed: int = 7) -> float:
-    vl = simulate_vloc(s["gt_t"], s["T_wb"] @ T_BC, 1.0, params.vloc_sigma_trans, params.vloc_sigma_rot_deg,
-                       outliers, seed=seed)
+    vl = simulate_vloc(
+        s["gt_t"],
+        s["T_wb"] @ T_BC,
+        1.0,
+        params.vloc_sigma_trans,
+        params.vloc_sigma_rot_deg,
+        outliers,
+        seed=seed,
+    )
     run = run_online(params, T_BC, s["ot"], s["oT"], vl)
     m = run.initialised
     assert m.sum() > 0.9 * len(m)
@@ -44,8 +56,13 @@ def test_outliers_do_not_hurt_with_robust_kernel_and_gating(session: dict) -> No
 
 def _straight_line_run(capture_delay_ns: int, stamp_at_arrival: bool) -> np.ndarray:
     """1 m/s along x; odometry over-reads by 10 %; exact VLoc every 1 s, arriving late."""
-    p = FusionParams(vloc_sigma_trans=0.005, vloc_sigma_rot_deg=0.2, gate_chi2=0.0, robust_kernel="none",
-                     init_votes=1)
+    p = FusionParams(
+        vloc_sigma_trans=0.005,
+        vloc_sigma_rot_deg=0.2,
+        gate_chi2=0.0,
+        robust_kernel="none",
+        init_votes=1,
+    )
     f = OnlineFusion(p, np.eye(4))
     t_ns = np.arange(0, 8_000_000_001, 10_000_000, dtype=np.int64)  # 100 Hz, 8 s
     vloc_capture = [int(0.5e9) + k * int(1e9) for k in range(7)]
@@ -90,7 +107,9 @@ def test_no_odometry_message_is_dropped_and_bad_input_is_counted(session: dict) 
         while j < len(order) and vl.t_arrival_ns[order[j]] <= t:
             k = order[j]
             f.add_vloc(int(vl.t_capture_ns[k]), vl.T_map_camera[k])
-            f.add_vloc(int(vl.t_capture_ns[k]), np.full((4, 4), np.nan))  # junk VLoc between messages
+            f.add_vloc(
+                int(vl.t_capture_ns[k]), np.full((4, 4), np.nan)
+            )  # junk VLoc between messages
             j += 1
         was_init = f.initialised
         out = f.add_odometry(t, s["oT"][i])
@@ -136,7 +155,10 @@ def test_first_vloc_outlier_does_not_seed_the_filter() -> None:
     f = OnlineFusion(FusionParams(init_votes=2), np.eye(4))
     for k in range(50):
         f.add_odometry(k * 10_000_000, np.eye(4))
-    assert f.add_vloc(100_000_000, make_T(so3_exp(np.array([0, 0, 1.0])), [3.0, 1.0, 0.0])).reason == "awaiting_init"
+    assert (
+        f.add_vloc(100_000_000, make_T(so3_exp(np.array([0, 0, 1.0])), [3.0, 1.0, 0.0])).reason
+        == "awaiting_init"
+    )
     assert f.add_vloc(200_000_000, np.eye(4)).reason == "awaiting_init"  # disagrees with the first
     r = f.add_vloc(300_000_000, make_T(np.eye(3), [0.01, 0, 0]))
     assert r.accepted and r.reason == "initialised"
@@ -166,3 +188,20 @@ def test_params_and_covariance_order() -> None:
     np.testing.assert_array_equal(gtsam_to_ros_cov(ros_to_gtsam_cov(C)), C)
     with pytest.raises(ValueError, match="T_base_camera"):
         OnlineFusion(FusionParams(), np.zeros((4, 4)))
+
+
+def test_solver_error_is_counted_and_the_filter_restarts() -> None:
+    f = OnlineFusion(FusionParams(init_votes=1), np.eye(4))
+    f.add_odometry(0, np.eye(4))
+    assert f.add_vloc(0, np.eye(4)).accepted
+
+    class Broken:
+        def update(self, *args: object) -> None:
+            raise RuntimeError("Indeterminant linear system")
+
+    f._smoother = Broken()  # type: ignore[assignment]
+    assert f.add_odometry(200_000_000, np.eye(4)) is None  # the keyframe update failed
+    st = f.stats()
+    assert st["solver_errors"] == 1 and not f.initialised
+    assert f.add_vloc(200_000_000, np.eye(4)).reason == "initialised"  # recovers from the next VLoc
+    assert f.add_odometry(300_000_000, np.eye(4)) is not None
