@@ -135,6 +135,8 @@ class RuntimeConfig:
     result_queue_capacity: int = 64
     publish_queue_capacity: int = 4096
     status_period_s: float = 1.0
+    map_to_odom_period_s: float = 0.1  # sensor time between map_to_odom messages (and after each VLoc fix)
+    stage_join_timeout_s: float = 5.0  # shutdown: a stage not ending by then is reported
     stage_on_error: Literal["fail", "restart"] = "fail"
     stage_max_restarts: int = 3
     latency_window: int = 1024
@@ -161,7 +163,8 @@ class RuntimeConfig:
                 raise ValueError(f"runtime.{name} must be >= 1, got {getattr(self, name)}")
         if self.stage_max_restarts < 0:
             raise ValueError("runtime.stage_max_restarts must be >= 0")
-        for name in ("status_period_s", "lost_after_s", "lost_variance", "odometry_stale_s", "deterministic_timeout_s"):
+        for name in ("status_period_s", "map_to_odom_period_s", "stage_join_timeout_s", "lost_after_s",
+                     "lost_variance", "odometry_stale_s", "deterministic_timeout_s"):
             v = getattr(self, name)
             if not (v > 0 and v < float("inf")):
                 raise ValueError(f"runtime.{name} must be a finite number > 0, got {v}")

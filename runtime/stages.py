@@ -72,7 +72,7 @@ class _StageThread:
         self.stop_event = stop
         self.on_error = on_error
         self.max_restarts = max_restarts
-        self.state = StageState.CREATED
+        self.state: StageState = StageState.CREATED
         self.errors = 0
         self.last_error: str | None = None
         self.processed = 0
@@ -119,6 +119,11 @@ class _StageThread:
             if self.state == StageState.RUNNING:
                 self.state = StageState.STOPPED
             self.finished.set()
+
+    def _set_done(self) -> None:
+        """The loop ended because its input ended (not stopped, not failed)."""
+        if self.state == StageState.RUNNING:
+            self.state = StageState.DONE
 
     def _loop(self) -> None:  # pragma: no cover - overridden
         raise NotImplementedError
