@@ -85,6 +85,16 @@ class OdometryCheckParams:
         return np.asarray(self.T_child_base, dtype=np.float64).reshape(4, 4)
 
 
+_WARM = [False]
+
+
+def _warm_decoder() -> None:
+    """rosbags generates its CDR decoder on first use (~0.2 s): do it before the first real message."""
+    if not _WARM[0]:
+        ros_msgs.deserialize(encode_odometry(Odometry(0, np.eye(4))), ros_msgs.ODOMETRY)
+        _WARM[0] = True
+
+
 class OdometryChecker:
     """Validates decoded odometry in arrival order; counts what it skips and flags gaps.
 
@@ -104,6 +114,7 @@ class OdometryChecker:
         self.last_t_ns: int | None = None
         self.frame_id: str | None = self.params.frame_id or None
         self._T_child_base = self.params.child_to_base()
+        _warm_decoder()
 
     def clear_flag(self) -> None:
         self.flagged = False

@@ -63,6 +63,23 @@ TOPICS: dict[str, tuple[str, str]] = {
 }
 
 
+def warm_codecs() -> None:
+    """Build, serialise and decode one message of each topic type once.
+
+    rosbags generates its CDR (de)serialisers on first use (~0.2 s per type on the
+    target); doing it at start-up keeps that stall off the first published pose.
+    """
+    eye = np.eye(4)
+    msgs = {
+        ros_msgs.ODOMETRY: ros_msgs.odometry_msg(0, eye, "map", "base_link"),
+        ros_msgs.POSE_COV_STAMPED: ros_msgs.pose_cov_stamped_msg(0, eye, "map", None),
+        ros_msgs.TRANSFORM_STAMPED: ros_msgs.transform_stamped_msg(0, eye, "map", "odom"),
+        ros_msgs.STRING: ros_msgs.typestore().types[ros_msgs.STRING](data="{}"),
+    }
+    for typename, msg in msgs.items():
+        ros_msgs.deserialize(ros_msgs.serialize(msg, typename), typename)
+
+
 class BusError(RuntimeError):
     """The Zenoh session could not be opened or used; the message names the endpoint."""
 
@@ -248,6 +265,7 @@ class LiteVLocPublisher:
         self.lost_policy, self.lost_variance = lost_policy, lost_variance
         self.map_frame, self.odom_frame, self.base_frame = map_frame, odom_frame, base_frame
         self.pubs = {name: bus.publisher(name) for name in TOPICS}
+        warm_codecs()
         self.withheld = 0
         self.flagged = 0
 

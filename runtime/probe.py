@@ -47,7 +47,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from litevloc.config.schema import ZenohConfig
     from litevloc.hw import ros_msgs
-    from litevloc.runtime.bus import TOPICS, Bus, send_time_ns, topic_key
+    from litevloc.runtime.bus import TOPICS, Bus, send_time_ns, topic_key, warm_codecs
     from litevloc.runtime.metrics import now_ns, percentiles_ms
 
     topics = [t.strip() for t in args.topics.split(",") if t.strip()]
@@ -57,6 +57,7 @@ def main(argv: list[str] | None = None) -> int:
     want = {k: int(v) for k, v in (c.split("=", 1) for c in args.count)}
     cfg = ZenohConfig(mode="peer", listen=(), connect=tuple(args.connect), namespace=args.namespace,
                       connect_timeout_s=min(args.timeout, 10.0))
+    warm_codecs()
     bus = Bus(cfg)
     res: dict[str, dict[str, Any]] = {t: {"count": 0, "decode_errors": 0, "lat_ms": [], "data": []} for t in topics}
     lock = threading.Lock()
@@ -117,6 +118,8 @@ def main(argv: list[str] | None = None) -> int:
     with lock:
         out = {
             t: {"count": r["count"], "decode_errors": r["decode_errors"], "latency": percentiles_ms(r["lat_ms"]),
+                "over_1ms": int(np.sum(np.asarray(r["lat_ms"]) > 1.0)),
+                "over_5ms": int(np.sum(np.asarray(r["lat_ms"]) > 5.0)),
                 **({"data": r["data"]} if args.keep else {})}
             for t, r in res.items()
         }

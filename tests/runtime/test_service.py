@@ -198,3 +198,30 @@ def test_odometry_from_zenoh_feeds_fusion() -> None:
     assert st["odometry"]["skipped"] == {"malformed_cdr": 1} and st["odometry"]["accepted"] > 50
     assert st["counters"]["odometry_fused"] == st["odometry"]["accepted"] - st["odometry"]["sink_errors"]
     assert any("odometry input skipped 1" in r for r in st["reasons"])
+
+
+@pytest.mark.timeout(30)
+def test_odometry_input_killed_mid_stream_is_reported() -> None:
+    port = free_port()
+    ep = f"tcp/127.0.0.1:{port}"
+    with Bus(ZenohConfig(listen=(ep,))) as bus, Bus(ZenohConfig(listen=(), connect=(ep,))) as robot:
+        fusion, fp = FakeFusion(), FakePublisher()
+        tx = OdometrySender(robot.session, "odom")
+        params = RuntimeConfig(odometry_input="zenoh", odometry_stale_s=0.2, status_period_s=0.05)
+        svc = Service(SyntheticSource(seconds=1.2), FakeVloc(), fusion.add_odometry, fusion.add_vloc, fp, params,
+                      rate=1.0, odometry_receiver=lambda sink: OdometryReceiver(bus.session, "odom", sink))
+        time.sleep(0.2)
+
+        def robot_loop() -> None:  # 0.3 s of odometry, then the robot's odometry dies
+            for i in range(60):
+                t = (i + 1) * 5_000_000
+                tx.send(Odometry(t, T_odom_base_at(t)))
+                time.sleep(0.005)
+
+        th = threading.Thread(target=robot_loop)
+        th.start()
+        res = svc.run(timeout_s=20)
+        th.join(5)
+    assert res.ok
+    stale = [s for s in fp.status if any(r.startswith("odometry stale") for r in s["reasons"])]
+    assert stale and stale[-1]["odometry"]["stale"]
