@@ -143,6 +143,10 @@ class RuntimeConfig:
     cv_threads: int = 2
     ort_intra_op_threads: int = 2
     ort_inter_op_threads: int = 1
+    # sys.setswitchinterval: how long a thread may hold the GIL while another waits. Python's
+    # 5 ms default lets a GIL-holding VLoc step delay fused poses by 5-25 ms (measured, see
+    # bench/runtime_queues.py); 0.5 ms keeps the fusion->publish p99 near 1-2 ms.
+    gil_switch_interval_s: float = 0.0005
     # Tracking loss: LOST when no VLoc update was accepted for `lost_after_s` of sensor time
     # (after the first one). "flag": keep publishing, covariance diagonal raised to at least
     # `lost_variance` and status.state = LOST; "withhold": publish no pose/map_to_odom while LOST.
@@ -163,6 +167,8 @@ class RuntimeConfig:
                 raise ValueError(f"runtime.{name} must be >= 1, got {getattr(self, name)}")
         if self.stage_max_restarts < 0:
             raise ValueError("runtime.stage_max_restarts must be >= 0")
+        if not (1e-5 <= self.gil_switch_interval_s <= 0.1):
+            raise ValueError(f"runtime.gil_switch_interval_s must be in [1e-5, 0.1], got {self.gil_switch_interval_s}")
         for name in ("status_period_s", "map_to_odom_period_s", "stage_join_timeout_s", "lost_after_s",
                      "lost_variance", "odometry_stale_s", "deterministic_timeout_s"):
             v = getattr(self, name)

@@ -142,7 +142,8 @@ class Service:
         self._odometry_receiver_factory = odometry_receiver
         self.odometry_receiver: Any = None
         if configure_thread_counts:
-            self.threads = configure_threads(p.cv_threads, p.ort_intra_op_threads, p.ort_inter_op_threads)
+            self.threads = configure_threads(p.cv_threads, p.ort_intra_op_threads, p.ort_inter_op_threads,
+                                             p.gil_switch_interval_s)
 
         self._stop = threading.Event()
         self._stop_reason: str | None = None

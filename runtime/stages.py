@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import logging
 import os
+import sys
 import threading
 import traceback
 from collections.abc import Callable, Sequence
@@ -255,8 +256,14 @@ class Periodic(_StageThread):
 _THREADS: dict[str, int] = {"cv": 2, "ort_intra_op": 2, "ort_inter_op": 1}
 
 
-def configure_threads(cv_threads: int = 2, ort_intra_op: int = 2, ort_inter_op: int = 1) -> dict[str, int]:
+def configure_threads(
+    cv_threads: int = 2, ort_intra_op: int = 2, ort_inter_op: int = 1, switch_interval_s: float | None = None
+) -> dict[str, int]:
     """Set the thread counts of the native libraries for the target CPU budget.
+
+    `switch_interval_s` (if given) sets `sys.setswitchinterval`: the longest a
+    GIL-holding thread (Python glue of a VLoc step) makes a waiting one (fusion,
+    publisher) wait; Python's default is 5 ms.
 
     OpenCV: `cv2.setNumThreads` (process-wide, immediate). BLAS/OpenMP: the usual
     environment variables, set only if absent (they take effect in libraries loaded
@@ -269,6 +276,8 @@ def configure_threads(cv_threads: int = 2, ort_intra_op: int = 2, ort_inter_op: 
     import cv2
 
     cv2.setNumThreads(cv_threads)
+    if switch_interval_s is not None:
+        sys.setswitchinterval(switch_interval_s)
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, str(ort_intra_op))
     _THREADS.update(cv=cv_threads, ort_intra_op=ort_intra_op, ort_inter_op=ort_inter_op)

@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import sys
 import threading
 import time
 
@@ -113,7 +114,12 @@ def test_periodic_ticks_and_final_call() -> None:
 def test_thread_budget() -> None:
     import cv2
 
-    counts = configure_threads(cv_threads=2, ort_intra_op=2, ort_inter_op=1)
+    old = sys.getswitchinterval()
+    try:
+        counts = configure_threads(cv_threads=2, ort_intra_op=2, ort_inter_op=1, switch_interval_s=0.001)
+        assert sys.getswitchinterval() == pytest.approx(0.001)
+    finally:
+        sys.setswitchinterval(old)
     assert cv2.getNumThreads() == 2 and counts["ort_intra_op"] == 2
     so = ort_session_options()
     assert so.intra_op_num_threads == 2 and so.inter_op_num_threads == 1
