@@ -157,6 +157,7 @@ class RuntimeConfig:
     odometry_input: Literal["source", "zenoh"] = "source"
     odometry_key: str = "odom"  # Zenoh key expression of the robot's nav_msgs/Odometry (not namespaced)
     odometry_stale_s: float = 0.5  # no odometry for this long (wall time) -> status reason
+    frame_stale_s: float = 2.0  # no camera frame for this long (wall time, realtime mode) -> status reason
     odometry_checks: OdometryCheckParams = field(default_factory=OdometryCheckParams)
     deterministic_timeout_s: float = 120.0  # lockstep wait per frame before failing
 
@@ -170,7 +171,7 @@ class RuntimeConfig:
         if not (1e-5 <= self.gil_switch_interval_s <= 0.1):
             raise ValueError(f"runtime.gil_switch_interval_s must be in [1e-5, 0.1], got {self.gil_switch_interval_s}")
         for name in ("status_period_s", "map_to_odom_period_s", "stage_join_timeout_s", "lost_after_s",
-                     "lost_variance", "odometry_stale_s", "deterministic_timeout_s"):
+                     "lost_variance", "odometry_stale_s", "frame_stale_s", "deterministic_timeout_s"):
             v = getattr(self, name)
             if not (v > 0 and v < float("inf")):
                 raise ValueError(f"runtime.{name} must be a finite number > 0, got {v}")

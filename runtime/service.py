@@ -175,6 +175,7 @@ class Service:
         self._frames_pushed = 0
         self._vloc_done = 0
         self._last_odom_wall: float | None = None
+        self._last_frame_wall: float | None = None
         self.e2e = LatencyWindow(w)  # odometry into the FIFO -> pose handed to Zenoh (ms)
         self._t_start = time.monotonic()
         self._status: dict[str, Any] = {}
@@ -279,7 +280,7 @@ class Service:
         reason = self._stop_reason or "stopped"
         if stuck:
             reason += f"; stage(s) {stuck} did not stop within {p.stage_join_timeout_s:g} s"
-        ok = self._fatal is None and not stuck and reason in ("end of source", "SIGINT", "SIGTERM")
+        ok = self._fatal is None and not stuck and not reason.startswith("timeout")
         status = self.status()
         status["stop_reason"] = reason
         return ServiceResult(ok=ok, reason=reason, status=status)
@@ -318,6 +319,7 @@ class Service:
                     self._push_odometry(msg)
             elif isinstance(msg, RgbdFrame):
                 self.counters["frames_in"] += 1
+                self._last_frame_wall = time.monotonic()
                 if det:
                     pushed = self._odom_pushed
 
@@ -502,7 +504,7 @@ class Service:
             self._stop_reason = self._fatal
         self._status_tick()
         reason = self._stop_reason or "stopped"
-        ok = self._fatal is None and reason in ("end of source", "SIGINT", "SIGTERM")
+        ok = self._fatal is None and not reason.startswith("timeout")
         status = self.status()
         status["stop_reason"] = reason
         return ServiceResult(ok=ok, reason=reason, status=status)
@@ -550,6 +552,10 @@ class Service:
         waited = since if since is not None else time.monotonic() - self._t_start
         if running and waited > p.odometry_stale_s:
             reasons.append("no odometry received yet" if since is None else f"odometry stale: none for {since:.2f} s")
+        f_age = time.monotonic() - (self._last_frame_wall or self._t_start)
+        if running and p.mode == "realtime" and f_age > p.frame_stale_s:
+            reasons.append("no camera frame received yet" if self._last_frame_wall is None
+                            else f"camera frames stale: none for {f_age:.2f} s")
         if self._fatal:
             state = "FAILED"
         out: dict[str, Any] = {

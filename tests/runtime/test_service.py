@@ -225,3 +225,46 @@ def test_odometry_input_killed_mid_stream_is_reported() -> None:
     assert res.ok
     stale = [s for s in fp.status if any(r.startswith("odometry stale") for r in s["reasons"])]
     assert stale and stale[-1]["odometry"]["stale"]
+
+
+@pytest.mark.timeout(30)
+def test_source_dying_mid_stream_is_a_fatal_error_not_a_hang() -> None:
+    from litevloc.hw.messages import StreamError
+
+    src = SyntheticSource(seconds=1.0)
+
+    class Dying:
+        name, stats = "dying", src.stats
+
+        def __iter__(self):
+            for i, m in enumerate(src.msgs):
+                if i == 50:
+                    raise StreamError("rec.mcap: chunk 3 is corrupt")
+                yield m
+
+    fusion = FakeFusion()
+    svc = Service(Dying(), FakeVloc(), fusion.add_odometry, fusion.add_vloc, FakePublisher(),
+                  RuntimeConfig(status_period_s=0.05), rate=0.0)
+    t0 = time.monotonic()
+    res = svc.run(timeout_s=20)
+    assert not res.ok and time.monotonic() - t0 < 10
+    assert "stage 'source' failed" in res.reason and "chunk 3 is corrupt" in res.reason
+    assert res.status["state"] == "FAILED"
+
+
+@pytest.mark.timeout(30)
+def test_stalled_camera_is_reported() -> None:
+    from litevloc.hw.messages import Odometry as Odo
+
+    class OdomOnly:  # a camera that never delivers: only odometry, 1 s
+        name, stats = "odom-only", SyntheticSource().stats
+
+        def __iter__(self):
+            return iter([Odo((i + 1) * 5_000_000, T_odom_base_at((i + 1) * 5_000_000)) for i in range(200)])
+
+    fusion, fp = FakeFusion(), FakePublisher()
+    svc = Service(OdomOnly(), FakeVloc(), fusion.add_odometry, fusion.add_vloc, fp,
+                  RuntimeConfig(status_period_s=0.05, frame_stale_s=0.3), rate=1.0)
+    res = svc.run(timeout_s=20)
+    assert res.ok and any("no camera frame received yet" in r for s in fp.status for r in s["reasons"])
+    assert res.status["state"] == "INIT"
