@@ -102,7 +102,7 @@ class QueueMetrics:
         return asdict(self)
 
 
-class _QueueBase(Generic[T]):
+class QueueBase(Generic[T]):
     kind = "queue"
 
     def __init__(self, name: str, capacity: int, window: int = 1024) -> None:
@@ -207,7 +207,7 @@ class _QueueBase(Generic[T]):
         )
 
 
-class LatestMailbox(_QueueBase[T]):
+class LatestMailbox(QueueBase[T]):
     """Latest-value slot: `put` replaces an unread value (counted as a drop by the consumer)."""
 
     kind = "latest"
@@ -238,7 +238,7 @@ class LatestMailbox(_QueueBase[T]):
         return max(self._dropped, self.puts - self.gets - in_slot)
 
 
-class BoundedFifo(_QueueBase[T]):
+class BoundedFifo(QueueBase[T]):
     """FIFO that never drops; beyond `capacity` it records (default) or raises an overflow."""
 
     kind = "fifo"

@@ -61,7 +61,7 @@ from litevloc.hw.messages import GroundTruthPose, Message, Odometry, RgbdFrame
 from litevloc.pipelines.odometry_drift import T_BASE_CAMERA_OPTICAL
 from litevloc.runtime.metrics import LatencyWindow, jsonable, now_ns
 from litevloc.runtime.pacing import paced
-from litevloc.runtime.queues import BoundedFifo, LatestMailbox, QueueClosed, QueueEmpty, _QueueBase
+from litevloc.runtime.queues import BoundedFifo, LatestMailbox, QueueBase
 from litevloc.runtime.stages import Periodic, Stage, StageInput, StageState, _StageThread, configure_threads
 from numpy.typing import NDArray
 
@@ -150,7 +150,7 @@ class Service:
         self._progress = threading.Condition()  # deterministic lockstep only
         det = p.mode == "deterministic"
         w = p.latency_window
-        self.frames: _QueueBase[RgbdFrame] = (
+        self.frames: QueueBase[RgbdFrame] = (
             BoundedFifo("frames", capacity=1_000_000, window=w) if det else LatestMailbox("frames", window=w)
         )
         self.odometry: BoundedFifo[tuple[int, Odometry]] = BoundedFifo("odometry", p.odometry_queue_capacity,
@@ -587,13 +587,3 @@ class Service:
             except Exception as exc:
                 out["bus"] = {"error": str(exc)}
         return dict(jsonable(out))
-
-
-def drain(q: _QueueBase[Any]) -> list[Any]:
-    """All items currently in a queue (tests, shutdown)."""
-    out = []
-    while True:
-        try:
-            out.append(q.get_nowait())
-        except (QueueClosed, QueueEmpty):
-            return out

@@ -30,7 +30,7 @@ from enum import StrEnum
 from typing import Any, Literal
 
 from litevloc.runtime.metrics import LatencyWindow, now_ns
-from litevloc.runtime.queues import QueueClosed, QueueEmpty, Waker, _QueueBase
+from litevloc.runtime.queues import QueueBase, QueueClosed, QueueEmpty, Waker
 
 log = logging.getLogger(__name__)
 
@@ -56,7 +56,7 @@ def traceback_summary(exc: BaseException, lines: int = 6) -> str:
 class StageInput:
     """One input of a stage: its queue and the handler called with each item."""
 
-    queue: _QueueBase[Any]
+    queue: QueueBase[Any]
     handler: Callable[[Any], None]
 
     def __post_init__(self) -> None:
@@ -157,7 +157,7 @@ class Stage(_StageThread):
 
     @classmethod
     def map(
-        cls, name: str, inq: _QueueBase[Any], fn: Callable[[Any], Any], outputs: Sequence[Any],
+        cls, name: str, inq: QueueBase[Any], fn: Callable[[Any], Any], outputs: Sequence[Any],
         stop: threading.Event, **kw: Any,
     ) -> Stage:
         """Single-input stage: `r = fn(item)`; a non-None `r` is put on every output queue."""
