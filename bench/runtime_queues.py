@@ -161,6 +161,69 @@ def service_e2e(switch_interval_s: float, vloc_ms: float, seconds: float = 6.0) 
             - st["counters"]["odometry_fused"]}
 
 
+def _popen_ready(cmd: list[str]) -> subprocess.Popen[str]:
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+    assert proc.stdout is not None
+    line = proc.stdout.readline().strip()
+    assert line == "READY", f"{cmd[3:5]} did not get ready: {line!r}"
+    return proc
+
+
+def service_wire_e2e(switch_interval_s: float, vloc_ms: float, seconds: float = 8.0,
+                     inline: bool = False) -> dict[str, object]:
+    """Three processes: a robot stand-in publishing 200 Hz odometry over Zenoh (stamped with
+    the monotonic clock), the service here (odometry_input zenoh, 30 Hz synthetic frames, a
+    GIL-holding `vloc_ms` VLoc stand-in, fake fusion, the real Zenoh publisher), and the probe
+    measuring pose receive time - odometry stamp: odometry-in -> pose-out on the wire."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from litevloc.config.schema import RuntimeConfig
+    from litevloc.hw.odometry import OdometryReceiver
+    from litevloc.pipelines.odometry_drift import T_BASE_CAMERA_OPTICAL
+    from litevloc.runtime.service import Service
+
+    from tests.runtime.fakes import T_MAP_ODOM_TRUE, FakeFusion, Result, SyntheticSource, T_odom_base_at
+
+    def vloc(frame, prior):  # type: ignore[no-untyped-def]
+        t0 = time.perf_counter()
+        x = 0
+        while (time.perf_counter() - t0) * 1e3 < vloc_ms:
+            x += 1
+        T = T_MAP_ODOM_TRUE @ T_odom_base_at(frame.t_ns) @ T_BASE_CAMERA_OPTICAL
+        return Result(frame.t_ns, True, "ok", T, np.eye(6) * 1e-4)
+
+    sock = __import__("socket").socket()
+    sock.bind(("127.0.0.1", 0))
+    port = sock.getsockname()[1]
+    sock.close()
+    ep = f"tcp/127.0.0.1:{port}"
+    out = Path(tempfile.mkdtemp()) / "probe.json"
+    old = sys.getswitchinterval()
+    params = RuntimeConfig(odometry_input="zenoh", odometry_key="robot/odom", gil_switch_interval_s=switch_interval_s,
+                           publish_inline=inline)
+    with Bus(ZenohConfig(listen=(ep,))) as bus:
+        pub = LiteVLocPublisher(bus)
+        probe = _popen_ready([sys.executable, "-m", "litevloc.runtime.probe", "--connect", ep, "--topics", "pose",
+                              "--stamp-latency", "--idle", "2", "--timeout", str(seconds + 30), "--json", str(out)])
+        fusion = FakeFusion()
+        svc = Service(SyntheticSource(seconds=seconds, odom_hz=10, frame_hz=30), vloc, fusion.add_odometry,
+                      fusion.add_vloc, pub, params, rate=1.0,
+                      odometry_receiver=lambda sink: OdometryReceiver(bus.session, "robot/odom", sink))
+        robot = _popen_ready([sys.executable, "-m", "litevloc.runtime.probe", "--connect", ep, "--send-odometry",
+                              "robot/odom", "--rate", "200", "--seconds", str(seconds - 1.0)])
+        try:
+            res = svc.run(timeout_s=seconds + 30)
+        finally:
+            sys.setswitchinterval(old)
+        robot.wait(timeout=30)
+        probe.wait(timeout=60)
+    pose = json.loads(out.read_text())["topics"]["pose"]
+    st = res.status
+    return {"e2e_wire": pose["stamp_latency"], "received": pose["count"],
+            "odometry_accepted": st["odometry"]["accepted"], "odometry_fused": st["counters"]["odometry_fused"],
+            "poses_published": st["counters"]["poses_published"], "vloc_calls": st["counters"]["vloc_calls"],
+            "in_service": st["latency"]["odometry_to_publish"]}
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seconds", type=float, default=10.0)
@@ -194,7 +257,20 @@ def main() -> int:
     print_table("service, 200 Hz odometry, GIL-holding 300 ms VLoc stand-in: odometry in -> pose to publisher",
                 ["GIL switch interval", "median ms", "p99 ms", "max ms", "vloc calls", "frames dropped",
                  "odometry lost"], rows)
+    wire = {f"{si * 1e3:g} ms, VLoc {v:g} ms{', inline publish' if inl else ''}": service_wire_e2e(si, v, inline=inl)
+            for si, v, inl in ((0.005, 300.0, False), (0.0005, 300.0, False), (0.0005, 300.0, True),
+                               (0.0005, 0.0, False))}
+    rows = []
+    for k, v in wire.items():
+        lat = v["e2e_wire"]
+        assert isinstance(lat, dict)
+        rows.append([k, lat["median_ms"], lat["p99_ms"], lat["max_ms"], v["received"], v["odometry_accepted"],
+                     v["vloc_calls"]])
+    print_table("3 processes: robot odometry 200 Hz -> Zenoh -> service (GIL-holding 300 ms VLoc) -> Zenoh -> probe",
+                ["GIL switch interval, VLoc stand-in", "median ms", "p99 ms", "max ms", "poses received", "odometry in",
+                 "vloc calls"], rows)
     write_json("runtime_queues", {"queue_ns_per_pair": ops, "handoff_ms": hand, "zenoh": z, "service_e2e": e2e,
+                                  "service_wire_e2e": wire,
                                   "cdr_message": ros_msgs.ODOMETRY})
     return 0
 

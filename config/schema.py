@@ -134,6 +134,9 @@ class RuntimeConfig:
     odometry_queue_capacity: int = 4096
     result_queue_capacity: int = 64
     publish_queue_capacity: int = 4096
+    # true: the fusion thread serialises and puts on Zenoh itself (one GIL hand-off less per pose);
+    # false: through the outbox FIFO to a publisher thread (fusion never waits on the network)
+    publish_inline: bool = False
     status_period_s: float = 1.0
     map_to_odom_period_s: float = 0.1  # sensor time between map_to_odom messages (and after each VLoc fix)
     stage_join_timeout_s: float = 5.0  # shutdown: a stage not ending by then is reported

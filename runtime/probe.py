@@ -12,6 +12,14 @@ attachment, same-machine monotonic clock), and the decoded content (poses as
 once subscribed and connected, so a test can start publishing, and stops when every
 `--count` is reached, after `--idle` seconds without messages, or at `--timeout`.
 Exit code 0 when every count was reached, 3 on timeout.
+
+`--stamp-latency` also records, for `pose`, receive time - header stamp: end-to-end
+latency when the odometry source stamps with `time.monotonic_ns()` (as
+`--send-odometry` does), because a fused pose carries its odometry message's stamp.
+
+Sender mode (a robot stand-in): `--send-odometry KEY --rate 200 --seconds 10` publishes
+nav_msgs/Odometry on KEY, stamped with `time.monotonic_ns()`, prints READY when
+connected, and exits after `--seconds`.
 """
 
 from __future__ import annotations
@@ -43,7 +51,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--idle", type=float, default=0.0, help="stop after this long without messages (0 = never)")
     ap.add_argument("--json", default=None, help="write the results here (default: stdout)")
     ap.add_argument("--keep", action="store_true", help="keep decoded poses/status in the JSON")
+    ap.add_argument("--stamp-latency", action="store_true", help="pose: also receive time - header stamp")
+    ap.add_argument("--send-odometry", default=None, metavar="KEY", help="sender mode: publish odometry on KEY")
+    ap.add_argument("--rate", type=float, default=200.0, help="sender mode: Hz")
+    ap.add_argument("--seconds", type=float, default=10.0, help="sender mode: duration")
     args = ap.parse_args(argv)
+    if args.send_odometry:
+        return _send(args)
 
     from litevloc.config.schema import ZenohConfig
     from litevloc.hw import ros_msgs
@@ -59,7 +73,8 @@ def main(argv: list[str] | None = None) -> int:
                       connect_timeout_s=min(args.timeout, 10.0))
     warm_codecs()
     bus = Bus(cfg)
-    res: dict[str, dict[str, Any]] = {t: {"count": 0, "decode_errors": 0, "lat_ms": [], "data": []} for t in topics}
+    res: dict[str, dict[str, Any]] = {t: {"count": 0, "decode_errors": 0, "lat_ms": [], "data": [], "stamp_ms": []}
+                                      for t in topics}
     lock = threading.Lock()
     last_rx = [time.monotonic()]
     done = threading.Event()
@@ -90,6 +105,8 @@ def main(argv: list[str] | None = None) -> int:
                             tr.rotation.x, tr.rotation.y, tr.rotation.z, tr.rotation.w]
                 else:
                     item = json.loads(msg.data)
+            if args.stamp_latency and topic == "pose":
+                r["stamp_ms"].append((t_rx - ros_msgs.stamp_ns(msg.header)) * 1e-6)
             with lock:
                 r["count"] += 1
                 if sent is not None:
@@ -120,6 +137,7 @@ def main(argv: list[str] | None = None) -> int:
             t: {"count": r["count"], "decode_errors": r["decode_errors"], "latency": percentiles_ms(r["lat_ms"]),
                 "over_1ms": int(np.sum(np.asarray(r["lat_ms"]) > 1.0)),
                 "over_5ms": int(np.sum(np.asarray(r["lat_ms"]) > 5.0)),
+                **({"stamp_latency": percentiles_ms(r["stamp_ms"])} if args.stamp_latency else {}),
                 **({"data": r["data"]} if args.keep else {})}
             for t, r in res.items()
         }
@@ -130,6 +148,31 @@ def main(argv: list[str] | None = None) -> int:
     else:
         print(text, flush=True)
     return 0 if (done.is_set() or not want) else 3
+
+
+def _send(args: argparse.Namespace) -> int:
+    from litevloc.config.schema import ZenohConfig
+    from litevloc.hw.messages import Odometry
+    from litevloc.hw.odometry import OdometrySender
+    from litevloc.pipelines.geometry import make_T, so3_exp
+    from litevloc.runtime.bus import Bus, warm_codecs
+
+    warm_codecs()
+    bus = Bus(ZenohConfig(mode="peer", listen=(), connect=tuple(args.connect), connect_timeout_s=10.0))
+    tx = OdometrySender(bus.session, args.send_odometry)
+    print("READY", flush=True)
+    n = int(args.seconds * args.rate)
+    t_next = time.monotonic()
+    for i in range(n):
+        s = i / args.rate
+        T = make_T(so3_exp(np.array([0.0, 0.0, 0.3 * s])), np.array([0.5 * s, 0.0, 0.0]))
+        tx.send(Odometry(time.monotonic_ns(), T))
+        t_next += 1.0 / args.rate
+        time.sleep(max(0.0, t_next - time.monotonic()))
+    tx.close()
+    bus.close()
+    print(json.dumps({"sent": n}), flush=True)
+    return 0
 
 
 if __name__ == "__main__":

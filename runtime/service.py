@@ -157,6 +157,8 @@ class Service:
                                                                          window=w)
         self.results: BoundedFifo[Any] = BoundedFifo("vloc_results", p.result_queue_capacity, window=w)
         self.outbox: BoundedFifo[tuple[Any, ...]] = BoundedFifo("outbox", p.publish_queue_capacity, window=w)
+        # publish_inline: the fusion thread publishes itself (one thread hop less); else via the outbox
+        self._out: Callable[[tuple[Any, ...]], None] = self._handle_publish if p.publish_inline else self.outbox.put
 
         # state written by one thread each (see the stage that owns it)
         self.counters: dict[str, int] = dict.fromkeys(
@@ -407,7 +409,7 @@ class Service:
         cov = getattr(fused, "covariance", None)
         if cov is not None and self.covariance_to_ros is not None:
             cov = self.covariance_to_ros(np.asarray(cov))
-        self.outbox.put(("pose", t_in, int(fused.t_ns), fused.T_map_base, cov, lost))
+        self._out(("pose", t_in, int(fused.t_ns), fused.T_map_base, cov, lost))
         T_m2o = getattr(fused, "T_map_odom", None)
         if T_m2o is not None:
             due = self._m2o_due or self._last_m2o_ns is None or (
@@ -415,7 +417,7 @@ class Service:
             if due:
                 self._m2o_due = False
                 self._last_m2o_ns = int(fused.t_ns)
-                self.outbox.put(("map_to_odom", int(fused.t_ns), T_m2o, lost))
+                self._out(("map_to_odom", int(fused.t_ns), T_m2o, lost))
 
     def _handle_result(self, res: Any) -> None:
         try:
@@ -440,7 +442,7 @@ class Service:
         t = int(res.t_ns)
         self.last_vloc_accept_ns = t if self.last_vloc_accept_ns is None else max(self.last_vloc_accept_ns, t)
         self._m2o_due = True
-        self.outbox.put(("vloc", t, res.T_map_camera, getattr(res, "covariance", None)))
+        self._out(("vloc", t, res.T_map_camera, getattr(res, "covariance", None)))
 
     # ------------------------------------------------------------------ publisher thread
     def _handle_publish(self, item: tuple[Any, ...]) -> None:

@@ -268,3 +268,15 @@ def test_stalled_camera_is_reported() -> None:
     res = svc.run(timeout_s=20)
     assert res.ok and any("no camera frame received yet" in r for s in fp.status for r in s["reasons"])
     assert res.status["state"] == "INIT"
+
+
+@pytest.mark.timeout(30)
+def test_inline_publishing_gives_the_same_output() -> None:
+    outs = []
+    for inline in (False, True):
+        svc, _, _, pub = make("deterministic", publish_inline=inline)
+        res = svc.run(timeout_s=20)
+        assert res.ok
+        outs.append([(t, T.tobytes(), f) for t, T, f in pub.poses])
+        assert res.status["queues"]["outbox"]["puts"] == (0 if inline else len(pub.poses) + len(pub.m2o) + 20)
+    assert outs[0] == outs[1]
