@@ -29,6 +29,10 @@ def test_config_is_explicit_loopback_no_multicast() -> None:
     c2 = zenoh_config(ZenohConfig(extra={"transport/shared_memory/enabled": False}, access_control={"enabled": False}))
     assert json.loads(c2.get_json("transport/shared_memory/enabled")) is False
     assert json.loads(c2.get_json("access_control/enabled")) is False
+    c3 = zenoh_config(ZenohConfig(tls={"root_ca_certificate": "/etc/zenoh/ca.pem", "enable_mtls": True},
+                                  access_control='{enabled: true, default_permission: "deny"}'))
+    assert json.loads(c3.get_json("transport/link/tls/root_ca_certificate")) == "/etc/zenoh/ca.pem"
+    assert json.loads(c3.get_json("access_control/default_permission")) == "deny"
     with pytest.raises(BusError, match="invalid Zenoh configuration"):
         zenoh_config(ZenohConfig(extra={"no/such/key": 1}))
 
