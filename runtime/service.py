@@ -589,3 +589,31 @@ class Service:
             except Exception as exc:
                 out["bus"] = {"error": str(exc)}
         return dict(jsonable(out))
+
+
+# ---------------------------------------------------------------------- adapters
+def localizer_callable(localizer: Any) -> VlocFn:
+    """`pipelines.localization.vloc.VisualLocalizer` -> the service's `vloc(frame, prior)`.
+
+    Pair it with `state_fn=lambda: str(localizer.state)` so the status (and the LOST flag)
+    follow the localizer's state machine."""
+
+    def vloc(frame: RgbdFrame, prior: NDArray[np.float64] | None) -> Any:
+        return localizer.process(frame.t_ns, frame.color, frame.depth, frame.K, prior)
+
+    return vloc
+
+
+def fusion_callables(fusion: Any) -> tuple[OdometryFn, VlocUpdateFn]:
+    """An object with `add_odometry(t_ns, T_odom_base, covariance)` and
+    `add_vloc(t_ns, T_map_camera, covariance)` (the GTSAM `OnlineFusion`) -> the service's
+    `(on_odometry, on_vloc)`. The VLoc covariance is passed as `pipelines.pnp` gives it:
+    6x6, camera-frame right perturbation, order (tx, ty, tz, rx, ry, rz)."""
+
+    def on_odometry(o: Odometry) -> Any:
+        return fusion.add_odometry(o.t_ns, o.T_odom_base, o.covariance)
+
+    def on_vloc(r: Any) -> Any:
+        return fusion.add_vloc(r.t_ns, r.T_map_camera, r.covariance)
+
+    return on_odometry, on_vloc

@@ -280,3 +280,40 @@ def test_inline_publishing_gives_the_same_output() -> None:
         outs.append([(t, T.tobytes(), f) for t, T, f in pub.poses])
         assert res.status["queues"]["outbox"]["puts"] == (0 if inline else len(pub.poses) + len(pub.m2o) + 20)
     assert outs[0] == outs[1]
+
+
+@pytest.mark.timeout(30)
+def test_adapters_for_localizer_and_fusion() -> None:
+    from litevloc.runtime.service import fusion_callables, localizer_callable
+
+    calls: list[tuple[str, int]] = []
+
+    class Loc:
+        state = "TRACKING"
+
+        def process(self, t_ns, color, depth, K, prior):
+            calls.append(("process", t_ns))
+            return FakeVloc()(type("F", (), {"t_ns": t_ns, "index": 0})(), prior)
+
+    inner = FakeFusion()
+
+    class Fusion:
+        def add_odometry(self, t_ns, T, cov):
+            calls.append(("odom", t_ns))
+            return inner.add_odometry(Odometry(t_ns, T, cov))
+
+        def add_vloc(self, t_ns, T, cov):
+            calls.append(("vloc", t_ns))
+            return inner.add_vloc(type("R", (), {"t_ns": t_ns, "T_map_camera": T})())
+
+    loc = Loc()
+    on_odom, on_vloc = fusion_callables(Fusion())
+    src = SyntheticSource(seconds=0.5)
+    pub = FakePublisher()
+    svc = Service(src, localizer_callable(loc), on_odom, on_vloc, pub, RuntimeConfig(mode="deterministic"),
+                  state_fn=lambda: loc.state)
+    res = svc.run(timeout_s=20)
+    assert res.ok and res.status["vloc_state"] == "TRACKING"
+    assert sum(c == "process" for c, _ in calls) == src.frame_count() == sum(c == "vloc" for c, _ in calls)
+    assert sum(c == "odom" for c, _ in calls) == src.n_odometry()
+    check_poses(pub.poses)
