@@ -9,9 +9,10 @@ defined next to their algorithm in `litevloc.pipelines` and referenced here.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
+from litevloc.hw.odometry import OdometryCheckParams
 from litevloc.hw.oak import CameraConfig
 from litevloc.hw.sim.params import SimParams
 from litevloc.models.config import ModelsConfig
@@ -108,3 +109,121 @@ class LiteVLocConfig:
     localization: LocalizationParams = field(default_factory=LocalizationParams)
     fusion: FusionConfig = field(default_factory=FusionConfig)
     sim: SimParams = field(default_factory=SimParams)
+    zenoh: ZenohConfig = field(default_factory=lambda: ZenohConfig())
+    runtime: RuntimeConfig = field(default_factory=lambda: RuntimeConfig())
+
+
+# --------------------------------------------------------------------- runtime / Zenoh
+# (appended for the runtime issue; the classes are used by litevloc.runtime.bus/service)
+_ENDPOINT_PROTOCOLS = ("tcp", "udp", "tls", "quic", "unixsock-stream", "ws", "serial")
+
+
+def _check_endpoint(ep: str, where: str) -> None:
+    proto, sep, rest = ep.partition("/")
+    if not sep or proto not in _ENDPOINT_PROTOCOLS or not rest:
+        raise ValueError(
+            f"{where} endpoint {ep!r} must look like tcp/127.0.0.1:7447 (protocol one of {list(_ENDPOINT_PROTOCOLS)})"
+        )
+
+
+@dataclass(frozen=True)
+class ZenohConfig:
+    """The Zenoh session: always explicit (Zenoh's own default listens on every interface
+    and multicasts; ours listens on loopback only and does not scout).
+
+    `tls`, `access_control` and `extra` are passed through to Zenoh's JSON5 config:
+    `tls` goes to `transport/link/tls` (a mapping, or JSON5 text), `access_control` to
+    `access_control`, and `extra` is a mapping {zenoh config key path: value} inserted
+    last (e.g. {"transport/shared_memory/enabled": false}). See the Zenoh config reference.
+    """
+
+    mode: Literal["peer", "client"] = "peer"
+    listen: tuple[str, ...] = ("tcp/127.0.0.1:7447",)  # ignored in client mode
+    connect: tuple[str, ...] = ()
+    multicast_scouting: bool = False
+    connect_timeout_s: float = 3.0  # per attempt at start-up
+    require_connect: bool = True  # start fails if no `connect` endpoint is reachable
+    namespace: str = ""  # key prefix, e.g. "robot1" -> robot1/litevloc/pose
+    attach_send_time: bool = True  # 8-byte little-endian monotonic send time (ns) as the Zenoh attachment
+    tls: Any = None
+    access_control: Any = None
+    extra: Any = None
+
+    def __post_init__(self) -> None:
+        for ep in self.listen:
+            _check_endpoint(ep, "zenoh.listen")
+        for ep in self.connect:
+            _check_endpoint(ep, "zenoh.connect")
+        if self.mode == "client" and not self.connect:
+            raise ValueError("zenoh.mode 'client' needs at least one zenoh.connect endpoint (a router)")
+        if not (0 < self.connect_timeout_s <= 600):
+            raise ValueError(f"zenoh.connect_timeout_s must be in (0, 600], got {self.connect_timeout_s}")
+        ns = self.namespace
+        if ns and (ns.startswith("/") or ns.endswith("/") or any(c in ns for c in "*$?#")):
+            raise ValueError(f"zenoh.namespace {ns!r} must not start/end with '/' nor contain * $ ? #")
+        for name in ("tls", "access_control", "extra"):
+            v = getattr(self, name)
+            if v is not None and not isinstance(v, str | dict):
+                raise ValueError(f"zenoh.{name} must be a mapping or JSON5 text, got {type(v).__name__}")
+        if self.extra is not None and not isinstance(self.extra, dict):
+            raise ValueError("zenoh.extra must be a mapping {config key path: value}")
+
+
+@dataclass(frozen=True)
+class RuntimeConfig:
+    """Threads, queues, status and tracking-loss policy of the onboard service."""
+
+    # realtime: threads, latest-frame mailbox (stale frames dropped);
+    # deterministic: threads in lockstep, every frame processed in order (tests, replay checks);
+    # sequential: everything in the calling thread, in source order (the baseline).
+    mode: Literal["realtime", "deterministic", "sequential"] = "realtime"
+    odometry_queue_capacity: int = 4096
+    result_queue_capacity: int = 64
+    publish_queue_capacity: int = 4096
+    # true: the fusion thread serialises and puts on Zenoh itself (one GIL hand-off less per pose);
+    # false: through the outbox FIFO to a publisher thread (fusion never waits on the network)
+    publish_inline: bool = False
+    status_period_s: float = 1.0
+    map_to_odom_period_s: float = 0.1  # sensor time between map_to_odom messages (and after each VLoc fix)
+    stage_join_timeout_s: float = 5.0  # shutdown: a stage not ending by then is reported
+    stage_on_error: Literal["fail", "restart"] = "fail"
+    stage_max_restarts: int = 3
+    latency_window: int = 1024
+    cv_threads: int = 2
+    ort_intra_op_threads: int = 2
+    ort_inter_op_threads: int = 1
+    # sys.setswitchinterval: how long a thread may hold the GIL while another waits. Python's
+    # 5 ms default lets a GIL-holding VLoc step delay fused poses by 5-25 ms (measured, see
+    # bench/runtime_queues.py); 0.5 ms keeps the fusion->publish p99 near 1-2 ms.
+    gil_switch_interval_s: float = 0.0005
+    # Tracking loss: LOST when no VLoc update was accepted for `lost_after_s` of sensor time
+    # (after the first one). "flag": keep publishing, covariance diagonal raised to at least
+    # `lost_variance` and status.state = LOST; "withhold": publish no pose/map_to_odom while LOST.
+    lost_policy: Literal["flag", "withhold"] = "flag"
+    lost_after_s: float = 10.0
+    lost_variance: float = 1.0e4
+    # Odometry input: from the sensor source (recordings, simulator) or received over Zenoh.
+    odometry_input: Literal["source", "zenoh"] = "source"
+    odometry_key: str = "odom"  # Zenoh key expression of the robot's nav_msgs/Odometry (not namespaced)
+    odometry_stale_s: float = 0.5  # no odometry for this long (wall time) -> status reason
+    frame_stale_s: float = 2.0  # no camera frame for this long (wall time, realtime mode) -> status reason
+    odometry_checks: OdometryCheckParams = field(default_factory=OdometryCheckParams)
+    deterministic_timeout_s: float = 120.0  # lockstep wait per frame before failing
+
+    def __post_init__(self) -> None:
+        for name in ("odometry_queue_capacity", "result_queue_capacity", "publish_queue_capacity",
+                     "latency_window", "cv_threads", "ort_intra_op_threads", "ort_inter_op_threads"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"runtime.{name} must be >= 1, got {getattr(self, name)}")
+        if self.stage_max_restarts < 0:
+            raise ValueError("runtime.stage_max_restarts must be >= 0")
+        if not (1e-5 <= self.gil_switch_interval_s <= 0.1):
+            raise ValueError(f"runtime.gil_switch_interval_s must be in [1e-5, 0.1], got {self.gil_switch_interval_s}")
+        for name in ("status_period_s", "map_to_odom_period_s", "stage_join_timeout_s", "lost_after_s",
+                     "lost_variance", "odometry_stale_s", "frame_stale_s", "deterministic_timeout_s"):
+            v = getattr(self, name)
+            if not (v > 0 and v < float("inf")):
+                raise ValueError(f"runtime.{name} must be a finite number > 0, got {v}")
+        if not self.odometry_key or any(c in self.odometry_key for c in "$?#") or self.odometry_key.startswith("/"):
+            raise ValueError(f"runtime.odometry_key {self.odometry_key!r} is not a valid key expression "
+                             "(no leading '/', no $ ? #)")
