@@ -100,6 +100,7 @@ class LiteVLocConfig:
     """Root of the configuration tree."""
 
     name: str = "default"
+    map: str = ""  # map folder the service localizes in (`litevloc run` / `replay --config`; --map overrides)
     source: SourceConfig = field(default_factory=SourceConfig)
     odometry_sim: OdometrySimConfig = field(default_factory=OdometrySimConfig)
     replay: ReplayConfig = field(default_factory=ReplayConfig)

@@ -14,7 +14,7 @@ import sys
 from collections.abc import Sequence
 
 # Subcommand modules (litevloc.runtime.cli.<name>), in help order.
-COMMANDS = ("info", "demo", "convert", "replay", "record", "sim", "models", "map", "localize", "bench")
+COMMANDS = ("info", "demo", "run", "convert", "replay", "record", "sim", "models", "map", "localize", "bench")
 
 
 class UserError(Exception):
@@ -54,6 +54,11 @@ def _user_errors() -> tuple[type[BaseException], ...]:
         errors += [RenderError, TextureError, PlanningError]
     except ImportError:
         pass
+    for mod, name in (("litevloc.runtime.bus", "BusError"), ("litevloc.runtime.service", "ServiceError")):
+        try:
+            errors.append(getattr(importlib.import_module(mod), name))
+        except (ImportError, AttributeError):
+            pass
     try:
         from litevloc.pipelines.topomap.io import MapFormatError
 

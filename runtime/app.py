@@ -1,0 +1,111 @@
+"""Assemble the onboard service from a configuration: map, models, localizer, fusion, bus.
+
+Used by `litevloc run` (live or `--source` recording) and `litevloc replay --config`
+(hardware-in-the-loop replay). Everything that can be missing is checked before any
+thread starts, so a bad map, a missing model or an unreachable Zenoh peer is a clear
+error, not a hang.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from litevloc.config import LiteVLocConfig
+from litevloc.hw.messages import GroundTruthPose
+from litevloc.hw.streams.base import StreamSource
+from litevloc.pipelines.fusion.online import OnlineFusion
+from litevloc.pipelines.localization.vloc import VisualLocalizer
+from litevloc.pipelines.topomap.io import load_map
+from litevloc.runtime.bus import Bus, LiteVLocPublisher
+from litevloc.runtime.service import Service, fusion_callables, localizer_callable
+from litevloc.runtime.vloc_models import check_map_models, load_bundle
+
+
+@dataclass
+class Recorder:
+    """Collects fused poses and ground truth during a run (for TUM output and ATE)."""
+
+    fused_t: list[int] = field(default_factory=list)
+    fused_T: list[NDArray[np.float64]] = field(default_factory=list)
+    gt_t: list[int] = field(default_factory=list)
+    gt_T: list[NDArray[np.float64]] = field(default_factory=list)
+
+    def on_fused(self, fused: Any) -> None:
+        if getattr(fused, "initialised", True):
+            self.fused_t.append(int(fused.t_ns))
+            self.fused_T.append(np.asarray(fused.T_map_base, dtype=np.float64))
+
+    def on_ground_truth(self, gt: GroundTruthPose) -> None:
+        self.gt_t.append(gt.t_ns)
+        self.gt_T.append(gt.T_world_camera)
+
+
+@dataclass
+class App:
+    service: Service
+    bus: Bus
+    localizer: VisualLocalizer
+    fusion: OnlineFusion
+    recorder: Recorder
+    T_base_camera: NDArray[np.float64]
+
+    def close(self) -> None:
+        self.bus.close()
+
+
+def with_endpoints(cfg: LiteVLocConfig, listen: list[str], connect: list[str], namespace: str | None) -> LiteVLocConfig:
+    """Command-line endpoints replace the config's (validated again)."""
+    z = cfg.zenoh
+    changes: dict[str, Any] = {}
+    if listen:
+        changes["listen"] = tuple(listen)
+    if connect:
+        changes["connect"] = tuple(connect)
+    if namespace is not None:
+        changes["namespace"] = namespace
+    return dataclasses.replace(cfg, zenoh=dataclasses.replace(z, **changes)) if changes else cfg
+
+
+def build_app(
+    cfg: LiteVLocConfig, map_path: Path, source: StreamSource, rate: float,
+    on_fused: Callable[[Any], None] | None = None,
+) -> App:
+    """Load map and models, open the bus, and wire the service (nothing runs yet)."""
+    bundle = load_bundle(cfg.models)
+    topomap = check_map_models(load_map(map_path), bundle)
+    localizer = VisualLocalizer(topomap, cfg.localization, bundle.extract, bundle.describe, bundle.match)
+    T_base_camera = cfg.fusion.T_base_camera()
+    fusion = OnlineFusion(cfg.fusion.params, T_base_camera)
+    recorder = Recorder()
+    bus = Bus(cfg.zenoh)
+    try:
+        publisher = LiteVLocPublisher(bus, cfg.runtime.lost_policy, cfg.runtime.lost_variance)
+        on_odom, on_vloc = fusion_callables(fusion)
+        receiver = None
+        if cfg.runtime.odometry_input == "zenoh":
+            from litevloc.hw.odometry import OdometryReceiver
+
+            def receiver(sink):  # type: ignore[no-untyped-def]
+                return OdometryReceiver(bus.session, cfg.runtime.odometry_key, sink, cfg.runtime.odometry_checks)
+
+        def fused_hook(f: Any) -> None:
+            recorder.on_fused(f)
+            if on_fused is not None:
+                on_fused(f)
+
+        service = Service(
+            source, localizer_callable(localizer), on_odom, on_vloc, publisher, cfg.runtime, rate=rate,
+            T_base_camera=T_base_camera, state_fn=lambda: str(localizer.state), odometry_receiver=receiver,
+            on_ground_truth=recorder.on_ground_truth, on_fused=fused_hook,
+        )
+    except Exception:
+        bus.close()
+        raise
+    return App(service, bus, localizer, fusion, recorder, T_base_camera)

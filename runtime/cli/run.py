@@ -1,0 +1,76 @@
+"""`litevloc run --config CFG`: the onboard service (until SIGINT/SIGTERM or end of a recording)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+from pathlib import Path
+
+from litevloc.runtime.cli.common import add_config_args, add_json_arg, config_of, write_json
+from litevloc.runtime.cli.main import UserError
+
+log = logging.getLogger(__name__)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("run", help="run the onboard localization service")
+    add_config_args(p, required=True)
+    add_service_args(p)
+    p.add_argument("--source", type=Path, default=None, help="replay this recording instead of the configured driver")
+    p.add_argument("--rate", type=float, default=None, help="real-time factor for --source (default: config replay.rate)")
+    add_json_arg(p)
+    p.set_defaults(func=run)
+
+
+def add_service_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--map", type=Path, default=None, help="map folder (default: the config's `map`)")
+    p.add_argument("--listen", action="append", default=[], metavar="ENDPOINT", help="e.g. tcp/127.0.0.1:7447")
+    p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT")
+    p.add_argument("--namespace", default=None, help="key-expression prefix, e.g. robot1")
+
+
+def open_configured_source(cfg, path: Path | None):  # type: ignore[no-untyped-def]
+    """--source, else the config's source (recording, dataset, sim URI, or the OAK-D)."""
+    from litevloc.hw.streams.base import parse_frames
+    from litevloc.runtime.sources import open_source
+
+    if path is not None:
+        return open_source(path, strict=cfg.source.strict)
+    kind = cfg.source.kind
+    if kind == "oak-d":
+        from litevloc.hw.oak import OakSource
+
+        return OakSource(cfg.camera, strict=cfg.source.strict)
+    if not cfg.source.path:
+        raise UserError(f"config source.kind is {kind!r} but source.path is empty; give --source")
+    return open_source(cfg.source.path, parse_frames(cfg.source.frames or None), strict=cfg.source.strict)
+
+
+def run_service(args: argparse.Namespace, source_path: Path | None, rate: float | None) -> dict:
+    from litevloc.runtime.app import build_app, with_endpoints
+
+    cfg = with_endpoints(config_of(args), args.listen, args.connect, args.namespace)
+    map_path = args.map or (Path(cfg.map) if cfg.map else None)
+    if map_path is None:
+        raise UserError("no map: give --map MAP or set `map:` in the config")
+    src = open_configured_source(cfg, source_path)
+    app = build_app(cfg, map_path, src, cfg.replay.rate if rate is None else rate)
+    try:
+        result = app.service.run(install_signals=True)
+    finally:
+        app.close()
+    status = result.status
+    out = {"ok": result.ok, "reason": result.reason, "status": status, "recorder": app.recorder,
+           "T_base_camera": app.T_base_camera}
+    if not result.ok:
+        log.error("service stopped: %s", result.reason)
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    res = run_service(args, args.source, args.rate)
+    print(f"litevloc run: {res['reason']}")
+    write_json(args.json, {"ok": res["ok"], "reason": res["reason"], "status": json.loads(json.dumps(res["status"],
+                                                                                                     default=str))})
+    return 0 if res["ok"] else 1
