@@ -39,6 +39,14 @@ EXTRA_EXPORTS = (
 )
 
 
+# Input normalisation (mean, std per RGB channel, on [0, 1] values) of the VPR networks:
+# EfficientNet-Lite was trained on (x - 127) / 128 inputs (TF reference), CosPlace on ImageNet's.
+VPR_NORMALIZATION: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]] = {
+    "effnet-gem": ((0.5, 0.5, 0.5), (0.5, 0.5, 0.5)),
+    "cosplace-r18": ((0.485, 0.456, 0.406), (0.229, 0.224, 0.225)),
+}
+
+
 @dataclass(frozen=True)
 class ModelSpec:
     """One exportable model. input_hw = (h, w) of the fixed network input (None: dynamic)."""
