@@ -103,5 +103,6 @@ def spec_for(model_id: str) -> ModelSpec:
         return ModelSpec(model_id, "vpr", m.group(1), (h, w))
     raise ValueError(
         f"unknown model id {model_id!r}; expected aliked-{{t16,n16}}-HxW-kK, "
-        f"lightglue-aliked[-int8], effnet-gem-HxW or cosplace-r18-HxW (e.g. {', '.join(DEFAULT_EXPORTS)})"
+        f"lightglue-aliked[-int8], effnet-gem-HxW or cosplace-r18-HxW "
+        f"(e.g. {', '.join(DEFAULT_EXPORTS)})"
     )
