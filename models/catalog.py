@@ -12,7 +12,7 @@ import re
 from dataclasses import dataclass
 from typing import Literal
 
-EXPORT_VERSION = 1
+EXPORT_VERSION = 2  # 2: ALIKED deformable convs as the ONNX DeformConv op (was grid_sample)
 OPSET = 19
 
 ALIKED_VARIANTS = ("aliked-t16", "aliked-n16")
