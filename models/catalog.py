@@ -12,7 +12,7 @@ import re
 from dataclasses import dataclass
 from typing import Literal
 
-EXPORT_VERSION = 1
+EXPORT_VERSION = 2  # 2: ALIKED deformable convs as the ONNX DeformConv op (was grid_sample)
 OPSET = 19
 
 ALIKED_VARIANTS = ("aliked-t16", "aliked-n16")
@@ -33,10 +33,19 @@ DEFAULT_EXPORTS = (
 )
 # `--all` adds these.
 EXTRA_EXPORTS = (
+    "lightglue-aliked-int8",
     "aliked-t16-480x640-k1024",
     "aliked-n16-480x640-k1024",
     "effnet-gem-480x640",
 )
+
+
+# Input normalisation (mean, std per RGB channel, on [0, 1] values) of the VPR networks:
+# EfficientNet-Lite was trained on (x - 127) / 128 inputs (TF reference), CosPlace on ImageNet's.
+VPR_NORMALIZATION: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]] = {
+    "effnet-gem": ((0.5, 0.5, 0.5), (0.5, 0.5, 0.5)),
+    "cosplace-r18": ((0.485, 0.456, 0.406), (0.229, 0.224, 0.225)),
+}
 
 
 @dataclass(frozen=True)
@@ -48,6 +57,7 @@ class ModelSpec:
     arch: str  # aliked-t16 | aliked-n16 | lightglue-aliked | effnet-gem | cosplace-r18
     input_hw: tuple[int, int] | None = None
     top_k: int | None = None
+    quantization: str | None = None  # None (fp32) | "dynamic-int8" (weights int8, ORT dynamic)
 
     @property
     def filename(self) -> str:
@@ -70,6 +80,8 @@ def spec_for(model_id: str) -> ModelSpec:
     """Parse a model id; ValueError naming the accepted forms when it is not one."""
     if model_id == "lightglue-aliked":
         return ModelSpec(model_id, "matcher", "lightglue-aliked")
+    if model_id == "lightglue-aliked-int8":
+        return ModelSpec(model_id, "matcher", "lightglue-aliked", quantization="dynamic-int8")
     m = _ALIKED_RE.match(model_id)
     if m:
         h, w, k = int(m.group(2)), int(m.group(3)), int(m.group(4))
@@ -90,6 +102,7 @@ def spec_for(model_id: str) -> ModelSpec:
             raise ValueError(f"{model_id}: size must be within [32, 4096]")
         return ModelSpec(model_id, "vpr", m.group(1), (h, w))
     raise ValueError(
-        f"unknown model id {model_id!r}; expected aliked-{{t16,n16}}-HxW-kK, lightglue-aliked, "
-        f"effnet-gem-HxW or cosplace-r18-HxW (e.g. {', '.join(DEFAULT_EXPORTS)})"
+        f"unknown model id {model_id!r}; expected aliked-{{t16,n16}}-HxW-kK, "
+        f"lightglue-aliked[-int8], effnet-gem-HxW or cosplace-r18-HxW "
+        f"(e.g. {', '.join(DEFAULT_EXPORTS)})"
     )

@@ -38,7 +38,8 @@ def resize_image(image_rgb: NDArray[np.uint8], size_hw: tuple[int, int]) -> NDAr
     if (ih, iw) == (h, w):
         return image_rgb
     interp = cv2.INTER_AREA if (ih >= h and iw >= w) else cv2.INTER_LINEAR
-    out: NDArray[np.uint8] = np.asarray(cv2.resize(image_rgb, (w, h), interpolation=interp), np.uint8)
+    resized = cv2.resize(image_rgb, (w, h), interpolation=interp)
+    out: NDArray[np.uint8] = np.asarray(resized, np.uint8)
     return out
 
 

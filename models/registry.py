@@ -113,6 +113,7 @@ def locate(
         "arch": spec.arch,
         "input_hw": list(spec.input_hw) if spec.input_hw else None,
         "top_k": spec.top_k,
+        "quantization": spec.quantization,
     }
     for key, want in expected.items():
         if entry.get(key) != want:
@@ -146,12 +147,13 @@ def load_extractor(name: str, cfg: ModelsConfig | None = None) -> FeatureExtract
 
 
 def load_matcher(name: str, cfg: ModelsConfig | None = None) -> Matcher:
-    """ "lightglue" (ONNX, for ALIKED) | "mnn" (mutual nearest neighbour) | "nn-ratio" (Lowe)."""
+    """ "lightglue" | "lightglue-int8" (ONNX, for ALIKED-n16) | "mnn" (mutual nearest
+    neighbour) | "nn-ratio" (nearest neighbour + Lowe ratio test)."""
     cfg = cfg or ModelsConfig()
-    if name == "lightglue":
+    if name in ("lightglue", "lightglue-int8"):
         from litevloc.models.lightglue import LightGlueOnnx
 
-        path, _ = locate("lightglue-aliked", cfg)
+        path, _ = locate("lightglue-aliked" + ("-int8" if name == "lightglue-int8" else ""), cfg)
         return LightGlueOnnx(path, cfg.match_threshold, cfg.providers, cfg.intra_op_threads)
     if name == "mnn":
         from litevloc.models.classical import MutualNNMatcher
@@ -161,7 +163,7 @@ def load_matcher(name: str, cfg: ModelsConfig | None = None) -> Matcher:
         from litevloc.models.classical import RatioMatcher
 
         return RatioMatcher(cfg.ratio)
-    raise ModelError(f"unknown matcher {name!r}; known: lightglue, mnn, nn-ratio")
+    raise ModelError(f"unknown matcher {name!r}; known: lightglue, lightglue-int8, mnn, nn-ratio")
 
 
 def load_place_recognizer(name: str, cfg: ModelsConfig | None = None) -> PlaceRecognizer:
@@ -171,7 +173,14 @@ def load_place_recognizer(name: str, cfg: ModelsConfig | None = None) -> PlaceRe
 
     if name == "effnet-gem":
         path, _ = locate(vpr_id("effnet-gem", cfg.vpr_size), cfg)
-        return OnnxPlaceRecognizer(path, name, cfg.vpr_size, cfg.providers, cfg.intra_op_threads)
+        return OnnxPlaceRecognizer(
+            path,
+            name,
+            "effnet-gem" if name == "effnet-gem" else "cosplace-r18",
+            cfg.vpr_size,
+            cfg.providers,
+            cfg.intra_op_threads,
+        )
     if name == "cosplace":
         try:
             path, _ = locate(vpr_id("cosplace-r18", cfg.vpr_size), cfg)
@@ -179,5 +188,12 @@ def load_place_recognizer(name: str, cfg: ModelsConfig | None = None) -> PlaceRe
             raise ModelError(
                 f"{exc} (CosPlace needs the official checkpoint: add --cosplace-checkpoint PATH)"
             ) from exc
-        return OnnxPlaceRecognizer(path, name, cfg.vpr_size, cfg.providers, cfg.intra_op_threads)
+        return OnnxPlaceRecognizer(
+            path,
+            name,
+            "effnet-gem" if name == "effnet-gem" else "cosplace-r18",
+            cfg.vpr_size,
+            cfg.providers,
+            cfg.intra_op_threads,
+        )
     raise ModelError(f"unknown place recognizer {name!r}; known: effnet-gem, cosplace")

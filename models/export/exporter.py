@@ -60,7 +60,11 @@ def build_torch(spec: ModelSpec, weights: Path) -> torch.nn.Module:
         from litevloc.models.export.aliked import load_aliked
 
         assert spec.top_k is not None
-        return load_aliked(weights, spec.arch, spec.top_k)
+        model = load_aliked(weights, spec.arch, spec.top_k)
+        # ONNX DeformConv (opset 19) measured 10-15 % faster than the grid_sample form in
+        # onnxruntime CPU (bench/models.py); eager torch computes the same with grid_sample.
+        model.set_deform_mode("deformconv")
+        return model
     if spec.kind == "matcher":
         from litevloc.models.export.lightglue import load_lightglue
 
@@ -123,7 +127,40 @@ def export_onnx(spec: ModelSpec, model: torch.nn.Module, out: Path) -> None:
     onnx.checker.check_model(proto)
     tmp_out = out.with_suffix(".onnx.tmp")
     onnx.save(proto, str(tmp_out))
+    if spec.quantization == "dynamic-int8":
+        _quantize_dynamic_int8(tmp_out)
     tmp_out.replace(out)
+
+
+def _quantize_dynamic_int8(path: Path) -> None:
+    """In place: MatMul/Gemm weights to int8 (per tensor); activations quantised at run time."""
+    from onnxruntime.quantization import QuantType, quantize_dynamic
+
+    fp32 = path.with_suffix(".fp32.tmp")
+    path.replace(fp32)
+    with warnings.catch_warnings(), _quiet_root_logger():
+        warnings.simplefilter("ignore")
+        quantize_dynamic(
+            str(fp32),
+            str(path),
+            weight_type=QuantType.QInt8,
+            op_types_to_quantize=["MatMul", "Gemm"],
+        )
+    fp32.unlink()
+    q = onnx.load(str(path))
+    q.ir_version = ONNX_IR_VERSION
+    onnx.save(q, str(path))
+
+
+class _quiet_root_logger:
+    """onnxruntime.quantization logs a pre-processing hint on the root logger; silence it."""
+
+    def __enter__(self) -> None:
+        self._level = logging.getLogger().level
+        logging.getLogger().setLevel(logging.ERROR)
+
+    def __exit__(self, *exc: object) -> None:
+        logging.getLogger().setLevel(self._level)
 
 
 def is_up_to_date(
@@ -138,6 +175,7 @@ def is_up_to_date(
         "arch": spec.arch,
         "input_hw": list(spec.input_hw) if spec.input_hw else None,
         "top_k": spec.top_k,
+        "quantization": spec.quantization,
     }
     if any(entry.get(k) != v for k, v in want.items()):
         return False
@@ -182,6 +220,7 @@ def export_models(
             "arch": spec.arch,
             "input_hw": list(spec.input_hw) if spec.input_hw else None,
             "top_k": spec.top_k,
+            "quantization": spec.quantization,
             "opset": OPSET,
             "ir_version": ONNX_IR_VERSION,
             "export_version": EXPORT_VERSION,

@@ -14,7 +14,9 @@ CVPR 2022, github.com/gmberton/CosPlace, MIT): ResNet-18 without avgpool/fc as
 Sequential(L2Norm, GeM, Flatten, Linear(512, D), L2Norm); the official checkpoints are state
 dicts with exactly these names (`backbone.*`, `aggregation.1.p`, `aggregation.3.*`).
 
-Input of both: (1, 3, H, W) float32 ImageNet-normalised RGB. Output: (1, D) float32, L2-normalised.
+Input of both: (1, 3, H, W) float32 RGB normalised as in `catalog.VPR_NORMALIZATION`
+(EfficientNet-Lite: (x - 0.5) / 0.5 on [0, 1] values; CosPlace: ImageNet mean/std).
+Output: (1, D) float32, L2-normalised.
 """
 
 from __future__ import annotations

@@ -84,6 +84,8 @@ def configured_ids(cfg: ModelsConfig) -> list[str]:
         ids.append(aliked_id(cfg.extractor, cfg.extractor_size, cfg.max_keypoints))
     if cfg.matcher == "lightglue":
         ids.append("lightglue-aliked")
+    elif cfg.matcher == "lightglue-int8":
+        ids.append("lightglue-aliked-int8")
     if cfg.place_recognizer == "effnet-gem":
         ids.append(vpr_id("effnet-gem", cfg.vpr_size))
     return ids

