@@ -27,7 +27,7 @@ from enum import StrEnum
 
 import numpy as np
 from litevloc.pipelines.depth_lookup import DepthLookupParams, depth_at
-from litevloc.pipelines.geometry import backproject_pixels, check_rigid
+from litevloc.pipelines.geometry import backproject_pixels, check_rigid, relative_pose_error
 from litevloc.pipelines.pnp import PnpParams, PnpResult, solve_pnp
 from litevloc.pipelines.topomap.types import FeatureSet, TopoMap
 from numpy.typing import NDArray
@@ -50,6 +50,18 @@ class LocalizationParams:
 
     gl_top_k: int = 5
     gl_early_accept_inliers: int = 0  # > 0: stop GL at the first candidate with this many inliers
+    # GL confirmation: a GL pose must also explain matches with a second keyframe (a covisible
+    # neighbour of its node, else the next VPR candidate): repetitive textures can make one
+    # image pair agree on a wrong, shifted pose; two viewpoints rarely agree on the same wrong one.
+    gl_confirm: bool = True
+    ll_confirm: bool = True
+    confirm_min_inliers: int = 20
+    confirm_max_nodes: int = 2  # second keyframes tried for the confirmation
+    # LL prior gate: an LL pose must lie within prior_gate_m + prior_gate_rate_mps * (age of the
+    # prior in s) and prior_gate_deg of the prior; otherwise that candidate is rejected.
+    prior_gate_m: float = 0.75
+    prior_gate_rate_mps: float = 1.5
+    prior_gate_deg: float = 30.0
     candidate_radius_m: float = 3.0
     max_view_angle_deg: float = 90.0
     ll_max_candidates: int = 3
@@ -65,6 +77,8 @@ class LocalizationParams:
             raise ValueError("gl_top_k, ll_max_candidates and ll_failures_before_lost must be >= 1")
         if self.candidate_radius_m <= 0 or not (0 < self.max_view_angle_deg <= 180):
             raise ValueError("candidate_radius_m > 0 and max_view_angle_deg in (0, 180] required")
+        if self.prior_gate_m <= 0 or self.prior_gate_rate_mps < 0 or not (0 < self.prior_gate_deg <= 180):
+            raise ValueError("prior_gate_m > 0, prior_gate_rate_mps >= 0 and prior_gate_deg in (0, 180] required")
 
 
 @dataclass(frozen=True)
@@ -168,6 +182,7 @@ class VisualLocalizer:
         self.state = TrackingState.INIT
         self.failures = 0
         self.last_pose: NDArray[np.float64] | None = None
+        self.last_pose_t_ns = 0
         self.transitions: deque[Transition] = deque(maxlen=100)
         self._neighbours = [[n for n, _ in topomap.covisible_neighbours(i)] for i in range(topomap.n_nodes)]
 
@@ -220,16 +235,71 @@ class VisualLocalizer:
         sims = self.map.vpr @ desc
         order = np.argsort(-sims, kind="stable")[: self.params.gl_top_k]
         attempts: list[CandidateAttempt] = []
-        best: tuple[int, PnpResult] | None = None
+        verified: list[tuple[int, PnpResult]] = []
         for node in order:
             res, att = self._verify(int(node), feats, dimg, K, float(sims[node]), timer)
             attempts.append(att)
-            if res is not None and res.accepted and (best is None or res.n_inliers > best[1].n_inliers):
-                best = (int(node), res)
+            if res is not None and res.accepted:
+                verified.append((int(node), res))
                 if 0 < self.params.gl_early_accept_inliers <= res.n_inliers:
                     break
+        best: tuple[int, PnpResult] | None = None
+        reason = "not localized: no VPR candidate verified"
+        for node, res in sorted(verified, key=lambda v: -v[1].n_inliers):
+            if not self.params.gl_confirm:
+                best = (node, res)
+                break
+            assert res.T_target_source is not None
+            T = self.map.T_map_camera[node] @ res.T_target_source
+            n_ok = self._confirmed(node, T, feats, dimg, K, [int(n) for n in order], timer)
+            if n_ok >= self.params.confirm_min_inliers:
+                best = (node, res)
+                break
+            reason = f"not localized: no verified pose was confirmed by a second keyframe (last: node {node})"
+            attempts.append(CandidateAttempt(node, float(sims[node]), res.n_matches, res.n_inliers,
+                                             f"unconfirmed ({n_ok} consistent matches with a second keyframe)"))
         timer.add("total", t_all)
-        return self._result(t_ns, "global", best, attempts, timer, "not localized: no VPR candidate verified")
+        return self._result(t_ns, "global", best, attempts, timer, reason)
+
+    def _confirmed(
+        self, node: int, T_map_live: NDArray[np.float64], feats: FeatureSet, depth: NDArray[np.float32],
+        K: NDArray[np.float64], fallback: list[int], timer: _Timer,
+    ) -> int:
+        """Best count of matches explained by the pose over up to `confirm_max_nodes` other
+        keyframes (covisible neighbours of `node` by weight first, then `fallback` nodes)."""
+        others = [n for n, _ in sorted(self.map.covisible_neighbours(node), key=lambda x: -x[1])]
+        others += [n for n in fallback if n != node and n not in others]
+        t0 = time.perf_counter()
+        best = 0
+        for other in others[: self.params.confirm_max_nodes]:
+            best = max(best, self.confirm(T_map_live, feats, depth, K, other))
+            if best >= self.params.confirm_min_inliers:
+                break
+        timer.add("confirm", t0)
+        return best
+
+    def confirm(
+        self, T_map_live: NDArray[np.float64], live_feats: FeatureSet, depth: NDArray[np.float32],
+        K: NDArray[np.float64], node: int,
+    ) -> int:
+        """Matches with `node` that the pose `T_map_live` explains (reprojection within the PnP threshold)."""
+        i_live, i_map = self.match(live_feats, self.map.features[node])
+        if len(i_live) == 0:
+            return 0
+        uv = np.asarray(live_feats.keypoints, dtype=np.float64)[i_live]
+        z = depth_at(depth, uv, self.params.depth)
+        ok = np.isfinite(z)
+        if not ok.any():
+            return 0
+        pts = backproject_pixels(K, uv[ok], z[ok].astype(np.float64))
+        T_node_live = np.linalg.inv(self.map.T_map_camera[node]) @ T_map_live
+        pc = pts @ T_node_live[:3, :3].T + T_node_live[:3, 3]
+        front = pc[:, 2] > 1e-3
+        Kn = self.map.K[node]
+        proj = (pc[front, :2] / pc[front, 2:3]) * [Kn[0, 0], Kn[1, 1]] + [Kn[0, 2], Kn[1, 2]]
+        err = np.linalg.norm(proj - np.asarray(self.map.features[node].keypoints, dtype=np.float64)[i_map[ok]][front],
+                             axis=1)
+        return int(np.count_nonzero(err <= self.params.pnp.reprojection_px))
 
     def local_candidates(self, prior: NDArray[np.float64], desc: NDArray[np.float32]) -> list[tuple[int, float]]:
         """(node, similarity) candidates for a prior pose, best first; empty if none is near."""
@@ -250,9 +320,11 @@ class VisualLocalizer:
 
     def localize_local(
         self, t_ns: int, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64],
-        prior_T_map_camera: NDArray[np.float64],
+        prior_T_map_camera: NDArray[np.float64], prior_age_s: float = 0.0,
     ) -> LocalizationResult:
-        """LL from a prior pose; candidates tried in similarity order until one is accepted."""
+        """LL from a prior pose; candidates tried in similarity order until one is accepted.
+
+        A candidate's pose must also pass the prior gate (see `LocalizationParams`)."""
         prior = check_rigid(prior_T_map_camera, "prior T_map_camera", atol=1e-4)
         timer = _Timer()
         t_all = time.perf_counter()
@@ -260,12 +332,27 @@ class VisualLocalizer:
         attempts: list[CandidateAttempt] = []
         best: tuple[int, PnpResult] | None = None
         cands = self.local_candidates(prior, desc)
+        gate_m = self.params.prior_gate_m + self.params.prior_gate_rate_mps * max(prior_age_s, 0.0)
         for node, sim in cands:
             res, att = self._verify(node, feats, dimg, K, sim, timer)
-            attempts.append(att)
-            if res is not None and res.accepted:
+            if res is not None and res.accepted and res.T_target_source is not None:
+                T = self.map.T_map_camera[node] @ res.T_target_source
+                dt, dr = relative_pose_error(T, prior)
+                if dt > gate_m or dr > self.params.prior_gate_deg:
+                    att = CandidateAttempt(node, sim, att.matches, att.inliers,
+                                           f"inconsistent with the prior ({dt:.2f} m, {dr:.0f} deg)")
+                    attempts.append(att)
+                    continue
+                if self.params.ll_confirm:
+                    n_ok = self._confirmed(node, T, feats, dimg, K, [n for n, _ in cands], timer)
+                    if n_ok < self.params.confirm_min_inliers:
+                        attempts.append(CandidateAttempt(node, sim, att.matches, att.inliers,
+                                                         f"unconfirmed ({n_ok} consistent matches with a second keyframe)"))
+                        continue
+                attempts.append(att)
                 best = (node, res)
                 break
+            attempts.append(att)
         timer.add("total", t_all)
         reason = "no map node near the prior" if not cands else "not localized: no candidate verified"
         return self._result(t_ns, "local", best, attempts, timer, reason)
@@ -286,12 +373,15 @@ class VisualLocalizer:
             why = "start-up" if self.state == TrackingState.INIT else "recover from LOST"
             self._go(t_ns, TrackingState.GLOBAL, why)
         if self.state == TrackingState.TRACKING:
-            prior = prior_T_map_camera if prior_T_map_camera is not None else self.last_pose
-            assert prior is not None
-            res = self.localize_local(t_ns, color, depth, K, prior)
+            if prior_T_map_camera is not None:
+                prior, age = prior_T_map_camera, 0.0
+            else:
+                assert self.last_pose is not None
+                prior, age = self.last_pose, (t_ns - self.last_pose_t_ns) * 1e-9
+            res = self.localize_local(t_ns, color, depth, K, prior, prior_age_s=age)
             if res.accepted:
                 self.failures = 0
-                self.last_pose = res.T_map_camera
+                self.last_pose, self.last_pose_t_ns = res.T_map_camera, t_ns
                 return res
             if res.reason == "no map node near the prior":
                 self._go(t_ns, TrackingState.GLOBAL, "prior far from every map node")
@@ -304,6 +394,6 @@ class VisualLocalizer:
         res = self.localize_global(t_ns, color, depth, K)
         if res.accepted:
             self.failures = 0
-            self.last_pose = res.T_map_camera
+            self.last_pose, self.last_pose_t_ns = res.T_map_camera, t_ns
             self._go(t_ns, TrackingState.TRACKING, f"GL verified node {res.ref_node} ({res.n_inliers} inliers)")
         return res

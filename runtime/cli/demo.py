@@ -48,7 +48,6 @@ def _step(title: str, argv: list[str]) -> float:
 
 def run(args: argparse.Namespace) -> int:
     import numpy as np
-
     from litevloc.pipelines.evaluation.trajectory import associate, ate, read_tum
     from litevloc.pipelines.topomap.io import load_map
     from litevloc.pipelines.topomap.plot import plot_map
