@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
-from litevloc.hw.odometry import OdometryCheckParams
 from litevloc.hw.oak import CameraConfig
+from litevloc.hw.odometry import OdometryCheckParams
 from litevloc.hw.sim.params import SimParams
 from litevloc.models.config import ModelsConfig
 from litevloc.pipelines.fusion.params import FusionParams

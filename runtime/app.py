@@ -87,12 +87,14 @@ def build_app(
     try:
         publisher = LiteVLocPublisher(bus, cfg.runtime.lost_policy, cfg.runtime.lost_variance)
         on_odom, on_vloc = fusion_callables(fusion)
-        receiver = None
+        receiver: Callable[[Callable[[Any], None]], Any] | None = None
         if cfg.runtime.odometry_input == "zenoh":
             from litevloc.hw.odometry import OdometryReceiver
 
-            def receiver(sink):  # type: ignore[no-untyped-def]
+            def zenoh_odometry(sink: Callable[[Any], None]) -> Any:
                 return OdometryReceiver(bus.session, cfg.runtime.odometry_key, sink, cfg.runtime.odometry_checks)
+
+            receiver = zenoh_odometry
 
         def fused_hook(f: Any) -> None:
             recorder.on_fused(f)

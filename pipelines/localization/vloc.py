@@ -346,8 +346,8 @@ class VisualLocalizer:
                 if self.params.ll_confirm:
                     n_ok = self._confirmed(node, T, feats, dimg, K, [n for n, _ in cands], timer)
                     if n_ok < self.params.confirm_min_inliers:
-                        attempts.append(CandidateAttempt(node, sim, att.matches, att.inliers,
-                                                         f"unconfirmed ({n_ok} consistent matches with a second keyframe)"))
+                        why = f"unconfirmed ({n_ok} consistent matches with a second keyframe)"
+                        attempts.append(CandidateAttempt(node, sim, att.matches, att.inliers, why))
                         continue
                 attempts.append(att)
                 best = (node, res)

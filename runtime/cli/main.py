@@ -8,6 +8,7 @@ Each module in `COMMANDS` defines `register(subparsers)` which adds its parser a
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import logging
 import sys
@@ -55,10 +56,8 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     except ImportError:
         pass
     for mod, name in (("litevloc.runtime.bus", "BusError"), ("litevloc.runtime.service", "ServiceError")):
-        try:
+        with contextlib.suppress(ImportError, AttributeError):
             errors.append(getattr(importlib.import_module(mod), name))
-        except (ImportError, AttributeError):
-            pass
     try:
         from litevloc.pipelines.topomap.io import MapFormatError
 

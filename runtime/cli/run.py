@@ -6,6 +6,7 @@ import argparse
 import json
 import logging
 from pathlib import Path
+from typing import Any
 
 from litevloc.runtime.cli.common import add_config_args, add_json_arg, config_of, write_json
 from litevloc.runtime.cli.main import UserError
@@ -18,7 +19,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_config_args(p, required=True)
     add_service_args(p)
     p.add_argument("--source", type=Path, default=None, help="replay this recording instead of the configured driver")
-    p.add_argument("--rate", type=float, default=None, help="real-time factor for --source (default: config replay.rate)")
+    p.add_argument("--rate", type=float, default=None,
+                   help="real-time factor for --source (default: config replay.rate)")
     add_json_arg(p)
     p.set_defaults(func=run)
 
@@ -30,7 +32,7 @@ def add_service_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--namespace", default=None, help="key-expression prefix, e.g. robot1")
 
 
-def open_configured_source(cfg, path: Path | None):  # type: ignore[no-untyped-def]
+def open_configured_source(cfg: Any, path: Path | None) -> Any:
     """--source, else the config's source (recording, dataset, sim URI, or the OAK-D)."""
     from litevloc.hw.streams.base import parse_frames
     from litevloc.runtime.sources import open_source
@@ -51,10 +53,10 @@ def run_service(args: argparse.Namespace, source_path: Path | None, rate: float 
     from litevloc.runtime.app import build_app, with_endpoints
 
     cfg = with_endpoints(config_of(args), args.listen, args.connect, args.namespace)
+    src = open_configured_source(cfg, source_path)  # first: a missing camera is the first thing to know
     map_path = args.map or (Path(cfg.map) if cfg.map else None)
     if map_path is None:
         raise UserError("no map: give --map MAP or set `map:` in the config")
-    src = open_configured_source(cfg, source_path)
     app = build_app(cfg, map_path, src, cfg.replay.rate if rate is None else rate)
     try:
         result = app.service.run(install_signals=True)

@@ -7,7 +7,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from litevloc.runtime.cli.main import main
 
 
