@@ -201,8 +201,10 @@ def camera_info_K(msg: Any) -> NDArray[np.float64]:
     return K
 
 
-def odometry_to_matrix(msg: Any) -> tuple[int, NDArray[np.float64], NDArray[np.float64]]:
-    """nav_msgs/Odometry -> (t_ns, T_frame_child 4x4, 6x6 pose covariance)."""
+def odometry_to_matrix(msg: Any) -> tuple[int, NDArray[np.float64], NDArray[np.float64] | None]:
+    """nav_msgs/Odometry -> (t_ns, T_frame_child 4x4, 6x6 pose covariance or None).
+
+    An all-zero covariance means "unknown" in ROS and is returned as None."""
     T = pose_to_matrix(msg.pose.pose)
     cov = np.asarray(msg.pose.covariance, dtype=np.float64).reshape(6, 6)
-    return stamp_ns(msg.header), T, cov
+    return stamp_ns(msg.header), T, (None if not np.any(cov) else cov)

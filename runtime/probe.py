@@ -43,7 +43,8 @@ def _pose_row(t_ns: int, T: np.ndarray) -> list[float]:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m litevloc.runtime.probe", description=__doc__.split("\n")[0])
-    ap.add_argument("--connect", action="append", required=True, help="endpoint, e.g. tcp/127.0.0.1:7447")
+    ap.add_argument("--connect", action="append", default=[], help="endpoint, e.g. tcp/127.0.0.1:7447")
+    ap.add_argument("--listen", action="append", default=[], help="listen here instead (the service connects)")
     ap.add_argument("--namespace", default="")
     ap.add_argument("--topics", default="pose,vloc,map_to_odom,status")
     ap.add_argument("--count", action="append", default=[], metavar="TOPIC=N", help="stop after N messages")
@@ -56,6 +57,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rate", type=float, default=200.0, help="sender mode: Hz")
     ap.add_argument("--seconds", type=float, default=10.0, help="sender mode: duration")
     args = ap.parse_args(argv)
+    if not args.connect and not args.listen:
+        ap.error("give --connect ENDPOINT or --listen ENDPOINT")
     if args.send_odometry:
         return _send(args)
 
@@ -69,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
         if t not in TOPICS:
             ap.error(f"unknown topic {t!r}; known: {sorted(TOPICS)}")
     want = {k: int(v) for k, v in (c.split("=", 1) for c in args.count)}
-    cfg = ZenohConfig(mode="peer", listen=(), connect=tuple(args.connect), namespace=args.namespace,
+    cfg = ZenohConfig(mode="peer", listen=tuple(args.listen), connect=tuple(args.connect), namespace=args.namespace,
                       connect_timeout_s=min(args.timeout, 10.0))
     warm_codecs()
     bus = Bus(cfg)
@@ -121,9 +124,12 @@ def main(argv: list[str] | None = None) -> int:
 
     subs = [bus.subscribe(topic_key(args.namespace, t), make_cb(t)) for t in topics]
     t_end = time.monotonic() + args.timeout
-    while not bus.connectivity()["connected"] and time.monotonic() < t_end:
-        time.sleep(0.01)
-    print("READY" if bus.connectivity()["connected"] else "NOT-CONNECTED", flush=True)
+    if args.listen:  # listening: ready as soon as the subscribers exist; the service connects to us
+        print("READY", flush=True)
+    else:
+        while not bus.connectivity()["connected"] and time.monotonic() < t_end:
+            time.sleep(0.01)
+        print("READY" if bus.connectivity()["connected"] else "NOT-CONNECTED", flush=True)
     last_rx[0] = time.monotonic()
     while not done.is_set() and time.monotonic() < t_end:
         if args.idle > 0 and time.monotonic() - last_rx[0] > args.idle:

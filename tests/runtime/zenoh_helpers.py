@@ -17,9 +17,12 @@ def free_port() -> int:
 
 
 def start_probe(endpoint: str, out: Path, topics: str, counts: dict[str, int], timeout: float = 20.0,
-                namespace: str = "", idle: float = 0.0) -> subprocess.Popen[str]:
-    """Start `python -m litevloc.runtime.probe` and wait (bounded) for its READY line."""
-    cmd = [sys.executable, "-m", "litevloc.runtime.probe", "--connect", endpoint, "--topics", topics,
+                namespace: str = "", idle: float = 0.0, listen: bool = False) -> subprocess.Popen[str]:
+    """Start `python -m litevloc.runtime.probe` and wait (bounded) for its READY line.
+
+    The probe connects to `endpoint`, or with `listen=True` listens there (the service connects)."""
+    cmd = [sys.executable, "-m", "litevloc.runtime.probe", "--listen" if listen else "--connect", endpoint,
+           "--topics", topics,
            "--timeout", str(timeout), "--json", str(out), "--keep", "--namespace", namespace]
     if idle:
         cmd += ["--idle", str(idle)]
