@@ -45,9 +45,15 @@ lint: $(VENV)/.dev-installed
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/mypy runtime pipelines hw models config
 
-bench: $(VENV)/.dev-installed
+bench: $(VENV)/.dev-installed models
 	$(VENV)/bin/python bench/streams.py
 	$(VENV)/bin/python bench/models.py
+	$(VENV)/bin/python bench/mapping.py
+	$(VENV)/bin/python bench/fusion.py
+	$(VENV)/bin/python bench/depth_odometry.py
+	$(VENV)/bin/python bench/sim.py
+	$(VENV)/bin/python bench/stereo.py
+	$(VENV)/bin/python bench/runtime_queues.py
 
 clean:
 	rm -rf $(VENV) out .pytest_cache .mypy_cache .ruff_cache *.egg-info

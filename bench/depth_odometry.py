@@ -17,6 +17,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+
 from litevloc.hw.messages import RgbdFrame
 from litevloc.hw.streams.base import parse_frames
 from litevloc.hw.streams.sevenscenes import SevenScenesSource

@@ -22,6 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import numpy as np
 from _common import print_table, require_7scenes, write_json
+
 from litevloc.config import load_config
 from litevloc.hw.streams.base import parse_frames
 from litevloc.pipelines.geometry import rotation_angle

@@ -29,6 +29,7 @@ from typing import Any
 import cv2
 import numpy as np
 import torch
+
 from litevloc.models.catalog import VPR_NORMALIZATION, spec_for
 from litevloc.models.config import ModelsConfig
 from litevloc.models.export.exporter import (

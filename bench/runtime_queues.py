@@ -31,6 +31,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import print_table, write_json
+
 from litevloc.config.schema import ZenohConfig
 from litevloc.hw import ros_msgs
 from litevloc.pipelines.geometry import make_T, so3_exp
@@ -136,7 +137,6 @@ def service_e2e(switch_interval_s: float, vloc_ms: float, seconds: float = 6.0) 
     from litevloc.config.schema import RuntimeConfig
     from litevloc.pipelines.odometry_drift import T_BASE_CAMERA_OPTICAL
     from litevloc.runtime.service import Service
-
     from tests.runtime.fakes import T_MAP_ODOM_TRUE, FakeFusion, FakePublisher, Result, SyntheticSource, T_odom_base_at
 
     def vloc(frame, prior):  # type: ignore[no-untyped-def]
@@ -180,7 +180,6 @@ def service_wire_e2e(switch_interval_s: float, vloc_ms: float, seconds: float = 
     from litevloc.hw.odometry import OdometryReceiver
     from litevloc.pipelines.odometry_drift import T_BASE_CAMERA_OPTICAL
     from litevloc.runtime.service import Service
-
     from tests.runtime.fakes import T_MAP_ODOM_TRUE, FakeFusion, Result, SyntheticSource, T_odom_base_at
 
     def vloc(frame, prior):  # type: ignore[no-untyped-def]

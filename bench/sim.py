@@ -27,6 +27,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+
 from litevloc.hw.sim.params import SimParams
 from litevloc.hw.sim.render import Renderer
 from litevloc.hw.sim.source import SimSequenceSource

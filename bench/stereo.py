@@ -23,6 +23,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import cv2
 import numpy as np
 from _common import print_table, write_json
+
 from litevloc.pipelines.stereo_depth import SgbmParams, compute_disparity, score_disparity
 
 F_PX, B_M, DOFFS_PX = 994.978, 0.193001, 31.086

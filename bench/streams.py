@@ -18,6 +18,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import numpy as np
 from _common import print_table, require_7scenes, write_json
+
 from litevloc.hw.messages import RgbdFrame
 from litevloc.hw.streams.base import parse_frames
 from litevloc.hw.streams.mcap_io import McapRecorder, McapSource

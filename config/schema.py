@@ -12,6 +12,8 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
+from numpy.typing import NDArray
+
 from litevloc.hw.oak import CameraConfig
 from litevloc.hw.odometry import OdometryCheckParams
 from litevloc.hw.sim.params import SimParams
@@ -20,7 +22,6 @@ from litevloc.pipelines.fusion.params import FusionParams
 from litevloc.pipelines.localization.vloc import LocalizationParams
 from litevloc.pipelines.odometry_drift import DriftParams
 from litevloc.pipelines.topomap.build import MappingParams
-from numpy.typing import NDArray
 
 
 @dataclass(frozen=True)

@@ -43,8 +43,9 @@ from typing import Any, Literal
 
 import cv2
 import numpy as np
-from litevloc.hw.messages import Message, RgbdFrame, StreamError, StreamStats, depth_from_millimetres
 from numpy.typing import NDArray
+
+from litevloc.hw.messages import Message, RgbdFrame, StreamError, StreamStats, depth_from_millimetres
 
 log = logging.getLogger(__name__)
 

@@ -49,10 +49,11 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
+
 from litevloc.hw import ros_msgs
 from litevloc.hw.messages import Odometry, StreamStats
 from litevloc.pipelines.geometry import make_T, quat_xyzw_to_matrix
-from numpy.typing import NDArray
 
 log = logging.getLogger(__name__)
 

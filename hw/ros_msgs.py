@@ -14,9 +14,10 @@ from functools import lru_cache
 from typing import Any
 
 import numpy as np
-from litevloc.pipelines.geometry import make_T, matrix_to_quat_xyzw, quat_xyzw_to_matrix
 from numpy.typing import NDArray
 from rosbags.typesys import Stores, get_typestore
+
+from litevloc.pipelines.geometry import make_T, matrix_to_quat_xyzw, quat_xyzw_to_matrix
 
 COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
 IMAGE = "sensor_msgs/msg/Image"

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
+
 from litevloc.models.preprocess import resize_image, to_image_pixels
 from litevloc.models.types import Features, Matches
-from numpy.typing import NDArray
 
 
 class OpenCVExtractor:

@@ -6,9 +6,10 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import NDArray
+
 from litevloc.models.ort import make_session
 from litevloc.models.types import Features, Matches
-from numpy.typing import NDArray
 
 
 def normalize_keypoints(

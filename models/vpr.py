@@ -6,10 +6,11 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import NDArray
+
 from litevloc.models.catalog import VPR_NORMALIZATION
 from litevloc.models.ort import make_session
 from litevloc.models.preprocess import prepare_image
-from numpy.typing import NDArray
 
 
 class OnnxPlaceRecognizer:

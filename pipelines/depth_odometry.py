@@ -36,8 +36,9 @@ from typing import Literal
 
 import cv2
 import numpy as np
-from litevloc.pipelines.geometry import invert
 from numpy.typing import NDArray
+
+from litevloc.pipelines.geometry import invert
 
 F64 = NDArray[np.float64]
 

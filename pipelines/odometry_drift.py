@@ -23,6 +23,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
+
 from litevloc.pipelines.geometry import (
     GeometryError,
     interpolate_pose_at,
@@ -31,7 +33,6 @@ from litevloc.pipelines.geometry import (
     rotation_angle,
     so3_exp,
 )
-from numpy.typing import NDArray
 
 
 @dataclass(frozen=True)

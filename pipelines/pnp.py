@@ -21,8 +21,9 @@ from typing import Any, Literal
 
 import cv2
 import numpy as np
-from litevloc.pipelines.geometry import make_T, project, so3_exp
 from numpy.typing import NDArray
+
+from litevloc.pipelines.geometry import make_T, project, so3_exp
 
 PnpMethod = Literal["p3p", "ap3p", "sqpnp", "epnp", "usac_magsac"]
 _FLAGS = {"p3p": cv2.SOLVEPNP_P3P, "ap3p": cv2.SOLVEPNP_AP3P, "sqpnp": cv2.SOLVEPNP_SQPNP, "epnp": cv2.SOLVEPNP_EPNP}

@@ -15,6 +15,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
+
 from litevloc.config import LiteVLocConfig
 from litevloc.hw.messages import GroundTruthPose
 from litevloc.hw.streams.base import StreamSource
@@ -24,7 +26,6 @@ from litevloc.pipelines.topomap.io import load_map
 from litevloc.runtime.bus import Bus, LiteVLocPublisher
 from litevloc.runtime.service import Service, fusion_callables, localizer_callable
 from litevloc.runtime.vloc_models import check_map_models, load_bundle
-from numpy.typing import NDArray
 
 
 @dataclass

@@ -48,10 +48,11 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
+
 from litevloc.config.schema import ZenohConfig
 from litevloc.hw import ros_msgs
 from litevloc.runtime.metrics import LatencyWindow, jsonable, now_ns
-from numpy.typing import NDArray
 
 log = logging.getLogger(__name__)
 

@@ -5,8 +5,9 @@ from __future__ import annotations
 from collections.abc import Iterable, Iterator
 
 import numpy as np
-from litevloc.hw.messages import GroundTruthPose, Message, RgbdFrame
 from numpy.typing import NDArray
+
+from litevloc.hw.messages import GroundTruthPose, Message, RgbdFrame
 
 
 def posed_frames(

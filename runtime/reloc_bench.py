@@ -20,6 +20,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+
 from litevloc.config import LiteVLocConfig
 from litevloc.hw.streams.base import StreamSource
 from litevloc.models.registry import load_extractor, load_matcher

@@ -56,6 +56,8 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
+from numpy.typing import NDArray
+
 from litevloc.config.schema import RuntimeConfig
 from litevloc.hw.messages import GroundTruthPose, Message, Odometry, RgbdFrame
 from litevloc.pipelines.odometry_drift import T_BASE_CAMERA_OPTICAL
@@ -63,7 +65,6 @@ from litevloc.runtime.metrics import LatencyWindow, jsonable, now_ns
 from litevloc.runtime.pacing import paced
 from litevloc.runtime.queues import BoundedFifo, LatestMailbox, QueueBase
 from litevloc.runtime.stages import Periodic, Stage, StageInput, StageState, _StageThread, configure_threads
-from numpy.typing import NDArray
 
 log = logging.getLogger(__name__)
 

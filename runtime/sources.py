@@ -13,6 +13,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
+
 from litevloc.hw.messages import Message, Odometry, StreamError, StreamStats
 from litevloc.hw.streams.base import StreamSource
 from litevloc.hw.streams.mcap_io import McapSource

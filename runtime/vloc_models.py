@@ -11,11 +11,12 @@ import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
+
 from litevloc.models.config import ModelsConfig
 from litevloc.models.registry import ModelError, load_extractor, load_matcher, load_place_recognizer
 from litevloc.models.types import FeatureExtractor, Features, Matcher, PlaceRecognizer
 from litevloc.pipelines.topomap.types import FeatureSet, TopoMap
-from numpy.typing import NDArray
 
 
 def as_features(f: FeatureSet, image_size: tuple[int, int] | None = None) -> Features:

@@ -9,10 +9,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import NDArray
+
 from litevloc.hw.sim.realism import RealismParams
 from litevloc.pipelines.geometry import PinholeIntrinsics, make_T, so3_exp
 from litevloc.pipelines.odometry_drift import R_BASE_OPTICAL, DriftParams
-from numpy.typing import NDArray
 
 
 @dataclass(frozen=True)

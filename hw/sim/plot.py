@@ -7,8 +7,9 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from litevloc.hw.sim.world import World
 from numpy.typing import NDArray
+
+from litevloc.hw.sim.world import World
 
 
 def plot_world(

@@ -26,6 +26,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
+
 from litevloc.hw.messages import GroundTruthPose, Odometry, RgbdFrame
 from litevloc.hw.sim.params import SimParams
 from litevloc.hw.sim.realism import (
@@ -39,7 +41,6 @@ from litevloc.hw.sim.render import Renderer
 from litevloc.hw.sim.world import World
 from litevloc.pipelines.geometry import GeometryError, PinholeIntrinsics, invert, make_T, so3_exp
 from litevloc.pipelines.odometry_drift import IncrementalDrift
-from numpy.typing import NDArray
 
 
 def bob_transform(t_s: float, speed_frac: float, params: SimParams) -> NDArray[np.float64]:

@@ -12,6 +12,8 @@ from __future__ import annotations
 from collections.abc import Iterator
 
 import numpy as np
+from numpy.typing import NDArray
+
 from litevloc.hw.messages import GroundTruthPose, Message, Odometry, StreamStats
 from litevloc.hw.sim.realism import Lighting, sample_lighting
 from litevloc.hw.sim.render import Renderer
@@ -19,7 +21,6 @@ from litevloc.hw.sim.simulator import SimParams, camera_pose, render_frame
 from litevloc.hw.sim.trajectory import PASS_NAMES, FollowResult, PassName, follow, pass_tasks
 from litevloc.hw.sim.world import World
 from litevloc.pipelines.geometry import interpolate_pose_at
-from numpy.typing import NDArray
 
 
 class SimSequenceSource:

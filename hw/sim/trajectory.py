@@ -18,9 +18,10 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
+from numpy.typing import NDArray
+
 from litevloc.hw.sim.simulator import SimParams, Simulator, base_pose
 from litevloc.hw.sim.world import World
-from numpy.typing import NDArray
 
 PassName = Literal["map", "query", "loop"]
 PASS_NAMES: tuple[str, ...] = ("map", "query", "loop")

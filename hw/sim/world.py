@@ -29,8 +29,9 @@ from typing import Literal
 
 import cv2
 import numpy as np
-from litevloc.config.loader import ConfigError, from_mapping, load_yaml
 from numpy.typing import NDArray
+
+from litevloc.config.loader import ConfigError, from_mapping, load_yaml
 
 
 def _worlds_dir() -> Path:

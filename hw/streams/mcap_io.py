@@ -24,6 +24,10 @@ from typing import Any, BinaryIO
 
 import cv2
 import numpy as np
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from mcap.writer import CompressionType, Writer
+
 from litevloc.hw import ros_msgs
 from litevloc.hw.messages import (
     GroundTruthPose,
@@ -37,9 +41,6 @@ from litevloc.hw.messages import (
 )
 from litevloc.hw.streams.base import select_indices
 from litevloc.hw.streams.posed_folder import decode_color
-from mcap.exceptions import McapError
-from mcap.reader import make_reader
-from mcap.writer import CompressionType, Writer
 
 TOPIC_COLOR = "/camera/color/image/compressed"
 TOPIC_DEPTH = "/camera/depth/image"

@@ -15,6 +15,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
+
 from litevloc.hw.messages import (
     GroundTruthPose,
     Message,
@@ -24,7 +26,6 @@ from litevloc.hw.messages import (
     depth_from_units,
 )
 from litevloc.hw.streams.base import check_monotonic, select_indices
-from numpy.typing import NDArray
 
 
 @dataclass(frozen=True)

@@ -19,6 +19,7 @@ import re
 from pathlib import Path
 
 import numpy as np
+
 from litevloc.hw.messages import StreamError
 from litevloc.hw.streams.posed_folder import FrameRecord, PosedFolderSource, read_matrix_4x4
 from litevloc.pipelines.geometry import project_to_so3

@@ -17,6 +17,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import NDArray
+
 from litevloc.hw.messages import StreamError
 from litevloc.hw.streams.posed_folder import FrameRecord, PosedFolderSource
 from litevloc.pipelines.geometry import (
@@ -25,7 +27,6 @@ from litevloc.pipelines.geometry import (
     make_T,
     quat_xyzw_to_matrix,
 )
-from numpy.typing import NDArray
 
 # Published TUM intrinsics (fx, fy, cx, cy) per Kinect.
 TUM_INTRINSICS = {

@@ -18,6 +18,7 @@ from typing import Any
 
 import onnx
 import torch
+
 from litevloc.models.catalog import EXPORT_VERSION, OPSET, SOURCES, ModelSpec, spec_for
 from litevloc.models.registry import ModelError, read_manifest, sha256_file, write_manifest
 

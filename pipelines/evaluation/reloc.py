@@ -14,8 +14,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from litevloc.pipelines.geometry import invert, matrix_to_quat_xyzw
 from numpy.typing import NDArray
+
+from litevloc.pipelines.geometry import invert, matrix_to_quat_xyzw
 
 THRESHOLDS: tuple[tuple[float, float], ...] = ((0.05, 5.0), (0.25, 5.0), (1.0, 10.0))
 

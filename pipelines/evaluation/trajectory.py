@@ -17,6 +17,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import NDArray
+
 from litevloc.pipelines.geometry import (
     GeometryError,
     invert,
@@ -24,7 +26,6 @@ from litevloc.pipelines.geometry import (
     matrix_to_quat_xyzw,
     quat_xyzw_to_matrix,
 )
-from numpy.typing import NDArray
 
 F64 = NDArray[np.float64]
 

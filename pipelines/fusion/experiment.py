@@ -24,13 +24,14 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import NDArray
+
 from litevloc.pipelines.evaluation.trajectory import ate, write_tum
 from litevloc.pipelines.fusion.batch import refine_session
 from litevloc.pipelines.fusion.online import FusionParams
 from litevloc.pipelines.fusion.simulate import run_online, simulate_vloc, synthetic_trajectory
 from litevloc.pipelines.geometry import interpolate_pose_at, invert
 from litevloc.pipelines.odometry_drift import DriftParams, simulate_odometry
-from numpy.typing import NDArray
 
 F64 = NDArray[np.float64]
 

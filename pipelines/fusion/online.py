@@ -56,9 +56,10 @@ from dataclasses import dataclass
 
 import gtsam
 import numpy as np
+from numpy.typing import NDArray
+
 from litevloc.pipelines.fusion.params import FusionParams
 from litevloc.pipelines.geometry import interpolate_pose, invert, rotation_angle
-from numpy.typing import NDArray
 
 F64 = NDArray[np.float64]
 

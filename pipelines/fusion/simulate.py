@@ -17,9 +17,10 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
+
 from litevloc.pipelines.fusion.online import FusionParams, OnlineFusion
 from litevloc.pipelines.geometry import interpolate_pose_at, make_T, so3_exp
-from numpy.typing import NDArray
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]

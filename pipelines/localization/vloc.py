@@ -26,11 +26,12 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 
 import numpy as np
+from numpy.typing import NDArray
+
 from litevloc.pipelines.depth_lookup import DepthLookupParams, depth_at
 from litevloc.pipelines.geometry import backproject_pixels, check_rigid, relative_pose_error
 from litevloc.pipelines.pnp import PnpParams, PnpResult, solve_pnp
 from litevloc.pipelines.topomap.types import FeatureSet, TopoMap
-from numpy.typing import NDArray
 
 ExtractFn = Callable[[NDArray[np.uint8]], FeatureSet]
 DescribeFn = Callable[[NDArray[np.uint8]], NDArray[np.float32]]

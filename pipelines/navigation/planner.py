@@ -21,8 +21,9 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from litevloc.pipelines.topomap.types import FeatureSet, TopoMap
 from numpy.typing import NDArray
+
+from litevloc.pipelines.topomap.types import FeatureSet, TopoMap
 
 MatchFn = Callable[[FeatureSet, FeatureSet], tuple[NDArray[np.int64], NDArray[np.int64]]]
 

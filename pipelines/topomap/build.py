@@ -14,6 +14,8 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
+
 from litevloc.pipelines.depth_lookup import DepthLookupParams, depth_at
 from litevloc.pipelines.geometry import backproject_depth, check_rigid, rotation_angle, transform_points
 from litevloc.pipelines.topomap.graphs import (
@@ -27,7 +29,6 @@ from litevloc.pipelines.topomap.graphs import (
 from litevloc.pipelines.topomap.keyframes import KeyframeParams, coverage_keys, greedy_select
 from litevloc.pipelines.topomap.occupancy import OccupancyParams, build_occupancy
 from litevloc.pipelines.topomap.types import FeatureSet, NodeFeatures, TopoMap
-from numpy.typing import NDArray
 
 ExtractFn = Callable[[NDArray[np.uint8]], FeatureSet]
 DescribeFn = Callable[[NDArray[np.uint8]], NDArray[np.float32]]

@@ -20,11 +20,12 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import NDArray
+
 from litevloc.pipelines.geometry import backproject_pixels
 from litevloc.pipelines.pnp import PnpParams, solve_pnp
 from litevloc.pipelines.topomap.occupancy import segment_is_free
 from litevloc.pipelines.topomap.types import FeatureSet, OccupancyGrid
-from numpy.typing import NDArray
 
 MatchFn = Callable[[FeatureSet, FeatureSet], tuple[NDArray[np.int64], NDArray[np.int64]]]
 

@@ -38,9 +38,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
+
 from litevloc.pipelines.geometry import is_rigid
 from litevloc.pipelines.topomap.types import NodeFeatures, OccupancyGrid, TopoMap
-from numpy.typing import NDArray
 
 FORMAT = "litevloc-map"
 VERSION = 1

@@ -19,8 +19,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from litevloc.pipelines.geometry import rotation_angle
 from numpy.typing import NDArray
+
+from litevloc.pipelines.geometry import rotation_angle
 
 _OFF = 1 << 20
 

@@ -11,9 +11,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
+
 from litevloc.pipelines.topomap.keyframes import plane_axes
 from litevloc.pipelines.topomap.types import OccupancyGrid
-from numpy.typing import NDArray
 
 
 @dataclass(frozen=True)

@@ -5,8 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from litevloc.pipelines.topomap.types import OccupancyGrid, TopoMap
 from numpy.typing import NDArray
+
+from litevloc.pipelines.topomap.types import OccupancyGrid, TopoMap
 
 
 def plot_map(

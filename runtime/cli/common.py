@@ -8,9 +8,10 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from tqdm import tqdm
+
 from litevloc.config import LiteVLocConfig, load_config
 from litevloc.hw.streams.base import parse_frames
-from tqdm import tqdm
 
 
 def add_frames_arg(p: argparse.ArgumentParser) -> None:

@@ -3,8 +3,9 @@
 1. record a mapping pass through the world (`sim record --pass map`),
 2. build the map-lite map from it (`map build`),
 3. record a query pass with another route and lighting (`sim record --pass query`),
-4. run the onboard pipeline on the query pass (`replay --config`: threaded runtime, VLoc +
-   fusion with odometry) and score the fused trajectory against ground truth,
+4. run the onboard service on the query pass in real time (`replay --map`: threaded
+   runtime, VLoc + GTSAM fusion with odometry, poses published over Zenoh on loopback) and
+   score the fused trajectory against ground truth,
 5. write a top-down PNG of the map with the true and estimated trajectories, a JSON
    summary, and print a results table.
 """
@@ -28,8 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--map-duration", type=float, default=None, metavar="S",
                    help="seconds of the mapping pass (default: the whole pass)")
     p.add_argument("--query-duration", type=float, default=60.0, metavar="S", help="seconds of the query pass")
-    p.add_argument("--vloc-every", type=int, default=5, metavar="N",
-                   help="localize every N-th query frame (15 Hz camera / 5 = 3 Hz VLoc, as onboard)")
+    p.add_argument("--rate", type=float, default=1.0, help="real-time factor of the query replay (default 1)")
     p.add_argument("--config", default="default", help="preset or YAML (default: default)")
     add_json_arg(p)
     p.set_defaults(func=run)
@@ -48,7 +48,8 @@ def _step(title: str, argv: list[str]) -> float:
 
 def run(args: argparse.Namespace) -> int:
     import numpy as np
-    from litevloc.pipelines.evaluation.trajectory import associate, ate, read_tum
+
+    from litevloc.pipelines.evaluation.trajectory import read_tum
     from litevloc.pipelines.topomap.io import load_map
     from litevloc.pipelines.topomap.plot import plot_map
     from litevloc.runtime.posed import posed_frames
@@ -68,39 +69,47 @@ def run(args: argparse.Namespace) -> int:
     times["record_query_pass"] = _step("record a query pass (other route and lighting)", [
         "sim", "record", args.world, "--pass", "query", "--seed", "1", "-o", str(query_rec),
         "--duration", str(args.query_duration), *cfg, "--json", str(out / "record_query.json")])
-    traj = out / "vloc.txt"
-    times["localize"] = _step("localize the query pass against the map", [
-        "localize", str(map_dir), str(query_rec), "--frames", f"::{args.vloc_every}", "-o", str(traj), *cfg,
-        "--json", str(out / "localize.json")])
-    # Score against ground truth and plot.
-    gt_t, gt_T = [], []
-    for frame, T in posed_frames(open_source(query_rec)):
-        if T is not None:
-            gt_t.append(frame.t_ns * 1e-9)
-            gt_T.append(T)
-    est_t, est_T = read_tum(traj)
+    traj = out / "fused.txt"
+    times["replay_runtime"] = _step("run the onboard service on the query pass (real time, VLoc + fusion + Zenoh)", [
+        "replay", str(query_rec), "--map", str(map_dir), "-o", str(traj), "--rate", str(args.rate), *cfg,
+        "--json", str(out / "replay.json")])
+    rep = json.loads((out / "replay.json").read_text())
     summary: dict[str, Any] = {"world": args.world, "seconds": times,
-                               "map": json.loads((out / "map.json").read_text()),
-                               "localize": json.loads((out / "localize.json").read_text())}
+                               "map": json.loads((out / "map.json").read_text()), "runtime": rep}
+    # Plot the map with the true and the fused camera trajectories.
+    from litevloc.config import load_config
+
+    T_bc = load_config(args.config).fusion.T_base_camera()
+    gt = np.array([T for _, T in posed_frames(open_source(query_rec)) if T is not None])
     m = load_map(map_dir)
-    paths = {"query pass (ground truth)": np.array(gt_T)[:, :3, 3]}
-    if len(est_t):
-        ia, ib = associate(est_t, np.array(gt_t), 0.01)
-        res = ate(est_T[ia], np.array(gt_T)[ib], align=False)
-        summary["vloc_error_m"] = {"rmse": res.rmse, "median": res.median, "max": res.max, "n": res.n}
-        paths["LiteVLoc VLoc poses"] = est_T[:, :3, 3]
+    paths = {"query pass (ground truth)": gt[:, :3, 3]}
+    if traj.is_file():
+        _, fused = read_tum(traj)
+        paths["LiteVLoc fused pose"] = (fused @ T_bc)[:, :3, 3]
     png = plot_map(m, out / "demo.png", title=f"LiteVLoc demo: {args.world}", extra_paths=paths)
     summary["png"] = str(png)
-    loc = summary["localize"]
+    c = rep.get("counters", {})
+    dur = json.loads((out / "record_query.json").read_text()).get("simulated_seconds", args.query_duration)
+    rows = [
+        ("map", f"{m.n_nodes} keyframes, {len(m.covis_edges)} covisibility / {len(m.conn_edges)} connectivity edges"),
+        ("query pass", f"{c.get('frames_in', 0)} frames, {c.get('odometry_in', 0)} odometry messages, {dur:.0f} s"),
+        ("VLoc", f"{c.get('vloc_calls', 0)} queries ({c.get('vloc_calls', 0) / max(dur, 1e-9):.1f} Hz), "
+                 f"{c.get('vloc_accepted', 0)} accepted, {c.get('fusion_accepted', 0)} fused, "
+                 f"{rep.get('frames_dropped', 0)} stale frames dropped"),
+        ("fused poses", f"{rep.get('fused_poses', 0)} published over Zenoh"),
+    ]
+    if "ate_m" in rep:
+        a = rep["ate_m"]
+        rows.append(("fused camera error", f"median {100 * a['median']:.1f} cm, RMSE {100 * a['rmse']:.1f} cm, "
+                                           f"max {100 * a['max']:.1f} cm (no alignment)"))
+    lat = rep.get("latency", {}).get("odometry_to_publish", {})
+    if lat.get("count"):
+        rows.append(("odometry -> pose latency", f"median {lat['median_ms']:.2f} ms, p99 {lat['p99_ms']:.2f} ms"))
+    rows.append(("plot", str(png)))
     print("\n== LiteVLoc demo results")
-    print(f"world {args.world}: map of {m.n_nodes} keyframes, {len(m.covis_edges)} covisibility / "
-          f"{len(m.conn_edges)} connectivity edges")
-    print(f"query pass: {loc['queries']} frames, {loc['accepted']} localized "
-          f"({100 * loc['accepted'] / max(loc['queries'], 1):.0f} %)")
-    if "vloc_error_m" in summary:
-        e = summary["vloc_error_m"]
-        print(f"position error of accepted VLoc poses: median {100 * e['median']:.1f} cm, "
-              f"RMSE {100 * e['rmse']:.1f} cm, max {100 * e['max']:.1f} cm")
-    print(f"plot: {png}")
+    for k, v in rows:
+        print(f"{k:<26} {v}")
+    ok = bool(rep.get("ok")) and rep.get("fused_poses", 0) > 0
+    summary["ok"] = ok
     write_json(args.json or out / "demo.json", summary)
-    return 0
+    return 0 if ok else 1

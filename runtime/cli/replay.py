@@ -78,6 +78,7 @@ def run(args: argparse.Namespace) -> int:
 def run_runtime(args: argparse.Namespace) -> int:
     """The full threaded runtime on the recording (hardware-in-the-loop replay)."""
     import numpy as np
+
     from litevloc.pipelines.evaluation.trajectory import associate, ate, write_tum
     from litevloc.runtime.cli.run import run_service
 

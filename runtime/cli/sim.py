@@ -20,6 +20,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+
 from litevloc.hw.messages import GroundTruthPose, Odometry, RgbdFrame
 from litevloc.runtime.cli.common import (
     add_config_args,

@@ -5,6 +5,7 @@ from pathlib import Path
 from typing import Literal
 
 import pytest
+
 from litevloc.config import ConfigError, LiteVLocConfig, load_config, preset_names
 from litevloc.config.loader import apply_override, from_mapping
 

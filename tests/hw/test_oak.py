@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from litevloc.config import ConfigError, load_config
 from litevloc.config.loader import from_mapping
 from litevloc.hw.messages import StreamError, StreamStats

@@ -4,6 +4,7 @@ import time
 
 import numpy as np
 import pytest
+
 from litevloc.config.schema import ZenohConfig
 from litevloc.hw import ros_msgs
 from litevloc.hw.messages import Odometry
@@ -17,7 +18,6 @@ from litevloc.hw.odometry import (
 from litevloc.pipelines.geometry import make_T, so3_exp
 from litevloc.runtime.bus import Bus
 from litevloc.runtime.queues import BoundedFifo
-
 from tests.runtime.zenoh_helpers import free_port
 
 S = 1_000_000_000

@@ -7,6 +7,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+
 from litevloc.models.catalog import DEFAULT_EXPORTS
 from litevloc.models.config import ModelsConfig
 from litevloc.models.registry import default_cache_dir

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from litevloc.models.classical import MutualNNMatcher, OpenCVExtractor, RatioMatcher
 from litevloc.models.types import Features
 

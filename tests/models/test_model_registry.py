@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import pytest
+
 from litevloc.models.catalog import EXPORT_VERSION, spec_for
 from litevloc.models.config import ModelsConfig
 from litevloc.models.registry import (

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+
 from litevloc.config import ConfigError, load_config
 from litevloc.models.config import ModelsConfig
 from litevloc.models.ort import make_session, resolve_providers

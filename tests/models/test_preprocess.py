@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from litevloc.models import aliked, classical, vpr
 from litevloc.models.preprocess import (
     IMAGENET_MEAN,

@@ -2,6 +2,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from litevloc.pipelines.depth_lookup import DepthLookupParams, depth_at
 
 

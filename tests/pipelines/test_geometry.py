@@ -5,6 +5,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
+
 from litevloc.pipelines import geometry as g
 
 finite = st.floats(-10, 10, allow_nan=False, allow_infinity=False)

@@ -2,6 +2,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from litevloc.pipelines import geometry as g
 from litevloc.pipelines.odometry_drift import DriftParams, simulate_odometry
 

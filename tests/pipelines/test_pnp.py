@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from litevloc.pipelines import geometry as g
 from litevloc.pipelines.pnp import PnpParams, solve_pnp
 

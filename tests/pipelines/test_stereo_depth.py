@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from litevloc.pipelines.stereo_depth import (
     SgbmParams,
     compute_disparity,

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+
 from litevloc.hw.messages import Message, Odometry, RgbdFrame, StreamStats
 from litevloc.pipelines.geometry import invert, make_T, so3_exp
 from litevloc.pipelines.odometry_drift import T_BASE_CAMERA_OPTICAL

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from litevloc.config.schema import ZenohConfig
 from litevloc.pipelines.geometry import make_T, so3_exp
 from litevloc.runtime.bus import (
@@ -17,7 +18,6 @@ from litevloc.runtime.bus import (
     topic_key,
     zenoh_config,
 )
-
 from tests.runtime.zenoh_helpers import finish_probe, free_port, start_probe
 
 

@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 import numpy as np
+
 from litevloc.hw.messages import Odometry
 from litevloc.runtime.pacing import paced
 

@@ -4,6 +4,7 @@ import threading
 import time
 
 import pytest
+
 from litevloc.runtime.queues import (
     BoundedFifo,
     LatestMailbox,

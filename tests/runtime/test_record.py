@@ -11,6 +11,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+
 from litevloc.hw.messages import Message, Odometry, RgbdFrame, StreamStats, depth_from_millimetres
 from litevloc.hw.streams.mcap_io import McapRecorder, McapSource
 from litevloc.runtime.cli import record

@@ -9,12 +9,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from litevloc.config.schema import RuntimeConfig, ZenohConfig
 from litevloc.hw.messages import Odometry
 from litevloc.hw.odometry import OdometryReceiver, OdometrySender
 from litevloc.runtime.bus import Bus, LiteVLocPublisher
 from litevloc.runtime.service import Service
-
 from tests.runtime.fakes import (
     T_MAP_ODOM_TRUE,
     FakeFusion,

@@ -5,6 +5,7 @@ import threading
 import time
 
 import pytest
+
 from litevloc.runtime.queues import BoundedFifo
 from litevloc.runtime.stages import Periodic, Stage, StageInput, StageState, configure_threads, ort_session_options
 

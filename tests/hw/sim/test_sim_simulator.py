@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from litevloc.hw.messages import GroundTruthPose, Odometry, RgbdFrame
 from litevloc.hw.sim.simulator import SimParams, Simulator
 from litevloc.hw.sim.source import SimSequenceSource

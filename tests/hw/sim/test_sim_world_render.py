@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from litevloc.config.loader import ConfigError
 from litevloc.hw.sim.render import Renderer, RenderError
 from litevloc.hw.sim.simulator import SimParams, camera_pose

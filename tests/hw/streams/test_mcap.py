@@ -4,6 +4,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from litevloc.hw import ros_msgs
 from litevloc.hw.messages import (
     GroundTruthPose,

@@ -5,6 +5,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from litevloc.hw.messages import GroundTruthPose, RgbdFrame, StreamError
 from litevloc.hw.streams.base import parse_frames
 from litevloc.hw.streams.sevenscenes import SevenScenesSource

@@ -5,6 +5,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+
 from litevloc.hw.messages import GroundTruthPose, RgbdFrame, StreamError
 from litevloc.hw.streams.tum import TumRgbdSource
 

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from litevloc.pipelines.evaluation.trajectory import (
     TrajectoryError,
     associate,

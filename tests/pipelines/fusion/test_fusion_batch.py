@@ -6,6 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+
 from litevloc.pipelines.evaluation.trajectory import ate
 from litevloc.pipelines.fusion.batch import batch_refine, refine_session
 from litevloc.pipelines.fusion.online import FusionParams

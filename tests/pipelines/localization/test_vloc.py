@@ -10,11 +10,12 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
+from numpy.typing import NDArray
+
 from litevloc.pipelines import geometry as g
 from litevloc.pipelines.localization.vloc import LocalizationParams, TrackingState, VisualLocalizer
 from litevloc.pipelines.pnp import PnpParams
 from litevloc.pipelines.topomap.types import NodeFeatures, OccupancyGrid, TopoMap
-from numpy.typing import NDArray
 
 W, H = 320, 240
 K = np.array([[250.0, 0, 160], [0, 250, 120], [0, 0, 1]])

@@ -2,6 +2,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from litevloc.pipelines import geometry as g
 from litevloc.pipelines.navigation.planner import (
     GoalParams,
@@ -11,7 +12,6 @@ from litevloc.pipelines.navigation.planner import (
     localize_goal,
     shortest_path,
 )
-
 from tests.pipelines.localization.test_vloc import K, match_by_id, observe, pose
 from tests.pipelines.localization.test_vloc import make_map as make_vloc_map
 

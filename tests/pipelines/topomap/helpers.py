@@ -7,11 +7,12 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
+
 from litevloc.hw.messages import GroundTruthPose, RgbdFrame
 from litevloc.hw.streams.base import parse_frames
 from litevloc.hw.streams.sevenscenes import SevenScenesSource
 from litevloc.pipelines.topomap.build import MapBuilder, MappingParams
-from numpy.typing import NDArray
 
 
 @dataclass(frozen=True, eq=False)

@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 import pytest
+
 from litevloc.pipelines.evaluation.trajectory import read_tum
 from litevloc.runtime.cli.main import main
 
