@@ -58,6 +58,11 @@ class LocalizationParams:
     ll_confirm: bool = True
     confirm_min_inliers: int = 20
     confirm_max_nodes: int = 2  # second keyframes tried for the confirmation
+    # An LL pose this close to a fresh prior (age <= confirm_skip_max_age_s) needs no second
+    # keyframe: whatever it could be wrong by is bounded by this distance plus the prior's error.
+    confirm_skip_within_m: float = 0.2
+    confirm_skip_within_deg: float = 5.0
+    confirm_skip_max_age_s: float = 0.5
     # LL prior gate: an LL pose must lie within prior_gate_m + prior_gate_rate_mps * (age of the
     # prior in s) and prior_gate_deg of the prior; otherwise that candidate is rejected.
     prior_gate_m: float = 0.75
@@ -344,7 +349,9 @@ class VisualLocalizer:
                                            f"inconsistent with the prior ({dt:.2f} m, {dr:.0f} deg)")
                     attempts.append(att)
                     continue
-                if self.params.ll_confirm:
+                close = (dt <= self.params.confirm_skip_within_m and dr <= self.params.confirm_skip_within_deg
+                         and prior_age_s <= self.params.confirm_skip_max_age_s)
+                if self.params.ll_confirm and not close:
                     n_ok = self._confirmed(node, T, feats, dimg, K, [n for n, _ in cands], timer)
                     if n_ok < self.params.confirm_min_inliers:
                         why = f"unconfirmed ({n_ok} consistent matches with a second keyframe)"
