@@ -104,15 +104,19 @@ def main() -> None:
 
     rows = []
     for name, r in (("threaded runtime (realtime)", rt), ("sequential baseline", sq)):
-        rows.append([name, lat(r, "median_ms"), lat(r, "p99_ms"), r["wire_latency"].get("p50_ms", float("nan")),
+        r["lag_s"] = max(r["wall_s"] - args.seconds, 0.0)
+        rows.append([name, lat(r, "median_ms"), lat(r, "p99_ms"), r["wire_latency"].get("median_ms", float("nan")),
                      r["wire_latency"].get("p99_ms", float("nan")), r["vloc_hz"], r["frames_dropped"],
-                     r["odometry_lost"], r["cpu_percent"], r["peak_rss_mb"], r["wall_s"]])
+                     r["odometry_lost"], r["cpu_percent"], r["peak_rss_mb"], r["wall_s"], r["lag_s"]])
     print_table(f"Onboard service on {args.seconds:.0f} s of {args.rec.name} (15 Hz camera, 200 Hz odometry), 2 CPUs",
-                ["mode", "e2e p50 ms", "e2e p99 ms", "wire p50 ms", "wire p99 ms", "VLoc Hz", "frames dropped",
-                 "odom lost", "CPU %", "RSS MB", "wall s"], rows)
-    ratio = lat(sq, "p99_ms") / lat(rt, "p99_ms")
-    print(f"fused-pose latency p99: sequential / threaded = {ratio:.1f}x")
-    write_json("runtime", {"seconds": args.seconds, "realtime": rt, "sequential": sq, "p99_ratio": ratio})
+                ["mode", "in-service p50 ms", "in-service p99 ms", "wire p50 ms", "wire p99 ms", "VLoc Hz",
+                 "frames dropped", "odom lost", "CPU %", "RSS MB", "wall s", "behind real time s"], rows)
+    print("in-service latency = odometry message dequeued -> fused pose handed to Zenoh. The sequential baseline\n"
+          "handles each message quickly once it gets to it, but VLoc on every frame makes it fall behind the\n"
+          "sensor stream: its poses are late by up to the 'behind real time' column.")
+    ratio = sq["wall_s"] / rt["wall_s"]
+    print(f"wall time for {args.seconds:.0f} s of sensor data: sequential / threaded = {ratio:.1f}x")
+    write_json("runtime", {"seconds": args.seconds, "realtime": rt, "sequential": sq, "wall_ratio": ratio})
 
 
 if __name__ == "__main__":

@@ -81,8 +81,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--max-frames", type=int, default=None, metavar="N", help="stop after N camera frames")
     p.add_argument("--source", type=Path, default=None, metavar="REC_OR_DATASET",
                    help="record from a recording or dataset folder instead of the configured live source")
-    p.add_argument("--odometry", default="zenoh", metavar="NAME",
-                   help=f"live odometry provider ({', '.join(ODOMETRY_PROVIDERS)}, or 'none'); default zenoh")
+    p.add_argument("--odometry", default=None, metavar="NAME",
+                   help=f"live odometry provider ({', '.join(ODOMETRY_PROVIDERS)}, or 'none'); default zenoh for "
+                        "the live camera, none with --source (a recording brings its own odometry)")
     add_frames_arg(p)
     add_config_args(p)
     add_json_arg(p)
@@ -244,7 +245,8 @@ def run(args: argparse.Namespace) -> int:
     if args.max_frames is not None and args.max_frames <= 0:
         raise UserError("--max-frames must be > 0")
     src = open_camera_source(cfg, args.source, frames_of(args))  # fails fast without a device
-    odometry = _open_odometry(cfg, args.odometry)
+    provider = args.odometry or ("none" if args.source is not None else "zenoh")
+    odometry = _open_odometry(cfg, provider)
     meta: dict[str, Any] = {"recorder": "litevloc record", "source": src.name, "config": cfg.name}
     if src.__class__.__name__ == "OakSource":
         meta["camera"] = repr(cfg.camera)
