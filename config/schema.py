@@ -192,7 +192,11 @@ class RuntimeConfig:
     stage_max_restarts: int = 3
     latency_window: int = 1024
     cv_threads: int = 2
-    ort_intra_op_threads: int = 2
+    # ONNX Runtime intra-op threads of the service's models (overrides models.intra_op_threads
+    # in `litevloc run/replay`). 1 on 2-CPU machines leaves a core for odometry fusion and
+    # publishing: measured fused-pose p99 3.0 ms (wire 0.4 ms) vs 9.5 ms with 2 threads, at
+    # 1.15 vs 1.5 Hz VLoc (bench/runtime.py, simulated office).
+    ort_intra_op_threads: int = 1
     ort_inter_op_threads: int = 1
     # sys.setswitchinterval: how long a thread may hold the GIL while another waits. Python's
     # 5 ms default lets a GIL-holding VLoc step delay fused poses by 5-25 ms (measured, see

@@ -78,7 +78,8 @@ def build_app(
     on_fused: Callable[[Any], None] | None = None,
 ) -> App:
     """Load map and models, open the bus, and wire the service (nothing runs yet)."""
-    bundle = load_bundle(cfg.models)
+    models = dataclasses.replace(cfg.models, intra_op_threads=cfg.runtime.ort_intra_op_threads)
+    bundle = load_bundle(models)
     topomap = check_map_models(load_map(map_path), bundle)
     localizer = VisualLocalizer(topomap, cfg.localization, bundle.extract, bundle.describe, bundle.match)
     T_base_camera = cfg.fusion.T_base_camera()
