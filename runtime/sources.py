@@ -25,7 +25,15 @@ from litevloc.pipelines.odometry_drift import T_BASE_CAMERA_OPTICAL, DriftParams
 
 
 def open_source(path: str | Path, frames: slice = slice(None), strict: bool = True) -> StreamSource:
-    """Open a dataset folder or recording; StreamError with a clear message otherwise."""
+    """Open a dataset folder, a recording, or a simulator URI (`sim:office?pass=query&seed=1`);
+    StreamError with a clear message otherwise. `frames` does not apply to simulator URIs."""
+    if str(path).startswith("sim:"):
+        from litevloc.hw.sim.source import open_sim_source
+
+        try:
+            return open_sim_source(str(path))
+        except ValueError as exc:
+            raise StreamError(str(exc)) from exc
     p = Path(path)
     if not p.exists():
         raise StreamError(f"input not found: {p}")
