@@ -37,6 +37,9 @@ class ModelsConfig:
     max_keypoints: int = 512
     matcher: Literal["lightglue", "lightglue-int8", "mnn", "nn-ratio"] = "lightglue"
     match_threshold: float = 0.1
+    # Match only the strongest N keypoints of each image (0 = all). Extractors return keypoints
+    # sorted by score, so this keeps the best; LightGlue's cost grows ~quadratically with N.
+    match_max_keypoints: int = 0
     ratio: float = 0.8
     place_recognizer: Literal["effnet-gem", "cosplace"] = "effnet-gem"
     vpr_size: tuple[int, int] = (240, 320)
@@ -51,6 +54,8 @@ class ModelsConfig:
                 raise ValueError(f"{key} must be (h, w) within [32, 4096], got {(h, w)}")
         if not 16 <= self.max_keypoints <= 16384:
             raise ValueError(f"max_keypoints must be in [16, 16384], got {self.max_keypoints}")
+        if self.match_max_keypoints < 0:
+            raise ValueError(f"match_max_keypoints must be >= 0, got {self.match_max_keypoints}")
         if not 0.0 <= self.match_threshold < 1.0:
             raise ValueError(f"match_threshold must be in [0, 1), got {self.match_threshold}")
         if not 0.0 < self.ratio <= 1.0:

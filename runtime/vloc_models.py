@@ -37,13 +37,27 @@ class ModelBundle:
     extractor: FeatureExtractor
     matcher: Matcher
     vpr: PlaceRecognizer
+    max_keypoints: int = 0  # match only the N highest-scoring keypoints of each side; 0 = all
 
     def extract(self, image_rgb: NDArray[np.uint8]) -> Features:
         return self.extractor.extract(image_rgb)
 
+    def _top(self, f: FeatureSet) -> tuple[Features, NDArray[np.int64] | None]:
+        ff = as_features(f)
+        n = self.max_keypoints
+        if n <= 0 or len(ff.keypoints) <= n:
+            return ff, None
+        keep = np.sort(np.argsort(-ff.scores, kind="stable")[:n])
+        return Features(ff.keypoints[keep], ff.descriptors[keep], ff.scores[keep], ff.image_size), keep
+
     def match(self, f0: FeatureSet, f1: FeatureSet) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-        m = self.matcher.match(as_features(f0), as_features(f1))
-        return m.idx0, m.idx1
+        """Match; indices refer to the full keypoint arrays even when only the top-N were matched."""
+        a, ka = self._top(f0)
+        b, kb = self._top(f1)
+        m = self.matcher.match(a, b)
+        i0 = m.idx0 if ka is None else ka[m.idx0]
+        i1 = m.idx1 if kb is None else kb[m.idx1]
+        return i0.astype(np.int64), i1.astype(np.int64)
 
     def describe(self, image_rgb: NDArray[np.uint8]) -> NDArray[np.float32]:
         return self.vpr.describe(image_rgb)
@@ -57,6 +71,7 @@ def load_bundle(
         load_extractor(extractor or cfg.extractor, cfg),
         load_matcher(matcher or cfg.matcher, cfg),
         load_place_recognizer(vpr or cfg.place_recognizer, cfg),
+        cfg.match_max_keypoints,
     )
 
 
