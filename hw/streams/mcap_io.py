@@ -134,6 +134,35 @@ class McapRecorder:
         self.close()
 
 
+def record_messages(
+    messages: Iterator[Message] | Any, path: str | Path, metadata: dict[str, str] | None = None,
+    on_frame: Any = None,
+) -> dict[str, int]:
+    """Write every message to `path` atomically (a `.partial` file renamed at the end).
+
+    Returns counts of frames, odometry and ground-truth messages; `on_frame()` is called per frame.
+    """
+    dst = Path(path)
+    tmp = dst.with_suffix(".mcap.partial")
+    counts = {"frames": 0, "odometry": 0, "ground_truth": 0}
+    try:
+        with McapRecorder(tmp, metadata=metadata) as rec:
+            for msg in messages:
+                rec.write(msg)
+                if isinstance(msg, RgbdFrame):
+                    counts["frames"] += 1
+                    if on_frame is not None:
+                        on_frame()
+                elif isinstance(msg, Odometry):
+                    counts["odometry"] += 1
+                elif isinstance(msg, GroundTruthPose):
+                    counts["ground_truth"] += 1
+        tmp.replace(dst)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return counts
+
+
 class McapSource:
     """Replay an MCAP recording as `Message`s.
 

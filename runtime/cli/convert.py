@@ -6,8 +6,7 @@ import argparse
 import time
 from pathlib import Path
 
-from litevloc.hw.messages import GroundTruthPose, Odometry, RgbdFrame
-from litevloc.hw.streams.mcap_io import McapRecorder
+from litevloc.hw.streams.mcap_io import record_messages
 from litevloc.runtime.cli.common import (
     add_config_args,
     add_frames_arg,
@@ -47,24 +46,10 @@ def run(args: argparse.Namespace) -> int:
     src = open_source(args.src, frames_of(args), strict=True)
     src = with_simulated_odometry(src, rate, cfg.odometry_sim.drift, seed)
     t0 = time.perf_counter()
-    tmp = args.dst.with_suffix(".mcap.partial")
-    counts = {"frames": 0, "odometry": 0, "ground_truth": 0}
     meta = {"source": str(args.src), "frames": args.frames or ":", "odometry_rate_hz": str(rate), "seed": str(seed),
             "drift_model": repr(cfg.odometry_sim.drift)}
-    try:
-        with McapRecorder(tmp, metadata=meta) as rec, progress(src.frame_count(), "convert") as bar:
-            for msg in src:
-                rec.write(msg)
-                if isinstance(msg, RgbdFrame):
-                    counts["frames"] += 1
-                    bar.update(1)
-                elif isinstance(msg, Odometry):
-                    counts["odometry"] += 1
-                elif isinstance(msg, GroundTruthPose):
-                    counts["ground_truth"] += 1
-        tmp.replace(args.dst)
-    finally:
-        tmp.unlink(missing_ok=True)
+    with progress(src.frame_count(), "convert") as bar:
+        counts = record_messages(src, args.dst, meta, on_frame=lambda: bar.update(1))
     dt = time.perf_counter() - t0
     size = args.dst.stat().st_size
     print(

@@ -21,7 +21,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from litevloc.hw.messages import GroundTruthPose, Odometry, RgbdFrame
 from litevloc.runtime.cli.common import (
     add_config_args,
     add_json_arg,
@@ -96,7 +95,7 @@ def _world(args: argparse.Namespace):
 
 def run_record(args: argparse.Namespace) -> int:
     from litevloc.hw.sim.source import SimSequenceSource
-    from litevloc.hw.streams.mcap_io import McapRecorder
+    from litevloc.hw.streams.mcap_io import record_messages
 
     if args.output.suffix.lower() != ".mcap":
         raise UserError(f"output must be a .mcap file, got {args.output}")
@@ -115,25 +114,9 @@ def run_record(args: argparse.Namespace) -> int:
         "params": repr(src.params),
     }
     counts = {"frames": 0, "odometry": 0, "ground_truth": 0}
-    tmp = args.output.with_suffix(".mcap.partial")
     t1 = time.perf_counter()
-    try:
-        with (
-            McapRecorder(tmp, metadata=meta) as rec,
-            progress(src.frame_count(), f"sim {args.pass_name}") as bar,
-        ):
-            for msg in src:
-                rec.write(msg)
-                if isinstance(msg, RgbdFrame):
-                    counts["frames"] += 1
-                    bar.update(1)
-                elif isinstance(msg, Odometry):
-                    counts["odometry"] += 1
-                elif isinstance(msg, GroundTruthPose):
-                    counts["ground_truth"] += 1
-        tmp.replace(args.output)
-    finally:
-        tmp.unlink(missing_ok=True)
+    with progress(src.frame_count(), f"sim {args.pass_name}") as bar:
+        counts.update(record_messages(src, args.output, meta, on_frame=lambda: bar.update(1)))
     dt = time.perf_counter() - t1
     if args.plot is not None:
         from litevloc.hw.sim.plot import plot_world
