@@ -11,7 +11,9 @@ Connectivity (CnG, for planning), the rule:
   weighted by the path length travelled between them;
 * any other pair whose ground-plane distance is at most `max_line_of_sight_m` is
   connected if the straight segment between them crosses no occupied grid cell,
-  weighted by that distance.
+  weighted by that distance — keeping, per node, only its `max_line_of_sight_neighbours`
+  nearest such partners (an edge stays if either end keeps it). Dense clusters of keyframes
+  would otherwise form near-complete graphs that cost storage and add no shorter paths.
 """
 
 from __future__ import annotations
@@ -54,10 +56,13 @@ class ConnectivityParams:
     """Connectivity (reachability) parameters."""
 
     max_line_of_sight_m: float = 2.0
+    max_line_of_sight_neighbours: int = 6
 
     def __post_init__(self) -> None:
         if self.max_line_of_sight_m < 0:
             raise ValueError("max_line_of_sight_m must be >= 0")
+        if self.max_line_of_sight_neighbours < 1:
+            raise ValueError("max_line_of_sight_neighbours must be >= 1")
 
 
 def covisibility_candidates(T_map_camera: NDArray[np.float64], params: CovisibilityParams) -> list[tuple[int, int]]:
@@ -130,10 +135,16 @@ def build_connectivity(
     for k in range(n - 1):
         a, b = node_frame_positions[k], node_frame_positions[k + 1]
         best[(k, k + 1)] = float(cum[b] - cum[a])
+    partners: list[list[tuple[float, int]]] = [[] for _ in range(n)]
     for i in range(n):
         for j in range(i + 1, n):
             d = float(np.linalg.norm(xy[i] - xy[j]))
             if d <= params.max_line_of_sight_m and segment_is_free(grid, xy[i], xy[j]):
-                best[(i, j)] = min(best.get((i, j), np.inf), d)
+                partners[i].append((d, j))
+                partners[j].append((d, i))
+    for i in range(n):
+        for d, j in sorted(partners[i])[: params.max_line_of_sight_neighbours]:
+            key = (min(i, j), max(i, j))
+            best[key] = min(best.get(key, np.inf), d)
     keys = sorted(best)
     return np.array(keys, dtype=np.int64).reshape(-1, 2), np.array([best[k] for k in keys], dtype=np.float32)

@@ -60,3 +60,19 @@ def test_params_validation() -> None:
         KeyframeParams(budget=0)
     with pytest.raises(ValueError, match="height_band"):
         KeyframeParams(height_band_m=(1.0, -1.0))
+
+
+def test_connectivity_keeps_nearest_line_of_sight_partners() -> None:
+    from litevloc.pipelines.topomap.graphs import ConnectivityParams, build_connectivity
+    from litevloc.pipelines.topomap.types import OccupancyGrid
+
+    # 10 keyframes on a line 0.1 m apart, all in free space: consecutive ones are always
+    # connected; line-of-sight edges are limited to each node's 2 nearest partners.
+    traj = np.array([[0.1 * i, 0.0, 0.0] for i in range(10)])
+    grid = OccupancyGrid(np.ones((20, 20), np.uint8), np.array([-0.5, -0.5]), 0.1, np.array([0, 0, 1.0]),
+                         plane_axes(np.array([0, 0, 1.0])))
+    e, w = build_connectivity(np.arange(10), traj, grid, ConnectivityParams(2.0, max_line_of_sight_neighbours=2))
+    pairs = {tuple(p) for p in e.tolist()}
+    assert {(k, k + 1) for k in range(9)} <= pairs
+    assert all(abs(i - j) <= 2 for i, j in pairs) and (0, 2) in pairs and (0, 9) not in pairs
+    assert np.allclose(w[[list(p) == [0, 1] for p in e.tolist()]], 0.1)
