@@ -57,7 +57,7 @@ class SevenScenesSource(PosedFolderSource):
         if not matches:
             raise StreamError(f"no frame-NNNNNN.color.jpg files in {root}: not a 7-Scenes folder")
         records = []
-        self_stats_skips: list[str] = []
+        pose_problems: list[str] = []
         for m in sorted(matches, key=lambda m: int(m.group(1))):
             idx = int(m.group(1))
             stem = root / f"frame-{m.group(1)}"
@@ -67,7 +67,7 @@ class SevenScenesSource(PosedFolderSource):
             except StreamError as exc:
                 if strict:
                     raise
-                self_stats_skips.append(f"ground-truth pose unreadable: {exc}")
+                pose_problems.append(f"ground-truth pose unreadable: {exc}")
                 T = None
             records.append(
                 FrameRecord(
@@ -79,5 +79,5 @@ class SevenScenesSource(PosedFolderSource):
                 )
             )
         super().__init__(f"7scenes:{root.name}", records, read_intrinsics(root), 1000.0, frames, strict)
-        for reason in self_stats_skips:
+        for reason in pose_problems:
             self.stats.skip(reason.split(":")[0])

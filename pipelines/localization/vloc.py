@@ -125,7 +125,9 @@ class Transition:
     reason: str
 
 
-class _Timer:
+class StageTimer:
+    """Accumulated milliseconds per named stage of one query (extract, vpr, match, lift, pnp, ...)."""
+
     def __init__(self) -> None:
         self.ms: dict[str, float] = {}
 
@@ -136,7 +138,7 @@ class _Timer:
 def relative_pose(
     live_feats: FeatureSet, live_depth: NDArray[np.float32], K_live: NDArray[np.float64],
     ref_feats: FeatureSet, K_ref: NDArray[np.float64], match: MatchFn, params: LocalizationParams,
-    timings_ms: dict[str, float] | None = None,
+    timer: StageTimer | None = None,
 ) -> tuple[PnpResult | None, int, str]:
     """Pose of the live camera relative to a reference image: `T_ref_live` in the result.
 
@@ -145,11 +147,7 @@ def relative_pose(
     acceptance gates plus the distance gate. Returns (PnpResult or None if too few matches,
     number of matches, reason).
     """
-    t = timings_ms if timings_ms is not None else {}
-
-    def add(key: str, t0: float) -> None:
-        t[key] = t.get(key, 0.0) + (time.perf_counter() - t0) * 1e3
-
+    add = (timer if timer is not None else StageTimer()).add
     t0 = time.perf_counter()
     i_live, i_ref = match(live_feats, ref_feats)
     add("match", t0)
@@ -190,21 +188,23 @@ class VisualLocalizer:
         self.last_pose: NDArray[np.float64] | None = None
         self.last_pose_t_ns = 0
         self.transitions: deque[Transition] = deque(maxlen=100)
-        self._neighbours = [[n for n, _ in topomap.covisible_neighbours(i)] for i in range(topomap.n_nodes)]
+        # Covisible neighbours of each node, strongest edge first (computed once, used per query).
+        self._neighbours = [[n for n, _ in sorted(topomap.covisible_neighbours(i), key=lambda x: (-x[1], x[0]))]
+                            for i in range(topomap.n_nodes)]
 
     # ---------------------------------------------------------------- building blocks
     def _verify(
         self, node: int, live_feats: FeatureSet, depth: NDArray[np.float32], K: NDArray[np.float64],
-        similarity: float, timer: _Timer,
+        similarity: float, timer: StageTimer,
     ) -> tuple[PnpResult | None, CandidateAttempt]:
         res, n_matches, reason = relative_pose(
-            live_feats, depth, K, self.map.features[node], self.map.K[node], self.match, self.params, timer.ms
+            live_feats, depth, K, self.map.features[node], self.map.K[node], self.match, self.params, timer
         )
         return res, CandidateAttempt(node, similarity, n_matches, res.n_inliers if res else 0, reason)
 
     def _result(
         self, t_ns: int, mode: str, best: tuple[int, PnpResult] | None, attempts: list[CandidateAttempt],
-        timer: _Timer, fail_reason: str,
+        timer: StageTimer, fail_reason: str,
     ) -> LocalizationResult:
         if best is None:
             return LocalizationResult(t_ns, mode, False, fail_reason, attempts=tuple(attempts), timings_ms=timer.ms)
@@ -217,7 +217,7 @@ class VisualLocalizer:
         )
 
     def _prepare(
-        self, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, timer: _Timer
+        self, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, timer: StageTimer
     ) -> tuple[FeatureSet, NDArray[np.float32], NDArray[np.float32]]:
         """Live features and VPR descriptor; the depth image, checked."""
         if depth is None or depth.shape != color.shape[:2]:
@@ -235,7 +235,7 @@ class VisualLocalizer:
         self, t_ns: int, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64]
     ) -> LocalizationResult:
         """VPR top-k + geometric verification; the best accepted candidate wins."""
-        timer = _Timer()
+        timer = StageTimer()
         t_all = time.perf_counter()
         feats, desc, dimg = self._prepare(color, depth, timer)
         sims = self.map.vpr @ desc
@@ -269,11 +269,11 @@ class VisualLocalizer:
 
     def _confirmed(
         self, node: int, T_map_live: NDArray[np.float64], feats: FeatureSet, depth: NDArray[np.float32],
-        K: NDArray[np.float64], fallback: list[int], timer: _Timer,
+        K: NDArray[np.float64], fallback: list[int], timer: StageTimer,
     ) -> int:
         """Best count of matches explained by the pose over up to `confirm_max_nodes` other
         keyframes (covisible neighbours of `node` by weight first, then `fallback` nodes)."""
-        others = [n for n, _ in sorted(self.map.covisible_neighbours(node), key=lambda x: -x[1])]
+        others = list(self._neighbours[node])
         others += [n for n in fallback if n != node and n not in others]
         t0 = time.perf_counter()
         best = 0
@@ -332,7 +332,7 @@ class VisualLocalizer:
 
         A candidate's pose must also pass the prior gate (see `LocalizationParams`)."""
         prior = check_rigid(prior_T_map_camera, "prior T_map_camera", atol=1e-4)
-        timer = _Timer()
+        timer = StageTimer()
         t_all = time.perf_counter()
         feats, desc, dimg = self._prepare(color, depth, timer)
         attempts: list[CandidateAttempt] = []
