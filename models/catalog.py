@@ -14,6 +14,7 @@ from typing import Literal
 
 EXPORT_VERSION = 2  # 2: ALIKED deformable convs as the ONNX DeformConv op (was grid_sample)
 OPSET = 19
+LIGHTGLUE_LAYERS = 9
 
 ALIKED_VARIANTS = ("aliked-t16", "aliked-n16")
 # package, path inside the package of the source weights
@@ -29,6 +30,7 @@ DEFAULT_EXPORTS = (
     "aliked-n16-240x320-k512",
     "aliked-t16-240x320-k512",
     "lightglue-aliked",
+    "lightglue-aliked-adaptive",
     "effnet-gem-240x320",
 )
 # `--all` adds these.
@@ -58,10 +60,25 @@ class ModelSpec:
     input_hw: tuple[int, int] | None = None
     top_k: int | None = None
     quantization: str | None = None  # None (fp32) | "dynamic-int8" (weights int8, ORT dynamic)
+    adaptive: bool = False  # LightGlue exported in parts for early stopping + point pruning
 
     @property
     def filename(self) -> str:
-        return f"{self.id}.onnx"
+        """The model's (first) ONNX file in the cache."""
+        return self.part_files[0] if self.adaptive else f"{self.id}.onnx"
+
+    @property
+    def parts(self) -> dict[str, str]:
+        """Adaptive LightGlue: part name (encoder, layer{i}, head{i}) -> file; else {"model": file}."""
+        if not self.adaptive:
+            return {"model": f"{self.id}.onnx"}
+        names = ["encoder"] + [f"layer{i}" for i in range(LIGHTGLUE_LAYERS)]
+        names += [f"head{i}" for i in range(LIGHTGLUE_LAYERS)]
+        return {name: f"{self.id}.{name}.onnx" for name in names}
+
+    @property
+    def part_files(self) -> list[str]:
+        return list(self.parts.values())
 
 
 _ALIKED_RE = re.compile(r"^(aliked-(?:t16|n16))-(\d+)x(\d+)-k(\d+)$")
@@ -82,6 +99,8 @@ def spec_for(model_id: str) -> ModelSpec:
         return ModelSpec(model_id, "matcher", "lightglue-aliked")
     if model_id == "lightglue-aliked-int8":
         return ModelSpec(model_id, "matcher", "lightglue-aliked", quantization="dynamic-int8")
+    if model_id == "lightglue-aliked-adaptive":
+        return ModelSpec(model_id, "matcher", "lightglue-aliked", adaptive=True)
     m = _ALIKED_RE.match(model_id)
     if m:
         h, w, k = int(m.group(2)), int(m.group(3)), int(m.group(4))
@@ -103,6 +122,6 @@ def spec_for(model_id: str) -> ModelSpec:
         return ModelSpec(model_id, "vpr", m.group(1), (h, w))
     raise ValueError(
         f"unknown model id {model_id!r}; expected aliked-{{t16,n16}}-HxW-kK, "
-        f"lightglue-aliked[-int8], effnet-gem-HxW or cosplace-r18-HxW "
+        f"lightglue-aliked[-int8|-adaptive], effnet-gem-HxW or cosplace-r18-HxW "
         f"(e.g. {', '.join(DEFAULT_EXPORTS)})"
     )

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 EXTRACTORS = ("aliked-t16", "aliked-n16", "sift", "orb")
-MATCHERS = ("lightglue", "lightglue-int8", "mnn", "nn-ratio")
+MATCHERS = ("lightglue", "lightglue-int8", "lightglue-adaptive", "mnn", "nn-ratio")
 PLACE_RECOGNIZERS = ("effnet-gem", "cosplace")
 DEFAULT_PLACE_RECOGNIZER = "effnet-gem"
 
@@ -23,8 +23,9 @@ class ModelsConfig:
     extractor / extractor_size (h, w) / max_keypoints: local features; ALIKED is exported
         for a fixed (size, top-k); SIFT/ORB also resize to extractor_size.
     matcher ("lightglue-int8": dynamically int8-quantised weights, ~1.5x faster on CPU, same
-        epipolar accuracy on the 7-Scenes test pair), match_threshold (LightGlue score),
-        ratio (Lowe ratio for nn-ratio).
+        epipolar accuracy on the 7-Scenes test pair; "lightglue-adaptive": the reference's
+        early stopping + point pruning, `depth_confidence` / `width_confidence`, <= 0 = off),
+        match_threshold (LightGlue score), ratio (Lowe ratio for nn-ratio).
     place_recognizer, vpr_size (h, w); cosplace_checkpoint: official CosPlace ResNet-18 / 256
         .pth, only for exporting "cosplace".
     """
@@ -35,8 +36,10 @@ class ModelsConfig:
     extractor: Literal["aliked-t16", "aliked-n16", "sift", "orb"] = "aliked-n16"
     extractor_size: tuple[int, int] = (240, 320)
     max_keypoints: int = 512
-    matcher: Literal["lightglue", "lightglue-int8", "mnn", "nn-ratio"] = "lightglue"
+    matcher: Literal["lightglue", "lightglue-int8", "lightglue-adaptive", "mnn", "nn-ratio"] = "lightglue"
     match_threshold: float = 0.1
+    depth_confidence: float = 0.95
+    width_confidence: float = 0.99
     # Match only the strongest N keypoints of each image (0 = all). Extractors return keypoints
     # sorted by score, so this keeps the best; LightGlue's cost grows ~quadratically with N.
     match_max_keypoints: int = 0
@@ -58,6 +61,10 @@ class ModelsConfig:
             raise ValueError(f"match_max_keypoints must be >= 0, got {self.match_max_keypoints}")
         if not 0.0 <= self.match_threshold < 1.0:
             raise ValueError(f"match_threshold must be in [0, 1), got {self.match_threshold}")
+        for key in ("depth_confidence", "width_confidence"):
+            v = getattr(self, key)
+            if not (v <= 0 or 0 < v < 1):
+                raise ValueError(f"{key} must be in (0, 1), or <= 0 to disable, got {v}")
         if not 0.0 < self.ratio <= 1.0:
             raise ValueError(f"ratio must be in (0, 1], got {self.ratio}")
         if not self.providers:

