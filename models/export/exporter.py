@@ -148,7 +148,7 @@ def export_adaptive_lightglue(spec: ModelSpec, model: torch.nn.Module, cache: Pa
 
     assert isinstance(model, LightGlue)
     cache.mkdir(parents=True, exist_ok=True)
-    m, n, dim = 64, 80, 256
+    m, n = 64, 80
     kpts = (torch.rand(1, m, 2) * 2 - 1, torch.rand(1, n, 2) * 2 - 1)
     desc = (torch.nn.functional.normalize(torch.randn(1, m, 128), dim=-1),
             torch.nn.functional.normalize(torch.randn(1, n, 128), dim=-1))
@@ -156,7 +156,8 @@ def export_adaptive_lightglue(spec: ModelSpec, model: torch.nn.Module, cache: Pa
         d0, d1, e0, e1 = EncoderPart(model)(*kpts, *desc)
     dyn_d = {"d0": {1: "M"}, "d1": {1: "N"}, "e0": {3: "M"}, "e1": {3: "N"},
              "d0_out": {1: "M"}, "d1_out": {1: "N"}}
-    jobs: list[tuple[str, torch.nn.Module, tuple[torch.Tensor, ...], list[str], list[str], dict[str, dict[int, str]]]] = [
+    Job = tuple[str, torch.nn.Module, tuple[torch.Tensor, ...], list[str], list[str], dict[str, dict[int, str]]]
+    jobs: list[Job] = [
         ("encoder", EncoderPart(model), (*kpts, *desc), ["kpts0", "kpts1", "desc0", "desc1"],
          ["d0", "d1", "e0", "e1"],
          {"kpts0": {1: "M"}, "kpts1": {1: "N"}, "desc0": {1: "M"}, "desc1": {1: "N"}, **dyn_d}),

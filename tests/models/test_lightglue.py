@@ -157,9 +157,9 @@ def test_adaptive_part_corruption_is_refused(model_cache, models_cfg, tmp_path) 
     assert load_matcher("lightglue-adaptive", cfg).n_layers == 9
     with open(tmp_path / spec.parts["layer4"], "ab") as fh:
         fh.write(b"\0")
-    with pytest.raises(ModelError, match="layer4.*sha256"):
+    with pytest.raises(ModelError, match=r"layer4.*sha256"):
         load_matcher("lightglue-adaptive", cfg)
     shutil.copy(model_cache / spec.parts["layer4"], tmp_path / spec.parts["layer4"])
     (tmp_path / spec.parts["head2"]).unlink()
-    with pytest.raises(ModelError, match="head2.*missing"):
+    with pytest.raises(ModelError, match=r"head2.*missing"):
         load_matcher("lightglue-adaptive", cfg)
