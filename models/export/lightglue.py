@@ -157,7 +157,7 @@ class TokenConfidence(nn.Module):
         return self.token(d).squeeze(-1)
 
 
-def matchability(head: MatchAssignment, d: torch.Tensor) -> torch.Tensor:
+def matchability(head: nn.Module, d: torch.Tensor) -> torch.Tensor:
     """(B, N, dim) -> (B, N) sigmoid matchability of layer `head` (the pruning score)."""
     return torch.sigmoid(head.matchability(d)).squeeze(-1)
 
