@@ -159,6 +159,7 @@ class TokenConfidence(nn.Module):
 
 def matchability(head: nn.Module, d: torch.Tensor) -> torch.Tensor:
     """(B, N, dim) -> (B, N) sigmoid matchability of layer `head` (the pruning score)."""
+    assert isinstance(head, MatchAssignment)
     return torch.sigmoid(head.matchability(d)).squeeze(-1)
 
 
