@@ -198,6 +198,10 @@ class RuntimeConfig:
     # 1.15 vs 1.5 Hz VLoc (bench/runtime.py, simulated office).
     ort_intra_op_threads: int = 1
     ort_inter_op_threads: int = 1
+    # Linux nice value of the VLoc thread and of the onnxruntime threads its models start
+    # (0 = normal priority): VLoc is throughput work, fusion and publishing are latency work.
+    # With VLoc niced, the fusion thread gets a core the moment an odometry message arrives.
+    vloc_nice: int = 10
     # sys.setswitchinterval: how long a thread may hold the GIL while another waits. Python's
     # 5 ms default lets a GIL-holding VLoc step delay fused poses by 5-25 ms (measured, see
     # bench/runtime_queues.py); 0.5 ms keeps the fusion->publish p99 near 1-2 ms.
@@ -223,6 +227,8 @@ class RuntimeConfig:
                 raise ValueError(f"runtime.{name} must be >= 1, got {getattr(self, name)}")
         if self.stage_max_restarts < 0:
             raise ValueError("runtime.stage_max_restarts must be >= 0")
+        if not 0 <= self.vloc_nice <= 19:
+            raise ValueError(f"runtime.vloc_nice must be in [0, 19], got {self.vloc_nice}")
         if not (1e-5 <= self.gil_switch_interval_s <= 0.1):
             raise ValueError(f"runtime.gil_switch_interval_s must be in [1e-5, 0.1], got {self.gil_switch_interval_s}")
         for name in ("status_period_s", "map_to_odom_period_s", "stage_join_timeout_s", "lost_after_s",

@@ -25,6 +25,7 @@ from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map
 from litevloc.runtime.bus import Bus, LiteVLocPublisher
 from litevloc.runtime.service import Service, fusion_callables, localizer_callable
+from litevloc.runtime.stages import call_in_low_priority_thread
 from litevloc.runtime.vloc_models import check_map_models, load_bundle
 
 
@@ -79,7 +80,8 @@ def build_app(
 ) -> App:
     """Load map and models, open the bus, and wire the service (nothing runs yet)."""
     models = dataclasses.replace(cfg.models, intra_op_threads=cfg.runtime.ort_intra_op_threads)
-    bundle = load_bundle(models)
+    # Sessions made in a low-priority thread: their intra-op threads inherit the VLoc thread's nice.
+    bundle = call_in_low_priority_thread(lambda: load_bundle(models), cfg.runtime.vloc_nice)
     topomap = check_map_models(load_map(map_path), bundle)
     localizer = VisualLocalizer(topomap, cfg.localization, bundle.extract, bundle.describe, bundle.match)
     T_base_camera = cfg.fusion.T_base_camera()

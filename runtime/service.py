@@ -186,7 +186,8 @@ class Service:
 
         oe, mr = p.stage_on_error, p.stage_max_restarts
         self.source_stage = _SourceThread("source", self._stop, self._run_source)
-        self.vloc_stage = Stage("vloc", [StageInput(self.frames, self._handle_frame)], self._stop, oe, mr)
+        self.vloc_stage = Stage("vloc", [StageInput(self.frames, self._handle_frame)], self._stop, oe, mr,
+                                nice=p.vloc_nice)
         self.fusion_stage = Stage(
             "fusion",
             [StageInput(self.odometry, self._handle_odometry_item), StageInput(self.results, self._handle_result)],

@@ -63,9 +63,51 @@ class StageInput:
         self.latency = LatencyWindow()
 
 
+def lower_thread_priority(nice: int) -> int | None:
+    """Raise the calling thread's nice value to at least `nice` (Linux: per thread; threads it
+    starts afterwards inherit it). Returns the nice value in force, None where the platform
+    has no per-thread priority (then the thread runs at normal priority; logged)."""
+    if nice <= 0:
+        return None
+    if not sys.platform.startswith("linux"):
+        log.warning("per-thread priority is Linux-only; %s keeps its priority", threading.current_thread().name)
+        return None
+    tid = threading.get_native_id()
+    try:
+        current = os.getpriority(os.PRIO_PROCESS, tid)
+        if current < nice:
+            os.setpriority(os.PRIO_PROCESS, tid, nice)
+        return os.getpriority(os.PRIO_PROCESS, tid)
+    except OSError as exc:
+        log.warning("could not lower the priority of thread %s: %s", threading.current_thread().name, exc)
+        return None
+
+
+def call_in_low_priority_thread(fn: Callable[[], Any], nice: int) -> Any:
+    """Run `fn` in a short-lived thread at nice `nice` and return its result (re-raising its
+    exception). Threads that `fn` creates (e.g. onnxruntime's intra-op pool, made when a
+    session is created) inherit the lower priority."""
+    box: dict[str, Any] = {}
+
+    def body() -> None:
+        lower_thread_priority(nice)
+        try:
+            box["result"] = fn()
+        except BaseException as exc:  # re-raised in the caller
+            box["error"] = exc
+
+    t = threading.Thread(target=body, name="litevloc-loader", daemon=True)
+    t.start()
+    t.join()
+    if "error" in box:
+        raise box["error"]
+    return box.get("result")
+
+
 class _StageThread:
     def __init__(
-        self, name: str, stop: threading.Event, on_error: OnError = "fail", max_restarts: int = 3
+        self, name: str, stop: threading.Event, on_error: OnError = "fail", max_restarts: int = 3,
+        nice: int = 0,
     ) -> None:
         if on_error not in ("fail", "restart"):
             raise ValueError(f"stage {name!r}: on_error must be 'fail' or 'restart', got {on_error!r}")
@@ -77,6 +119,8 @@ class _StageThread:
         self.errors = 0
         self.last_error: str | None = None
         self.processed = 0
+        self.nice = nice  # > 0: this thread runs at lower scheduling priority (see lower_thread_priority)
+        self.nice_in_force: int | None = None
         self.failed = threading.Event()
         self.finished = threading.Event()
         self._thread = threading.Thread(target=self._main, name=f"litevloc-{name}", daemon=True)
@@ -111,6 +155,7 @@ class _StageThread:
 
     def _main(self) -> None:
         try:
+            self.nice_in_force = lower_thread_priority(self.nice)
             self._loop()
         except Exception as exc:  # a bug in the loop itself, not in a handler
             self._error(exc)
@@ -131,7 +176,7 @@ class _StageThread:
 
     def status(self) -> dict[str, Any]:
         return {"name": self.name, "state": str(self.state), "processed": self.processed, "errors": self.errors,
-                "last_error": self.last_error, "alive": self.alive}
+                "last_error": self.last_error, "alive": self.alive, "nice": self.nice_in_force}
 
 
 class Stage(_StageThread):
@@ -145,8 +190,9 @@ class Stage(_StageThread):
         on_error: OnError = "fail",
         max_restarts: int = 3,
         wait_s: float = 0.1,
+        nice: int = 0,
     ) -> None:
-        super().__init__(name, stop, on_error, max_restarts)
+        super().__init__(name, stop, on_error, max_restarts, nice)
         if not inputs:
             raise ValueError(f"stage {name!r} needs at least one input")
         self.inputs = list(inputs)

@@ -126,3 +126,39 @@ def test_thread_budget() -> None:
     assert so.intra_op_num_threads == 2 and so.inter_op_num_threads == 1
     with pytest.raises(ValueError):
         configure_threads(cv_threads=0)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread nice is Linux-only")
+def test_low_priority_threads_and_their_children() -> None:
+    """The VLoc thread and the threads started by code run at low priority inherit its nice."""
+    import os
+
+    from litevloc.runtime.stages import call_in_low_priority_thread, lower_thread_priority
+
+    def child_nice() -> tuple[int, int]:
+        seen: list[int] = []
+        t = threading.Thread(target=lambda: seen.append(os.getpriority(os.PRIO_PROCESS, threading.get_native_id())))
+        t.start()
+        t.join()
+        return os.getpriority(os.PRIO_PROCESS, threading.get_native_id()), seen[0]
+
+    base = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+    own, child = call_in_low_priority_thread(child_nice, max(base, 7))
+    assert own == child == max(base, 7)
+    assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == base  # the caller is untouched
+    with pytest.raises(ZeroDivisionError):
+        call_in_low_priority_thread(lambda: 1 / 0, 7)
+    assert lower_thread_priority(0) is None
+
+    stop = threading.Event()
+    q: BoundedFifo[int] = BoundedFifo("q", 4)
+    got: list[int] = []
+    def handler(_item: int) -> None:
+        got.append(os.getpriority(os.PRIO_PROCESS, threading.get_native_id()))
+
+    stage = Stage("low", [StageInput(q, handler)], stop, nice=max(base, 9))
+    stage.start()
+    q.put(1)
+    q.close()
+    assert stage.join(5.0)
+    assert got == [max(base, 9)] and stage.status()["nice"] == max(base, 9)
