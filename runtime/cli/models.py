@@ -157,7 +157,8 @@ def run_list(args: argparse.Namespace) -> int:
     for i in ids:
         try:
             path, entry = locate(i, cfg)
-            status, size = "ok", path.stat().st_size / 1e6
+            status = "ok"
+            size = sum((path.parent / f).stat().st_size for f in spec_for(i).part_files) / 1e6
         except ModelError as exc:
             status = "missing" if i not in manifest else "stale: " + str(exc).split(";")[0][-60:]
             size, entry = 0.0, manifest.get(i, {})
