@@ -24,6 +24,7 @@ from litevloc.pipelines.fusion.online import OnlineFusion
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map
 from litevloc.runtime.bus import Bus, LiteVLocPublisher
+from litevloc.runtime.frame_guard import FrameGuard
 from litevloc.runtime.service import Service, fusion_callables, localizer_callable
 from litevloc.runtime.vloc_models import check_map_models, load_bundle
 
@@ -104,7 +105,7 @@ def build_app(
                 on_fused(f)
 
         service = Service(
-            source, localizer_callable(localizer), on_odom, on_vloc, publisher, cfg.runtime, rate=rate,
+            source, FrameGuard(localizer_callable(localizer)), on_odom, on_vloc, publisher, cfg.runtime, rate=rate,
             T_base_camera=T_base_camera, state_fn=lambda: str(localizer.state), odometry_receiver=receiver,
             on_ground_truth=recorder.on_ground_truth, on_fused=fused_hook,
         )
