@@ -30,7 +30,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import os
 import subprocess
 import sys
 import threading
@@ -41,6 +40,8 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import itertools
 
 from _common import OUT, ROOT, print_table, write_json
 
@@ -121,7 +122,7 @@ def one_run(rec: Path, map_dir: Path, minutes: float, rate: float, endpoint: str
 
     for name in ("fused_t", "fused_T", "gt_t", "gt_T"):
         setattr(app.recorder, name, deque(maxlen=1))
-    n_win = max(1, int(round(window_min * 60.0 / rate / sample_s)))
+    n_win = max(1, round(window_min * 60.0 / rate / sample_s))
     lat_bin: list[float] = []
     lat_first: list[np.ndarray] = []  # per sample interval, float32 ms, first window
     lat_last: deque[np.ndarray] = deque(maxlen=n_win)
@@ -154,7 +155,7 @@ def one_run(rec: Path, map_dir: Path, minutes: float, rate: float, endpoint: str
                 ate_acc["max"] = max(ate_acc["max"], e)
                 break
 
-    svc.e2e.add_since = add_since  # type: ignore[method-assign]
+    svc.e2e.add_since = add_since
     svc.on_ground_truth, svc.on_fused = on_gt, on_fused
     samples: list[dict[str, Any]] = []
     done = threading.Event()
@@ -218,7 +219,7 @@ def evaluate(r: dict[str, Any], warmup_min: float, stall_s: float) -> dict[str, 
     rss_end = float(rss[-1]) if len(rss) else float("nan")
     growth = 100.0 * (rss_end - rss_warm) / rss_warm if warm.any() else float("nan")
     stalls: list[str] = []
-    for a, b in zip(samples[:-1], samples[1:], strict=False):
+    for a, b in itertools.pairwise(samples):
         for k in ("vloc_calls", "poses_published", "odometry_fused"):
             if b["counters"][k] <= a["counters"][k]:
                 stalls.append(f"{k} did not advance between {a['wall_s']:.0f} s and {b['wall_s']:.0f} s")
@@ -367,7 +368,8 @@ def main() -> None:
         [f"fused p99 first / last {args.window_min:g} min (ms)",
          f"{ev['latency_p99_first_ms']:.2f} / {ev['latency_p99_last_ms']:.2f} (x{ev['latency_p99_ratio']:.2f})",
          "PASS" if ev["targets"]["fused_p99_unchanged"] else "FAIL"],
-        ["fused latency p50 / p99, first+last windows (ms)", f"{ev['latency_p50_ms']:.2f} / {ev['latency_p99_ms']:.2f}", ""],
+        ["fused latency p50 / p99, first+last windows (ms)",
+         f"{ev['latency_p50_ms']:.2f} / {ev['latency_p99_ms']:.2f}", ""],
         ["wire latency p50 / p99 (ms), probe process",
          f"{ev['wire_latency'].get('median_ms', float('nan')):.2f} / "
          f"{ev['wire_latency'].get('p99_ms', float('nan')):.2f}", ""],

@@ -18,7 +18,6 @@ Log time = header stamp, so `iter_messages(log_time_order=True)` replays in time
 from __future__ import annotations
 
 import struct
-
 from collections.abc import Iterator
 from pathlib import Path
 from types import TracebackType
@@ -69,6 +68,7 @@ try:
     _CORRUPT = (*_CORRUPT, zstandard.ZstdError)
 except ImportError:  # pragma: no cover - mcap depends on zstandard
     pass
+_CORRUPT_OR_OS: tuple[type[BaseException], ...] = (*_CORRUPT, OSError)
 
 
 class McapRecorder:
@@ -194,7 +194,7 @@ class McapSource:
         try:
             with open(self.path, "rb") as fh:
                 summary = make_reader(fh).get_summary()
-        except (*_CORRUPT, OSError) as exc:
+        except _CORRUPT_OR_OS as exc:
             raise StreamError(f"{self.path}: not a readable MCAP file: {exc}") from exc
         if summary is None or summary.statistics is None:
             raise StreamError(f"{self.path}: MCAP file has no summary/statistics (truncated or unfinished recording?)")

@@ -5,7 +5,6 @@ Example counts are set per test (`max_examples`); the total is printed at the en
 from __future__ import annotations
 
 import pytest
-
 from hypothesis import HealthCheck, settings
 
 settings.register_profile("litevloc-fuzz", deadline=None, derandomize=True, print_blob=True,
@@ -16,7 +15,7 @@ CASES: dict[str, int] = {}
 
 
 @pytest.fixture
-def count_case(request: pytest.FixtureRequest):  # type: ignore[no-untyped-def]
+def count_case(request: pytest.FixtureRequest):
     name = request.node.name
 
     def inc() -> None:
@@ -25,6 +24,6 @@ def count_case(request: pytest.FixtureRequest):  # type: ignore[no-untyped-def]
     return inc
 
 
-def pytest_terminal_summary(terminalreporter, exitstatus, config):  # type: ignore[no-untyped-def]
+def pytest_terminal_summary(terminalreporter, exitstatus, config):
     if CASES:
         terminalreporter.write_line(f"fuzz cases run: {sum(CASES.values())} " + str(dict(sorted(CASES.items()))))

@@ -49,7 +49,7 @@ def sim_pass(seconds: float, seed: int = 1) -> tuple[np.ndarray, np.ndarray, np.
 
 def messages(seconds: float, frame_hz: float = 5.0, seed: int = 1) -> Iterator[Message]:
     """Odometry (every sample), placeholder RGB-D frames and ground truth at `frame_hz`."""
-    t, T_odom, cams, src = sim_pass(seconds, seed)
+    t, T_odom, cams, _src = sim_pass(seconds, seed)
     K = np.array([[40.0, 0, 32], [0, 40.0, 24], [0, 0, 1]])
     step = max(1, round(1e9 / frame_hz / float(np.median(np.diff(t)))))
     color = np.zeros((48, 64, 3), np.uint8)

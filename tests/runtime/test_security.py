@@ -49,7 +49,7 @@ def test_security_blocks_reach_zenoh_config() -> None:
         odometry_acl("odom", [])
 
 
-def _wait(pred, timeout: float = 3.0) -> bool:  # type: ignore[no-untyped-def]
+def _wait(pred, timeout: float = 3.0) -> bool:
     t_end = time.monotonic() + timeout
     while time.monotonic() < t_end:
         if pred():
