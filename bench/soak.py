@@ -112,16 +112,13 @@ def one_run(rec: Path, map_dir: Path, minutes: float, rate: float, endpoint: str
     cfg = load_config("default", ["runtime.mode=realtime", *overrides])
     cfg = with_endpoints(cfg, [], [endpoint], None)
     cfg = dataclasses.replace(cfg, zenoh=dataclasses.replace(cfg.zenoh, listen=()))
-    app = build_app(cfg, map_dir, looped(rec, minutes * 60.0), rate)
+    app = build_app(cfg, map_dir, looped(rec, minutes * 60.0), rate, record=False)  # as `litevloc run`
     svc = app.service
-    # Measurement must not grow with the run: the app's Recorder (TUM output of `replay`) keeps
-    # every pose, so it gets 1-element buffers here; latencies and pose errors are binned.
+    # Measurement must not grow with the run: latencies and pose errors are binned per sample.
     from collections import deque
 
     import numpy as np
 
-    for name in ("fused_t", "fused_T", "gt_t", "gt_T"):
-        setattr(app.recorder, name, deque(maxlen=1))
     n_win = max(1, round(window_min * 60.0 / rate / sample_s))
     lat_bin: list[float] = []
     lat_first: list[np.ndarray] = []  # per sample interval, float32 ms, first window

@@ -51,7 +51,7 @@ def open_configured_source(cfg: Any, path: Path | None) -> Any:
     return open_source(cfg.source.path, parse_frames(cfg.source.frames or None), strict=cfg.source.strict)
 
 
-def run_service(args: argparse.Namespace, source_path: Path | None, rate: float | None) -> dict:
+def run_service(args: argparse.Namespace, source_path: Path | None, rate: float | None, record: bool = True) -> dict:
     from litevloc.runtime.app import build_app, with_endpoints
 
     cfg = with_endpoints(config_of(args), args.listen, args.connect, args.namespace)
@@ -67,7 +67,7 @@ def run_service(args: argparse.Namespace, source_path: Path | None, rate: float 
             faults = FaultInjector(args.fault)  # parsed before the (slow) model loading
         except FaultSpecError as exc:
             raise UserError(str(exc)) from exc
-    app = build_app(cfg, map_path, src, cfg.replay.rate if rate is None else rate)
+    app = build_app(cfg, map_path, src, cfg.replay.rate if rate is None else rate, record=record)
     if faults is not None:
         faults.apply(app.service)
     try:
@@ -85,7 +85,7 @@ def run_service(args: argparse.Namespace, source_path: Path | None, rate: float 
 
 
 def run(args: argparse.Namespace) -> int:
-    res = run_service(args, args.source, args.rate)
+    res = run_service(args, args.source, args.rate, record=False)  # runs for hours: keep no trajectory
     print(f"litevloc run: {res['reason']}")
     write_json(args.json, {"ok": res["ok"], "reason": res["reason"], "status": json.loads(json.dumps(res["status"],
                                                                                                      default=str))})
