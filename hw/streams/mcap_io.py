@@ -238,7 +238,7 @@ class McapSource:
         last_t: dict[str, int] = {}
         lo, hi = self._window if self._window else (None, None)
         with open(self.path, "rb") as fh:
-            reader = make_reader(fh)
+            reader = make_reader(fh, validate_crcs=True)  # a flipped bit is an error, not wrong data (fuzzing)
             it = reader.iter_messages(log_time_order=True)
             n_raw = 0
             while True:
