@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 from hypothesis import HealthCheck, settings
 
-settings.register_profile("litevloc-fuzz", deadline=None, derandomize=True, print_blob=True,
+settings.register_profile("litevloc-fuzz", deadline=None, derandomize=True, print_blob=True, database=None,
                           suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 settings.load_profile("litevloc-fuzz")
 
