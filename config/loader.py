@@ -11,6 +11,7 @@ file. Supported field types: bool, int, float, str, `Path`, `Literal[...]`, `X |
 from __future__ import annotations
 
 import dataclasses
+import math
 import types
 import typing
 from collections.abc import Mapping
@@ -80,6 +81,8 @@ def _convert(value: Any, tp: Any, path: str, source: str | None) -> Any:
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise ConfigError(f"{_where(path, source)} must be a number, got {value!r}")
+        if not math.isfinite(value):  # NaN/inf pass most `>`/`<` checks silently (found by tests/fuzz)
+            raise ConfigError(f"{_where(path, source)} must be a finite number, got {value!r}")
         return float(value)
     if tp is str:
         if not isinstance(value, str):

@@ -24,6 +24,7 @@ from litevloc.pipelines.fusion.online import OnlineFusion
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map
 from litevloc.runtime.bus import Bus, LiteVLocPublisher
+from litevloc.runtime.frame_guard import FrameGuard
 from litevloc.runtime.service import Service, fusion_callables, localizer_callable
 from litevloc.runtime.stages import call_in_low_priority_thread
 from litevloc.runtime.vloc_models import check_map_models, load_bundle
@@ -37,13 +38,16 @@ class Recorder:
     fused_T: list[NDArray[np.float64]] = field(default_factory=list)
     gt_t: list[int] = field(default_factory=list)
     gt_T: list[NDArray[np.float64]] = field(default_factory=list)
+    enabled: bool = True  # False for the long-running service: these lists grow ~200 MB per hour at 200 Hz
 
     def on_fused(self, fused: Any) -> None:
-        if getattr(fused, "initialised", True):
+        if self.enabled and getattr(fused, "initialised", True):
             self.fused_t.append(int(fused.t_ns))
             self.fused_T.append(np.asarray(fused.T_map_base, dtype=np.float64))
 
     def on_ground_truth(self, gt: GroundTruthPose) -> None:
+        if not self.enabled:
+            return
         self.gt_t.append(gt.t_ns)
         self.gt_T.append(gt.T_world_camera)
 
@@ -76,7 +80,7 @@ def with_endpoints(cfg: LiteVLocConfig, listen: list[str], connect: list[str], n
 
 def build_app(
     cfg: LiteVLocConfig, map_path: Path, source: StreamSource, rate: float,
-    on_fused: Callable[[Any], None] | None = None,
+    on_fused: Callable[[Any], None] | None = None, record: bool = True,
 ) -> App:
     """Load map and models, open the bus, and wire the service (nothing runs yet)."""
     models = dataclasses.replace(cfg.models, intra_op_threads=cfg.runtime.ort_intra_op_threads)
@@ -86,7 +90,7 @@ def build_app(
     localizer = VisualLocalizer(topomap, cfg.localization, bundle.extract, bundle.describe, bundle.match)
     T_base_camera = cfg.fusion.T_base_camera()
     fusion = OnlineFusion(cfg.fusion.params, T_base_camera)
-    recorder = Recorder()
+    recorder = Recorder(enabled=record)
     bus = Bus(cfg.zenoh)
     try:
         publisher = LiteVLocPublisher(bus, cfg.runtime.lost_policy, cfg.runtime.lost_variance)
@@ -106,7 +110,7 @@ def build_app(
                 on_fused(f)
 
         service = Service(
-            source, localizer_callable(localizer), on_odom, on_vloc, publisher, cfg.runtime, rate=rate,
+            source, FrameGuard(localizer_callable(localizer)), on_odom, on_vloc, publisher, cfg.runtime, rate=rate,
             T_base_camera=T_base_camera, state_fn=lambda: str(localizer.state), odometry_receiver=receiver,
             on_ground_truth=recorder.on_ground_truth, on_fused=fused_hook,
         )

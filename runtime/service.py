@@ -165,7 +165,8 @@ class Service:
         self.counters: dict[str, int] = dict.fromkeys(
             ("frames_in", "odometry_in", "odometry_ignored", "ground_truth_in", "vloc_calls", "vloc_accepted",
              "vloc_rejected", "fusion_accepted", "fusion_rejected", "odometry_fused", "poses_published",
-             "poses_withheld", "map_to_odom_published", "vloc_published", "status_published"), 0)
+             "poses_withheld", "map_to_odom_published", "vloc_published", "status_published",
+             "odometry_rejected", "odometry_gaps"), 0)
         self.last_fused: Any = None
         self.sensor_now_ns: int | None = None
         self.last_vloc_accept_ns: int | None = None
@@ -179,6 +180,7 @@ class Service:
         self._vloc_done = 0
         self._last_odom_wall: float | None = None
         self._last_frame_wall: float | None = None
+        self._max_gap_s = p.odometry_checks.max_gap_s
         self.e2e = LatencyWindow(w)  # odometry into the FIFO -> pose handed to Zenoh (ms)
         self._t_start = time.monotonic()
         self._status: dict[str, Any] = {}
@@ -372,10 +374,14 @@ class Service:
     def _handle_odometry_item(self, item: tuple[int, Odometry]) -> None:
         t_in, odom = item
         self._last_odom_wall = time.monotonic()
+        if self.sensor_now_ns is not None and (odom.t_ns - self.sensor_now_ns) * 1e-9 > self._max_gap_s:
+            self.counters["odometry_gaps"] += 1  # (the Zenoh receiver counts its own; this is every input)
         self.sensor_now_ns = odom.t_ns
         try:
             fused = self.on_odometry(odom)
             self.counters["odometry_fused"] += 1
+            if fused is None and self.last_fused is not None:  # fusion refused it (time not increasing, bad pose)
+                self.counters["odometry_rejected"] += 1
             if fused is not None:
                 self.last_fused = fused
                 if self.on_fused is not None:
@@ -549,6 +555,12 @@ class Service:
             if odo.get("gaps"):
                 reasons.append(f"odometry time jumped forward {odo['gaps']} time(s) "
                                f"(max {odo['max_gap_seen_s']:.3f} s)")
+        if self.counters["odometry_gaps"] and p.odometry_input == "source":
+            reasons.append(f"odometry time jumped forward {self.counters['odometry_gaps']} time(s) "
+                           f"(> {self._max_gap_s:g} s)")
+        if self.counters["odometry_rejected"]:
+            reasons.append(f"fusion rejected {self.counters['odometry_rejected']} odometry message(s) "
+                           "(time not increasing or invalid pose)")
         running = not self._stop.is_set() and self.source_stage.state == StageState.RUNNING
         age = None if self._last_odom_wall is None else time.monotonic() - self._last_odom_wall
         odo["seconds_since_last"] = odo.get("seconds_since_last", age)

@@ -17,6 +17,7 @@ Log time = header stamp, so `iter_messages(log_time_order=True)` replays in time
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Iterator
 from pathlib import Path
 from types import TracebackType
@@ -56,6 +57,18 @@ TOPIC_TYPES = {
     TOPIC_GT: ros_msgs.POSE_STAMPED,
 }
 _FRAME_TOPICS = (TOPIC_COLOR, TOPIC_DEPTH, TOPIC_INFO)
+# What the mcap library (and zstd/lz4 below it) raise on a corrupt or truncated file: besides
+# McapError, plain struct/zstd/overflow errors from length fields that point anywhere (found by
+# tests/fuzz/test_fuzz_streams.py). All become StreamError.
+_CORRUPT: tuple[type[BaseException], ...] = (McapError, ValueError, EOFError, KeyError, IndexError, OverflowError,
+                                             struct.error, MemoryError, RuntimeError)
+try:
+    import zstandard
+
+    _CORRUPT = (*_CORRUPT, zstandard.ZstdError)
+except ImportError:  # pragma: no cover - mcap depends on zstandard
+    pass
+_CORRUPT_OR_OS: tuple[type[BaseException], ...] = (*_CORRUPT, OSError)
 
 
 class McapRecorder:
@@ -181,7 +194,7 @@ class McapSource:
         try:
             with open(self.path, "rb") as fh:
                 summary = make_reader(fh).get_summary()
-        except (McapError, ValueError, EOFError, OSError) as exc:
+        except _CORRUPT_OR_OS as exc:
             raise StreamError(f"{self.path}: not a readable MCAP file: {exc}") from exc
         if summary is None or summary.statistics is None:
             raise StreamError(f"{self.path}: MCAP file has no summary/statistics (truncated or unfinished recording?)")
@@ -210,7 +223,7 @@ class McapSource:
             try:
                 it = make_reader(fh).iter_messages(topics=[TOPIC_COLOR], log_time_order=True)
                 return [m.log_time for _, _, m in it]
-            except (McapError, ValueError, EOFError) as exc:
+            except _CORRUPT as exc:
                 raise StreamError(f"{self.path}: corrupt MCAP data: {exc}") from exc
 
     def _fail(self, reason: str, detail: str) -> None:
@@ -225,16 +238,18 @@ class McapSource:
         last_t: dict[str, int] = {}
         lo, hi = self._window if self._window else (None, None)
         with open(self.path, "rb") as fh:
-            reader = make_reader(fh)
+            reader = make_reader(fh, validate_crcs=True)  # a flipped bit is an error, not wrong data (fuzzing)
             it = reader.iter_messages(log_time_order=True)
+            n_raw = 0
             while True:
                 try:
                     item = next(it)
                 except StopIteration:
                     break
-                except (McapError, ValueError, EOFError, KeyError) as exc:
+                except _CORRUPT as exc:
                     raise StreamError(f"{self.path}: corrupt MCAP data: {exc}") from exc
                 _, channel, raw = item
+                n_raw += 1
                 topic = channel.topic
                 if topic not in TOPIC_TYPES:
                     self.stats.skip(f"unknown topic {topic}")
@@ -270,6 +285,9 @@ class McapSource:
                 if out is not None:
                     self.stats.messages += 1
                     yield out
+        expected = sum(self.topic_counts.values())
+        if n_raw != expected:  # e.g. a zeroed chunk index: the reader would otherwise just yield less
+            self._fail("messages missing or extra", f"the summary lists {expected} messages, {n_raw} were readable")
         for t_ns, parts in pending.items():
             if parts.get("index") in selected or TOPIC_COLOR not in parts:
                 self._fail("incomplete frame (missing colour, depth or camera_info)", f"stamp {t_ns}")

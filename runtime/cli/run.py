@@ -30,6 +30,8 @@ def add_service_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--listen", action="append", default=[], metavar="ENDPOINT", help="e.g. tcp/127.0.0.1:7447")
     p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT")
     p.add_argument("--namespace", default=None, help="key-expression prefix, e.g. robot1")
+    p.add_argument("--fault", action="append", default=[], metavar="KIND@START:DURATION",
+                   help="inject a fault (tests/benchmarks), e.g. camera_dropout@10:5; see runtime/faults.py")
 
 
 def open_configured_source(cfg: Any, path: Path | None) -> Any:
@@ -49,7 +51,7 @@ def open_configured_source(cfg: Any, path: Path | None) -> Any:
     return open_source(cfg.source.path, parse_frames(cfg.source.frames or None), strict=cfg.source.strict)
 
 
-def run_service(args: argparse.Namespace, source_path: Path | None, rate: float | None) -> dict:
+def run_service(args: argparse.Namespace, source_path: Path | None, rate: float | None, record: bool = True) -> dict:
     from litevloc.runtime.app import build_app, with_endpoints
 
     cfg = with_endpoints(config_of(args), args.listen, args.connect, args.namespace)
@@ -57,7 +59,17 @@ def run_service(args: argparse.Namespace, source_path: Path | None, rate: float 
     map_path = args.map or (Path(cfg.map) if cfg.map else None)
     if map_path is None:
         raise UserError("no map: give --map MAP or set `map:` in the config")
-    app = build_app(cfg, map_path, src, cfg.replay.rate if rate is None else rate)
+    faults = None
+    if getattr(args, "fault", None):
+        from litevloc.runtime.faults import FaultInjector, FaultSpecError
+
+        try:
+            faults = FaultInjector(args.fault)  # parsed before the (slow) model loading
+        except FaultSpecError as exc:
+            raise UserError(str(exc)) from exc
+    app = build_app(cfg, map_path, src, cfg.replay.rate if rate is None else rate, record=record)
+    if faults is not None:
+        faults.apply(app.service)
     try:
         result = app.service.run(install_signals=True)
     finally:
@@ -65,13 +77,15 @@ def run_service(args: argparse.Namespace, source_path: Path | None, rate: float 
     status = result.status
     out = {"ok": result.ok, "reason": result.reason, "status": status, "recorder": app.recorder,
            "T_base_camera": app.T_base_camera}
+    if faults is not None:
+        status["faults"] = faults.report()
     if not result.ok:
         log.error("service stopped: %s", result.reason)
     return out
 
 
 def run(args: argparse.Namespace) -> int:
-    res = run_service(args, args.source, args.rate)
+    res = run_service(args, args.source, args.rate, record=False)  # runs for hours: keep no trajectory
     print(f"litevloc run: {res['reason']}")
     write_json(args.json, {"ok": res["ok"], "reason": res["reason"], "status": json.loads(json.dumps(res["status"],
                                                                                                      default=str))})
