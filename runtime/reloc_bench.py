@@ -33,9 +33,11 @@ from litevloc.runtime.posed import posed_frames
 
 # The shipped LightGlue weights are for 128-d ALIKED descriptors (n16); t16 (64-d) pairs with mutual-NN.
 DEFAULT_METHODS = (
-    "aliked-n16+lightglue-adaptive@240x320", "aliked-n16+lightglue@240x320", "aliked-n16+mnn@240x320", "aliked-t16+mnn@240x320",
+    "aliked-n16+lightglue-adaptive@240x320", "aliked-n16+lightglue@240x320",
+    "aliked-n16+mnn@240x320", "aliked-t16+mnn@240x320",
     "sift+nn-ratio@240x320", "orb+nn-ratio@240x320",
-    "aliked-n16+lightglue-adaptive@480x640", "aliked-n16+lightglue@480x640", "aliked-n16+mnn@480x640", "aliked-t16+mnn@480x640",
+    "aliked-n16+lightglue-adaptive@480x640", "aliked-n16+lightglue@480x640",
+    "aliked-n16+mnn@480x640", "aliked-t16+mnn@480x640",
     "sift+nn-ratio@480x640", "orb+nn-ratio@480x640",
 )
 _METHOD_RE = re.compile(r"^([a-z0-9-]+)\+([a-z-]+)@(\d+)x(\d+)$")
