@@ -295,9 +295,9 @@ def register_depth(
     d = np.asarray(depth, dtype=np.float32)
     d = np.where(np.isfinite(d) & (d > 0), d, np.float32(0.0)).astype(np.float32)
     out = cv2.registerDepth(
-        np.asarray(K_depth, dtype=np.float64), np.asarray(K_color, dtype=np.float64), None,
+        np.asarray(K_depth, dtype=np.float64), np.asarray(K_color, dtype=np.float64), np.zeros(5),
         np.asarray(T_color_depth, dtype=np.float64), d, (int(size_wh[0]), int(size_wh[1])), depthDilation=dilation,
     )
-    out = np.asarray(out, dtype=np.float32)
-    out[~(out > 0)] = np.nan
-    return out
+    res: NDArray[np.float32] = np.asarray(out, dtype=np.float32)
+    res[~(res > 0)] = np.nan
+    return res
