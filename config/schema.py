@@ -18,6 +18,7 @@ from litevloc.hw.oak import CameraConfig
 from litevloc.hw.odometry import OdometryCheckParams
 from litevloc.hw.sim.params import SimParams
 from litevloc.models.config import ModelsConfig
+from litevloc.pipelines.calibration import ColorDepthCalibration
 from litevloc.pipelines.fusion.params import FusionParams
 from litevloc.pipelines.localization.vloc import LocalizationParams
 from litevloc.pipelines.odometry_drift import DriftParams
@@ -113,6 +114,8 @@ class LiteVLocConfig:
     sim: SimParams = field(default_factory=SimParams)
     zenoh: ZenohConfig = field(default_factory=lambda: ZenohConfig())
     runtime: RuntimeConfig = field(default_factory=lambda: RuntimeConfig())
+    # Colour camera of an RGB-D dataset whose depth is not registered (7-Scenes); None = as published.
+    rgbd_calibration: ColorDepthCalibration | None = None
 
 
 # --------------------------------------------------------------------- runtime / Zenoh

@@ -278,3 +278,26 @@ def backproject_depth(
     valid = np.isfinite(z) & (z > 0)
     uv = np.stack([us[valid], vs[valid]], axis=1)
     return backproject_pixels(K, uv, z[valid]), uv
+
+
+def register_depth(
+    depth: NDArray[np.floating], K_depth: NDArray[np.floating], K_color: NDArray[np.floating],
+    T_color_depth: NDArray[np.floating], size_wh: tuple[int, int], dilation: bool = False,
+) -> NDArray[np.float32]:
+    """Re-project an HxW depth image (metres, NaN/<=0 invalid) of the depth camera into
+    the colour camera (OpenCV `registerDepth`, no colour distortion).
+
+    Returns an (h, w) float32 image of colour-camera z in metres, NaN where no depth lands
+    (nearest surface wins where several do). `T_color_depth` maps depth- to colour-frame points.
+    """
+    import cv2
+
+    d = np.asarray(depth, dtype=np.float32)
+    d = np.where(np.isfinite(d) & (d > 0), d, np.float32(0.0)).astype(np.float32)
+    out = cv2.registerDepth(
+        np.asarray(K_depth, dtype=np.float64), np.asarray(K_color, dtype=np.float64), np.zeros(5),
+        np.asarray(T_color_depth, dtype=np.float64), d, (int(size_wh[0]), int(size_wh[1])), depthDilation=dilation,
+    )
+    res: NDArray[np.float32] = np.asarray(out, dtype=np.float32)
+    res[~(res > 0)] = np.nan
+    return res

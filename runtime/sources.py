@@ -20,13 +20,19 @@ from litevloc.hw.streams.mcap_io import McapSource
 from litevloc.hw.streams.posed_folder import PosedFolderSource
 from litevloc.hw.streams.sevenscenes import SevenScenesSource, is_sevenscenes_folder
 from litevloc.hw.streams.tum import TumRgbdSource, is_tum_folder
+from litevloc.pipelines.calibration import ColorDepthCalibration
 from litevloc.pipelines.geometry import invert
 from litevloc.pipelines.odometry_drift import T_BASE_CAMERA_OPTICAL, DriftParams, simulate_odometry
 
 
-def open_source(path: str | Path, frames: slice = slice(None), strict: bool = True) -> StreamSource:
+def open_source(
+    path: str | Path, frames: slice = slice(None), strict: bool = True,
+    rgbd_calibration: ColorDepthCalibration | None = None,
+) -> StreamSource:
     """Open a dataset folder, a recording, or a simulator URI (`sim:office?pass=query&seed=1`);
-    StreamError with a clear message otherwise. `frames` does not apply to simulator URIs."""
+    StreamError with a clear message otherwise. `frames` does not apply to simulator URIs.
+    `rgbd_calibration` (config `rgbd_calibration`) registers 7-Scenes depth to the colour
+    camera (see hw/streams/sevenscenes.py); other inputs are already registered and ignore it."""
     if str(path).startswith("sim:"):
         from litevloc.hw.sim.source import open_sim_source
 
@@ -42,6 +48,10 @@ def open_source(path: str | Path, frames: slice = slice(None), strict: bool = Tr
             return McapSource(p, frames, strict=strict)
         raise StreamError(f"{p}: unsupported file type (expected a .mcap recording)")
     if is_sevenscenes_folder(p):
+        if rgbd_calibration is not None:
+            return SevenScenesSource(p, frames, strict=strict, K_color=rgbd_calibration.K_color(),
+                                     T_color_depth=rgbd_calibration.T_color_depth(),
+                                     depth_dilation=rgbd_calibration.depth_dilation)
         return SevenScenesSource(p, frames, strict=strict)
     if is_tum_folder(p):
         return TumRgbdSource(p, frames, strict=strict)

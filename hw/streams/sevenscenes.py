@@ -5,8 +5,18 @@ Files per frame `frame-NNNNNN`: `.color.jpg` (640x480 RGB), `.depth.png` (uint16
 present, else the published fx = fy = 585, cx = 320, cy = 240.
 
 7-Scenes has no timestamps: frames are assumed at **30 Hz** (Kinect v1 rate), so frame i
-has `t_ns = i * 1e9 / 30` (rounded to ns). The colour and depth cameras are not
-registered; the same intrinsics are used for both (a few cm of systematic error).
+has `t_ns = i * 1e9 / 30` (rounded to ns).
+
+Colour/depth registration. The published intrinsics are the DEPTH camera's, the depth
+images are in the depth camera, and the ground-truth poses (KinectFusion on depth) are
+depth-camera poses; the colour camera has other intrinsics and sits a few cm away.
+* Without a calibration (`K_color=None`, the default, as older recordings): frames carry
+  the published K for both images and the raw depth (a few cm / ~2 deg of systematic error).
+* With a calibration (`K_color`, `T_color_depth`, e.g. from `litevloc calib` and the
+  `rgbd_calibration` block of config/presets/7scenes.yaml): depth is re-projected into the
+  colour camera with OpenCV's `registerDepth` (`pipelines.geometry.register_depth`), frames
+  carry `K_color`, and ground-truth poses become colour-camera poses
+  `T_world_color = T_world_depth @ inv(T_color_depth)`.
 
 The published pose matrices are not exactly orthonormal (rotation blocks deviate from
 SO(3) by up to ~1e-4). They are projected onto SO(3) (nearest rotation, SVD) on read, so
@@ -15,14 +25,15 @@ every pose is a proper rigid transform and survives quaternion round trips exact
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from pathlib import Path
 
 import numpy as np
 
-from litevloc.hw.messages import StreamError
+from litevloc.hw.messages import RgbdFrame, StreamError
 from litevloc.hw.streams.posed_folder import FrameRecord, PosedFolderSource, read_matrix_4x4
-from litevloc.pipelines.geometry import project_to_so3
+from litevloc.pipelines.geometry import check_rigid, invert, project_to_so3, register_depth
 
 FPS = 30.0
 DEFAULT_K = np.array([[585.0, 0.0, 320.0], [0.0, 585.0, 240.0], [0.0, 0.0, 1.0]])
@@ -49,8 +60,19 @@ def read_intrinsics(folder: Path) -> np.ndarray:
 class SevenScenesSource(PosedFolderSource):
     """A 7-Scenes sequence folder as a stream of RgbdFrame + GroundTruthPose."""
 
-    def __init__(self, folder: str | Path, frames: slice = slice(None), strict: bool = True) -> None:
+    def __init__(
+        self, folder: str | Path, frames: slice = slice(None), strict: bool = True,
+        K_color: np.ndarray | None = None, T_color_depth: np.ndarray | None = None, depth_dilation: bool = False,
+    ) -> None:
         root = Path(folder)
+        if (K_color is None) != (T_color_depth is None):
+            raise StreamError("7-Scenes calibration needs both K_color and T_color_depth (or neither)")
+        T_depth_color = None
+        if K_color is not None and T_color_depth is not None:
+            K_color = np.asarray(K_color, dtype=np.float64)
+            if K_color.shape != (3, 3) or not np.all(np.isfinite(K_color)) or K_color[0, 0] <= 0 or K_color[1, 1] <= 0:
+                raise StreamError(f"K_color must be a valid 3x3 intrinsics matrix, got {K_color.tolist()}")
+            T_depth_color = invert(check_rigid(np.asarray(T_color_depth, dtype=np.float64), "T_color_depth"))
         if not root.is_dir():
             raise StreamError(f"7-Scenes folder not found: {root}")
         matches = [m for p in root.iterdir() if (m := _FRAME_RE.match(p.name))]
@@ -64,6 +86,8 @@ class SevenScenesSource(PosedFolderSource):
             try:
                 T = read_matrix_4x4(Path(f"{stem}.pose.txt"))
                 T[:3, :3] = project_to_so3(T[:3, :3])
+                if T_depth_color is not None:
+                    T = T @ T_depth_color
             except StreamError as exc:
                 if strict:
                     raise
@@ -78,6 +102,20 @@ class SevenScenesSource(PosedFolderSource):
                     T_world_camera=T,
                 )
             )
-        super().__init__(f"7scenes:{root.name}", records, read_intrinsics(root), 1000.0, frames, strict)
+        K_depth = read_intrinsics(root)
+        self.K_depth = K_depth
+        self.T_color_depth = None if T_depth_color is None else invert(T_depth_color)
+        self.depth_dilation = depth_dilation
+        super().__init__(f"7scenes:{root.name}", records, K_depth if K_color is None else K_color, 1000.0, frames,
+                         strict)
         for reason in pose_problems:
             self.stats.skip(reason.split(":")[0])
+
+    def decode(self, rec: FrameRecord) -> RgbdFrame:
+        """Decode one frame; with a calibration, depth is registered to the colour camera."""
+        frame = super().decode(rec)
+        if self.T_color_depth is None or frame.depth is None:
+            return frame
+        depth = register_depth(frame.depth, self.K_depth, self.K, self.T_color_depth,
+                               (frame.width, frame.height), self.depth_dilation)
+        return dataclasses.replace(frame, depth=depth)

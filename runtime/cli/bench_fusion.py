@@ -130,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
     if args.seeds < 1:
         raise UserError("--seeds must be >= 1")
     src_path = args.src if args.src is not None else DEFAULT_SRC
-    src = open_source(src_path, frames_of(args))
+    src = open_source(src_path, frames_of(args), rgbd_calibration=cfg.rgbd_calibration)
     if not hasattr(src, "ground_truth"):
         raise UserError(f"{src_path}: needs ground-truth poses (a posed dataset folder)")
     gt_t, T_wc = src.ground_truth()

@@ -42,7 +42,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(str(exc)) from exc
     cfg = config_of(args)
     topomap = load_map(args.map)
-    src = open_source(args.src, frames_of(args), strict=True)
+    src = open_source(args.src, frames_of(args), strict=True, rgbd_calibration=cfg.rgbd_calibration)
     with progress(src.frame_count() * len(methods), "bench reloc", unit="query") as bar:
         res = run_reloc(topomap, src, methods, cfg, args.poses_dir, on_query=lambda: bar.update(1))
     hdr = ["method", "est %", "med cm", "med deg", "max cm", "max deg", "5cm5d", "25cm5d", "1m10d", "ms/q"]

@@ -47,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
     bundle = load_bundle(cfg.models)
     topomap = check_map_models(load_map(args.map), bundle)
     loc = VisualLocalizer(topomap, cfg.localization, bundle.extract, bundle.describe, bundle.match)
-    src = open_source(args.src, frames_of(args), strict=True)
+    src = open_source(args.src, frames_of(args), strict=True, rgbd_calibration=cfg.rgbd_calibration)
     times: list[float] = []
     poses: list = []
     errors: list[tuple[float, float]] = []

@@ -52,7 +52,7 @@ def build(args: argparse.Namespace) -> int:
     if args.output.exists() and not args.force:
         raise UserError(f"{args.output} exists; pass --force to replace it")
     bundle = load_bundle(cfg.models, matcher=cfg.mapping.covisibility_matcher)
-    src = open_source(args.src, frames_of(args), strict=True)
+    src = open_source(args.src, frames_of(args), strict=True, rgbd_calibration=cfg.rgbd_calibration)
     builder = MapBuilder(cfg.mapping, bundle.extract, bundle.describe, bundle.match, bundle.extractor.name,
                          bundle.vpr.name)
     t0 = time.perf_counter()

@@ -95,7 +95,7 @@ def open_camera_source(cfg: LiteVLocConfig, source: Path | None, frames: slice) 
     from litevloc.runtime.sources import open_source, with_simulated_odometry
 
     if source is not None:
-        src = open_source(source, frames, strict=True)
+        src = open_source(source, frames, strict=True, rgbd_calibration=cfg.rgbd_calibration)
         return with_simulated_odometry(src, cfg.odometry_sim.rate_hz, cfg.odometry_sim.drift, cfg.odometry_sim.seed)
     kind = cfg.source.kind
     if kind == "oak-d":
@@ -103,7 +103,7 @@ def open_camera_source(cfg: LiteVLocConfig, source: Path | None, frames: slice) 
 
         return OakSource(cfg.camera, strict=cfg.source.strict)
     if kind in ("recording", "dataset") and cfg.source.path:
-        return open_source(cfg.source.path, frames, strict=True)
+        return open_source(cfg.source.path, frames, strict=True, rgbd_calibration=cfg.rgbd_calibration)
     raise UserError(
         f"nothing to record: the config's source.kind is {kind!r}"
         + ("" if cfg.source.path else " with no source.path")

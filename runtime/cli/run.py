@@ -40,7 +40,7 @@ def open_configured_source(cfg: Any, path: Path | None) -> Any:
     from litevloc.runtime.sources import open_source
 
     if path is not None:
-        return open_source(path, strict=cfg.source.strict)
+        return open_source(path, strict=cfg.source.strict, rgbd_calibration=cfg.rgbd_calibration)
     kind = cfg.source.kind
     if kind == "oak-d":
         from litevloc.hw.oak import OakSource
@@ -48,7 +48,8 @@ def open_configured_source(cfg: Any, path: Path | None) -> Any:
         return OakSource(cfg.camera, strict=cfg.source.strict)
     if not cfg.source.path:
         raise UserError(f"config source.kind is {kind!r} but source.path is empty; give --source")
-    return open_source(cfg.source.path, parse_frames(cfg.source.frames or None), strict=cfg.source.strict)
+    return open_source(cfg.source.path, parse_frames(cfg.source.frames or None), strict=cfg.source.strict,
+                       rgbd_calibration=cfg.rgbd_calibration)
 
 
 def run_service(args: argparse.Namespace, source_path: Path | None, rate: float | None, record: bool = True) -> dict:

@@ -94,3 +94,29 @@ def test_frames_spec_parsing() -> None:
     for bad in ("a:b", "5", "1:2:0"):
         with pytest.raises(ValueError):
             parse_frames(bad)
+
+
+def test_calibrated_reader_registers_depth_and_moves_ground_truth(seven_scenes_dir: Path) -> None:
+    from litevloc.pipelines.geometry import make_T, so3_exp
+
+    K_color = np.array([[515.0, 0.0, 318.0], [0.0, 518.0, 226.0], [0.0, 0.0, 1.0]])
+    T_cd = make_T(so3_exp(np.array([-0.019, -0.027, 0.0])), np.array([-0.025, 0.0, 0.0]))
+    raw = list(SevenScenesSource(seven_scenes_dir, parse_frames("20:21")))
+    cal = list(SevenScenesSource(seven_scenes_dir, parse_frames("20:21"), K_color=K_color, T_color_depth=T_cd))
+    f_raw, gt_raw = raw[0], raw[1]
+    f_cal, gt_cal = cal[0], cal[1]
+    assert isinstance(f_raw, RgbdFrame) and isinstance(f_cal, RgbdFrame)
+    assert isinstance(gt_raw, GroundTruthPose) and isinstance(gt_cal, GroundTruthPose)
+    np.testing.assert_array_equal(f_cal.K, K_color)
+    np.testing.assert_array_equal(f_cal.color, f_raw.color)
+    np.testing.assert_allclose(gt_cal.T_world_camera, gt_raw.T_world_camera @ np.linalg.inv(T_cd), atol=1e-12)
+    assert f_cal.depth is not None and f_raw.depth is not None and f_cal.depth.shape == f_raw.depth.shape
+    # Same surface, other camera: similar depth statistics, but not the same image.
+    assert abs(np.nanmedian(f_cal.depth) - np.nanmedian(f_raw.depth)) < 0.05
+    assert not np.allclose(np.nan_to_num(f_cal.depth), np.nan_to_num(f_raw.depth))
+    # Identity extrinsic and the depth intrinsics: depth unchanged.
+    same = list(SevenScenesSource(seven_scenes_dir, parse_frames("20:21"), K_color=f_raw.K, T_color_depth=np.eye(4)))
+    assert isinstance(same[0], RgbdFrame) and same[0].depth is not None
+    np.testing.assert_allclose(same[0].depth, f_raw.depth, equal_nan=True)
+    with pytest.raises(StreamError, match="both"):
+        SevenScenesSource(seven_scenes_dir, parse_frames("20:21"), K_color=K_color)
