@@ -54,7 +54,7 @@ def main() -> None:
         t0 = time.perf_counter()
         res = loc.localize_global(frame.t_ns, frame.color, frame.depth, frame.K)
         times.append(time.perf_counter() - t0)
-        ref = reference_node(topomap, T)
+        ref = reference_node(topomap, T, frame.depth, frame.K)
         tried = [a.node for a in res.attempts]
         vpr_hit += ref in tried
         if res.accepted and res.T_map_camera is not None:
