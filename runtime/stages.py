@@ -339,4 +339,5 @@ def ort_session_options() -> Any:
     so.intra_op_num_threads = _THREADS["ort_intra_op"]
     so.inter_op_num_threads = _THREADS["ort_inter_op"]
     so.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+    so.add_session_config_entry("session.intra_op.allow_spinning", "0")  # see models.ort.make_session
     return so
