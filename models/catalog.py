@@ -12,7 +12,7 @@ import re
 from dataclasses import dataclass
 from typing import Literal
 
-EXPORT_VERSION = 2  # 2: ALIKED deformable convs as the ONNX DeformConv op (was grid_sample)
+EXPORT_VERSION = 3  # 2: ALIKED deformable convs as DeformConv; 3: ALIKED descriptor sampling by gathers
 OPSET = 19
 LIGHTGLUE_LAYERS = 9
 
