@@ -342,8 +342,11 @@ class PlannerService:
             except Exception:  # a bug must not kill the service silently
                 log.exception("planner failed on a %s message", kind)
                 self.counters["bad_messages"] += 1
-            if time.monotonic() >= next_status:
-                self._publish_status(self.planner.status)
+            if time.monotonic() >= next_status and not self._stop.is_set():
+                try:
+                    self._publish_status(self.planner.status)
+                except Exception as exc:  # session closing
+                    log.debug("status heartbeat: %s", exc)
                 next_status = time.monotonic() + period
 
     def handle(self, kind: str, item: Any) -> None:
