@@ -308,6 +308,7 @@ class PlannerService:
         self.inbox.put(("pose", (t_ns, T)))
 
     def _on_goal_sample(self, sample: Any) -> None:
+        item: tuple[str, bytes | Exception]
         try:
             msg = ros_msgs.deserialize(sample.payload.to_bytes(), ros_msgs.COMPRESSED_IMAGE)
             item = (str(msg.header.frame_id) or f"goal_{self.counters['goals_in']}", bytes(msg.data))

@@ -64,7 +64,7 @@ class NavParams:
     control_hz: float = 5.0  # local planner / simulator step rate (a frame is rendered each step)
     vloc_hz: float = 1.0  # frames handed to the runtime per simulated second
     goal_timeout_s: float = 120.0  # simulated seconds per goal before it is cancelled
-    success_radius_m: float = 1.5
+    success_radius_m: float = 2.0  # goals are localized to a map keyframe, often 1-2 m from the goal spot
     search_after_s: float = 3.0  # no pose yet for this long: turn in place to find a place
     answer_timeout_s: float = 20.0  # wall time to wait for the planner's answer to a pose
     seed: int = 0
@@ -287,7 +287,7 @@ class _Driver:
         self.goals_sent = True
         n = len(self.goals)
         self._wait(lambda: self.status.get("goals_received", 0) >= n, f"{n} goal images not acknowledged",
-                   timeout=max(p.answer_timeout_s, 10.0 * n))
+                   timeout=max(p.answer_timeout_s, 60.0 * n))  # model inference, loaded CPUs
         dt = 1.0 / p.control_hz
         vloc_every = max(1, round(p.control_hz / p.vloc_hz))
         k = 0
@@ -380,7 +380,7 @@ def run_navigation(
         if localization == "litevloc":
             from litevloc.runtime.app import build_app
 
-            state: dict[str, Any] = {"t": None}
+            state: dict[str, int | None] = {"t": None}
 
             def on_fused(f: Any) -> None:
                 if getattr(f, "initialised", True):
@@ -395,25 +395,29 @@ def run_navigation(
                 def __iter__(self) -> Iterator[Message]:
                     return source_box[0]
 
-            app = build_app(rt_cfg, map_path, _Source(), 0.0, on_fused=on_fused)  # type: ignore[arg-type]
+            app = build_app(rt_cfg, map_path, _Source(), 0.0, on_fused=on_fused)
             closers.append(app.close)
-            last = {"published": 0, "t": None}
+            last = {"published": 0}
 
-            def on_step(_step: Any) -> int | None:
+            def on_step_rt(_step: Any) -> int | None:
                 n = app.service.counters["poses_published"]
                 if n == last["published"]:
                     return None
                 last["published"] = n
-                return state["t"]  # type: ignore[no-any-return]
+                return state["t"]
+
+            on_step: Callable[[Any], int | None] = on_step_rt
         else:
             gt_bus = Bus(z_rt)
             closers.append(gt_bus.close)
             pub = LiteVLocPublisher(gt_bus, cfg.runtime.lost_policy, cfg.runtime.lost_variance)
             closers.append(pub.close)
 
-            def on_step(step: Any) -> int | None:
+            def on_step_gt(step: Any) -> int | None:
                 pub.publish_pose(step.t_ns, step.T_world_base, np.eye(6) * 1e-4)
                 return int(step.t_ns)
+
+            on_step = on_step_gt
 
         pl_bus = Bus(z_pl)
         closers.append(pl_bus.close)
@@ -489,7 +493,8 @@ def plot_navigation(world: World, topomap: Any, runs: list[NavRun], goals: list[
         if len(r.subgoals_xy):
             ax.scatter(r.subgoals_xy[:, 0], r.subgoals_xy[:, 1], s=14, marker="x", color=color, zorder=3)
     if runs and len(runs[0].path_xy):
-        ax.scatter(*runs[0].path_xy[0], s=80, marker="o", facecolor="none", edgecolor="k", label="start", zorder=4)
+        x0, y0 = runs[0].path_xy[0]
+        ax.scatter([x0], [y0], s=80, marker="o", facecolor="none", edgecolor="k", label="start", zorder=4)
     for k, g in enumerate(goals):
         if g.T_world_base is None:
             continue

@@ -34,15 +34,15 @@ class LocalPlannerParams:
     time_to_end_s: float = 1.5  # speed = free arc length / this (clipped)
     min_progress_m: float = 0.2  # arcs blocked sooner are not driven
     robot_radius: float = 0.3
-    margin_m: float = 0.05
+    margin_m: float = 0.03  # hard: arcs closer than radius + margin are blocked (clearance_m is soft)
     height_band_m: tuple[float, float] = (0.08, 1.5)  # obstacle heights above the floor
     max_range_m: float = 4.0
     stride_px: int = 4  # depth subsampling
     turn_in_place_deg: float = 55.0
     turn_gain: float = 1.5
     arrive_m: float = 0.15  # stop when the subgoal is this close
-    clearance_m: float = 0.6  # clearance below this is penalised
-    w_clearance: float = 1.0
+    clearance_m: float = 0.7  # clearance below this is penalised
+    w_clearance: float = 3.0
     w_turn: float = 0.1
     memory_frames: int = 12  # obstacle points of the last N frames taken >= memory_step apart (odometry)
     memory_step_m: float = 0.1

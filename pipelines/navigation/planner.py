@@ -156,7 +156,7 @@ class TrackerParams:
     # advance past a reached node only once the straight way on to the next one is clear for
     # a robot of this radius in the map's occupancy grid (else keep approaching the node,
     # down to reach_m / 3); 0 = off
-    clearance_m: float = 0.3
+    clearance_m: float = 0.45
 
     def __post_init__(self) -> None:
         if self.reach_m <= 0 or self.stray_m <= self.reach_m or self.clearance_m < 0:

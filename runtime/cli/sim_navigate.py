@@ -45,7 +45,7 @@ def ensure_map(world_name: str, out_dir: Path, config: str | None, map_duration:
     from litevloc.runtime.cli.main import main
 
     map_dir = out_dir / "map"
-    if (map_dir / "manifest.json").is_file() or any(map_dir.glob("*.json")):
+    if (map_dir / "manifest.json").is_file():
         return map_dir
     out_dir.mkdir(parents=True, exist_ok=True)
     rec = out_dir / "map.mcap"
