@@ -68,6 +68,8 @@ class NavParams:
     search_after_s: float = 3.0  # no pose yet for this long: turn in place to find a place
     answer_timeout_s: float = 20.0  # wall time to wait for the planner's answer to a pose
     seed: int = 0
+    odometry_hz: float | None = 50.0  # simulated odometry rate (None: the config's); every fused pose
+    # goes over Zenoh and is answered by the planner, so this sets the message load of the loop
     local: LocalPlannerParams = field(default_factory=LocalPlannerParams)
 
     def __post_init__(self) -> None:
@@ -331,11 +333,15 @@ class _Driver:
             return
         self.pose_seen = True
 
+        n_sent = len(self.goals)
+
         def answered() -> bool:
+            # the planner answers every pose while busy; once it says it is idle (after all our
+            # goals were received) it answers nothing until we send goals again
             st = self.status
             if self.sub_t >= pose_t:
                 return True
-            return bool(st) and (st.get("pose_t_ns") or -1) >= pose_t and not st.get("busy", True)
+            return bool(st) and not st.get("busy", True) and st.get("goals_received", 0) >= n_sent
 
         with self.cond:
             busy = not self.status or self.status.get("busy", True)
@@ -372,6 +378,8 @@ def run_navigation(
     T_bc = cfg.fusion.T_base_camera()
     if bundle is None:
         bundle = load_bundle(dataclasses.replace(cfg.models, intra_op_threads=cfg.runtime.ort_intra_op_threads))
+    if params.odometry_hz is not None:
+        cfg = dataclasses.replace(cfg, sim=dataclasses.replace(cfg.sim, odometry_rate_hz=params.odometry_hz))
     sim = Simulator(world, cfg.sim, seed=params.seed)
     closers: list[Callable[[], None]] = []
     extra: dict[str, Any] = {"mode": "sequential" if localization == "litevloc" else "ground-truth pose",

@@ -28,7 +28,12 @@ def test_closed_loop_reaches_a_goal_with_litevloc(small_map: Path, tmp_path: Pat
     world = load_world("office")
     goal = render_goals(world, cfg, ["room_00"])
     start = world.goal_places["room_00"].copy()
-    start[:2, :2] = -start[:2, :2]  # same spot, facing the other way
+    start[:2, :2] = -start[:2, :2]  # facing away from the goal view ...
+    for back in (1.5, 1.2, 0.9):  # ... and a step further from it
+        xy = start[:2, 3] + back * start[:2, 0]
+        if world.is_free(xy, 0.45):
+            start[:2, 3] = xy
+            break
     run = run_navigation(world, cfg, small_map, goal, start, "litevloc", NavParams(goal_timeout_s=40.0))
     s = run.summary()
     assert s["goals_reached"] == 1, s["goals"]
