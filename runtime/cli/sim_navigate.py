@@ -66,8 +66,6 @@ def navigate(world_name: str, cfg: Any, map_path: Path, goal_args: list[str] | N
              modes: list[str], params: Any, world_seed: int | None = None, png: Path | None = None,
              ) -> dict[str, Any]:
     """Run the loop for each localization mode; returns the results dict (and writes the PNG)."""
-    import numpy as np
-
     from litevloc.hw.sim.world import load_world
     from litevloc.pipelines.topomap.io import load_map
     from litevloc.runtime.sim_navigation import Goal, plot_navigation, render_goals, run_navigation
@@ -115,20 +113,21 @@ def navigate(world_name: str, cfg: Any, map_path: Path, goal_args: list[str] | N
         out["png"] = str(plot_navigation(world, load_map(map_path), list(runs.values()), goals, png,
                                          f"LiteVLoc image-goal navigation: {world_name}"))
     out["per_goal_time_s"] = [g["time_s"] for g in res["goals"]]
-    _ = np
     return out
 
 
 def print_table(res: dict[str, Any]) -> None:
     base = {g["name"]: g for g in res.get("baseline", {}).get("goals", [])}
-    print(f"\n{'goal':<12} {'outcome':<9} {'time s':>7} {'path m':>7} {'to goal m':>9}   "
-          f"{'GT: outcome':<11} {'time s':>7} {'path m':>7}")
-    for g in res["goals"] if isinstance(res["goals"][0], dict) else []:
-        b = base.get(g["name"], {})
+    head = f"\n{'goal':<12} {'outcome':<9} {'time s':>7} {'path m':>7} {'to goal m':>9}"
+    print(head + (f"   {'GT: outcome':<11} {'time s':>7} {'path m':>7}" if base else ""))
+    for g in res["goals"]:
         d = g.get("distance_to_goal_m")
-        print(f"{g['name']:<12} {g['outcome']:<9} {g['time_s']:>7.1f} {g['path_length_m']:>7.1f} "
-              f"{'' if d is None else f'{d:.2f}':>9}   {b.get('outcome', '-'):<11} {b.get('time_s', 0):>7.1f} "
-              f"{b.get('path_length_m', 0):>7.1f}")
+        row = (f"{g['name']:<12} {g['outcome']:<9} {g['time_s']:>7.1f} {g['path_length_m']:>7.1f} "
+               f"{'' if d is None else f'{d:.2f}':>9}")
+        if base:
+            b = base.get(g["name"], {})
+            row += f"   {b.get('outcome', '-'):<11} {b.get('time_s', 0):>7.1f} {b.get('path_length_m', 0):>7.1f}"
+        print(row)
     line = (f"total: {res['goals_reached']}/{res['goals_total']} reached, {res['time_s']:.0f} s, "
             f"{res['path_length_m']:.1f} m")
     if "baseline" in res:
@@ -152,7 +151,6 @@ def run_navigate(args: argparse.Namespace) -> int:
     png = args.output or args.out_dir / "navigate.png"
     res = navigate(args.world, cfg, map_path, args.goals, args.start, modes, params, args.world_seed, png)
     res["wall_s_total"] = round(time.perf_counter() - t0, 1)
-    # the goal list as objects for the table (names are also under "goals" of each run)
     print_table(res)
     print(f"plot: {res.get('png')}")
     write_json(args.json or args.out_dir / "navigate.json", res)
