@@ -152,3 +152,12 @@ def test_planner_config_validation() -> None:
         PlannerConfig(publish_period_s=-1)
     with pytest.raises(ValueError, match="clearance_m"):
         TrackerParams(clearance_m=-0.1)
+
+
+def test_planner_section_loads_from_config() -> None:
+    from litevloc.config import ConfigError, load_config
+
+    c = load_config("default", ["planner.tracker.reach_m=0.7", "planner.goal.top_k=3"])
+    assert c.planner.tracker.reach_m == 0.7 and c.planner.goal.top_k == 3
+    with pytest.raises(ConfigError, match=r"planner\.tracker"):
+        load_config("default", ["planner.tracker.reach_m=5"])
