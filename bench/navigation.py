@@ -63,10 +63,25 @@ def main(argv: list[str] | None = None) -> int:
                      res["path_length_m"], f"{b['goals_reached']}/{b['goals_total']}", b["time_s"],
                      b["path_length_m"]])
         rows.append([world, "ratio LiteVLoc/GT", "", res["ratios"]["time"], res["ratios"]["path_length"], "", "", ""])
+        _save(results)  # after each world: a long world cannot lose the others' results
     print_table("Image-goal navigation (simulated time; GT = ground-truth localization baseline)",
                 ["world", "goal", "LiteVLoc", "time s", "path m", "GT", "time s", "path m"], rows)
-    write_json("navigation", {"worlds": results})
+    _save(results)
     return 0
+
+
+def _save(results: dict) -> None:
+    """Write out/bench/navigation.json, keeping other worlds' results from an earlier run."""
+    import json
+
+    path = OUT / "navigation.json"
+    worlds = {}
+    if path.is_file():
+        try:
+            worlds = json.loads(path.read_text()).get("worlds", {})
+        except ValueError:
+            worlds = {}
+    write_json("navigation", {"worlds": {**worlds, **results}})
 
 
 if __name__ == "__main__":
