@@ -53,6 +53,7 @@ bench: $(VENV)/.dev-installed models
 	$(VENV)/bin/python bench/depth_odometry.py
 	$(VENV)/bin/python bench/sim.py
 	$(VENV)/bin/python bench/stereo.py
+	$(VENV)/bin/python bench/navigation.py
 	$(VENV)/bin/python bench/runtime_queues.py
 
 clean:
