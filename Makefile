@@ -48,11 +48,13 @@ lint: $(VENV)/.dev-installed
 bench: $(VENV)/.dev-installed models
 	$(VENV)/bin/python bench/streams.py
 	$(VENV)/bin/python bench/models.py
+	$(VENV)/bin/python bench/matcher.py
 	$(VENV)/bin/python bench/mapping.py
 	$(VENV)/bin/python bench/fusion.py
 	$(VENV)/bin/python bench/depth_odometry.py
 	$(VENV)/bin/python bench/sim.py
 	$(VENV)/bin/python bench/stereo.py
+	$(VENV)/bin/python bench/navigation.py --worlds office
 	$(VENV)/bin/python bench/runtime_queues.py
 
 clean:

@@ -116,6 +116,7 @@ class LiteVLocConfig:
     runtime: RuntimeConfig = field(default_factory=lambda: RuntimeConfig())
     # Colour camera of an RGB-D dataset whose depth is not registered (7-Scenes); None = as published.
     rgbd_calibration: ColorDepthCalibration | None = None
+    planner: PlannerConfig = field(default_factory=lambda: PlannerConfig())
 
 
 # --------------------------------------------------------------------- runtime / Zenoh
@@ -242,3 +243,33 @@ class RuntimeConfig:
         if not self.odometry_key or any(c in self.odometry_key for c in "$?#") or self.odometry_key.startswith("/"):
             raise ValueError(f"runtime.odometry_key {self.odometry_key!r} is not a valid key expression "
                              "(no leading '/', no $ ? #)")
+
+
+# --------------------------------------------------------------------- planner (image-goal navigation)
+# (appended for the navigation issue; used by litevloc.runtime.planner_service / `litevloc plan`)
+from litevloc.pipelines.navigation.planner import GoalParams, TrackerParams  # noqa: E402
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    """The planner service (`litevloc plan`): goal localization, subgoal tracking, publishing.
+
+    Keys (namespaced like the runtime's): subscribes `litevloc/pose`, `litevloc/goal_image`,
+    `litevloc/goal_cancel`; publishes `litevloc/subgoal`, `litevloc/subgoal_base`,
+    `litevloc/planner_status`.
+    """
+
+    goal: GoalParams = field(default_factory=GoalParams)
+    tracker: TrackerParams = field(default_factory=TrackerParams)
+    publish_period_s: float = 0.0  # sensor time between subgoal messages; 0 = on every fused pose
+    status_period_s: float = 1.0  # wall time between repeated status messages
+    max_queued_goals: int = 32
+    max_goal_bytes: int = 8_000_000  # larger goal images are rejected (status failed)
+
+    def __post_init__(self) -> None:
+        if not (0 <= self.publish_period_s < float("inf")):
+            raise ValueError(f"planner.publish_period_s must be finite and >= 0, got {self.publish_period_s}")
+        if not (0 < self.status_period_s < float("inf")):
+            raise ValueError(f"planner.status_period_s must be finite and > 0, got {self.status_period_s}")
+        if self.max_queued_goals < 1 or self.max_goal_bytes < 1024:
+            raise ValueError("planner.max_queued_goals must be >= 1 and planner.max_goal_bytes >= 1024")

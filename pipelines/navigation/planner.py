@@ -10,7 +10,8 @@
   library would add a dependency for no measurable gain.
 * `SubgoalTracker`: follows the path node by node, advancing when the robot is within
   `reach_m` of the current subgoal, replanning from the nearest node when the robot strays
-  farther than `stray_m` from the path, and reporting idle/planned/reached/failed.
+  farther than `stray_m` from the path segment it is on (last reached node or start ->
+  current subgoal), and reporting idle/planned/reached/failed.
 """
 
 from __future__ import annotations
@@ -121,14 +122,45 @@ def shortest_path(topomap: TopoMap, start: int, goal: int) -> tuple[list[int], f
     return path[::-1], float(dist[goal])
 
 
+def segment_distance(p: NDArray[np.floating], a: NDArray[np.floating], b: NDArray[np.floating]) -> float:
+    """Distance (m) from point p to the segment a-b (3-vectors, same frame)."""
+    ab = np.asarray(b, np.float64) - a
+    den = float(ab @ ab)
+    t = 0.0 if den == 0 else float(np.clip((np.asarray(p, np.float64) - a) @ ab / den, 0.0, 1.0))
+    return float(np.linalg.norm(np.asarray(p, np.float64) - (a + t * ab)))
+
+
+def segment_clear(topomap: TopoMap, a: NDArray[np.floating], b: NDArray[np.floating], radius: float) -> bool:
+    """True if a disc of `radius` (m) swept from map point a to b (3-vectors) touches no
+    OCCUPIED cell of the map's occupancy grid (cells outside the grid count as free)."""
+    g = topomap.grid
+    if g.cells.size == 0:
+        return True
+    pa, pb = g.to_plane(np.stack([np.asarray(a, np.float64)[:3], np.asarray(b, np.float64)[:3]]))
+    d = pb - pa
+    length = float(np.linalg.norm(d))
+    n = max(2, int(np.ceil(length / (g.resolution / 2))) + 1)
+    normal = np.array([-d[1], d[0]]) / length if length > 0 else np.array([0.0, 1.0])
+    offs = np.linspace(-radius, radius, max(3, int(np.ceil(2 * radius / g.resolution)) + 1))
+    pts = (pa + np.linspace(0, 1, n)[:, None] * d)[:, None, :] + offs[None, :, None] * normal
+    ij = g.cell_of(pts.reshape(-1, 2))
+    H, W = g.cells.shape
+    inside = (ij[:, 0] >= 0) & (ij[:, 0] < H) & (ij[:, 1] >= 0) & (ij[:, 1] < W)
+    return not bool(np.any(g.cells[ij[inside, 0], ij[inside, 1]] == g.OCCUPIED))
+
+
 @dataclass(frozen=True)
 class TrackerParams:
     reach_m: float = 0.5
     stray_m: float = 2.0
+    # advance past a reached node only once the straight way on to the next one is clear for
+    # a robot of this radius in the map's occupancy grid (else keep approaching the node,
+    # down to reach_m / 3); 0 = off
+    clearance_m: float = 0.45
 
     def __post_init__(self) -> None:
-        if self.reach_m <= 0 or self.stray_m <= self.reach_m:
-            raise ValueError("need 0 < reach_m < stray_m")
+        if self.reach_m <= 0 or self.stray_m <= self.reach_m or self.clearance_m < 0:
+            raise ValueError("need 0 < reach_m < stray_m and clearance_m >= 0")
 
 
 @dataclass(frozen=True)
@@ -141,22 +173,31 @@ class NavStatus:
 
 
 class SubgoalTracker:
-    """Follow a node path on the map from fused robot positions (map frame)."""
+    """Follow a node path on the map from fused robot positions (map frame).
 
-    def __init__(self, topomap: TopoMap, params: TrackerParams = TrackerParams()) -> None:
+    `positions` (N, 3): where the robot should be at each node (default: the keyframes'
+    camera centres; the planner service passes the matching base positions)."""
+
+    def __init__(self, topomap: TopoMap, params: TrackerParams = TrackerParams(),
+                 positions: NDArray[np.floating] | None = None) -> None:
         self.map = topomap
         self.params = params
+        self.positions = np.asarray(topomap.positions if positions is None else positions, np.float64)
+        if self.positions.shape != (topomap.n_nodes, 3):
+            raise ValueError(f"positions must be ({topomap.n_nodes}, 3), got {self.positions.shape}")
         self.goal: int | None = None
         self.path: list[int] = []
         self.status = NavStatus("idle", "no goal")
         self.replans = 0
+        self._seg_start: NDArray[np.float64] | None = None  # where the current path segment starts
 
     def nearest_node(self, position: NDArray[np.floating]) -> int:
-        return int(np.argmin(np.linalg.norm(self.map.positions - np.asarray(position)[:3], axis=1)))
+        return int(np.argmin(np.linalg.norm(self.positions - np.asarray(position)[:3], axis=1)))
 
     def _plan(self, position: NDArray[np.floating]) -> NavStatus:
         assert self.goal is not None
         start = self.nearest_node(position)
+        self._seg_start = np.asarray(position, dtype=np.float64)[:3].copy()
         try:
             self.path, length = shortest_path(self.map, start, self.goal)
         except NavigationError as exc:
@@ -177,13 +218,18 @@ class SubgoalTracker:
         if self.goal is None or self.status.state in ("idle", "reached", "failed"):
             return self.status
         p = np.asarray(position, dtype=np.float64)[:3]
-        pos = self.map.positions
+        pos = self.positions
         while self.path and np.linalg.norm(pos[self.path[0]] - p) <= self.params.reach_m:
-            self.path.pop(0)
+            if len(self.path) > 1 and self.params.clearance_m > 0 and \
+                    np.linalg.norm(pos[self.path[0]] - p) > self.params.reach_m / 3 and \
+                    not segment_clear(self.map, p, pos[self.path[1]], self.params.clearance_m):
+                break  # the way on is blocked from here: get closer to this node first
+            self._seg_start = pos[self.path.pop(0)].copy()
         if not self.path:
             self.status = NavStatus("reached", f"within {self.params.reach_m} m of goal node {self.goal}")
             return self.status
-        if np.linalg.norm(pos[self.path[0]] - p) > self.params.stray_m:
+        if segment_distance(p, p if self._seg_start is None else self._seg_start, pos[self.path[0]]) \
+                > self.params.stray_m:
             self.replans += 1
             return self._plan(p)
         rem = float(np.linalg.norm(pos[self.path[0]] - p)) + float(

@@ -52,6 +52,7 @@ def run(args: argparse.Namespace) -> int:
     poses: list = []
     errors: list[tuple[float, float]] = []
     lat: dict[str, list[float]] = {"global": [], "local": []}
+    stages: dict[str, list[dict[str, float]]] = {"global": [], "local": []}  # per mode: stage ms of each query
     counts = {"queries": 0, "accepted": 0, "rejected": 0, "global": 0, "local": 0}
     reasons: dict[str, int] = {}
     with progress(src.frame_count(), "localize") as bar:
@@ -61,6 +62,7 @@ def run(args: argparse.Namespace) -> int:
             counts["queries"] += 1
             counts[res.mode] += 1
             lat[res.mode].append(res.timings_ms.get("total", 0.0))
+            stages[res.mode].append(dict(res.timings_ms))
             if res.accepted and res.T_map_camera is not None:
                 counts["accepted"] += 1
                 times.append(frame.t_ns * 1e-9)
@@ -78,6 +80,9 @@ def run(args: argparse.Namespace) -> int:
     for mode, v in lat.items():
         if v:
             summary[f"{mode}_latency_ms"] = {"median": float(np.median(v)), "p90": float(np.percentile(v, 90))}
+            # mean ms per query of each stage (0 where a query skipped it; "match" sums all candidates)
+            keys = sorted({k for q in stages[mode] for k in q})
+            summary[f"{mode}_stage_mean_ms"] = {k: float(np.mean([q.get(k, 0.0) for q in stages[mode]])) for k in keys}
     if errors:
         e = np.array(errors)
         summary["errors"] = {
@@ -95,6 +100,7 @@ def run(args: argparse.Namespace) -> int:
     for mode in ("global", "local"):
         if f"{mode}_latency_ms" in summary:
             s = summary[f"{mode}_latency_ms"]
-            print(f"  {mode} latency: median {s['median']:.0f} ms, p90 {s['p90']:.0f} ms")
+            parts = ", ".join(f"{k} {v:.0f}" for k, v in summary[f"{mode}_stage_mean_ms"].items() if k != "total")
+            print(f"  {mode} latency: median {s['median']:.0f} ms, p90 {s['p90']:.0f} ms (mean ms: {parts})")
     write_json(args.json, summary)
     return 0

@@ -15,7 +15,8 @@ import sys
 from collections.abc import Sequence
 
 # Subcommand modules (litevloc.runtime.cli.<name>), in help order.
-COMMANDS = ("info", "demo", "run", "convert", "replay", "record", "sim", "models", "map", "localize", "bench", "calib")
+COMMANDS = ("info", "demo", "run", "convert", "replay", "record", "sim", "models", "map", "localize", "bench",
+            "calib", "plan", "goal")
 
 
 class UserError(Exception):

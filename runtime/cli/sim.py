@@ -85,6 +85,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--world-seed", type=int, default=None)
     add_config_args(g)
     g.set_defaults(func=run_goals)
+    from litevloc.runtime.cli.sim_navigate import add_parser as add_navigate
+
+    add_navigate(ss)
 
 
 def _world(args: argparse.Namespace):

@@ -1,5 +1,7 @@
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -62,3 +64,28 @@ def test_goal_localization_verifies_geometry() -> None:
     far, _ = observe(behind)  # looks away from every map point: nothing verifies
     res2 = localize_goal(far, desc / np.linalg.norm(desc), K, m, match_by_id)
     assert res2.node is None and "matches no map place" in res2.reason
+
+
+def test_tracker_stray_is_measured_from_the_path_segment() -> None:
+    from litevloc.pipelines.navigation.planner import segment_distance
+
+    assert np.isclose(segment_distance(np.array([1.0, 1.0, 0]), np.zeros(3), np.array([2.0, 0, 0])), 1.0)
+    assert np.isclose(segment_distance(np.array([-1.0, 0, 0]), np.zeros(3), np.array([2.0, 0, 0])), 1.0)
+    # nodes 3 m apart: halfway along the segment the robot is 1.5 m from both nodes but on the path
+    m = grid_map([(0, 1, 3.0)], 2)
+    m = dataclasses.replace(m, T_map_camera=m.T_map_camera.copy())
+    m.T_map_camera[1, 0, 3] = 3.0 + m.T_map_camera[0, 0, 3]
+    tr = SubgoalTracker(m, TrackerParams(reach_m=0.3, stray_m=1.2, clearance_m=0.0))
+    p0 = m.positions[0].copy()
+    tr.set_goal(1, p0)
+    tr.update(p0)  # node 0 reached
+    st = tr.update(p0 + np.array([1.5, 0.3, 0.0]))
+    assert st.state == "planned" and tr.replans == 0 and st.subgoal == 1
+    st = tr.update(p0 + np.array([1.5, 1.5, 0.0]))  # 1.5 m off the segment
+    assert tr.replans == 1
+
+
+def test_tracker_positions_override_must_match_nodes() -> None:
+    m = grid_map([(0, 1, 1.0)], 2)
+    with pytest.raises(ValueError, match="positions"):
+        SubgoalTracker(m, positions=np.zeros((3, 3)))

@@ -1,0 +1,200 @@
+"""A non-learning local planner for the simulated robot (demo code, not the onboard runtime).
+
+In the spirit of LiteVLoc's navigation experiments, which pair the global subgoal with a
+simple local planner: the current depth image is turned into obstacle points on the
+ground plane (base frame), a fan of constant-(v, omega) arcs (motion primitives) is
+rolled out over a short horizon, arcs that pass within the robot radius plus a margin
+of an obstacle point are discarded, and the remaining arc whose end lands closest to the
+subgoal (with penalties for low clearance and turning) is driven. A subgoal far to the
+side or behind is first faced by turning in place. The camera only sees ahead, so the
+obstacle points of the last few frames are kept in the odometry frame (short-term memory,
+drift over a few seconds is negligible) to remember door frames that left the view.
+
+Frames: `base_link` x forward, y left, z up on the floor; the depth image is in the camera
+optical frame mounted at `T_base_camera`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+
+@dataclass(frozen=True)
+class LocalPlannerParams:
+    max_speed: float = 0.6  # m/s
+    min_speed: float = 0.15
+    max_omega: float = 1.0  # rad/s
+    max_curvature: float = 2.5  # 1/m; arcs have curvatures in [-max, max]
+    n_arcs: int = 21
+    lookahead_m: float = 2.5  # arcs are checked this far (or to the subgoal)
+    samples: int = 25
+    time_to_end_s: float = 1.5  # speed = free arc length / this (clipped)
+    min_progress_m: float = 0.2  # arcs blocked sooner are not driven
+    robot_radius: float = 0.3
+    margin_m: float = 0.03  # hard: arcs closer than radius + margin are blocked (clearance_m is soft)
+    height_band_m: tuple[float, float] = (0.08, 1.5)  # obstacle heights above the floor
+    max_range_m: float = 4.0
+    stride_px: int = 4  # depth subsampling
+    turn_in_place_deg: float = 55.0
+    turn_gain: float = 1.5
+    arrive_m: float = 0.15  # stop when the subgoal is this close
+    clearance_m: float = 0.7  # clearance below this is penalised
+    w_clearance: float = 3.0
+    w_turn: float = 0.1
+    memory_frames: int = 12  # obstacle points of the last N frames taken >= memory_step apart (odometry)
+    memory_step_m: float = 0.1
+    memory_step_deg: float = 8.0
+    voxel_m: float = 0.05  # obstacle points are thinned to one per voxel
+
+    def __post_init__(self) -> None:
+        if not 0 < self.min_speed <= self.max_speed:
+            raise ValueError("need 0 < min_speed <= max_speed")
+        if self.max_omega <= 0 or self.max_curvature <= 0 or self.n_arcs < 3 or self.samples < 2:
+            raise ValueError("need max_omega > 0, max_curvature > 0, n_arcs >= 3 and samples >= 2")
+        if self.lookahead_m <= 0 or self.time_to_end_s <= 0 or self.min_progress_m < 0:
+            raise ValueError("need lookahead_m > 0, time_to_end_s > 0 and min_progress_m >= 0")
+        if self.robot_radius <= 0 or self.margin_m < 0 or self.stride_px < 1:
+            raise ValueError("need robot_radius > 0, margin_m >= 0 and stride_px >= 1")
+        if not self.height_band_m[0] < self.height_band_m[1]:
+            raise ValueError("height_band_m must be (low, high) with low < high")
+
+
+@dataclass(frozen=True)
+class Command:
+    v: float  # m/s
+    omega: float  # rad/s
+    reason: str  # "arc" | "turn" | "arrived" | "blocked"
+    clearance_m: float = float("inf")
+
+
+def obstacle_points(
+    depth: NDArray[np.floating], K: NDArray[np.floating], T_base_camera: NDArray[np.floating],
+    params: LocalPlannerParams = LocalPlannerParams(),
+) -> NDArray[np.float64]:
+    """(M, 2) x, y (base frame, m) of depth points within the obstacle height band.
+
+    depth: HxW float32 metres (NaN / <= 0 invalid); K: 3x3; T_base_camera: 4x4.
+    """
+    s = params.stride_px
+    d = np.asarray(depth, np.float64)[::s, ::s]
+    v, u = np.mgrid[0 : depth.shape[0] : s, 0 : depth.shape[1] : s]
+    ok = np.isfinite(d) & (d > 0.05) & (d < params.max_range_m)
+    z = d[ok]
+    x = (u[ok] - K[0, 2]) / K[0, 0] * z
+    y = (v[ok] - K[1, 2]) / K[1, 1] * z
+    T = np.asarray(T_base_camera, np.float64)
+    P = np.stack([x, y, z], 1) @ T[:3, :3].T + T[:3, 3]
+    lo, hi = params.height_band_m
+    keep = (P[:, 2] > lo) & (P[:, 2] < hi)
+    return P[keep, :2]
+
+
+def arc_points(curvature: float, lengths: NDArray[np.floating]) -> NDArray[np.float64]:
+    """(n, 2) points at arc lengths `lengths` (m) along a circle of signed curvature (1/m,
+    + = left) leaving the origin along +x."""
+    s = np.asarray(lengths, np.float64)
+    if abs(curvature) < 1e-9:
+        return np.stack([s, np.zeros_like(s)], 1)
+    r = 1.0 / curvature
+    return np.stack([r * np.sin(s / r), r * (1 - np.cos(s / r))], 1)
+
+
+class LocalPlanner:
+    """Chooses (v, omega) toward a subgoal from one depth image (see module docstring)."""
+
+    def __init__(self, params: LocalPlannerParams = LocalPlannerParams()) -> None:
+        self.params = p = params
+        self.kappas = np.linspace(-p.max_curvature, p.max_curvature, p.n_arcs)
+        self.s = np.linspace(p.lookahead_m / p.samples, p.lookahead_m, p.samples)
+        self.arcs = np.stack([arc_points(k, self.s) for k in self.kappas])  # (A, n, 2)
+        self.memory: list[NDArray[np.float64]] = []  # (M, 2) obstacle points, odometry frame
+        self._mem_pose: NDArray[np.float64] | None = None  # x, y, yaw of the last stored frame
+        self._turn_sign = 0.0  # while blocked, keep turning the same way (no dithering)
+
+    def _remember(self, pts_base: NDArray[np.float64], T_odom_base: NDArray[np.floating]) -> NDArray[np.float64]:
+        """Store this frame's points (odom frame); all remembered points in the base frame."""
+        T = np.asarray(T_odom_base, np.float64)
+        c, s_ = T[0, 0], T[1, 0]
+        n = np.hypot(c, s_)
+        R = np.array([[c, -s_], [s_, c]]) / max(n, 1e-12)
+        p = self.params
+        cur = pts_base @ R.T + T[:2, 3]
+        last = self._mem_pose
+        moved = last is None or np.hypot(*(T[:2, 3] - last[:2])) >= p.memory_step_m or \
+            abs(np.angle(np.exp(1j * (np.arctan2(s_, c) - last[2])))) >= np.radians(p.memory_step_deg)
+        if moved:
+            self.memory.append(cur)
+            self.memory = self.memory[-p.memory_frames:]
+            self._mem_pose = np.array([T[0, 3], T[1, 3], np.arctan2(s_, c)])
+        allp = np.concatenate([*self.memory, cur]) if self.memory else cur
+        return (allp - T[:2, 3]) @ R
+
+    def _thin(self, pts: NDArray[np.float64]) -> NDArray[np.float64]:
+        if len(pts) == 0:
+            return pts
+        keys = np.floor(pts / self.params.voxel_m).astype(np.int64)
+        _, idx = np.unique(keys, axis=0, return_index=True)
+        return pts[np.sort(idx)]
+
+    def command(
+        self, goal_xy: NDArray[np.floating], depth: NDArray[np.floating] | None, K: NDArray[np.floating],
+        T_base_camera: NDArray[np.floating], T_odom_base: NDArray[np.floating] | None = None,
+    ) -> Command:
+        """goal_xy: (2,) subgoal in the base frame (m); depth None = no obstacle information;
+        T_odom_base (4x4, odometry) enables the short-term obstacle memory."""
+        p = self.params
+        g = np.asarray(goal_xy, np.float64)[:2]
+        pts = np.zeros((0, 2)) if depth is None else self._thin(obstacle_points(depth, K, T_base_camera, p))
+        if T_odom_base is not None and p.memory_frames > 0:
+            pts = self._thin(self._remember(pts, T_odom_base))
+        dist = float(np.hypot(*g))
+        if dist < p.arrive_m:
+            return Command(0.0, 0.0, "arrived")
+        bearing = float(np.arctan2(g[1], g[0]))
+        if abs(bearing) > np.radians(p.turn_in_place_deg):
+            return Command(0.0, float(np.clip(p.turn_gain * bearing, -p.max_omega, p.max_omega)), "turn")
+        need = min(dist, p.lookahead_m)
+        n_need = int(np.searchsorted(self.s, need - 1e-9)) + 1  # samples up to the subgoal
+        arcs = self.arcs[:, :n_need]
+        if len(pts):
+            flat = arcs.reshape(-1, 2)
+            d2 = (flat**2).sum(1)[:, None] + (pts**2).sum(1)[None, :] - 2.0 * flat @ pts.T
+            dmin = np.sqrt(np.maximum(d2.min(axis=1), 0.0)).reshape(arcs.shape[:2])  # (A, n)
+        else:
+            dmin = np.full(arcs.shape[:2], np.inf)
+        # blocked where an arc comes within radius + margin of an obstacle; from a tight spot
+        # (a doorway) arcs that do not get closer than the robot already is are allowed
+        here = float(np.sqrt(np.min((pts**2).sum(1)))) if len(pts) else np.inf
+        limit = min(p.robot_radius + p.margin_m, max(here - 0.02, p.robot_radius * 0.8))
+        hit = dmin <= limit
+        first = np.where(hit.any(axis=1), hit.argmax(axis=1), n_need)  # first blocked sample
+        free_len = np.where(first > 0, self.s[np.maximum(first - 1, 0)], 0.0)
+        free_len = np.minimum(free_len, need)
+        ok = free_len >= min(p.min_progress_m, need) - 1e-9
+        ok &= first > 0
+        if not ok.any():
+            if first.max() >= 3:  # squeeze: the arc that stays free longest, slowly
+                a = int(np.argmax(first - 0.01 * np.abs(self.kappas)))
+                return Command(p.min_speed, float(np.clip(self.kappas[a] * p.min_speed, -p.max_omega, p.max_omega)),
+                               "squeeze")
+            if self._turn_sign == 0.0:
+                self._turn_sign = 1.0 if bearing >= 0 else -1.0
+            return Command(0.0, self._turn_sign * 0.6 * p.max_omega, "blocked")
+        self._turn_sign = 0.0
+        idx = np.arange(len(self.kappas))
+        ends = arcs[idx, np.maximum(first - 1, 0)]
+        clear = np.array([dmin[a, : max(first[a], 1)].min() for a in idx])
+        cost = (np.linalg.norm(ends - g, axis=1)
+                + p.w_clearance * np.maximum(0.0, p.clearance_m - np.minimum(clear, 10.0))
+                + p.w_turn * np.abs(self.kappas))
+        cost[~ok] = np.inf
+        a = int(np.argmin(cost))
+        v = float(np.clip(free_len[a] / p.time_to_end_s, p.min_speed, p.max_speed))
+        w = float(self.kappas[a] * v)
+        if abs(w) > p.max_omega:
+            v *= p.max_omega / abs(w)
+            w = float(np.sign(w) * p.max_omega)
+        return Command(v, w, "arc", float(clear[a]))

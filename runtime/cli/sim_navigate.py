@@ -1,0 +1,157 @@
+"""`litevloc sim navigate`: closed-loop image-goal navigation in a simulated world.
+
+    litevloc sim navigate WORLD [--map MAP] [--goals NAME|IMG ...] [--start NAME]
+                          [--localization litevloc|ground-truth|both] [--json PATH] [-o PNG]
+
+Without --map the map is built from a simulated mapping pass (`sim record --pass map`,
+`map build`), cached under the output folder. Goals are the world's goal places (their
+images are rendered like `sim goals`) or image files. With `both` (the default) the run
+is repeated with ground-truth localization as the baseline (JSON key `baseline`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+from typing import Any
+
+from litevloc.runtime.cli.common import add_config_args, config_of, write_json
+from litevloc.runtime.cli.main import UserError
+
+
+def add_parser(ss: argparse._SubParsersAction) -> None:
+    n = ss.add_parser("navigate", help="closed loop: sim -> runtime -> planner -> local planner (Zenoh)")
+    n.add_argument("world", help="world name (see config/worlds) or YAML file")
+    n.add_argument("--map", type=Path, default=None, help="map folder (default: build one, cached)")
+    n.add_argument("--goals", nargs="+", default=None,
+                   help="goal place names or image files (default: up to 5 goal places after --start)")
+    n.add_argument("--start", default=None, help="goal place to start at (default: the first)")
+    n.add_argument("--localization", choices=("litevloc", "ground-truth", "both"), default="both")
+    n.add_argument("--vloc-hz", type=float, default=1.0, help="frames to VLoc per simulated second")
+    n.add_argument("--goal-timeout", type=float, default=120.0, metavar="S", help="simulated seconds per goal")
+    n.add_argument("--seed", type=int, default=0)
+    n.add_argument("--world-seed", type=int, default=None)
+    n.add_argument("--out-dir", type=Path, default=Path("out/navigate"), help="folder for the cached map")
+    n.add_argument("-o", "--output", type=Path, default=None, help="top-down PNG (default: OUT_DIR/navigate.png)")
+    n.add_argument("--json", type=Path, default=None, help="results JSON")
+    add_config_args(n)
+    n.set_defaults(func=run_navigate)
+
+
+def ensure_map(world_name: str, out_dir: Path, config: str | None, map_duration: float | None = None,
+               world_seed: int | None = None) -> Path:
+    """A map of the world from a simulated mapping pass, built once under out_dir."""
+    from litevloc.runtime.cli.main import main
+
+    map_dir = out_dir / "map"
+    if (map_dir / "manifest.json").is_file():
+        return map_dir
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rec = out_dir / "map.mcap"
+    cfg = ["--config", config] if config else []
+    dur = ["--duration", str(map_duration)] if map_duration else []
+    ws = ["--world-seed", str(world_seed)] if world_seed is not None else []
+    for argv in (["sim", "record", world_name, "--pass", "map", "--seed", "0", "-o", str(rec), *dur, *ws, *cfg,
+                  "--json", str(out_dir / "record_map.json")],
+                 ["map", "build", str(rec), "-o", str(map_dir), "--force", *cfg, "--json", str(out_dir / "map.json")]):
+        print(f"== litevloc {' '.join(argv)}", flush=True)
+        if main(argv) != 0:
+            raise UserError(f"building the map failed at: litevloc {' '.join(argv)}")
+    rec.unlink(missing_ok=True)  # large; the map is what is cached
+    return map_dir
+
+
+def navigate(world_name: str, cfg: Any, map_path: Path, goal_args: list[str] | None, start: str | None,
+             modes: list[str], params: Any, world_seed: int | None = None, png: Path | None = None,
+             ) -> dict[str, Any]:
+    """Run the loop for each localization mode; returns the results dict (and writes the PNG)."""
+    from litevloc.hw.sim.world import load_world
+    from litevloc.pipelines.topomap.io import load_map
+    from litevloc.runtime.sim_navigation import Goal, plot_navigation, render_goals, run_navigation
+    from litevloc.runtime.vloc_models import load_bundle
+
+    world = load_world(world_name, seed=world_seed)
+    places = sorted(world.goal_places)
+    if not places:
+        raise UserError(f"world {world_name!r} has no goal places")
+    start = start or places[0]
+    if start not in world.goal_places:
+        raise UserError(f"--start {start!r} is not a goal place of {world_name} ({places})")
+    names = goal_args or [p for p in places if p != start][:5]
+    goals: list[Goal] = []
+    for g in names:
+        if g in world.goal_places:
+            goals.extend(render_goals(world, cfg, [g], seed=params.seed))
+        elif Path(g).is_file():
+            goals.append(Goal(Path(g).stem, Path(g).read_bytes(), None))
+        else:
+            raise UserError(f"goal {g!r} is neither a goal place of {world_name} ({places}) nor an image file")
+    bundle = load_bundle(cfg.models)
+    runs = {}
+    for mode in modes:
+        print(f"== navigating {len(goals)} goals with {mode} localization", flush=True)
+        runs[mode] = run_navigation(world, cfg, map_path, goals, world.goal_places[start], mode, params, bundle)
+        s = runs[mode].summary()
+        print(f"   {s['goals_reached']}/{s['goals_total']} reached, {s['time_s']:.0f} s simulated, "
+              f"{s['path_length_m']:.1f} m driven ({s['wall_s']:.0f} s wall)", flush=True)
+    main_mode = modes[0]
+    out: dict[str, Any] = {"world": world_name, "start": start, "goals": [g.name for g in goals],
+                           "map": str(map_path)}
+    res = runs[main_mode].summary()
+    res.pop("trace", None)
+    out.update(res)
+    if "ground-truth" in runs and main_mode != "ground-truth":
+        base = runs["ground-truth"].summary()
+        base.pop("trace", None)
+        out["baseline"] = base
+        out["ratios"] = {
+            "path_length": round(res["path_length_m"] / max(base["path_length_m"], 1e-9), 3),
+            "time": round(res["time_s"] / max(base["time_s"], 1e-9), 3),
+        }
+    if png is not None:
+        out["png"] = str(plot_navigation(world, load_map(map_path), list(runs.values()), goals, png,
+                                         f"LiteVLoc image-goal navigation: {world_name}"))
+    out["per_goal_time_s"] = [g["time_s"] for g in res["goals"]]
+    return out
+
+
+def print_table(res: dict[str, Any]) -> None:
+    base = {g["name"]: g for g in res.get("baseline", {}).get("goals", [])}
+    head = f"\n{'goal':<12} {'outcome':<9} {'time s':>7} {'path m':>7} {'to goal m':>9}"
+    print(head + (f"   {'GT: outcome':<11} {'time s':>7} {'path m':>7}" if base else ""))
+    for g in res["goals"]:
+        d = g.get("distance_to_goal_m")
+        row = (f"{g['name']:<12} {g['outcome']:<9} {g['time_s']:>7.1f} {g['path_length_m']:>7.1f} "
+               f"{'' if d is None else f'{d:.2f}':>9}")
+        if base:
+            b = base.get(g["name"], {})
+            row += f"   {b.get('outcome', '-'):<11} {b.get('time_s', 0):>7.1f} {b.get('path_length_m', 0):>7.1f}"
+        print(row)
+    line = (f"total: {res['goals_reached']}/{res['goals_total']} reached, {res['time_s']:.0f} s, "
+            f"{res['path_length_m']:.1f} m")
+    if "baseline" in res:
+        b = res["baseline"]
+        line += (f"; ground truth: {b['goals_reached']}/{b['goals_total']}, {b['time_s']:.0f} s, "
+                 f"{b['path_length_m']:.1f} m; path ratio {res['ratios']['path_length']:.2f}")
+    print(line)
+
+
+def run_navigate(args: argparse.Namespace) -> int:
+    from litevloc.runtime.sim_navigation import NavParams
+
+    cfg = config_of(args)
+    t0 = time.perf_counter()
+    map_path = args.map or ensure_map(args.world, args.out_dir, args.config, world_seed=args.world_seed)
+    modes = ["litevloc", "ground-truth"] if args.localization == "both" else [args.localization]
+    try:
+        params = NavParams(vloc_hz=args.vloc_hz, goal_timeout_s=args.goal_timeout, seed=args.seed)
+    except ValueError as exc:
+        raise UserError(str(exc)) from exc
+    png = args.output or args.out_dir / "navigate.png"
+    res = navigate(args.world, cfg, map_path, args.goals, args.start, modes, params, args.world_seed, png)
+    res["wall_s_total"] = round(time.perf_counter() - t0, 1)
+    print_table(res)
+    print(f"plot: {res.get('png')}")
+    write_json(args.json or args.out_dir / "navigate.json", res)
+    return 0 if res["goals_reached"] == res["goals_total"] else 1

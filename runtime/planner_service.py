@@ -1,0 +1,409 @@
+"""The planner service (`litevloc plan`): image goals -> subgoals on the map, over Zenoh.
+
+Runs on the planner computer. The algorithms are in `pipelines.navigation.planner`
+(goal localization with geometric verification, Dijkstra, `SubgoalTracker`); this module
+wires them to messages.
+
+Topics (namespaced like the runtime's, `<ns>/litevloc/...`; CDR ROS 2 payloads):
+
+* in  `litevloc/pose` nav_msgs/Odometry: the fused `T_map_base` from the onboard runtime.
+* in  `litevloc/goal_image` sensor_msgs/CompressedImage (JPEG or PNG): a goal; goals are
+  queued and visited in order (a sequence). `header.frame_id` names the goal (reported in
+  the status). The goal camera is assumed to be the robot's (the map keyframes'
+  intrinsics, scaled to the goal image size).
+* in  `litevloc/goal_cancel` std_msgs/String: `"current"` skips the active goal (failed,
+  reason "cancelled"), `"all"` also empties the queue.
+* out `litevloc/subgoal` geometry_msgs/PoseStamped (frame `map`): the base pose at the next
+  node of the path (the node keyframe's camera pose moved back to the base, kept level).
+* out `litevloc/subgoal_base` geometry_msgs/PoseStamped (frame `base_link`): the same pose
+  in the robot frame (`inv(T_map_base) @ T_map_subgoal`), for a local planner.
+* out `litevloc/planner_status` std_msgs/String, JSON: `state` idle | planned | reached |
+  failed, `reason`, `goal` (name), `goal_node`, `subgoal_node`, `path`, `remaining_m`,
+  `queued`, `busy` (a goal active or queued), `goals_received`, `seq` (incremented on
+  every change), `pose_t_ns` (stamp of the last pose handled). Published on every change and every `status_period_s`.
+
+Ordering contract (what makes closed-loop runs reproducible): poses and goals are handled
+in arrival order by one worker thread; for every pose handled while a goal is active or
+queued, a subgoal pair or a status stamped with that pose is published (with
+`planner.publish_period_s: 0`, the default).
+
+A goal image that matches no map place is reported `failed` with the reason and is never
+planned to.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import queue
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from litevloc.config.schema import PlannerConfig
+from litevloc.hw import ros_msgs
+from litevloc.pipelines.geometry import invert
+from litevloc.pipelines.navigation.planner import GoalResult, NavStatus, SubgoalTracker, localize_goal
+from litevloc.pipelines.topomap.types import TopoMap
+from litevloc.runtime.metrics import jsonable
+
+log = logging.getLogger(__name__)
+
+KEYS = {
+    "pose": "litevloc/pose",
+    "goal_image": "litevloc/goal_image",
+    "goal_cancel": "litevloc/goal_cancel",
+    "subgoal": "litevloc/subgoal",
+    "subgoal_base": "litevloc/subgoal_base",
+    "status": "litevloc/planner_status",
+}
+
+LocateFn = Callable[[NDArray[np.uint8]], GoalResult]
+
+
+def decode_goal_image(data: bytes) -> NDArray[np.uint8]:
+    """JPEG/PNG bytes -> HxWx3 uint8 RGB; ValueError when undecodable."""
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    if img is None or img.ndim != 3 or min(img.shape[:2]) < 16:
+        raise ValueError(f"goal image is not a decodable colour JPEG/PNG ({len(data)} bytes)")
+    return np.ascontiguousarray(img[:, :, ::-1])
+
+
+def goal_locator(topomap: TopoMap, extract: Callable[[Any], Any], describe: Callable[[Any], Any],
+                 match: Callable[[Any, Any], Any], params: PlannerConfig) -> LocateFn:
+    """`locate(rgb) -> GoalResult` with the map's intrinsics scaled to the goal image."""
+    K0 = np.asarray(topomap.K[0], np.float64)
+    w0, h0 = (int(v) for v in topomap.image_size[0])
+
+    def locate(rgb: NDArray[np.uint8]) -> GoalResult:
+        h, w = rgb.shape[:2]
+        K = K0.copy()
+        K[0] *= w / w0
+        K[1] *= h / h0
+        return localize_goal(extract(rgb), describe(rgb), K, topomap, match, params.goal)
+
+    return locate
+
+
+def level_pose(T: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Keep x, y, z and the yaw of a 4x4 pose (z up); roll and pitch removed."""
+    yaw = float(np.arctan2(T[1, 0], T[0, 0]))
+    out = np.eye(4)
+    out[:2, :2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
+    out[:3, 3] = T[:3, 3]
+    return out
+
+
+@dataclass(frozen=True)
+class Subgoal:
+    t_ns: int
+    node: int
+    T_map_subgoal: NDArray[np.float64]  # 4x4 base pose at the node, map frame
+    T_base_subgoal: NDArray[np.float64]  # 4x4 the same in the robot frame
+
+
+Output = tuple[str, Any]  # ("status", dict) | ("subgoal", Subgoal)
+
+
+class GoalPlanner:
+    """Message logic of the planner service (no I/O; the service feeds it and publishes).
+
+    Args:
+        topomap: the map (node camera poses, connectivity graph).
+        locate: goal image (HxWx3 uint8 RGB) -> `GoalResult`.
+        params: the `planner` config section.
+        T_base_camera: 4x4 camera pose in the base frame (node poses are camera poses).
+    """
+
+    def __init__(self, topomap: TopoMap, locate: LocateFn, params: PlannerConfig,
+                 T_base_camera: NDArray[np.float64]) -> None:
+        self.map, self.locate, self.params = topomap, locate, params
+        self.T_base_camera = np.asarray(T_base_camera, np.float64)
+        self.T_camera_base = invert(self.T_base_camera)
+        # where the base stands at each node: the keyframe camera pose moved back to the base, level
+        self.node_base = np.stack([level_pose(T @ self.T_camera_base) for T in topomap.T_map_camera])
+        self.tracker = SubgoalTracker(topomap, params.tracker, self.node_base[:, :3, 3])
+        self.queue: deque[tuple[str, int, float]] = deque()  # (name, node, inliers)
+        self.active: str | None = None
+        self.goals_received = 0
+        self.seq = 0
+        self.pose: tuple[int, NDArray[np.float64]] | None = None
+        self.status: dict[str, Any] = self._status("idle", "no goal", None)
+        self._last_pub_t: int | None = None
+        self._last_sub_node: int | None = None
+        self._nav: NavStatus | None = None
+
+    # ----------------------------------------------------------------- helpers
+    def _status(self, state: str, reason: str, goal: str | None, nav: NavStatus | None = None,
+                goal_node: int | None = None) -> dict[str, Any]:
+        self.seq += 1
+        return {
+            "state": state, "reason": reason, "goal": goal, "goal_node": goal_node,
+            "subgoal_node": None if nav is None else nav.subgoal,
+            "path": [] if nav is None else list(nav.path),
+            "remaining_m": 0.0 if nav is None else round(float(nav.remaining_m), 3),
+            "queued": len(self.queue), "goals_received": self.goals_received, "seq": self.seq,
+            "pose_t_ns": None if self.pose is None else self.pose[0],
+            "replans": self.tracker.replans, "busy": self.busy,
+        }
+
+    def _emit(self, out: list[Output], state: str, reason: str, goal: str | None,
+              nav: NavStatus | None = None, goal_node: int | None = None) -> None:
+        self.status = self._status(state, reason, goal, nav, goal_node)
+        out.append(("status", dict(self.status)))
+
+    def robot_position(self, T_map_base: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Base position of the robot in the map (compared with `node_base` positions)."""
+        return np.asarray(T_map_base, np.float64)[:3, 3]
+
+    def subgoal_of(self, node: int, t_ns: int, T_map_base: NDArray[np.float64]) -> Subgoal:
+        T_map_sub = self.node_base[node].copy()
+        return Subgoal(t_ns, node, T_map_sub, invert(T_map_base) @ T_map_sub)
+
+    @property
+    def busy(self) -> bool:
+        """A goal is active or queued."""
+        return self.active is not None or bool(self.queue)
+
+    # ----------------------------------------------------------------- inputs
+    def add_goal(self, name: str, image: bytes | NDArray[np.uint8]) -> list[Output]:
+        """Localize a goal image and queue it (starts at once if idle and a pose is known)."""
+        out: list[Output] = []
+        self.goals_received += 1
+        try:
+            if isinstance(image, bytes | bytearray | memoryview):
+                if len(image) > self.params.max_goal_bytes:
+                    raise ValueError(f"goal image of {len(image)} bytes > planner.max_goal_bytes")
+                image = decode_goal_image(bytes(image))
+            if len(self.queue) >= self.params.max_queued_goals:
+                raise ValueError(f"goal queue full ({self.params.max_queued_goals} goals)")
+            res = self.locate(image)
+        except Exception as exc:
+            self._emit(out, "failed", f"goal {name!r} rejected: {exc}", name)
+            return out
+        if res.node is None:
+            self._emit(out, "failed", f"goal {name!r}: {res.reason}", name)
+            return out
+        self.queue.append((name, res.node, float(res.inliers)))
+        where = f"goal {name!r} at node {res.node} ({res.inliers} inliers)"
+        was_active = self.active
+        if self.active is None:
+            self._start_next(out)
+        if self.active is None and self.pose is None:
+            self._emit(out, "idle", f"{where} queued; waiting for a fused pose", None)
+        elif was_active is not None:
+            self._emit(out, "planned", f"{where} queued behind {was_active!r}", was_active, self._nav,
+                       self.tracker.goal)
+        return out
+
+    def cancel(self, what: str) -> list[Output]:
+        """`current`: fail the active goal and go on; `all`: also drop the queue."""
+        out: list[Output] = []
+        if what not in ("current", "all"):
+            self._emit(out, self.status["state"], f"unknown cancel request {what!r} (current|all)", self.active)
+            return out
+        if what == "all":
+            self.queue.clear()
+        if self.active is not None:
+            name, self.active = self.active, None
+            self._emit(out, "failed", f"goal {name!r} cancelled", name, goal_node=self.tracker.goal)
+        self._start_next(out)
+        if what == "all" and self.active is None:
+            self._emit(out, "idle", "all goals cancelled", None)
+        return out
+
+    def _start_next(self, out: list[Output]) -> None:
+        while self.active is None and self.queue and self.pose is not None:
+            name, node, _ = self.queue.popleft()
+            T = self.pose[1]
+            nav = self.tracker.set_goal(node, self.robot_position(T))
+            if nav.state == "failed":
+                self._emit(out, "failed", f"goal {name!r}: {nav.reason}", name, goal_node=node)
+                continue
+            self.active, self._nav = name, nav
+            self._last_sub_node = None
+            self._emit(out, "planned", f"goal {name!r}: {nav.reason}", name, nav, node)
+            self._publish_subgoal(out, nav, force=True)
+
+    def _publish_subgoal(self, out: list[Output], nav: NavStatus, force: bool = False) -> None:
+        assert self.pose is not None and nav.subgoal is not None
+        t_ns, T = self.pose
+        period_ns = round(self.params.publish_period_s * 1e9)
+        due = (force or self._last_pub_t is None or nav.subgoal != self._last_sub_node
+               or t_ns - self._last_pub_t >= period_ns)
+        if due:
+            self._last_pub_t, self._last_sub_node = t_ns, nav.subgoal
+            out.append(("subgoal", self.subgoal_of(nav.subgoal, t_ns, T)))
+
+    def on_pose(self, t_ns: int, T_map_base: NDArray[np.floating]) -> list[Output]:
+        """A fused pose: advance / replan / reach; returns what to publish."""
+        out: list[Output] = []
+        T = np.asarray(T_map_base, np.float64)
+        self.pose = (int(t_ns), T)
+        if self.active is None:
+            self._start_next(out)
+            return out
+        before = self.tracker.replans
+        nav = self._nav = self.tracker.update(self.robot_position(T))
+        if nav.state == "reached":
+            name, self.active = self.active, None
+            self._emit(out, "reached", f"goal {name!r}: {nav.reason}", name, goal_node=self.tracker.goal)
+            self._start_next(out)
+        elif nav.state == "failed":
+            name, self.active = self.active, None
+            self._emit(out, "failed", f"goal {name!r}: {nav.reason}", name, goal_node=self.tracker.goal)
+            self._start_next(out)
+        else:
+            changed = self.tracker.replans != before or nav.subgoal != self.status["subgoal_node"]
+            if changed:
+                why = "replanned (strayed from the path)" if self.tracker.replans != before else "next subgoal"
+                self._emit(out, "planned", f"goal {self.active!r}: {why}", self.active, nav, self.tracker.goal)
+            self._publish_subgoal(out, nav)
+        return out
+
+
+class PlannerService:
+    """`GoalPlanner` on a Zenoh `Bus`: subscriptions feed one worker thread, which publishes.
+
+    Args:
+        bus: an open `runtime.bus.Bus` (its namespace prefixes every key).
+        planner: the message logic.
+    """
+
+    def __init__(self, bus: Any, planner: GoalPlanner) -> None:
+        self.bus, self.planner = bus, planner
+        self.inbox: queue.Queue[tuple[str, Any]] = queue.Queue()
+        self.counters = {"poses_in": 0, "goals_in": 0, "bad_messages": 0, "subgoals_published": 0,
+                         "status_published": 0}
+        self._stop = threading.Event()
+        self.pubs = {
+            "subgoal": bus.publisher(KEYS["subgoal"], ros_msgs.POSE_STAMPED),
+            "subgoal_base": bus.publisher(KEYS["subgoal_base"], ros_msgs.POSE_STAMPED),
+            "status": bus.publisher(KEYS["status"], ros_msgs.STRING),
+        }
+        self.subs = [
+            bus.session.declare_subscriber(bus.key(KEYS["pose"]), self._on_pose_sample),
+            bus.session.declare_subscriber(bus.key(KEYS["goal_image"]), self._on_goal_sample),
+            bus.session.declare_subscriber(bus.key(KEYS["goal_cancel"]), self._on_cancel_sample),
+        ]
+        self._thread = threading.Thread(target=self._work, name="planner", daemon=True)
+
+    # Zenoh callbacks: decode only, then hand over in arrival order.
+    def _on_pose_sample(self, sample: Any) -> None:
+        try:
+            t_ns, T, _ = ros_msgs.odometry_to_matrix(
+                ros_msgs.deserialize(sample.payload.to_bytes(), ros_msgs.ODOMETRY))
+        except Exception as exc:
+            self.counters["bad_messages"] += 1
+            log.warning("bad pose message: %s", exc)
+            return
+        self.inbox.put(("pose", (t_ns, T)))
+
+    def _on_goal_sample(self, sample: Any) -> None:
+        item: tuple[str, bytes | Exception]
+        try:
+            msg = ros_msgs.deserialize(sample.payload.to_bytes(), ros_msgs.COMPRESSED_IMAGE)
+            item = (str(msg.header.frame_id) or f"goal_{self.counters['goals_in']}", bytes(msg.data))
+        except Exception as exc:
+            item = (f"goal_{self.counters['goals_in']}", exc)
+        self.counters["goals_in"] += 1
+        self.inbox.put(("goal", item))
+
+    def _on_cancel_sample(self, sample: Any) -> None:
+        try:
+            what = str(ros_msgs.deserialize(sample.payload.to_bytes(), ros_msgs.STRING).data)
+        except Exception:
+            self.counters["bad_messages"] += 1
+            return
+        self.inbox.put(("cancel", what))
+
+    # worker
+    def start(self) -> PlannerService:
+        self._thread.start()
+        return self
+
+    def _work(self) -> None:
+        period = self.planner.params.status_period_s
+        next_status = time.monotonic()
+        while not self._stop.is_set():
+            try:
+                kind, item = self.inbox.get(timeout=max(0.0, min(period, next_status - time.monotonic())))
+            except queue.Empty:
+                kind, item = "tick", None
+            try:
+                self.handle(kind, item)
+            except Exception:  # a bug must not kill the service silently
+                log.exception("planner failed on a %s message", kind)
+                self.counters["bad_messages"] += 1
+            if time.monotonic() >= next_status and not self._stop.is_set():
+                try:
+                    self._publish_status(self.planner.status)
+                except Exception as exc:  # session closing
+                    log.debug("status heartbeat: %s", exc)
+                next_status = time.monotonic() + period
+
+    def handle(self, kind: str, item: Any) -> None:
+        """Handle one inbox item and publish the outputs (used by the worker, and tests)."""
+        p = self.planner
+        if kind == "pose":
+            self.counters["poses_in"] += 1
+            outs = p.on_pose(*item)
+        elif kind == "goal":
+            name, data = item
+            if isinstance(data, Exception):
+                p.goals_received += 1
+                outs = []
+                p._emit(outs, "failed", f"goal {name!r}: undecodable message: {data}", name)
+            else:
+                outs = p.add_goal(name, data)
+        elif kind == "cancel":
+            outs = p.cancel(item)
+        else:
+            return
+        for what, payload in outs:
+            if what == "status":
+                self._publish_status(payload)
+            else:
+                self._publish_subgoal(payload)
+
+    def _publish_subgoal(self, s: Subgoal) -> None:
+        self.pubs["subgoal"].put(ros_msgs.pose_stamped_msg(s.t_ns, s.T_map_subgoal, "map"))
+        self.pubs["subgoal_base"].put(ros_msgs.pose_stamped_msg(s.t_ns, s.T_base_subgoal, "base_link"))
+        self.counters["subgoals_published"] += 1
+
+    def _publish_status(self, status: dict[str, Any]) -> None:
+        text = json.dumps(jsonable(status), sort_keys=True)
+        self.pubs["status"].put(ros_msgs.typestore().types[ros_msgs.STRING](data=text))
+        self.counters["status_published"] += 1
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=5)
+        for s in self.subs:
+            try:
+                s.undeclare()
+            except Exception as exc:  # session already closed
+                log.debug("undeclare: %s", exc)
+        for pub in self.pubs.values():
+            pub.undeclare()
+
+
+def build_planner(cfg: Any, topomap: TopoMap, bundle: Any | None = None) -> GoalPlanner:
+    """A `GoalPlanner` from the config (models loaded unless a `ModelBundle` is given)."""
+    from litevloc.runtime.vloc_models import check_map_models, load_bundle
+
+    if bundle is None:
+        models = dataclasses.replace(cfg.models, intra_op_threads=cfg.runtime.ort_intra_op_threads)
+        bundle = load_bundle(models)
+    topomap = check_map_models(topomap, bundle)
+    locate = goal_locator(topomap, bundle.extract, bundle.describe, bundle.match, cfg.planner)
+    return GoalPlanner(topomap, locate, cfg.planner, cfg.fusion.T_base_camera())

@@ -1,0 +1,80 @@
+"""Local planner on synthetic depth: walls ahead, free space, goals to the side."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from litevloc.hw.sim.local_planner import LocalPlanner, LocalPlannerParams, arc_points, obstacle_points
+from litevloc.hw.sim.params import SimParams
+
+P = SimParams()
+K = P.intrinsics.K
+T_BC = P.T_base_camera
+
+
+def wall_depth(dist_m: float, x_from: float = -np.inf, x_to: float = np.inf) -> np.ndarray:
+    """Depth of a vertical wall `dist_m` ahead of the camera (optical z), covering image
+    columns whose ray x/z lies in [x_from, x_to]; other pixels see nothing (NaN)."""
+    h, w = P.height, P.width
+    u = np.arange(w)[None, :].repeat(h, 0)
+    xz = (u - K[0, 2]) / K[0, 0]
+    d = np.full((h, w), np.nan, np.float32)
+    m = (xz * dist_m >= x_from) & (xz * dist_m <= x_to)
+    d[m] = dist_m
+    return d
+
+
+def test_obstacle_points_of_a_wall_lie_ahead_in_the_height_band() -> None:
+    pts = obstacle_points(wall_depth(1.5), K, T_BC)
+    assert len(pts) > 100
+    # the camera is 0.25 m ahead of the base and pitched 5 deg down: the wall is ~1.75 m ahead
+    assert 1.55 < np.median(pts[:, 0]) < 1.95
+    assert np.ptp(pts[:, 1]) > 1.5  # spans the field of view
+
+
+def test_free_space_goes_straight_to_the_goal() -> None:
+    lp = LocalPlanner()
+    c = lp.command(np.array([3.0, 0.0]), np.full((P.height, P.width), np.nan, np.float32), K, T_BC)
+    assert c.reason == "arc" and c.v == lp.params.max_speed and abs(c.omega) < 0.1
+    c = lp.command(np.array([2.0, 0.8]), None, K, T_BC)  # goal ahead-left -> curve left
+    assert c.v > 0 and c.omega > 0.1
+
+
+def test_wall_ahead_turns_away_and_blocked_stops() -> None:
+    lp = LocalPlanner()
+    # a wall 2 m ahead covering the right half of the view (camera x >= 0): go left around it
+    c = lp.command(np.array([4.0, 0.0]), wall_depth(2.0, x_from=0.0), K, T_BC)
+    assert c.reason == "arc" and c.omega > 0.05 and c.v > 0, c
+    # mirrored: wall on the left -> turn right
+    c = lp.command(np.array([4.0, 0.0]), wall_depth(2.0, x_to=0.0), K, T_BC)
+    assert c.reason == "arc" and c.omega < -0.05 and c.v > 0, c
+    # without the wall it would go straight
+    assert abs(lp.command(np.array([4.0, 0.0]), None, K, T_BC).omega) < 1e-9
+    # a wall right in front, everywhere: no admissible arc, turn in place without moving
+    c = lp.command(np.array([4.0, 0.1]), wall_depth(0.2), K, T_BC)
+    assert c.reason == "blocked" and c.v == 0.0 and c.omega != 0.0
+
+
+def test_goal_behind_turns_in_place_and_arrival_stops() -> None:
+    lp = LocalPlanner(LocalPlannerParams(turn_in_place_deg=50))
+    c = lp.command(np.array([-1.0, 0.5]), None, K, T_BC)
+    assert c.reason == "turn" and c.v == 0.0 and c.omega > 0
+    assert lp.command(np.array([0.05, 0.0]), None, K, T_BC).reason == "arrived"
+
+
+def test_arc_points_geometry() -> None:
+    assert np.allclose(arc_points(0.0, np.array([1.0]))[-1], [1.0, 0.0])
+    # half circle of radius 1 (curvature 1, length pi) ends at (0, 2)
+    assert np.allclose(arc_points(1.0, np.array([np.pi]))[-1], [0.0, 2.0], atol=1e-9)
+
+
+def test_memory_keeps_obstacles_that_left_the_view() -> None:
+    lp = LocalPlanner()
+    T0 = np.eye(4)
+    lp.command(np.array([4.0, 0.0]), wall_depth(1.0, x_from=0.0), K, T_BC, T_odom_base=T0)
+    # the robot has turned 90 deg left: nothing in view now, but the wall is remembered on its right
+    T1 = np.eye(4)
+    T1[:2, :2] = [[0, -1], [1, 0]]
+    lp.command(np.array([4.0, 0.0]), np.full((P.height, P.width), np.nan, np.float32), K, T_BC, T_odom_base=T1)
+    pts = lp._remember(np.zeros((0, 2)), T1)
+    assert len(pts) > 10 and np.median(pts[:, 1]) < -1.0  # to the right (-y) of the turned robot

@@ -1,0 +1,163 @@
+"""Planner service logic (messages fed directly) and one round trip over Zenoh on loopback."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from litevloc.config.schema import PlannerConfig, ZenohConfig
+from litevloc.hw import ros_msgs
+from litevloc.pipelines.navigation.planner import GoalResult, TrackerParams
+from litevloc.runtime.planner_service import KEYS, GoalPlanner, PlannerService
+from tests.pipelines.navigation.test_planner import grid_map
+from tests.runtime.zenoh_helpers import free_port
+
+T_BC = np.eye(4)  # camera at the base: node base positions = node camera positions
+
+
+def planner(locate_nodes: dict[int, int | None], **tracker: float) -> GoalPlanner:
+    """Nodes 0..3 on a line 1 m apart (x = 0..3 m); goal image k (first byte) -> node."""
+    m = grid_map([(0, 1, 1.0), (1, 2, 1.0), (2, 3, 1.0)], 4)
+
+    def locate(rgb: np.ndarray) -> GoalResult:
+        node = locate_nodes[int(rgb[0, 0, 0])]
+        return GoalResult(node, 50 if node is not None else 3, "ok" if node is not None else
+                          "goal image matches no map place (best 3 inliers < 40)")
+
+    cfg = PlannerConfig(tracker=TrackerParams(reach_m=0.3, stray_m=1.5, clearance_m=0.0, **tracker))
+    return GoalPlanner(m, locate, cfg, T_BC)
+
+
+def img(k: int) -> np.ndarray:
+    a = np.zeros((32, 32, 3), np.uint8)
+    a[0, 0, 0] = k
+    return a
+
+
+def pose(x: float) -> np.ndarray:
+    T = np.eye(4)
+    T[0, 3] = x
+    T[2, 3] = float(grid_map([], 1).positions[0, 2])  # same height as the nodes
+    return T
+
+
+def kinds(outs: list) -> list[str]:
+    return [k if k == "subgoal" else f"status:{p['state']}" for k, p in outs]
+
+
+def test_goal_matching_no_place_fails_and_publishes_no_subgoal() -> None:
+    p = planner({1: None})
+    p.on_pose(1, pose(0.0))
+    outs = p.add_goal("nowhere", img(1))
+    assert kinds(outs) == ["status:failed"]
+    assert "matches no map place" in outs[0][1]["reason"] and outs[0][1]["goal"] == "nowhere"
+    assert kinds(p.on_pose(2, pose(0.1))) == []  # nothing to do: no subgoal ever
+    assert not p.busy
+
+
+def test_sequence_of_goals_subgoals_advance_and_reach() -> None:
+    p = planner({1: 2, 2: 0})
+    assert kinds(p.add_goal("a", img(1))) == ["status:idle"]  # no pose yet: queued
+    outs = p.on_pose(10, pose(0.0))
+    assert kinds(outs) == ["status:planned", "subgoal"]
+    assert outs[0][1]["path"] == [0, 1, 2] and outs[0][1]["goal"] == "a"
+    assert kinds(p.add_goal("b", img(2))) == ["status:planned"]  # queued behind a
+    assert p.status["queued"] == 1
+    outs = p.on_pose(11, pose(0.05))  # node 0 reached -> subgoal node 1, in the robot frame too
+    assert kinds(outs) == ["status:planned", "subgoal"]
+    sub = outs[1][1]
+    assert sub.node == 1 and sub.t_ns == 11 and np.isclose(sub.T_base_subgoal[0, 3], 0.95)
+    assert kinds(p.on_pose(12, pose(0.5))) == ["subgoal"]  # every pose: a subgoal (period 0)
+    outs = p.on_pose(13, pose(1.0))
+    outs += p.on_pose(14, pose(2.0))
+    ks = kinds(outs)
+    assert "status:reached" in ks and ks[-2:] == ["status:planned", "subgoal"]  # goal b starts at once
+    reached = next(o[1] for o in outs if o[0] == "status" and o[1]["state"] == "reached")
+    assert reached["goal"] == "a" and reached["busy"]
+    assert p.active == "b" and p.status["path"][-1] == 0
+    outs = p.on_pose(15, pose(0.0))
+    outs += p.on_pose(16, pose(0.0))
+    st = [o[1] for o in outs if o[0] == "status"][-1]
+    assert st["state"] == "reached" and st["goal"] == "b" and not st["busy"] and st["pose_t_ns"] in (15, 16)
+
+
+def test_replan_when_strayed_and_cancel() -> None:
+    p = planner({1: 3})
+    p.on_pose(1, pose(0.0))
+    p.add_goal("far", img(1))
+    far = pose(1.0)
+    far[1, 3] = 2.5  # 2.5 m off the path
+    outs = p.on_pose(2, far)
+    assert p.tracker.replans == 1 and "replanned" in outs[0][1]["reason"]
+    outs = p.cancel("current")
+    assert kinds(outs) == ["status:failed"] and "cancelled" in outs[0][1]["reason"]
+    assert not p.busy
+    assert "unknown cancel" in p.cancel("everything")[0][1]["reason"]
+
+
+def test_undecodable_goal_bytes_fail_with_reason() -> None:
+    p = planner({})
+    outs = p.add_goal("junk", b"not an image at all" * 10)
+    assert kinds(outs) == ["status:failed"] and "decodable" in outs[0][1]["reason"]
+
+
+def test_over_zenoh_goal_status_and_subgoals() -> None:
+    """Pose + goal in over Zenoh (loopback, free port), subgoal_base and status out."""
+    import cv2
+
+    from litevloc.runtime.bus import Bus
+    from litevloc.runtime.cli.goal import send_goals
+
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    z = ZenohConfig(listen=(ep,))
+    zc = dataclasses.replace(z, listen=(f"tcp/127.0.0.1:{free_port()}",), connect=(ep,))
+    p = planner({7: 2, 9: None})
+    with Bus(z) as bus_p, Bus(zc) as bus_c:
+        svc = PlannerService(bus_p, p).start()
+        got: list = []
+        ev = threading.Event()
+
+        def on_sub(sample) -> None:  # type: ignore[no-untyped-def]
+            m = ros_msgs.deserialize(sample.payload.to_bytes(), ros_msgs.POSE_STAMPED)
+            got.append((ros_msgs.stamp_ns(m.header), m.header.frame_id, ros_msgs.pose_to_matrix(m.pose)))
+            ev.set()
+
+        sub = bus_c.session.declare_subscriber(KEYS["subgoal_base"], on_sub)
+        pose_pub = bus_c.publisher(KEYS["pose"], ros_msgs.ODOMETRY)
+        time.sleep(0.5)
+        pose_pub.put(ros_msgs.odometry_msg(5, pose(0.6), "map", "base_link"))
+        _, good = cv2.imencode(".png", img(7)[:, :, ::-1])
+        _, bad = cv2.imencode(".png", img(9)[:, :, ::-1])
+        st = send_goals(bus_c, [("there", good.tobytes())], wait_s=5.0)
+        assert st is not None and st["state"] == "planned" and st["goal"] == "there", st
+        assert ev.wait(5.0)
+        t, frame, T = got[-1]
+        assert frame == "base_link" and t == 5 and np.isclose(T[0, 3], 0.4)  # node 1 at x=1, robot at 0.6
+        st = send_goals(bus_c, [("nowhere", bad.tobytes())], wait_s=5.0)
+        assert st is not None and st["state"] == "failed" and "matches no map place" in st["reason"]
+        sub.undeclare()
+        pose_pub.undeclare()
+        svc.close()
+        assert svc.counters["poses_in"] == 1 and svc.counters["goals_in"] == 2
+        assert json.dumps(p.status)
+
+
+def test_planner_config_validation() -> None:
+    with pytest.raises(ValueError, match="publish_period_s"):
+        PlannerConfig(publish_period_s=-1)
+    with pytest.raises(ValueError, match="clearance_m"):
+        TrackerParams(clearance_m=-0.1)
+
+
+def test_planner_section_loads_from_config() -> None:
+    from litevloc.config import ConfigError, load_config
+
+    c = load_config("default", ["planner.tracker.reach_m=0.7", "planner.goal.top_k=3"])
+    assert c.planner.tracker.reach_m == 0.7 and c.planner.goal.top_k == 3
+    with pytest.raises(ConfigError, match=r"planner\.tracker"):
+        load_config("default", ["planner.tracker.reach_m=5"])

@@ -1,0 +1,56 @@
+"""Integration: a short closed loop in the office (small map, one goal), and `litevloc goal send`."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from litevloc.runtime.cli.main import main
+
+
+@pytest.fixture(scope="module")
+def small_map(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Map of the first 12 s of the office mapping pass (the start room)."""
+    from litevloc.runtime.cli.sim_navigate import ensure_map
+
+    return ensure_map("office", tmp_path_factory.mktemp("nav"), "default", map_duration=12.0)
+
+
+def test_closed_loop_reaches_a_goal_with_litevloc(small_map: Path, tmp_path: Path) -> None:
+    from litevloc.config import load_config
+    from litevloc.hw.sim.world import load_world
+    from litevloc.runtime.sim_navigation import NavParams, render_goals, run_navigation
+
+    cfg = load_config("default")
+    world = load_world("office")
+    goal = render_goals(world, cfg, ["room_00"])
+    start = world.goal_places["room_00"].copy()
+    start[:2, :2] = -start[:2, :2]  # facing away from the goal view ...
+    for back in (1.5, 1.2, 0.9):  # ... and a step further from it
+        xy = start[:2, 3] + back * start[:2, 0]
+        if world.is_free(xy, 0.45):
+            start[:2, 3] = xy
+            break
+    run = run_navigation(world, cfg, small_map, goal, start, "litevloc", NavParams(goal_timeout_s=40.0))
+    s = run.summary()
+    assert s["goals_reached"] == 1, s["goals"]
+    assert s["runtime"]["vloc_accepted"] >= 1 and s["planner"]["poses_in"] > 10
+    assert s["localization_error_m"]["median"] < 0.2
+    assert s["collisions"] == 0
+
+
+def test_cli_goal_send_without_planner_reports_no_answer(tmp_path: Path) -> None:
+    import cv2
+
+    from tests.runtime.zenoh_helpers import free_port
+
+    img = tmp_path / "g.jpg"
+    cv2.imwrite(str(img), np.zeros((32, 32, 3), np.uint8))
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    # nobody listens there: a clear connection error (exit 2), not a hang
+    assert main(["goal", "send", str(img), "--connect", ep, "--wait", "0.5"]) == 2
+    assert main(["goal", "send", str(tmp_path / "missing.jpg")]) == 2
+    _ = json
