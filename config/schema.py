@@ -197,9 +197,10 @@ class RuntimeConfig:
     latency_window: int = 1024
     cv_threads: int = 2
     # ONNX Runtime intra-op threads of the service's models (overrides models.intra_op_threads
-    # in `litevloc run/replay`). 1 on 2-CPU machines leaves a core for odometry fusion and
-    # publishing: measured fused-pose p99 3.0 ms (wire 0.4 ms) vs 9.5 ms with 2 threads, at
-    # 1.15 vs 1.5 Hz VLoc (bench/runtime.py, simulated office).
+    # in `litevloc run/replay`). bench/runtime.py, simulated office, 2 CPUs, VLoc niced:
+    # 1 thread: VLoc 2.2-2.4 Hz, fused-pose p99 3.0-4.9 ms in the service, 0.5-0.7 ms on the wire;
+    # 2 threads: VLoc 3.0-3.3 Hz, p99 3.5-5.0 ms in the service but 2.4-3.1 ms on the wire (a
+    # subscriber on the same 2 CPUs); without the nice, 2 threads gave p99 7.6 ms.
     ort_intra_op_threads: int = 1
     ort_inter_op_threads: int = 1
     # Linux nice value of the VLoc thread and of the onnxruntime threads its models start
