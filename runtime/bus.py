@@ -44,6 +44,7 @@ import contextlib
 import json
 import logging
 import struct
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -157,6 +158,17 @@ class TopicPublisher:
 
     def put(self, msg: Any) -> None:
         self.put_bytes(ros_msgs.serialize(msg, self.typename))
+
+    def wait_for_subscribers(self, timeout_s: float) -> bool:
+        """Wait until at least one subscriber matches this key (Zenoh declarations propagate
+        asynchronously: a put before that is silently dropped). True if one matched in time."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            if self._pub.matching_status.matching:
+                return True
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.01)
 
     def put_bytes(self, payload: bytes) -> None:
         t0 = now_ns()

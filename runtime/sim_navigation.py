@@ -283,7 +283,9 @@ class _Driver:
         self._after(step)
         # Zenoh declarations propagate asynchronously: wait for the planner to be heard.
         self._wait(lambda: bool(self.status), "no planner status within the timeout")
-        time.sleep(0.3)
+        # a goal put before the planner's subscription has reached this session would be dropped
+        if not self.goal_pub.wait_for_subscribers(p.answer_timeout_s):
+            raise NavigationRunError("the planner service never subscribed to goal images")
         for g in self.goals:
             self.goal_pub.put(ros_msgs.compressed_image_msg(step.t_ns, g.jpeg, "jpeg", g.name))
         self.goals_sent = True

@@ -54,7 +54,13 @@ def send_goals(bus: Any, images: list[tuple[str, bytes]], cancel: str | None = N
     gpub = bus.publisher(KEYS["goal_image"], ros_msgs.COMPRESSED_IMAGE)
     cpub = bus.publisher(KEYS["goal_cancel"], ros_msgs.STRING)
     try:
-        time.sleep(0.3)  # let the declarations reach the planner
+        # a put before the planner's subscription has reached us would be dropped silently
+        if images and not gpub.wait_for_subscribers(max(wait_s, 2.0)):
+            raise UserError(f"no planner subscribes to goal images on {gpub.key_expr!r}: is `litevloc plan` "
+                            "running and reachable (--connect)?")
+        if cancel and not cpub.wait_for_subscribers(max(wait_s, 2.0)):
+            raise UserError(f"no planner subscribes to {cpub.key_expr!r}: is `litevloc plan` running?")
+        time.sleep(0.3)  # and let our status subscription reach the planner as well
         if cancel:
             cpub.put(ros_msgs.typestore().types[ros_msgs.STRING](data=cancel))
         t_ns = time.time_ns()
