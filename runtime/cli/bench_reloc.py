@@ -11,12 +11,11 @@ from litevloc.runtime.cli.common import (
     add_frames_arg,
     add_json_arg,
     config_of,
-    frames_of,
     progress,
+    source_of,
     write_json,
 )
 from litevloc.runtime.cli.main import UserError
-from litevloc.runtime.sources import open_source
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -42,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(str(exc)) from exc
     cfg = config_of(args)
     topomap = load_map(args.map)
-    src = open_source(args.src, frames_of(args), strict=True, rgbd_calibration=cfg.rgbd_calibration)
+    src = source_of(args, cfg)
     with progress(src.frame_count() * len(methods), "bench reloc", unit="query") as bar:
         res = run_reloc(topomap, src, methods, cfg, args.poses_dir, on_query=lambda: bar.update(1))
     hdr = ["method", "est %", "med cm", "med deg", "max cm", "max deg", "5cm5d", "25cm5d", "1m10d", "ms/q"]

@@ -11,7 +11,7 @@ from typing import Any
 from tqdm import tqdm
 
 from litevloc.config import LiteVLocConfig, load_config
-from litevloc.hw.streams.base import parse_frames
+from litevloc.hw.streams.base import StreamSource, parse_frames
 
 
 def add_frames_arg(p: argparse.ArgumentParser) -> None:
@@ -40,6 +40,13 @@ def frames_of(args: argparse.Namespace) -> slice:
 
 def config_of(args: argparse.Namespace) -> LiteVLocConfig:
     return load_config(getattr(args, "config", None), getattr(args, "overrides", []))
+
+
+def source_of(args: argparse.Namespace, cfg: LiteVLocConfig) -> StreamSource:
+    """`args.src` opened strictly, limited to `--frames`, with the config's RGB-D calibration."""
+    from litevloc.runtime.sources import open_source
+
+    return open_source(args.src, frames_of(args), strict=True, rgbd_calibration=cfg.rgbd_calibration)
 
 
 def write_json(path: Path | None, data: dict[str, Any]) -> None:

@@ -12,12 +12,12 @@ from litevloc.runtime.cli.common import (
     add_frames_arg,
     add_json_arg,
     config_of,
-    frames_of,
     progress,
+    source_of,
     write_json,
 )
 from litevloc.runtime.cli.main import UserError
-from litevloc.runtime.sources import open_source, with_simulated_odometry
+from litevloc.runtime.sources import with_simulated_odometry
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -43,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
     seed = cfg.odometry_sim.seed if args.seed is None else args.seed
     if rate < 0:
         raise UserError("--odometry-rate must be >= 0")
-    src = open_source(args.src, frames_of(args), strict=True, rgbd_calibration=cfg.rgbd_calibration)
+    src = source_of(args, cfg)
     src = with_simulated_odometry(src, rate, cfg.odometry_sim.drift, seed)
     t0 = time.perf_counter()
     meta = {"source": str(args.src), "frames": args.frames or ":", "odometry_rate_hz": str(rate), "seed": str(seed),

@@ -20,12 +20,11 @@ from litevloc.runtime.cli.common import (
     add_frames_arg,
     add_json_arg,
     config_of,
-    frames_of,
     progress,
+    source_of,
     write_json,
 )
 from litevloc.runtime.posed import posed_frames
-from litevloc.runtime.sources import open_source
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -47,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
     bundle = load_bundle(cfg.models)
     topomap = check_map_models(load_map(args.map), bundle)
     loc = VisualLocalizer(topomap, cfg.localization, bundle.extract, bundle.describe, bundle.match)
-    src = open_source(args.src, frames_of(args), strict=True, rgbd_calibration=cfg.rgbd_calibration)
+    src = source_of(args, cfg)
     times: list[float] = []
     poses: list = []
     errors: list[tuple[float, float]] = []

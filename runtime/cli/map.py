@@ -14,13 +14,12 @@ from litevloc.runtime.cli.common import (
     add_frames_arg,
     add_json_arg,
     config_of,
-    frames_of,
     progress,
+    source_of,
     write_json,
 )
 from litevloc.runtime.cli.main import UserError
 from litevloc.runtime.posed import posed_frames
-from litevloc.runtime.sources import open_source
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -52,7 +51,7 @@ def build(args: argparse.Namespace) -> int:
     if args.output.exists() and not args.force:
         raise UserError(f"{args.output} exists; pass --force to replace it")
     bundle = load_bundle(cfg.models, matcher=cfg.mapping.covisibility_matcher)
-    src = open_source(args.src, frames_of(args), strict=True, rgbd_calibration=cfg.rgbd_calibration)
+    src = source_of(args, cfg)
     builder = MapBuilder(cfg.mapping, bundle.extract, bundle.describe, bundle.match, bundle.extractor.name,
                          bundle.vpr.name)
     t0 = time.perf_counter()
