@@ -35,13 +35,14 @@ def resolve_config_path(name_or_path: str | Path) -> Path:
 
 
 def load_config(name_or_path: str | Path | None = None, overrides: Sequence[str] = ()) -> LiteVLocConfig:
-    """Load a preset or YAML file (None = built-in defaults) and apply `key=value` overrides."""
-    data: dict = {}
-    source = "defaults"
-    if name_or_path is not None:
-        path = resolve_config_path(name_or_path)
-        data = load_yaml(path)
-        source = str(path)
+    """Load a preset or YAML file and apply `key=value` overrides.
+
+    None means the `default` preset: a command run without `--config` behaves exactly as
+    with `--config default` (one set of defaults a user can see; tested).
+    """
+    path = resolve_config_path("default" if name_or_path is None else name_or_path)
+    data = load_yaml(path)
+    source = str(path)
     for ov in overrides:
         data = apply_override(data, ov)
     if overrides:

@@ -91,3 +91,11 @@ def test_yaml_tags_are_not_executed(tmp_path: Path) -> None:
     evil.write_text("name: !!python/object/apply:os.system ['echo pwned']\n")
     with pytest.raises(ConfigError, match="invalid YAML"):
         load_config(evil)
+
+
+def test_no_config_is_the_default_preset() -> None:
+    """One set of defaults: a command without --config gets exactly the `default` preset."""
+    from litevloc.config import load_config
+
+    assert load_config(None) == load_config("default")
+    assert load_config(None, ["mapping.keyframes.budget=7"]) == load_config("default", ["mapping.keyframes.budget=7"])
