@@ -43,7 +43,7 @@ test: $(VENV)/.dev-installed models
 
 lint: $(VENV)/.dev-installed
 	$(VENV)/bin/ruff check .
-	$(VENV)/bin/mypy runtime pipelines hw models config
+	$(VENV)/bin/mypy runtime pipelines hw models config base
 
 bench: $(VENV)/.dev-installed models
 	$(VENV)/bin/python bench/streams.py

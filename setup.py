@@ -1,14 +1,15 @@
 """Map the design card's top-level folders onto the `litevloc.*` namespace.
 
 `runtime/` -> `litevloc.runtime`, `pipelines/` -> `litevloc.pipelines`, `hw/` ->
-`litevloc.hw`, `models/` -> `litevloc.models`, `config/` -> `litevloc.config`.
+`litevloc.hw`, `models/` -> `litevloc.models`, `config/` -> `litevloc.config`, `base/` -> `litevloc.base`
+(the bottom layer: errors, geometry, parameter dataclasses).
 Sub-packages are discovered, so adding a folder with an `__init__.py` needs no edit here.
 Works for normal and editable (`pip install -e .`) installs.
 """
 
 from setuptools import find_packages, setup
 
-FOLDERS = ("runtime", "pipelines", "hw", "models", "config")
+FOLDERS = ("runtime", "pipelines", "hw", "models", "config", "base")
 
 packages: list[str] = []
 package_dir: dict[str, str] = {}

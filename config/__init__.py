@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
-from litevloc.config.loader import ConfigError, apply_override, from_mapping, load_yaml
+from litevloc.base.loader import ConfigError, apply_override, from_mapping, load_yaml
 from litevloc.config.schema import LiteVLocConfig
 
 PRESETS_DIR = Path(__file__).resolve().parent / "presets"

@@ -22,8 +22,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.base.errors import LiteVLocError
 
-class StreamError(RuntimeError):
+
+class StreamError(LiteVLocError, RuntimeError):
     """A stream source or sink failed; the message names the file and the problem."""
 
 

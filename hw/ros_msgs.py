@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 from rosbags.typesys import Stores, get_typestore
 
+from litevloc.base.errors import LiteVLocError
 from litevloc.pipelines.geometry import make_T, matrix_to_quat_xyzw, quat_xyzw_to_matrix
 
 COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
@@ -29,7 +30,7 @@ TRANSFORM_STAMPED = "geometry_msgs/msg/TransformStamped"
 STRING = "std_msgs/msg/String"
 
 
-class MessageDecodeError(ValueError):
+class MessageDecodeError(LiteVLocError, ValueError):
     """A CDR payload or a decoded message is malformed; the message says what is wrong."""
 
 

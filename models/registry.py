@@ -19,6 +19,7 @@ import os
 from pathlib import Path
 from typing import Any
 
+from litevloc.base.errors import LiteVLocError
 from litevloc.models.catalog import EXPORT_VERSION, OPSET, ModelSpec, aliked_id, spec_for, vpr_id
 from litevloc.models.config import ModelsConfig
 from litevloc.models.types import FeatureExtractor, Matcher, PlaceRecognizer
@@ -27,7 +28,7 @@ MANIFEST = "manifest.json"
 MANIFEST_FORMAT = 1
 
 
-class ModelError(RuntimeError):
+class ModelError(LiteVLocError, RuntimeError):
     """A model is missing from the cache or does not match the manifest / request."""
 
 

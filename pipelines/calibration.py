@@ -40,64 +40,15 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
+from litevloc.base.params.calibration import ColorDepthCalibration as ColorDepthCalibration
 from litevloc.pipelines.geometry import (
     invert,
     make_T,
-    matrix_to_quat_xyzw,
-    quat_xyzw_to_matrix,
     so3_exp,
     so3_log,
 )
 
 F64 = NDArray[np.float64]
-
-
-@dataclass(frozen=True)
-class ColorDepthCalibration:
-    """Colour intrinsics (pixels, pinhole) and the depth->colour extrinsic of an RGB-D camera.
-
-    `translation_color_depth` (metres) and `quat_xyzw_color_depth` form `T_color_depth`,
-    which maps points from the depth camera's optical frame to the colour camera's.
-    """
-
-    color_fx: float
-    color_fy: float
-    color_cx: float
-    color_cy: float
-    translation_color_depth: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    quat_xyzw_color_depth: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
-    depth_dilation: bool = False  # cv2.registerDepth: splat each depth point to 2x2 pixels
-
-    def __post_init__(self) -> None:
-        vals = (self.color_fx, self.color_fy, self.color_cx, self.color_cy,
-                *self.translation_color_depth, *self.quat_xyzw_color_depth)
-        if not all(np.isfinite(v) for v in vals):
-            raise ValueError("colour calibration values must be finite")
-        if self.color_fx <= 0 or self.color_fy <= 0:
-            raise ValueError(f"color_fx and color_fy must be > 0, got {self.color_fx}, {self.color_fy}")
-        if np.linalg.norm(self.translation_color_depth) > 1.0:
-            raise ValueError("translation_color_depth is over 1 m: not a colour/depth pair of one sensor")
-        n = float(np.linalg.norm(self.quat_xyzw_color_depth))
-        if abs(n - 1.0) > 1e-3:
-            raise ValueError(f"quat_xyzw_color_depth must be a unit quaternion (x, y, z, w), norm is {n:.6f}")
-
-    def K_color(self) -> F64:
-        """3x3 float64 colour intrinsics."""
-        return np.array([[self.color_fx, 0.0, self.color_cx], [0.0, self.color_fy, self.color_cy], [0.0, 0.0, 1.0]])
-
-    def T_color_depth(self) -> F64:
-        """4x4 float64 transform from the depth to the colour optical frame."""
-        R = quat_xyzw_to_matrix(np.asarray(self.quat_xyzw_color_depth))
-        return make_T(R, np.asarray(self.translation_color_depth))
-
-    @staticmethod
-    def from_arrays(K_color: NDArray[np.floating], T_color_depth: NDArray[np.floating]) -> ColorDepthCalibration:
-        K = np.asarray(K_color, dtype=np.float64)
-        T = np.asarray(T_color_depth, dtype=np.float64)
-        q = matrix_to_quat_xyzw(T[:3, :3])
-        return ColorDepthCalibration(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]),
-                                     (float(T[0, 3]), float(T[1, 3]), float(T[2, 3])),
-                                     (float(q[0]), float(q[1]), float(q[2]), float(q[3])))
 
 
 @dataclass(frozen=True)

@@ -51,6 +51,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.base.errors import LiteVLocError
 from litevloc.config.schema import ZenohConfig
 from litevloc.hw import ros_msgs
 from litevloc.runtime.metrics import LatencyWindow, jsonable, now_ns
@@ -82,7 +83,7 @@ def warm_codecs() -> None:
         ros_msgs.deserialize(ros_msgs.serialize(msg, typename), typename)
 
 
-class BusError(RuntimeError):
+class BusError(LiteVLocError, RuntimeError):
     """The Zenoh session could not be opened or used; the message names the endpoint."""
 
 

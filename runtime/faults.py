@@ -33,6 +33,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from litevloc.base.errors import LiteVLocError
 from litevloc.hw.messages import Message, Odometry, RgbdFrame
 
 FaultKind = Literal["camera_dropout", "depth_invalid", "odometry_gap", "odometry_backwards", "vloc_outliers",
@@ -41,7 +42,7 @@ FAULT_KINDS: tuple[str, ...] = ("camera_dropout", "depth_invalid", "odometry_gap
                                 "vloc_outliers", "slow_consumer")
 
 
-class FaultSpecError(ValueError):
+class FaultSpecError(LiteVLocError, ValueError):
     """A fault specification that cannot be parsed; the message names it."""
 
 

@@ -31,6 +31,7 @@ from collections import deque
 from dataclasses import asdict, dataclass
 from typing import Any, Generic, Literal, TypeVar
 
+from litevloc.base.errors import LiteVLocError
 from litevloc.runtime.metrics import LatencyWindow, now_ns
 
 T = TypeVar("T")
@@ -40,7 +41,7 @@ class QueueClosed(Exception):
     """The queue was closed and (for `get`) is empty: no more items will come."""
 
 
-class QueueOverflow(RuntimeError):
+class QueueOverflow(LiteVLocError, RuntimeError):
     """A `BoundedFifo` with overflow="raise" is full; the item was not enqueued."""
 
 

@@ -58,6 +58,7 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.base.errors import LiteVLocError
 from litevloc.config.schema import RuntimeConfig
 from litevloc.hw.messages import GroundTruthPose, Message, Odometry, RgbdFrame
 from litevloc.pipelines.odometry_drift import T_BASE_CAMERA_OPTICAL
@@ -85,7 +86,7 @@ class PublisherLike(Protocol):
     def publish_status(self, status: dict[str, Any]) -> None: ...
 
 
-class ServiceError(RuntimeError):
+class ServiceError(LiteVLocError, RuntimeError):
     """The service could not run (or stopped) because of a fatal error; the message says which."""
 
 

@@ -43,6 +43,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.base.errors import LiteVLocError
 from litevloc.config import LiteVLocConfig
 from litevloc.hw import ros_msgs
 from litevloc.hw.messages import Message, Odometry
@@ -55,7 +56,7 @@ from litevloc.runtime.bus import Bus, LiteVLocPublisher
 from litevloc.runtime.planner_service import KEYS, PlannerService, build_planner
 
 
-class NavigationRunError(RuntimeError):
+class NavigationRunError(LiteVLocError, RuntimeError):
     """The closed loop could not run (planner unreachable, no answer in time)."""
 
 

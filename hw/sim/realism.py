@@ -14,46 +14,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-
-@dataclass(frozen=True)
-class RealismParams:
-    """Ranges of the imaging effects (all seeded). `enabled: false` gives ideal images."""
-
-    enabled: bool = True
-    brightness: tuple[float, float] = (0.75, 1.2)  # per-sequence gain
-    gamma: tuple[float, float] = (0.85, 1.2)  # per-sequence gamma
-    color_cast: float = 0.08  # max relative per-channel gain deviation
-    blur_sigma: tuple[float, float] = (0.0, 0.7)  # per-sequence Gaussian blur (pixels)
-    noise_sigma: float = 2.5  # per-pixel Gaussian noise (grey levels)
-    depth_noise_per_m2: float = 0.002  # depth sigma = k * z^2 metres
-    depth_min: float = 0.2  # closer is invalid (NaN)
-    depth_max: float = 10.0  # farther is invalid (NaN)
-    edge_hole_prob: float = 0.6  # chance that a pixel at a depth edge is a hole
-    dropout: float = 0.005  # random invalid depth pixels
-
-    def __post_init__(self) -> None:
-        for name in ("brightness", "gamma", "blur_sigma"):
-            lo, hi = getattr(self, name)
-            if not (0 <= lo <= hi) or not np.isfinite(hi):
-                raise ValueError(f"{name} must be [lo, hi] with 0 <= lo <= hi, got {(lo, hi)}")
-        if self.brightness[0] <= 0 or self.gamma[0] <= 0:
-            raise ValueError("brightness and gamma must be > 0")
-        for name in (
-            "color_cast",
-            "noise_sigma",
-            "depth_noise_per_m2",
-            "edge_hole_prob",
-            "dropout",
-        ):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v >= 0):
-                raise ValueError(f"{name} must be >= 0, got {v}")
-        if self.edge_hole_prob > 1 or self.dropout > 1:
-            raise ValueError("edge_hole_prob and dropout are probabilities in [0, 1]")
-        if not (0 <= self.depth_min < self.depth_max):
-            raise ValueError(
-                f"need 0 <= depth_min < depth_max, got {self.depth_min}, {self.depth_max}"
-            )
+from litevloc.base.params.sim import RealismParams as RealismParams
 
 
 @dataclass(frozen=True)

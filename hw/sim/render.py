@@ -22,6 +22,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.base.errors import LiteVLocError
 from litevloc.hw.sim.textures import MIP_LEVELS, BakedTextures, bake
 from litevloc.hw.sim.world import World, _s_increasing
 from litevloc.pipelines.geometry import PinholeIntrinsics, check_rigid
@@ -29,7 +30,7 @@ from litevloc.pipelines.geometry import PinholeIntrinsics, check_rigid
 KIND_VOID, KIND_WALL, KIND_FLOOR, KIND_CEIL, KIND_SIDE, KIND_TOP = 0, 1, 2, 3, 4, 5
 
 
-class RenderError(ValueError):
+class RenderError(LiteVLocError, ValueError):
     """The camera pose cannot be rendered (e.g. looking straight up or down)."""
 
 

@@ -33,6 +33,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.base.errors import LiteVLocError
+
 if TYPE_CHECKING:
     from litevloc.hw.sim.world import Face, World
 
@@ -53,7 +55,7 @@ MATERIAL_IMAGES = ("brick.png", "gravel.png", "grass.png")
 MIP_LEVELS = 4
 
 
-class TextureError(RuntimeError):
+class TextureError(LiteVLocError, RuntimeError):
     """The scikit-image data folder (texture source) is missing or a file is unreadable."""
 
 

@@ -20,6 +20,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.base.errors import LiteVLocError
 from litevloc.hw.sim.simulator import SimParams, Simulator, base_pose
 from litevloc.hw.sim.world import World
 
@@ -27,7 +28,7 @@ PassName = Literal["map", "query", "loop"]
 PASS_NAMES: tuple[str, ...] = ("map", "query", "loop")
 
 
-class PlanningError(RuntimeError):
+class PlanningError(LiteVLocError, RuntimeError):
     """No collision-free path exists between two points."""
 
 

@@ -22,6 +22,7 @@ Textures (see `litevloc.hw.sim.textures`) are baked once per world into an atlas
 from __future__ import annotations
 
 import heapq
+import importlib.util
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -31,13 +32,15 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.config.loader import ConfigError, from_mapping, load_yaml
+from litevloc.base.loader import ConfigError, from_mapping, load_yaml
 
 
 def _worlds_dir() -> Path:
-    import litevloc.config as cfg
-
-    return Path(cfg.__file__).resolve().parent / "worlds"
+    # the world files are data of the config package: locate it without importing it (hw never imports config)
+    spec = importlib.util.find_spec("litevloc.config")
+    if spec is None or not spec.submodule_search_locations:
+        raise ConfigError("the litevloc.config package (with config/worlds/*.yaml) is not installed")
+    return Path(next(iter(spec.submodule_search_locations))).resolve() / "worlds"
 
 
 @dataclass(frozen=True)

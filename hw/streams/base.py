@@ -8,13 +8,11 @@ fall inside the selected frames' time span.
 
 from __future__ import annotations
 
-import re
 from collections.abc import Iterator
 from typing import Protocol, runtime_checkable
 
+from litevloc.base.frames import parse_frames as parse_frames
 from litevloc.hw.messages import Message, StreamError, StreamStats
-
-_FRAMES_RE = re.compile(r"^\s*(-?\d*)\s*:\s*(-?\d*)\s*(?::\s*(-?\d*)\s*)?$")
 
 
 @runtime_checkable
@@ -29,19 +27,6 @@ class StreamSource(Protocol):
     def frame_count(self) -> int:
         """Number of RGB-D frames this source will yield (after `--frames`)."""
         ...
-
-
-def parse_frames(spec: str | None) -> slice:
-    """`"A:B"` / `"A:B:S"` / `"A:"` / `":B"` / `None` -> slice (Python slice semantics)."""
-    if spec is None or spec.strip() == "":
-        return slice(None)
-    m = _FRAMES_RE.match(spec)
-    if not m:
-        raise ValueError(f"--frames must look like A:B (a Python slice), got {spec!r}")
-    a, b, s = (int(g) if g not in (None, "") else None for g in m.groups())
-    if s == 0:
-        raise ValueError(f"--frames step must not be zero: {spec!r}")
-    return slice(a, b, s)
 
 
 def select_indices(n: int, frames: slice) -> list[int]:

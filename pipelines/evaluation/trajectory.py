@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.base.errors import LiteVLocError
 from litevloc.pipelines.geometry import (
     GeometryError,
     invert,
@@ -30,7 +31,7 @@ from litevloc.pipelines.geometry import (
 F64 = NDArray[np.float64]
 
 
-class TrajectoryError(ValueError):
+class TrajectoryError(LiteVLocError, ValueError):
     """Unreadable trajectory file or unusable trajectory data (the message says which)."""
 
 

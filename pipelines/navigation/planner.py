@@ -24,27 +24,16 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.base.errors import LiteVLocError
+from litevloc.base.params.navigation import GoalParams as GoalParams
+from litevloc.base.params.navigation import TrackerParams as TrackerParams
 from litevloc.pipelines.topomap.types import FeatureSet, TopoMap
 
 MatchFn = Callable[[FeatureSet, FeatureSet], tuple[NDArray[np.int64], NDArray[np.int64]]]
 
 
-class NavigationError(ValueError):
+class NavigationError(LiteVLocError, ValueError):
     """No path, bad node ids, or an unusable goal."""
-
-
-@dataclass(frozen=True)
-class GoalParams:
-    """Goal localization parameters."""
-
-    top_k: int = 5
-    min_inliers: int = 40
-    ransac_px: float = 2.0
-    seed: int = 0
-
-    def __post_init__(self) -> None:
-        if self.top_k < 1 or self.min_inliers < 8 or self.ransac_px <= 0:
-            raise ValueError("top_k >= 1, min_inliers >= 8 and ransac_px > 0 required")
 
 
 @dataclass(frozen=True)
@@ -147,20 +136,6 @@ def segment_clear(topomap: TopoMap, a: NDArray[np.floating], b: NDArray[np.float
     H, W = g.cells.shape
     inside = (ij[:, 0] >= 0) & (ij[:, 0] < H) & (ij[:, 1] >= 0) & (ij[:, 1] < W)
     return not bool(np.any(g.cells[ij[inside, 0], ij[inside, 1]] == g.OCCUPIED))
-
-
-@dataclass(frozen=True)
-class TrackerParams:
-    reach_m: float = 0.5
-    stray_m: float = 2.0
-    # advance past a reached node only once the straight way on to the next one is clear for
-    # a robot of this radius in the map's occupancy grid (else keep approaching the node,
-    # down to reach_m / 3); 0 = off
-    clearance_m: float = 0.45
-
-    def __post_init__(self) -> None:
-        if self.reach_m <= 0 or self.stray_m <= self.reach_m or self.clearance_m < 0:
-            raise ValueError("need 0 < reach_m < stray_m and clearance_m >= 0")
 
 
 @dataclass(frozen=True)

@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.base.errors import LiteVLocError
 from litevloc.pipelines.geometry import is_rigid
 from litevloc.pipelines.topomap.types import NodeFeatures, OccupancyGrid, TopoMap
 
@@ -48,7 +49,7 @@ VERSION = 1
 MANIFEST = "manifest.json"
 
 
-class MapFormatError(ValueError):
+class MapFormatError(LiteVLocError, ValueError):
     """A map folder is missing, corrupt or inconsistent; the message names the file."""
 
 

@@ -1,25 +1,28 @@
 """`litevloc` command line: one console script, one module per subcommand.
 
 Each module in `COMMANDS` defines `register(subparsers)` which adds its parser and sets
-`func` (called with the parsed args; returns an exit code). Errors that a user can fix
-(`ConfigError`, `StreamError`, ...) are caught here and printed as one line, exit 2.
+`func` (called with the parsed args; returns an exit code). Every LiteVLoc domain error
+derives from `litevloc.base.errors.LiteVLocError` (`ConfigError`, `StreamError`,
+`MapFormatError`, `ModelError`, ...): it is caught here, with `FileNotFoundError`, and
+printed as one line, exit 2. Anything else is a bug and keeps its traceback.
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import importlib
 import logging
 import sys
 from collections.abc import Sequence
+
+from litevloc.base.errors import LiteVLocError
 
 # Subcommand modules (litevloc.runtime.cli.<name>), in help order.
 COMMANDS = ("info", "demo", "run", "convert", "replay", "record", "sim", "models", "map", "localize", "bench",
             "calib", "plan", "goal")
 
 
-class UserError(Exception):
+class UserError(LiteVLocError):
     """An error the user can fix (bad path, bad argument); printed without a traceback."""
 
 
@@ -36,38 +39,6 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _user_errors() -> tuple[type[BaseException], ...]:
-    from litevloc.config import ConfigError
-    from litevloc.hw.messages import StreamError
-    from litevloc.pipelines.geometry import GeometryError
-
-    errors: list[type[BaseException]] = [UserError, ConfigError, StreamError, GeometryError, FileNotFoundError]
-    try:
-        from litevloc.models.registry import ModelError
-
-        errors.append(ModelError)
-    except ImportError:
-        pass
-    try:
-        from litevloc.hw.sim.render import RenderError
-        from litevloc.hw.sim.textures import TextureError
-        from litevloc.hw.sim.trajectory import PlanningError
-
-        errors += [RenderError, TextureError, PlanningError]
-    except ImportError:
-        pass
-    for mod, name in (("litevloc.runtime.bus", "BusError"), ("litevloc.runtime.service", "ServiceError")):
-        with contextlib.suppress(ImportError, AttributeError):
-            errors.append(getattr(importlib.import_module(mod), name))
-    try:
-        from litevloc.pipelines.topomap.io import MapFormatError
-
-        errors.append(MapFormatError)
-    except ImportError:
-        pass
-    return tuple(errors)
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -77,7 +48,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     try:
         return int(args.func(args) or 0)
-    except _user_errors() as exc:
+    except (LiteVLocError, FileNotFoundError) as exc:
         print(f"litevloc {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -1,0 +1,110 @@
+"""Parameters of the pose-graph fusion (`online.OnlineFusion`, `batch.refine_session`).
+
+Kept free of GTSAM imports so the configuration tree can reference them cheaply.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+F64 = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class FusionParams:
+    """Parameters of `OnlineFusion` and `batch_refine` (lengths m, angles deg, times s).
+
+    Odometry increment noise (per axis, 1 sigma) for an increment of length d metres and
+    rotation a radians: trans = odom_sigma_trans_floor + odom_sigma_trans_per_m * d,
+    rot = odom_sigma_rot_floor_deg + odom_sigma_rot_per_m_deg * d + odom_sigma_rot_per_rad * a.
+    VLoc sigmas are used when `add_vloc` gets no covariance.
+    """
+
+    keyframe_period_s: float = 0.1
+    keyframe_dist_m: float = 0.25
+    keyframe_angle_deg: float = 10.0
+    lag_s: float = 3.0  # smoother window; must exceed the worst VLoc latency
+    odom_sigma_trans_floor: float = 0.002
+    odom_sigma_trans_per_m: float = 0.04
+    odom_sigma_rot_floor_deg: float = 0.05
+    odom_sigma_rot_per_m_deg: float = 1.5
+    odom_sigma_rot_per_rad: float = 0.02
+    vloc_sigma_trans: float = 0.05
+    vloc_sigma_rot_deg: float = 2.0
+    robust_kernel: Literal["huber", "cauchy", "none"] = "cauchy"
+    robust_k: float = 2.5  # kernel width in whitened units (sigmas)
+    gate_chi2: float = 22.46  # 6-dof chi-square, p = 0.999; 0 disables gating
+    init_votes: int = 2
+    init_max_trans_m: float = 0.5
+    init_max_rot_deg: float = 10.0
+    reinit_after_rejects: int = 5
+    covariance_period_s: float = 1.0  # at most one marginal covariance per this time
+    odom_buffer_s: float = 5.0  # odometry kept for late VLoc (>= lag_s)
+    max_future_s: float = (
+        0.05  # a VLoc up to this much newer than the newest odometry: extrapolated
+    )
+
+    def __post_init__(self) -> None:
+        positive = (
+            "keyframe_period_s",
+            "keyframe_dist_m",
+            "keyframe_angle_deg",
+            "lag_s",
+            "odom_sigma_trans_floor",
+            "odom_sigma_rot_floor_deg",
+            "vloc_sigma_trans",
+            "vloc_sigma_rot_deg",
+            "robust_k",
+            "init_max_trans_m",
+            "init_max_rot_deg",
+            "covariance_period_s",
+            "odom_buffer_s",
+        )
+        for name in positive:
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {v}")
+        for name in (
+            "odom_sigma_trans_per_m",
+            "odom_sigma_rot_per_m_deg",
+            "odom_sigma_rot_per_rad",
+            "gate_chi2",
+            "max_future_s",
+        ):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"{name} must be a finite number >= 0, got {v}")
+        if self.robust_kernel not in ("huber", "cauchy", "none"):
+            raise ValueError(
+                f"robust_kernel must be huber, cauchy or none, got {self.robust_kernel!r}"
+            )
+        if self.init_votes < 1:
+            raise ValueError(f"init_votes must be >= 1, got {self.init_votes}")
+        if self.reinit_after_rejects < 0:
+            raise ValueError(f"reinit_after_rejects must be >= 0, got {self.reinit_after_rejects}")
+        if self.lag_s < 2 * self.keyframe_period_s:
+            raise ValueError(
+                f"lag_s ({self.lag_s}) must be >= 2 * keyframe_period_s ({self.keyframe_period_s})"
+            )
+        if self.odom_buffer_s < self.lag_s:
+            raise ValueError(
+                f"odom_buffer_s ({self.odom_buffer_s}) must be >= lag_s ({self.lag_s})"
+            )
+
+    def odom_sigmas(self, dist_m: float, angle_rad: float) -> F64:
+        """Per-axis sigmas of an odometry increment, GTSAM order (rot rad x3, trans m x3)."""
+        rot = math.radians(self.odom_sigma_rot_floor_deg + self.odom_sigma_rot_per_m_deg * dist_m)
+        rot += self.odom_sigma_rot_per_rad * angle_rad
+        trans = self.odom_sigma_trans_floor + self.odom_sigma_trans_per_m * dist_m
+        return np.array([rot, rot, rot, trans, trans, trans])
+
+    def vloc_cov_gtsam(self) -> F64:
+        """Default VLoc covariance, GTSAM order."""
+        r = math.radians(self.vloc_sigma_rot_deg) ** 2
+        t = self.vloc_sigma_trans**2
+        return np.diag([r, r, r, t, t, t])

@@ -1,0 +1,34 @@
+"""Goal-localization and subgoal-tracking parameters of the planner (config `planner`;
+used by `litevloc.pipelines.navigation.planner`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class GoalParams:
+    """Goal localization parameters."""
+
+    top_k: int = 5
+    min_inliers: int = 40
+    ransac_px: float = 2.0
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.top_k < 1 or self.min_inliers < 8 or self.ransac_px <= 0:
+            raise ValueError("top_k >= 1, min_inliers >= 8 and ransac_px > 0 required")
+
+
+@dataclass(frozen=True)
+class TrackerParams:
+    reach_m: float = 0.5
+    stray_m: float = 2.0
+    # advance past a reached node only once the straight way on to the next one is clear for
+    # a robot of this radius in the map's occupancy grid (else keep approaching the node,
+    # down to reach_m / 3); 0 = off
+    clearance_m: float = 0.45
+
+    def __post_init__(self) -> None:
+        if self.reach_m <= 0 or self.stray_m <= self.reach_m or self.clearance_m < 0:
+            raise ValueError("need 0 < reach_m < stray_m and clearance_m >= 0")
