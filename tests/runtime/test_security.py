@@ -115,21 +115,33 @@ def test_only_authorised_peer_can_publish_odometry(tmp_path: Path) -> None:
 
 def test_model_file_is_checksummed_before_use(tmp_path: Path) -> None:
     """A model file that differs from the manifest's sha256 is refused (maps: tests/pipelines/topomap/test_io.py)."""
+    import hashlib
+
     from litevloc.models.config import ModelsConfig
-    from litevloc.models.registry import ModelError, locate, read_manifest, sha256_file, write_manifest
+    from litevloc.models.registry import (
+        EXPORT_VERSION,
+        OPSET,
+        ModelError,
+        locate,
+        sha256_file,
+        spec_for,
+        write_manifest,
+    )
 
     model_id = "aliked-n16-240x320-k512"
-    (tmp_path / f"{model_id}.onnx").write_bytes(b"not the exported model")
-    entry = {**read_manifest(Path.home() / ".cache/litevloc/models")["models"].get(model_id, {})}
-    if not entry:
-        pytest.skip("model cache not populated")
+    spec = spec_for(model_id)
+    # a manifest entry as `litevloc models export` writes it, for a file with other bytes than these
+    entry = {"export_version": EXPORT_VERSION, "opset": OPSET, "kind": spec.kind, "arch": spec.arch,
+             "input_hw": list(spec.input_hw) if spec.input_hw else None, "top_k": spec.top_k,
+             "quantization": spec.quantization, "onnx_sha256": hashlib.sha256(b"the exported model").hexdigest()}
+    (tmp_path / spec.filename).write_bytes(b"not the exported model")
     write_manifest(tmp_path, {"format": 1, "models": {model_id: entry}})
     cfg = ModelsConfig(cache_dir=str(tmp_path))
     with pytest.raises(ModelError, match="does not match the sha256"):
         locate(model_id, cfg)
-    entry["onnx_sha256"] = sha256_file(tmp_path / f"{model_id}.onnx")
+    entry["onnx_sha256"] = sha256_file(tmp_path / spec.filename)
     write_manifest(tmp_path, {"format": 1, "models": {model_id: entry}})
-    assert locate(model_id, cfg)[0].name == f"{model_id}.onnx"
+    assert locate(model_id, cfg)[0] == tmp_path / spec.filename
 
 
 _FORBIDDEN_CALLS = {("pickle", "load"), ("pickle", "loads"), ("yaml", "load"), ("yaml", "unsafe_load"),

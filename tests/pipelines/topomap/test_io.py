@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -11,6 +12,7 @@ import pytest
 
 from litevloc.pipelines.topomap.build import MappingParams
 from litevloc.pipelines.topomap.io import MapFormatError, load_map, save_map, storage_summary
+from litevloc.pipelines.topomap.types import TopoMap
 
 from .helpers import SEVEN_SCENES_UP, build_7scenes
 
@@ -18,9 +20,41 @@ PARAMS = MappingParams(up=SEVEN_SCENES_UP)
 
 
 @pytest.fixture(scope="module")
-def saved_map(seven_scenes_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    m = build_7scenes(seven_scenes_dir, "0:200:2", PARAMS).finish()
-    return save_map(m, tmp_path_factory.mktemp("maps") / "m")
+def built_map(seven_scenes_dir: Path) -> TopoMap:
+    return build_7scenes(seven_scenes_dir, "0:200:2", PARAMS).finish()
+
+
+@pytest.fixture(scope="module")
+def saved_map(built_map: TopoMap, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return save_map(built_map, tmp_path_factory.mktemp("maps") / "m")
+
+
+def assert_same(a: object, b: object, where: str) -> None:
+    """Field-by-field equality of maps (dataclasses, arrays with dtype, lists, bytes)."""
+    if dataclasses.is_dataclass(a) and not isinstance(a, type):
+        assert type(a) is type(b), where
+        for f in dataclasses.fields(a):
+            assert_same(getattr(a, f.name), getattr(b, f.name), f"{where}.{f.name}")
+    elif isinstance(a, np.ndarray) and where == "map.vpr":
+        # stored as int8 codes with one scale per row (documented lossy): within one quantisation
+        # step of a unit vector (1/127), and the same retrieval geometry
+        assert isinstance(b, np.ndarray) and b.shape == a.shape and b.dtype == a.dtype, where
+        np.testing.assert_allclose(b, a, atol=1 / 127, rtol=0, err_msg=where)
+        assert np.all(np.sum(a * b, axis=1) > 0.9999), where
+    elif isinstance(a, np.ndarray) and where.endswith(".descriptors") and a.dtype == np.float32:
+        # float descriptors are stored as float16 (documented): exactly the float16 rounding
+        assert isinstance(b, np.ndarray) and b.shape == a.shape, where
+        np.testing.assert_array_equal(np.asarray(b, np.float32), a.astype(np.float16).astype(np.float32),
+                                      err_msg=where)
+    elif isinstance(a, np.ndarray):
+        assert isinstance(b, np.ndarray) and a.dtype == b.dtype, (where, a.dtype, getattr(b, "dtype", None))
+        np.testing.assert_array_equal(a, b, err_msg=where)
+    elif isinstance(a, list | tuple):
+        assert len(a) == len(b), where  # type: ignore[arg-type]
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):  # type: ignore[call-overload]
+            assert_same(x, y, f"{where}[{i}]")
+    else:
+        assert a == b, (where, a, b)
 
 
 def copy(src: Path, tmp: Path) -> Path:
@@ -36,8 +70,9 @@ def rewrite_manifest(folder: Path, fn) -> None:  # type: ignore[no-untyped-def]
     p.write_text(json.dumps(man))
 
 
-def test_round_trip_and_summary(saved_map: Path) -> None:
+def test_round_trip_and_summary(built_map: TopoMap, saved_map: Path) -> None:
     m = load_map(saved_map)
+    assert_same(built_map, m, "map")  # what was saved is what loads: every array, feature, image, edge
     assert 3 <= m.n_nodes <= 40 and len(m.images_jpeg) == m.n_nodes and len(m.features) == m.n_nodes
     assert np.all(np.diff(m.t_ns) > 0)  # nodes in time order
     assert len(m.conn_edges) >= m.n_nodes - 1  # consecutive keyframes are always connected
