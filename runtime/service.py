@@ -64,7 +64,7 @@ from litevloc.hw.messages import GroundTruthPose, Message, Odometry, RgbdFrame
 from litevloc.pipelines.odometry_drift import T_BASE_CAMERA_OPTICAL
 from litevloc.runtime.metrics import LatencyWindow, jsonable, now_ns
 from litevloc.runtime.pacing import paced
-from litevloc.runtime.queues import BoundedFifo, LatestMailbox, QueueBase
+from litevloc.runtime.queues import BoundedFifo, LatestMailbox, QueueBase, QueueClosed
 from litevloc.runtime.stages import Periodic, Stage, StageInput, StageState, _StageThread, configure_threads
 
 log = logging.getLogger(__name__)
@@ -365,7 +365,11 @@ class Service:
 
     def _handle_frame(self, frame: RgbdFrame) -> None:
         res = self._vloc(frame)
-        self.results.put(res)
+        try:
+            self.results.put(res)
+        except QueueClosed:  # shutdown closed the queue while this frame was in VLoc: not a stage failure
+            if not self._stop.is_set():
+                raise
 
     def _vloc(self, frame: RgbdFrame) -> Any:
         self.counters["vloc_calls"] += 1
