@@ -34,7 +34,7 @@ import hashlib
 import io
 import json
 import shutil
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, overload
 
@@ -246,19 +246,27 @@ class VerifiedImages(Sequence[bytes]):
 _CHUNK = 1 << 22  # bytes per read when streaming a large file through the checksum
 
 
+RowCheck = Callable[[NDArray[Any], int], None]  # (rows of a chunk, index of its first row)
+
+
 def _streamed_npy(
-    folder: Path, rel: str, entry: Any, dtype: Any, shape: tuple[int | None, ...], mmap: bool
+    folder: Path, rel: str, entry: Any, dtype: Any, shape: tuple[int | None, ...], row_check: RowCheck | None = None,
 ) -> NDArray[Any]:
-    """A large .npy verified in one streaming pass (size, sha256, and for float16 data a
-    bit-level finiteness check on the same chunks), then loaded: into memory, or as a
-    read-only memory map (`mmap`; pages are read on use). Same checks and messages as
-    `_array` on `_read_verified` bytes, without holding the file's bytes twice."""
+    """A large .npy verified in one streaming pass, then opened as a read-only memory map.
+
+    The pass reads the file in chunks: sha256 over all bytes and, on the same chunks (whole
+    rows), the finiteness of float data and `row_check` (which raises MapFormatError);
+    nothing is kept, so checking costs no memory and the map's pages are read on use.
+    Same checks and messages as `_array` on `_read_verified` bytes, in the same order
+    (size, checksum, readable header, dtype, shape, values)."""
     p = _check_entry(folder, rel, entry)
     size = p.stat().st_size
     if size != entry["bytes"]:
         raise _fail(folder, rel, f"truncated or extended: {size} bytes, manifest says {entry['bytes']}")
     h = hashlib.sha256()
-    nonfinite = False
+    hdr: tuple[Any, ...] | None = None
+    head_exc: Exception | None = None
+    problem: str | None = None  # the first value problem found in the pass, reported after the checksum
     with p.open("rb") as f:
         head = f.read(min(size, 4096))
         h.update(head)
@@ -273,23 +281,42 @@ def _streamed_npy(
                 raise ValueError(f"unsupported .npy format version {version}")
             start = hf.tell()
         except (ValueError, OSError, EOFError, SyntaxError) as exc:
-            hdr, start, head_exc = None, 0, exc  # reported after the checksum, as _array does
-        f16 = hdr is not None and np.dtype(hdr[2]) == np.float16
-        if f16 and hdr is not None:
-            # float16 is non-finite iff all exponent bits are set (0x7C00)
-            body = np.frombuffer(head[start:start + ((len(head) - start) // 2) * 2], np.uint16)
-            nonfinite |= bool(np.any((body & 0x7C00) == 0x7C00))
-            carry = head[start + len(body) * 2:]
-        while True:
-            chunk = f.read(_CHUNK)
-            if not chunk:
-                break
-            h.update(chunk)
-            if f16:
+            head_exc = exc
+        ok_layout = False
+        if hdr is not None:
+            a_shape, fortran, a_dtype = hdr
+            dts = dtype if isinstance(dtype, tuple) else (dtype,)
+            ok_layout = (not fortran and np.dtype(a_dtype) in [np.dtype(d) for d in dts]
+                         and len(a_shape) == len(shape) and len(a_shape) >= 1)
+        if ok_layout and hdr is not None:
+            dt = np.dtype(hdr[2])
+            row_shape = tuple(hdr[0][1:])
+            row_bytes = dt.itemsize * int(np.prod(row_shape, dtype=np.int64))
+            carry, row = head[start:], 0
+            while True:
+                chunk = f.read(_CHUNK)
+                h.update(chunk)
                 buf = carry + chunk
-                n2 = (len(buf) // 2) * 2
-                nonfinite |= bool(np.any((np.frombuffer(buf[:n2], np.uint16) & 0x7C00) == 0x7C00))
-                carry = buf[n2:]
+                n_rows = len(buf) // row_bytes if row_bytes else 0
+                if n_rows and problem is None:
+                    a = np.frombuffer(buf[: n_rows * row_bytes], dt).reshape((n_rows, *row_shape))
+                    if dt == np.float16:  # non-finite iff all exponent bits are set
+                        bad = bool(np.any((a.view(np.uint16) & 0x7C00) == 0x7C00))
+                    else:
+                        bad = dt.kind == "f" and not bool(np.all(np.isfinite(a)))
+                    if bad:
+                        problem = "contains NaN or infinity"
+                    elif row_check is not None:
+                        try:
+                            row_check(a, row)
+                        except MapFormatError as exc:
+                            problem = str(exc)
+                carry, row = buf[n_rows * row_bytes:], row + n_rows
+                if not chunk:
+                    break
+        else:
+            for chunk in iter(lambda: f.read(_CHUNK), b""):
+                h.update(chunk)
     if h.hexdigest() != entry["sha256"]:
         raise _fail(folder, rel, "checksum mismatch (file modified or corrupt)")
     if hdr is None:
@@ -301,15 +328,22 @@ def _streamed_npy(
     if len(a_shape) != len(shape) or any(s is not None and s != d for s, d in zip(shape, a_shape, strict=True)):
         want = "x".join("*" if s is None else str(s) for s in shape)
         raise _fail(folder, rel, f"shape {a_shape}, expected {want}")
+    if problem is not None:
+        raise problem_error(folder, rel, problem)
     try:
-        a = np.load(p, mmap_mode="r" if mmap else None, allow_pickle=False)
+        a = np.load(p, mmap_mode="r", allow_pickle=False)
     except (ValueError, OSError, EOFError) as exc:
         raise _fail(folder, rel, f"not a readable .npy array ({exc})") from exc
     if a.shape != tuple(a_shape) or a.dtype != np.dtype(a_dtype):
         raise _fail(folder, rel, "changed while loading")
-    if nonfinite or (a.dtype.kind == "f" and a.dtype != np.float16 and not np.all(np.isfinite(a))):
-        raise _fail(folder, rel, "contains NaN or infinity")
     return a
+
+
+def problem_error(folder: Path, rel: str, problem: str) -> MapFormatError:
+    """A value problem found while streaming: a row check's own error keeps its message."""
+    if problem.startswith(f"map {folder}: "):
+        return MapFormatError(problem)
+    return _fail(folder, rel, problem)
 
 
 def _array(folder: Path, rel: str, data: bytes, dtype: Any, shape: tuple[int | None, ...]) -> NDArray[Any]:
@@ -349,9 +383,10 @@ def load_map(folder: str | Path) -> TopoMap:
 
     Every file listed is checked (size, sha256, dtype, shape, values) before the map is
     returned. Keyframe images are not kept in memory (`VerifiedImages` re-reads and
-    re-checks one on access) and local descriptors stay memory-mapped (`FeatureStore`
-    gives one node's features as float32 on access), so memory grows with the node count
-    by the VPR descriptors, keypoints and scores only."""
+    re-checks one on access) and the local features (keypoints, scores, descriptors) are
+    checked in one streaming pass each and then memory-mapped read-only (`FeatureStore`
+    gives one node's features, descriptors as float32, on access), so memory grows with
+    the node count by the VPR descriptors (N x D float32) and the small node arrays only."""
     root = Path(folder)
     man = read_manifest(root)
     files: dict[str, Any] = man["files"]
@@ -395,23 +430,28 @@ def load_map(folder: str | Path) -> TopoMap:
     if vpr.shape[1] != man.get("vpr_dim"):
         raise _fail(root, "vpr/descriptors.npy", f"dimension {vpr.shape[1]} != manifest vpr_dim {man.get('vpr_dim')}")
     off = arr("features/offsets.npy", np.int64, (N + 1,))
-    kps = _streamed_npy(root, "features/keypoints.npy", files["features/keypoints.npy"], np.float32, (None, 2), False)
-    M = len(kps)
-    if off[0] != 0 or off[-1] != M or np.any(np.diff(off) < 0):
-        raise _fail(root, "features/offsets.npy", f"must rise from 0 to {M} (keypoint count)")
-    scores = _streamed_npy(root, "features/scores.npy", files["features/scores.npy"], np.float32, (M,), False)
-    desc = _streamed_npy(root, "features/descriptors.npy", files["features/descriptors.npy"],
-                         (np.float16, np.uint8), (M, None), True)
-    if M:
-        # keypoint bounds per node, as one array operation over all keypoints
-        owner = np.repeat(np.arange(N), np.diff(off))
-        wh = size[owner].astype(np.float32)
-        out = (kps.min(axis=1) < -0.5) | (kps[:, 0] > wh[:, 0] - 0.5) | (kps[:, 1] > wh[:, 1] - 0.5)
+    M = int(off[-1])
+    if off[0] != 0 or np.any(np.diff(off) < 0):
+        raise _fail(root, "features/offsets.npy", "must rise from 0 (node i owns rows offsets[i]:offsets[i+1])")
+    wh = size.astype(np.float32) - 0.5
+
+    def in_image(k: NDArray[Any], first: int) -> None:
+        """Keypoints of rows first.. lie inside their node's image (one array operation)."""
+        # rows past offsets[-1] (a count mismatch, reported after the pass) count as the last node's
+        owner = np.minimum(np.searchsorted(off, np.arange(first, first + len(k)), side="right") - 1, N - 1)
+        out = (k.min(axis=1) < -0.5) | (k[:, 0] > wh[owner, 0]) | (k[:, 1] > wh[owner, 1])
         if out.any():
             i = int(owner[int(np.argmax(out))])
-            w, h = int(size[i, 0]), int(size[i, 1])
-            raise _fail(root, "features/keypoints.npy", f"keypoints of node {i} fall outside its {w}x{h} image")
-        del owner, wh, out
+            raise _fail(root, "features/keypoints.npy",
+                        f"keypoints of node {i} fall outside its {int(size[i, 0])}x{int(size[i, 1])} image")
+
+    kps = _streamed_npy(root, "features/keypoints.npy", files["features/keypoints.npy"], np.float32, (None, 2),
+                        in_image if N else None)
+    if len(kps) != M:
+        raise _fail(root, "features/offsets.npy", f"must rise from 0 to {len(kps)} (keypoint count)")
+    scores = _streamed_npy(root, "features/scores.npy", files["features/scores.npy"], np.float32, (M,))
+    desc = _streamed_npy(root, "features/descriptors.npy", files["features/descriptors.npy"],
+                         (np.float16, np.uint8), (M, None))
     feats = FeatureStore(off, kps, desc, scores, size)
     ce = arr("graph/covisibility_edges.npy", np.int64, (None, 2))
     ci = arr("graph/covisibility_inliers.npy", np.int32, (len(ce),))
