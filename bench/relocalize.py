@@ -14,8 +14,10 @@ tracking is forced LOST at several points, alternating two faults:
 * `jump`: a teleport-like odometry jump: from the event on, the prior handed to LL is the
   true pose moved `--jump-m` (3 m) sideways (the fused pose jumped), until GL relocalizes.
 
-Per event it measures the sensor time from the fault's start and from the LOST transition
-to the next TRACKING transition, the GL attempts spent meanwhile (count, candidates
+Per event it measures the sensor time from the fault's start and from the end of tracking
+(->LOST, or TRACKING->GLOBAL when the prior is far from every node) to the next TRACKING
+transition (a fault that starts while the localizer is not tracking is counted, not
+timed), the same for every LOST episode of the run (forced or not), the GL attempts spent meanwhile (count, candidates
 verified, wall ms) and the position error of the relocalized pose against ground truth.
 Wall time per simulated second is compared while LOST (GL queries) and while TRACKING
 (LL queries) in the same run. Prints tables, writes JSON (PATH, default
@@ -39,6 +41,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import ROOT, print_table
 
 from litevloc.pipelines.localization.vloc import TrackingState, VisualLocalizer
+
+LOST_GRACE_S = 5.0  # a fault's loss of tracking comes within this many seconds of its end
 
 
 def cli(*args: str) -> None:
@@ -136,24 +140,43 @@ def summarise(world: str, events: list[tuple[float, str]], queries: list[dict[st
     for k, (te, kind) in enumerate(events):
         qs = [x for x in queries if x["event"] == k]
         # tracking ends with ->LOST (LL failures) or TRACKING->GLOBAL (prior far from every node)
+        fault_end = te + (args.blackout_s if kind == "blackout" else 0.0)
+        tracking_at_fault = bool(qs) and qs[0]["state_before"] == "TRACKING"
+        # the fault's own loss of tracking: within LOST_GRACE_S of its end (else a later, natural one)
         t_lost = next((x["t"] for x in qs if any(s.endswith("->LOST") or s == "TRACKING->GLOBAL"
                                                  for s in x["transitions"])), None)
+        if not tracking_at_fault or (t_lost is not None and t_lost > fault_end + LOST_GRACE_S):
+            t_lost = None
         t_back = None
         if t_lost is not None:
             t_back = next((x["t"] for x in qs if x["t"] >= t_lost and any(s.endswith("->TRACKING")
                                                                            for s in x["transitions"])), None)
         lost_q = [x for x in qs if t_lost is not None and x["t"] > t_lost and (t_back is None or x["t"] <= t_back)]
-        fault_end = te + (args.blackout_s if kind == "blackout" else 0.0)
         reloc = next((x for x in qs if x["t"] == t_back), None)
         per_event.append({
-            "kind": kind, "t_fault_s": te - t_start, "went_lost": t_lost is not None,
+            "kind": kind, "t_fault_s": te - t_start, "tracking_at_fault": tracking_at_fault,
+            "went_lost": t_lost is not None,
             "t_lost_s": None if t_lost is None else t_lost - t_start,
             "lost_to_tracking_s": None if t_back is None or t_lost is None else t_back - t_lost,
-            "fault_end_to_tracking_s": None if t_back is None else max(0.0, t_back - fault_end),
+            "fault_end_to_tracking_s": None if t_back is None else round(max(0.0, t_back - fault_end), 3),
             "gl_queries": len(lost_q), "gl_candidates_verified": sum(x["attempts"] for x in lost_q),
             "gl_wall_ms": [round(x["wall_s"] * 1e3, 1) for x in lost_q],
             "reloc_error_m": None if reloc is None else reloc["err_m"],
         })
+    # every LOST episode of the run (forced or not): end of tracking -> next TRACKING
+    episodes, t_out = [], None
+    for x in queries:
+        for tr in x["transitions"]:
+            if t_out is None and (tr.endswith("->LOST") or tr == "TRACKING->GLOBAL"):
+                t_out = x["t"]
+            elif t_out is not None and tr.endswith("->TRACKING"):
+                episodes.append({"t_lost_s": t_out - t_start, "lost_to_tracking_s": x["t"] - t_out,
+                                 "reloc_error_m": x["err_m"]})
+                t_out = None
+    if t_out is not None:
+        episodes.append({"t_lost_s": t_out - t_start, "lost_to_tracking_s": None, "reloc_error_m": None,
+                         "still_lost_at_end_s": t_end - t_out})
+    ep_t = [e["lost_to_tracking_s"] for e in episodes if e["lost_to_tracking_s"] is not None]
     # wall time per simulated second: queries at a fixed rate, so wall per query x rate
     first_track = next((i for i, x in enumerate(queries) if x["state_after"] == "TRACKING"), len(queries))
     after = queries[first_track + 1:]
@@ -175,6 +198,12 @@ def summarise(world: str, events: list[tuple[float, str]], queries: list[dict[st
         "gl_query_wall_ms_median": float(np.median(lost) * 1e3) if lost else None,
         "gl_query_wall_ms_max": float(np.max(lost) * 1e3) if lost else None,
         "ll_query_wall_ms_median": float(np.median(tracking) * 1e3) if tracking else None,
+        "episodes": episodes, "episodes_total": len(episodes),
+        "episodes_median_s": float(np.median(ep_t)) if ep_t else None,
+        "episodes_max_s": float(np.max(ep_t)) if ep_t else None,
+        "episodes_unrecovered": sum(e["lost_to_tracking_s"] is None for e in episodes),
+        "gl_candidates_per_query": float(np.mean([x["attempts"] for x in after if x["mode"] == "global"]))
+        if any(x["mode"] == "global" for x in after) else None,
         "accepted_fraction": sum(x["accepted"] for x in queries) / max(1, len(queries)),
         "accepted_error_median_m": float(np.median(errs)) if errs else None,
         "accepted_error_max_m": float(np.max(errs)) if errs else None,
@@ -195,13 +224,34 @@ def main() -> int:
     ap.add_argument("--jump-m", type=float, default=3.0)
     ap.add_argument("--query-seed", type=int, default=7)
     ap.add_argument("--max-s", type=float, default=0.0, help="use only the first S s of the query pass (0 = all)")
+    ap.add_argument("--resummarise", type=Path, help="recompute the summaries of an earlier JSON (no localization)")
     args = ap.parse_args()
+    if args.resummarise is not None:
+        import json
+
+        old = json.loads(args.resummarise.read_text())
+        for k, v in old["params"].items():
+            if k not in ("resummarise", "json"):
+                setattr(args, k, Path(v) if k == "out" else v)
+        results = []
+        for r in old["worlds"]:
+            qs = r["queries"]
+            t0, t1 = qs[0]["t"], qs[-1]["t"]
+            results.append(summarise(r["world"], events_at(t0, t1, args.first_s, args.every_s), qs, args, t0, t1,
+                                     r["nodes"]))
+        report(results, tuple(old["load_average_before"]), tuple(old["load_average_after"]), args)
+        return 0
     if args.vloc_hz <= 0 or args.every_s <= args.blackout_s + 1:
         ap.error("--vloc-hz must be > 0 and --every-s longer than --blackout-s + 1")
     args.out.mkdir(parents=True, exist_ok=True)
     load0 = os.getloadavg()
     results = [run_world(w, args) for w in args.worlds]
-    load1 = os.getloadavg()
+    report(results, load0, os.getloadavg(), args)
+    return 0
+
+
+def report(results: list[dict[str, Any]], load0: tuple[float, ...], load1: tuple[float, ...],
+           args: argparse.Namespace) -> None:
     for r in results:
         print_table(f"{r['world']}: {r['events_total']} faults over {r['sensor_s']:.0f} s of the query pass "
                     f"(VLoc at {r['vloc_hz']:g} Hz of sensor time, map {r['nodes']} nodes)",
@@ -216,10 +266,12 @@ def main() -> int:
         return "-" if v is None else v
 
     print_table(f"summary (load average {load0[0]:.1f} -> {load1[0]:.1f} on {os.cpu_count()} CPUs)",
-                ["world", "lost/faults", "relocalized", "median s", "max s", "wall/sim-s tracking",
+                ["world", "lost/faults", "relocalized", "median s", "max s", "all LOST episodes", "median s",
+                 "max s", "unrecovered", "wall/sim-s tracking",
                  "wall/sim-s LOST", "LOST/tracking", "accepted", "err median m", "err > 0.5 m"],
                 [[r["world"], f"{r['events_lost']}/{r['events_total']}", r["events_relocalized"],
-                  fmt(r["lost_to_tracking_median_s"]), fmt(r["lost_to_tracking_max_s"]),
+                  fmt(r["lost_to_tracking_median_s"]), fmt(r["lost_to_tracking_max_s"]), r["episodes_total"],
+                  fmt(r["episodes_median_s"]), fmt(r["episodes_max_s"]), r["episodes_unrecovered"],
                   fmt(r["wall_per_sim_s_tracking"]), fmt(r["wall_per_sim_s_lost"]),
                   fmt(r["lost_vs_tracking_wall_ratio"]), round(r["accepted_fraction"], 3),
                   fmt(r["accepted_error_median_m"]), r["accepted_over_0_5m"]] for r in results])
@@ -231,7 +283,6 @@ def main() -> int:
                                                 for k, v in vars(args).items()},
                                      "worlds": results}, indent=1) + "\n")
     print(f"wrote {args.json}")
-    return 0
 
 
 if __name__ == "__main__":
