@@ -292,14 +292,21 @@ def _streamed_npy(
             dt = np.dtype(hdr[2])
             row_shape = tuple(hdr[0][1:])
             row_bytes = dt.itemsize * int(np.prod(row_shape, dtype=np.int64))
-            carry, row = head[start:], 0
+            # read into one reused buffer (no per-chunk allocation or copy); the bytes of a row
+            # split across two reads (< one row) move to the buffer's start
+            buf = bytearray(_CHUNK + row_bytes + len(head))
+            mv = memoryview(buf)
+            carry = len(head) - start
+            buf[:carry] = head[start:]
+            row = 0
             while True:
-                chunk = f.read(_CHUNK)
-                h.update(chunk)
-                buf = carry + chunk
-                n_rows = len(buf) // row_bytes if row_bytes else 0
+                got = f.readinto(mv[carry:carry + _CHUNK])
+                h.update(mv[carry:carry + got])
+                have = carry + got
+                n_rows = have // row_bytes if row_bytes else 0
                 if n_rows and problem is None:
-                    a = np.frombuffer(buf[: n_rows * row_bytes], dt).reshape((n_rows, *row_shape))
+                    a = np.frombuffer(buf, dt, count=n_rows * int(np.prod(row_shape, dtype=np.int64)))
+                    a = a.reshape((n_rows, *row_shape))
                     if dt == np.float16:  # non-finite iff all exponent bits are set
                         bad = bool(np.any((a.view(np.uint16) & 0x7C00) == 0x7C00))
                     else:
@@ -311,8 +318,11 @@ def _streamed_npy(
                             row_check(a, row)
                         except MapFormatError as exc:
                             problem = str(exc)
-                carry, row = buf[n_rows * row_bytes:], row + n_rows
-                if not chunk:
+                    del a
+                rest = have - n_rows * row_bytes
+                buf[:rest] = buf[n_rows * row_bytes:have]
+                carry, row = rest, row + n_rows
+                if not got:
                     break
         else:
             for chunk in iter(lambda: f.read(_CHUNK), b""):
