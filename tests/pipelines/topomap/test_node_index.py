@@ -125,3 +125,38 @@ def test_connectivity_matrix_keeps_shortest_duplicate_and_zero_edges() -> None:
     rng = np.random.default_rng(5)
     _, _, _, e, w = random_map(300, rng)
     assert np.allclose(dijkstra(connectivity_matrix(e, w, 300), indices=0), heap_dijkstra(300, e, w, 0))
+
+
+def test_local_candidates_equal_the_localizer_on_a_topomap() -> None:
+    """Against `VisualLocalizer.local_candidates` itself (the code the index replaces)."""
+    from litevloc.pipelines.localization.vloc import LocalizationParams, VisualLocalizer
+    from litevloc.pipelines.topomap.types import NodeFeatures, OccupancyGrid, TopoMap
+
+    rng = np.random.default_rng(6)
+    n = 300
+    _pos, T, vpr, e, w = random_map(n, rng, extent=20.0)
+    f = NodeFeatures(np.zeros((0, 2), np.float32), np.zeros((0, 8), np.float32), np.zeros(0, np.float32), (64, 48))
+    m = TopoMap(
+        T_map_camera=T, K=np.tile(np.eye(3), (n, 1, 1)), image_size=np.tile([64, 48], (n, 1)).astype(np.int32),
+        t_ns=np.arange(n, dtype=np.int64), frame_index=np.arange(n, dtype=np.int64), vpr=vpr, features=[f] * n,
+        images_jpeg=[b""] * n, covis_edges=e, covis_inliers=np.full(len(e), 50, np.int32),
+        covis_weight=w, conn_edges=np.zeros((0, 2), np.int64), conn_metres=np.zeros(0, np.float32),
+        grid=OccupancyGrid(np.zeros((0, 0), np.uint8), np.zeros(2), 0.1, np.array([0.0, 0, 1]),
+                           np.array([[1.0, 0, 0], [0, 1, 0]])),
+    )
+    p = LocalizationParams()
+    loc = VisualLocalizer(m, p, lambda im: f, lambda im: np.zeros(16, np.float32),
+                          lambda a, b: (np.zeros(0, np.int64), np.zeros(0, np.int64)))
+    for _ in range(200):
+        P = np.eye(4)
+        P[:3, :3] = Rotation.random(random_state=int(rng.integers(1 << 30))).as_matrix()
+        P[:3, 3] = rng.uniform(-10, 30, 3) * [1, 1, 0.05]
+        desc = rng.normal(size=16).astype(np.float32)
+        got = m.node_index.local_candidates(P, desc, m.vpr, m.T_map_camera, m.covisibility_lists,
+                                            p.candidate_radius_m, p.gl_trigger_distance_m, p.max_view_angle_deg,
+                                            p.ll_max_candidates)
+        ref = loc.local_candidates(P, desc)
+        assert [c for c, _ in got] == [c for c, _ in ref]
+    # the covisibility lists are the localizer's neighbour order (strongest first, ties by id)
+    assert m.covisibility_lists == [[k for k, _ in sorted(m.covisible_neighbours(i), key=lambda x: (-x[1], x[0]))]
+                                    for i in range(n)]
