@@ -34,15 +34,15 @@ import hashlib
 import io
 import json
 import shutil
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, overload
 
 import numpy as np
 from numpy.typing import NDArray
 
 from litevloc.base.errors import LiteVLocError
-from litevloc.pipelines.geometry import is_rigid
-from litevloc.pipelines.topomap.types import NodeFeatures, OccupancyGrid, TopoMap
+from litevloc.pipelines.topomap.types import FeatureStore, OccupancyGrid, TopoMap
 
 FORMAT = "litevloc-map"
 VERSION = 1
@@ -73,11 +73,21 @@ def _quantise(v: NDArray[np.floating]) -> tuple[NDArray[np.int8], NDArray[np.flo
 
 def map_arrays(m: TopoMap) -> dict[str, NDArray[Any]]:
     """The map's arrays keyed by their relative file path."""
-    offsets = np.concatenate([[0], np.cumsum([len(f.keypoints) for f in m.features])]).astype(np.int64)
-    desc_dim = m.features[0].descriptors.shape[1] if m.features and m.features[0].descriptors.ndim == 2 else 0
-    desc_dtype = m.features[0].descriptors.dtype if m.features else np.float32
-    if np.dtype(desc_dtype).kind == "f":
-        desc_dtype = np.float16
+    if isinstance(m.features, FeatureStore):  # a loaded map: its arrays as they are
+        fs = m.features
+        offsets, kps, scores, desc = fs.offsets, fs.keypoints, fs.scores, fs.descriptors
+        desc_dtype = np.float16 if np.dtype(desc.dtype).kind == "f" else desc.dtype
+    else:
+        feats = list(m.features)
+        offsets = np.concatenate([[0], np.cumsum([len(f.keypoints) for f in feats])]).astype(np.int64)
+        desc_dim = feats[0].descriptors.shape[1] if feats and feats[0].descriptors.ndim == 2 else 0
+        desc_dtype = feats[0].descriptors.dtype if feats else np.float32
+        if np.dtype(desc_dtype).kind == "f":
+            desc_dtype = np.float16
+        kps = np.concatenate([f.keypoints for f in feats]).astype(np.float32).reshape(-1, 2)
+        scores = np.concatenate([f.scores for f in feats]).astype(np.float32)
+        desc = np.concatenate([f.descriptors for f in feats], dtype=desc_dtype, casting="same_kind")\
+            .reshape(-1, desc_dim)
     g = m.grid
     vpr_codes, vpr_scale = _quantise(m.vpr)
     return {
@@ -88,11 +98,10 @@ def map_arrays(m: TopoMap) -> dict[str, NDArray[Any]]:
         "nodes/frame_index.npy": m.frame_index.astype(np.int64),
         "vpr/descriptors.npy": vpr_codes,
         "vpr/scale.npy": vpr_scale,
-        "features/offsets.npy": offsets,
-        "features/keypoints.npy": np.concatenate([f.keypoints for f in m.features]).astype(np.float32).reshape(-1, 2),
-        "features/scores.npy": np.concatenate([f.scores for f in m.features]).astype(np.float32),
-        "features/descriptors.npy": np.concatenate([f.descriptors for f in m.features]).astype(desc_dtype)
-        .reshape(-1, desc_dim),
+        "features/offsets.npy": np.asarray(offsets, np.int64),
+        "features/keypoints.npy": np.asarray(kps, np.float32),
+        "features/scores.npy": np.asarray(scores, np.float32),
+        "features/descriptors.npy": np.asarray(desc, desc_dtype),
         "graph/covisibility_edges.npy": m.covis_edges.astype(np.int64).reshape(-1, 2),
         "graph/covisibility_inliers.npy": m.covis_inliers.astype(np.int32),
         "graph/covisibility_weight.npy": m.covis_weight.astype(np.float32),
@@ -111,13 +120,19 @@ def save_map(m: TopoMap, folder: str | Path, overwrite: bool = False) -> Path:
     tmp = dst.with_name(dst.name + ".partial")
     if tmp.exists():
         shutil.rmtree(tmp)
-    files: dict[str, bytes] = {k: _npy_bytes(v) for k, v in map_arrays(m).items()}
-    for i, jpg in enumerate(m.images_jpeg):
-        files[f"images/{i:06d}.jpg"] = jpg
-    for rel, data in files.items():
+    entries: dict[str, dict[str, Any]] = {}
+
+    def put(rel: str, data: bytes) -> None:  # one file at a time: memory holds one file's bytes
         p = tmp / rel
         p.parent.mkdir(parents=True, exist_ok=True)
         p.write_bytes(data)
+        entries[rel] = {"sha256": _sha256(data), "bytes": len(data)}
+
+    arrays = map_arrays(m)
+    for rel in list(arrays):
+        put(rel, _npy_bytes(arrays.pop(rel)))
+    for i, jpg in enumerate(m.images_jpeg):
+        put(f"images/{i:06d}.jpg", jpg)
     manifest = {
         "format": FORMAT,
         "version": VERSION,
@@ -128,7 +143,7 @@ def save_map(m: TopoMap, folder: str | Path, overwrite: bool = False) -> Path:
         "vpr_model": m.vpr_model,
         "vpr_dim": int(m.vpr.shape[1]),
         "meta": dict(sorted(m.meta.items())),
-        "files": {rel: {"sha256": _sha256(data), "bytes": len(data)} for rel, data in sorted(files.items())},
+        "files": dict(sorted(entries.items())),
     }
     (tmp / MANIFEST).write_text(json.dumps(manifest, indent=1, sort_keys=True) + "\n")
     if dst.exists():
@@ -164,7 +179,7 @@ def read_manifest(folder: Path) -> dict[str, Any]:
     return man
 
 
-def _read_verified(folder: Path, rel: str, entry: Any) -> bytes:
+def _check_entry(folder: Path, rel: str, entry: Any) -> Path:
     if ".." in Path(rel).parts or Path(rel).is_absolute():
         raise _fail(folder, rel, "path escapes the map folder")
     p = folder / rel
@@ -175,12 +190,171 @@ def _read_verified(folder: Path, rel: str, entry: Any) -> bytes:
     )
     if not well_formed:
         raise _fail(folder, MANIFEST, f"entry for {rel} must have sha256 and bytes")
+    return p
+
+
+def _read_verified(folder: Path, rel: str, entry: Any) -> bytes:
+    p = _check_entry(folder, rel, entry)
     data = p.read_bytes()
     if len(data) != entry["bytes"]:
         raise _fail(folder, rel, f"truncated or extended: {len(data)} bytes, manifest says {entry['bytes']}")
     if _sha256(data) != entry["sha256"]:
         raise _fail(folder, rel, "checksum mismatch (file modified or corrupt)")
     return data
+
+
+def _check_jpeg(folder: Path, rel: str, data: bytes) -> None:
+    if data[:2] != b"\xff\xd8" or b"\xff\xd9" not in data[-16:]:
+        raise _fail(folder, rel, "not a complete JPEG")
+
+
+class VerifiedImages(Sequence[bytes]):
+    """Keyframe JPEGs of a loaded map, read on access (not held in memory).
+
+    Every image was read, checksummed and checked at load time; each access reads the
+    file again and repeats the size, sha256 and JPEG checks (a file changed since loading
+    is an error naming it, never silently different data)."""
+
+    def __init__(self, folder: Path, entries: list[Any]) -> None:
+        self.folder, self.entries = folder, entries
+
+    def __len__(self) -> int:
+        return len(self.entries)
+
+    def _get(self, i: int) -> bytes:
+        n = len(self)
+        if i < 0:
+            i += n
+        if not 0 <= i < n:
+            raise IndexError(f"image {i} not in 0..{n - 1}")
+        rel = f"images/{i:06d}.jpg"
+        data = _read_verified(self.folder, rel, self.entries[i])
+        _check_jpeg(self.folder, rel, data)
+        return data
+
+    @overload
+    def __getitem__(self, i: int) -> bytes: ...
+
+    @overload
+    def __getitem__(self, i: slice) -> list[bytes]: ...
+
+    def __getitem__(self, i: int | slice) -> bytes | list[bytes]:
+        if isinstance(i, slice):
+            return [self._get(k) for k in range(*i.indices(len(self)))]
+        return self._get(int(i))
+
+
+_CHUNK = 1 << 22  # bytes per read when streaming a large file through the checksum
+
+
+RowCheck = Callable[[NDArray[Any], int], None]  # (rows of a chunk, index of its first row)
+
+
+def _streamed_npy(
+    folder: Path, rel: str, entry: Any, dtype: Any, shape: tuple[int | None, ...], row_check: RowCheck | None = None,
+) -> NDArray[Any]:
+    """A large .npy verified in one streaming pass, then opened as a read-only memory map.
+
+    The pass reads the file in chunks: sha256 over all bytes and, on the same chunks (whole
+    rows), the finiteness of float data and `row_check` (which raises MapFormatError);
+    nothing is kept, so checking costs no memory and the map's pages are read on use.
+    Same checks and messages as `_array` on `_read_verified` bytes, in the same order
+    (size, checksum, readable header, dtype, shape, values)."""
+    p = _check_entry(folder, rel, entry)
+    size = p.stat().st_size
+    if size != entry["bytes"]:
+        raise _fail(folder, rel, f"truncated or extended: {size} bytes, manifest says {entry['bytes']}")
+    h = hashlib.sha256()
+    hdr: tuple[Any, ...] | None = None
+    head_exc: Exception | None = None
+    problem: str | None = None  # the first value problem found in the pass, reported after the checksum
+    with p.open("rb") as f:
+        head = f.read(min(size, 4096))
+        h.update(head)
+        try:
+            hf = io.BytesIO(head)
+            version = np.lib.format.read_magic(hf)
+            if version == (1, 0):
+                hdr = np.lib.format.read_array_header_1_0(hf)
+            elif version == (2, 0):
+                hdr = np.lib.format.read_array_header_2_0(hf)
+            else:
+                raise ValueError(f"unsupported .npy format version {version}")
+            start = hf.tell()
+        except (ValueError, OSError, EOFError, SyntaxError) as exc:
+            head_exc = exc
+        ok_layout = False
+        if hdr is not None:
+            a_shape, fortran, a_dtype = hdr
+            dts = dtype if isinstance(dtype, tuple) else (dtype,)
+            ok_layout = (not fortran and np.dtype(a_dtype) in [np.dtype(d) for d in dts]
+                         and len(a_shape) == len(shape) and len(a_shape) >= 1)
+        if ok_layout and hdr is not None:
+            dt = np.dtype(hdr[2])
+            row_shape = tuple(hdr[0][1:])
+            row_bytes = dt.itemsize * int(np.prod(row_shape, dtype=np.int64))
+            # read into one reused buffer (no per-chunk allocation or copy); the bytes of a row
+            # split across two reads (< one row) move to the buffer's start
+            buf = bytearray(_CHUNK + row_bytes + len(head))
+            mv = memoryview(buf)
+            carry = len(head) - start
+            buf[:carry] = head[start:]
+            row = 0
+            while True:
+                got = f.readinto(mv[carry:carry + _CHUNK])
+                h.update(mv[carry:carry + got])
+                have = carry + got
+                n_rows = have // row_bytes if row_bytes else 0
+                if n_rows and problem is None:
+                    a = np.frombuffer(buf, dt, count=n_rows * int(np.prod(row_shape, dtype=np.int64)))
+                    a = a.reshape((n_rows, *row_shape))
+                    if dt == np.float16:  # non-finite iff all exponent bits are set
+                        bad = bool(np.any((a.view(np.uint16) & 0x7C00) == 0x7C00))
+                    else:
+                        bad = dt.kind == "f" and not bool(np.all(np.isfinite(a)))
+                    if bad:
+                        problem = "contains NaN or infinity"
+                    elif row_check is not None:
+                        try:
+                            row_check(a, row)
+                        except MapFormatError as exc:
+                            problem = str(exc)
+                    del a
+                rest = have - n_rows * row_bytes
+                buf[:rest] = buf[n_rows * row_bytes:have]
+                carry, row = rest, row + n_rows
+                if not got:
+                    break
+        else:
+            for chunk in iter(lambda: f.read(_CHUNK), b""):
+                h.update(chunk)
+    if h.hexdigest() != entry["sha256"]:
+        raise _fail(folder, rel, "checksum mismatch (file modified or corrupt)")
+    if hdr is None:
+        raise _fail(folder, rel, f"not a readable .npy array ({head_exc})")
+    a_shape, _fortran, a_dtype = hdr
+    dtypes = dtype if isinstance(dtype, tuple) else (dtype,)
+    if np.dtype(a_dtype) not in [np.dtype(d) for d in dtypes]:
+        raise _fail(folder, rel, f"dtype {a_dtype}, expected {' or '.join(str(np.dtype(d)) for d in dtypes)}")
+    if len(a_shape) != len(shape) or any(s is not None and s != d for s, d in zip(shape, a_shape, strict=True)):
+        want = "x".join("*" if s is None else str(s) for s in shape)
+        raise _fail(folder, rel, f"shape {a_shape}, expected {want}")
+    if problem is not None:
+        raise problem_error(folder, rel, problem)
+    try:
+        a = np.load(p, mmap_mode="r", allow_pickle=False)
+    except (ValueError, OSError, EOFError) as exc:
+        raise _fail(folder, rel, f"not a readable .npy array ({exc})") from exc
+    if a.shape != tuple(a_shape) or a.dtype != np.dtype(a_dtype):
+        raise _fail(folder, rel, "changed while loading")
+    return a
+
+
+def problem_error(folder: Path, rel: str, problem: str) -> MapFormatError:
+    """A value problem found while streaming: a row check's own error keeps its message."""
+    if problem.startswith(f"map {folder}: "):
+        return MapFormatError(problem)
+    return _fail(folder, rel, problem)
 
 
 def _array(folder: Path, rel: str, data: bytes, dtype: Any, shape: tuple[int | None, ...]) -> NDArray[Any]:
@@ -199,8 +373,31 @@ def _array(folder: Path, rel: str, data: bytes, dtype: Any, shape: tuple[int | N
     return a
 
 
+def _rigid_rows(T: NDArray[np.float64], atol: float) -> NDArray[np.bool_]:
+    """Per pose of (N, 4, 4) finite T: `geometry.is_rigid` as one array operation."""
+    R = T[:, :3, :3]
+    eye = np.eye(3)
+    RRt = R @ np.swapaxes(R, 1, 2)
+    orth = np.all(np.abs(RRt - eye) <= atol + 1e-5 * eye, axis=(1, 2))
+    det = np.abs(np.linalg.det(R) - 1.0) < atol * 10 if len(T) else np.zeros(0, bool)
+    last = np.all(np.abs(T[:, 3] - [0, 0, 0, 1]) <= atol + 1e-5 * np.array([0, 0, 0, 1]), axis=1)
+    return np.asarray(orth & det & last)
+
+
+# Files streamed instead of read whole (they grow with keypoints x nodes); the descriptors
+# stay on disk as a read-only memory map.
+_STREAMED = {"features/keypoints.npy", "features/scores.npy", "features/descriptors.npy"}
+
+
 def load_map(folder: str | Path) -> TopoMap:
-    """Load and validate a map folder (see module docstring); MapFormatError on any problem."""
+    """Load and validate a map folder (see module docstring); MapFormatError on any problem.
+
+    Every file listed is checked (size, sha256, dtype, shape, values) before the map is
+    returned. Keyframe images are not kept in memory (`VerifiedImages` re-reads and
+    re-checks one on access) and the local features (keypoints, scores, descriptors) are
+    checked in one streaming pass each and then memory-mapped read-only (`FeatureStore`
+    gives one node's features, descriptors as float32, on access), so memory grows with
+    the node count by the VPR descriptors (N x D float32) and the small node arrays only."""
     root = Path(folder)
     man = read_manifest(root)
     files: dict[str, Any] = man["files"]
@@ -211,19 +408,20 @@ def load_map(folder: str | Path) -> TopoMap:
         "features/descriptors.npy", "graph/covisibility_edges.npy", "graph/covisibility_inliers.npy",
         "graph/covisibility_weight.npy", "graph/connectivity_edges.npy", "graph/connectivity_metres.npy",
         "grid/cells.npy", "grid/frame.npy",
-    ] + [f"images/{i:06d}.jpg" for i in range(N)]
-    for rel in required:
+    ]
+    image_rels = [f"images/{i:06d}.jpg" for i in range(N)]
+    for rel in required + image_rels:
         if rel not in files:
             raise _fail(root, rel, "not listed in manifest.json")
-    raw = {rel: _read_verified(root, rel, files[rel]) for rel in required}
+    raw = {rel: _read_verified(root, rel, files[rel]) for rel in required if rel not in _STREAMED}
 
     def arr(rel: str, dtype: Any, shape: tuple[int | None, ...]) -> NDArray[Any]:
         return _array(root, rel, raw[rel], dtype, shape)
 
     T = arr("nodes/T_map_camera.npy", np.float64, (N, 4, 4))
-    for i in range(N):
-        if not is_rigid(T[i], atol=1e-5):
-            raise _fail(root, "nodes/T_map_camera.npy", f"pose of node {i} is not a rigid transform")
+    bad = np.flatnonzero(~_rigid_rows(T, atol=1e-5))
+    if len(bad):
+        raise _fail(root, "nodes/T_map_camera.npy", f"pose of node {int(bad[0])} is not a rigid transform")
     K = arr("nodes/K.npy", np.float64, (N, 3, 3))
     if np.any(K[:, 0, 0] <= 0) or np.any(K[:, 1, 1] <= 0):
         raise _fail(root, "nodes/K.npy", "focal lengths must be positive")
@@ -234,30 +432,38 @@ def load_map(folder: str | Path) -> TopoMap:
     frame_index = arr("nodes/frame_index.npy", np.int64, (N,))
     codes = arr("vpr/descriptors.npy", np.int8, (N, None))
     vpr_scale = arr("vpr/scale.npy", np.float32, (N,))
-    vpr = codes.astype(np.float32) * vpr_scale[:, None]
+    vpr = codes.astype(np.float32)
+    vpr *= vpr_scale[:, None]
     norms = np.linalg.norm(vpr, axis=1, keepdims=True)
     if np.any(norms < 1e-6):
         raise _fail(root, "vpr/descriptors.npy", "a descriptor is zero")
-    vpr = (vpr / norms).astype(np.float32)
+    vpr /= norms
     if vpr.shape[1] != man.get("vpr_dim"):
         raise _fail(root, "vpr/descriptors.npy", f"dimension {vpr.shape[1]} != manifest vpr_dim {man.get('vpr_dim')}")
     off = arr("features/offsets.npy", np.int64, (N + 1,))
-    kps = arr("features/keypoints.npy", np.float32, (None, 2))
-    M = len(kps)
-    if off[0] != 0 or off[-1] != M or np.any(np.diff(off) < 0):
-        raise _fail(root, "features/offsets.npy", f"must rise from 0 to {M} (keypoint count)")
-    scores = arr("features/scores.npy", np.float32, (M,))
-    desc = arr("features/descriptors.npy", (np.float16, np.uint8), (M, None))
-    if desc.dtype == np.float16:
-        desc = desc.astype(np.float32)
-    feats = []
-    for i in range(N):
-        a, b = int(off[i]), int(off[i + 1])
-        w, h = int(size[i, 0]), int(size[i, 1])
-        k = kps[a:b]
-        if len(k) and (k.min() < -0.5 or np.any(k[:, 0] > w - 0.5) or np.any(k[:, 1] > h - 0.5)):
-            raise _fail(root, "features/keypoints.npy", f"keypoints of node {i} fall outside its {w}x{h} image")
-        feats.append(NodeFeatures(k, desc[a:b], scores[a:b], (w, h)))
+    M = int(off[-1])
+    if off[0] != 0 or np.any(np.diff(off) < 0):
+        raise _fail(root, "features/offsets.npy", "must rise from 0 (node i owns rows offsets[i]:offsets[i+1])")
+    wh = size.astype(np.float32) - 0.5
+
+    def in_image(k: NDArray[Any], first: int) -> None:
+        """Keypoints of rows first.. lie inside their node's image (one array operation)."""
+        # rows past offsets[-1] (a count mismatch, reported after the pass) count as the last node's
+        owner = np.minimum(np.searchsorted(off, np.arange(first, first + len(k)), side="right") - 1, N - 1)
+        out = (k.min(axis=1) < -0.5) | (k[:, 0] > wh[owner, 0]) | (k[:, 1] > wh[owner, 1])
+        if out.any():
+            i = int(owner[int(np.argmax(out))])
+            raise _fail(root, "features/keypoints.npy",
+                        f"keypoints of node {i} fall outside its {int(size[i, 0])}x{int(size[i, 1])} image")
+
+    kps = _streamed_npy(root, "features/keypoints.npy", files["features/keypoints.npy"], np.float32, (None, 2),
+                        in_image if N else None)
+    if len(kps) != M:
+        raise _fail(root, "features/offsets.npy", f"must rise from 0 to {len(kps)} (keypoint count)")
+    scores = _streamed_npy(root, "features/scores.npy", files["features/scores.npy"], np.float32, (M,))
+    desc = _streamed_npy(root, "features/descriptors.npy", files["features/descriptors.npy"],
+                         (np.float16, np.uint8), (M, None))
+    feats = FeatureStore(off, kps, desc, scores, size)
     ce = arr("graph/covisibility_edges.npy", np.int64, (None, 2))
     ci = arr("graph/covisibility_inliers.npy", np.int32, (len(ce),))
     cw = arr("graph/covisibility_weight.npy", np.float32, (len(ce),))
@@ -276,13 +482,9 @@ def load_map(folder: str | Path) -> TopoMap:
     gf = arr("grid/frame.npy", np.float64, (12,))
     if gf[2] <= 0:
         raise _fail(root, "grid/frame.npy", "resolution must be positive")
-    images = []
-    for i in range(N):
-        rel = f"images/{i:06d}.jpg"
-        data = raw[rel]
-        if data[:2] != b"\xff\xd8" or b"\xff\xd9" not in data[-16:]:
-            raise _fail(root, rel, "not a complete JPEG")
-        images.append(data)
+    for rel in image_rels:  # every image checked now, none kept
+        _check_jpeg(root, rel, _read_verified(root, rel, files[rel]))
+    images = VerifiedImages(root, [files[rel] for rel in image_rels])
     meta = man.get("meta", {})
     return TopoMap(
         T_map_camera=T, K=K, image_size=size, t_ns=t_ns, frame_index=frame_index, vpr=vpr, features=feats,

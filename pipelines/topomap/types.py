@@ -15,11 +15,15 @@ along the two in-plane axes `plane_axes` (2x3).
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
+from functools import cached_property
+from typing import Any, Protocol, overload
 
 import numpy as np
 from numpy.typing import NDArray
+
+from litevloc.pipelines.topomap.node_index import NodeIndex, connectivity_matrix, neighbour_lists
 
 
 class FeatureSet(Protocol):
@@ -43,6 +47,58 @@ class NodeFeatures:
     descriptors: NDArray
     scores: NDArray[np.float32]
     image_size: tuple[int, int]  # (width, height)
+
+
+class FeatureStore(Sequence[Any]):
+    """The cached local features of all N nodes in concatenated arrays; item i is node i's
+    `NodeFeatures`, made on access (no per-node objects or copies at load time).
+
+    offsets: (N+1,) int64, node i owns rows offsets[i]:offsets[i+1] of
+    keypoints (M, 2) float32 pixels, descriptors (M, D) (float16 on disk: returned as
+    float32 per node; may be a read-only memory map) and scores (M,) float32;
+    image_size: (N, 2) int (width, height). `convert` (optional) is applied to each
+    node's NodeFeatures on access (e.g. to the model layer's feature type)."""
+
+    def __init__(self, offsets: NDArray[np.int64], keypoints: NDArray[np.float32], descriptors: NDArray,
+                 scores: NDArray[np.float32], image_size: NDArray[np.integer],
+                 convert: Callable[[NodeFeatures], Any] | None = None) -> None:
+        self.offsets, self.keypoints, self.descriptors, self.scores = offsets, keypoints, descriptors, scores
+        self.image_size = image_size
+        self.convert = convert
+
+    def __len__(self) -> int:
+        return len(self.offsets) - 1
+
+    def _node(self, i: int) -> Any:
+        n = len(self)
+        if i < 0:
+            i += n
+        if not 0 <= i < n:
+            raise IndexError(f"node {i} not in 0..{n - 1}")
+        a, b = int(self.offsets[i]), int(self.offsets[i + 1])
+        d = self.descriptors[a:b]
+        d = d.astype(np.float32) if d.dtype == np.float16 else np.asarray(d)
+        f = NodeFeatures(self.keypoints[a:b], d, self.scores[a:b],
+                         (int(self.image_size[i, 0]), int(self.image_size[i, 1])))
+        return f if self.convert is None else self.convert(f)
+
+    @overload
+    def __getitem__(self, i: int) -> Any: ...
+
+    @overload
+    def __getitem__(self, i: slice) -> list[Any]: ...
+
+    def __getitem__(self, i: int | slice) -> Any:
+        if isinstance(i, slice):
+            return [self._node(k) for k in range(*i.indices(len(self)))]
+        return self._node(int(i))
+
+    def __iter__(self) -> Iterator[Any]:
+        return (self._node(i) for i in range(len(self)))
+
+    def mapped(self, convert: Callable[[NodeFeatures], Any]) -> FeatureStore:
+        """The same store with `convert` applied to each node's features on access."""
+        return FeatureStore(self.offsets, self.keypoints, self.descriptors, self.scores, self.image_size, convert)
 
 
 @dataclass(frozen=True, eq=False)
@@ -79,8 +135,8 @@ class TopoMap:
     t_ns: NDArray[np.int64]  # (N,) capture times
     frame_index: NDArray[np.int64]  # (N,) index of the frame in the source stream
     vpr: NDArray[np.float32]  # (N, D) L2-normalised place descriptors
-    features: list[NodeFeatures]
-    images_jpeg: list[bytes]
+    features: Sequence[NodeFeatures]  # list, or a FeatureStore (loaded maps)
+    images_jpeg: Sequence[bytes]  # list, or a lazy verified reader (loaded maps)
     covis_edges: NDArray[np.int64]  # (E, 2), i < j
     covis_inliers: NDArray[np.int32]  # (E,)
     covis_weight: NDArray[np.float32]  # (E,)
@@ -100,12 +156,27 @@ class TopoMap:
         """(N, 3) camera centres in the map frame."""
         return self.T_map_camera[:, :3, 3]
 
+    @cached_property
+    def node_index(self) -> NodeIndex:
+        """KD-tree over the node positions (built on first use, once per map)."""
+        return NodeIndex(self.positions)
+
+    @cached_property
+    def covisibility_lists(self) -> list[list[int]]:
+        """Covisible neighbours of each node, strongest edge first (ties by id); built once."""
+        return neighbour_lists(self.covis_edges, self.covis_weight, self.n_nodes)
+
+    @cached_property
+    def _covis_weight_of(self) -> dict[tuple[int, int], float]:
+        return {(int(i), int(j)): float(w) for (i, j), w in zip(self.covis_edges.tolist(), self.covis_weight.tolist(),
+                                                                 strict=True)}
+
+    @cached_property
+    def connectivity_csr(self) -> Any:
+        """Connectivity graph as a symmetric scipy.sparse CSR matrix of metres (see node_index)."""
+        return connectivity_matrix(self.conn_edges, self.conn_metres, self.n_nodes)
+
     def covisible_neighbours(self, node: int) -> list[tuple[int, float]]:
-        """(neighbour id, weight) pairs of `node` in the covisibility graph."""
-        out = []
-        for (i, j), w in zip(self.covis_edges, self.covis_weight, strict=True):
-            if i == node:
-                out.append((int(j), float(w)))
-            elif j == node:
-                out.append((int(i), float(w)))
-        return out
+        """(neighbour id, weight) pairs of `node` in the covisibility graph, strongest first."""
+        w = self._covis_weight_of
+        return [(int(n), w[(min(node, n), max(node, n))]) for n in self.covisibility_lists[node]]

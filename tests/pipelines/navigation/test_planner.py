@@ -89,3 +89,18 @@ def test_tracker_positions_override_must_match_nodes() -> None:
     m = grid_map([(0, 1, 1.0)], 2)
     with pytest.raises(ValueError, match="positions"):
         SubgoalTracker(m, positions=np.zeros((3, 3)))
+
+
+def test_shortest_path_handles_zero_length_and_duplicate_edges() -> None:
+    m = grid_map([(0, 1, 0.0), (1, 2, 1.0), (1, 2, 3.0), (0, 2, 2.5)], 3)
+    path, length = shortest_path(m, 0, 2)
+    assert path == [0, 1, 2] and length == pytest.approx(1.0)
+    assert shortest_path(m, 1, 0) == ([1, 0], 0.0)
+
+
+def test_tracker_nearest_node_is_the_brute_force_one() -> None:
+    m = grid_map([(i, i + 1, 1.0) for i in range(9)], 10)
+    tr = SubgoalTracker(m)
+    rng = np.random.default_rng(0)
+    for p in rng.uniform(-3, 12, (200, 3)):
+        assert tr.nearest_node(p) == int(np.argmin(np.linalg.norm(m.positions - p, axis=1)))

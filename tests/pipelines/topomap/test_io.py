@@ -166,3 +166,86 @@ def test_pickled_array_is_refused(saved_map: Path, tmp_path: Path) -> None:
     _replace_array(d, "vpr/descriptors.npy", np.array([{"a": 1}], dtype=object))
     with pytest.raises(MapFormatError, match=r"vpr/descriptors\.npy"):
         load_map(d)
+
+
+def test_loaded_features_and_images_are_lazy_and_exact(saved_map: Path, tmp_path: Path) -> None:
+    from litevloc.pipelines.topomap.io import map_arrays
+    from litevloc.pipelines.topomap.types import FeatureStore
+
+    m = load_map(saved_map)
+    assert isinstance(m.features, FeatureStore)
+    assert isinstance(m.features.descriptors, np.memmap)  # stays on disk
+    arrays = map_arrays(m)
+    off = arrays["features/offsets.npy"]
+    for i in (0, m.n_nodes - 1):
+        f = m.features[i]
+        a, b = off[i], off[i + 1]
+        stored = arrays["features/descriptors.npy"][a:b]
+        assert f.descriptors.dtype == (np.float32 if stored.dtype == np.float16 else stored.dtype)
+        assert np.array_equal(f.descriptors, stored.astype(f.descriptors.dtype))
+        assert np.array_equal(f.keypoints, arrays["features/keypoints.npy"][a:b])
+    assert np.array_equal(m.features[-1].descriptors, m.features[m.n_nodes - 1].descriptors)
+    assert len(list(m.features)) == m.n_nodes and len(m.features[1:3]) == 2
+    with pytest.raises(IndexError):
+        m.features[m.n_nodes]
+    # saving a loaded map gives the same bytes (the FeatureStore path of map_arrays), except
+    # the VPR scales: the loader renormalises the dequantised descriptors
+    again = save_map(m, tmp_path / "again")
+    a, b = (json.loads((p / "manifest.json").read_text())["files"] for p in (again, saved_map))
+    assert {k: v for k, v in a.items() if k != "vpr/scale.npy"} == {k: v for k, v in b.items() if k != "vpr/scale.npy"}
+    # images are re-read and re-checked on access: a file changed after loading is named
+    d = copy(saved_map, tmp_path / "c")
+    m2 = load_map(d)
+    assert m2.images_jpeg[0] == m.images_jpeg[0] and m2.images_jpeg[0][:2] == b"\xff\xd8"
+    p = d / "images/000000.jpg"
+    data = bytearray(p.read_bytes())
+    data[100] ^= 0x01
+    p.write_bytes(bytes(data))
+    with pytest.raises(MapFormatError, match=r"images/000000\.jpg: checksum mismatch"):
+        m2.images_jpeg[0]
+
+
+def test_streamed_feature_files_are_fully_checked(saved_map: Path, tmp_path: Path) -> None:
+    m = load_map(saved_map)
+    M = len(m.features.descriptors)  # type: ignore[attr-defined]
+    desc = np.random.default_rng(0).normal(size=(M, 8)).astype(np.float16)
+    d0 = copy(saved_map, tmp_path / "f")
+    _replace_array(d0, "features/descriptors.npy", desc)
+    f0 = load_map(d0).features[1]  # float16 on disk: float32 per node on access
+    assert f0.descriptors.dtype == np.float32 and f0.descriptors.shape[1] == 8
+    desc[-1, -1] = np.inf  # the last value of the largest file: the streaming check reads to the end
+    d = copy(saved_map, tmp_path / "a")
+    _replace_array(d, "features/descriptors.npy", desc)
+    with pytest.raises(MapFormatError, match=r"features/descriptors\.npy: contains NaN"):
+        load_map(d)
+    d2 = copy(saved_map, tmp_path / "b")
+    p = d2 / "features/descriptors.npy"
+    data = bytearray(p.read_bytes())
+    data[len(data) // 2] ^= 0x10
+    p.write_bytes(bytes(data))
+    with pytest.raises(MapFormatError, match=r"features/descriptors\.npy: checksum mismatch"):
+        load_map(d2)
+    d3 = copy(saved_map, tmp_path / "c")
+    _replace_array(d3, "features/scores.npy", np.asarray(m.features.scores[:-1]))  # type: ignore[attr-defined]
+    with pytest.raises(MapFormatError, match=r"features/scores\.npy: shape"):
+        load_map(d3)
+    d4 = copy(saved_map, tmp_path / "d")
+    kps = np.asarray(m.features.keypoints).copy()  # type: ignore[attr-defined]
+    kps[-1, 0] = 1e4
+    _replace_array(d4, "features/keypoints.npy", kps)
+    with pytest.raises(MapFormatError, match=f"keypoints of node {m.n_nodes - 1} fall outside"):
+        load_map(d4)
+    d5 = copy(saved_map, tmp_path / "e")
+    _replace_array(d5, "features/descriptors.npy", np.array([{"a": 1}], dtype=object))
+    with pytest.raises(MapFormatError, match=r"features/descriptors\.npy: dtype object"):
+        load_map(d5)
+
+
+def test_non_rigid_pose_is_named(saved_map: Path, tmp_path: Path) -> None:
+    m = load_map(saved_map)
+    T = m.T_map_camera.copy()
+    T[2, :3, :3] *= 1.01
+    d = copy(saved_map, tmp_path)
+    _replace_array(d, "nodes/T_map_camera.npy", T)
+    with pytest.raises(MapFormatError, match="pose of node 2 is not a rigid"):
+        load_map(d)
