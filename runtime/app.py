@@ -24,6 +24,7 @@ from litevloc.pipelines.fusion.online import OnlineFusion
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map
 from litevloc.runtime.bus import Bus, LiteVLocPublisher
+from litevloc.runtime.diagnostics import DiagnosticsPublisher
 from litevloc.runtime.frame_guard import FrameGuard
 from litevloc.runtime.service import Service, fusion_callables, localizer_callable
 from litevloc.runtime.stages import call_in_low_priority_thread
@@ -78,6 +79,15 @@ def with_endpoints(cfg: LiteVLocConfig, listen: list[str], connect: list[str], n
     return dataclasses.replace(cfg, zenoh=dataclasses.replace(z, **changes)) if changes else cfg
 
 
+def map_id(map_path: Path) -> str:
+    """`<folder name>@<first 12 hex of sha256(manifest.json)>`: names the exact map content
+    (the manifest holds every file's sha256), for `litevloc/diagnostics`."""
+    import hashlib
+
+    digest = hashlib.sha256((Path(map_path) / "manifest.json").read_bytes()).hexdigest()[:12]
+    return f"{Path(map_path).resolve().name}@{digest}"
+
+
 def build_app(
     cfg: LiteVLocConfig, map_path: Path, source: StreamSource, rate: float,
     on_fused: Callable[[Any], None] | None = None, record: bool = True,
@@ -93,7 +103,9 @@ def build_app(
     recorder = Recorder(enabled=record)
     bus = Bus(cfg.zenoh)
     try:
-        publisher = LiteVLocPublisher(bus, cfg.runtime.lost_policy, cfg.runtime.lost_variance)
+        diagnostics = DiagnosticsPublisher(cfg.diagnostics, map_id(map_path), topomap.n_nodes)
+        publisher = LiteVLocPublisher(bus, cfg.runtime.lost_policy, cfg.runtime.lost_variance,
+                                      diagnostics=diagnostics)
         on_odom, on_vloc = fusion_callables(fusion)
         receiver: Callable[[Callable[[Any], None]], Any] | None = None
         if cfg.runtime.odometry_input == "zenoh":
