@@ -289,6 +289,7 @@ class LiteVLocPublisher:
         self.withheld = 0
         self.flagged = 0
         self.diagnostics = diagnostics  # runtime.diagnostics.DiagnosticsPublisher or None
+        self.on_status: Callable[[dict[str, Any]], None] | None = None  # e.g. the live view's put_status
 
     def _lost_gate(self, lost: bool) -> bool:
         """True if the message may go out; counts flagged/withheld messages."""
@@ -328,6 +329,8 @@ class LiteVLocPublisher:
             msg = self.diagnostics.maybe_message(status, time.time_ns())
             if msg is not None:
                 self.pubs["diagnostics"].put(msg)
+        if self.on_status is not None:
+            self.on_status(status)
 
     def status(self) -> dict[str, Any]:
         return {"topics": {n: p.status() for n, p in self.pubs.items()}, "withheld": self.withheld,
