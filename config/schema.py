@@ -121,6 +121,7 @@ class LiteVLocConfig:
     # Colour camera of an RGB-D dataset whose depth is not registered (7-Scenes); None = as published.
     rgbd_calibration: ColorDepthCalibration | None = None
     planner: PlannerConfig = field(default_factory=lambda: PlannerConfig())
+    diagnostics: DiagnosticsConfig = field(default_factory=lambda: DiagnosticsConfig())
 
 
 # --------------------------------------------------------------------- runtime / Zenoh
@@ -277,3 +278,58 @@ class PlannerConfig:
             raise ValueError(f"planner.status_period_s must be finite and > 0, got {self.status_period_s}")
         if self.max_queued_goals < 1 or self.max_goal_bytes < 1024:
             raise ValueError("planner.max_queued_goals must be >= 1 and planner.max_goal_bytes >= 1024")
+
+
+# --------------------------------------------------------------------- diagnostics (issue 17)
+# (used by litevloc.runtime.diagnostics: `litevloc/diagnostics`, diagnostic_msgs/DiagnosticArray)
+@dataclass(frozen=True)
+class LevelThresholds:
+    """WARN at or above `warn`, ERROR at or above `error` (for "lower is worse" figures the
+    diagnostics compare the other way: WARN at or below `warn`, ERROR at or below `error`)."""
+
+    warn: float
+    error: float
+
+
+@dataclass(frozen=True)
+class DiagnosticsConfig:
+    """Levels of `litevloc/diagnostics` (one DiagnosticStatus per stage, queue, VLoc, tracking).
+
+    Stage thresholds apply to the p99 execution time (ms) over the runtime's latency window:
+    extract / vpr / match / pnp per VLoc query (match and pnp summed over the candidates of
+    one query), fusion per odometry message, publish per published message. Queue depth is
+    a fraction of capacity; any overflow (a never-drop FIFO refusing an item) is ERROR.
+    VLoc rate (Hz) and acceptance (accepted / calls) are over the last diagnostics period
+    and are "lower is worse"; they are only judged once `min_vloc_calls` calls were made.
+    """
+
+    enabled: bool = True
+    period_s: float = 1.0  # wall time between DiagnosticArray messages (sent with the status tick)
+    hardware_id: str = "litevloc"
+    extract_ms: LevelThresholds = field(default_factory=lambda: LevelThresholds(500.0, 2000.0))
+    vpr_ms: LevelThresholds = field(default_factory=lambda: LevelThresholds(300.0, 1000.0))
+    match_ms: LevelThresholds = field(default_factory=lambda: LevelThresholds(1500.0, 5000.0))
+    pnp_ms: LevelThresholds = field(default_factory=lambda: LevelThresholds(50.0, 200.0))
+    fusion_ms: LevelThresholds = field(default_factory=lambda: LevelThresholds(10.0, 50.0))
+    publish_ms: LevelThresholds = field(default_factory=lambda: LevelThresholds(10.0, 50.0))
+    queue_fill: LevelThresholds = field(default_factory=lambda: LevelThresholds(0.5, 0.9))
+    vloc_rate_hz: LevelThresholds = field(default_factory=lambda: LevelThresholds(0.5, 0.1))
+    vloc_acceptance: LevelThresholds = field(default_factory=lambda: LevelThresholds(0.5, 0.1))
+    min_vloc_calls: int = 3
+
+    def __post_init__(self) -> None:
+        if not (0 < self.period_s < float("inf")):
+            raise ValueError(f"diagnostics.period_s must be finite and > 0, got {self.period_s}")
+        if not self.hardware_id:
+            raise ValueError("diagnostics.hardware_id must not be empty")
+        if self.min_vloc_calls < 1:
+            raise ValueError(f"diagnostics.min_vloc_calls must be >= 1, got {self.min_vloc_calls}")
+        for name in ("extract_ms", "vpr_ms", "match_ms", "pnp_ms", "fusion_ms", "publish_ms", "queue_fill"):
+            t = getattr(self, name)
+            if not (0 <= t.warn <= t.error < float("inf")):
+                raise ValueError(f"diagnostics.{name}: need 0 <= warn <= error (finite), got {t.warn}, {t.error}")
+        for name in ("vloc_rate_hz", "vloc_acceptance"):
+            t = getattr(self, name)
+            if not (0 <= t.error <= t.warn < float("inf")):
+                raise ValueError(f"diagnostics.{name} (lower is worse): need 0 <= error <= warn (finite), "
+                                 f"got warn {t.warn}, error {t.error}")

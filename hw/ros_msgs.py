@@ -28,6 +28,7 @@ POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
 POSE_COV_STAMPED = "geometry_msgs/msg/PoseWithCovarianceStamped"
 TRANSFORM_STAMPED = "geometry_msgs/msg/TransformStamped"
 STRING = "std_msgs/msg/String"
+DIAGNOSTIC_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
 
 
 class MessageDecodeError(LiteVLocError, ValueError):
@@ -210,3 +211,18 @@ def odometry_to_matrix(msg: Any) -> tuple[int, NDArray[np.float64], NDArray[np.f
     T = pose_to_matrix(msg.pose.pose)
     cov = np.asarray(msg.pose.covariance, dtype=np.float64).reshape(6, 6)
     return stamp_ns(msg.header), T, (None if not np.any(cov) else cov)
+
+
+def diagnostic_array_msg(
+    t_ns: int, statuses: list[tuple[int, str, str, str, list[tuple[str, str]]]], frame_id: str = ""
+) -> Any:
+    """diagnostic_msgs/DiagnosticArray from (level, name, message, hardware_id, [(key, value)])
+    tuples; level 0 OK, 1 WARN, 2 ERROR, 3 STALE (the message's `byte` constants)."""
+    st, kv = _t("diagnostic_msgs/msg/DiagnosticStatus"), _t("diagnostic_msgs/msg/KeyValue")
+    out = []
+    for level, name, message, hw_id, values in statuses:
+        if level not in (0, 1, 2, 3):
+            raise ValueError(f"diagnostic level must be 0..3, got {level}")
+        out.append(st(level=int(level), name=name, message=message, hardware_id=hw_id,
+                      values=[kv(key=str(k), value=str(v)) for k, v in values]))
+    return _t(DIAGNOSTIC_ARRAY)(header=header(t_ns, frame_id), status=out)

@@ -24,6 +24,7 @@ from litevloc.pipelines.fusion.online import OnlineFusion
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map
 from litevloc.runtime.bus import Bus, LiteVLocPublisher
+from litevloc.runtime.diagnostics import DiagnosticsPublisher
 from litevloc.runtime.frame_guard import FrameGuard
 from litevloc.runtime.service import Service, fusion_callables, localizer_callable
 from litevloc.runtime.stages import call_in_low_priority_thread
@@ -60,9 +61,12 @@ class App:
     fusion: OnlineFusion
     recorder: Recorder
     T_base_camera: NDArray[np.float64]
+    view: Any = None  # runtime.view.LiveView with --view / --view-save
 
     def close(self) -> None:
         self.bus.close()
+        if self.view is not None:
+            self.view.close()
 
 
 def with_endpoints(cfg: LiteVLocConfig, listen: list[str], connect: list[str], namespace: str | None) -> LiteVLocConfig:
@@ -78,11 +82,24 @@ def with_endpoints(cfg: LiteVLocConfig, listen: list[str], connect: list[str], n
     return dataclasses.replace(cfg, zenoh=dataclasses.replace(z, **changes)) if changes else cfg
 
 
+def map_id(map_path: Path) -> str:
+    """`<folder name>@<first 12 hex of sha256(manifest.json)>`: names the exact map content
+    (the manifest holds every file's sha256), for `litevloc/diagnostics`."""
+    import hashlib
+
+    digest = hashlib.sha256((Path(map_path) / "manifest.json").read_bytes()).hexdigest()[:12]
+    return f"{Path(map_path).resolve().name}@{digest}"
+
+
 def build_app(
     cfg: LiteVLocConfig, map_path: Path, source: StreamSource, rate: float,
     on_fused: Callable[[Any], None] | None = None, record: bool = True,
+    view_spawn: bool = False, view_save: Path | None = None,
 ) -> App:
-    """Load map and models, open the bus, and wire the service (nothing runs yet)."""
+    """Load map and models, open the bus, and wire the service (nothing runs yet).
+
+    `view_spawn` / `view_save`: the live view (`runtime.view`, imported only then), fed off
+    the hot path from the VLoc callable, the fused-pose hook and the status tick."""
     models = dataclasses.replace(cfg.models, intra_op_threads=cfg.runtime.ort_intra_op_threads)
     # Sessions made in a low-priority thread: their intra-op threads inherit the VLoc thread's nice.
     bundle = call_in_low_priority_thread(lambda: load_bundle(models), cfg.runtime.vloc_nice)
@@ -91,9 +108,17 @@ def build_app(
     T_base_camera = cfg.fusion.T_base_camera()
     fusion = OnlineFusion(cfg.fusion.params, T_base_camera)
     recorder = Recorder(enabled=record)
+    view = None
+    if view_spawn or view_save is not None:
+        from litevloc.runtime.view import LiveView
+
+        view = LiveView(save=view_save, spawn=view_spawn, topomap=topomap, T_base_camera=T_base_camera,
+                        nice=cfg.runtime.vloc_nice)
     bus = Bus(cfg.zenoh)
     try:
-        publisher = LiteVLocPublisher(bus, cfg.runtime.lost_policy, cfg.runtime.lost_variance)
+        diagnostics = DiagnosticsPublisher(cfg.diagnostics, map_id(map_path), topomap.n_nodes)
+        publisher = LiteVLocPublisher(bus, cfg.runtime.lost_policy, cfg.runtime.lost_variance,
+                                      diagnostics=diagnostics)
         on_odom, on_vloc = fusion_callables(fusion)
         receiver: Callable[[Callable[[Any], None]], Any] | None = None
         if cfg.runtime.odometry_input == "zenoh":
@@ -108,13 +133,22 @@ def build_app(
             recorder.on_fused(f)
             if on_fused is not None:
                 on_fused(f)
+            if view is not None:
+                view.put_fused(f)
+
+        vloc_fn = FrameGuard(localizer_callable(localizer))
+        if view is not None:
+            vloc_fn = view.wrap_vloc(vloc_fn)
+            publisher.on_status = view.put_status
 
         service = Service(
-            source, FrameGuard(localizer_callable(localizer)), on_odom, on_vloc, publisher, cfg.runtime, rate=rate,
+            source, vloc_fn, on_odom, on_vloc, publisher, cfg.runtime, rate=rate,
             T_base_camera=T_base_camera, state_fn=lambda: str(localizer.state), odometry_receiver=receiver,
             on_ground_truth=recorder.on_ground_truth, on_fused=fused_hook,
         )
     except Exception:
         bus.close()
+        if view is not None:
+            view.close()
         raise
-    return App(service, bus, localizer, fusion, recorder, T_base_camera)
+    return App(service, bus, localizer, fusion, recorder, T_base_camera, view)

@@ -22,6 +22,10 @@ behind zenoh-bridge-ros2dds receives them unchanged; Zenoh encoding
   (camera-frame) perturbation, order (tx, ty, tz, rx, ry, rz), as `pipelines.pnp` gives it.
 * `litevloc/map_to_odom` geometry_msgs/TransformStamped: `T_map_odom` (REP-105 correction).
 * `litevloc/status` std_msgs/String: JSON (state, reasons, queue and stage metrics), ~1 Hz.
+* `litevloc/diagnostics` diagnostic_msgs/DiagnosticArray: per-stage times, queues, VLoc rate
+  and acceptance, tracking state, map id with OK/WARN/ERROR levels (`runtime.diagnostics`),
+  sent with the status tick at `diagnostics.period_s` (1 Hz) when the publisher has a
+  `DiagnosticsPublisher`.
 
 Tracking loss (how the flag is carried, `RuntimeConfig.lost_policy`):
 * `"flag"` (default): poses keep coming, but every diagonal entry of the pose
@@ -63,6 +67,7 @@ TOPICS: dict[str, tuple[str, str]] = {
     "vloc": ("litevloc/vloc", ros_msgs.POSE_COV_STAMPED),
     "map_to_odom": ("litevloc/map_to_odom", ros_msgs.TRANSFORM_STAMPED),
     "status": ("litevloc/status", ros_msgs.STRING),
+    "diagnostics": ("litevloc/diagnostics", ros_msgs.DIAGNOSTIC_ARRAY),
 }
 
 
@@ -78,6 +83,7 @@ def warm_codecs() -> None:
         ros_msgs.POSE_COV_STAMPED: ros_msgs.pose_cov_stamped_msg(0, eye, "map", None),
         ros_msgs.TRANSFORM_STAMPED: ros_msgs.transform_stamped_msg(0, eye, "map", "odom"),
         ros_msgs.STRING: ros_msgs.typestore().types[ros_msgs.STRING](data="{}"),
+        ros_msgs.DIAGNOSTIC_ARRAY: ros_msgs.diagnostic_array_msg(0, [(0, "warm", "", "", [("k", "v")])]),
     }
     for typename, msg in msgs.items():
         ros_msgs.deserialize(ros_msgs.serialize(msg, typename), typename)
@@ -272,6 +278,7 @@ class LiteVLocPublisher:
     def __init__(
         self, bus: Bus, lost_policy: str = "flag", lost_variance: float = 1.0e4,
         map_frame: str = "map", odom_frame: str = "odom", base_frame: str = "base_link",
+        diagnostics: Any = None,
     ) -> None:
         if lost_policy not in ("flag", "withhold"):
             raise ValueError(f"lost_policy must be 'flag' or 'withhold', got {lost_policy!r}")
@@ -282,6 +289,8 @@ class LiteVLocPublisher:
         warm_codecs()
         self.withheld = 0
         self.flagged = 0
+        self.diagnostics = diagnostics  # runtime.diagnostics.DiagnosticsPublisher or None
+        self.on_status: Callable[[dict[str, Any]], None] | None = None  # e.g. the live view's put_status
 
     def _lost_gate(self, lost: bool) -> bool:
         """True if the message may go out; counts flagged/withheld messages."""
@@ -317,6 +326,12 @@ class LiteVLocPublisher:
     def publish_status(self, status: dict[str, Any]) -> None:
         text = json.dumps(jsonable(status), sort_keys=True)
         self.pubs["status"].put(ros_msgs.typestore().types[ros_msgs.STRING](data=text))
+        if self.diagnostics is not None:
+            msg = self.diagnostics.maybe_message(status, time.time_ns())
+            if msg is not None:
+                self.pubs["diagnostics"].put(msg)
+        if self.on_status is not None:
+            self.on_status(status)
 
     def status(self) -> dict[str, Any]:
         return {"topics": {n: p.status() for n, p in self.pubs.items()}, "withheld": self.withheld,

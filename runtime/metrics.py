@@ -66,7 +66,9 @@ class LatencyWindow:
         return []
 
     def summary(self) -> dict[str, Any]:
-        s = percentiles_ms(self.snapshot())
+        snap = self.snapshot()
+        s = percentiles_ms(snap)
+        s["last_ms"] = snap[-1] if snap else float("nan")  # (issue 17: `litevloc/diagnostics` reports it)
         s["total"] = self.total
         return s
 

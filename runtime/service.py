@@ -62,6 +62,7 @@ from litevloc.base.errors import LiteVLocError
 from litevloc.config.schema import RuntimeConfig
 from litevloc.hw.messages import GroundTruthPose, Message, Odometry, RgbdFrame
 from litevloc.pipelines.odometry_drift import T_BASE_CAMERA_OPTICAL
+from litevloc.runtime.diagnostics import VlocStageTimes
 from litevloc.runtime.metrics import LatencyWindow, jsonable, now_ns
 from litevloc.runtime.pacing import paced
 from litevloc.runtime.queues import BoundedFifo, LatestMailbox, QueueBase, QueueClosed
@@ -183,6 +184,7 @@ class Service:
         self._last_frame_wall: float | None = None
         self._max_gap_s = p.odometry_checks.max_gap_s
         self.e2e = LatencyWindow(w)  # odometry into the FIFO -> pose handed to Zenoh (ms)
+        self.vloc_times = VlocStageTimes(w)  # per-query extract/vpr/match/pnp ms (litevloc/diagnostics)
         self._t_start = time.monotonic()
         self._status: dict[str, Any] = {}
         self._fatal: str | None = None
@@ -440,6 +442,7 @@ class Service:
             self._notify_progress()
 
     def _fuse_result(self, res: Any) -> None:
+        self.vloc_times.add(getattr(res, "timings_ms", None))
         self.last_vloc_reason = str(getattr(res, "reason", ""))
         if not getattr(res, "accepted", False) or getattr(res, "T_map_camera", None) is None:
             self.counters["vloc_rejected"] += 1
@@ -593,6 +596,7 @@ class Service:
             "sensor_time_ns": self.sensor_now_ns,
             "odometry": odo,
             "latency": {"odometry_to_publish": self.e2e.summary()},
+            "vloc_stages": self.vloc_times.summary(),
             "queues": queues,
             "stages": stages,
         }

@@ -85,3 +85,30 @@ def odometry_acl(odometry_key: str, publishers: list[str], namespace: str = "",
             {"id": "outputs", "rules": ["odometry_sub", "litevloc_out", "litevloc_sub"], "subjects": ["readers"]},
         ],
     }
+
+
+def tls_config(root_ca_certificate: str, certificate: str | None = None, private_key: str | None = None,
+               mtls: bool = True, listen: bool = True, verify_name_on_connect: bool = True) -> dict[str, Any]:
+    """A `zenoh.tls` block (Zenoh's `transport/link/tls`) for `tls/HOST:PORT` endpoints.
+
+    `root_ca_certificate`: PEM file of the CA that signed the other side's certificate (the
+    server's for a connecting session; the clients' too with `mtls`). `certificate` /
+    `private_key`: PEM files of this session's certificate, presented when it listens
+    (`listen=True`: `listen_certificate`/`listen_private_key`) and, with `mtls`, also when it
+    connects (`connect_certificate`/`connect_private_key`). With `mtls` a listening session
+    refuses a peer that presents no certificate or one not signed by the CA (tested in
+    tests/runtime/test_tls.py with generated certificates). The server certificate must
+    name the host of the endpoint (subjectAltName) unless `verify_name_on_connect` is off.
+    """
+    if (certificate is None) != (private_key is None):
+        raise ValueError("tls_config: give both certificate and private_key, or neither")
+    if mtls and certificate is None:
+        raise ValueError("tls_config: mutual TLS needs this session's certificate and private_key")
+    block: dict[str, Any] = {"root_ca_certificate": str(root_ca_certificate), "enable_mtls": bool(mtls),
+                             "verify_name_on_connect": bool(verify_name_on_connect)}
+    if certificate is not None:
+        if listen:
+            block.update(listen_certificate=str(certificate), listen_private_key=str(private_key))
+        if mtls or not listen:
+            block.update(connect_certificate=str(certificate), connect_private_key=str(private_key))
+    return block

@@ -35,6 +35,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_frames_arg(p)
     add_config_args(p)
     add_json_arg(p)
+    from litevloc.runtime.cli.run import add_view_args
+
+    add_view_args(p)  # --view / --view-save (issue 17)
     p.set_defaults(func=run)
 
 
@@ -47,6 +50,9 @@ def run(args: argparse.Namespace) -> int:
     topomap = check_map_models(load_map(args.map), bundle)
     loc = VisualLocalizer(topomap, cfg.localization, bundle.extract, bundle.describe, bundle.match)
     src = source_of(args, cfg)
+    from litevloc.runtime.cli.run import make_view
+
+    view = make_view(args, topomap)  # None unless --view / --view-save
     times: list[float] = []
     poses: list = []
     errors: list[tuple[float, float]] = []
@@ -58,6 +64,9 @@ def run(args: argparse.Namespace) -> int:
         for frame, T_gt in posed_frames(src):
             bar.update(1)
             res = loc.process(frame.t_ns, frame.color, frame.depth, frame.K)
+            if view is not None:
+                view.put_vloc(frame, res)
+                view.put_status({"sensor_time_ns": frame.t_ns, "state": str(loc.state), "reasons": [res.reason]})
             counts["queries"] += 1
             counts[res.mode] += 1
             lat[res.mode].append(res.timings_ms.get("total", 0.0))
@@ -72,6 +81,8 @@ def run(args: argparse.Namespace) -> int:
                 counts["rejected"] += 1
                 key = res.reason.split("(")[0].strip()
                 reasons[key] = reasons.get(key, 0) + 1
+    if view is not None:
+        print(f"view: {view.close()}")
     args.output.parent.mkdir(parents=True, exist_ok=True)
     write_tum(args.output, np.array(times), np.array(poses).reshape(-1, 4, 4))
     summary: dict = {**counts, "rejection_reasons": reasons, "output": str(args.output),

@@ -30,8 +30,29 @@ def add_service_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--listen", action="append", default=[], metavar="ENDPOINT", help="e.g. tcp/127.0.0.1:7447")
     p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT")
     p.add_argument("--namespace", default=None, help="key-expression prefix, e.g. robot1")
+    add_view_args(p)
     p.add_argument("--fault", action="append", default=[], metavar="KIND@START:DURATION",
                    help="inject a fault (tests/benchmarks), e.g. camera_dropout@10:5; see runtime/faults.py")
+
+
+def add_view_args(p: argparse.ArgumentParser) -> None:
+    """`--view` / `--view-save FILE` (the live Rerun view, runtime/view.py; off by default)."""
+    p.add_argument("--view", action="store_true",
+                   help="show the live view: spawn the Rerun viewer and stream to it (needs rerun-sdk and a display)")
+    p.add_argument("--view-save", type=Path, default=None, metavar="FILE.rrd",
+                   help="save the live view's stream to this .rrd file (open it later with `rerun FILE.rrd`)")
+
+
+def make_view(args: argparse.Namespace, topomap: Any = None, T_base_camera: Any = None) -> Any:
+    """A `runtime.view.LiveView` for --view / --view-save, else None (rerun is then never imported)."""
+    if not getattr(args, "view", False) and getattr(args, "view_save", None) is None:
+        return None
+    from litevloc.runtime.view import LiveView, ViewError
+
+    try:
+        return LiveView(save=args.view_save, spawn=args.view, topomap=topomap, T_base_camera=T_base_camera)
+    except ViewError as exc:
+        raise UserError(str(exc)) from exc
 
 
 def open_configured_source(cfg: Any, path: Path | None) -> Any:
@@ -68,7 +89,16 @@ def run_service(args: argparse.Namespace, source_path: Path | None, rate: float 
             faults = FaultInjector(args.fault)  # parsed before the (slow) model loading
         except FaultSpecError as exc:
             raise UserError(str(exc)) from exc
-    app = build_app(cfg, map_path, src, cfg.replay.rate if rate is None else rate, record=record)
+    view_args = {"view_spawn": bool(getattr(args, "view", False)), "view_save": getattr(args, "view_save", None)}
+    try:
+        app = build_app(cfg, map_path, src, cfg.replay.rate if rate is None else rate, record=record, **view_args)
+    except Exception as exc:
+        if view_args["view_spawn"] or view_args["view_save"] is not None:  # (rerun is imported only then)
+            from litevloc.runtime.view import ViewError
+
+            if isinstance(exc, ViewError):
+                raise UserError(str(exc)) from exc
+        raise
     if faults is not None:
         faults.apply(app.service)
     try:
@@ -76,6 +106,9 @@ def run_service(args: argparse.Namespace, source_path: Path | None, rate: float 
     finally:
         app.close()
     status = result.status
+    if app.view is not None:
+        status["view"] = app.view.report()
+        log.info("view: %s", status["view"])
     out = {"ok": result.ok, "reason": result.reason, "status": status, "recorder": app.recorder,
            "T_base_camera": app.T_base_camera}
     if faults is not None:

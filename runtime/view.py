@@ -1,0 +1,413 @@
+"""The live view (`--view`, `--view-save FILE`): what the localizer sees, streamed to Rerun.
+
+Off the hot path: producers (the VLoc thread, the fusion thread, the status tick, or the
+`localize` loop) only `put` a small tuple into a bounded latest-value queue (`DropQueue`;
+the oldest item is dropped when it is full, counted, never blocking); one view thread
+(niced like VLoc) turns items into Rerun log calls. Fused poses are thinned at the producer
+to `pose_hz` of sensor time before they are queued. Rerun is imported only when a
+`LiveView` is made, so nothing extra is imported with the view off.
+
+Shown (entity paths; timeline `sensor_time` in seconds of sensor time):
+
+* `world/map/keyframes/<i>`: each keyframe's camera frustum (pose + pinhole);
+  `world/map/covisibility` (grey) and `world/map/connectivity` (blue) edges;
+  `world/map/occupancy`: occupied cells (red) of the map's grid, on the grid's plane.
+* `world/fused` the fused camera pose (`T_map_base @ T_base_camera`) and
+  `world/fused_trail` its trail (last `trail_points` positions).
+* `world/vloc/camera` each VLoc result (accepted: green frustum with the live image on it;
+  rejected: nothing moves), `world/vloc/covariance` the 3-sigma position ellipsoid (map
+  frame), `world/vloc/reference` the reference keyframe's frustum highlighted (orange).
+* `images/live` the live image; `images/keyframe` the matched keyframe's stored JPEG with its
+  cached keypoints. The localization result carries match and inlier COUNTS, not the
+  matched pixel pairs (`pipelines.localization.LocalizationResult`), so no match lines are
+  drawn: the counts, inlier ratio and reprojection error are logged beside the images
+  (`images/match_info`).
+* `status/tracking` the tracking state and reasons as a text log (on every change) and
+  `plots/state` (0 INIT, 1 GLOBAL, 2 TRACKING, 3 LOST, 4 FAILED); `status/vloc` each VLoc outcome.
+* `plots/vloc_ms/<stage>` extract / vpr / match / pnp / total per query;
+  `plots/runtime_ms/<name>` fusion / publish / odometry-to-publish p99 from the status;
+  `plots/queues/<name>` queue depths; `plots/view_drops` items the view dropped.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+log = logging.getLogger(__name__)
+
+STATE_CODES = {"INIT": 0, "GLOBAL": 1, "TRACKING": 2, "LOST": 3, "FAILED": 4}  # GLOBAL: localizer only
+
+
+class ViewError(RuntimeError):
+    """The view could not be started (Rerun missing, no viewer can be spawned, bad path)."""
+
+
+class DropQueue:
+    """Bounded FIFO that never blocks the producer: when full, the oldest item is dropped (counted).
+
+    Any thread may `put`; one consumer thread `get`s. A lock guards the deque (uncontended:
+    well under a microsecond) so the drop count is exact."""
+
+    def __init__(self, capacity: int) -> None:
+        if capacity < 1:
+            raise ValueError(f"capacity must be >= 1, got {capacity}")
+        self.capacity = capacity
+        self._dq: deque[Any] = deque()
+        self._lock = threading.Lock()
+        self._ready = threading.Event()
+        self.puts = 0
+        self.drops = 0
+
+    def put(self, item: Any) -> None:
+        with self._lock:
+            if len(self._dq) >= self.capacity:
+                self._dq.popleft()
+                self.drops += 1
+            self._dq.append(item)
+            self.puts += 1
+        self._ready.set()
+
+    def get_all(self, timeout: float) -> list[Any]:
+        """Everything queued (oldest first), waiting up to `timeout` s for something."""
+        self._ready.wait(timeout)
+        with self._lock:
+            items = list(self._dq)
+            self._dq.clear()
+            self._ready.clear()
+        return items
+
+    def __len__(self) -> int:
+        return len(self._dq)
+
+
+def _quat_xyzw(R: NDArray[np.float64]) -> NDArray[np.float64]:
+    from litevloc.pipelines.geometry import matrix_to_quat_xyzw
+
+    return np.asarray(matrix_to_quat_xyzw(np.asarray(R, dtype=np.float64)), dtype=np.float64)
+
+
+def covariance_ellipsoid(T_map_camera: NDArray[np.float64], covariance: NDArray[np.float64] | None,
+                         sigma: float = 3.0) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+    """Half sizes (3,) and rotation (3x3, map frame) of the `sigma` position ellipsoid.
+
+    `covariance`: 6x6 of a right (camera-frame) perturbation, order (tx, ty, tz, rx, ry, rz),
+    as `pipelines.pnp` gives it; its translation block is rotated into the map frame."""
+    if covariance is None:
+        return None
+    c = np.asarray(covariance, dtype=np.float64).reshape(6, 6)[:3, :3]
+    if not np.all(np.isfinite(c)):
+        return None
+    R = np.asarray(T_map_camera, dtype=np.float64)[:3, :3]
+    w, v = np.linalg.eigh(R @ c @ R.T)
+    if np.linalg.det(v) < 0:
+        v[:, 0] = -v[:, 0]
+    return sigma * np.sqrt(np.clip(w, 0.0, None)), v
+
+
+def occupied_points(grid: Any, height: float = 0.0) -> NDArray[np.float64]:
+    """(N, 3) map-frame centres of the grid's occupied cells, `height` metres along its `up`."""
+    rc = np.argwhere(np.asarray(grid.cells) == grid.OCCUPIED)
+    if len(rc) == 0:
+        return np.zeros((0, 3))
+    xy = np.asarray(grid.origin, dtype=np.float64) + (rc[:, ::-1] + 0.5) * float(grid.resolution)
+    axes = np.asarray(grid.plane_axes, dtype=np.float64)
+    return np.asarray(xy @ axes + height * np.asarray(grid.up, dtype=np.float64), dtype=np.float64)
+
+
+def _jpeg(color: NDArray[np.uint8], max_width: int) -> bytes:
+    import cv2
+
+    img: NDArray[Any] = np.asarray(color)
+    if img.shape[1] > max_width:
+        s = max_width / img.shape[1]
+        img = cv2.resize(img, (max_width, round(img.shape[0] * s)), interpolation=cv2.INTER_AREA)
+    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(img[..., ::-1]), [cv2.IMWRITE_JPEG_QUALITY, 80])
+    if not ok:
+        raise ValueError("JPEG encoding of the live image failed")
+    return bytes(buf)
+
+
+class LiveView:
+    """Rerun recording fed from a bounded queue by one view thread (see the module docstring).
+
+    `spawn`: start the Rerun viewer (native; needs a display) and stream to it. `save`:
+    write the stream to this `.rrd` file (opened later with `rerun FILE` or the web viewer).
+    At least one of them. `T_base_camera` places the fused camera; `topomap` (optional) is
+    logged once as static data."""
+
+    def __init__(self, *, save: Path | None = None, spawn: bool = False, topomap: Any = None,
+                 T_base_camera: NDArray[np.float64] | None = None, queue_capacity: int = 256,
+                 pose_hz: float = 20.0, trail_points: int = 5000, image_width: int = 320, nice: int = 10,
+                 application_id: str = "litevloc") -> None:
+        if save is None and not spawn:
+            raise ViewError("the view needs a viewer to spawn (--view) or a file to save (--view-save)")
+        try:
+            import rerun as rr
+            import rerun.blueprint as rrb
+        except ImportError as exc:
+            raise ViewError("the live view needs the `rerun-sdk` package: pip install 'litevloc[view]'") from exc
+        self.rr, self.rrb = rr, rrb
+        self.save_path = None if save is None else Path(save)
+        if self.save_path is not None:
+            self.save_path.parent.mkdir(parents=True, exist_ok=True)
+        self.queue = DropQueue(queue_capacity)
+        self.pose_period_ns = int(1e9 / pose_hz) if pose_hz > 0 else 0
+        self.trail: deque[NDArray[np.float64]] = deque(maxlen=trail_points)
+        self.image_width = image_width
+        self.nice = nice
+        self.topomap = topomap
+        self.T_base_camera = np.eye(4) if T_base_camera is None else np.asarray(T_base_camera, dtype=np.float64)
+        self.logged = {"fused": 0, "vloc": 0, "status": 0}
+        self.errors = 0
+        self.last_error: str | None = None
+        self._last_pose_put: int | None = None
+        self._last_state: tuple[str, str] | None = None
+        self._trail_logged_ns = 0
+        self.rec = rr.RecordingStream(application_id)
+        sinks: list[Any] = []
+        try:
+            if spawn:
+                self.rec.spawn(connect=False)
+                sinks.append(rr.GrpcSink())
+            if self.save_path is not None:
+                sinks.append(rr.FileSink(str(self.save_path)))
+            self.rec.set_sinks(*sinks, default_blueprint=self.blueprint())
+        except Exception as exc:
+            raise ViewError(f"cannot start the Rerun view: {exc}") from exc
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._main, name="litevloc-view", daemon=True)
+        self._thread.start()
+
+    # ------------------------------------------------------------------ producer side (hot path: cheap)
+    def put_fused(self, fused: Any) -> None:
+        """From the fusion thread (anything with t_ns, T_map_base, initialised); thinned to pose_hz."""
+        if not getattr(fused, "initialised", True):
+            return
+        t = int(fused.t_ns)
+        if self._last_pose_put is not None and t - self._last_pose_put < self.pose_period_ns:
+            return
+        self._last_pose_put = t
+        self.queue.put(("fused", t, fused.T_map_base))
+
+    def put_vloc(self, frame: Any, result: Any) -> None:
+        """From the VLoc thread: the frame (t_ns, color, K) and its LocalizationResult."""
+        self.queue.put(("vloc", frame, result))
+
+    def put_status(self, status: Mapping[str, Any]) -> None:
+        """From the status tick: the service's status snapshot."""
+        self.queue.put(("status", status))
+
+    def wrap_vloc(self, fn: Callable[[Any, Any], Any]) -> Callable[[Any, Any], Any]:
+        """`vloc(frame, prior)` that also hands (frame, result) to the view."""
+
+        def vloc(frame: Any, prior: Any) -> Any:
+            res = fn(frame, prior)
+            self.put_vloc(frame, res)
+            return res
+
+        return vloc
+
+    # ------------------------------------------------------------------ view thread
+    def _main(self) -> None:
+        from litevloc.runtime.stages import lower_thread_priority
+
+        lower_thread_priority(self.nice)
+        try:
+            if self.topomap is not None:
+                self._log_map(self.topomap)
+        except Exception as exc:
+            self._error(exc)
+        while True:
+            stopping = self._stop.is_set()
+            for item in self.queue.get_all(0.1):
+                try:
+                    self._handle(item)
+                except Exception as exc:  # a bad item must not end the view (nor the service)
+                    self._error(exc)
+            if stopping:
+                return
+
+    def _error(self, exc: Exception) -> None:
+        self.errors += 1
+        self.last_error = f"{type(exc).__name__}: {exc}"
+        if self.errors <= 3:
+            log.warning("view: %s", self.last_error)
+
+    def _handle(self, item: tuple[Any, ...]) -> None:
+        kind = item[0]
+        if kind == "fused":
+            self._log_fused(item[1], item[2])
+        elif kind == "vloc":
+            self._log_vloc(item[1], item[2])
+        elif kind == "status":
+            self._log_status(item[1])
+        self.logged[kind] += 1
+
+    def _time(self, t_ns: int) -> None:
+        self.rec.set_time("sensor_time", duration=t_ns * 1e-9)
+
+    def _log_pose(self, path: str, T: NDArray[np.float64], static: bool = False) -> None:
+        T = np.asarray(T, dtype=np.float64)
+        self.rec.log(path, self.rr.Transform3D(translation=T[:3, 3],
+                                                 quaternion=self.rr.Quaternion(xyzw=_quat_xyzw(T[:3, :3]))),
+                     static=static)
+
+    def _pinhole(self, K: NDArray[np.float64], size: tuple[int, int], color: tuple[int, int, int],
+                 distance: float = 0.25) -> Any:
+        return self.rr.Pinhole(image_from_camera=np.asarray(K, dtype=np.float64), resolution=[size[0], size[1]],
+                               camera_xyz=self.rr.ViewCoordinates.RDF, image_plane_distance=distance, color=color)
+
+    def _log_map(self, m: Any) -> None:
+        rr = self.rr
+        P = np.asarray(m.positions, dtype=np.float64)
+        for i in range(m.n_nodes):
+            self._log_pose(f"world/map/keyframes/{i}", m.T_map_camera[i], static=True)
+            w, h = (int(v) for v in m.image_size[i])
+            self.rec.log(f"world/map/keyframes/{i}", self._pinhole(m.K[i], (w, h), (150, 150, 150), 0.15),
+                         static=True)
+        self.rec.log("world/map/keyframe_ids", rr.Points3D(P, radii=0.02, colors=(200, 200, 200),
+                                                           labels=[str(i) for i in range(m.n_nodes)],
+                                                           show_labels=False), static=True)
+        if len(m.covis_edges):
+            self.rec.log("world/map/covisibility", rr.LineStrips3D(P[np.asarray(m.covis_edges)], radii=0.004,
+                                                                   colors=(160, 160, 160)), static=True)
+        if len(m.conn_edges):
+            self.rec.log("world/map/connectivity", rr.LineStrips3D(P[np.asarray(m.conn_edges)], radii=0.012,
+                                                                   colors=(60, 120, 255)), static=True)
+        occ = occupied_points(m.grid)
+        if len(occ):
+            self.rec.log("world/map/occupancy", rr.Points3D(occ, radii=float(m.grid.resolution) / 2,
+                                                            colors=(220, 70, 70)), static=True)
+        self.rec.log("images/match_info", rr.TextDocument(
+            f"map: {m.n_nodes} keyframes, {len(m.covis_edges)} covisibility and {len(m.conn_edges)} "
+            "connectivity edges"), static=True)
+
+    def _log_fused(self, t_ns: int, T_map_base: NDArray[np.float64]) -> None:
+        rr = self.rr
+        self._time(t_ns)
+        T = np.asarray(T_map_base, dtype=np.float64) @ self.T_base_camera
+        self._log_pose("world/fused", T)
+        self.rec.log("world/fused", rr.TransformAxes3D(axis_length=0.3) if hasattr(rr, "TransformAxes3D")
+                     else rr.Points3D([[0.0, 0.0, 0.0]], radii=0.05))
+        self.trail.append(T[:3, 3].copy())
+        if t_ns - self._trail_logged_ns >= 500_000_000 and len(self.trail) >= 2:  # the strip at 2 Hz
+            self._trail_logged_ns = t_ns
+            self.rec.log("world/fused_trail", rr.LineStrips3D([np.array(self.trail)], radii=0.01,
+                                                              colors=(40, 200, 80)))
+
+    def _log_vloc(self, frame: Any, res: Any) -> None:
+        rr = self.rr
+        t_ns = int(getattr(res, "t_ns", frame.t_ns))
+        self._time(t_ns)
+        color = np.asarray(frame.color)
+        h, w = color.shape[:2]
+        jpeg = _jpeg(color, self.image_width)
+        self.rec.log("images/live", rr.EncodedImage(contents=jpeg, media_type="image/jpeg"))
+        for k in ("extract", "vpr", "match", "pnp", "total"):
+            v = (getattr(res, "timings_ms", None) or {}).get(k)
+            if v is not None:
+                self.rec.log(f"plots/vloc_ms/{k}", rr.Scalars(float(v)))
+        accepted = bool(getattr(res, "accepted", False)) and getattr(res, "T_map_camera", None) is not None
+        ref = int(getattr(res, "ref_node", -1))
+        info = (f"{'ACCEPTED' if accepted else 'rejected'} ({getattr(res, 'mode', '?')}): "
+                f"{getattr(res, 'reason', '')}\n\nreference keyframe {ref if ref >= 0 else '-'}; "
+                f"{getattr(res, 'n_matches', 0)} matches, {getattr(res, 'n_inliers', 0)} PnP inliers "
+                f"(ratio {float(getattr(res, 'inlier_ratio', 0.0)):.2f}), median reprojection "
+                f"{float(getattr(res, 'median_reprojection_px', float('nan'))):.2f} px\n\n"
+                "(the result carries match counts, not matched pixel pairs: no match lines are drawn)")
+        self.rec.log("images/match_info", rr.TextDocument(info))
+        self.rec.log("status/vloc", rr.TextLog(info.split("\n")[0], level="INFO" if accepted else "WARN"))
+        self.rec.log("plots/vloc_inliers", rr.Scalars(float(getattr(res, "n_inliers", 0))))
+        m = self.topomap
+        if m is not None and 0 <= ref < m.n_nodes:
+            self.rec.log("images/keyframe", rr.EncodedImage(contents=m.images_jpeg[ref], media_type="image/jpeg"))
+            kp = np.asarray(getattr(m.features[ref], "keypoints", np.zeros((0, 2))), dtype=np.float32)
+            self.rec.log("images/keyframe/keypoints", rr.Points2D(kp[:, :2], radii=1.5, colors=(255, 200, 0)))
+            self._log_pose("world/vloc/reference", m.T_map_camera[ref])
+            rw, rh = (int(v) for v in m.image_size[ref])
+            self.rec.log("world/vloc/reference", self._pinhole(m.K[ref], (rw, rh), (255, 150, 0), 0.3))
+        if accepted:
+            T = np.asarray(res.T_map_camera, dtype=np.float64)
+            self._log_pose("world/vloc/camera", T)
+            self.rec.log("world/vloc/camera", self._pinhole(frame.K, (w, h), (0, 220, 0), 0.3))
+            self.rec.log("world/vloc/camera", rr.EncodedImage(contents=jpeg, media_type="image/jpeg"))
+            ell = covariance_ellipsoid(T, getattr(res, "covariance", None))
+            if ell is not None:
+                half, Rm = ell
+                self.rec.log("world/vloc/covariance", rr.Ellipsoids3D(
+                    centers=[T[:3, 3]], half_sizes=[half], quaternions=[_quat_xyzw(Rm)], colors=(0, 220, 0),
+                    labels=["3-sigma"]))
+
+    def _log_status(self, st: Mapping[str, Any]) -> None:
+        rr = self.rr
+        t = st.get("sensor_time_ns")
+        if t is not None:
+            self._time(int(t))
+        state = str(st.get("state", "INIT"))
+        reasons = "; ".join(str(r) for r in st.get("reasons") or [])
+        self.rec.log("plots/state", rr.Scalars(float(STATE_CODES.get(state, 4))))
+        if (state, reasons) != self._last_state:
+            self._last_state = (state, reasons)
+            level = {"TRACKING": "INFO", "INIT": "WARN", "GLOBAL": "WARN"}.get(state, "ERROR")
+            self.rec.log("status/tracking", rr.TextLog(f"{state}" + (f": {reasons}" if reasons else ""),
+                                                       level=level))
+        stages = st.get("stages") or {}
+        series = {
+            "fusion_p99": ((stages.get("fusion") or {}).get("latency", {}).get("odometry") or {}).get("p99_ms"),
+            "publish_p99": ((stages.get("publisher") or {}).get("latency", {}).get("outbox") or {}).get("p99_ms"),
+            "odometry_to_publish_p99": ((st.get("latency") or {}).get("odometry_to_publish") or {}).get("p99_ms"),
+        }
+        for k, v in series.items():
+            if v is not None and np.isfinite(float(v)):
+                self.rec.log(f"plots/runtime_ms/{k}", rr.Scalars(float(v)))
+        for name, q in (st.get("queues") or {}).items():
+            self.rec.log(f"plots/queues/{name}", rr.Scalars(float(q.get("depth") or 0)))
+        self.rec.log("plots/view_drops", rr.Scalars(float(self.queue.drops)))
+
+    # ------------------------------------------------------------------ layout, end
+    def blueprint(self) -> Any:
+        rrb = self.rrb
+        return rrb.Blueprint(
+            rrb.Horizontal(
+                rrb.Spatial3DView(origin="world", name="map, fused pose, VLoc"),
+                rrb.Vertical(
+                    rrb.Horizontal(rrb.Spatial2DView(origin="images/live", name="live image"),
+                                   rrb.Spatial2DView(origin="images/keyframe", name="matched keyframe")),
+                    rrb.Horizontal(rrb.TextDocumentView(origin="images/match_info", name="VLoc result"),
+                                   rrb.TextLogView(origin="status", name="tracking state / VLoc")),
+                    rrb.Horizontal(rrb.TimeSeriesView(origin="plots/vloc_ms", name="VLoc stages (ms)"),
+                                   rrb.TimeSeriesView(origin="plots/runtime_ms", name="runtime p99 (ms)")),
+                ),
+                column_shares=[3, 2],
+            ),
+            collapse_panels=True,
+        )
+
+    def report(self) -> dict[str, Any]:
+        return {"queued": self.queue.puts, "dropped": self.queue.drops, "logged": dict(self.logged),
+                "errors": self.errors, "last_error": self.last_error,
+                "saved": None if self.save_path is None else str(self.save_path)}
+
+    def close(self, timeout_s: float = 30.0) -> dict[str, Any]:
+        """Log what is queued, end the thread, flush the sinks (the .rrd is complete after this)."""
+        self._stop.set()
+        self.queue._ready.set()
+        self._thread.join(timeout_s)
+        with contextlib.suppress(Exception):
+            self.rec.flush(timeout_sec=timeout_s)
+        with contextlib.suppress(Exception):
+            self.rec.disconnect()
+        t0 = time.monotonic()
+        while self.save_path is not None and not self.save_path.exists() and time.monotonic() - t0 < 5:
+            time.sleep(0.05)
+        return self.report()
