@@ -30,7 +30,13 @@ from numpy.typing import NDArray
 
 from litevloc.pipelines.depth_lookup import DepthLookupParams, depth_at
 from litevloc.pipelines.geometry import backproject_pixels, check_rigid, relative_pose_error
-from litevloc.pipelines.localization.refine import KeyframeObservations, RefineParams, RefineResult, refine_pose
+from litevloc.pipelines.localization.refine import (
+    KeyframeObservations,
+    RefineParams,
+    RefineResult,
+    guided_matches,
+    refine_pose,
+)
 from litevloc.pipelines.pnp import PnpParams, PnpResult, solve_pnp
 from litevloc.pipelines.topomap.types import FeatureSet, TopoMap
 
@@ -228,6 +234,16 @@ class _Query:
         return KeyframeObservations(node, pts[ok], kp, self.loc.map.K[node], self.loc.map.T_map_camera[node])
 
 
+    def guided_observations(self, node: int, T_map_live: NDArray[np.float64]) -> KeyframeObservations:
+        """Matches with `node` found by projecting the live points with `T_map_live` (no model)."""
+        m = self.loc.map
+        f = m.features[node]
+        i_live, i_kf = guided_matches(self.points(), self.feats.descriptors, T_map_live, f.keypoints, f.descriptors,
+                                      m.K[node], m.T_map_camera[node], self.loc.params.refine)
+        kp = np.asarray(f.keypoints, dtype=np.float64)[i_kf]
+        return KeyframeObservations(node, self.points()[i_live], kp, m.K[node], m.T_map_camera[node])
+
+
 class VisualLocalizer:
     """GL + LL against one map with injected model callables (no I/O, no threads)."""
 
@@ -303,7 +319,14 @@ class VisualLocalizer:
         rp = self.params.refine
         others = list(self._neighbours[node])
         others += [n for n in fallback if n != node and n not in others]
-        obs = [q.observations(node)] + [q.observations(o) for o in others[: rp.max_keyframes - 1]]
+        extra = others[: rp.max_keyframes - 1]
+        obs = [q.observations(node)]
+        if rp.extra_matching == "model":
+            obs += [q.observations(o) for o in extra]
+        else:
+            t0 = time.perf_counter()
+            obs += [q.guided_observations(o, T_init) for o in extra]
+            q.timer.add("guided_match", t0)
         t0 = time.perf_counter()
         res = refine_pose(T_init, obs, replace(rp, min_keyframes=min(min_keyframes, rp.max_keyframes)))
         q.timer.add("refine", t0)

@@ -124,3 +124,28 @@ def test_depth_noise_down_weights_far_points() -> None:
 def test_bad_params_are_errors(kw: dict) -> None:
     with pytest.raises(ValueError):
         RefineParams(**kw)
+
+
+def test_guided_matches_recover_true_pairs() -> None:
+    from litevloc.pipelines.localization.refine import guided_matches
+
+    rng = np.random.default_rng(6)
+    obs = _observations(rng, 200, 0.5)[1]
+    desc = rng.normal(size=(200, 32)).astype(np.float32)
+    desc /= np.linalg.norm(desc, axis=1, keepdims=True)
+    # keyframe: the true projections (shuffled) with slightly noisy descriptors, plus 100 distractors
+    perm = rng.permutation(200)
+    kp = np.vstack([obs.pixels[perm], rng.uniform([0, 0], [640, 480], size=(100, 2))])
+    kd = np.vstack([desc[perm] + 0.1 * rng.normal(size=(200, 32)), rng.normal(size=(100, 32))]).astype(np.float32)
+    pts = obs.points_live.copy()
+    pts[:10] = np.nan  # no depth: never matched
+    T0 = T_MAP_LIVE @ make_T(so3_exp(np.radians([0.2, -0.1, 0.1])), np.array([0.005, 0.0, -0.005]))
+    il, ik = guided_matches(pts, desc, T0, kp, kd, K, obs.T_map_kf, RefineParams(guided_min_similarity=0.7))
+    assert len(il) > 150 and len(set(il)) == len(il) and len(set(ik)) == len(ik)
+    assert np.all(il >= 10)
+    correct = np.mean(ik < 200) and np.mean(perm[ik[ik < 200]] == il[ik < 200])
+    assert correct > 0.98
+    # a pose 0.5 m off finds (almost) nothing
+    far = T_MAP_LIVE @ make_T(np.eye(3), np.array([0.5, 0.0, 0.0]))
+    il, _ = guided_matches(pts, desc, far, kp, kd, K, obs.T_map_kf, RefineParams(guided_min_similarity=0.7))
+    assert len(il) < 10

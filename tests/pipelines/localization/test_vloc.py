@@ -21,6 +21,10 @@ W, H = 320, 240
 K = np.array([[250.0, 0, 160], [0, 250, 120], [0, 0, 1]])
 RNG = np.random.default_rng(0)
 POINTS = np.column_stack([RNG.uniform(-6, 6, 3000), RNG.uniform(-1.5, 1.5, 3000), RNG.uniform(4, 9, 3000)])
+# descriptor: column 0 = point id (match_by_id), then a large random unit vector per point so
+# that descriptor similarity (guided matching) is distinctive too
+APPEARANCE = RNG.normal(size=(3000, 16))
+APPEARANCE *= 1e5 / np.linalg.norm(APPEARANCE, axis=1, keepdims=True)
 
 
 @dataclass(frozen=True, eq=False)
@@ -42,8 +46,9 @@ def observe(T_world_cam: NDArray[np.float64]) -> tuple[Feats, NDArray[np.float32
     for i in ids:
         u, v = np.round(uv[i]).astype(int)
         depth[v - 1 : v + 2, u - 1 : u + 2] = pc[i, 2]
-    desc = np.zeros((len(ids), 8), np.float32)
+    desc = np.zeros((len(ids), 17), np.float32)
     desc[:, 0] = ids
+    desc[:, 1:] = APPEARANCE[ids]
     return Feats(uv[ids].astype(np.float32), desc, np.ones(len(ids), np.float32), ids), depth
 
 
