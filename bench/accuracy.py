@@ -36,11 +36,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import numpy as np
 from _common import ROOT, print_table, require_7scenes, write_json
-from scipy.stats import chi2
 
 from litevloc.config import load_config
 from litevloc.hw.streams.base import parse_frames
 from litevloc.models.types import Features
+from litevloc.pipelines.evaluation.reloc import inside_95_ellipsoids
 from litevloc.pipelines.geometry import relative_pose_error, so3_log
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map
@@ -56,7 +56,6 @@ PUBLISHED = [  # redkitchen, from the papers (dense scene-specific models), for 
     {"method": "DSAC* (RGB-D)", "median_cm": 1.9, "median_deg": 0.80, "within_5cm_5deg_pct": 92.4},
     {"method": "hloc SP+SG", "median_cm": 4.0, "median_deg": 1.38, "within_5cm_5deg_pct": 61.9},
 ]
-CHI2_95_3DOF = float(chi2.ppf(0.95, 3))
 
 
 class ModelCache:
@@ -132,15 +131,6 @@ def ensure_map(path: Path, data: Path) -> None:
         raise SystemExit(f"map build failed for {path}")
 
 
-def calibration(T_est: np.ndarray, T_gt: np.ndarray, cov: np.ndarray) -> tuple[bool, bool]:
-    """(position, rotation) error inside its 95 % ellipsoid; error as a right perturbation of T_est."""
-    E = np.linalg.inv(T_est) @ T_gt
-    dt, dr = E[:3, 3], so3_log(E[:3, :3])
-    mt = float(dt @ np.linalg.solve(cov[:3, :3], dt))
-    mr = float(dr @ np.linalg.solve(cov[3:, 3:], dr))
-    return mt <= CHI2_95_3DOF, mr <= CHI2_95_3DOF
-
-
 def run_config(name: str, overrides: list[str], args: argparse.Namespace, data: Path, cache: ModelCache,
                topomap: Any) -> dict[str, Any]:
     cfg = load_config("7scenes", overrides + args.overrides)
@@ -163,7 +153,8 @@ def run_config(name: str, overrides: list[str], args: argparse.Namespace, data: 
             row.update(err_m=et, err_deg=er, err_cam_m=E[:3, 3].tolist(), err_cam_rotvec=so3_log(E[:3, :3]).tolist(),
                        err_map_m=(T_gt[:3, 3] - res.T_map_camera[:3, 3]).tolist(), ref_node=res.ref_node)
             if res.covariance is not None:
-                row["in_ellipsoid_t"], row["in_ellipsoid_r"] = calibration(res.T_map_camera, T_gt, res.covariance)
+                inside = inside_95_ellipsoids(res.T_map_camera, T_gt, res.covariance)
+                row["in_ellipsoid_t"], row["in_ellipsoid_r"] = inside
                 row["sigma_t_m"] = float(np.sqrt(np.trace(res.covariance[:3, :3]) / 3))
                 row["covariance"] = res.covariance.tolist()
         rows.append(row)

@@ -58,8 +58,10 @@ class RefineParams:
     depth_sigma_b: float = 0.002
     max_shift_m: float = 0.25  # the joint pose may move at most this far from the initial pose
     max_shift_deg: float = 5.0
-    sigma_sys_t_m: float = 0.005  # systematic error that points and keyframes do not average out
-    sigma_sys_r_deg: float = 0.2
+    # systematic error that points and keyframes do not average out; chosen on the 7-Scenes
+    # mapping pass (map 250-499, queries 0-249): 92 % / 97 % of errors inside the 95 % ellipsoids
+    sigma_sys_t_m: float = 0.03
+    sigma_sys_r_deg: float = 1.0
     min_sigma_t_m: float = 0.002
     min_sigma_r_deg: float = 0.05
     max_nfev: int = 30
