@@ -16,7 +16,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.pipelines.geometry import invert, matrix_to_quat_xyzw
+from litevloc.pipelines.geometry import invert, matrix_to_quat_xyzw, so3_log
+
+CHI2_95_3DOF = 7.814727903251178  # scipy.stats.chi2.ppf(0.95, 3)
 
 THRESHOLDS: tuple[tuple[float, float], ...] = ((0.05, 5.0), (0.25, 5.0), (1.0, 10.0))
 
@@ -88,3 +90,22 @@ def write_mapfree_poses(path: str | Path, rows: list[tuple[str, NDArray[np.float
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
     p.write_text("\n".join(lines) + ("\n" if lines else ""))
+
+
+def inside_95_ellipsoids(
+    T_est: NDArray[np.floating], T_gt: NDArray[np.floating], covariance: NDArray[np.floating]
+) -> tuple[bool, bool]:
+    """Whether the error of a pose lies inside its own 95 % ellipsoid, (position, rotation).
+
+    The error is the right perturbation e = (t, rotvec) with T_gt = T_est @ exp(e) (the
+    convention of `pipelines.pnp`); position and rotation are tested separately with their
+    3x3 marginal covariances against the chi-square 95 % quantile for 3 dof.
+    """
+    E = invert(np.asarray(T_est, dtype=np.float64)) @ np.asarray(T_gt, dtype=np.float64)
+    dt, dr = E[:3, 3], so3_log(E[:3, :3])
+    C = np.asarray(covariance, dtype=np.float64)
+    if C.shape != (6, 6):
+        raise ValueError(f"covariance must be 6x6, got {C.shape}")
+    mt = float(dt @ np.linalg.solve(C[:3, :3], dt))
+    mr = float(dr @ np.linalg.solve(C[3:, 3:], dr))
+    return mt <= CHI2_95_3DOF, mr <= CHI2_95_3DOF

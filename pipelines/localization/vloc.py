@@ -22,7 +22,7 @@ from __future__ import annotations
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import StrEnum
 
 import numpy as np
@@ -30,6 +30,13 @@ from numpy.typing import NDArray
 
 from litevloc.pipelines.depth_lookup import DepthLookupParams, depth_at
 from litevloc.pipelines.geometry import backproject_pixels, check_rigid, relative_pose_error
+from litevloc.pipelines.localization.refine import (
+    KeyframeObservations,
+    RefineParams,
+    RefineResult,
+    guided_matches,
+    refine_pose,
+)
 from litevloc.pipelines.pnp import PnpParams, PnpResult, solve_pnp
 from litevloc.pipelines.topomap.types import FeatureSet, TopoMap
 
@@ -49,8 +56,11 @@ class TrackingState(StrEnum):
 class LocalizationParams:
     """Parameters of GL, LL and the state machine (metres, degrees)."""
 
-    gl_top_k: int = 5
-    gl_early_accept_inliers: int = 0  # > 0: stop GL at the first candidate with this many inliers
+    gl_top_k: int = 10  # chosen on the 7-Scenes mapping pass (map 250-499, queries 0-249) and the office
+    gl_early_accept_inliers: int = 0  # > 0: stop GL at the first candidate with this many inliers (refine off)
+    # GL with joint refinement stops at the first VPR candidate that passes the joint check;
+    # > 0: also stop trying candidates once this much time (ms, whole query) is spent.
+    gl_time_budget_ms: float = 0.0
     # GL confirmation: a GL pose must also explain matches with a second keyframe (a covisible
     # neighbour of its node, else the next VPR candidate): repetitive textures can make one
     # image pair agree on a wrong, shifted pose; two viewpoints rarely agree on the same wrong one.
@@ -77,12 +87,18 @@ class LocalizationParams:
     min_matches: int = 20
     pnp: PnpParams = field(default_factory=PnpParams)
     depth: DepthLookupParams = field(default_factory=DepthLookupParams)
+    # Joint multi-keyframe refinement (`refine.py`); when enabled it replaces the separate
+    # confirmation (gl_confirm / ll_confirm / confirm_* then only decide whether it must
+    # find a second consistent keyframe).
+    refine: RefineParams = field(default_factory=RefineParams)
 
     def __post_init__(self) -> None:
         if self.gl_top_k < 1 or self.ll_max_candidates < 1 or self.ll_failures_before_lost < 1:
             raise ValueError("gl_top_k, ll_max_candidates and ll_failures_before_lost must be >= 1")
         if self.candidate_radius_m <= 0 or not (0 < self.max_view_angle_deg <= 180):
             raise ValueError("candidate_radius_m > 0 and max_view_angle_deg in (0, 180] required")
+        if self.gl_time_budget_ms < 0:
+            raise ValueError("gl_time_budget_ms must be >= 0 (0 = no budget)")
         if self.prior_gate_m <= 0 or self.prior_gate_rate_mps < 0 or not (0 < self.prior_gate_deg <= 180):
             raise ValueError("prior_gate_m > 0, prior_gate_rate_mps >= 0 and prior_gate_deg in (0, 180] required")
 
@@ -115,6 +131,8 @@ class LocalizationResult:
     median_reprojection_px: float = float("nan")
     attempts: tuple[CandidateAttempt, ...] = ()
     timings_ms: dict[str, float] = field(default_factory=dict)
+    keyframes: tuple[int, ...] = ()  # keyframes whose matches support the pose (joint refinement)
+    stop_reason: str = ""  # GL: why the candidate search stopped (passed, all tried, time budget)
 
 
 @dataclass(frozen=True)
@@ -151,7 +169,7 @@ def relative_pose(
     t0 = time.perf_counter()
     i_live, i_ref = match(live_feats, ref_feats)
     add("match", t0)
-    if len(i_live) < params.min_matches:
+    if len(i_live) < max(params.min_matches, params.pnp.min_inliers):  # cheap rejection: PnP cannot pass
         return None, len(i_live), f"too few matches ({len(i_live)})"
     t0 = time.perf_counter()
     uv = np.asarray(live_feats.keypoints, dtype=np.float64)[i_live]
@@ -174,6 +192,58 @@ def relative_pose(
     return res, len(i_live), res.reason
 
 
+class _Query:
+    """One live frame being localized: its features, depth, the live points lifted once and
+    the matches with each keyframe computed at most once (verification, refinement and
+    confirmation share them)."""
+
+    def __init__(self, loc: VisualLocalizer, feats: FeatureSet, depth: NDArray[np.float32],
+                 K: NDArray[np.float64], timer: StageTimer) -> None:
+        self.loc, self.feats, self.depth, self.K, self.timer = loc, feats, depth, K, timer
+        self._matches: dict[int, tuple[NDArray[np.int64], NDArray[np.int64]]] = {}
+        self._points: NDArray[np.float64] | None = None
+
+    def matches(self, node: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """(live indices, keyframe indices) of the matches with `node`."""
+        if node not in self._matches:
+            t0 = time.perf_counter()
+            i_live, i_ref = self.loc.match(self.feats, self.loc.map.features[node])
+            self._matches[node] = (np.asarray(i_live, dtype=np.int64), np.asarray(i_ref, dtype=np.int64))
+            self.timer.add("match", t0)
+        return self._matches[node]
+
+    def points(self) -> NDArray[np.float64]:
+        """(N, 3) live keypoints lifted with the live depth (NaN rows where no depth)."""
+        if self._points is None:
+            t0 = time.perf_counter()
+            uv = np.asarray(self.feats.keypoints, dtype=np.float64).reshape(-1, 2)
+            z = depth_at(self.depth, uv, self.loc.params.depth).astype(np.float64)
+            pts = np.full((len(uv), 3), np.nan)
+            ok = np.isfinite(z)
+            pts[ok] = backproject_pixels(self.K, uv[ok], z[ok])
+            self._points = pts
+            self.timer.add("lift", t0)
+        return self._points
+
+    def observations(self, node: int) -> KeyframeObservations:
+        """The matches with `node` that have live depth, as refinement input."""
+        i_live, i_ref = self.matches(node)
+        pts = self.points()[i_live]
+        ok = np.all(np.isfinite(pts), axis=1)
+        kp = np.asarray(self.loc.map.features[node].keypoints, dtype=np.float64)[i_ref[ok]]
+        return KeyframeObservations(node, pts[ok], kp, self.loc.map.K[node], self.loc.map.T_map_camera[node])
+
+
+    def guided_observations(self, node: int, T_map_live: NDArray[np.float64]) -> KeyframeObservations:
+        """Matches with `node` found by projecting the live points with `T_map_live` (no model)."""
+        m = self.loc.map
+        f = m.features[node]
+        i_live, i_kf = guided_matches(self.points(), self.feats.descriptors, T_map_live, f.keypoints, f.descriptors,
+                                      m.K[node], m.T_map_camera[node], self.loc.params.refine)
+        kp = np.asarray(f.keypoints, dtype=np.float64)[i_kf]
+        return KeyframeObservations(node, self.points()[i_live], kp, m.K[node], m.T_map_camera[node])
+
+
 class VisualLocalizer:
     """GL + LL against one map with injected model callables (no I/O, no threads)."""
 
@@ -193,27 +263,39 @@ class VisualLocalizer:
                             for i in range(topomap.n_nodes)]
 
     # ---------------------------------------------------------------- building blocks
-    def _verify(
-        self, node: int, live_feats: FeatureSet, depth: NDArray[np.float32], K: NDArray[np.float64],
-        similarity: float, timer: StageTimer,
-    ) -> tuple[PnpResult | None, CandidateAttempt]:
+    def _query(
+        self, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64], timer: StageTimer
+    ) -> tuple[_Query, NDArray[np.float32]]:
+        feats, desc, dimg = self._prepare(color, depth, timer)
+        return _Query(self, feats, dimg, K, timer), desc
+
+    def _verify(self, node: int, q: _Query, similarity: float) -> tuple[PnpResult | None, CandidateAttempt]:
+        q.matches(node)  # timed as "match" once; relative_pose then reads the cached matches
         res, n_matches, reason = relative_pose(
-            live_feats, depth, K, self.map.features[node], self.map.K[node], self.match, self.params, timer
+            q.feats, q.depth, q.K, self.map.features[node], self.map.K[node], lambda a, b: q.matches(node),
+            self.params, q.timer,
         )
         return res, CandidateAttempt(node, similarity, n_matches, res.n_inliers if res else 0, reason)
 
     def _result(
-        self, t_ns: int, mode: str, best: tuple[int, PnpResult] | None, attempts: list[CandidateAttempt],
-        timer: StageTimer, fail_reason: str,
+        self, t_ns: int, mode: str, best: tuple[int, PnpResult, RefineResult | None] | None,
+        attempts: list[CandidateAttempt], timer: StageTimer, fail_reason: str,
     ) -> LocalizationResult:
         if best is None:
             return LocalizationResult(t_ns, mode, False, fail_reason, attempts=tuple(attempts), timings_ms=timer.ms)
-        node, res = best
+        node, res, joint = best
+        if joint is not None:
+            n_match = sum(joint.matches_per_keyframe.get(k, 0) for k in joint.inliers_per_keyframe)
+            return LocalizationResult(
+                t_ns, mode, True, "ok", joint.T_map_camera, joint.covariance, node, n_match, joint.n_inliers,
+                joint.n_inliers / max(n_match, 1), joint.median_reprojection_px, tuple(attempts), timer.ms,
+                tuple(joint.inliers_per_keyframe),
+            )
         assert res.T_target_source is not None
         T = self.map.T_map_camera[node] @ res.T_target_source
         return LocalizationResult(
             t_ns, mode, True, "ok", T, res.covariance, node, res.n_matches, res.n_inliers, res.inlier_ratio,
-            res.median_reprojection_px, tuple(attempts), timer.ms,
+            res.median_reprojection_px, tuple(attempts), timer.ms, (node,),
         )
 
     def _prepare(
@@ -230,58 +312,104 @@ class VisualLocalizer:
         timer.add("vpr", t0)
         return feats, desc, depth
 
+    def _joint(self, node: int, T_init: NDArray[np.float64], q: _Query, fallback: list[int],
+               min_keyframes: int) -> RefineResult:
+        """Joint refinement over `node` and up to `refine.max_keyframes - 1` other keyframes
+        (covisible neighbours of `node` by weight first, then `fallback` nodes)."""
+        rp = self.params.refine
+        others = list(self._neighbours[node])
+        others += [n for n in fallback if n != node and n not in others]
+        extra = others[: rp.max_keyframes - 1]
+        obs = [q.observations(node)]
+        if rp.extra_matching == "model":
+            obs += [q.observations(o) for o in extra]
+        else:
+            t0 = time.perf_counter()
+            obs += [q.guided_observations(o, T_init) for o in extra]
+            q.timer.add("guided_match", t0)
+        t0 = time.perf_counter()
+        res = refine_pose(T_init, obs, replace(rp, min_keyframes=min(min_keyframes, rp.max_keyframes)))
+        q.timer.add("refine", t0)
+        return res
+
     # ---------------------------------------------------------------- GL and LL
     def localize_global(
         self, t_ns: int, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64]
     ) -> LocalizationResult:
-        """VPR top-k + geometric verification; the best accepted candidate wins."""
+        """VPR top-k + geometric verification; the best accepted candidate wins (after the
+        joint refinement / confirmation by a second keyframe, see `LocalizationParams`)."""
         timer = StageTimer()
         t_all = time.perf_counter()
-        feats, desc, dimg = self._prepare(color, depth, timer)
+        q, desc = self._query(color, depth, K, timer)
         sims = self.map.vpr @ desc
         order = np.argsort(-sims, kind="stable")[: self.params.gl_top_k]
         attempts: list[CandidateAttempt] = []
+        best: tuple[int, PnpResult, RefineResult | None] | None = None
+        reason = "not localized: no VPR candidate verified"
+        stop = f"all {len(order)} VPR candidates tried"
+        if self.params.refine.enabled:
+            # Bounded cost: candidates in VPR order, each verified and jointly refined at once;
+            # the first that passes the joint check wins; the time budget stops the search.
+            budget = self.params.gl_time_budget_ms
+            for k, node in enumerate(int(n) for n in order):
+                spent = (time.perf_counter() - t_all) * 1e3
+                if budget > 0 and spent > budget:
+                    stop = f"time budget spent ({spent:.0f} ms > {budget:g}) after {k} of {len(order)} candidates"
+                    break
+                res, att = self._verify(node, q, float(sims[node]))
+                if res is None or not res.accepted or res.T_target_source is None:
+                    attempts.append(att)
+                    continue
+                T = self.map.T_map_camera[node] @ res.T_target_source
+                joint = self._joint(node, T, q, [int(n) for n in order],
+                                    self.params.refine.min_keyframes if self.params.gl_confirm else 1)
+                if joint.accepted:
+                    attempts.append(att)
+                    best = (node, res, joint)
+                    stop = f"candidate {k + 1} of {len(order)} passed the joint check"
+                    break
+                attempts.append(CandidateAttempt(node, att.similarity, att.matches, att.inliers,
+                                                 f"joint refinement rejected: {joint.reason}"))
+                reason = f"not localized: no verified pose was confirmed by a second keyframe (last: node {node})"
+            timer.add("total", t_all)
+            return replace(self._result(t_ns, "global", best, attempts, timer, reason), stop_reason=stop)
         verified: list[tuple[int, PnpResult]] = []
         for node in order:
-            res, att = self._verify(int(node), feats, dimg, K, float(sims[node]), timer)
+            res, att = self._verify(int(node), q, float(sims[node]))
             attempts.append(att)
             if res is not None and res.accepted:
                 verified.append((int(node), res))
                 if 0 < self.params.gl_early_accept_inliers <= res.n_inliers:
                     break
-        best: tuple[int, PnpResult] | None = None
-        reason = "not localized: no VPR candidate verified"
         for node, res in sorted(verified, key=lambda v: -v[1].n_inliers):
-            if not self.params.gl_confirm:
-                best = (node, res)
-                break
             assert res.T_target_source is not None
             T = self.map.T_map_camera[node] @ res.T_target_source
-            n_ok = self._confirmed(node, T, feats, dimg, K, [int(n) for n in order], timer)
-            if n_ok >= self.params.confirm_min_inliers:
-                best = (node, res)
+            if not self.params.gl_confirm:
+                best = (node, res, None)
                 break
+            n_ok = self._confirmed(node, T, q, [int(n) for n in order])
+            if n_ok >= self.params.confirm_min_inliers:
+                best = (node, res, None)
+                break
+            why = f"unconfirmed ({n_ok} consistent matches with a second keyframe)"
             reason = f"not localized: no verified pose was confirmed by a second keyframe (last: node {node})"
-            attempts.append(CandidateAttempt(node, float(sims[node]), res.n_matches, res.n_inliers,
-                                             f"unconfirmed ({n_ok} consistent matches with a second keyframe)"))
+            attempts.append(CandidateAttempt(node, float(sims[node]), res.n_matches, res.n_inliers, why))
         timer.add("total", t_all)
         return self._result(t_ns, "global", best, attempts, timer, reason)
 
-    def _confirmed(
-        self, node: int, T_map_live: NDArray[np.float64], feats: FeatureSet, depth: NDArray[np.float32],
-        K: NDArray[np.float64], fallback: list[int], timer: StageTimer,
-    ) -> int:
+    def _confirmed(self, node: int, T_map_live: NDArray[np.float64], q: _Query, fallback: list[int]) -> int:
         """Best count of matches explained by the pose over up to `confirm_max_nodes` other
-        keyframes (covisible neighbours of `node` by weight first, then `fallback` nodes)."""
+        keyframes (covisible neighbours of `node` by weight first, then `fallback` nodes).
+        The old, single-keyframe behaviour (`refine.enabled: false`)."""
         others = list(self._neighbours[node])
         others += [n for n in fallback if n != node and n not in others]
         t0 = time.perf_counter()
         best = 0
         for other in others[: self.params.confirm_max_nodes]:
-            best = max(best, self.confirm(T_map_live, feats, depth, K, other))
+            best = max(best, self._consistent(T_map_live, q, other))
             if best >= self.params.confirm_min_inliers:
                 break
-        timer.add("confirm", t0)
+        q.timer.add("confirm", t0)
         return best
 
     def confirm(
@@ -289,22 +417,18 @@ class VisualLocalizer:
         K: NDArray[np.float64], node: int,
     ) -> int:
         """Matches with `node` that the pose `T_map_live` explains (reprojection within the PnP threshold)."""
-        i_live, i_map = self.match(live_feats, self.map.features[node])
-        if len(i_live) == 0:
+        return self._consistent(T_map_live, _Query(self, live_feats, depth, K, StageTimer()), node)
+
+    def _consistent(self, T_map_live: NDArray[np.float64], q: _Query, node: int) -> int:
+        ob = q.observations(node)
+        if len(ob.points_live) == 0:
             return 0
-        uv = np.asarray(live_feats.keypoints, dtype=np.float64)[i_live]
-        z = depth_at(depth, uv, self.params.depth)
-        ok = np.isfinite(z)
-        if not ok.any():
-            return 0
-        pts = backproject_pixels(K, uv[ok], z[ok].astype(np.float64))
         T_node_live = np.linalg.inv(self.map.T_map_camera[node]) @ T_map_live
-        pc = pts @ T_node_live[:3, :3].T + T_node_live[:3, 3]
+        pc = ob.points_live @ T_node_live[:3, :3].T + T_node_live[:3, 3]
         front = pc[:, 2] > 1e-3
         Kn = self.map.K[node]
         proj = (pc[front, :2] / pc[front, 2:3]) * [Kn[0, 0], Kn[1, 1]] + [Kn[0, 2], Kn[1, 2]]
-        err = np.linalg.norm(proj - np.asarray(self.map.features[node].keypoints, dtype=np.float64)[i_map[ok]][front],
-                             axis=1)
+        err = np.linalg.norm(proj - ob.pixels[front], axis=1)
         return int(np.count_nonzero(err <= self.params.pnp.reprojection_px))
 
     def local_candidates(self, prior: NDArray[np.float64], desc: NDArray[np.float32]) -> list[tuple[int, float]]:
@@ -334,13 +458,13 @@ class VisualLocalizer:
         prior = check_rigid(prior_T_map_camera, "prior T_map_camera", atol=1e-4)
         timer = StageTimer()
         t_all = time.perf_counter()
-        feats, desc, dimg = self._prepare(color, depth, timer)
+        q, desc = self._query(color, depth, K, timer)
         attempts: list[CandidateAttempt] = []
-        best: tuple[int, PnpResult] | None = None
+        best: tuple[int, PnpResult, RefineResult | None] | None = None
         cands = self.local_candidates(prior, desc)
         gate_m = self.params.prior_gate_m + self.params.prior_gate_rate_mps * max(prior_age_s, 0.0)
         for node, sim in cands:
-            res, att = self._verify(node, feats, dimg, K, sim, timer)
+            res, att = self._verify(node, q, sim)
             if res is not None and res.accepted and res.T_target_source is not None:
                 T = self.map.T_map_camera[node] @ res.T_target_source
                 dt, dr = relative_pose_error(T, prior)
@@ -351,14 +475,22 @@ class VisualLocalizer:
                     continue
                 close = (dt <= self.params.confirm_skip_within_m and dr <= self.params.confirm_skip_within_deg
                          and prior_age_s <= self.params.confirm_skip_max_age_s)
-                if self.params.ll_confirm and not close:
-                    n_ok = self._confirmed(node, T, feats, dimg, K, [n for n, _ in cands], timer)
+                joint: RefineResult | None = None
+                if self.params.refine.enabled:
+                    need = self.params.refine.min_keyframes if self.params.ll_confirm and not close else 1
+                    joint = self._joint(node, T, q, [n for n, _ in cands], need)
+                    if not joint.accepted:
+                        attempts.append(CandidateAttempt(node, sim, att.matches, att.inliers,
+                                                         f"joint refinement rejected: {joint.reason}"))
+                        continue
+                elif self.params.ll_confirm and not close:
+                    n_ok = self._confirmed(node, T, q, [n for n, _ in cands])
                     if n_ok < self.params.confirm_min_inliers:
                         why = f"unconfirmed ({n_ok} consistent matches with a second keyframe)"
                         attempts.append(CandidateAttempt(node, sim, att.matches, att.inliers, why))
                         continue
                 attempts.append(att)
-                best = (node, res)
+                best = (node, res, joint)
                 break
             attempts.append(att)
         timer.add("total", t_all)

@@ -42,6 +42,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from litevloc.pipelines.evaluation.reloc import inside_95_ellipsoids
     from litevloc.pipelines.evaluation.trajectory import write_tum
     from litevloc.runtime.vloc_models import check_map_models, load_bundle
 
@@ -56,6 +57,8 @@ def run(args: argparse.Namespace) -> int:
     times: list[float] = []
     poses: list = []
     errors: list[tuple[float, float]] = []
+    inside: list[tuple[bool, bool]] = []  # error inside the pose's own 95 % ellipsoid (position, rotation)
+    n_keyframes: list[int] = []
     lat: dict[str, list[float]] = {"global": [], "local": []}
     stages: dict[str, list[dict[str, float]]] = {"global": [], "local": []}  # per mode: stage ms of each query
     counts = {"queries": 0, "accepted": 0, "rejected": 0, "global": 0, "local": 0}
@@ -75,8 +78,11 @@ def run(args: argparse.Namespace) -> int:
                 counts["accepted"] += 1
                 times.append(frame.t_ns * 1e-9)
                 poses.append(res.T_map_camera)
+                n_keyframes.append(len(res.keyframes))
                 if T_gt is not None:
                     errors.append(relative_pose_error(res.T_map_camera, T_gt))
+                    if res.covariance is not None:
+                        inside.append(inside_95_ellipsoids(res.T_map_camera, T_gt, res.covariance))
             else:
                 counts["rejected"] += 1
                 key = res.reason.split("(")[0].strip()
@@ -100,12 +106,22 @@ def run(args: argparse.Namespace) -> int:
             "max_m": float(e[:, 0].max()), "max_deg": float(e[:, 1].max()),
             "within_25cm_5deg": float(np.mean((e[:, 0] < 0.25) & (e[:, 1] < 5))),
         }
+        if inside:
+            c = np.array(inside)
+            summary["covariance_calibration"] = {"position_inside_95": float(c[:, 0].mean()),
+                                                 "rotation_inside_95": float(c[:, 1].mean())}
+    if n_keyframes:
+        summary["keyframes_per_pose_mean"] = float(np.mean(n_keyframes))
     line = (f"localized {counts['accepted']}/{counts['queries']} queries "
             f"({counts['global']} global, {counts['local']} local) -> {args.output}")
     if errors:
         er = summary["errors"]
         line += (f"; error median {100 * er['median_m']:.1f} cm / {er['median_deg']:.2f} deg, "
                  f"max {100 * er['max_m']:.1f} cm")
+        if "covariance_calibration" in summary:
+            cc = summary["covariance_calibration"]
+            line += (f"; inside own 95 % ellipsoid: position {100 * cc['position_inside_95']:.0f} %, "
+                     f"rotation {100 * cc['rotation_inside_95']:.0f} %")
     print(line)
     for mode in ("global", "local"):
         if f"{mode}_latency_ms" in summary:

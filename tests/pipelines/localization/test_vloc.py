@@ -21,6 +21,10 @@ W, H = 320, 240
 K = np.array([[250.0, 0, 160], [0, 250, 120], [0, 0, 1]])
 RNG = np.random.default_rng(0)
 POINTS = np.column_stack([RNG.uniform(-6, 6, 3000), RNG.uniform(-1.5, 1.5, 3000), RNG.uniform(4, 9, 3000)])
+# descriptor: column 0 = point id (match_by_id), then a large random unit vector per point so
+# that descriptor similarity (guided matching) is distinctive too
+APPEARANCE = RNG.normal(size=(3000, 16))
+APPEARANCE *= 1e5 / np.linalg.norm(APPEARANCE, axis=1, keepdims=True)
 
 
 @dataclass(frozen=True, eq=False)
@@ -42,8 +46,9 @@ def observe(T_world_cam: NDArray[np.float64]) -> tuple[Feats, NDArray[np.float32
     for i in ids:
         u, v = np.round(uv[i]).astype(int)
         depth[v - 1 : v + 2, u - 1 : u + 2] = pc[i, 2]
-    desc = np.zeros((len(ids), 8), np.float32)
+    desc = np.zeros((len(ids), 17), np.float32)
     desc[:, 0] = ids
+    desc[:, 1:] = APPEARANCE[ids]
     return Feats(uv[ids].astype(np.float32), desc, np.ones(len(ids), np.float32), ids), depth
 
 
@@ -178,3 +183,52 @@ def test_missing_depth_is_an_error() -> None:
     s.look(pose(0.0), 0)
     with pytest.raises(ValueError, match="depth"):
         loc.localize_global(0, IMG, None, K)
+
+
+def test_joint_refinement_uses_several_keyframes_and_matches_each_once() -> None:
+    m = make_map([0.0, 1.0, 2.0, 3.0])
+    s = Scene(m)
+    calls: list[int] = []
+
+    def counting_match(a: Feats, b: NodeFeatures) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        calls.append(next(i for i, f in enumerate(m.features) if f is b))
+        return s.match(a, b)
+
+    loc = VisualLocalizer(m, PARAMS, s.extract, s.describe, counting_match)
+    T_true = pose(1.3, 5.0)
+    r = loc.localize_global(0, IMG, s.look(T_true, vpr_best=1), K)
+    assert r.accepted and len(r.keyframes) >= 2 and r.ref_node == 1  # the first VPR candidate that passes
+    assert "passed the joint check" in r.stop_reason and "refine" in r.timings_ms
+    assert len(calls) == len(set(calls))  # verification and refinement share the matches
+    dt, dr = g.relative_pose_error(r.T_map_camera, T_true)
+    assert dt < 0.005 and dr < 0.2
+    assert r.covariance is not None and r.covariance.shape == (6, 6)
+
+
+def test_gl_time_budget_stops_the_search_and_says_so() -> None:
+    m = make_map([0.0, 1.0, 2.0])
+    s = Scene(m)
+    s.broken_nodes = {0, 1, 2}
+    slow = LocalizationParams(pnp=PnpParams(min_inliers=30), gl_top_k=3, gl_time_budget_ms=1e-6)
+    loc = VisualLocalizer(m, slow, s.extract, s.describe, s.match)
+    r = loc.localize_global(0, IMG, s.look(pose(1.0), 1), K)
+    assert not r.accepted and "time budget" in r.stop_reason and len(r.attempts) == 0
+    loc = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)
+    r = loc.localize_global(0, IMG, s.look(pose(1.0), 1), K)
+    assert not r.accepted and r.stop_reason == "all 3 VPR candidates tried" and len(r.attempts) == 3
+    with pytest.raises(ValueError):
+        LocalizationParams(gl_time_budget_ms=-1)
+
+
+def test_single_keyframe_behaviour_behind_a_parameter() -> None:
+    from dataclasses import replace
+
+    from litevloc.pipelines.localization.refine import RefineParams
+
+    m = make_map([0.0, 1.0, 2.0, 3.0])
+    s = Scene(m)
+    old = replace(PARAMS, refine=RefineParams(enabled=False))
+    loc = VisualLocalizer(m, old, s.extract, s.describe, s.match)
+    r = loc.localize_global(0, IMG, s.look(pose(1.3, 5.0), vpr_best=1), K)
+    assert r.accepted and r.keyframes == (r.ref_node,) and "refine" not in r.timings_ms
+    assert "confirm" in r.timings_ms

@@ -1,0 +1,232 @@
+"""7-Scenes localization accuracy: the issue-#16 table, new defaults vs the starting point.
+
+Runs `VisualLocalizer.process` (the state machine of `litevloc localize`: GL at start-up and
+when lost, LL from the last accepted pose) on every query frame (default 500:1000, all 500;
+a frame without an accepted pose is a failure) for each configuration:
+
+* `joint`    — the defaults: joint multi-keyframe refinement (`pipelines/localization/refine.py`).
+* `start`    — the starting point of issue #16: single-keyframe PnP pose + separate
+               confirmation (`localization.refine.enabled=false`) with the localization block
+               the 7scenes preset carried before (thresholds tuned on the query pass).
+
+and prints: share of all query frames within [2 cm, 2 deg], [5 cm, 5 deg], [25 cm, 5 deg];
+accepted share; median / max error of accepted poses; poses wrong by > 0.5 m; covariance
+calibration (share of accepted poses whose error lies inside their own 95 % ellipsoid,
+position and rotation 3-dof each, chi-square); LL latency median / p90.
+
+Models run once per frame and pair: features, VPR descriptors and matches are cached under
+out/cache/accuracy/ (npz, no pickle) with the time each model call took, so the
+configurations share them and a cached call counts its recorded time in the latency
+(latency = geometry measured now + the model time measured when it first ran). The map is
+built if absent (out/maps/7s, frames 0-499, `--config 7scenes`).
+
+    python bench/accuracy.py [--frames 500:1000] [--map out/maps/7s] [--configs joint start]
+        [--set K=V ...] [--name accuracy]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import numpy as np
+from _common import ROOT, print_table, require_7scenes, write_json
+
+from litevloc.config import load_config
+from litevloc.hw.streams.base import parse_frames
+from litevloc.models.types import Features
+from litevloc.pipelines.evaluation.reloc import inside_95_ellipsoids
+from litevloc.pipelines.geometry import relative_pose_error, so3_log
+from litevloc.pipelines.localization.vloc import VisualLocalizer
+from litevloc.pipelines.topomap.io import load_map
+from litevloc.runtime.posed import posed_frames
+from litevloc.runtime.sources import open_source
+from litevloc.runtime.vloc_models import check_map_models, load_bundle
+
+# The `localization:` block of config/presets/7scenes.yaml before issue #16 (tuned on the query pass).
+START = ["localization.refine.enabled=false", "localization.gl_top_k=10", "localization.confirm_min_inliers=15",
+         "localization.confirm_max_nodes=3", "localization.pnp.min_inliers=30"]
+CONFIGS: dict[str, list[str]] = {"joint": [], "start": START}
+PUBLISHED = [  # redkitchen, from the papers (dense scene-specific models), for reference only
+    {"method": "DSAC* (RGB-D)", "median_cm": 1.9, "median_deg": 0.80, "within_5cm_5deg_pct": 92.4},
+    {"method": "hloc SP+SG", "median_cm": 4.0, "median_deg": 1.38, "within_5cm_5deg_pct": 61.9},
+]
+
+
+class ModelCache:
+    """Extraction, VPR and matching cached per query frame in out/cache/accuracy/<map>/."""
+
+    def __init__(self, folder: Path, bundle: Any, topomap: Any) -> None:
+        self.folder = folder
+        folder.mkdir(parents=True, exist_ok=True)
+        self.bundle = bundle
+        self.node_of = {id(f): i for i, f in enumerate(topomap.features)}
+        self.frame = -1
+        self.data: dict[str, np.ndarray] = {}
+        self.dirty = False
+        self.recorded_ms = 0.0  # model time of cached calls in the current query
+
+    def _path(self, frame: int) -> Path:
+        return self.folder / f"frame_{frame:05d}.npz"
+
+    def start(self, frame: int) -> None:
+        self.flush()
+        self.frame, self.recorded_ms = frame, 0.0
+        p = self._path(frame)
+        self.data = dict(np.load(p, allow_pickle=False)) if p.is_file() else {}
+
+    def flush(self) -> None:
+        if self.dirty and self.frame >= 0:
+            np.savez(self._path(self.frame), **self.data)
+        self.dirty = False
+
+    def extract(self, color: np.ndarray) -> Features:
+        if "kp" not in self.data:
+            t0 = time.perf_counter()
+            f = self.bundle.extract(color)
+            self.data.update(kp=f.keypoints, desc=f.descriptors, score=f.scores,
+                             size=np.array(f.image_size), extract_ms=np.array((time.perf_counter() - t0) * 1e3))
+            self.dirty = True
+        else:
+            self.recorded_ms += float(self.data["extract_ms"])
+        d = self.data
+        return Features(d["kp"], d["desc"], d["score"], (int(d["size"][0]), int(d["size"][1])))
+
+    def describe(self, color: np.ndarray) -> np.ndarray:
+        if "vpr" not in self.data:
+            t0 = time.perf_counter()
+            v = self.bundle.describe(color)
+            self.data.update(vpr=np.asarray(v, dtype=np.float32), vpr_ms=np.array((time.perf_counter() - t0) * 1e3))
+            self.dirty = True
+        else:
+            self.recorded_ms += float(self.data["vpr_ms"])
+        return self.data["vpr"]
+
+    def match(self, live: Any, ref: Any) -> tuple[np.ndarray, np.ndarray]:
+        node = self.node_of[id(ref)]
+        key = f"m{node}"
+        if key + "_l" not in self.data:
+            t0 = time.perf_counter()
+            a, b = self.bundle.match(live, ref)
+            self.data.update({key + "_l": np.asarray(a, dtype=np.int64), key + "_r": np.asarray(b, dtype=np.int64),
+                              key + "_ms": np.array((time.perf_counter() - t0) * 1e3)})
+            self.dirty = True
+        else:
+            self.recorded_ms += float(self.data[key + "_ms"])
+        return self.data[key + "_l"], self.data[key + "_r"]
+
+
+def ensure_map(path: Path, data: Path) -> None:
+    if (path / "manifest.json").is_file():
+        return
+    from litevloc.runtime.cli.main import main as cli
+
+    print(f"building the map {path} (frames 0-499, --config 7scenes) ...")
+    if cli(["map", "build", str(data), "--frames", "0:500", "-o", str(path), "--config", "7scenes"]) != 0:
+        raise SystemExit(f"map build failed for {path}")
+
+
+def run_config(name: str, overrides: list[str], args: argparse.Namespace, data: Path, cache: ModelCache,
+               topomap: Any) -> dict[str, Any]:
+    cfg = load_config("7scenes", overrides + args.overrides)
+    loc = VisualLocalizer(topomap, cfg.localization, cache.extract, cache.describe, cache.match)
+    src = open_source(data, parse_frames(args.frames), strict=True, rgbd_calibration=cfg.rgbd_calibration)
+    rows: list[dict[str, Any]] = []
+    t_start = time.perf_counter()
+    for frame, T_gt in posed_frames(src):
+        if T_gt is None:
+            continue
+        cache.start(frame.index)
+        t0 = time.perf_counter()
+        res = loc.process(frame.t_ns, frame.color, frame.depth, frame.K)
+        lat = (time.perf_counter() - t0) * 1e3 + cache.recorded_ms
+        row: dict[str, Any] = {"frame": frame.index, "mode": res.mode, "accepted": res.accepted,
+                               "latency_ms": lat, "keyframes": len(res.keyframes), "reason": res.reason}
+        if res.accepted and res.T_map_camera is not None:
+            et, er = relative_pose_error(res.T_map_camera, T_gt)
+            E = np.linalg.inv(res.T_map_camera) @ T_gt  # right perturbation: T_gt = T_est @ E
+            row.update(err_m=et, err_deg=er, err_cam_m=E[:3, 3].tolist(), err_cam_rotvec=so3_log(E[:3, :3]).tolist(),
+                       err_map_m=(T_gt[:3, 3] - res.T_map_camera[:3, 3]).tolist(), ref_node=res.ref_node)
+            if res.covariance is not None:
+                inside = inside_95_ellipsoids(res.T_map_camera, T_gt, res.covariance)
+                row["in_ellipsoid_t"], row["in_ellipsoid_r"] = inside
+                row["sigma_t_m"] = float(np.sqrt(np.trace(res.covariance[:3, :3]) / 3))
+                row["covariance"] = res.covariance.tolist()
+        rows.append(row)
+        if len(rows) % 50 == 0:
+            print(f"  {name}: {len(rows)} frames, {time.perf_counter() - t_start:.0f} s", flush=True)
+    cache.flush()
+    return summarize(name, overrides, rows)
+
+
+def summarize(name: str, overrides: list[str], rows: list[dict[str, Any]]) -> dict[str, Any]:
+    n = len(rows)
+    acc = [r for r in rows if r["accepted"]]
+    et = np.array([r["err_m"] for r in acc])
+    er = np.array([r["err_deg"] for r in acc])
+
+    def within(m: float, deg: float) -> float:
+        return 100.0 * float(np.sum((et <= m) & (er <= deg))) / max(n, 1)
+
+    cal = [r for r in acc if "in_ellipsoid_t" in r]
+    ll = [r["latency_ms"] for r in rows if r["mode"] == "local"]
+    return {
+        "config": name, "overrides": overrides, "queries": n, "accepted_pct": 100.0 * len(acc) / max(n, 1),
+        "within_2cm_2deg_pct": within(0.02, 2), "within_5cm_5deg_pct": within(0.05, 5),
+        "within_25cm_5deg_pct": within(0.25, 5),
+        "median_cm": 100 * float(np.median(et)) if len(et) else float("nan"),
+        "median_deg": float(np.median(er)) if len(er) else float("nan"),
+        "max_cm": 100 * float(et.max()) if len(et) else float("nan"),
+        "max_deg": float(er.max()) if len(er) else float("nan"),
+        "wrong_over_0.5m": int(np.sum(et > 0.5)),
+        "calib_t_pct": 100.0 * float(np.mean([r["in_ellipsoid_t"] for r in cal])) if cal else float("nan"),
+        "calib_r_pct": 100.0 * float(np.mean([r["in_ellipsoid_r"] for r in cal])) if cal else float("nan"),
+        "ll_latency_median_ms": float(np.median(ll)) if ll else float("nan"),
+        "ll_latency_p90_ms": float(np.percentile(ll, 90)) if ll else float("nan"),
+        "frames": rows,
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--frames", default="500:1000")
+    ap.add_argument("--map", type=Path, default=ROOT / "out" / "maps" / "7s")
+    ap.add_argument("--configs", nargs="+", default=list(CONFIGS), choices=list(CONFIGS))
+    ap.add_argument("--set", dest="overrides", action="append", default=[], help="applied to every config")
+    ap.add_argument("--name", default="accuracy")
+    args = ap.parse_args()
+    data = require_7scenes()
+    ensure_map(args.map, data)
+    cfg = load_config("7scenes", args.overrides)
+    bundle = load_bundle(cfg.models)
+    topomap = check_map_models(load_map(args.map), bundle)
+    cache = ModelCache(ROOT / "out" / "cache" / "accuracy" / args.map.name, bundle, topomap)
+    results = [run_config(c, CONFIGS[c], args, data, cache, topomap) for c in args.configs]
+    cols = ["within_2cm_2deg_pct", "within_5cm_5deg_pct", "within_25cm_5deg_pct", "accepted_pct", "median_cm",
+            "median_deg", "max_cm", "wrong_over_0.5m", "calib_t_pct", "calib_r_pct", "ll_latency_median_ms",
+            "ll_latency_p90_ms"]
+    print_table(f"7-Scenes redkitchen, frames {args.frames}, map {args.map.name} (percentages of ALL query "
+                "frames; median/max over accepted poses)",
+                ["config", "2cm2d%", "5cm5d%", "25cm5d%", "acc%", "med cm", "med deg", "max cm", ">0.5m",
+                 "cal t%", "cal r%", "LL med ms", "LL p90 ms"],
+                [[r["config"]] + [r[c] for c in cols] for r in results])
+    print_table("published (reference)", ["method", "median cm", "median deg", "5cm5d%"],
+                [[p["method"], p["median_cm"], p["median_deg"], p["within_5cm_5deg_pct"]] for p in PUBLISHED])
+    base = next((r for r in results if r["config"] == "start"), None)
+    ratios = {}
+    if base is not None:
+        for r in results:
+            ratios[r["config"]] = {"ll_latency_median_x": r["ll_latency_median_ms"] / base["ll_latency_median_ms"],
+                                   "median_cm_x": r["median_cm"] / base["median_cm"]}
+    write_json(args.name, {"frames": args.frames, "map": str(args.map), "overrides": args.overrides,
+                           "results": results, "ratios_vs_start": ratios, "published": PUBLISHED,
+                           "note": "latency on a shared 2-core machine; cached model calls count their recorded time"})
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,338 @@
+"""Joint refinement of a live camera pose over several map keyframes, with its covariance.
+
+After PnP into one keyframe gives an initial `T_map_camera`, the live points (lifted with
+the live depth) matched to several keyframes are reprojected into all of them at once and
+`T_map_camera` is refined by robust non-linear least squares (scipy `least_squares`,
+Cauchy loss) on the stacked, whitened reprojection residuals. Keyframe poses are known
+(the map's). The same solve decides the acceptance: a pose counts as confirmed only if
+enough keyframes each explain enough of their matches under the joint pose, which replaces
+the separate "confirmation by a second keyframe".
+
+Noise model (per correspondence i of keyframe k, whitened before the solve):
+    pixel covariance C_i = s_kp^2 I + sigma_z(z_i)^2 g_i g_i^T,  sigma_z(z) = a_z z^2 + b_z,
+with g_i = d(projection into k) / d(live depth) — the depth error of the live point moves
+its reprojection along the epipolar direction, more so at long range and wide baselines.
+Residuals r_i are whitened with C_i^{-1/2} (closed form for identity + rank one), so the
+Cauchy scale is in units of sigma.
+
+Covariance (6x6, right perturbation of `T_map_camera`, order (t, rotvec), the convention
+of `pipelines.pnp`): the Gauss-Newton covariance of the whitened solve over the inliers,
+    Sigma_pts = s2 (J^T J)^-1,  s2 = max(whitened residual variance, 1),
+plus a systematic term that more points and more keyframes do not average out — the live
+depth's calibration and the map's poses against the live frame (on 7-Scenes the errors of
+neighbouring query frames share the same few-centimetre offset whichever keyframes are used):
+    Sigma = Sigma_pts + diag(sigma_sys_t^2 I3, sigma_sys_r^2 I3),
+then the diagonal is clamped below by `min_sigma_*`. `sigma_sys_*` are chosen on a tuning
+split (bench/accuracy.py) so that ~95 % of errors fall inside their 95 % ellipsoid.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import least_squares
+from scipy.spatial import cKDTree
+
+from litevloc.pipelines.geometry import make_T, so3_exp
+
+F64 = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class RefineParams:
+    """Joint multi-keyframe refinement and its acceptance (pixels, metres, degrees)."""
+
+    enabled: bool = True  # False: the single-keyframe PnP pose + separate confirmation (old behaviour)
+    max_keyframes: int = 3  # keyframes in the joint solve, the PnP keyframe included
+    min_keyframes: int = 2  # keyframes that must each be consistent with the joint pose
+    min_keyframe_inliers: int = 15  # inliers under the joint pose for a keyframe to count as consistent
+    inlier_px: float = 3.0  # reprojection threshold of an inlier (raw pixels)
+    gate_px: float = 8.0  # a correspondence enters the solve if within this of the initial pose
+    loss: Literal["cauchy", "huber", "soft_l1"] = "cauchy"
+    loss_scale: float = 2.0  # in whitened units (sigma)
+    keypoint_sigma_px: float = 1.0
+    depth_sigma_a: float = 0.0015  # sigma_z = a z^2 + b (m), structured-light / stereo depth noise
+    depth_sigma_b: float = 0.002
+    max_shift_m: float = 0.25  # the joint pose may move at most this far from the initial pose
+    max_shift_deg: float = 5.0
+    # systematic error that points and keyframes do not average out; chosen on the 7-Scenes
+    # mapping pass (map 250-499, queries 0-249): 92 % / 97 % of errors inside the 95 % ellipsoids
+    sigma_sys_t_m: float = 0.03
+    sigma_sys_r_deg: float = 1.0
+    min_sigma_t_m: float = 0.002
+    min_sigma_r_deg: float = 0.05
+    max_nfev: int = 30
+    # How the live frame is matched to the extra keyframes: "guided" projects the live points
+    # with the initial pose and pairs each with the most similar keyframe keypoint within
+    # guided_radius_px (mutual best, similarity >= guided_min_similarity; ~1 ms per keyframe);
+    # "model" runs the configured matcher (LightGlue, ~100 ms per keyframe on 2 CPUs).
+    extra_matching: Literal["guided", "model"] = "guided"
+    guided_radius_px: float = 8.0
+    guided_min_similarity: float = 0.75
+
+    def __post_init__(self) -> None:
+        if self.max_keyframes < 1 or not (1 <= self.min_keyframes <= self.max_keyframes):
+            raise ValueError("need max_keyframes >= 1 and 1 <= min_keyframes <= max_keyframes")
+        if self.min_keyframe_inliers < 1 or self.inlier_px <= 0 or self.gate_px < self.inlier_px:
+            raise ValueError("need min_keyframe_inliers >= 1, inlier_px > 0 and gate_px >= inlier_px")
+        if self.extra_matching not in ("guided", "model"):
+            raise ValueError(f"unknown extra_matching {self.extra_matching!r} (guided | model)")
+        if self.guided_radius_px <= 0 or not (-1 <= self.guided_min_similarity <= 1):
+            raise ValueError("need guided_radius_px > 0 and guided_min_similarity in [-1, 1]")
+        if self.loss not in ("cauchy", "huber", "soft_l1"):
+            raise ValueError(f"unknown loss {self.loss!r}")
+        for name in ("loss_scale", "keypoint_sigma_px", "max_shift_m", "max_shift_deg", "max_nfev"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"{name} must be > 0")
+        for name in ("depth_sigma_a", "depth_sigma_b", "sigma_sys_t_m", "sigma_sys_r_deg",
+                     "min_sigma_t_m", "min_sigma_r_deg"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name} must be >= 0")
+
+
+@dataclass(frozen=True, eq=False)
+class KeyframeObservations:
+    """Live points matched to one keyframe.
+
+    points_live: (N, 3) metres in the live camera frame (lifted with the live depth).
+    pixels: (N, 2) matched keypoints in the keyframe image.
+    K: 3x3 keyframe intrinsics; T_map_kf: 4x4 keyframe camera pose in the map.
+    """
+
+    node: int
+    points_live: F64
+    pixels: F64
+    K: F64
+    T_map_kf: F64
+
+
+@dataclass(frozen=True, eq=False)
+class RefineResult:
+    """Outcome of the joint solve. `accepted` only if enough keyframes are consistent."""
+
+    accepted: bool
+    reason: str
+    T_map_camera: F64
+    covariance: F64 | None  # 6x6 right perturbation of T_map_camera, (t, rotvec)
+    inliers_per_keyframe: dict[int, int] = field(default_factory=dict)
+    matches_per_keyframe: dict[int, int] = field(default_factory=dict)
+    median_reprojection_px: float = float("nan")
+    shift_m: float = 0.0
+    shift_deg: float = 0.0
+
+    @property
+    def n_inliers(self) -> int:
+        return int(sum(self.inliers_per_keyframe.values()))
+
+    @property
+    def consistent_keyframes(self) -> int:
+        return len(self.inliers_per_keyframe)
+
+
+def _camera_points(T_kf_live: F64, pts: F64) -> F64:
+    return pts @ T_kf_live[:3, :3].T + T_kf_live[:3, 3]
+
+
+def _residuals_and_jacobian(
+    T_map_live: F64, obs: KeyframeObservations, pts: F64, px: F64
+) -> tuple[F64, F64, F64]:
+    """Raw pixel residuals (N, 2), Jacobian (N, 2, 6) w.r.t. a right perturbation of
+    T_map_live (t, rotvec) and the derivative of the projection w.r.t. live depth (N, 2)."""
+    T_kl = np.linalg.inv(obs.T_map_kf) @ T_map_live
+    R = T_kl[:3, :3]
+    q = _camera_points(T_kl, pts)
+    z = np.where(np.abs(q[:, 2]) < 1e-6, 1e-6, q[:, 2])
+    fx, fy, cx, cy = obs.K[0, 0], obs.K[1, 1], obs.K[0, 2], obs.K[1, 2]
+    proj = np.stack([fx * q[:, 0] / z + cx, fy * q[:, 1] / z + cy], axis=1)
+    r = proj - px
+    # d proj / d q, (N, 2, 3)
+    dp = np.zeros((len(q), 2, 3))
+    dp[:, 0, 0] = fx / z
+    dp[:, 0, 2] = -fx * q[:, 0] / z**2
+    dp[:, 1, 1] = fy / z
+    dp[:, 1, 2] = -fy * q[:, 1] / z**2
+    # q = R (exp(w) p + dt) + t  ->  dq/d(dt) = R, dq/dw = -R [p]x
+    skew = np.zeros((len(pts), 3, 3))
+    skew[:, 0, 1], skew[:, 0, 2] = -pts[:, 2], pts[:, 1]
+    skew[:, 1, 0], skew[:, 1, 2] = pts[:, 2], -pts[:, 0]
+    skew[:, 2, 0], skew[:, 2, 1] = -pts[:, 1], pts[:, 0]
+    dq = np.concatenate([np.broadcast_to(R, (len(pts), 3, 3)), -R @ skew], axis=2)  # (N, 3, 6)
+    J = dp @ dq
+    # live depth z_l scales the point along its ray: dp_live/dz_l = p / z_l
+    ray = pts / np.where(np.abs(pts[:, 2:3]) < 1e-6, 1e-6, pts[:, 2:3])
+    g = np.einsum("nij,nj->ni", dp, ray @ R.T)
+    return r, J, g
+
+
+def _whitener(g: F64, z_live: F64, p: RefineParams) -> F64:
+    """(N, 2, 2) W with W C W^T = I for C = s^2 I + sz^2 g g^T."""
+    s2 = p.keypoint_sigma_px**2
+    sz = p.depth_sigma_a * z_live**2 + p.depth_sigma_b
+    a = (sz**2) * np.sum(g * g, axis=1)  # variance added along g
+    gn = np.linalg.norm(g, axis=1)
+    u = np.where(gn[:, None] > 1e-12, g / np.maximum(gn[:, None], 1e-12), 0.0)
+    s = np.sqrt(s2)
+    k = 1.0 - s / np.sqrt(s2 + a)  # shrink along u from 1/s to 1/sqrt(s^2 + a)
+    eye = np.broadcast_to(np.eye(2), (len(g), 2, 2))
+    return (eye - k[:, None, None] * u[:, :, None] * u[:, None, :]) / s
+
+
+def _perturb(T: F64, d: NDArray[np.floating]) -> F64:
+    return T @ make_T(so3_exp(np.asarray(d[3:], dtype=np.float64)), np.asarray(d[:3], dtype=np.float64))
+
+
+def refine_pose(
+    T_map_camera_init: NDArray[np.floating], observations: list[KeyframeObservations], params: RefineParams
+) -> RefineResult:
+    """Refine `T_map_camera` over the matches to several keyframes and decide acceptance.
+
+    Args:
+        T_map_camera_init: 4x4 initial pose (e.g. PnP into the first keyframe).
+        observations: per keyframe, live points and their matched keyframe pixels
+            (the first is the keyframe the initial pose came from).
+        params: see `RefineParams`.
+    Returns:
+        RefineResult with the refined pose, its 6x6 covariance, the inliers of every
+        consistent keyframe and why it was (not) accepted.
+    """
+    T0 = np.asarray(T_map_camera_init, dtype=np.float64)
+    p = params
+    used: list[tuple[KeyframeObservations, F64, F64, F64]] = []  # obs, pts, px, whitener
+    for ob in observations:
+        pts = np.asarray(ob.points_live, dtype=np.float64).reshape(-1, 3)
+        px = np.asarray(ob.pixels, dtype=np.float64).reshape(-1, 2)
+        if len(pts) == 0:
+            continue
+        r, _, g = _residuals_and_jacobian(T0, ob, pts, px)
+        keep = np.linalg.norm(r, axis=1) <= p.gate_px
+        if keep.sum() < p.min_keyframe_inliers:
+            continue
+        used.append((ob, pts[keep], px[keep], _whitener(g[keep], pts[keep, 2], p)))
+    matches = {ob.node: len(ob.points_live) for ob in observations}
+    if len(used) < p.min_keyframes:
+        return RefineResult(False, f"only {len(used)} keyframe(s) consistent with the initial pose "
+                            f"(< {p.min_keyframes})", T0, None, {}, matches)
+
+    def fun(d: F64) -> F64:
+        T = _perturb(T0, d)
+        out = []
+        for ob, pts, px, W in used:
+            r, _, _ = _residuals_and_jacobian(T, ob, pts, px)
+            out.append(np.einsum("nij,nj->ni", W, r).reshape(-1))
+        return np.concatenate(out)
+
+    def jac(d: F64) -> F64:
+        T = _perturb(T0, d)
+        out = []
+        for ob, pts, px, W in used:
+            _, J, _ = _residuals_and_jacobian(T, ob, pts, px)
+            out.append((W @ J).reshape(-1, 6))
+        # d/dd of T0 exp(d) ~ right perturbation at T for small steps (exact at d = 0)
+        return np.concatenate(out)
+
+    sol = least_squares(fun, np.zeros(6), jac=jac, loss=p.loss, f_scale=p.loss_scale, method="trf",
+                        max_nfev=p.max_nfev, x_scale="jac")
+    T = _perturb(T0, sol.x)
+    shift_m = float(np.linalg.norm(T[:3, 3] - T0[:3, 3]))
+    dR = T0[:3, :3].T @ T[:3, :3]
+    shift_deg = float(np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1))))
+
+    inl: dict[int, int] = {}
+    errs: list[F64] = []
+    info: list[F64] = []
+    for ob, pts, px, W in used:
+        r, J, _ = _residuals_and_jacobian(T, ob, pts, px)
+        e = np.linalg.norm(r, axis=1)
+        ok = e <= p.inlier_px
+        if ok.sum() < p.min_keyframe_inliers:
+            continue
+        inl[ob.node] = int(ok.sum())
+        errs.append(e[ok])
+        rw = np.einsum("nij,nj->ni", W[ok], r[ok]).reshape(-1)
+        Jw = (W[ok] @ J[ok]).reshape(-1, 6)
+        s2 = max(float(rw @ rw) / max(len(rw) - 6, 1), 1.0)
+        info.append(Jw.T @ Jw / s2)
+    med = float(np.median(np.concatenate(errs))) if errs else float("nan")
+    cov = joint_covariance(info, p) if info else None
+    if len(inl) < p.min_keyframes:
+        reason = f"only {len(inl)} keyframe(s) consistent with the joint pose (< {p.min_keyframes})"
+    elif shift_m > p.max_shift_m or shift_deg > p.max_shift_deg:
+        reason = f"joint pose moved {shift_m:.2f} m / {shift_deg:.1f} deg from the initial pose"
+    else:
+        reason = "ok"
+    return RefineResult(reason == "ok", reason, T, cov, inl, matches, med, shift_m, shift_deg)
+
+
+def joint_covariance(information: list[F64], params: RefineParams) -> F64:
+    """6x6 covariance from per-keyframe information matrices (see the module docstring)."""
+    total = np.sum(information, axis=0) if information else np.zeros((6, 6))
+    try:
+        cov = np.linalg.inv(total)
+    except np.linalg.LinAlgError:
+        cov = np.diag([1e2] * 6)
+    cov = 0.5 * (cov + cov.T)
+    cov += np.diag([params.sigma_sys_t_m**2] * 3 + [np.radians(params.sigma_sys_r_deg) ** 2] * 3)
+    floor = np.array([params.min_sigma_t_m] * 3 + [np.radians(params.min_sigma_r_deg)] * 3) ** 2
+    cov[np.diag_indices(6)] = np.maximum(np.diag(cov), floor)
+    return cov
+
+
+def _similarity(a: NDArray, b: NDArray) -> F64:
+    """(Na, Nb) descriptor similarity in [-1, 1]: cosine for float descriptors, 1 - 2 * normalised
+    Hamming distance for binary (uint8) ones."""
+    if a.dtype == np.uint8:
+        bits = np.unpackbits(a, axis=1).astype(np.float32)
+        bbits = np.unpackbits(b, axis=1).astype(np.float32)
+        ham = bits @ (1 - bbits).T + (1 - bits) @ bbits.T
+        return np.asarray(1.0 - 2.0 * ham / bits.shape[1], dtype=np.float64)
+    an = a / np.maximum(np.linalg.norm(a, axis=1, keepdims=True), 1e-12)
+    bn = b / np.maximum(np.linalg.norm(b, axis=1, keepdims=True), 1e-12)
+    return np.asarray(an @ bn.T, dtype=np.float64)
+
+
+def guided_matches(
+    points_live: NDArray[np.floating], desc_live: NDArray, T_map_live: NDArray[np.floating],
+    kf_keypoints: NDArray[np.floating], kf_desc: NDArray, K_kf: NDArray[np.floating],
+    T_map_kf: NDArray[np.floating], params: RefineParams,
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Matches by projection: live points (N, 3, live camera frame, NaN rows skipped) are
+    projected into the keyframe with the pose `T_map_live`; each is paired with the keyframe
+    keypoint (M, 2) within `guided_radius_px` whose descriptor is most similar, if that pair
+    is the mutual best among such candidates and similarity >= `guided_min_similarity`.
+
+    Returns (live indices, keyframe indices), int64 arrays of equal length.
+    """
+    pts = np.asarray(points_live, dtype=np.float64).reshape(-1, 3)
+    kp = np.asarray(kf_keypoints, dtype=np.float64).reshape(-1, 2)
+    empty = (np.zeros(0, np.int64), np.zeros(0, np.int64))
+    if len(pts) == 0 or len(kp) == 0:
+        return empty
+    T_kl = np.linalg.inv(np.asarray(T_map_kf, dtype=np.float64)) @ np.asarray(T_map_live, dtype=np.float64)
+    q = _camera_points(T_kl, pts)
+    ok = np.all(np.isfinite(q), axis=1) & (q[:, 2] > 1e-3)
+    idx = np.nonzero(ok)[0]
+    if len(idx) == 0:
+        return empty
+    uv = q[idx, :2] / q[idx, 2:3] * [K_kf[0, 0], K_kf[1, 1]] + [K_kf[0, 2], K_kf[1, 2]]
+    near = cKDTree(kp).query_ball_point(uv, r=params.guided_radius_px)
+    rows = np.repeat(np.arange(len(idx)), [len(n) for n in near])
+    if len(rows) == 0:
+        return empty
+    cols = np.fromiter((c for n in near for c in n), dtype=np.int64, count=len(rows))
+    sim = _similarity(np.asarray(desc_live)[idx], np.asarray(kf_desc))[rows, cols]
+    keep = sim >= params.guided_min_similarity
+    rows, cols, sim = rows[keep], cols[keep], sim[keep]
+    if len(rows) == 0:
+        return empty
+    # mutual best: highest similarity per live point, then per keyframe keypoint
+    order = np.lexsort((-sim, rows))
+    rows, cols, sim = rows[order], cols[order], sim[order]
+    first = np.r_[True, rows[1:] != rows[:-1]]
+    rows, cols, sim = rows[first], cols[first], sim[first]
+    order = np.lexsort((-sim, cols))
+    rows, cols = rows[order], cols[order]
+    first = np.r_[True, cols[1:] != cols[:-1]]
+    return idx[rows[first]].astype(np.int64), cols[first].astype(np.int64)

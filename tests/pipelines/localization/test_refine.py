@@ -1,0 +1,151 @@
+"""Joint multi-keyframe refinement: accuracy gain, robustness, acceptance, covariance."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from litevloc.pipelines.geometry import make_T, so3_exp, so3_log
+from litevloc.pipelines.localization.refine import KeyframeObservations, RefineParams, refine_pose
+
+K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
+T_MAP_LIVE = make_T(so3_exp(np.array([0.05, -0.3, 0.02])), np.array([0.4, -0.1, 0.2]))
+# keyframes around the live camera, looking roughly the same way (camera z forward)
+KF_POSES = [T_MAP_LIVE @ make_T(so3_exp(np.array(w)), np.array(t)) for w, t in (
+    ([0.0, 0.1, 0.0], [-0.3, 0.0, -0.2]), ([0.02, -0.15, 0.0], [0.35, 0.05, 0.1]),
+    ([0.0, 0.05, 0.03], [0.0, -0.2, -0.4]))]
+
+
+def _observations(rng: np.random.Generator, n: int, px_sigma: float, outliers: float = 0.0,
+                  T_truth: np.ndarray = T_MAP_LIVE) -> list[KeyframeObservations]:
+    """Live points in front of the camera, seen (projected with noise) by each keyframe."""
+    obs = []
+    for k, T_map_kf in enumerate(KF_POSES):
+        uv = rng.uniform([20, 20], [620, 460], size=(n, 2))
+        z = rng.uniform(1.0, 3.5, size=n)
+        pts = np.column_stack([(uv[:, 0] - 320) / 500 * z, (uv[:, 1] - 240) / 500 * z, z])
+        T_kl = np.linalg.inv(T_map_kf) @ T_truth
+        q = pts @ T_kl[:3, :3].T + T_kl[:3, 3]
+        px = q[:, :2] / q[:, 2:3] * 500 + [320, 240] + rng.normal(0, px_sigma, size=(n, 2))
+        bad = rng.random(n) < outliers
+        px[bad] = rng.uniform([0, 0], [640, 480], size=(int(bad.sum()), 2))
+        obs.append(KeyframeObservations(k, pts, px, K, T_map_kf))
+    return obs
+
+
+def _err(T: np.ndarray, T_gt: np.ndarray = T_MAP_LIVE) -> tuple[np.ndarray, np.ndarray]:
+    E = np.linalg.inv(T) @ T_gt
+    return E[:3, 3], so3_log(E[:3, :3])
+
+
+def test_refines_a_perturbed_pose_through_outliers() -> None:
+    rng = np.random.default_rng(0)
+    obs = _observations(rng, 150, 0.7, outliers=0.3)
+    T0 = T_MAP_LIVE @ make_T(so3_exp(np.radians([0.6, -0.4, 0.3])), np.array([0.02, -0.015, 0.01]))
+    res = refine_pose(T0, obs, RefineParams(gate_px=40.0))
+    assert res.accepted, res.reason
+    dt, dr = _err(res.T_map_camera)
+    dt0, _ = _err(T0)
+    assert np.linalg.norm(dt) < 0.1 * np.linalg.norm(dt0) and np.linalg.norm(dt) < 3e-3
+    assert np.degrees(np.linalg.norm(dr)) < 0.1
+    assert res.consistent_keyframes == 3
+    assert all(v > 80 for v in res.inliers_per_keyframe.values())  # ~70 % of 150 are inliers
+    assert res.covariance is not None and res.covariance.shape == (6, 6)
+    assert np.all(np.linalg.eigvalsh(res.covariance) > 0)
+
+
+def test_inconsistent_keyframe_is_left_out_and_can_reject() -> None:
+    rng = np.random.default_rng(1)
+    obs = _observations(rng, 120, 0.5)
+    # keyframe 2's matches all belong to another place: uniformly random pixels
+    obs[2] = replace(obs[2], pixels=rng.uniform([0, 0], [640, 480], size=(120, 2)))
+    res = refine_pose(T_MAP_LIVE, obs, RefineParams(min_keyframes=2))
+    assert res.accepted and set(res.inliers_per_keyframe) == {0, 1}
+    # with only the first keyframe and a bad second one, two consistent keyframes cannot be found
+    res = refine_pose(T_MAP_LIVE, [obs[0], obs[2]], RefineParams(min_keyframes=2))
+    assert not res.accepted and "consistent" in res.reason
+    assert refine_pose(T_MAP_LIVE, [obs[0], obs[2]], RefineParams(min_keyframes=1)).accepted
+
+
+def test_wrong_initial_pose_is_not_confirmed() -> None:
+    """A pose off by 40 cm explains no keyframe: rejected, never a guess."""
+    rng = np.random.default_rng(2)
+    obs = _observations(rng, 100, 0.5)
+    T_bad = T_MAP_LIVE @ make_T(np.eye(3), np.array([0.4, 0.0, 0.0]))
+    res = refine_pose(T_bad, obs, RefineParams())
+    assert not res.accepted
+
+
+def test_covariance_is_calibrated_without_keyframe_error() -> None:
+    """Monte Carlo with pixel noise = the model's sigma and no keyframe or depth error: the
+    95 % ellipsoid holds ~95 % of the errors (the keyframe term and floors switched off)."""
+    p = RefineParams(sigma_sys_t_m=0.0, sigma_sys_r_deg=0.0, min_sigma_t_m=0.0, min_sigma_r_deg=0.0,
+                     depth_sigma_a=0.0, depth_sigma_b=0.0, keypoint_sigma_px=1.0)
+    rng = np.random.default_rng(3)
+    inside_t, inside_r = [], []
+    for _ in range(60):
+        res = refine_pose(T_MAP_LIVE, _observations(rng, 40, 1.0), p)
+        assert res.accepted and res.covariance is not None
+        dt, dr = _err(res.T_map_camera)
+        inside_t.append(dt @ np.linalg.solve(res.covariance[:3, :3], dt) <= chi2.ppf(0.95, 3))
+        inside_r.append(dr @ np.linalg.solve(res.covariance[3:, 3:], dr) <= chi2.ppf(0.95, 3))
+    assert 0.85 <= np.mean(inside_t) <= 1.0 and 0.85 <= np.mean(inside_r) <= 1.0
+
+
+def test_systematic_term_widens_the_covariance() -> None:
+    rng = np.random.default_rng(4)
+    obs = _observations(rng, 200, 0.5)
+    tight = refine_pose(T_MAP_LIVE, obs, RefineParams(sigma_sys_t_m=0.0, sigma_sys_r_deg=0.0, min_sigma_t_m=0.0,
+                                                      min_sigma_r_deg=0.0))
+    wide = refine_pose(T_MAP_LIVE, obs, RefineParams(sigma_sys_t_m=0.01, sigma_sys_r_deg=0.0, min_sigma_t_m=0.0,
+                                                     min_sigma_r_deg=0.0))
+    assert tight.covariance is not None and wide.covariance is not None
+    # the systematic 1 cm per axis is added whatever the number of points
+    assert np.allclose(np.diag(wide.covariance)[:3] - np.diag(tight.covariance)[:3], 0.01**2)
+    assert np.all(np.diag(wide.covariance)[:3] > np.diag(tight.covariance)[:3])
+
+
+def test_depth_noise_down_weights_far_points() -> None:
+    """With range-dependent depth noise the solve still converges and the covariance grows."""
+    rng = np.random.default_rng(5)
+    obs = _observations(rng, 150, 0.5)
+    base = RefineParams(sigma_sys_t_m=0.0, sigma_sys_r_deg=0.0, min_sigma_t_m=0.0, min_sigma_r_deg=0.0)
+    a = refine_pose(T_MAP_LIVE, obs, replace(base, depth_sigma_a=0.0, depth_sigma_b=0.0))
+    b = refine_pose(T_MAP_LIVE, obs, replace(base, depth_sigma_a=0.01, depth_sigma_b=0.0))
+    assert a.accepted and b.accepted and a.covariance is not None and b.covariance is not None
+    assert np.trace(b.covariance[:3, :3]) > np.trace(a.covariance[:3, :3])
+
+
+@pytest.mark.parametrize("kw", [{"max_keyframes": 0}, {"min_keyframes": 4}, {"loss": "l2"}, {"inlier_px": 0},
+                                {"gate_px": 1.0}, {"sigma_sys_t_m": -1.0}, {"loss_scale": 0}])
+def test_bad_params_are_errors(kw: dict) -> None:
+    with pytest.raises(ValueError):
+        RefineParams(**kw)
+
+
+def test_guided_matches_recover_true_pairs() -> None:
+    from litevloc.pipelines.localization.refine import guided_matches
+
+    rng = np.random.default_rng(6)
+    obs = _observations(rng, 200, 0.5)[1]
+    desc = rng.normal(size=(200, 32)).astype(np.float32)
+    desc /= np.linalg.norm(desc, axis=1, keepdims=True)
+    # keyframe: the true projections (shuffled) with slightly noisy descriptors, plus 100 distractors
+    perm = rng.permutation(200)
+    kp = np.vstack([obs.pixels[perm], rng.uniform([0, 0], [640, 480], size=(100, 2))])
+    kd = np.vstack([desc[perm] + 0.1 * rng.normal(size=(200, 32)), rng.normal(size=(100, 32))]).astype(np.float32)
+    pts = obs.points_live.copy()
+    pts[:10] = np.nan  # no depth: never matched
+    T0 = T_MAP_LIVE @ make_T(so3_exp(np.radians([0.2, -0.1, 0.1])), np.array([0.005, 0.0, -0.005]))
+    il, ik = guided_matches(pts, desc, T0, kp, kd, K, obs.T_map_kf, RefineParams(guided_min_similarity=0.7))
+    assert len(il) > 150 and len(set(il)) == len(il) and len(set(ik)) == len(ik)
+    assert np.all(il >= 10)
+    correct = np.mean(ik < 200) and np.mean(perm[ik[ik < 200]] == il[ik < 200])
+    assert correct > 0.98
+    # a pose 0.5 m off finds (almost) nothing
+    far = T_MAP_LIVE @ make_T(np.eye(3), np.array([0.5, 0.0, 0.0]))
+    il, _ = guided_matches(pts, desc, far, kp, kd, K, obs.T_map_kf, RefineParams(guided_min_similarity=0.7))
+    assert len(il) < 10
