@@ -56,19 +56,37 @@ def build(args: argparse.Namespace) -> int:
                          bundle.vpr.name)
     t0 = time.perf_counter()
     missing_pose = 0
-    with progress(src.frame_count(), "map build: frames") as bar:
+    with progress(src.frame_count(), "map build: pass 1 (poses, depth)") as bar:
         for frame, T in posed_frames(src):
             bar.update(1)
             if T is None:
                 missing_pose += 1
                 continue
-            builder.add(frame.t_ns, frame.color, frame.depth, frame.K, T, frame.index, frame.color_jpeg)
+            builder.add(frame.t_ns, None, frame.depth, frame.K, T, frame.index)
     if builder.report.frames == 0:
         raise UserError(f"{args.src}: no frame had a ground-truth pose; a map needs posed images")
-    t1 = time.perf_counter()
     sel = builder.select()
+    want = builder.wanted()
+    if builder.report.budget_bound:
+        print(f"map build: the keyframe budget ({builder.report.budget}) binds: coverage "
+              f"{100 * builder.report.coverage:.1f} % < target "
+              f"{100 * cfg.mapping.keyframes.coverage:.0f} %", flush=True)
+    t1 = time.perf_counter()
+    with progress(len(want), "map build: pass 2 (keyframe features)") as bar:
+        for frame, T in posed_frames(source_of(args, cfg)):
+            pos = want.get(frame.index)
+            if T is None or pos is None or builder.candidates[pos].features is not None:
+                continue
+            if frame.depth is None:
+                raise UserError(f"{args.src}: frame {frame.index} lost its depth between the passes")
+            builder.attach(pos, frame.color, frame.depth, frame.color_jpeg)
+            bar.update(1)
+    t1b = time.perf_counter()
     with progress(builder.n_covisibility_pairs(sel), "map build: covisibility", unit="pair") as bar:
-        topomap = builder.finish(on_pair=lambda: bar.update(1), selected=sel)
+        try:
+            topomap = builder.finish(on_pair=lambda: bar.update(1), selected=sel)
+        except ValueError as exc:
+            raise UserError(f"{args.src}: {exc}") from exc
     t2 = time.perf_counter()
     topomap.meta.update({"source": str(args.src), "frames": args.frames or ":", "config": str(args.config)})
     save_map(topomap, args.output, overwrite=args.force)
@@ -79,16 +97,28 @@ def build(args: argparse.Namespace) -> int:
         "candidates": r.candidates, "nodes": topomap.n_nodes, "coverage": r.coverage,
         "covisibility_edges": len(topomap.covis_edges), "connectivity_edges": len(topomap.conn_edges),
         "covisibility_pairs_checked": r.covisibility_pairs_checked,
-        "seconds_frames": t1 - t0, "seconds_graph": t2 - t1,
-        "seconds_per_keyframe": (t2 - t0) / max(topomap.n_nodes, 1), "skipped": r.skipped, **storage,
+        "seconds_frames": t1 - t0, "seconds_features": t1b - t1, "seconds_graph": t2 - t1b,
+        "seconds": t2 - t0, "seconds_per_keyframe": (t2 - t0) / max(topomap.n_nodes, 1),
+        "keyframe_budget": r.budget, "budget_bound": r.budget_bound,
+        "keyframe_coverage_target": cfg.mapping.keyframes.coverage,
+        "candidate_key_bytes": r.candidate_key_bytes, "occupancy_voxel_bytes": r.voxel_bytes,
+        "peak_rss_mb": round(peak_rss_mb(), 1), "skipped": r.skipped, **storage,
     }
     print(f"built {args.output}: {topomap.n_nodes} keyframes from {r.frames} frames ({r.candidates} candidates), "
           f"coverage {100 * r.coverage:.1f} %, {len(topomap.covis_edges)} covisibility + "
           f"{len(topomap.conn_edges)} connectivity edges in {t2 - t0:.1f} s "
-          f"({summary['seconds_per_keyframe']:.2f} s/keyframe)")
+          f"({summary['seconds_per_keyframe']:.2f} s/keyframe, peak RSS {summary['peak_rss_mb']:.0f} MB)"
+          + (f"; budget {r.budget} BINDS" if r.budget_bound else ""))
     _print_storage(storage)
     write_json(args.json, summary)
     return 0
+
+
+def peak_rss_mb() -> float:
+    """Peak resident set size of this process so far (MB; Linux ru_maxrss is in KB)."""
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 def _print_storage(s: dict[str, int]) -> None:
