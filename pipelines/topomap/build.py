@@ -202,6 +202,19 @@ class MapBuilder:
                             return False
         return True
 
+    def is_candidate(self, T_map_camera: NDArray[np.float64]) -> bool:
+        """Would a frame at this pose pass the motion pre-filter (no side effects)? Lets a
+        source that renders or decodes depth on demand skip it for every other frame
+        (then `add_pose`)."""
+        return self._is_candidate(np.asarray(T_map_camera, np.float64))
+
+    def add_pose(self, T_map_camera: NDArray[np.float64], index: int) -> None:
+        """Pass 1 for a frame that `is_candidate` rejected: only its camera position is kept
+        (trajectory for occupancy and connectivity)."""
+        self.report.frames += 1
+        T = check_rigid(T_map_camera, f"pose of frame {index}", atol=1e-4)
+        self.trajectory.append(T[:3, 3].copy())
+
     def _index_candidate(self, pos: int) -> None:
         kp = self.params.keyframes
         if kp.min_translation_m > 0:

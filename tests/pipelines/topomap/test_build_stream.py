@@ -65,3 +65,22 @@ def test_binding_budget_is_reported_and_missing_pass2_is_an_error() -> None:
         b2.add(*f)
     with pytest.raises(ValueError, match="pass 2 never delivered"):
         b2.finish()
+
+
+def test_pose_only_frames_give_the_same_map_as_full_frames() -> None:
+    """A source may render depth only where `is_candidate` says so (`add_pose` elsewhere)."""
+    full = _builder([])
+    m_full = build_two_pass(full, lambda _c: _frames(1))
+    lazy = _builder([])
+    for t, _c, depth, K_, T, i, _j in _frames(1):
+        if lazy.is_candidate(T):
+            lazy.add(t, None, depth, K_, T, i)
+        else:
+            lazy.add_pose(T, i)
+    for pos in sorted(lazy.wanted().values()):
+        f = list(_frames(1))[lazy.candidates[pos].index]
+        lazy.attach(pos, f[1], f[2])
+    m_lazy = lazy.finish()
+    assert lazy.report.frames == full.report.frames and lazy.report.candidates == full.report.candidates
+    np.testing.assert_array_equal(m_lazy.frame_index, m_full.frame_index)
+    np.testing.assert_array_equal(m_lazy.grid.cells, m_full.grid.cells)
