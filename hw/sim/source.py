@@ -53,7 +53,8 @@ class SimSequenceSource:
         self.params = params or SimParams()
         self.name = f"sim:{world.spec.name}:{pass_name}:seed{seed}"
         self.stats = StreamStats()
-        seq_seed = self.seed * 3 + PASS_NAMES.index(pass_name)
+        k = PASS_NAMES.index(pass_name)
+        seq_seed = self.seed * 3 + k if k < 3 else 10_000 + self.seed * 8 + k  # first three: as before
         self.lighting: Lighting = sample_lighting(
             self.params.realism, np.random.default_rng([seq_seed, 11])
         )
