@@ -153,6 +153,14 @@ def test_loop_pass_laps_the_ring_corridor(office) -> None:
     assert np.allclose(tasks[-2].path[-1], start[:2, 3])  # back at the start before the overlap
     with pytest.raises(PlanningError, match="layout 'loop'"):
         pass_tasks(office, "loop", 0, SimParams())
+    # the query lap: the other way round, in another lane
+    start_b, tasks_b = pass_tasks(loop, "loop-back", 0, SimParams())
+    length_b = sum(float(np.linalg.norm(np.diff(t.path, axis=0), axis=1).sum()) for t in tasks_b if t.path is not None)
+    assert 185 <= length_b <= 215
+    assert np.allclose(start_b[:2, 0], [-1.0, 0.0])  # heading -x where the map lap heads +x
+    assert abs(start_b[1, 3] - start[1, 3]) > 0.25  # another lane
+    with pytest.raises(PlanningError, match="layout 'loop'"):
+        pass_tasks(office, "loop-back", 0, SimParams())
 
 
 def test_depth_only_render_equals_full_render_depth(office) -> None:
