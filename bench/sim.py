@@ -7,6 +7,11 @@ Prints tables and writes out/bench/sim.json. Measured:
 * render time (median over poses of a map pass) of the ideal renderer, and of a full
   frame (renderer + realism), at 320x240 and 640x480, for a small and a large world
   (ratio: full frame vs ideal render in the same run);
+* closed-loop stepping (`Simulator.step` at 5 Hz, the navigation loop's rate) on the
+  office, floor and loop worlds: wall time per simulated second when every step renders
+  colour + depth (before) vs colour only on the 1 Hz VLoc steps and depth alone on the
+  others (what `sim navigate` does now) vs depth only (the ground-truth baseline run);
+  ratios against the every-step-colour pattern of the same run;
 * time to simulate + render + record a 60 s, 15 Hz pass to MCAP (office);
 * ORB place matching between map-pass and query-pass frames: verified PnP inliers
   (map keypoints lifted with the map frame's depth, RANSAC) for pairs of the same place
@@ -77,6 +82,31 @@ def bench_render(world_name: str, n: int) -> dict[str, dict[str, float]]:
             "frame_vs_render": mf / mi,
             "render_ms_p90": float(np.percentile(ideal, 90)) * 1e3,
         }
+    return out
+
+
+def bench_steps(world_name: str, sim_seconds: float) -> dict[str, float]:
+    """Wall time per simulated second of `Simulator.step` at 5 Hz, three render patterns."""
+    from litevloc.hw.sim.simulator import Simulator
+
+    world = load_world(world_name)
+    start = world.goal_places[sorted(world.goal_places)[0]]
+    n = int(sim_seconds * 5)
+    out: dict[str, float] = {}
+    for name, every in (("rgbd_every_step", 1), ("rgbd_at_vloc_1hz", 5), ("depth_only", 0)):
+        sim = Simulator(world, SimParams(), seed=0)
+        sim.reset(start)
+        rng = np.random.default_rng(0)
+        t0 = time.perf_counter()
+        for k in range(1, n + 1):
+            color = every > 0 and k % every == 0
+            step = sim.step(0.3, float(rng.uniform(-0.5, 0.5)), 0.2, color=color)
+            if step.collided:
+                sim.reset(start, step.t_ns)
+        out[f"{name}_wall_per_sim_s"] = (time.perf_counter() - t0) / sim_seconds
+    base = out["rgbd_every_step_wall_per_sim_s"]
+    out["speedup_vloc_pattern"] = base / out["rgbd_at_vloc_1hz_wall_per_sim_s"]
+    out["speedup_depth_only"] = base / out["depth_only_wall_per_sim_s"]
     return out
 
 
@@ -225,9 +255,25 @@ def main() -> int:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     ap.add_argument("--quick", action="store_true", help="fewer samples")
+    ap.add_argument("--steps-only", action="store_true", help="only the closed-loop stepping table")
+    ap.add_argument("--json", type=Path, default=Path("out/bench/sim.json"))
     args = ap.parse_args()
     n = 10 if args.quick else 30
     results: dict[str, Any] = {}
+    print("== closed-loop stepping at 5 Hz, wall s per simulated s (same run) ==")
+    for wn in ("office", "floor", "loop"):
+        st = bench_steps(wn, 10.0 if args.quick else 30.0)
+        results[f"steps_{wn}"] = st
+        print(
+            f"  {wn:7s} colour every step {st['rgbd_every_step_wall_per_sim_s']:.3f}; colour at 1 Hz "
+            f"{st['rgbd_at_vloc_1hz_wall_per_sim_s']:.3f} (x{st['speedup_vloc_pattern']:.2f}); depth only "
+            f"{st['depth_only_wall_per_sim_s']:.3f} (x{st['speedup_depth_only']:.2f})"
+        )
+    if args.steps_only:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(results, indent=2, sort_keys=True) + "\n")
+        print(f"wrote {args.json}")
+        return 0
     print("== render time per frame (one core, median ms) ==")
     for wn in ("office", "loop"):
         r = bench_render(wn, n)
@@ -260,7 +306,7 @@ def main() -> int:
             f"{o['diff_frac_ge_thr']:.2f}; same-place PnP error m {_fmt(o['same_pose_err_m'], 3)}, "
             f"deg {_fmt(o['same_pose_err_deg'], 2)}"
         )
-    out = Path("out/bench/sim.json")
+    out = args.json
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(results, indent=2, sort_keys=True) + "\n")
     print(f"wrote {out}")

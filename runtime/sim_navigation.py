@@ -159,8 +159,12 @@ class _Driver:
     """Robot side of the loop: goal sender, subgoal/status subscriber, local planner, simulator."""
 
     def __init__(self, bus: Bus, sim: Simulator, goals: list[Goal], params: NavParams,
-                 T_base_camera: NDArray[np.float64], on_step: Callable[[Any], int | None]) -> None:
+                 T_base_camera: NDArray[np.float64], on_step: Callable[[Any], int | None],
+                 color_for_vloc: bool = True) -> None:
         self.bus, self.sim, self.params = bus, sim, params
+        # colour is rendered only for the steps whose frame goes to VLoc; the local planner
+        # reads depth alone (ground-truth runs never render colour)
+        self.color_for_vloc = color_for_vloc
         self.goals = goals
         self.T_base_camera = T_base_camera
         self.on_step = on_step  # after a step's messages were handled: -> stamp of the last published pose
@@ -314,13 +318,14 @@ class _Driver:
                     r.outcome, r.reason = "failed", "never planned (no pose / no path)"
                 return
             v, w = self._command(self.sim._t_ns, t0)
-            step = self.sim.step(v, w, dt)
             k += 1
+            to_vloc = self.color_for_vloc and k % vloc_every == 0
+            step = self.sim.step(v, w, dt, color=to_vloc)
             msgs: list[Message] = list(step.odometry)
-            if step.frame is not None:
-                self.last_depth = step.frame.depth
-                if k % vloc_every == 0:
-                    msgs.append(step.frame)
+            if step.depth is not None:
+                self.last_depth = step.depth
+            if step.frame is not None and to_vloc:
+                msgs.append(step.frame)
             msgs.sort(key=lambda m: (m.t_ns, isinstance(m, Odometry)))
             yield from msgs
             self._after(step)
@@ -436,7 +441,7 @@ def run_navigation(
         closers.append(planner.close)
         dr_bus = Bus(z_dr)
         closers.append(dr_bus.close)
-        driver = _Driver(dr_bus, sim, goals, params, T_bc, on_step)
+        driver = _Driver(dr_bus, sim, goals, params, T_bc, on_step, color_for_vloc=localization == "litevloc")
         closers.append(driver.close)
         gen = driver.messages(np.asarray(start, np.float64))
         if localization == "litevloc":

@@ -127,6 +127,13 @@ class Renderer:
                 in the world frame (z up).
             intrinsics: pinhole intrinsics of the output image.
         """
+        col, depth = self._render(T_world_camera, intrinsics, want_color=True)
+        assert col is not None
+        return col, depth
+
+    def _render(
+        self, T_world_camera: NDArray[np.floating], intrinsics: PinholeIntrinsics, want_color: bool
+    ) -> tuple[NDArray[np.uint8] | None, NDArray[np.float32]]:
         T = check_rigid(T_world_camera, "T_world_camera")
         K = intrinsics
         R_wc, p = T[:3, :3], T[:3, 3]
@@ -142,7 +149,7 @@ class Renderer:
         if level:
             xn = (np.arange(K.width) - K.cx) / K.fx
             yn = (np.arange(K.height) - K.cy) / K.fy
-            col, rng_ = self._render_level(p, R_wv, xn, yn, K.fx)
+            col, rng_ = self._render_level(p, R_wv, xn, yn, K.fx, want_color)
             depth = rng_ / ray_len
             return col, depth.astype(np.float32)
         dv = rays @ R_vc.T
@@ -155,13 +162,23 @@ class Renderer:
         i1 = int(np.ceil(K.fy * yv.max())) + 1
         xn = np.arange(j0, j1 + 1) / K.fx
         yn = np.arange(i0, i1 + 1) / K.fy
-        col_v, rng_v = self._render_level(p, R_wv, xn, yn, K.fx)
+        col_v, rng_v = self._render_level(p, R_wv, xn, yn, K.fx, want_color)
         map_x = (K.fx * xv - j0).astype(np.float32)
         map_y = (K.fy * yv - i0).astype(np.float32)
-        color = cv2.remap(col_v, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         rng_t = cv2.remap(rng_v, map_x, map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
         depth = rng_t / ray_len
+        if col_v is None:
+            return None, depth.astype(np.float32)
+        color = cv2.remap(col_v, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         return np.asarray(color, dtype=np.uint8), depth.astype(np.float32)
+
+    def render_depth(
+        self, T_world_camera: NDArray[np.floating], intrinsics: PinholeIntrinsics
+    ) -> NDArray[np.float32]:
+        """Z-depth only (HxW float32 m, NaN = no hit): the geometry of `render` without any
+        texture sampling or shading, for consumers that read depth alone (the local planner).
+        Bit-identical to the depth that `render` returns at the same pose."""
+        return self._render(T_world_camera, intrinsics, want_color=False)[1]
 
     def render_stereo(
         self, T_world_camera: NDArray[np.floating], intrinsics: PinholeIntrinsics, baseline: float
@@ -257,10 +274,12 @@ class Renderer:
         xn: NDArray[np.float64],
         yn: NDArray[np.float64],
         f: float,
-    ) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
+        want_color: bool = True,
+    ) -> tuple[NDArray[np.uint8] | None, NDArray[np.float32]]:
         """Render a level camera at p with columns xn and rows yn (normalised coordinates).
 
-        Returns colour (len(yn), len(xn), 3) uint8 and range (m, float32, NaN = no hit).
+        Returns colour (len(yn), len(xn), 3) uint8 (None unless `want_color`) and range
+        (m, float32, NaN = no hit).
         """
         H = self.world.wall_height
         h = float(p[2])
@@ -285,10 +304,14 @@ class Renderer:
         t[below] = tf[below]
         t[above] = tc[above]
         kind[~np.isfinite(t)] = KIND_VOID
-        acol = np.broadcast_to(
-            (self.tex.face_offset[np.maximum(f_wall, 0)] + s_wall * self.tex.ppm)[None, :], (hh, ww)
-        ).copy()
-        top_box = np.zeros((hh, ww), np.intp)
+        acol = (
+            np.broadcast_to(
+                (self.tex.face_offset[np.maximum(f_wall, 0)] + s_wall * self.tex.ppm)[None, :], (hh, ww)
+            ).copy()
+            if want_color
+            else None
+        )
+        top_box = np.zeros((hh, ww), np.intp) if want_color else None
         boxes = self._boxes(p, d, t_wall)
         if boxes is not None:
             ti, to, hb, face, s, bidx, valid = boxes
@@ -308,12 +331,16 @@ class Renderer:
                 t = np.where(top, t_top, t)
                 kind[side] = KIND_SIDE
                 kind[top] = KIND_TOP
+                if acol is None or top_box is None:
+                    continue
                 acol_k = np.broadcast_to(
                     (self.tex.face_offset[face[k]] + s[k] * self.tex.ppm)[None, :], acol.shape
                 )
                 acol[side] = acol_k[side]
                 top_box[top] = np.broadcast_to(bidx[k][None, :], top_box.shape)[top]
         rng = t * np.sqrt(1.0 + xn[None, :] ** 2 + Y**2)
+        if acol is None or top_box is None:
+            return None, np.where(kind == KIND_VOID, np.nan, rng).astype(np.float32)
         color = np.zeros((hh, ww, 3), np.float32)
         # texture level per pixel from its footprint in texels; -1 = magnified: bilinear level 0
         lvl = np.clip(

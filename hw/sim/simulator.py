@@ -79,11 +79,12 @@ class SimStep:
     """Result of `Simulator.reset` / `step`."""
 
     t_ns: int
-    frame: RgbdFrame | None  # rendered when a camera tick fell in this step
+    frame: RgbdFrame | None  # rendered when a camera tick fell in this step (and colour was asked for)
     odometry: list[Odometry]  # at the odometry rate, since the last step
     ground_truth: GroundTruthPose  # camera pose at t_ns
     collided: bool
     T_world_base: NDArray[np.float64]
+    depth: NDArray[np.float32] | None = None  # the camera tick's degraded depth (also in depth-only steps)
 
 
 class Simulator:
@@ -143,13 +144,16 @@ class Simulator:
         self._last_odom_T = self.T_world_base
         odom = [Odometry(self._t_ns, np.eye(4))]
         frame = self._render(self._t_ns)
-        return SimStep(self._t_ns, frame, odom, self._gt(self._t_ns), False, self.T_world_base)
+        return SimStep(self._t_ns, frame, odom, self._gt(self._t_ns), False, self.T_world_base,
+                       None if frame is None else frame.depth)
 
-    def step(self, v: float, omega: float, dt: float) -> SimStep:
+    def step(self, v: float, omega: float, dt: float, color: bool = True) -> SimStep:
         """Drive with forward speed v (m/s) and yaw rate omega (rad/s) for dt seconds.
 
         Odometry is returned for every odometry tick in the step; a frame is rendered at
         the last camera tick in the step (step at <= 1/camera_rate to get every frame).
+        `color=False` renders only the depth of that tick (`SimStep.depth`, `frame` None):
+        no texture sampling, shading or colour noise, for steps whose image nobody reads.
         """
         if self._state is None:
             raise RuntimeError("call reset() first")
@@ -189,17 +193,32 @@ class Simulator:
                 self._last_odom_T = T_now
             if t == next_cam:
                 frame_t, frame_state, frame_speed = t, self._state, self._speed
+        depth: NDArray[np.float32] | None = None
         if frame_t is not None:
             now = (self._state, self._speed)
             self._state, self._speed = frame_state, frame_speed
-            frame = self._render(frame_t)
+            if color:
+                frame = self._render(frame_t)
+                depth = None if frame is None else frame.depth
+            else:
+                depth = self._render_depth(frame_t)
             self._state, self._speed = now
-        return SimStep(self._t_ns, frame, odoms, self._gt(self._t_ns), collided, self.T_world_base)
+        return SimStep(self._t_ns, frame, odoms, self._gt(self._t_ns), collided, self.T_world_base, depth)
 
     # ------------------------------------------------------------ internals
     def _gt(self, t_ns: int) -> GroundTruthPose:
         T = camera_pose(self.T_world_base, t_ns * 1e-9, self._speed, self.params)
         return GroundTruthPose(t_ns, T, self._frame_index)
+
+    def _render_depth(self, t_ns: int) -> NDArray[np.float32] | None:
+        """Depth-only tick: same pose, frame counter and per-frame seed as `_render`."""
+        if self.renderer is None:
+            return None
+        T = camera_pose(self.T_world_base, t_ns * 1e-9, self._speed, self.params)
+        depth = self.renderer.render_depth(T, self.K)
+        rng = np.random.default_rng([self.seed, 13, self._frame_index])
+        self._frame_index += 1
+        return apply_depth(depth, self.params.realism, rng)
 
     def _render(self, t_ns: int) -> RgbdFrame | None:
         if self.renderer is None:

@@ -53,7 +53,8 @@ class SimSequenceSource:
         self.params = params or SimParams()
         self.name = f"sim:{world.spec.name}:{pass_name}:seed{seed}"
         self.stats = StreamStats()
-        seq_seed = self.seed * 3 + PASS_NAMES.index(pass_name)
+        k = PASS_NAMES.index(pass_name)
+        seq_seed = self.seed * 3 + k if k < 3 else 10_000 + self.seed * 8 + k  # first three: as before
         self.lighting: Lighting = sample_lighting(
             self.params.realism, np.random.default_rng([seq_seed, 11])
         )
@@ -96,6 +97,18 @@ class SimSequenceSource:
             t,
             index,
         )
+
+    def depth(self, index: int) -> NDArray[np.float32]:
+        """Degraded depth of frame `index` alone (no texturing, shading or colour noise):
+        for consumers that need geometry only, e.g. pass 1 of a map build. Deterministic;
+        the noise realisation differs from `frame(index).depth` (colour noise draws first)."""
+        from litevloc.hw.sim.realism import apply_depth
+
+        if self._renderer is None:
+            self._renderer = Renderer(self.world)
+        t = int(self.frame_times[index])
+        d = self._renderer.render_depth(self._cam_pose(t), self.params.intrinsics)
+        return apply_depth(d, self.params.realism, np.random.default_rng([self._noise_seed, 13, index]))
 
     def __iter__(self) -> Iterator[Message]:
         odo_t, odo_T = self.run.t_ns, self.run.T_odom_base

@@ -24,8 +24,9 @@ from litevloc.base.errors import LiteVLocError
 from litevloc.hw.sim.simulator import SimParams, Simulator, base_pose
 from litevloc.hw.sim.world import World
 
-PassName = Literal["map", "query", "loop"]
-PASS_NAMES: tuple[str, ...] = ("map", "query", "loop")
+PassName = Literal["map", "query", "loop", "loop-back"]
+PASS_NAMES: tuple[str, ...] = ("map", "query", "loop", "loop-back")
+LOOP_BACK_LANE_M = 0.3  # "loop-back" drives this far off the corridor centre line, inner side
 
 
 class PlanningError(LiteVLocError, RuntimeError):
@@ -100,10 +101,14 @@ def pass_tasks(
     """Start pose (4x4) and the task list of a map, query or loop pass.
 
     "loop" (layout "loop" worlds only): laps the ring corridor once and drives 10 m past
-    the start again, for drift and loop-closure tests.
+    the start again, for drift and loop-closure tests. "loop-back": the same lap in the
+    opposite direction, LOOP_BACK_LANE_M off the centre line (towards the inner wall) — a
+    query pass that sees every place from another lane and the other way round.
     """
     if pass_name == "loop":
         return _loop_tasks(world, params)
+    if pass_name == "loop-back":
+        return _loop_tasks(world, params, reverse=True, lane=LOOP_BACK_LANE_M)
     rng = np.random.default_rng([seed, 17, 0 if pass_name == "map" else 1])
     rooms = [k for k, r in world.regions.items() if r.kind == "room"]
     graph = _door_graph(world)
@@ -138,7 +143,9 @@ def pass_tasks(
     return base_pose(float(start_xy[0]), float(start_xy[1]), yaw0), tasks
 
 
-def _loop_tasks(world: World, params: SimParams) -> tuple[NDArray[np.float64], list[Task]]:
+def _loop_tasks(
+    world: World, params: SimParams, reverse: bool = False, lane: float = 0.0
+) -> tuple[NDArray[np.float64], list[Task]]:
     corridors = [r for r in world.regions.values() if r.kind == "corridor"]
     if world.spec.layout != "loop" or not corridors:
         raise PlanningError(
@@ -146,15 +153,19 @@ def _loop_tasks(world: World, params: SimParams) -> tuple[NDArray[np.float64], l
             f"{world.spec.name} is '{world.spec.layout}'"
         )
     x0, y0, x1, y1 = corridors[0].bbox
-    h = world.spec.corridor_width / 2
+    h = world.spec.corridor_width / 2 + lane
     corners = np.array([[x0 + h, y0 + h], [x1 - h, y0 + h], [x1 - h, y1 - h], [x0 + h, y1 - h]])
     start = np.array([x0 + h + 5.0, y0 + h])
-    pts = [start, *corners[1:], corners[0], start, start + np.array([10.0, 0.0])]
+    if reverse:
+        start = np.array([x1 - h - 5.0, y0 + h])
+        pts = [start, corners[0], corners[3], corners[2], corners[1], start, start - np.array([10.0, 0.0])]
+    else:
+        pts = [start, *corners[1:], corners[0], start, start + np.array([10.0, 0.0])]
     tasks = [
         Task("goto", plan_path(world, a, b, params.robot_radius))
         for a, b in itertools.pairwise(pts)
     ]
-    return base_pose(float(start[0]), float(start[1]), 0.0), tasks
+    return base_pose(float(start[0]), float(start[1]), np.pi if reverse else 0.0), tasks
 
 
 def _wrap(a: float) -> float:

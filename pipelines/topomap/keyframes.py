@@ -8,14 +8,29 @@
    `heading_bins` sectors (1 bin = the published plain 2D coverage; more bins also value
    seeing a place from a new side, which is what a query from that side needs). Each
    round picks the candidate adding the most uncovered pairs (ties: earliest frame).
-   Stop at the budget, when the coverage of the union reaches `coverage`, or when the
-   best gain is below `min_gain`.
+   Stop when the coverage of the union reaches `coverage`, when the best gain is below
+   `min_gain`, or at `budget` if one is set. The number of keyframes therefore follows
+   from the coverage target and the place (a larger or more cluttered place needs more
+   views); `budget` is only an explicit user cap, and callers report when it binds
+   (`budget_binds`).
+
+The greedy pass is the lazy ("accelerated") greedy of Minoux: coverage gain is
+submodular, so a candidate's last computed gain is an upper bound of its current one
+and only the heap top is re-evaluated. It picks exactly what the plain greedy picks
+(same gains, same earliest-frame tie-break) in near-linear time in the candidates.
+
+Streaming: `coverage_keys_sliced` turns one frame's depth points into compact keys that
+keep an absolute height slice (`HEIGHT_QUANTUM_M`), so a frame can be reduced to its
+keys as it arrives, before the median camera height of the whole pass (the reference
+of `height_band_m`) is known; `band_keys` applies the band afterwards (the band edges
+are thereby rounded to the slice centres, i.e. within HEIGHT_QUANTUM_M / 2).
 
 No randomness: the same input and parameters always select the same keyframes.
 """
 
 from __future__ import annotations
 
+import heapq
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,6 +39,8 @@ from numpy.typing import NDArray
 from litevloc.pipelines.geometry import rotation_angle
 
 _OFF = 1 << 20
+HEIGHT_QUANTUM_M = 0.1  # height slice of `coverage_keys_sliced` (m)
+_SLICES = 1 << 12  # height slices per key (+-204.8 m at 0.1 m)
 
 
 @dataclass(frozen=True)
@@ -32,7 +49,7 @@ class KeyframeParams:
 
     min_translation_m: float = 0.1
     min_rotation_deg: float = 3.0
-    budget: int = 40
+    budget: int | None = None  # explicit cap on the keyframe count (None: coverage decides)
     coverage: float = 0.95
     cell_m: float = 0.25
     heading_bins: int = 8
@@ -44,7 +61,7 @@ class KeyframeParams:
     def __post_init__(self) -> None:
         if self.min_translation_m < 0 or self.min_rotation_deg < 0:
             raise ValueError("motion thresholds must be >= 0")
-        if self.budget < 1:
+        if self.budget is not None and self.budget < 1:
             raise ValueError(f"budget must be >= 1, got {self.budget}")
         if not (0 < self.coverage <= 1):
             raise ValueError(f"coverage must be in (0, 1], got {self.coverage}")
@@ -109,28 +126,79 @@ def coverage_keys(
     return np.unique(keys)
 
 
+def coverage_keys_sliced(
+    points_map: NDArray[np.float64], camera_map: NDArray[np.float64], up: NDArray[np.float64],
+    params: KeyframeParams,
+) -> NDArray[np.int64]:
+    """Unique int64 keys of (cell, heading bin, absolute height slice) of one frame.
+
+    Same cells and heading bins as `coverage_keys`, before the height band is applied;
+    `band_keys` turns them into `coverage_keys`-style keys once the reference height is
+    known. Args as `coverage_keys` (points already range-limited).
+    """
+    if len(points_map) == 0:
+        return np.zeros(0, dtype=np.int64)
+    axes = plane_axes(up)
+    hs = np.clip(np.floor(points_map @ up / HEIGHT_QUANTUM_M).astype(np.int64) + _SLICES // 2, 0, _SLICES - 1)
+    xy = points_map @ axes.T
+    cxy = camera_map @ axes.T
+    ij = np.floor(xy / params.cell_m).astype(np.int64)
+    centres = (ij + 0.5) * params.cell_m
+    ang = np.arctan2(centres[:, 1] - cxy[1], centres[:, 0] - cxy[0])
+    b = np.floor((ang + np.pi) / (2 * np.pi) * params.heading_bins).astype(np.int64) % params.heading_bins
+    keys = (((ij[:, 0] + _OFF) * (2 * _OFF) + (ij[:, 1] + _OFF)) * 64 + b) * _SLICES + hs
+    return np.unique(keys)
+
+
+def band_keys(sliced: NDArray[np.int64], ref_height: float, params: KeyframeParams) -> NDArray[np.int64]:
+    """`coverage_keys_sliced` keys -> (cell, heading) keys whose slice centre is in the height band."""
+    hs = sliced % _SLICES
+    centre = (hs - _SLICES // 2 + 0.5) * HEIGHT_QUANTUM_M - ref_height
+    lo, hi = params.height_band_m
+    return np.unique(sliced[(centre >= lo) & (centre <= hi)] // _SLICES)
+
+
+def budget_binds(n_selected: int, history: list[float], params: KeyframeParams) -> bool:
+    """True if the explicit `budget` stopped the selection before the coverage target."""
+    return (params.budget is not None and n_selected >= params.budget
+            and (not history or history[-1] < params.coverage))
+
+
 def greedy_select(cover: list[NDArray[np.int64]], params: KeyframeParams) -> tuple[list[int], list[float]]:
-    """Greedy max-coverage. Returns (selected positions into `cover`, coverage after each pick)."""
-    universe = np.unique(np.concatenate(cover)) if cover else np.zeros(0, dtype=np.int64)
+    """Greedy max-coverage (lazy evaluation, see module docstring).
+
+    Args:
+        cover: per candidate, the unique int64 keys it covers.
+    Returns:
+        (selected positions into `cover` in pick order, coverage fraction after each pick).
+    """
+    if not cover:
+        return [], []
+    sizes = [len(c) for c in cover]
+    if sum(sizes) == 0:
+        return [0], [1.0]
+    universe, inv = np.unique(np.concatenate(cover), return_inverse=True)
     total = len(universe)
+    ids = np.split(inv.astype(np.int64), np.cumsum(sizes)[:-1])
+    covered = np.zeros(total, dtype=bool)
+    heap = [(-n, c) for c, n in enumerate(sizes)]
+    heapq.heapify(heap)
     selected: list[int] = []
     history: list[float] = []
-    if total == 0:
-        return ([0] if cover else []), ([1.0] if cover else [])
-    covered = np.zeros(0, dtype=np.int64)
-    remaining = set(range(len(cover)))
-    while remaining and len(selected) < params.budget:
-        best, best_gain = -1, -1
-        for c in sorted(remaining):
-            gain = int(len(cover[c]) - np.count_nonzero(np.isin(cover[c], covered, assume_unique=True)))
-            if gain > best_gain:
-                best, best_gain = c, gain
-        if best_gain < params.min_gain:
+    n_covered = 0
+    cap = params.budget if params.budget is not None else len(cover)
+    while heap and len(selected) < cap:
+        _, c = heapq.heappop(heap)
+        gain = int(np.count_nonzero(~covered[ids[c]]))
+        if heap and (-gain, c) > heap[0]:
+            heapq.heappush(heap, (-gain, c))  # stale bound: re-queue with the exact gain
+            continue
+        if gain < params.min_gain:
             break
-        selected.append(best)
-        remaining.discard(best)
-        covered = np.union1d(covered, cover[best])
-        history.append(len(covered) / total)
+        selected.append(c)
+        covered[ids[c]] = True
+        n_covered += gain
+        history.append(n_covered / total)
         if history[-1] >= params.coverage:
             break
     return selected, history

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
+from typing import Any
 
 from litevloc.pipelines.topomap.build import MapBuilder
 from litevloc.pipelines.topomap.io import load_map, save_map, storage_summary
@@ -51,44 +52,132 @@ def build(args: argparse.Namespace) -> int:
     if args.output.exists() and not args.force:
         raise UserError(f"{args.output} exists; pass --force to replace it")
     bundle = load_bundle(cfg.models, matcher=cfg.mapping.covisibility_matcher)
-    src = source_of(args, cfg)
     builder = MapBuilder(cfg.mapping, bundle.extract, bundle.describe, bundle.match, bundle.extractor.name,
                          bundle.vpr.name)
     t0 = time.perf_counter()
+    cpu0 = _cpu_s()
     missing_pose = 0
-    with progress(src.frame_count(), "map build: frames") as bar:
-        for frame, T in posed_frames(src):
-            bar.update(1)
-            if T is None:
-                missing_pose += 1
-                continue
-            builder.add(frame.t_ns, frame.color, frame.depth, frame.K, T, frame.index, frame.color_jpeg)
-    if builder.report.frames == 0:
-        raise UserError(f"{args.src}: no frame had a ground-truth pose; a map needs posed images")
-    t1 = time.perf_counter()
+    if str(args.src).startswith("sim:"):
+        t1 = _build_passes_sim(args, cfg, builder)
+    else:
+        src = source_of(args, cfg)
+        with progress(src.frame_count(), "map build: pass 1 (poses, depth)") as bar:
+            for frame, T in posed_frames(src):
+                bar.update(1)
+                if T is None:
+                    missing_pose += 1
+                    continue
+                builder.add(frame.t_ns, None, frame.depth, frame.K, T, frame.index)
+        if builder.report.frames == 0:
+            raise UserError(f"{args.src}: no frame had a ground-truth pose; a map needs posed images")
+        want = _select(builder, cfg)
+        t1 = time.perf_counter()
+        with progress(len(want), "map build: pass 2 (keyframe features)") as bar:
+            for frame, T in posed_frames(source_of(args, cfg)):
+                pos = want.get(frame.index)
+                if T is None or pos is None or builder.candidates[pos].features is not None:
+                    continue
+                if frame.depth is None:
+                    raise UserError(f"{args.src}: frame {frame.index} lost its depth between the passes")
+                builder.attach(pos, frame.color, frame.depth, frame.color_jpeg)
+                bar.update(1)
     sel = builder.select()
+    t1b = time.perf_counter()
     with progress(builder.n_covisibility_pairs(sel), "map build: covisibility", unit="pair") as bar:
-        topomap = builder.finish(on_pair=lambda: bar.update(1), selected=sel)
+        try:
+            topomap = builder.finish(on_pair=lambda: bar.update(1), selected=sel)
+        except ValueError as exc:
+            raise UserError(f"{args.src}: {exc}") from exc
     t2 = time.perf_counter()
-    topomap.meta.update({"source": str(args.src), "frames": args.frames or ":", "config": str(args.config)})
+    cpu_s = _cpu_s() - cpu0
+    r = builder.report
+    topomap.meta.update({"source": str(args.src), "frames": args.frames or ":", "config": str(args.config),
+                         # how the keyframes were chosen, kept with the map (map info, sim navigate JSON)
+                         "keyframe_coverage": f"{r.coverage:.4f}",
+                         "keyframe_coverage_target": str(cfg.mapping.keyframes.coverage),
+                         "keyframe_budget": str(r.budget), "keyframe_budget_bound": str(r.budget_bound),
+                         "keyframe_candidates": str(r.candidates), "build_frames": str(r.frames),
+                         "build_seconds": f"{t2 - t0:.1f}"})
     save_map(topomap, args.output, overwrite=args.force)
     storage = storage_summary(args.output)
-    r = builder.report
     summary = {
         "map": str(args.output), "frames": r.frames, "frames_without_pose": missing_pose,
         "candidates": r.candidates, "nodes": topomap.n_nodes, "coverage": r.coverage,
         "covisibility_edges": len(topomap.covis_edges), "connectivity_edges": len(topomap.conn_edges),
         "covisibility_pairs_checked": r.covisibility_pairs_checked,
-        "seconds_frames": t1 - t0, "seconds_graph": t2 - t1,
-        "seconds_per_keyframe": (t2 - t0) / max(topomap.n_nodes, 1), "skipped": r.skipped, **storage,
+        "seconds_frames": t1 - t0, "seconds_features": t1b - t1, "seconds_graph": t2 - t1b,
+        "seconds": t2 - t0, "seconds_per_keyframe": (t2 - t0) / max(topomap.n_nodes, 1),
+        # CPU seconds of this process (all threads): the cost on a machine shared with other jobs
+        "cpu_seconds": cpu_s, "cpu_seconds_per_keyframe": cpu_s / max(topomap.n_nodes, 1),
+        "keyframe_budget": r.budget, "budget_bound": r.budget_bound,
+        "keyframe_coverage_target": cfg.mapping.keyframes.coverage,
+        "candidate_key_bytes": r.candidate_key_bytes, "occupancy_voxel_bytes": r.voxel_bytes,
+        "peak_rss_mb": round(peak_rss_mb(), 1), "skipped": r.skipped, **storage,
     }
     print(f"built {args.output}: {topomap.n_nodes} keyframes from {r.frames} frames ({r.candidates} candidates), "
           f"coverage {100 * r.coverage:.1f} %, {len(topomap.covis_edges)} covisibility + "
           f"{len(topomap.conn_edges)} connectivity edges in {t2 - t0:.1f} s "
-          f"({summary['seconds_per_keyframe']:.2f} s/keyframe)")
+          f"({summary['seconds_per_keyframe']:.2f} s/keyframe wall, "
+          f"{summary['cpu_seconds_per_keyframe']:.2f} s/keyframe CPU, peak RSS {summary['peak_rss_mb']:.0f} MB)"
+          + (f"; budget {r.budget} BINDS" if r.budget_bound else ""))
     _print_storage(storage)
     write_json(args.json, summary)
     return 0
+
+
+def _select(builder: MapBuilder, cfg: Any) -> dict[int, int]:
+    builder.select()
+    if builder.report.budget_bound:
+        print(f"map build: the keyframe budget ({builder.report.budget}) binds: coverage "
+              f"{100 * builder.report.coverage:.1f} % < target "
+              f"{100 * cfg.mapping.keyframes.coverage:.0f} %", flush=True)
+    return builder.wanted()
+
+
+def _build_passes_sim(args: argparse.Namespace, cfg: Any, builder: MapBuilder) -> float:
+    """Both passes straight from a simulated pass (`sim:WORLD?pass=map...`, the config's `sim`
+    camera): pass 1 renders depth only, pass 2 renders colour for the keyframes only; no
+    recording, no JPEG round trip. Returns the time pass 1 ended."""
+    from litevloc.hw.sim.source import open_sim_source
+
+    if args.frames:
+        raise UserError("--frames does not apply to a simulator source (use sim:WORLD?duration=S)")
+    try:
+        src = open_sim_source(str(args.src), cfg.sim)
+    except ValueError as exc:
+        raise UserError(str(exc)) from exc
+    K = src.params.intrinsics.K
+    poses = src.camera_poses()
+    with progress(src.frame_count(), "map build: pass 1 (simulated depth)") as bar:
+        for i, t in enumerate(src.frame_times):
+            if builder.is_candidate(poses[i]):  # depth is rendered for candidates only
+                builder.add(int(t), None, src.depth(i), K, poses[i], i)
+            else:
+                builder.add_pose(poses[i], i)
+            bar.update(1)
+    want = _select(builder, cfg)
+    t1 = time.perf_counter()
+    with progress(len(want), "map build: pass 2 (keyframe features)") as bar:
+        for i, pos in sorted(want.items()):
+            f = src.frame(i)
+            assert f.depth is not None
+            builder.attach(pos, f.color, f.depth, None)
+            bar.update(1)
+    return t1
+
+
+def _cpu_s() -> float:
+    import resource
+
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def peak_rss_mb() -> float:
+    """Peak resident set size of this process so far (MB; Linux ru_maxrss is in KB)."""
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 def _print_storage(s: dict[str, int]) -> None:
@@ -105,11 +194,17 @@ def info(args: argparse.Namespace) -> int:
         "keypoints_per_node": float(sum(len(f.keypoints) for f in m.features) / m.n_nodes),
         "connectivity_metres_total": float(m.conn_metres.sum()), "grid_cells": list(m.grid.cells.shape),
         "grid_resolution_m": m.grid.resolution, **s,
+        "build": {k: v for k, v in m.meta.items() if k.startswith(("keyframe_", "build_"))},
     }
     print(f"{args.map}: {m.n_nodes} nodes, {len(m.covis_edges)} covisibility edges, "
           f"{len(m.conn_edges)} connectivity edges ({data['connectivity_metres_total']:.1f} m); "
           f"features {m.extractor} ({data['keypoints_per_node']:.0f}/node), VPR {m.vpr_model} ({data['vpr_dim']}-d)")
     _print_storage(s)
+    b = data["build"]
+    if b:
+        print(f"keyframes: coverage {b.get('keyframe_coverage')} (target {b.get('keyframe_coverage_target')}), "
+              f"budget {b.get('keyframe_budget')}{' (BOUND)' if b.get('keyframe_budget_bound') == 'True' else ''}, "
+              f"built in {b.get('build_seconds')} s from {b.get('build_frames')} frames")
     write_json(args.json, data)
     return 0
 

@@ -25,14 +25,15 @@ def add_parser(ss: argparse._SubParsersAction) -> None:
     n.add_argument("world", help="world name (see config/worlds) or YAML file")
     n.add_argument("--map", type=Path, default=None, help="map folder (default: build one, cached)")
     n.add_argument("--goals", nargs="+", default=None,
-                   help="goal place names or image files (default: up to 5 goal places after --start)")
+                   help="goal place names or image files (default: every goal place but --start)")
     n.add_argument("--start", default=None, help="goal place to start at (default: the first)")
     n.add_argument("--localization", choices=("litevloc", "ground-truth", "both"), default="both")
     n.add_argument("--vloc-hz", type=float, default=1.0, help="frames to VLoc per simulated second")
     n.add_argument("--goal-timeout", type=float, default=120.0, metavar="S", help="simulated seconds per goal")
     n.add_argument("--seed", type=int, default=0)
     n.add_argument("--world-seed", type=int, default=None)
-    n.add_argument("--out-dir", type=Path, default=Path("out/navigate"), help="folder for the cached map")
+    n.add_argument("--out-dir", type=Path, default=None,
+                   help="folder for the cached map (default: out/navigate/WORLD)")
     n.add_argument("-o", "--output", type=Path, default=None, help="top-down PNG (default: OUT_DIR/navigate.png)")
     n.add_argument("--json", type=Path, default=None, help="results JSON")
     add_config_args(n)
@@ -41,25 +42,51 @@ def add_parser(ss: argparse._SubParsersAction) -> None:
 
 def ensure_map(world_name: str, out_dir: Path, config: str | None, map_duration: float | None = None,
                world_seed: int | None = None) -> Path:
-    """A map of the world from a simulated mapping pass, built once under out_dir."""
+    """A map of the world from a simulated mapping pass, built once under out_dir.
+
+    The pass is fed to `map build` straight from the simulator (`sim:WORLD?pass=map`):
+    depth-only rendering for keyframe selection, colour for the keyframes only, no MCAP
+    recording and no JPEG round trip (`sim record` + `map build REC` give the same map
+    up to image noise and JPEG artefacts)."""
+    from urllib.parse import urlencode
+
     from litevloc.runtime.cli.main import main
 
     map_dir = out_dir / "map"
     if (map_dir / "manifest.json").is_file():
         return map_dir
     out_dir.mkdir(parents=True, exist_ok=True)
-    rec = out_dir / "map.mcap"
+    q: dict[str, str] = {"pass": "map", "seed": "0"}
+    if map_duration:
+        q["duration"] = str(map_duration)
+    if world_seed is not None:
+        q["world_seed"] = str(world_seed)
     cfg = ["--config", config] if config else []
-    dur = ["--duration", str(map_duration)] if map_duration else []
-    ws = ["--world-seed", str(world_seed)] if world_seed is not None else []
-    for argv in (["sim", "record", world_name, "--pass", "map", "--seed", "0", "-o", str(rec), *dur, *ws, *cfg,
-                  "--json", str(out_dir / "record_map.json")],
-                 ["map", "build", str(rec), "-o", str(map_dir), "--force", *cfg, "--json", str(out_dir / "map.json")]):
-        print(f"== litevloc {' '.join(argv)}", flush=True)
-        if main(argv) != 0:
-            raise UserError(f"building the map failed at: litevloc {' '.join(argv)}")
-    rec.unlink(missing_ok=True)  # large; the map is what is cached
+    argv = ["map", "build", f"sim:{world_name}?{urlencode(q)}", "-o", str(map_dir), "--force", *cfg,
+            "--json", str(out_dir / "map.json")]
+    print(f"== litevloc {' '.join(argv)}", flush=True)
+    if main(argv) != 0:
+        raise UserError(f"building the map failed at: litevloc {' '.join(argv)}")
     return map_dir
+
+
+def map_summary(map_path: Path) -> dict[str, Any]:
+    """The map's keyframes, coverage, bytes and build seconds (from its manifest)."""
+    from litevloc.pipelines.topomap.io import load_map, storage_summary
+
+    m = load_map(map_path)
+    st = storage_summary(map_path)
+
+    def num(key: str) -> float | None:
+        v = m.meta.get(key)
+        try:
+            return float(v) if v not in (None, "None") else None
+        except ValueError:
+            return None
+
+    return {"keyframes": m.n_nodes, "coverage": num("keyframe_coverage"), "bytes": int(sum(st.values())),
+        "build_seconds": num("build_seconds"), "budget": m.meta.get("keyframe_budget"),
+        "budget_bound": m.meta.get("keyframe_budget_bound") == "True", "storage": st}
 
 
 def navigate(world_name: str, cfg: Any, map_path: Path, goal_args: list[str] | None, start: str | None,
@@ -78,7 +105,7 @@ def navigate(world_name: str, cfg: Any, map_path: Path, goal_args: list[str] | N
     start = start or places[0]
     if start not in world.goal_places:
         raise UserError(f"--start {start!r} is not a goal place of {world_name} ({places})")
-    names = goal_args or [p for p in places if p != start][:5]
+    names = goal_args or [p for p in places if p != start]  # every other room (office: 5, floor: 14)
     goals: list[Goal] = []
     for g in names:
         if g in world.goal_places:
@@ -142,6 +169,8 @@ def run_navigate(args: argparse.Namespace) -> int:
 
     cfg = config_of(args)
     t0 = time.perf_counter()
+    if args.out_dir is None:
+        args.out_dir = Path("out/navigate") / Path(args.world).stem
     map_path = args.map or ensure_map(args.world, args.out_dir, args.config, world_seed=args.world_seed)
     modes = ["litevloc", "ground-truth"] if args.localization == "both" else [args.localization]
     try:
@@ -150,7 +179,15 @@ def run_navigate(args: argparse.Namespace) -> int:
         raise UserError(str(exc)) from exc
     png = args.output or args.out_dir / "navigate.png"
     res = navigate(args.world, cfg, map_path, args.goals, args.start, modes, params, args.world_seed, png)
+    res["map_info"] = map_summary(map_path)
+    for k in ("keyframes", "coverage", "bytes", "build_seconds"):
+        res[f"map_{k}"] = res["map_info"][k]
     res["wall_s_total"] = round(time.perf_counter() - t0, 1)
+    import resource
+
+    ru = resource.getrusage(resource.RUSAGE_SELF)
+    # CPU seconds of the whole command (all threads): comparable across loads of a shared machine
+    res["cpu_s_total"] = round(ru.ru_utime + ru.ru_stime, 1)
     print_table(res)
     print(f"plot: {res.get('png')}")
     write_json(args.json or args.out_dir / "navigate.json", res)

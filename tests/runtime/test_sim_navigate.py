@@ -54,3 +54,16 @@ def test_cli_goal_send_without_planner_reports_no_answer(tmp_path: Path) -> None
     assert main(["goal", "send", str(img), "--connect", ep, "--wait", "0.5"]) == 2
     assert main(["goal", "send", str(tmp_path / "missing.jpg")]) == 2
     _ = json
+
+
+def test_map_from_the_simulator_reports_how_its_keyframes_were_chosen(small_map: Path, tmp_path: Path) -> None:
+    """ensure_map builds straight from the simulator; the map carries coverage, budget and build time."""
+    from litevloc.runtime.cli.sim_navigate import map_summary
+
+    s = map_summary(small_map)
+    assert s["keyframes"] >= 3 and s["coverage"] is not None and s["coverage"] >= 0.95
+    assert s["budget"] == "None" and not s["budget_bound"]
+    assert s["bytes"] > 10_000 and s["build_seconds"] is not None and s["build_seconds"] > 0
+    assert not (small_map.parent / "map.mcap").exists()  # no recording round trip
+    # a simulator source takes no --frames (a user error, exit 2)
+    assert main(["map", "build", "sim:office?pass=map&duration=2", "-o", str(tmp_path / "m"), "--frames", "0:5"]) == 2

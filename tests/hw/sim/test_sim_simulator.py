@@ -183,3 +183,19 @@ def test_open_sim_source_uri() -> None:
     ):
         with pytest.raises(ValueError):
             open_sim_source(bad, TINY)
+
+
+def test_depth_only_steps_render_no_colour_and_keep_the_frame_clock(office) -> None:
+    start = sorted(office.goal_places.values(), key=lambda T: float(T[0, 3]))[0]
+    a, b = Simulator(office, TINY, seed=3), Simulator(office, TINY, seed=3)
+    a.reset(start)
+    b.reset(start)
+    for k in range(6):
+        sa = a.step(0.2, 0.1, 0.2, color=True)
+        sb = b.step(0.2, 0.1, 0.2, color=k % 3 == 0)
+        assert sa.frame is not None and sa.depth is sa.frame.depth
+        assert (sb.frame is None) == (k % 3 != 0) and sb.depth is not None and sb.depth.shape == (36, 48)
+        np.testing.assert_array_equal(sa.T_world_base, sb.T_world_base)  # kinematics unaffected
+        if sb.frame is not None:  # same frame index and noise seed as the all-colour run
+            assert sb.frame.index == sa.frame.index
+            np.testing.assert_array_equal(sb.frame.color, sa.frame.color)

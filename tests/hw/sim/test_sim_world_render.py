@@ -153,3 +153,24 @@ def test_loop_pass_laps_the_ring_corridor(office) -> None:
     assert np.allclose(tasks[-2].path[-1], start[:2, 3])  # back at the start before the overlap
     with pytest.raises(PlanningError, match="layout 'loop'"):
         pass_tasks(office, "loop", 0, SimParams())
+    # the query lap: the other way round, in another lane
+    start_b, tasks_b = pass_tasks(loop, "loop-back", 0, SimParams())
+    length_b = sum(float(np.linalg.norm(np.diff(t.path, axis=0), axis=1).sum()) for t in tasks_b if t.path is not None)
+    assert 185 <= length_b <= 215
+    assert np.allclose(start_b[:2, 0], [-1.0, 0.0])  # heading -x where the map lap heads +x
+    assert abs(start_b[1, 3] - start[1, 3]) > 0.25  # another lane
+    with pytest.raises(PlanningError, match="layout 'loop'"):
+        pass_tasks(office, "loop-back", 0, SimParams())
+
+
+def test_depth_only_render_equals_full_render_depth(office) -> None:
+    """`render_depth` skips texturing but must give the very depth of `render` (level and tilted)."""
+    K = PinholeIntrinsics(50.0, 50.0, 31.5, 23.5, 64, 48)
+    ren = Renderer(office)
+    for k, (_name, T_base) in enumerate(sorted(office.goal_places.items())[:3]):
+        params = SimParams(camera_tilt_deg=[0.0, 8.0, -5.0][k])
+        T_cam = camera_pose(T_base, 0.3 * k, 0.4 * k, params)
+        _color, depth = ren.render(T_cam, K)
+        d2 = ren.render_depth(T_cam, K)
+        assert np.isfinite(depth).mean() > 0.9
+        np.testing.assert_array_equal(depth, d2)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -12,7 +13,8 @@ from numpy.typing import NDArray
 from litevloc.hw.messages import GroundTruthPose, RgbdFrame
 from litevloc.hw.streams.base import parse_frames
 from litevloc.hw.streams.sevenscenes import SevenScenesSource
-from litevloc.pipelines.topomap.build import MapBuilder, MappingParams
+from litevloc.pipelines.topomap.build import MapBuilder, MappingParams, PosedFrame, build_two_pass
+from litevloc.pipelines.topomap.types import TopoMap
 
 
 @dataclass(frozen=True, eq=False)
@@ -46,14 +48,27 @@ def thumb_describe(img: NDArray[np.uint8]) -> NDArray[np.float32]:
 SEVEN_SCENES_UP = (0.008874603550000000, -0.904425621, -0.426539183)
 
 
-def build_7scenes(folder: Path, frames: str, params: MappingParams) -> MapBuilder:
+class _Built:
+    """A finished two-pass build: `.finish()` returns the map, `.report` the build report."""
+
+    def __init__(self, builder: MapBuilder, topomap: TopoMap) -> None:
+        self.builder, self.report, self._map = builder, builder.report, topomap
+
+    def finish(self) -> TopoMap:
+        return self._map
+
+
+def build_7scenes(folder: Path, frames: str, params: MappingParams) -> _Built:
     b = MapBuilder(params, orb_extract, thumb_describe, orb_match, "orb-test", "thumb-test")
-    pending: RgbdFrame | None = None
-    for m in SevenScenesSource(folder, parse_frames(frames)):
-        if isinstance(m, RgbdFrame):
-            pending = m
-        elif isinstance(m, GroundTruthPose) and pending is not None and pending.t_ns == m.t_ns:
-            b.add(pending.t_ns, pending.color, pending.depth, pending.K, m.T_world_camera, pending.index,
-                  pending.color_jpeg)
-            pending = None
-    return b
+
+    def posed(_need_color: bool) -> Iterator[PosedFrame]:
+        pending: RgbdFrame | None = None
+        for m in SevenScenesSource(folder, parse_frames(frames)):
+            if isinstance(m, RgbdFrame):
+                pending = m
+            elif isinstance(m, GroundTruthPose) and pending is not None and pending.t_ns == m.t_ns:
+                yield (pending.t_ns, pending.color, pending.depth, pending.K, m.T_world_camera, pending.index,
+                       pending.color_jpeg)
+                pending = None
+
+    return _Built(b, build_two_pass(b, posed))

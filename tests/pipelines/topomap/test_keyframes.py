@@ -6,7 +6,10 @@ import pytest
 from litevloc.pipelines import geometry as g
 from litevloc.pipelines.topomap.keyframes import (
     KeyframeParams,
+    band_keys,
+    budget_binds,
     coverage_keys,
+    coverage_keys_sliced,
     greedy_select,
     motion_prefilter,
     plane_axes,
@@ -76,3 +79,56 @@ def test_connectivity_keeps_nearest_line_of_sight_partners() -> None:
     assert {(k, k + 1) for k in range(9)} <= pairs
     assert all(abs(i - j) <= 2 for i, j in pairs) and (0, 2) in pairs and (0, 9) not in pairs
     assert np.allclose(w[[list(p) == [0, 1] for p in e.tolist()]], 0.1)
+
+
+def _plain_greedy(cover: list[np.ndarray], params: KeyframeParams) -> list[int]:
+    """The textbook greedy (re-evaluates every candidate each round) as the reference."""
+    covered: set[int] = set()
+    universe = set(np.concatenate(cover).tolist())
+    sel: list[int] = []
+    while len(sel) < (params.budget or len(cover)):
+        gains = [len(set(c.tolist()) - covered) if i not in sel else -1 for i, c in enumerate(cover)]
+        best = int(np.argmax(gains))  # first maximum = earliest candidate
+        if gains[best] < params.min_gain:
+            break
+        sel.append(best)
+        covered |= set(cover[best].tolist())
+        if len(covered) / len(universe) >= params.coverage:
+            break
+    return sel
+
+
+def test_lazy_greedy_picks_what_plain_greedy_picks() -> None:
+    rng = np.random.default_rng(0)
+    for trial in range(20):
+        cover = [np.unique(rng.integers(0, 300, rng.integers(1, 40))) for _ in range(60)]
+        for params in (KeyframeParams(coverage=0.95), KeyframeParams(coverage=1.0, budget=7)):
+            sel, hist = greedy_select(cover, params)
+            assert sel == _plain_greedy(cover, params), trial
+            assert np.all(np.diff(hist) > 0)
+
+
+def test_no_budget_means_coverage_decides_and_binding_cap_is_reported() -> None:
+    cover = [np.array([i]) for i in range(100)]  # every candidate adds one new key
+    sel, hist = greedy_select(cover, KeyframeParams(coverage=0.95))
+    assert len(sel) == 95 and not budget_binds(len(sel), hist, KeyframeParams(coverage=0.95))
+    capped = KeyframeParams(coverage=0.95, budget=10)
+    sel, hist = greedy_select(cover, capped)
+    assert len(sel) == 10 and budget_binds(len(sel), hist, capped)
+    # a cap that is not reached does not bind
+    roomy = KeyframeParams(coverage=0.95, budget=200)
+    sel, hist = greedy_select(cover, roomy)
+    assert len(sel) == 95 and not budget_binds(len(sel), hist, roomy)
+
+
+def test_sliced_keys_with_band_equal_plain_keys() -> None:
+    rng = np.random.default_rng(1)
+    up = np.array([0.0, 0, 1])
+    params = KeyframeParams(cell_m=0.5, heading_bins=8, height_band_m=(-0.4, 2.5))
+    # heights kept clear of the band edges (ref 0.5: band [0.1, 3.0]) by more than half a slice
+    z = np.concatenate([rng.uniform(-1.0, 0.0, 300), rng.uniform(0.2, 2.9, 600), rng.uniform(3.1, 4.0, 100)])
+    pts = np.column_stack([rng.uniform(-5, 5, len(z)), rng.uniform(-5, 5, len(z)), z])
+    cam = np.array([0.3, -0.2, 0.5])
+    plain = coverage_keys(pts, cam, up, 0.5, params)
+    banded = band_keys(coverage_keys_sliced(pts, cam, up, params), 0.5, params)
+    assert len(plain) > 50 and np.array_equal(plain, banded)

@@ -1,0 +1,210 @@
+"""A 200 m route: map the `loop` world's ring corridor once, localize a query lap driven the
+other way in another lane through the full runtime, then navigate to goal images along it.
+
+    .venv/bin/python bench/loop.py [--json out/bench/loop.json] [--goals 5] [--skip-nav]
+
+1. Map: `litevloc map build sim:loop?pass=loop&seed=0` (one lap of the ~200 m ring, the
+   default preset; depth-only pass 1, colour for the keyframes only). Map size in total and
+   per 100 m of the mapping route, split into images / features / graph + descriptors
+   (+ occupancy grid and arrays, `other`).
+2. Query: pass `loop-back` (seed 1: its own lighting, image noise and seeded odometry drift;
+   the lap the other way round, 0.3 m off the centre line) through the runtime as `litevloc
+   replay --map` runs it: threads (VLoc in its own thread, frames dropped while it is busy),
+   GTSAM fusion, poses published over Zenoh on a free loopback port, as fast as possible
+   (rate 0). Accepted VLoc poses are recorded by wrapping the localizer's `process`.
+   * `vloc_ate_m`: RMSE of accepted VLoc camera positions vs ground truth (no alignment);
+   * `fused_ate_m`: RMSE of the published fused camera positions vs ground truth;
+   * `odometry_ate_m`: RMSE of the odometry alone (anchored at the true start pose);
+   * `localized_fraction`: accepted VLoc poses / frames VLoc processed (and of all frames).
+3. Navigation: `--goals` goal images rendered at equal arc length along the mapping route
+   (facing along it), driven to in order from the route's start with LiteVLoc localization
+   (`runtime.sim_navigation.run_navigation`, as `sim navigate`).
+
+Prints a table and writes JSON (all numbers measured in this run; nothing here was tuned on
+the loop world).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import socket
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+
+def _free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _rmse(err: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(err**2))) if len(err) else float("nan")
+
+
+def build_map(out: Path, config: str) -> dict[str, Any]:
+    from litevloc.runtime.cli.main import main
+
+    js = out / "map.json"
+    t0 = time.perf_counter()
+    rc = main(["map", "build", "sim:loop?pass=loop&seed=0", "-o", str(out / "map"), "--force",
+               "--config", config, "--json", str(js)])
+    if rc != 0:
+        raise SystemExit(f"map build failed ({rc})")
+    info = json.loads(js.read_text())
+    info["wall_s"] = time.perf_counter() - t0
+    return info
+
+
+def query(map_dir: Path, config: str) -> dict[str, Any]:
+    """The loop-back lap through the threaded runtime (as `litevloc replay --map`)."""
+    from litevloc.config import load_config
+    from litevloc.hw.sim.source import SimSequenceSource
+    from litevloc.hw.sim.world import load_world
+    from litevloc.pipelines.geometry import invert
+    from litevloc.runtime.app import build_app, with_endpoints
+
+    cfg = with_endpoints(load_config(config), [f"tcp/127.0.0.1:{_free_port()}"], [], None)
+    src = SimSequenceSource(load_world("loop"), "loop-back", 1, params=cfg.sim)
+    app = build_app(cfg, map_dir, src, 0.0)
+    vloc: list[tuple[int, bool, np.ndarray | None]] = []
+    inner = app.localizer.process
+
+    def process(t_ns: int, *a: Any, **k: Any) -> Any:
+        r = inner(t_ns, *a, **k)
+        vloc.append((int(t_ns), bool(r.accepted), None if r.T_map_camera is None else np.array(r.T_map_camera)))
+        return r
+
+    app.localizer.process = process
+    t0 = time.perf_counter()
+    try:
+        res = app.service.run()
+    finally:
+        app.close()
+    wall = time.perf_counter() - t0
+    rec = app.recorder
+    acc = [(t, T) for t, ok, T in vloc if ok and T is not None]
+    v_err = np.array([np.linalg.norm(T[:3, 3] - src._cam_pose(t)[:3, 3]) for t, T in acc])
+    f_err = np.array([np.linalg.norm((T @ app.T_base_camera)[:3, 3] - src._cam_pose(t)[:3, 3])
+                      for t, T in zip(rec.fused_t, rec.fused_T, strict=True)])
+    run = src.run
+    T_wo = run.T_world_base[0] @ invert(run.T_odom_base[0])
+    o_err = np.linalg.norm((T_wo @ run.T_odom_base)[:, :3, 3] - run.T_world_base[:, :3, 3], axis=1)
+    c = app.service.counters
+    return {
+        "ok": res.ok, "reason": res.reason, "wall_s": wall, "sensor_s": src.duration_s,
+        "frames": src.frame_count(), "vloc_calls": len(vloc), "vloc_accepted": len(acc),
+        "localized_fraction": len(acc) / max(len(vloc), 1),
+        "localized_fraction_of_all_frames": len(acc) / max(src.frame_count(), 1),
+        "vloc_ate_m": _rmse(v_err), "vloc_err_median_m": float(np.median(v_err)) if len(v_err) else None,
+        "vloc_err_p90_m": float(np.percentile(v_err, 90)) if len(v_err) else None,
+        "fused_ate_m": _rmse(f_err), "fused_err_median_m": float(np.median(f_err)) if len(f_err) else None,
+        "fused_poses": len(f_err), "odometry_ate_m": _rmse(o_err), "odometry_final_error_m": float(o_err[-1]),
+        "odometry_max_error_m": float(o_err.max()),
+        "counters": {k: c[k] for k in ("frames_in", "odometry_in", "vloc_calls", "vloc_accepted",
+                                       "fusion_accepted", "poses_published") if k in c},
+    }
+
+
+def navigate(map_dir: Path, config: str, n_goals: int) -> dict[str, Any]:
+    from litevloc.config import load_config
+    from litevloc.hw.sim.realism import sample_lighting
+    from litevloc.hw.sim.render import Renderer
+    from litevloc.hw.sim.simulator import camera_pose, render_frame
+    from litevloc.hw.sim.source import SimSequenceSource
+    from litevloc.hw.sim.world import load_world
+    from litevloc.runtime.sim_navigation import Goal, NavParams, run_navigation
+
+    cfg = load_config(config)
+    world = load_world("loop")
+    route = SimSequenceSource(world, "loop", 0, params=cfg.sim).run
+    xy = route.T_world_base[:, :2, 3]
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
+    lap = s[-1] - 10.0  # the pass drives 10 m past its start
+    ren = Renderer(world)
+    light = sample_lighting(cfg.sim.realism, np.random.default_rng([7, 11]))
+    goals = []
+    for k in range(n_goals):
+        i = int(np.searchsorted(s, lap * (k + 1) / (n_goals + 1)))
+        T = route.T_world_base[i]
+        f = render_frame(ren, camera_pose(T, 0.0, 0.0, cfg.sim), cfg.sim.intrinsics, cfg.sim.realism, light,
+                         np.random.default_rng([7, 19, k]), 0, k)
+        ok, buf = cv2.imencode(".jpg", f.color[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, 90])
+        assert ok
+        goals.append(Goal(f"loop_{k}", buf.tobytes(), T))
+    run = run_navigation(world, cfg, map_dir, goals, route.T_world_base[0], "litevloc", NavParams())
+    out = run.summary()
+    out.pop("trace", None)
+    out["goal_arc_m"] = [round(lap * (k + 1) / (n_goals + 1), 1) for k in range(n_goals)]
+    return out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--json", type=Path, default=Path("out/bench/loop.json"))
+    ap.add_argument("--out-dir", type=Path, default=Path("out/bench/loop"))
+    ap.add_argument("--config", default="default")
+    ap.add_argument("--goals", type=int, default=5)
+    ap.add_argument("--skip-nav", action="store_true", help="map and query pass only")
+    ap.add_argument("--reuse-map", action="store_true", help="use OUT_DIR/map if it exists")
+    args = ap.parse_args()
+    from litevloc.hw.sim.source import SimSequenceSource
+    from litevloc.hw.sim.world import load_world
+    from litevloc.pipelines.topomap.io import load_map, storage_summary
+
+    args.out_dir.mkdir(parents=True, exist_ok=True)
+    map_dir = args.out_dir / "map"
+    res: dict[str, Any] = {}
+    if not (args.reuse_map and (map_dir / "manifest.json").is_file()):
+        res["build"] = build_map(args.out_dir, args.config)
+    st = storage_summary(map_dir)
+    route = SimSequenceSource(load_world("loop"), "loop", 0).run.T_world_base[:, :2, 3]
+    route_m = float(np.linalg.norm(np.diff(route, axis=0), axis=1).sum())
+    total = sum(st.values())
+    per = 100.0 / route_m
+    res.update({
+        "route_m": route_m, "map_nodes": load_map(map_dir).n_nodes, "map_bytes": total,
+        "map_bytes_per_100m": total * per,
+        "map_split_bytes": {"images": st["image_bytes"], "features": st["feature_bytes"],
+                            "graph_descriptors": st["graph_bytes"] + st["descriptor_bytes"],
+                            "other": st["other_bytes"]},
+        "map_split_bytes_per_100m": {"images": st["image_bytes"] * per, "features": st["feature_bytes"] * per,
+                                     "graph_descriptors": (st["graph_bytes"] + st["descriptor_bytes"]) * per,
+                                     "other": st["other_bytes"] * per},
+    })
+    print(f"map: {res['map_nodes']} nodes over {route_m:.0f} m, {total / 1e6:.2f} MB "
+          f"({res['map_bytes_per_100m'] / 1e6:.2f} MB per 100 m: images "
+          f"{res['map_split_bytes_per_100m']['images'] / 1e6:.2f}, features "
+          f"{res['map_split_bytes_per_100m']['features'] / 1e6:.2f}, graph+descriptors "
+          f"{res['map_split_bytes_per_100m']['graph_descriptors'] / 1e6:.3f}, other "
+          f"{res['map_split_bytes_per_100m']['other'] / 1e6:.3f})", flush=True)
+    q = query(map_dir, args.config)
+    res["query"] = q
+    for k in ("vloc_ate_m", "fused_ate_m", "odometry_ate_m", "localized_fraction"):
+        res[k] = q[k]
+    print(f"query lap ({q['frames']} frames, {q['sensor_s']:.0f} s sensor, {q['wall_s']:.0f} s wall): VLoc "
+          f"{q['vloc_accepted']}/{q['vloc_calls']} accepted ({100 * q['localized_fraction']:.0f} %), ATE VLoc "
+          f"{100 * q['vloc_ate_m']:.1f} cm, fused {100 * q['fused_ate_m']:.1f} cm, odometry alone "
+          f"{q['odometry_ate_m']:.2f} m (final {q['odometry_final_error_m']:.2f} m)", flush=True)
+    if not args.skip_nav:
+        nav = navigate(map_dir, args.config, args.goals)
+        res["navigation"] = nav
+        res["goals_reached"], res["goals_total"] = nav["goals_reached"], nav["goals_total"]
+        print(f"navigation: {nav['goals_reached']}/{nav['goals_total']} goals, {nav['time_s']:.0f} s simulated, "
+              f"{nav['path_length_m']:.0f} m, {nav['collisions']} collisions ({nav['wall_s']:.0f} s wall)")
+    else:
+        res["goals_reached"] = res["goals_total"] = None
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(res, indent=2, sort_keys=True, default=float) + "\n")
+    print(f"wrote {args.json}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
