@@ -42,6 +42,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     pl.add_argument("map", type=Path)
     pl.add_argument("-o", "--output", type=Path, required=True, help="PNG to write")
     pl.set_defaults(func=plot)
+    from litevloc.runtime.cli.map_diff import add_diff_parser
+
+    add_diff_parser(msub)
 
 
 def build(args: argparse.Namespace) -> int:
