@@ -164,10 +164,10 @@ def diff_maps(old: TopoMap, new: TopoMap, params: DiffParams | None = None) -> M
     kept: list[tuple[int, int]] = []
     matched_new: set[int] = set()
     for i, h in enumerate(id_old):
-        j = index_new.get(h)
-        if j is not None and j not in matched_new:
-            kept.append((i, j))
-            matched_new.add(j)
+        jn = index_new.get(h)
+        if jn is not None and jn not in matched_new:
+            kept.append((i, jn))
+            matched_new.add(jn)
     kept_arr = np.asarray(kept, dtype=np.int64).reshape(-1, 2)
     moved, dts, drs = [], [], []
     for k, (i, j) in enumerate(kept_arr):
