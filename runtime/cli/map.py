@@ -45,6 +45,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     from litevloc.runtime.cli.map_diff import add_diff_parser
 
     add_diff_parser(msub)
+    from litevloc.runtime.cli.map_merge import add_merge_parser
+
+    add_merge_parser(msub)
 
 
 def build(args: argparse.Namespace) -> int:

@@ -52,3 +52,13 @@ def test_map_diff_refuses_other_ground_plane(two_maps: tuple[Path, Path], tmp_pa
 
 def test_map_diff_missing_map(tmp_path: Path, two_maps: tuple[Path, Path]) -> None:
     assert main(["map", "diff", str(two_maps[0]), str(tmp_path / "nope")]) == 2
+
+
+def test_map_merge_cli_refusals(two_maps: tuple[Path, Path], tmp_path: Path,
+                                capsys: pytest.CaptureFixture[str]) -> None:
+    old, new = two_maps
+    assert main(["map", "merge", str(old), "-o", str(tmp_path / "m")]) == 2
+    assert "at least two maps" in capsys.readouterr().err
+    assert main(["map", "merge", str(old), str(new), "-o", str(old), "--force"]) == 2
+    assert "must not be one of the inputs" in capsys.readouterr().err
+    assert main(["map", "merge", str(old), str(new), "-o", str(new)]) == 2  # exists, no --force
