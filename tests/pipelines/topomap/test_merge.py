@@ -51,7 +51,7 @@ def test_transform_map_keeps_the_grid_consistent(sessions: tuple[TopoMap, TopoMa
 
 def test_merge_recovers_the_frame_offset(sessions: tuple[TopoMap, TopoMap], tmp_path: Path) -> None:
     A, B = sessions
-    merged, report, al, links = merge_sessions(A, B, orb_match, MergeParams())
+    merged, report, al, _links = merge_sessions(A, B, orb_match, MergeParams())
     dt, dr = g.relative_pose_error(al.T_A_B, g.invert(T_B_A))
     assert dt < 0.05 and dr < 1.0, (dt, dr)
     assert report.links_consistent >= 3
