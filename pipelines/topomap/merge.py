@@ -283,7 +283,7 @@ def align(links: list[Link], B: TopoMap, params: MergeParams) -> Alignment:
 
 
 # ---------------------------------------------------------------------- join
-def _fuse_grids(a: OccupancyGrid, b: OccupancyGrid, params: MergeParams) -> OccupancyGrid:
+def fuse_grids(a: OccupancyGrid, b: OccupancyGrid, params: MergeParams) -> OccupancyGrid:
     """B's grid (already in A's frame) resampled onto an enlarged copy of A's grid.
     Observed beats unknown; occupied beats free (an obstacle seen by either session)."""
     cos = float(np.clip(a.up @ b.up, -1.0, 1.0))
@@ -324,7 +324,7 @@ def join_maps(A: TopoMap, B_in_A: TopoMap, links: list[Link], alignment: Alignme
         raise MapMergeError(f"the maps were built with other models ({A.extractor}/{A.vpr_model} vs "
                             f"{B_in_A.extractor}/{B_in_A.vpr_model})")
     nA = A.n_nodes
-    grid = _fuse_grids(A.grid, B_in_A.grid, params)
+    grid = fuse_grids(A.grid, B_in_A.grid, params)
     # duplicates: a B keyframe at an A keyframe's place (position + viewing direction)
     tree_a = cKDTree(A.positions)
     cos_dup = np.cos(np.radians(params.duplicate_angle_deg))

@@ -48,6 +48,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     from litevloc.runtime.cli.map_merge import add_merge_parser
 
     add_merge_parser(msub)
+    from litevloc.runtime.cli.map_update import add_update_parser
+
+    add_update_parser(msub)
 
 
 def build(args: argparse.Namespace) -> int:
