@@ -103,7 +103,8 @@ def update(args: argparse.Namespace) -> int:
     parent_sha = hashlib.sha256((args.map / "manifest.json").read_bytes()).hexdigest()
     summary = {
         "map": str(args.map), "src": str(args.src), "frames": n_frames, "localized": n_loc,
-        "known_place": report.known, "new_place": report.new_place, "changed_place": report.changed_place, "unreliable": report.unreliable,
+        "known_place": report.known, "new_place": report.new_place, "changed_place": report.changed_place,
+        "unreliable": report.unreliable,
         "nodes_before": topomap.n_nodes, "nodes_after": new_map.n_nodes, "added": len(report.added),
         "retired": len(report.retired), "retired_ids": report.retired,
         "added_fraction": len(report.added) / topomap.n_nodes, "seconds": time.perf_counter() - t0,
