@@ -21,6 +21,7 @@ Textures (see `litevloc.hw.sim.textures`) are baked once per world into an atlas
 
 from __future__ import annotations
 
+import dataclasses
 import heapq
 import importlib.util
 from dataclasses import dataclass, field
@@ -70,6 +71,11 @@ class WorldSpec:
     texture_poor_fraction: float = 0.25
     repetitive_fraction: float = 0.25
     texels_per_m: float = 64.0
+    # A changed version of the same world (for map update tests): with change_seed >= 0, after
+    # generation a `change_fraction` of the posters get another picture and of the furniture
+    # (pillars excepted) slides 0.5-1.5 m along its wall where the room allows; < 0: as generated.
+    change_seed: int = -1
+    change_fraction: float = 0.5
 
     def __post_init__(self) -> None:
         if not self.name:
@@ -95,7 +101,7 @@ class WorldSpec:
             raise ValueError(f"wall_height must be in [1.5, 6] m, got {self.wall_height}")
         if not (0.6 <= self.door_width <= 3):
             raise ValueError(f"door_width must be in [0.6, 3] m, got {self.door_width}")
-        for name in ("extra_door_prob", "texture_poor_fraction", "repetitive_fraction"):
+        for name in ("extra_door_prob", "texture_poor_fraction", "repetitive_fraction", "change_fraction"):
             v = getattr(self, name)
             if not (0 <= v <= 1):
                 raise ValueError(f"{name} must be in [0, 1], got {v}")
@@ -200,6 +206,9 @@ class World:
         self._make_furniture()
         self.posters: list[Poster] = []
         self._assign_materials()
+        self.changes: dict[str, int] = {"posters": 0, "furniture": 0}
+        if spec.change_seed >= 0:
+            self._apply_changes(np.random.default_rng(spec.change_seed), spec.change_fraction)
         self.goal_places: dict[str, NDArray[np.float64]] = self._make_goals()
 
     # ------------------------------------------------------------------ layout
@@ -459,11 +468,7 @@ class World:
                 boxes.append(box)
                 n -= 1
         self.boxes = np.array(boxes, dtype=np.float64).reshape(-1, 5)
-        for k, (bx0, by0, bx1, by1, h) in enumerate(self.boxes):
-            self.faces.append(Face(0, bx0, by0, by1, -1, h, 0, "box", k))
-            self.faces.append(Face(0, bx1, by0, by1, +1, h, 0, "box", k))
-            self.faces.append(Face(1, by0, bx0, bx1, -1, h, 0, "box", k))
-            self.faces.append(Face(1, by1, bx0, bx1, +1, h, 0, "box", k))
+        self._box_faces()
         self.box_kinds = [
             "pillar"
             if h >= s.wall_height - 1e-6
@@ -474,6 +479,61 @@ class World:
             else "cabinet"
             for h in self.boxes[:, 4]
         ]
+
+    def _box_faces(self) -> None:
+        """(Re)create the four faces of every box (box faces follow all wall faces)."""
+        self.faces = [f for f in self.faces if f.kind != "box"]
+        for k, (bx0, by0, bx1, by1, h) in enumerate(self.boxes):
+            self.faces.append(Face(0, bx0, by0, by1, -1, h, 0, "box", k))
+            self.faces.append(Face(0, bx1, by0, by1, +1, h, 0, "box", k))
+            self.faces.append(Face(1, by0, bx0, bx1, -1, h, 0, "box", k))
+            self.faces.append(Face(1, by1, bx0, bx1, +1, h, 0, "box", k))
+
+    def _apply_changes(self, rng: np.random.Generator, fraction: float) -> None:
+        """Re-texture posters and slide furniture along its wall (see `WorldSpec.change_seed`)."""
+        from litevloc.hw.sim.textures import POSTER_IMAGES
+
+        for i, p in enumerate(self.posters):
+            if rng.random() < fraction:
+                others = [img for img in POSTER_IMAGES if img != p.image]
+                if others:
+                    self.posters[i] = dataclasses.replace(p, image=str(rng.choice(others)))
+                    self.changes["posters"] += 1
+        door_pts = np.array([((d[2] + d[4]) / 2, (d[3] + d[5]) / 2) for d in self.doors]).reshape(-1, 2)
+        boxes = self.boxes.copy()
+        for k in range(len(boxes)):
+            if self.box_kinds[k] == "pillar" or rng.random() >= fraction:
+                continue
+            bx0, by0, bx1, by1, _h = boxes[k]
+            cx, cy = (bx0 + bx1) / 2, (by0 + by1) / 2
+            label = self.region_at(np.array([cx, cy]))
+            reg = self.regions.get(label)
+            if reg is None:
+                continue
+            rx0, ry0, rx1, ry1 = reg.bbox
+            along_x = (bx1 - bx0) >= (by1 - by0)  # slide along the box's long side (its wall)
+            for _ in range(10):
+                shift = rng.uniform(0.5, 1.5) * rng.choice([-1.0, 1.0])
+                nb = boxes[k].copy()
+                if along_x:
+                    nb[[0, 2]] += shift
+                else:
+                    nb[[1, 3]] += shift
+                if nb[0] < rx0 + 0.3 or nb[2] > rx1 - 0.3 or nb[1] < ry0 or nb[3] > ry1:
+                    continue
+                if len(door_pts):
+                    dx = np.maximum(np.maximum(nb[0] - door_pts[:, 0], door_pts[:, 0] - nb[2]), 0)
+                    dy = np.maximum(np.maximum(nb[1] - door_pts[:, 1], door_pts[:, 1] - nb[3]), 0)
+                    if np.any(np.hypot(dx, dy) < 1.3):
+                        continue
+                if any(nb[0] < o[2] + 0.9 and o[0] < nb[2] + 0.9 and nb[1] < o[3] + 0.9 and o[1] < nb[3] + 0.9
+                       for j, o in enumerate(boxes) if j != k):
+                    continue
+                boxes[k] = nb
+                self.changes["furniture"] += 1
+                break
+        self.boxes = boxes
+        self._box_faces()
 
     # --------------------------------------------------------------- materials
     def _assign_materials(self) -> None:

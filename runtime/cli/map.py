@@ -43,6 +43,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     pl.add_argument("map", type=Path)
     pl.add_argument("-o", "--output", type=Path, required=True, help="PNG to write")
     pl.set_defaults(func=plot)
+    from litevloc.runtime.cli.map_diff import add_diff_parser
+
+    add_diff_parser(msub)
+    from litevloc.runtime.cli.map_merge import add_merge_parser
+
+    add_merge_parser(msub)
+    from litevloc.runtime.cli.map_update import add_update_parser
+
+    add_update_parser(msub)
 
 
 def build(args: argparse.Namespace) -> int:

@@ -1,0 +1,297 @@
+"""Refresh a map from a new session (`litevloc map update MAP SRC -o NEW`).
+
+The new session is localized against the map (by the caller: the runtime's localizer);
+each localized frame is then compared with the keyframes that cover its place (position
+within `place_radius_m`, viewing direction within `place_angle_deg`): the number of that
+keyframe's matches the frame's pose explains (reprojection within `reprojection_px`) is the
+match quality. Then:
+
+* **new place**: no keyframe covers the frame's place -> the frame is a keyframe candidate;
+* **changed place**: keyframes cover it but explain fewer than `changed_max_consistent`
+  matches (moved furniture, new posters, other lighting) -> a keyframe candidate too;
+* **retired node**: a keyframe visited at least `retire_min_visits` times whose best
+  match quality stayed at or below `retire_max_consistent` no longer matches its place. A
+  visit counts only when the frame itself matched well (another covering keyframe, or the
+  localization, reached `changed_max_consistent`): a blurred frame retires nothing;
+* a frame at a mapped place that matched well neither there nor in its localization is
+  skipped as unreliable (counted);
+* candidates are kept only when at least `min_spacing_m` / `min_spacing_deg` from each
+  other (and, for new places, that far from every keyframe), so a session adds keyframes
+  where the map lacks them, not at every frame.
+
+`MapUpdate.finish` writes nothing: it returns the new map (old nodes minus retired, plus
+added; covisibility verified by PnP for every new node; connectivity repaired around
+retired nodes and extended to new ones through free space; the occupancy grid extended
+with the new observations — obstacles are added, never cleared) and a report. Pure: arrays
+and an injected matcher in, a map out.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from litevloc.pipelines.geometry import backproject_pixels, invert, rotation_angle
+from litevloc.pipelines.topomap.graphs import (
+    ConnectivityParams,
+    CovisibilityParams,
+    MatchFn,
+    verify_pair,
+)
+from litevloc.pipelines.topomap.occupancy import OccupancyParams, build_occupancy, segment_is_free
+from litevloc.pipelines.topomap.types import FeatureSet, NodeFeatures, OccupancyGrid, TopoMap
+
+
+@dataclass(frozen=True)
+class UpdateParams:
+    """Change detection and keyframe addition/retirement (metres, degrees, pixels, counts)."""
+
+    place_radius_m: float = 0.5
+    place_angle_deg: float = 30.0
+    nodes_checked: int = 3  # covering keyframes matched per frame (nearest first)
+    reprojection_px: float = 4.0
+    changed_max_consistent: int = 40
+    retire_max_consistent: int = 15
+    retire_min_visits: int = 2
+    min_spacing_m: float = 0.3
+    min_spacing_deg: float = 15.0
+
+    def __post_init__(self) -> None:
+        for name in ("place_radius_m", "place_angle_deg", "reprojection_px", "min_spacing_m", "min_spacing_deg"):
+            v = getattr(self, name)
+            if not (v > 0 and np.isfinite(v)):
+                raise ValueError(f"{name} must be a finite number > 0, got {v}")
+        if self.nodes_checked < 1 or self.retire_min_visits < 1:
+            raise ValueError("nodes_checked and retire_min_visits must be >= 1")
+        if not (0 <= self.retire_max_consistent < self.changed_max_consistent):
+            raise ValueError("0 <= retire_max_consistent < changed_max_consistent required")
+
+
+@dataclass(frozen=True, eq=False)
+class Observation:
+    """One localized frame of the new session (everything a keyframe needs)."""
+
+    t_ns: int
+    index: int
+    T_map_camera: NDArray[np.float64]  # 4x4, from localization against the map
+    K: NDArray[np.float64]  # 3x3
+    image_size: tuple[int, int]  # (width, height)
+    features: NodeFeatures
+    keypoint_depth: NDArray[np.float32]  # (N,) metres at each keypoint, NaN = none
+    vpr: NDArray[np.float32]  # (D,)
+    jpeg: bytes
+    points_map: NDArray[np.float32]  # (P, 3) subsampled depth points in the map frame (for the grid)
+    localization_inliers: int = 0  # PnP inliers of the localization that gave the pose (0 = unknown)
+
+
+@dataclass
+class UpdateReport:
+    frames: int = 0
+    known: int = 0
+    new_place: int = 0
+    changed_place: int = 0
+    unreliable: int = 0  # at a mapped place, but neither the place's keyframes nor the localization matched well
+    added: list[int] = field(default_factory=list)  # new node ids in the updated map
+    retired: list[int] = field(default_factory=list)  # node ids of the old map
+    visits: dict[int, int] = field(default_factory=dict)
+    best_consistent: dict[int, int] = field(default_factory=dict)
+
+
+def consistent_matches(
+    T_map_camera: NDArray[np.float64], feats: FeatureSet, keypoint_depth: NDArray[np.float32],
+    K: NDArray[np.float64], node_feats: FeatureSet, T_map_node: NDArray[np.float64], K_node: NDArray[np.float64],
+    match: MatchFn, reprojection_px: float,
+) -> int:
+    """Matches between a posed frame and a keyframe that the pose explains (the frame's
+    depth-lifted keypoints reproject within `reprojection_px` of their keyframe match)."""
+    i_live, i_node = match(feats, node_feats)
+    if len(i_live) == 0:
+        return 0
+    z = keypoint_depth[i_live]
+    ok = np.isfinite(z)
+    if not ok.any():
+        return 0
+    pts = backproject_pixels(K, np.asarray(feats.keypoints, np.float64)[i_live[ok]], z[ok].astype(np.float64))
+    T = invert(T_map_node) @ T_map_camera
+    pc = pts @ T[:3, :3].T + T[:3, 3]
+    front = pc[:, 2] > 1e-3
+    proj = (pc[front, :2] / pc[front, 2:3]) * [K_node[0, 0], K_node[1, 1]] + [K_node[0, 2], K_node[1, 2]]
+    ref = np.asarray(node_feats.keypoints, np.float64)[i_node[ok]][front]
+    return int(np.count_nonzero(np.linalg.norm(proj - ref, axis=1) <= reprojection_px))
+
+
+def _stack(arrays: list[NDArray[np.floating]], shape: tuple[int, ...]) -> NDArray[np.float64]:
+    """np.stack that also works for no arrays: (0, *shape)."""
+    return np.stack(arrays).astype(np.float64) if arrays else np.zeros((0, *shape))
+
+
+class MapUpdate:
+    """Feed localized frames with `observe`, then `finish` into the updated map."""
+
+    def __init__(self, topomap: TopoMap, match: MatchFn, params: UpdateParams | None = None) -> None:
+        self.map = topomap
+        self.match = match
+        self.params = params or UpdateParams()
+        self._tree = cKDTree(topomap.positions)
+        self._cos_place = float(np.cos(np.radians(self.params.place_angle_deg)))
+        self.candidates: list[Observation] = []
+        self.cameras: list[NDArray[np.float64]] = []
+        self.points: list[NDArray[np.float32]] = []
+        self.report = UpdateReport()
+
+    def covering_nodes(self, T_map_camera: NDArray[np.float64]) -> list[int]:
+        """Keyframes covering the pose's place, nearest first."""
+        p, z = T_map_camera[:3, 3], T_map_camera[:3, 2]
+        near = self._tree.query_ball_point(p, r=self.params.place_radius_m)
+        ok = [int(i) for i in near if float(self.map.T_map_camera[i, :3, 2] @ z) >= self._cos_place]
+        return sorted(ok, key=lambda i: float(np.linalg.norm(self.map.positions[i] - p)))
+
+    def _spaced(self, T: NDArray[np.float64], others: list[NDArray[np.float64]]) -> bool:
+        p = self.params
+        for To in others:
+            if (np.linalg.norm(To[:3, 3] - T[:3, 3]) < p.min_spacing_m
+                    and np.degrees(rotation_angle(To[:3, :3].T @ T[:3, :3])) < p.min_spacing_deg):
+                return False
+        return True
+
+    def observe(self, obs: Observation) -> str:
+        """Classify one localized frame: 'known', 'new place', 'changed place' or 'unreliable'."""
+        r = self.report
+        r.frames += 1
+        self.cameras.append(obs.T_map_camera[:3, 3].copy())
+        cover = self.covering_nodes(obs.T_map_camera)[: self.params.nodes_checked]
+        quality = {node: consistent_matches(obs.T_map_camera, obs.features, obs.keypoint_depth, obs.K,
+                                            self.map.features[node], self.map.T_map_camera[node], self.map.K[node],
+                                            self.match, self.params.reprojection_px) for node in cover}
+        best = max(quality.values(), default=0)
+        matchable = max(best, obs.localization_inliers) >= self.params.changed_max_consistent
+        if matchable:
+            for node, n in quality.items():
+                r.visits[node] = r.visits.get(node, 0) + 1
+                r.best_consistent[node] = max(r.best_consistent.get(node, 0), n)
+        if not cover:
+            status = "new place"
+            r.new_place += 1
+            near_nodes = [self.map.T_map_camera[i] for i in
+                          self._tree.query_ball_point(obs.T_map_camera[:3, 3], r=self.params.min_spacing_m)]
+            keep = self._spaced(obs.T_map_camera, near_nodes + [c.T_map_camera for c in self.candidates])
+        elif best >= self.params.changed_max_consistent:
+            r.known += 1
+            return "known"
+        elif matchable:
+            status = "changed place"
+            r.changed_place += 1
+            keep = self._spaced(obs.T_map_camera, [c.T_map_camera for c in self.candidates])
+        else:
+            r.unreliable += 1
+            return "unreliable"
+        self.points.append(obs.points_map)
+        if keep:
+            self.candidates.append(obs)
+        return status
+
+    def retired_nodes(self) -> list[int]:
+        p, r = self.params, self.report
+        return sorted(n for n, v in r.visits.items()
+                      if v >= p.retire_min_visits and r.best_consistent.get(n, 0) <= p.retire_max_consistent)
+
+    def finish(
+        self, covisibility: CovisibilityParams, connectivity: ConnectivityParams, occupancy: OccupancyParams,
+        on_pair: Callable[[], None] | None = None,
+    ) -> tuple[TopoMap, UpdateReport]:
+        """The updated map (see the module docstring) and what changed."""
+        m, r = self.map, self.report
+        retired = set(self.retired_nodes())
+        kept = [i for i in range(m.n_nodes) if i not in retired]
+        new_id = {old: k for k, old in enumerate(kept)}
+        n_kept = len(kept)
+        cands = self.candidates
+        T = np.concatenate([m.T_map_camera[kept], _stack([c.T_map_camera for c in cands], (4, 4))])
+        K = np.concatenate([m.K[kept], _stack([c.K for c in cands], (3, 3))])
+        feats: list[FeatureSet] = [*(m.features[i] for i in kept), *(c.features for c in cands)]
+        grid = self._grid(occupancy)
+        # covisibility: old edges between kept nodes + verified edges of every new node
+        covis: dict[tuple[int, int], tuple[int, float]] = {}
+        for (i, j), n, w in zip(m.covis_edges.tolist(), m.covis_inliers.tolist(), m.covis_weight.tolist(),
+                                strict=True):
+            if i in new_id and j in new_id:
+                covis[(new_id[i], new_id[j])] = (int(n), float(w))
+        pos, z = T[:, :3, 3], T[:, :3, 2]
+        cos_max = np.cos(np.radians(covisibility.max_angle_deg))
+        tree = cKDTree(pos)
+        for k, c in enumerate(cands):
+            a = n_kept + k
+            for b in tree.query_ball_point(pos[a], r=covisibility.max_distance_m):
+                if b == a or (b > a) or float(z[a] @ z[b]) < cos_max:
+                    continue  # each new pair once (b < a covers kept nodes and earlier new ones)
+                n_in = verify_pair(c.features, c.keypoint_depth, c.K, feats[b], K[b], self.match, covisibility)
+                if on_pair is not None:
+                    on_pair()
+                if n_in >= covisibility.min_inliers:
+                    covis[(b, a)] = (n_in, min(n_in / covisibility.weight_saturation, 1.0))
+        # connectivity: old edges between kept nodes, repaired around retired nodes, extended to new nodes
+        conn: dict[tuple[int, int], float] = {}
+        nb_old: dict[int, list[int]] = {}
+        for (i, j), d in zip(m.conn_edges.tolist(), m.conn_metres.tolist(), strict=True):
+            if i in new_id and j in new_id:
+                conn[(new_id[i], new_id[j])] = float(d)
+            nb_old.setdefault(i, []).append(j)
+            nb_old.setdefault(j, []).append(i)
+        xy = grid.to_plane(pos)
+
+        def link(a: int, b: int) -> None:
+            e = (min(a, b), max(a, b))
+            d = float(np.linalg.norm(xy[a] - xy[b]))
+            if a != b and segment_is_free(grid, xy[a], xy[b]):
+                conn[e] = min(conn.get(e, np.inf), d)
+
+        for gone in retired:  # neighbours of a retired node stay connected where the way is free
+            around = [new_id[n] for n in nb_old.get(gone, []) if n in new_id]
+            for x in range(len(around)):
+                for y in range(x + 1, len(around)):
+                    link(around[x], around[y])
+        for k in range(len(cands)):
+            a = n_kept + k
+            near = sorted(tree.query_ball_point(pos[a], r=max(connectivity.max_line_of_sight_m, 1e-6)),
+                          key=lambda b: float(np.linalg.norm(xy[a] - xy[b])))
+            for b in [b for b in near if b != a][: connectivity.max_line_of_sight_neighbours]:
+                link(a, b)
+        ce = sorted(covis)
+        ne = sorted(conn)
+        meta = dict(m.meta)
+        updated = TopoMap(
+            T_map_camera=T, K=K,
+            image_size=np.concatenate([m.image_size[kept], np.asarray([c.image_size for c in cands],
+                                                                     np.int32).reshape(-1, 2)]),
+            t_ns=np.concatenate([m.t_ns[kept], np.asarray([c.t_ns for c in cands], np.int64)]),
+            frame_index=np.concatenate([m.frame_index[kept], np.asarray([c.index for c in cands], np.int64)]),
+            vpr=np.concatenate([m.vpr[kept], _stack([c.vpr for c in cands], (m.vpr.shape[1],)).astype(np.float32)]),
+            features=feats, images_jpeg=[*(m.images_jpeg[i] for i in kept), *(c.jpeg for c in cands)],
+            covis_edges=np.asarray(ce, np.int64).reshape(-1, 2),
+            covis_inliers=np.asarray([covis[e][0] for e in ce], np.int32),
+            covis_weight=np.asarray([covis[e][1] for e in ce], np.float32),
+            conn_edges=np.asarray(ne, np.int64).reshape(-1, 2), conn_metres=np.asarray([conn[e] for e in ne],
+                                                                                      np.float32),
+            grid=grid, extractor=m.extractor, vpr_model=m.vpr_model, meta=meta,
+        )
+        r.added = list(range(n_kept, n_kept + len(cands)))
+        r.retired = sorted(retired)
+        return updated, r
+
+    def _grid(self, occupancy: OccupancyParams) -> OccupancyGrid:
+        """The old grid, extended with the new session's observations (occupied wins)."""
+        old = self.map.grid
+        if not self.points:
+            return old
+        pts = np.concatenate(self.points).astype(np.float64)
+        cams = np.asarray(self.cameras, np.float64).reshape(-1, 3)
+        fresh = build_occupancy(pts, np.concatenate([cams, self.map.positions]), old.up,
+                                OccupancyParams(old.resolution, occupancy.obstacle_band_m, occupancy.min_points,
+                                                occupancy.margin_m))
+        from litevloc.pipelines.topomap.merge import MergeParams, fuse_grids
+
+        return fuse_grids(old, fresh, MergeParams())

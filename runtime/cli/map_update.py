@@ -1,0 +1,124 @@
+"""`litevloc map update MAP SRC -o NEW`: refresh a map from a new session.
+
+The session (posed or not) is localized against MAP with the runtime's localizer; frames at
+places the map lacks or whose appearance changed become keyframes, keyframes that no longer
+match their place are retired (`pipelines.topomap.update`). MAP is never modified; NEW's
+manifest records its parent (path and manifest SHA-256) and what changed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from litevloc.pipelines.depth_lookup import depth_at
+from litevloc.pipelines.geometry import backproject_depth, relative_pose_error
+from litevloc.pipelines.localization.vloc import VisualLocalizer
+from litevloc.pipelines.topomap.io import load_map, save_map
+from litevloc.pipelines.topomap.types import NodeFeatures
+from litevloc.pipelines.topomap.update import MapUpdate, Observation, UpdateParams
+from litevloc.runtime.cli.common import (
+    add_config_args,
+    add_frames_arg,
+    add_json_arg,
+    config_of,
+    progress,
+    source_of,
+    write_json,
+)
+from litevloc.runtime.cli.main import UserError
+from litevloc.runtime.posed import posed_frames
+
+
+def add_update_parser(msub: argparse._SubParsersAction) -> None:
+    p = msub.add_parser("update", help="refresh a map from a new session: add keyframes where the place is new or "
+                                       "changed, retire keyframes that no longer match (writes a new map)")
+    p.add_argument("map", type=Path, help="the map to update (never modified)")
+    p.add_argument("src", type=Path, help="dataset folder or .mcap recording of the new session")
+    p.add_argument("-o", "--output", type=Path, required=True, help="folder of the new map version")
+    p.add_argument("--force", action="store_true", help="replace an existing output folder")
+    add_frames_arg(p)
+    add_config_args(p)
+    add_json_arg(p)
+    p.set_defaults(func=update)
+
+
+def update(args: argparse.Namespace) -> int:
+    from litevloc.runtime.vloc_models import check_map_models, load_bundle
+
+    if args.output.resolve() == args.map.resolve():
+        raise UserError(f"{args.output}: the new version must go to another folder (the map is never modified)")
+    if args.output.exists() and not args.force:
+        raise UserError(f"{args.output} exists; pass --force to replace it")
+    cfg = config_of(args)
+    bundle = load_bundle(cfg.models)
+    topomap = check_map_models(load_map(args.map), bundle)
+    loc = VisualLocalizer(topomap, cfg.localization, bundle.extract, bundle.describe, bundle.match)
+    upd = MapUpdate(topomap, bundle.match, UpdateParams())
+    src = source_of(args, cfg)
+    kp = cfg.mapping.keyframes
+    t0 = time.perf_counter()
+    n_frames, n_loc, errors = 0, 0, []
+    with progress(src.frame_count(), "map update") as bar:
+        for frame, T_gt in posed_frames(src):
+            bar.update(1)
+            n_frames += 1
+            res = loc.process(frame.t_ns, frame.color, frame.depth, frame.K)
+            if not res.accepted or res.T_map_camera is None or frame.depth is None:
+                continue
+            n_loc += 1
+            T = res.T_map_camera
+            if T_gt is not None:
+                errors.append(relative_pose_error(T, T_gt))
+            feats = bundle.extract(frame.color)
+            pts_cam, _ = backproject_depth(frame.depth, frame.K, stride=kp.pixel_stride)
+            pts_cam = pts_cam[pts_cam[:, 2] <= kp.max_depth_m]
+            jpeg = frame.color_jpeg
+            if jpeg is None:
+                ok, enc = cv2.imencode(".jpg", frame.color[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY,
+                                                                        cfg.mapping.jpeg_quality])
+                if not ok:
+                    raise UserError(f"JPEG encoding of frame {frame.index} failed")
+                jpeg = enc.tobytes()
+            h, w = frame.color.shape[:2]
+            upd.observe(Observation(
+                t_ns=frame.t_ns, index=frame.index, T_map_camera=T, K=np.asarray(frame.K, np.float64),
+                image_size=(w, h),
+                features=NodeFeatures(np.asarray(feats.keypoints, np.float32), np.asarray(feats.descriptors),
+                                      np.asarray(feats.scores, np.float32), (w, h)),
+                keypoint_depth=depth_at(frame.depth, feats.keypoints, cfg.mapping.depth),
+                vpr=np.asarray(bundle.describe(frame.color), np.float32), jpeg=jpeg,
+                points_map=(pts_cam[:: 4] @ T[:3, :3].T + T[:3, 3]).astype(np.float32),
+                localization_inliers=res.n_inliers,
+            ))
+    if n_loc == 0:
+        raise UserError(f"{args.src}: no frame localized against {args.map}; nothing to update from")
+    new_map, report = upd.finish(cfg.mapping.covisibility, cfg.mapping.connectivity, cfg.mapping.occupancy)
+    parent_sha = hashlib.sha256((args.map / "manifest.json").read_bytes()).hexdigest()
+    summary = {
+        "map": str(args.map), "src": str(args.src), "frames": n_frames, "localized": n_loc,
+        "known_place": report.known, "new_place": report.new_place, "changed_place": report.changed_place,
+        "unreliable": report.unreliable,
+        "nodes_before": topomap.n_nodes, "nodes_after": new_map.n_nodes, "added": len(report.added),
+        "retired": len(report.retired), "retired_ids": report.retired,
+        "added_fraction": len(report.added) / topomap.n_nodes, "seconds": time.perf_counter() - t0,
+    }
+    if errors:
+        e = np.asarray(errors)
+        summary["localization_median_m"] = float(np.median(e[:, 0]))
+    new_map.meta.update({"parent_map": str(args.map), "parent_manifest_sha256": parent_sha,
+                         "update": json.dumps({k: summary[k] for k in ("src", "frames", "localized", "added",
+                                                                        "retired", "retired_ids")})})
+    save_map(new_map, args.output, overwrite=args.force)
+    print(f"{args.src}: {n_loc}/{n_frames} frames localized; places known {report.known}, new "
+          f"{report.new_place}, changed {report.changed_place}")
+    print(f"wrote {args.output}: {topomap.n_nodes} -> {new_map.n_nodes} keyframes (+{len(report.added)} added, "
+          f"-{len(report.retired)} retired) in {summary['seconds']:.1f} s; parent {args.map}")
+    write_json(args.json, summary)
+    return 0

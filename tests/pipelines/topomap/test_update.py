@@ -1,0 +1,114 @@
+"""Map update on real 7-Scenes frames (ORB test doubles, ground-truth poses standing in for
+the localizer): an unchanged revisit changes nothing, new places add keyframes, keyframes
+whose appearance no longer matches are retired and replaced."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from litevloc.hw.messages import GroundTruthPose, RgbdFrame
+from litevloc.hw.streams.base import parse_frames
+from litevloc.hw.streams.sevenscenes import SevenScenesSource
+from litevloc.pipelines.depth_lookup import DepthLookupParams, depth_at
+from litevloc.pipelines.geometry import backproject_depth
+from litevloc.pipelines.topomap.build import MappingParams
+from litevloc.pipelines.topomap.io import load_map, save_map
+from litevloc.pipelines.topomap.keyframes import KeyframeParams
+from litevloc.pipelines.topomap.types import NodeFeatures, TopoMap
+from litevloc.pipelines.topomap.update import MapUpdate, Observation, UpdateParams, consistent_matches
+
+from .helpers import SEVEN_SCENES_UP, build_7scenes, orb_extract, orb_match, thumb_describe
+
+PARAMS = MappingParams(up=SEVEN_SCENES_UP, keyframes=KeyframeParams(cell_m=0.1, heading_bins=16, coverage=0.99))
+
+
+def observations(folder: Path, frames: str, quality_map: TopoMap | None = None) -> Iterator[Observation]:
+    """Frames with ground-truth poses as the 'localization'; with `quality_map`, the
+    localization's inlier count is stood in for by the frame's best consistent matches with
+    that (unchanged) map's covering keyframes."""
+    judge = MapUpdate(quality_map, orb_match) if quality_map is not None else None
+    pending: RgbdFrame | None = None
+    for m in SevenScenesSource(folder, parse_frames(frames)):
+        if isinstance(m, RgbdFrame):
+            pending = m
+        elif isinstance(m, GroundTruthPose) and pending is not None and pending.t_ns == m.t_ns:
+            f, T = pending, m.T_world_camera
+            assert f.depth is not None
+            feats = orb_extract(f.color)
+            pts, _ = backproject_depth(f.depth, f.K, stride=16)
+            h, w = f.color.shape[:2]
+            nf = NodeFeatures(feats.keypoints, feats.descriptors, feats.scores, (w, h))
+            kd = depth_at(f.depth, feats.keypoints, DepthLookupParams())
+            quality = 0
+            if judge is not None:
+                qm = judge.map
+                quality = max((consistent_matches(T, nf, kd, f.K, qm.features[n], qm.T_map_camera[n], qm.K[n],
+                                                  orb_match, 4.0) for n in judge.covering_nodes(T)), default=0)
+            yield Observation(f.t_ns, f.index, T, f.K, (w, h), nf, kd, thumb_describe(f.color),
+                              f.color_jpeg or b"", (pts @ T[:3, :3].T + T[:3, 3]).astype(np.float32), quality)
+            pending = None
+
+
+@pytest.fixture(scope="module")
+def base_map(seven_scenes_dir: Path) -> TopoMap:
+    return build_7scenes(seven_scenes_dir, "0:250:3", PARAMS).finish()
+
+
+def run_update(m: TopoMap, folder: Path, frames: str, quality_map: TopoMap | None = None
+               ) -> tuple[TopoMap, MapUpdate]:
+    upd = MapUpdate(m, orb_match, UpdateParams())
+    for obs in observations(folder, frames, quality_map):
+        upd.observe(obs)
+    new, _ = upd.finish(PARAMS.covisibility, PARAMS.connectivity, PARAMS.occupancy)
+    return new, upd
+
+
+def test_unchanged_revisit_changes_nothing(base_map: TopoMap, seven_scenes_dir: Path) -> None:
+    new, upd = run_update(base_map, seven_scenes_dir, "1:250:6")  # other frames of the same pass
+    r = upd.report
+    assert r.retired == [] and len(r.added) <= 0.1 * base_map.n_nodes, (r.retired, r.added)
+    assert r.known >= 0.8 * r.frames
+    np.testing.assert_allclose(new.T_map_camera[: base_map.n_nodes], base_map.T_map_camera)
+
+
+def test_new_places_add_keyframes(base_map: TopoMap, seven_scenes_dir: Path, tmp_path: Path) -> None:
+    new, upd = run_update(base_map, seven_scenes_dir, "250:500:5")
+    r = upd.report
+    assert r.new_place > 0 and len(r.added) > 0 and r.retired == []
+    assert new.n_nodes == base_map.n_nodes + len(r.added)
+    # every added keyframe is tied into both graphs
+    added = set(r.added)
+    assert all(any(a in e for e in new.conn_edges.tolist()) for a in added)
+    assert any(set(e) & added for e in new.covis_edges.tolist())
+    # the new version is a valid map
+    again = load_map(save_map(new, tmp_path / "v2"))
+    assert again.n_nodes == new.n_nodes
+
+
+def test_changed_appearance_retires_and_replaces(base_map: TopoMap, seven_scenes_dir: Path) -> None:
+    # "re-textured": the stored features of three keyframes no longer match anything
+    rng = np.random.default_rng(0)
+    changed = [2, 5, 9]
+    feats = list(base_map.features)
+    for i in changed:
+        f = feats[i]
+        feats[i] = NodeFeatures(f.keypoints, rng.integers(0, 256, f.descriptors.shape, dtype=np.uint8), f.scores,
+                                f.image_size)
+    m = dataclasses.replace(base_map, features=feats)
+    new, upd = run_update(m, seven_scenes_dir, "1:250:4", quality_map=base_map)
+    r = upd.report
+    assert set(changed) <= set(r.retired), r.retired
+    assert len(r.retired) <= len(changed) + 1
+    assert r.changed_place > 0 and len(r.added) > 0
+    assert len(r.added) < 0.3 * base_map.n_nodes + len(changed)
+    assert new.n_nodes == base_map.n_nodes - len(r.retired) + len(r.added)
+
+
+def test_params_validated() -> None:
+    with pytest.raises(ValueError, match="retire_max_consistent"):
+        UpdateParams(retire_max_consistent=50, changed_max_consistent=40)
