@@ -51,7 +51,7 @@ def cli(*args: str) -> None:
 
 def prepare(world: str, out: Path, seed: int) -> tuple[Path, Path]:
     """(map folder, query recording), recorded and built when absent."""
-    rec, mp, q = out / f"{world}-map.mcap", out / f"{world}-map", out / f"{world}-query.mcap"
+    rec, mp, q = out / f"{world}-map.mcap", out / f"{world}-map", out / f"{world}-query-s{seed}.mcap"
     if not rec.is_file():
         cli("sim", "record", world, "-o", str(rec), "--pass", "map")
     if not (mp / "manifest.json").is_file():
