@@ -7,7 +7,10 @@ map`, `litevloc map build`, `--config default`; cached in out/reloc/), and a que
 recorded (`--pass query --seed 7`: another route and lighting). The localizer
 (`VisualLocalizer.process`, the default preset's models and parameters) runs over the
 query pass at `--vloc-hz` of sensor time (1 Hz, as the runtime's sequential mode), and
-tracking is forced LOST at several points, alternating two faults:
+the LL prior is the fused pose's stand-in: the last accepted VLoc pose carried on by the
+ground-truth relative motion since (drift-free odometry; `--prior last`: the last VLoc pose
+unmoved, what `process` uses without a prior). Tracking is forced LOST at several points,
+alternating two faults:
 
 * `blackout`: for `--blackout-s` (4 s) the camera gives black frames with invalid depth
   (a covered lens / camera dropout): LL fails until the localizer declares LOST;
@@ -51,7 +54,7 @@ def cli(*args: str) -> None:
 
 def prepare(world: str, out: Path, seed: int) -> tuple[Path, Path]:
     """(map folder, query recording), recorded and built when absent."""
-    rec, mp, q = out / f"{world}-map.mcap", out / f"{world}-map", out / f"{world}-query.mcap"
+    rec, mp, q = out / f"{world}-map.mcap", out / f"{world}-map", out / f"{world}-query-s{seed}.mcap"
     if not rec.is_file():
         cli("sim", "record", world, "-o", str(rec), "--pass", "map")
     if not (mp / "manifest.json").is_file():
@@ -98,6 +101,7 @@ def run_world(world: str, args: argparse.Namespace) -> dict[str, Any]:
     rng = np.random.default_rng(0)
     queries = []
     ev_i, active, jump_T = -1, None, None
+    last_vloc: tuple[np.ndarray, np.ndarray] | None = None  # (accepted T_map_camera, T_gt at that frame)
     for t, frame, T_gt in frames:
         while ev_i + 1 < len(events) and t >= events[ev_i + 1][0]:
             ev_i += 1
@@ -107,13 +111,17 @@ def run_world(world: str, args: argparse.Namespace) -> dict[str, Any]:
                 jump_T = np.eye(4)
                 jump_T[:3, 3] = args.jump_m * np.array([np.cos(a), np.sin(a), 0.0])  # horizontal, map frame
         color, depth, prior = frame.color, frame.depth, None
+        if args.prior == "odometry" and last_vloc is not None and T_gt is not None:
+            # the fused pose: the last accepted VLoc pose carried on by the motion since then
+            prior = last_vloc[0] @ np.linalg.inv(last_vloc[1]) @ T_gt
         kind = None
         if active is not None and active[1] == "blackout" and t < active[0] + args.blackout_s:
             color = np.zeros_like(color)
             depth = np.full(color.shape[:2], np.nan, np.float32)
             kind = "blackout"
         if active is not None and active[1] == "jump" and jump_T is not None and T_gt is not None:
-            prior = jump_T @ T_gt  # the fused prior jumped; odometry carries it on with the true motion
+            # the fused pose jumped; odometry carries it on with the true motion
+            prior = jump_T @ (T_gt if prior is None else prior)
             kind = "jump"
         state_before = loc.state
         n_tr = len(loc.transitions)
@@ -122,7 +130,8 @@ def run_world(world: str, args: argparse.Namespace) -> dict[str, Any]:
         wall = time.perf_counter() - w0
         new = list(loc.transitions)[n_tr:] if len(loc.transitions) >= n_tr else []
         err = None
-        if res.accepted and T_gt is not None and res.T_map_camera is not None:
+        if res.accepted and res.T_map_camera is not None and T_gt is not None:
+            last_vloc = (res.T_map_camera, T_gt)
             err = float(np.linalg.norm(res.T_map_camera[:3, 3] - T_gt[:3, 3]))
         queries.append({"t": t, "mode": res.mode, "accepted": res.accepted, "wall_s": wall, "err_m": err,
                         "state_before": str(state_before), "state_after": str(loc.state), "fault": kind,
@@ -223,6 +232,9 @@ def main() -> int:
     ap.add_argument("--blackout-s", type=float, default=4.0)
     ap.add_argument("--jump-m", type=float, default=3.0)
     ap.add_argument("--query-seed", type=int, default=7)
+    ap.add_argument("--prior", choices=["odometry", "last"], default="odometry",
+                    help="LL prior: the last accepted VLoc pose carried on by the true relative motion since "
+                         "(drift-free odometry, as the fused pose) or the last VLoc pose as it is")
     ap.add_argument("--max-s", type=float, default=0.0, help="use only the first S s of the query pass (0 = all)")
     ap.add_argument("--resummarise", type=Path, help="recompute the summaries of an earlier JSON (no localization)")
     args = ap.parse_args()

@@ -361,29 +361,33 @@ def measure(path: Path, verify: bool) -> dict[str, Any]:
 KEYS = ["load_s", "rss_mb", "disk_bytes", "gl_retrieval_ms", "gl_verify_ms", "ll_lookup_ms", "planner_ms"]
 
 
-def plot(rows: list[dict[str, Any]], png: Path) -> None:
+def plot(rows: list[dict[str, Any]], png: Path, load: float) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     n = np.array([r["nodes"] for r in rows], float)
-    series = [("load_s", "map load (s)"), ("rss_mb", "RSS after load (MB)"), ("disk_bytes", "disk (MB)"),
-              ("gl_retrieval_ms", "GL retrieval (ms)"), ("gl_verify_ms", "GL verify 1 cand. (ms)"),
-              ("ll_lookup_ms", "LL lookup, KD-tree (ms)"), ("ll_brute_ms", "LL lookup, linear scan (ms)"),
-              ("planner_ms", "planner, csgraph (ms)"), ("planner_heap_ms", "planner, former heapq (ms)")]
+    series = [
+        ("load_s", "map load, wall (s)"), ("load_cpu_s", "map load, CPU (s)"), ("rss_mb", "RSS after load (MB)"),
+        ("disk_bytes", "disk (MB)"), ("gl_retrieval_ms", "GL retrieval, wall (ms)"),
+        ("gl_retrieval_cpu_ms", "GL retrieval, CPU (ms)"), ("gl_verify_ms", "GL verify 1 cand. (ms)"),
+        ("ll_lookup_ms", "LL lookup, KD-tree (ms)"), ("ll_brute_ms", "LL lookup, linear scan (ms)"),
+        ("planner_ms", "planner, csgraph (ms)"), ("planner_heap_ms", "planner, former heapq (ms)"),
+    ]
     fig, ax = plt.subplots(figsize=(8, 6))
-    for key, label in series:
+    markers = "os^vD<>px*h"
+    for i, (key, label) in enumerate(series):
         y = np.array([np.nan if r.get(key) is None else r[key] for r in rows], float)
         if key == "disk_bytes":
             y = y / 1e6
         if np.all(np.isnan(y)):
             continue
-        ax.loglog(n, y, "o-", label=label)
+        ax.loglog(n, y, marker=markers[i % len(markers)], color=plt.get_cmap("tab20")(i / len(series)), label=label)
     ax.loglog(n, n / n[0] * 1e-2, "k:", lw=1, label="slope 1 (linear), reference")
     ax.set_xlabel("map nodes")
     ax.set_ylabel("cost (unit in the legend)")
-    ax.set_title("LiteVLoc map costs vs node count (bench/scale.py)")
+    ax.set_title(f"LiteVLoc map costs vs node count (bench/scale.py; load average {load:.0f} on 2 CPUs)")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
@@ -399,7 +403,12 @@ def main() -> int:
     ap.add_argument("--cache", type=Path, default=ROOT / "out" / "scale", help="where the scaled maps are kept")
     ap.add_argument("--no-verify", action="store_true", help="skip the GL verification (needs the ONNX models)")
     ap.add_argument("--measure", type=Path, help=argparse.SUPPRESS)  # internal: one size in this process
+    ap.add_argument("--replot", action="store_true", help="only redraw the PNG from PATH's .details.json")
     args = ap.parse_args()
+    if args.replot:
+        det = json.loads(args.json.with_suffix(".details.json").read_text())
+        plot(det["rows"], args.json.with_suffix(".png"), det["load_average"][0])
+        return 0
     if args.measure is not None:
         print(json.dumps(measure(args.measure, not args.no_verify)))
         return 0
@@ -430,7 +439,7 @@ def main() -> int:
     details.write_text(json.dumps({"rows": rows, "load_average": load, "base_map": str(base),
                                    "replication": __doc__.split("Each map")[0]}, indent=2) + "\n")
     png = args.json.with_suffix(".png")
-    plot(rows, png)
+    plot(rows, png, load[0])
     print(f"wrote {args.json}, {details}, {png}")
     return 0
 

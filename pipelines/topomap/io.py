@@ -296,6 +296,7 @@ def _streamed_npy(
             # read into one reused buffer (no per-chunk allocation or copy); the bytes of a row
             # split across two reads (< one row) move to the buffer's start
             buf = bytearray(_CHUNK + row_bytes + len(head))
+            scratch = np.empty(len(buf) // 2 if dt == np.float16 else 0, np.uint16)
             mv = memoryview(buf)
             carry = len(head) - start
             buf[:carry] = head[start:]
@@ -308,8 +309,10 @@ def _streamed_npy(
                 if n_rows and problem is None:
                     a = np.frombuffer(buf, dt, count=n_rows * int(np.prod(row_shape, dtype=np.int64)))
                     a = a.reshape((n_rows, *row_shape))
-                    if dt == np.float16:  # non-finite iff all exponent bits are set
-                        bad = bool(np.any((a.view(np.uint16) & 0x7C00) == 0x7C00))
+                    if dt == np.float16:  # non-finite iff all exponent bits are set (in place: no temporaries)
+                        bits = scratch[: a.size]
+                        np.bitwise_and(a.reshape(-1).view(np.uint16), 0x7C00, out=bits)
+                        bad = bool(bits.max() == 0x7C00)
                     else:
                         bad = dt.kind == "f" and not bool(np.all(np.isfinite(a)))
                     if bad:
