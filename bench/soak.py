@@ -1,6 +1,6 @@
 """Soak benchmark: the full onboard service for >= 30 minutes of sensor time at 2x real time.
 
-The recording (default: the simulated office's query pass, 60 s, recorded with its map under
+The recording (default: the simulated office's query pass, 122 s, recorded with its map under
 out/bench/inputs/office when absent, see `_common.office_inputs`) is turned once into
 a *ping-pong* recording (the pass, then the same pass backwards in time, stamps mirrored)
 in `out/bench/soak_pingpong.mcap`: its last pose is its first, so looping it with a time
