@@ -21,6 +21,8 @@ for folder in FOLDERS:
 setup(
     packages=packages,
     package_dir=package_dir,
-    package_data={"litevloc.config": ["presets/*.yaml", "worlds/*.yaml"]},
+    # py.typed (PEP 561) in every top-level folder: the litevloc.* packages ship their annotations
+    package_data={**{f"litevloc.{folder}": ["py.typed"] for folder in FOLDERS},
+                  "litevloc.config": ["py.typed", "presets/*.yaml", "worlds/*.yaml"]},
     include_package_data=False,
 )

@@ -90,7 +90,7 @@ def project_to_so3(R: NDArray[np.floating]) -> F64:
     """Nearest rotation matrix (SVD), e.g. to clean up matrices read from text files."""
     U, _, Vt = np.linalg.svd(np.asarray(R, dtype=np.float64))
     D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    return U @ D @ Vt
+    return np.asarray(U @ D @ Vt, dtype=np.float64)
 
 
 def quat_xyzw_to_matrix(q_xyzw: NDArray[np.floating]) -> F64:
@@ -136,8 +136,9 @@ def so3_exp(omega: NDArray[np.floating]) -> F64:
     theta = float(np.linalg.norm(w))
     K = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
     if theta < 1e-8:
-        return np.eye(3) + K + 0.5 * K @ K
-    return np.eye(3) + np.sin(theta) / theta * K + (1 - np.cos(theta)) / theta**2 * K @ K
+        return np.asarray(np.eye(3) + K + 0.5 * K @ K, dtype=np.float64)
+    return np.asarray(np.eye(3) + np.sin(theta) / theta * K + (1 - np.cos(theta)) / theta**2 * K @ K,
+                      dtype=np.float64)
 
 
 def so3_log(R: NDArray[np.floating]) -> F64:
@@ -148,7 +149,7 @@ def so3_log(R: NDArray[np.floating]) -> F64:
     if s < 1e-12:
         return 2.0 * v
     angle = 2.0 * np.arctan2(s, w)
-    return v / s * angle
+    return np.asarray(v / s * angle, dtype=np.float64)
 
 
 def rotation_angle(R: NDArray[np.floating]) -> float:
@@ -173,10 +174,10 @@ def slerp_xyzw(q0: NDArray[np.floating], q1: NDArray[np.floating], s: float) -> 
         b, d = -b, -d
     if d > 0.9995:
         q = a + s * (b - a)
-        return q / np.linalg.norm(q)
+        return np.asarray(q / np.linalg.norm(q), dtype=np.float64)
     theta = np.arccos(np.clip(d, -1.0, 1.0))
     q = (np.sin((1 - s) * theta) * a + np.sin(s * theta) * b) / np.sin(theta)
-    return q / np.linalg.norm(q)
+    return np.asarray(q / np.linalg.norm(q), dtype=np.float64)
 
 
 def interpolate_pose(T0: NDArray[np.floating], T1: NDArray[np.floating], s: float) -> F64:

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import json
 import platform
+import shutil
+import subprocess
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -13,6 +16,42 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "out" / "bench"
 SEVEN_SCENES = ROOT.parent / "shared" / "data" / "7scenes-redkitchen"
+INPUTS = OUT / "inputs"  # recordings and maps the benchmarks make for themselves (cached)
+
+
+def litevloc(*args: str) -> None:
+    """Run one `litevloc` command in a child process (its output goes to the terminal); fail loudly."""
+    t0 = time.perf_counter()
+    print(f"$ litevloc {' '.join(args)}", flush=True)
+    r = subprocess.run([sys.executable, "-m", "litevloc.runtime.cli.main", *args])
+    if r.returncode != 0:
+        raise SystemExit(f"`litevloc {' '.join(args)}` failed with exit code {r.returncode}")
+    print(f"  ({time.perf_counter() - t0:.0f} s)", flush=True)
+
+
+def office_inputs(world: str = "office", config: str = "default") -> tuple[Path, Path]:
+    """(map folder, query recording) of a simulated world, made when absent and cached under
+    out/bench/inputs/WORLD: the mapping pass (`sim record --pass map --seed 0`, as `litevloc demo`
+    records it) built into a map, and the query pass (`sim record --pass query --seed 0`: another
+    route and lighting). Each is written under a temporary name and renamed when complete, so an
+    interrupted run leaves nothing that looks finished. Delete the folder to rebuild."""
+    d = INPUTS / world
+    d.mkdir(parents=True, exist_ok=True)
+    map_dir, query = d / "map", d / "query.mcap"
+    cfg = ("--config", config)
+    if not (map_dir / "manifest.json").is_file():
+        map_rec, tmp = d / "map.mcap", d / "map.partial"
+        if not map_rec.is_file():
+            litevloc("sim", "record", world, "--pass", "map", "--seed", "0", "-o", str(d / "map.partial.mcap"), *cfg)
+            (d / "map.partial.mcap").replace(map_rec)
+        shutil.rmtree(tmp, ignore_errors=True)
+        litevloc("map", "build", str(map_rec), "-o", str(tmp), "--force", *cfg)
+        shutil.rmtree(map_dir, ignore_errors=True)
+        tmp.replace(map_dir)
+    if not query.is_file():
+        litevloc("sim", "record", world, "--pass", "query", "--seed", "0", "-o", str(d / "query.partial.mcap"), *cfg)
+        (d / "query.partial.mcap").replace(query)
+    return map_dir, query
 
 
 def require_7scenes() -> Path:
@@ -43,3 +82,10 @@ def write_json(name: str, data: dict[str, Any]) -> Path:
     path.write_text(json.dumps({"meta": meta, **data}, indent=2, default=float) + "\n")
     print(f"\nwrote {path}")
     return path
+
+
+if __name__ == "__main__":  # `python bench/_common.py office-inputs [WORLD]`: make the cached inputs now
+    if len(sys.argv) < 2 or sys.argv[1] != "office-inputs":
+        raise SystemExit("usage: python bench/_common.py office-inputs [WORLD]")
+    m, q = office_inputs(*sys.argv[2:3])
+    print(f"map {m}\nquery {q}")

@@ -4,8 +4,11 @@ fused camera position error before / during / right after / later, and what the 
 
     python bench/faults.py [--seconds 30] [--recover-s 3]
 
-For the full pipeline (real map, models, VLoc) on a recording use the same fault syntax:
-    litevloc replay out/demo/query.mcap --config default --map out/demo/map --fault camera_dropout@10:5 --json r.json
+Its inputs are simulated here (nothing to prepare). For the full pipeline (real map, models,
+VLoc) on a recording use the same fault syntax, e.g. on the office inputs that bench/soak.py
+makes (out/bench/inputs/office, `_common.office_inputs`):
+    litevloc replay out/bench/inputs/office/query.mcap --config default --map out/bench/inputs/office/map \
+        --fault camera_dropout@10:5 --json r.json
 """
 
 from __future__ import annotations

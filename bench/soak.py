@@ -1,6 +1,7 @@
 """Soak benchmark: the full onboard service for >= 30 minutes of sensor time at 2x real time.
 
-The recording (default: the demo's simulated office query pass, 60 s) is turned once into
+The recording (default: the simulated office's query pass, 122 s, recorded with its map under
+out/bench/inputs/office when absent, see `_common.office_inputs`) is turned once into
 a *ping-pong* recording (the pass, then the same pass backwards in time, stamps mirrored)
 in `out/bench/soak_pingpong.mcap`: its last pose is its first, so looping it with a time
 offset per lap keeps stamps increasing and odometry, images and ground truth continuous
@@ -21,9 +22,8 @@ VLoc rate and fused-pose rate. Targets evaluated at the end:
 
 Config: the `default` preset plus SOAK_OVERRIDES (fusion window 12 s, see there) and `--set`.
 
-    litevloc demo                                  # once: out/demo/map, out/demo/query.mcap
-    python bench/soak.py                           # 30 min sensor time = 15 min wall
-    python bench/soak.py --minutes 4               # a short version
+    python bench/soak.py                           # 30 min sensor time = 15 min wall (+ inputs once)
+    python bench/soak.py --minutes 2 --warmup-min 0.5 --window-min 0.5   # the short one of `make bench`
 
 Writes out/bench/soak.json and out/bench/soak.png and prints a table.
 """
@@ -45,7 +45,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from _common import OUT, ROOT, print_table, write_json
+from _common import OUT, ROOT, office_inputs, print_table, write_json
 
 # At 2x real time a VLoc result arrives twice as late in sensor time: a 1-3 s VLoc step on a
 # shared 2-core machine is 2-6 s of sensor time, beyond fusion's default 3 s smoother window
@@ -314,8 +314,8 @@ def plot(r: dict[str, Any], path: Path) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--rec", type=Path, default=ROOT / "out/demo/query.mcap")
-    ap.add_argument("--map", type=Path, default=ROOT / "out/demo/map")
+    ap.add_argument("--rec", type=Path, default=None, help="recording (default: the office query pass, made if absent)")
+    ap.add_argument("--map", type=Path, default=None, help="map (default: the office map, made if absent)")
     ap.add_argument("--minutes", type=float, default=30.0, help="sensor minutes (default 30)")
     ap.add_argument("--rate", type=float, default=2.0, help="real-time factor (default 2)")
     ap.add_argument("--sample-s", type=float, default=5.0)
@@ -332,8 +332,12 @@ def main() -> None:
         one_run(Path(args.one[0]), args.map, args.minutes, args.rate, args.one[1], Path(args.one[2]), args.sample_s,
                 args.window_min, args.overrides)
         return
-    if not args.rec.is_file() or not args.map.is_dir():
-        raise SystemExit(f"needs {args.rec} and {args.map}: run `litevloc demo` first")
+    if args.rec is None or args.map is None:
+        office_map, office_query = office_inputs()
+        args.map = args.map or office_map
+        args.rec = args.rec or office_query
+    if not args.rec.is_file() or not (args.map / "manifest.json").is_file():
+        raise SystemExit(f"needs a recording and a map: {args.rec} / {args.map} not found")
     OUT.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     pp = make_pingpong(args.rec, OUT / "soak_pingpong.mcap")

@@ -98,7 +98,8 @@ class FusionConfig:
 
     def T_base_camera(self) -> NDArray[np.float64]:
         """4x4 float64 T_base_camera from the configured translation and quaternion."""
-        return make_T(quat_xyzw_to_matrix(self.base_camera_quat_xyzw), self.base_camera_translation)
+        q, t = np.asarray(self.base_camera_quat_xyzw), np.asarray(self.base_camera_translation)
+        return make_T(quat_xyzw_to_matrix(q), t)
 
 
 @dataclass(frozen=True)

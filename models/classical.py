@@ -56,16 +56,16 @@ class OpenCVExtractor:
         return Features(xy, desc, scores, (w, h))
 
 
-def _distances(d0: NDArray, d1: NDArray) -> NDArray[np.float32]:
+def _distances(d0: NDArray[np.generic], d1: NDArray[np.generic]) -> NDArray[np.float32]:
     """(M, N) distances: Hamming for uint8 binary descriptors, Euclidean for float."""
     if d0.dtype == np.uint8:
-        x = np.unpackbits(d0, axis=1).astype(np.float32)
-        y = np.unpackbits(d1, axis=1).astype(np.float32)
+        x = np.unpackbits(np.asarray(d0, dtype=np.uint8), axis=1).astype(np.float32)
+        y = np.unpackbits(np.asarray(d1, dtype=np.uint8), axis=1).astype(np.float32)
         return (x @ (1 - y).T + (1 - x) @ y.T).astype(np.float32)
     sim = d0.astype(np.float32) @ d1.astype(np.float32).T
     sq0 = (d0.astype(np.float32) ** 2).sum(1)[:, None]
     sq1 = (d1.astype(np.float32) ** 2).sum(1)[None]
-    return np.sqrt(np.maximum(sq0 + sq1 - 2 * sim, 0)).astype(np.float32)
+    return np.asarray(np.sqrt(np.maximum(sq0 + sq1 - 2 * sim, 0)), dtype=np.float32)
 
 
 def _check(f0: Features, f1: Features) -> None:
@@ -82,7 +82,7 @@ def _check(f0: Features, f1: Features) -> None:
 def _score(dist: NDArray[np.float32], binary: bool) -> NDArray[np.float32]:
     """Distance -> confidence in [0, 1]: 1 - d/d_max (d_max = 256 bits or 2 for unit vectors)."""
     dmax = 256.0 if binary else 2.0
-    return np.clip(1.0 - dist / dmax, 0.0, 1.0).astype(np.float32)
+    return np.asarray(np.clip(1.0 - dist / dmax, 0.0, 1.0), dtype=np.float32)
 
 
 class RatioMatcher:

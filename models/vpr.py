@@ -36,4 +36,4 @@ class OnnxPlaceRecognizer:
         x = prepare_image(image_rgb, self.size_hw, self.mean, self.std)
         (d,) = self.session.run(None, {"image": x})
         v = d.reshape(-1).astype(np.float32)
-        return (v / max(float(np.linalg.norm(v)), 1e-12)).astype(np.float32)
+        return np.asarray(v / max(float(np.linalg.norm(v)), 1e-12), dtype=np.float32)

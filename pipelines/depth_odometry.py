@@ -147,6 +147,6 @@ class DepthOdometry:
         if not ok or Rt.shape != (4, 4) or not np.isfinite(Rt).all():
             self.failures += 1
             return OdometryStep(False, np.eye(4), self.T_odom_camera.copy())
-        T_prev_curr = invert(Rt)
+        T_prev_curr = invert(np.asarray(Rt, dtype=np.float64))
         self.T_odom_camera = self.T_odom_camera @ T_prev_curr
         return OdometryStep(True, T_prev_curr, self.T_odom_camera.copy())

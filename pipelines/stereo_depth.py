@@ -72,7 +72,7 @@ class SgbmParams:
 
 def _matcher(params: SgbmParams, channels: int) -> cv2.StereoSGBM:
     area = channels * params.block_size**2
-    return cv2.StereoSGBM_create(  # type: ignore[attr-defined]
+    sgbm: cv2.StereoSGBM = cv2.StereoSGBM_create(  # type: ignore[attr-defined]
         minDisparity=params.min_disparity,
         numDisparities=params.num_disparities,
         blockSize=params.block_size,
@@ -85,6 +85,7 @@ def _matcher(params: SgbmParams, channels: int) -> cv2.StereoSGBM:
         preFilterCap=params.pre_filter_cap,
         mode=_MODES[params.mode],
     )
+    return sgbm
 
 
 def _check_pair(left: NDArray[np.uint8], right: NDArray[np.uint8]) -> None:

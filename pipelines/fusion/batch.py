@@ -69,7 +69,7 @@ def _consensus_map_odom(T_map_odom: F64, p: FusionParams) -> F64:
                 n += 1
         if n > best_n:
             best, best_n = i, n
-    return T_map_odom[best]
+    return np.asarray(T_map_odom[best], dtype=np.float64)
 
 
 @dataclass(frozen=True)

@@ -22,6 +22,7 @@ import os
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -35,7 +36,7 @@ from litevloc.pipelines.odometry_drift import DriftParams, simulate_odometry
 
 F64 = NDArray[np.float64]
 
-VARIANTS: dict[str, dict] = {
+VARIANTS: dict[str, dict[str, Any]] = {
     # name: (outlier ratio, FusionParams overrides)
     "robust": {"outliers": 0.1, "params": {}},
     "no_robust": {"outliers": 0.1, "params": {"robust_kernel": "none", "gate_chi2": 0.0}},
@@ -60,7 +61,7 @@ def posed_sequence_experiment(
     drift: DriftParams | None = None,
     progress: Callable[[], None] | None = None,
     tum_dir: Path | None = None,
-) -> dict:
+) -> dict[str, Any]:
     """Run every variant for `seeds` seeds; returns a JSON-ready dict (see module doc).
 
     With `tum_dir`, seed 0's trajectories (base_link) are written there as TUM files:
@@ -181,7 +182,7 @@ def long_run_experiment(
     seed: int = 0,
     blocks: int = 6,
     progress: Callable[[int], None] | None = None,
-) -> dict:
+) -> dict[str, Any]:
     """Synthetic endurance run: 100 Hz odometry + 1 Hz VLoc (10 % outliers) for `minutes`.
 
     Reports per block (of `blocks` equal time blocks): p50/p99/max of `add_odometry` and

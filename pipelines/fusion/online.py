@@ -53,6 +53,7 @@ import math
 import time
 from collections import Counter, deque
 from dataclasses import dataclass
+from typing import Any, cast
 
 import gtsam
 import numpy as np
@@ -81,7 +82,7 @@ _ROW3 = np.array([0.0, 0.0, 0.0, 1.0])
 def ros_to_gtsam_cov(cov: NDArray[np.floating]) -> F64:
     """6x6 covariance, ROS order (trans, rot) -> GTSAM order (rot, trans)."""
     c = np.asarray(cov, dtype=np.float64)
-    return c[np.ix_(_PERM, _PERM)]
+    return np.asarray(c[np.ix_(_PERM, _PERM)], dtype=np.float64)
 
 
 def gtsam_to_ros_cov(cov: NDArray[np.floating]) -> F64:
@@ -244,7 +245,7 @@ class OnlineFusion:
         """One smoother update; False (counted, filter reset to uninitialised) if GTSAM throws."""
         ts = gtsam.FixedLagSmootherKeyTimestampMap()
         for k, s in stamps.items():
-            ts.insert((k, s))
+            cast(Any, ts).insert((k, s))  # gtsam's stub leaves insert untyped
         t0 = time.perf_counter()
         try:
             self._smoother.update(graph, values, ts)
@@ -551,7 +552,7 @@ class OnlineFusion:
         """Number of pose variables currently in the smoother."""
         return int(self._smoother.calculateEstimate().size()) if self._initialised else 0
 
-    def stats(self) -> dict:
+    def stats(self) -> dict[str, Any]:
         """Counters and timings (ms) of smoother updates (keyframes, priors, init)."""
         return {
             "odometry": self._counts["odometry"],

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -108,7 +109,7 @@ class OnlineRun:
     vloc_call_ms: F64  # wall time per add_vloc call
     odometry_cpu_ms: F64  # thread CPU time per add_odometry call (immune to preemption)
     vloc_cpu_ms: F64
-    stats: dict
+    stats: dict[str, Any]
 
 
 def run_online(
