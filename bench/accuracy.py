@@ -212,7 +212,8 @@ def main() -> None:
     cfg = load_config(args.config, args.overrides)
     bundle = load_bundle(cfg.models)
     topomap = check_map_models(load_map(args.map), bundle)
-    cache = ModelCache(ROOT / "out" / "cache" / "accuracy" / (args.map.name if args.src is None else f"{args.map.name}-{data.stem}"), bundle, topomap)
+    folder = args.map.name if args.src is None else f"{args.map.name}-{data.stem}"
+    cache = ModelCache(ROOT / "out" / "cache" / "accuracy" / folder, bundle, topomap)
     results = [run_config(c, CONFIGS[c], args, data, cache, topomap) for c in args.configs]
     cols = ["within_2cm_2deg_pct", "within_5cm_5deg_pct", "within_25cm_5deg_pct", "accepted_pct", "median_cm",
             "median_deg", "max_cm", "wrong_over_0.5m", "calib_t_pct", "calib_r_pct", "ll_latency_median_ms",
