@@ -147,6 +147,9 @@ def run_config(name: str, overrides: list[str], args: argparse.Namespace, data: 
         lat = (time.perf_counter() - t0) * 1e3 + cache.recorded_ms
         row: dict[str, Any] = {"frame": frame.index, "mode": res.mode, "accepted": res.accepted,
                                "latency_ms": lat, "keyframes": len(res.keyframes), "reason": res.reason}
+        ok_att = [a for a in res.attempts if a.reason == "ok"]
+        if res.accepted and ok_att:  # the accepted keyframe's PnP: matches and inliers
+            row["primary_matches"], row["primary_inliers"] = ok_att[-1].matches, ok_att[-1].inliers
         if res.accepted and res.T_map_camera is not None:
             et, er = relative_pose_error(res.T_map_camera, T_gt)
             E = np.linalg.inv(res.T_map_camera) @ T_gt  # right perturbation: T_gt = T_est @ E

@@ -71,6 +71,10 @@ class RefineParams:
     # "model" runs the configured matcher (LightGlue, ~100 ms per keyframe on 2 CPUs).
     extra_matching: Literal["guided", "model"] = "guided"
     guided_radius_px: float = 8.0
+    # Also require each guided pair to be the mutual nearest neighbour over ALL keypoints of
+    # both images (not just within the radius): the pose then only filters matches it did not
+    # choose, so a wrong pose on a repetitive texture cannot confirm itself (office, frame 810).
+    guided_global_mutual: bool = True
     guided_min_similarity: float = 0.6  # 0.75 -> 0.6: 43 -> 50 % accepted on the 7-Scenes mapping pass (0.5: no better)
 
     def __post_init__(self) -> None:
@@ -322,8 +326,13 @@ def guided_matches(
     if len(rows) == 0:
         return empty
     cols = np.fromiter((c for n in near for c in n), dtype=np.int64, count=len(rows))
-    sim = _similarity(np.asarray(desc_live)[idx], np.asarray(kf_desc))[rows, cols]
+    S = _similarity(np.asarray(desc_live)[idx], np.asarray(kf_desc))
+    sim = S[rows, cols]
     keep = sim >= params.guided_min_similarity
+    if params.guided_global_mutual:
+        best_kf = np.argmax(S, axis=1)
+        best_live = np.argmax(S, axis=0)
+        keep &= (best_kf[rows] == cols) & (best_live[cols] == rows)
     rows, cols, sim = rows[keep], cols[keep], sim[keep]
     if len(rows) == 0:
         return empty
