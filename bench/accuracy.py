@@ -133,7 +133,7 @@ def ensure_map(path: Path, data: Path) -> None:
 
 def run_config(name: str, overrides: list[str], args: argparse.Namespace, data: Path, cache: ModelCache,
                topomap: Any) -> dict[str, Any]:
-    cfg = load_config("7scenes", overrides + args.overrides)
+    cfg = load_config(args.config, overrides + args.overrides)
     loc = VisualLocalizer(topomap, cfg.localization, cache.extract, cache.describe, cache.match)
     src = open_source(data, parse_frames(args.frames), strict=True, rgbd_calibration=cfg.rgbd_calibration)
     rows: list[dict[str, Any]] = []
@@ -147,6 +147,9 @@ def run_config(name: str, overrides: list[str], args: argparse.Namespace, data: 
         lat = (time.perf_counter() - t0) * 1e3 + cache.recorded_ms
         row: dict[str, Any] = {"frame": frame.index, "mode": res.mode, "accepted": res.accepted,
                                "latency_ms": lat, "keyframes": len(res.keyframes), "reason": res.reason}
+        ok_att = [a for a in res.attempts if a.reason == "ok"]
+        if res.accepted and ok_att:  # the accepted keyframe's PnP: matches and inliers
+            row["primary_matches"], row["primary_inliers"] = ok_att[-1].matches, ok_att[-1].inliers
         if res.accepted and res.T_map_camera is not None:
             et, er = relative_pose_error(res.T_map_camera, T_gt)
             E = np.linalg.inv(res.T_map_camera) @ T_gt  # right perturbation: T_gt = T_est @ E
@@ -199,18 +202,26 @@ def main() -> None:
     ap.add_argument("--configs", nargs="+", default=list(CONFIGS), choices=list(CONFIGS))
     ap.add_argument("--set", dest="overrides", action="append", default=[], help="applied to every config")
     ap.add_argument("--name", default="accuracy")
+    ap.add_argument("--src", type=Path, default=None, help="another posed recording (default: 7-Scenes)")
+    ap.add_argument("--config", default="7scenes", help="preset of --src (default 7scenes)")
     args = ap.parse_args()
-    data = require_7scenes()
-    ensure_map(args.map, data)
-    cfg = load_config("7scenes", args.overrides)
+    if args.src is None:
+        data = require_7scenes()
+        ensure_map(args.map, data)
+    else:
+        data = args.src
+        if not (args.map / "manifest.json").is_file():
+            raise SystemExit(f"no map at {args.map} (build one for {args.src} first)")
+    cfg = load_config(args.config, args.overrides)
     bundle = load_bundle(cfg.models)
     topomap = check_map_models(load_map(args.map), bundle)
-    cache = ModelCache(ROOT / "out" / "cache" / "accuracy" / args.map.name, bundle, topomap)
+    folder = args.map.name if args.src is None else f"{args.map.name}-{data.stem}"
+    cache = ModelCache(ROOT / "out" / "cache" / "accuracy" / folder, bundle, topomap)
     results = [run_config(c, CONFIGS[c], args, data, cache, topomap) for c in args.configs]
     cols = ["within_2cm_2deg_pct", "within_5cm_5deg_pct", "within_25cm_5deg_pct", "accepted_pct", "median_cm",
             "median_deg", "max_cm", "wrong_over_0.5m", "calib_t_pct", "calib_r_pct", "ll_latency_median_ms",
             "ll_latency_p90_ms"]
-    print_table(f"7-Scenes redkitchen, frames {args.frames}, map {args.map.name} (percentages of ALL query "
+    print_table(f"{data.name}, frames {args.frames}, map {args.map.name} (percentages of ALL query "
                 "frames; median/max over accepted poses)",
                 ["config", "2cm2d%", "5cm5d%", "25cm5d%", "acc%", "med cm", "med deg", "max cm", ">0.5m",
                  "cal t%", "cal r%", "LL med ms", "LL p90 ms"],

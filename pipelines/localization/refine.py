@@ -59,9 +59,9 @@ class RefineParams:
     max_shift_m: float = 0.25  # the joint pose may move at most this far from the initial pose
     max_shift_deg: float = 5.0
     # systematic error that points and keyframes do not average out; chosen on the 7-Scenes
-    # mapping pass (map 250-499, queries 0-249): 92 % / 97 % of errors inside the 95 % ellipsoids
+    # mapping pass (map 250-499, queries 0:250:3): 93 % / 95 % of errors inside the 95 % ellipsoids
     sigma_sys_t_m: float = 0.03
-    sigma_sys_r_deg: float = 1.0
+    sigma_sys_r_deg: float = 0.8
     min_sigma_t_m: float = 0.002
     min_sigma_r_deg: float = 0.05
     max_nfev: int = 30
@@ -71,7 +71,11 @@ class RefineParams:
     # "model" runs the configured matcher (LightGlue, ~100 ms per keyframe on 2 CPUs).
     extra_matching: Literal["guided", "model"] = "guided"
     guided_radius_px: float = 8.0
-    guided_min_similarity: float = 0.75
+    # Also require each guided pair to be the mutual nearest neighbour over ALL keypoints of
+    # both images (not just within the radius): the pose then only filters matches it did not
+    # choose, so a wrong pose on a repetitive texture cannot confirm itself (office, frame 810).
+    guided_global_mutual: bool = True
+    guided_min_similarity: float = 0.6  # 0.75 -> 0.6: 43 -> 50 % accepted on the 7-Scenes mapping pass (0.5: no better)
 
     def __post_init__(self) -> None:
         if self.max_keyframes < 1 or not (1 <= self.min_keyframes <= self.max_keyframes):
@@ -322,8 +326,13 @@ def guided_matches(
     if len(rows) == 0:
         return empty
     cols = np.fromiter((c for n in near for c in n), dtype=np.int64, count=len(rows))
-    sim = _similarity(np.asarray(desc_live)[idx], np.asarray(kf_desc))[rows, cols]
+    S = _similarity(np.asarray(desc_live)[idx], np.asarray(kf_desc))
+    sim = S[rows, cols]
     keep = sim >= params.guided_min_similarity
+    if params.guided_global_mutual:
+        best_kf = np.argmax(S, axis=1)
+        best_live = np.argmax(S, axis=0)
+        keep &= (best_kf[rows] == cols) & (best_live[cols] == rows)
     rows, cols, sim = rows[keep], cols[keep], sim[keep]
     if len(rows) == 0:
         return empty

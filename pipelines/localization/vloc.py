@@ -9,6 +9,14 @@
   covisibility neighbours within `candidate_radius_m` and `max_view_angle_deg` are ranked
   by descriptor similarity; candidates are tried in that order until one is accepted
   (a rejected candidate hands over to the next).
+* Joint refinement (`refine.py`, `LocalizationParams.refine`): an accepted PnP pose is
+  refined over its keyframe and up to `refine.max_keyframes - 1` covisible keyframes at once
+  (the extra keyframes matched by projection, no second model run); it is accepted only if
+  enough keyframes are consistent with the joint pose (this replaces the separate
+  confirmation), and its covariance comes from that solve. GL tries VPR candidates in order
+  and stops at the first that passes (or when `gl_time_budget_ms` is spent; the result says
+  why in `stop_reason`). `refine.enabled: false` restores the single-keyframe pose with the
+  separate confirmation (the behaviour before issue #16).
 * `VisualLocalizer.process` runs the state machine INIT -> GLOBAL -> TRACKING -> LOST ->
   GLOBAL, exposing each transition with its reason.
 
