@@ -236,50 +236,54 @@ def _pose3(T: NDArray[np.float64]) -> gtsam.Pose3:
     return gtsam.Pose3(gtsam.Rot3(T[:3, :3]), gtsam.Point3(*T[:3, 3]))
 
 
-def align(links: list[Link], B: TopoMap, params: MergeParams) -> Alignment:
-    """Robust `T_A_B` from the links (GTSAM GNC with truncated least squares).
+def robust_alignment(
+    estimates: list[NDArray[np.float64]], at: list[NDArray[np.float64]], weights: list[int], params: MergeParams,
+    what: str = "cross-session links",
+) -> Alignment:
+    """Robust frame alignment `T_A_B` from several estimates (GTSAM GNC, truncated least squares).
 
-    Consistency of a link is judged where it matters, at its B keyframe: the keyframe's
-    position and orientation mapped by the link's estimate vs by the robust estimate.
+    Args:
+        estimates: 4x4 estimates of `T_A_B`, one per correspondence.
+        at: 4x4 pose in frame B where each estimate was made (a B keyframe, a session frame):
+            consistency is judged there, as the pose mapped by the estimate vs by the result.
+        weights: e.g. inlier counts; the largest gives the initial guess.
     """
-    if len(links) < params.min_links:
+    if len(estimates) < params.min_links:
         raise MapMergeError(
-            f"the sessions do not overlap enough to align: {len(links)} verified cross-session links "
-            f"(< {params.min_links})")
-    graph = gtsam.NonlinearFactorGraph()
+            f"the sessions do not overlap enough to align: {len(estimates)} verified {what} (< {params.min_links})")
     sig = np.array([np.radians(params.link_sigma_deg)] * 3 + [params.link_sigma_m] * 3)
     noise = gtsam.noiseModel.Diagonal.Sigmas(sig)
     key = gtsam.symbol("x", 0)
-    for ln in links:
-        graph.add(gtsam.PriorFactorPose3(key, _pose3(ln.T_A_B), noise))
-    # initial guess: the link with the most inliers
+    graph = gtsam.NonlinearFactorGraph()
+    for T_est in estimates:
+        graph.add(gtsam.PriorFactorPose3(key, _pose3(T_est), noise))
     init = gtsam.Values()
-    init.insert(key, _pose3(max(links, key=lambda x: x.inliers).T_A_B))
+    init.insert(key, _pose3(estimates[int(np.argmax(weights))]))
     gnc_params = gtsam.GncLMParams()
     gnc_params.setLossType(gtsam.GncLossType.TLS)
-    result = gtsam.GncLMOptimizer(graph, init, gnc_params).optimize()
-    T = result.atPose3(key).matrix()
-    res_m, res_deg = [], []
-    for ln in links:
-        Tb = B.T_map_camera[ln.b]
-        dt, dr = relative_pose_error(ln.T_A_B @ Tb, T @ Tb)
-        res_m.append(dt)
-        res_deg.append(dr)
-    rm, rd = np.asarray(res_m), np.asarray(res_deg)
+    T = gtsam.GncLMOptimizer(graph, init, gnc_params).optimize().atPose3(key).matrix()
+    res = np.asarray([relative_pose_error(T_est @ Tb, T @ Tb) for T_est, Tb in zip(estimates, at, strict=True)])
+    rm, rd = res[:, 0], res[:, 1]
     ok = (rm <= params.consistent_m) & (rd <= params.consistent_deg)
     if int(ok.sum()) < params.min_links:
         raise MapMergeError(
-            f"the sessions do not overlap enough to align: {int(ok.sum())} of {len(links)} cross-session links "
+            f"the sessions do not overlap enough to align: {int(ok.sum())} of {len(estimates)} {what} "
             f"agree (< {params.min_links}); median disagreement {np.median(rm):.2f} m")
-    # final estimate over the consistent links only (plain least squares, no outliers left)
+    # final estimate over the consistent ones only (plain least squares, no outliers left)
     graph2 = gtsam.NonlinearFactorGraph()
-    for ln, good in zip(links, ok.tolist(), strict=True):
+    for T_est, good in zip(estimates, ok.tolist(), strict=True):
         if good:
-            graph2.add(gtsam.PriorFactorPose3(key, _pose3(ln.T_A_B), noise))
+            graph2.add(gtsam.PriorFactorPose3(key, _pose3(T_est), noise))
     init2 = gtsam.Values()
     init2.insert(key, _pose3(T))
     T = gtsam.LevenbergMarquardtOptimizer(graph2, init2).optimize().atPose3(key).matrix()
     return Alignment(T, ok, rm, rd)
+
+
+def align(links: list[Link], B: TopoMap, params: MergeParams) -> Alignment:
+    """Robust `T_A_B` from the links; a link's consistency is judged at its B keyframe."""
+    return robust_alignment([ln.T_A_B for ln in links], [B.T_map_camera[ln.b] for ln in links],
+                            [ln.inliers for ln in links], params)
 
 
 # ---------------------------------------------------------------------- join

@@ -18,9 +18,10 @@ import cv2
 import numpy as np
 
 from litevloc.pipelines.depth_lookup import depth_at
-from litevloc.pipelines.geometry import backproject_depth, relative_pose_error
+from litevloc.pipelines.geometry import backproject_depth, invert, relative_pose_error
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map, save_map
+from litevloc.pipelines.topomap.merge import MapMergeError, MergeParams, robust_alignment
 from litevloc.pipelines.topomap.types import NodeFeatures
 from litevloc.pipelines.topomap.update import MapUpdate, Observation, UpdateParams
 from litevloc.runtime.cli.common import (
@@ -43,6 +44,8 @@ def add_update_parser(msub: argparse._SubParsersAction) -> None:
     p.add_argument("src", type=Path, help="dataset folder or .mcap recording of the new session")
     p.add_argument("-o", "--output", type=Path, required=True, help="folder of the new map version")
     p.add_argument("--force", action="store_true", help="replace an existing output folder")
+    p.add_argument("--align-every", type=int, default=5, metavar="N",
+                   help="posed sessions: localize every N-th frame to align the session to the map (default 5)")
     add_frames_arg(p)
     add_config_args(p)
     add_json_arg(p)
@@ -61,21 +64,54 @@ def update(args: argparse.Namespace) -> int:
     topomap = check_map_models(load_map(args.map), bundle)
     loc = VisualLocalizer(topomap, cfg.localization, bundle.extract, bundle.describe, bundle.match)
     upd = MapUpdate(topomap, bundle.match, UpdateParams())
-    src = source_of(args, cfg)
     kp = cfg.mapping.keyframes
     t0 = time.perf_counter()
+    # A posed session (its own trajectory, in its own frame): localize every --align-every-th
+    # frame, align the session's frame to the map robustly (as `map merge` aligns sessions),
+    # then pose every frame through that alignment -- new places get poses too, and no frame
+    # needs global localization. An unposed session: every frame is localized.
+    T_map_session: np.ndarray | None = None
+    estimates, at, weights = [], [], []
+    for frame, T_gt in posed_frames(source_of(args, cfg)):
+        if T_gt is None or frame.index % args.align_every:
+            continue
+        res = loc.process(frame.t_ns, frame.color, frame.depth, frame.K)
+        if res.accepted and res.T_map_camera is not None:
+            estimates.append(res.T_map_camera @ invert(T_gt))
+            at.append(T_gt)
+            weights.append(res.n_inliers)
+    aligned = 0
+    if estimates:
+        try:
+            al = robust_alignment(estimates, at, weights, MergeParams(), what="localized session frames")
+        except MapMergeError as exc:
+            raise UserError(f"map update {args.map} {args.src}: {exc}") from exc
+        T_map_session = al.T_A_B
+        aligned = int(al.consistent.sum())
+        print(f"{args.src}: session frame aligned to the map by {aligned}/{len(estimates)} localized frames")
+    src = source_of(args, cfg)
     n_frames, n_loc, errors = 0, 0, []
     with progress(src.frame_count(), "map update") as bar:
         for frame, T_gt in posed_frames(src):
             bar.update(1)
             n_frames += 1
-            res = loc.process(frame.t_ns, frame.color, frame.depth, frame.K)
-            if not res.accepted or res.T_map_camera is None or frame.depth is None:
+            if frame.depth is None:
                 continue
+            inliers = 0
+            if T_map_session is not None:
+                if T_gt is None:
+                    continue
+                T = T_map_session @ T_gt
+                res = loc.localize_local(frame.t_ns, frame.color, frame.depth, frame.K, T)
+                inliers = res.n_inliers if res.accepted else 0
+            else:
+                res = loc.process(frame.t_ns, frame.color, frame.depth, frame.K)
+                if not res.accepted or res.T_map_camera is None:
+                    continue
+                T, inliers = res.T_map_camera, res.n_inliers
+                if T_gt is not None:
+                    errors.append(relative_pose_error(T, T_gt))
             n_loc += 1
-            T = res.T_map_camera
-            if T_gt is not None:
-                errors.append(relative_pose_error(T, T_gt))
             feats = bundle.extract(frame.color)
             pts_cam, _ = backproject_depth(frame.depth, frame.K, stride=kp.pixel_stride)
             pts_cam = pts_cam[pts_cam[:, 2] <= kp.max_depth_m]
@@ -95,10 +131,12 @@ def update(args: argparse.Namespace) -> int:
                 keypoint_depth=depth_at(frame.depth, feats.keypoints, cfg.mapping.depth),
                 vpr=np.asarray(bundle.describe(frame.color), np.float32), jpeg=jpeg,
                 points_map=(pts_cam[:: 4] @ T[:3, :3].T + T[:3, 3]).astype(np.float32),
-                localization_inliers=res.n_inliers,
+                localization_inliers=inliers,
             ))
     if n_loc == 0:
         raise UserError(f"{args.src}: no frame localized against {args.map}; nothing to update from")
+    if args.align_every < 1:
+        raise UserError("--align-every must be >= 1")
     new_map, report = upd.finish(cfg.mapping.covisibility, cfg.mapping.connectivity, cfg.mapping.occupancy)
     parent_sha = hashlib.sha256((args.map / "manifest.json").read_bytes()).hexdigest()
     summary = {
@@ -108,6 +146,7 @@ def update(args: argparse.Namespace) -> int:
         "nodes_before": topomap.n_nodes, "nodes_after": new_map.n_nodes, "added": len(report.added),
         "retired": len(report.retired), "retired_ids": report.retired,
         "added_fraction": len(report.added) / topomap.n_nodes, "seconds": time.perf_counter() - t0,
+        "posed_session_aligned_by": aligned,
     }
     if errors:
         e = np.asarray(errors)
