@@ -21,15 +21,15 @@ from litevloc.base.params.calibration import ColorDepthCalibration
 from litevloc.base.params.camera import CameraConfig
 from litevloc.base.params.drift import DriftParams
 from litevloc.base.params.fusion import FusionParams
-from litevloc.base.params.models import ModelsConfig
-from litevloc.base.params.navigation import GoalParams, TrackerParams
-from litevloc.base.params.odometry import OdometryCheckParams
-from litevloc.base.params.sim import SimParams
 
 # PENDING (issue 19): these two still live next to their algorithms, which other branches are
 # editing; they move to litevloc.base.params after the merge. Until then importing the config
 # pulls cv2 and scipy through them (tests/config/test_layers.py names them).
-from litevloc.pipelines.localization.vloc import LocalizationParams
+from litevloc.base.params.localization import LocalizationParams
+from litevloc.base.params.models import ModelsConfig
+from litevloc.base.params.navigation import GoalParams, TrackerParams
+from litevloc.base.params.odometry import OdometryCheckParams
+from litevloc.base.params.sim import SimParams
 from litevloc.pipelines.topomap.build import MappingParams
 
 

@@ -10,26 +10,10 @@ between foreground and background — exactly where detectors like to fire.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 from numpy.typing import NDArray
 
-
-@dataclass(frozen=True)
-class DepthLookupParams:
-    """Validity gates for depth at keypoints (metres)."""
-
-    min_depth: float = 0.1
-    max_depth: float = 10.0
-    abs_tol: float = 0.03
-    rel_tol: float = 0.03
-
-    def __post_init__(self) -> None:
-        if not (0 <= self.min_depth < self.max_depth):
-            raise ValueError(f"need 0 <= min_depth < max_depth, got {self.min_depth}, {self.max_depth}")
-        if self.abs_tol < 0 or self.rel_tol < 0:
-            raise ValueError("abs_tol and rel_tol must be >= 0")
+from litevloc.base.params.localization import DepthLookupParams as DepthLookupParams
 
 
 def depth_at(

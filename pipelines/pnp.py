@@ -17,44 +17,17 @@ rotation vector second. When the source is the live camera this is the covarianc
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.base.params.localization import PnpMethod as PnpMethod
+from litevloc.base.params.localization import PnpParams as PnpParams
 from litevloc.pipelines.geometry import make_T, project, so3_exp
 
-PnpMethod = Literal["p3p", "ap3p", "sqpnp", "epnp", "usac_magsac"]
 _FLAGS = {"p3p": cv2.SOLVEPNP_P3P, "ap3p": cv2.SOLVEPNP_AP3P, "sqpnp": cv2.SOLVEPNP_SQPNP, "epnp": cv2.SOLVEPNP_EPNP}
-
-
-@dataclass(frozen=True)
-class PnpParams:
-    """RANSAC settings and acceptance gates (defaults follow the published system)."""
-
-    method: PnpMethod = "ap3p"
-    reprojection_px: float = 3.0
-    iterations: int = 1000
-    confidence: float = 0.9999
-    refine_lm: bool = True
-    # 50 -> 40 (the office preset had 40): 38 vs 26 % of 7-Scenes mapping-pass queries (map 250-499)
-    # accepted; 30 accepts 43 % there but, with guided matching, poses 0.6-1.2 m off along the
-    # optical axis on the office's repetitive corridor walls (40 accepts none of them)
-    min_inliers: int = 40
-    min_inlier_ratio: float = 0.2
-    max_median_reprojection_px: float = 2.0
-    seed: int = 0
-    min_sigma_trans_m: float = 0.01
-    min_sigma_rot_rad: float = float(np.radians(0.5))
-
-    def __post_init__(self) -> None:
-        if self.method not in ("p3p", "ap3p", "sqpnp", "epnp", "usac_magsac"):
-            raise ValueError(f"unknown PnP method {self.method!r}")
-        if self.reprojection_px <= 0 or self.iterations <= 0 or not (0 < self.confidence < 1):
-            raise ValueError("reprojection_px and iterations must be > 0, confidence in (0, 1)")
-        if self.min_inliers < 4 or not (0 <= self.min_inlier_ratio <= 1):
-            raise ValueError("min_inliers must be >= 4 and min_inlier_ratio in [0, 1]")
 
 
 @dataclass(frozen=True, eq=False)

@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 from litevloc.models.config import ModelsConfig
 from litevloc.models.registry import ModelError, load_extractor, load_matcher, load_place_recognizer
 from litevloc.models.types import FeatureExtractor, Features, Matcher, PlaceRecognizer
-from litevloc.pipelines.topomap.types import FeatureSet, TopoMap
+from litevloc.pipelines.topomap.types import FeatureSet, FeatureStore, TopoMap
 
 
 def as_features(f: FeatureSet, image_size: tuple[int, int] | None = None) -> Features:
@@ -89,4 +89,7 @@ def check_map_models(topomap: TopoMap, bundle: ModelBundle) -> TopoMap:
         )
     if topomap.vpr.shape[1] != bundle.vpr.dim:
         raise ModelError(f"map descriptors are {topomap.vpr.shape[1]}-d, the place recognizer gives {bundle.vpr.dim}-d")
-    return dataclasses.replace(topomap, features=[as_features(f) for f in topomap.features])
+    feats = topomap.features
+    if isinstance(feats, FeatureStore):  # a loaded map: stay lazy (float16 on disk, converted per node on access)
+        return dataclasses.replace(topomap, features=feats.mapped(as_features))
+    return dataclasses.replace(topomap, features=[as_features(f) for f in feats])

@@ -29,72 +29,16 @@ split (bench/accuracy.py) so that ~95 % of errors fall inside their 95 % ellipso
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 from scipy.spatial import cKDTree
 
+from litevloc.base.params.localization import RefineParams as RefineParams
 from litevloc.pipelines.geometry import make_T, so3_exp
 
 F64 = NDArray[np.float64]
-
-
-@dataclass(frozen=True)
-class RefineParams:
-    """Joint multi-keyframe refinement and its acceptance (pixels, metres, degrees)."""
-
-    enabled: bool = True  # False: the single-keyframe PnP pose + separate confirmation (old behaviour)
-    max_keyframes: int = 3  # keyframes in the joint solve, the PnP keyframe included
-    min_keyframes: int = 2  # keyframes that must each be consistent with the joint pose
-    min_keyframe_inliers: int = 15  # inliers under the joint pose for a keyframe to count as consistent
-    inlier_px: float = 3.0  # reprojection threshold of an inlier (raw pixels)
-    gate_px: float = 8.0  # a correspondence enters the solve if within this of the initial pose
-    loss: Literal["cauchy", "huber", "soft_l1"] = "cauchy"
-    loss_scale: float = 2.0  # in whitened units (sigma)
-    keypoint_sigma_px: float = 1.0
-    depth_sigma_a: float = 0.0015  # sigma_z = a z^2 + b (m), structured-light / stereo depth noise
-    depth_sigma_b: float = 0.002
-    max_shift_m: float = 0.25  # the joint pose may move at most this far from the initial pose
-    max_shift_deg: float = 5.0
-    # systematic error that points and keyframes do not average out; chosen on the 7-Scenes
-    # mapping pass (map 250-499, queries 0:250:3): 93 % / 95 % of errors inside the 95 % ellipsoids
-    sigma_sys_t_m: float = 0.03
-    sigma_sys_r_deg: float = 0.8
-    min_sigma_t_m: float = 0.002
-    min_sigma_r_deg: float = 0.05
-    max_nfev: int = 30
-    # How the live frame is matched to the extra keyframes: "guided" projects the live points
-    # with the initial pose and pairs each with the most similar keyframe keypoint within
-    # guided_radius_px (mutual best, similarity >= guided_min_similarity; ~1 ms per keyframe);
-    # "model" runs the configured matcher (LightGlue, ~100 ms per keyframe on 2 CPUs).
-    extra_matching: Literal["guided", "model"] = "guided"
-    guided_radius_px: float = 8.0
-    # Also require each guided pair to be the mutual nearest neighbour over ALL keypoints of
-    # both images (not just within the radius): the pose then only filters matches it did not
-    # choose, so a wrong pose on a repetitive texture cannot confirm itself (office, frame 810).
-    guided_global_mutual: bool = True
-    guided_min_similarity: float = 0.6  # 0.75 -> 0.6: 43 -> 50 % accepted on the 7-Scenes mapping pass (0.5: no better)
-
-    def __post_init__(self) -> None:
-        if self.max_keyframes < 1 or not (1 <= self.min_keyframes <= self.max_keyframes):
-            raise ValueError("need max_keyframes >= 1 and 1 <= min_keyframes <= max_keyframes")
-        if self.min_keyframe_inliers < 1 or self.inlier_px <= 0 or self.gate_px < self.inlier_px:
-            raise ValueError("need min_keyframe_inliers >= 1, inlier_px > 0 and gate_px >= inlier_px")
-        if self.extra_matching not in ("guided", "model"):
-            raise ValueError(f"unknown extra_matching {self.extra_matching!r} (guided | model)")
-        if self.guided_radius_px <= 0 or not (-1 <= self.guided_min_similarity <= 1):
-            raise ValueError("need guided_radius_px > 0 and guided_min_similarity in [-1, 1]")
-        if self.loss not in ("cauchy", "huber", "soft_l1"):
-            raise ValueError(f"unknown loss {self.loss!r}")
-        for name in ("loss_scale", "keypoint_sigma_px", "max_shift_m", "max_shift_deg", "max_nfev"):
-            if getattr(self, name) <= 0:
-                raise ValueError(f"{name} must be > 0")
-        for name in ("depth_sigma_a", "depth_sigma_b", "sigma_sys_t_m", "sigma_sys_r_deg",
-                     "min_sigma_t_m", "min_sigma_r_deg"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"{name} must be >= 0")
 
 
 @dataclass(frozen=True, eq=False)

@@ -36,16 +36,16 @@ from enum import StrEnum
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.pipelines.depth_lookup import DepthLookupParams, depth_at
+from litevloc.base.params.localization import LocalizationParams as LocalizationParams
+from litevloc.pipelines.depth_lookup import depth_at
 from litevloc.pipelines.geometry import backproject_pixels, check_rigid, relative_pose_error
 from litevloc.pipelines.localization.refine import (
     KeyframeObservations,
-    RefineParams,
     RefineResult,
     guided_matches,
     refine_pose,
 )
-from litevloc.pipelines.pnp import PnpParams, PnpResult, solve_pnp
+from litevloc.pipelines.pnp import PnpResult, solve_pnp
 from litevloc.pipelines.topomap.types import FeatureSet, TopoMap
 
 ExtractFn = Callable[[NDArray[np.uint8]], FeatureSet]
@@ -58,57 +58,6 @@ class TrackingState(StrEnum):
     GLOBAL = "GLOBAL"
     TRACKING = "TRACKING"
     LOST = "LOST"
-
-
-@dataclass(frozen=True)
-class LocalizationParams:
-    """Parameters of GL, LL and the state machine (metres, degrees)."""
-
-    gl_top_k: int = 10  # chosen on the 7-Scenes mapping pass (map 250-499, queries 0-249) and the office
-    gl_early_accept_inliers: int = 0  # > 0: stop GL at the first candidate with this many inliers (refine off)
-    # GL with joint refinement stops at the first VPR candidate that passes the joint check;
-    # > 0: also stop trying candidates once this much time (ms, whole query) is spent.
-    gl_time_budget_ms: float = 0.0
-    # GL confirmation: a GL pose must also explain matches with a second keyframe (a covisible
-    # neighbour of its node, else the next VPR candidate): repetitive textures can make one
-    # image pair agree on a wrong, shifted pose; two viewpoints rarely agree on the same wrong one.
-    gl_confirm: bool = True
-    ll_confirm: bool = True
-    confirm_min_inliers: int = 20
-    confirm_max_nodes: int = 2  # second keyframes tried for the confirmation
-    # An LL pose this close to a fresh prior (age <= confirm_skip_max_age_s) needs no second
-    # keyframe: whatever it could be wrong by is bounded by this distance plus the prior's error.
-    confirm_skip_within_m: float = 0.2
-    confirm_skip_within_deg: float = 5.0
-    confirm_skip_max_age_s: float = 0.5
-    # LL prior gate: an LL pose must lie within prior_gate_m + prior_gate_rate_mps * (age of the
-    # prior in s) and prior_gate_deg of the prior; otherwise that candidate is rejected.
-    prior_gate_m: float = 0.75
-    prior_gate_rate_mps: float = 1.5
-    prior_gate_deg: float = 30.0
-    candidate_radius_m: float = 3.0
-    max_view_angle_deg: float = 90.0
-    ll_max_candidates: int = 3
-    ll_failures_before_lost: int = 3
-    gl_trigger_distance_m: float = 7.5  # prior farther than this from every node -> GL
-    max_distance_to_node_m: float = 5.0  # an accepted pose must lie this close to its node
-    min_matches: int = 20
-    pnp: PnpParams = field(default_factory=PnpParams)
-    depth: DepthLookupParams = field(default_factory=DepthLookupParams)
-    # Joint multi-keyframe refinement (`refine.py`); when enabled it replaces the separate
-    # confirmation (gl_confirm / ll_confirm / confirm_* then only decide whether it must
-    # find a second consistent keyframe).
-    refine: RefineParams = field(default_factory=RefineParams)
-
-    def __post_init__(self) -> None:
-        if self.gl_top_k < 1 or self.ll_max_candidates < 1 or self.ll_failures_before_lost < 1:
-            raise ValueError("gl_top_k, ll_max_candidates and ll_failures_before_lost must be >= 1")
-        if self.candidate_radius_m <= 0 or not (0 < self.max_view_angle_deg <= 180):
-            raise ValueError("candidate_radius_m > 0 and max_view_angle_deg in (0, 180] required")
-        if self.gl_time_budget_ms < 0:
-            raise ValueError("gl_time_budget_ms must be >= 0 (0 = no budget)")
-        if self.prior_gate_m <= 0 or self.prior_gate_rate_mps < 0 or not (0 < self.prior_gate_deg <= 180):
-            raise ValueError("prior_gate_m > 0, prior_gate_rate_mps >= 0 and prior_gate_deg in (0, 180] required")
 
 
 @dataclass(frozen=True)
@@ -267,8 +216,7 @@ class VisualLocalizer:
         self.last_pose_t_ns = 0
         self.transitions: deque[Transition] = deque(maxlen=100)
         # Covisible neighbours of each node, strongest edge first (computed once, used per query).
-        self._neighbours = [[n for n, _ in sorted(topomap.covisible_neighbours(i), key=lambda x: (-x[1], x[0]))]
-                            for i in range(topomap.n_nodes)]
+        self._neighbours = topomap.covisibility_lists
 
     # ---------------------------------------------------------------- building blocks
     def _query(
@@ -440,21 +388,16 @@ class VisualLocalizer:
         return int(np.count_nonzero(err <= self.params.pnp.reprojection_px))
 
     def local_candidates(self, prior: NDArray[np.float64], desc: NDArray[np.float32]) -> list[tuple[int, float]]:
-        """(node, similarity) candidates for a prior pose, best first; empty if none is near."""
-        pos = self.map.positions
-        d = np.linalg.norm(pos - prior[:3, 3], axis=1)
-        nearest = int(np.argmin(d))
-        if d[nearest] > self.params.gl_trigger_distance_m:
-            return []
-        z_prior = prior[:3, 2]
-        cos_max = np.cos(np.radians(self.params.max_view_angle_deg))
-        cand = {nearest} | set(self._neighbours[nearest])
-        cand |= {int(i) for i in np.nonzero(d <= self.params.candidate_radius_m)[0]}
-        keep = [i for i in cand if d[i] <= max(self.params.candidate_radius_m, d[nearest])
-                and float(self.map.T_map_camera[i][:3, 2] @ z_prior) >= cos_max]
-        sims = self.map.vpr[keep] @ desc if keep else np.zeros(0)
-        ranked = sorted(zip(keep, sims.tolist(), strict=True), key=lambda x: (-x[1], x[0]))
-        return ranked[: self.params.ll_max_candidates]
+        """(node, similarity) candidates for a prior pose, best first; empty if none is near.
+
+        The nearest node (none if farther than `gl_trigger_distance_m`), its covisible
+        neighbours and every node within `candidate_radius_m` that faces within
+        `max_view_angle_deg` of the prior, ranked by VPR similarity; looked up in the map's
+        KD-tree node index (`TopoMap.node_index`), so the cost does not grow with the map."""
+        p = self.params
+        return self.map.node_index.local_candidates(
+            prior, desc, self.map.vpr, self.map.T_map_camera, self._neighbours, p.candidate_radius_m,
+            p.gl_trigger_distance_m, p.max_view_angle_deg, p.ll_max_candidates)
 
     def localize_local(
         self, t_ns: int, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64],

@@ -1,0 +1,165 @@
+"""Parameters of localization: depth lookup, PnP, joint refinement, GL/LL and the state machine.
+
+Re-exported by `pipelines.depth_lookup`, `pipelines.pnp`, `pipelines.localization.refine` and
+`pipelines.localization.vloc` under their old names (the algorithms live there).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+PnpMethod = Literal["p3p", "ap3p", "sqpnp", "epnp", "usac_magsac"]
+
+
+@dataclass(frozen=True)
+class DepthLookupParams:
+    """Validity gates for depth at keypoints (metres)."""
+
+    min_depth: float = 0.1
+    max_depth: float = 10.0
+    abs_tol: float = 0.03
+    rel_tol: float = 0.03
+
+    def __post_init__(self) -> None:
+        if not (0 <= self.min_depth < self.max_depth):
+            raise ValueError(f"need 0 <= min_depth < max_depth, got {self.min_depth}, {self.max_depth}")
+        if self.abs_tol < 0 or self.rel_tol < 0:
+            raise ValueError("abs_tol and rel_tol must be >= 0")
+
+
+@dataclass(frozen=True)
+class PnpParams:
+    """RANSAC settings and acceptance gates (defaults follow the published system)."""
+
+    method: PnpMethod = "ap3p"
+    reprojection_px: float = 3.0
+    iterations: int = 1000
+    confidence: float = 0.9999
+    refine_lm: bool = True
+    # 50 -> 40 (the office preset had 40): 38 vs 26 % of 7-Scenes mapping-pass queries (map 250-499)
+    # accepted; 30 accepts 43 % there but, with guided matching, poses 0.6-1.2 m off along the
+    # optical axis on the office's repetitive corridor walls (40 accepts none of them)
+    min_inliers: int = 40
+    min_inlier_ratio: float = 0.2
+    max_median_reprojection_px: float = 2.0
+    seed: int = 0
+    min_sigma_trans_m: float = 0.01
+    min_sigma_rot_rad: float = float(np.radians(0.5))
+
+    def __post_init__(self) -> None:
+        if self.method not in ("p3p", "ap3p", "sqpnp", "epnp", "usac_magsac"):
+            raise ValueError(f"unknown PnP method {self.method!r}")
+        if self.reprojection_px <= 0 or self.iterations <= 0 or not (0 < self.confidence < 1):
+            raise ValueError("reprojection_px and iterations must be > 0, confidence in (0, 1)")
+        if self.min_inliers < 4 or not (0 <= self.min_inlier_ratio <= 1):
+            raise ValueError("min_inliers must be >= 4 and min_inlier_ratio in [0, 1]")
+
+
+@dataclass(frozen=True)
+class RefineParams:
+    """Joint multi-keyframe refinement and its acceptance (pixels, metres, degrees)."""
+
+    enabled: bool = True  # False: the single-keyframe PnP pose + separate confirmation (old behaviour)
+    max_keyframes: int = 3  # keyframes in the joint solve, the PnP keyframe included
+    min_keyframes: int = 2  # keyframes that must each be consistent with the joint pose
+    min_keyframe_inliers: int = 15  # inliers under the joint pose for a keyframe to count as consistent
+    inlier_px: float = 3.0  # reprojection threshold of an inlier (raw pixels)
+    gate_px: float = 8.0  # a correspondence enters the solve if within this of the initial pose
+    loss: Literal["cauchy", "huber", "soft_l1"] = "cauchy"
+    loss_scale: float = 2.0  # in whitened units (sigma)
+    keypoint_sigma_px: float = 1.0
+    depth_sigma_a: float = 0.0015  # sigma_z = a z^2 + b (m), structured-light / stereo depth noise
+    depth_sigma_b: float = 0.002
+    max_shift_m: float = 0.25  # the joint pose may move at most this far from the initial pose
+    max_shift_deg: float = 5.0
+    # systematic error that points and keyframes do not average out; chosen on the 7-Scenes
+    # mapping pass (map 250-499, queries 0:250:3): 93 % / 95 % of errors inside the 95 % ellipsoids
+    sigma_sys_t_m: float = 0.03
+    sigma_sys_r_deg: float = 0.8
+    min_sigma_t_m: float = 0.002
+    min_sigma_r_deg: float = 0.05
+    max_nfev: int = 30
+    # How the live frame is matched to the extra keyframes: "guided" projects the live points
+    # with the initial pose and pairs each with the most similar keyframe keypoint within
+    # guided_radius_px (mutual best, similarity >= guided_min_similarity; ~1 ms per keyframe);
+    # "model" runs the configured matcher (LightGlue, ~100 ms per keyframe on 2 CPUs).
+    extra_matching: Literal["guided", "model"] = "guided"
+    guided_radius_px: float = 8.0
+    # Also require each guided pair to be the mutual nearest neighbour over ALL keypoints of
+    # both images (not just within the radius): the pose then only filters matches it did not
+    # choose, so a wrong pose on a repetitive texture cannot confirm itself (office, frame 810).
+    guided_global_mutual: bool = True
+    guided_min_similarity: float = 0.6  # 0.75 -> 0.6: 43 -> 50 % accepted on the 7-Scenes mapping pass (0.5: no better)
+
+    def __post_init__(self) -> None:
+        if self.max_keyframes < 1 or not (1 <= self.min_keyframes <= self.max_keyframes):
+            raise ValueError("need max_keyframes >= 1 and 1 <= min_keyframes <= max_keyframes")
+        if self.min_keyframe_inliers < 1 or self.inlier_px <= 0 or self.gate_px < self.inlier_px:
+            raise ValueError("need min_keyframe_inliers >= 1, inlier_px > 0 and gate_px >= inlier_px")
+        if self.extra_matching not in ("guided", "model"):
+            raise ValueError(f"unknown extra_matching {self.extra_matching!r} (guided | model)")
+        if self.guided_radius_px <= 0 or not (-1 <= self.guided_min_similarity <= 1):
+            raise ValueError("need guided_radius_px > 0 and guided_min_similarity in [-1, 1]")
+        if self.loss not in ("cauchy", "huber", "soft_l1"):
+            raise ValueError(f"unknown loss {self.loss!r}")
+        for name in ("loss_scale", "keypoint_sigma_px", "max_shift_m", "max_shift_deg", "max_nfev"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"{name} must be > 0")
+        for name in ("depth_sigma_a", "depth_sigma_b", "sigma_sys_t_m", "sigma_sys_r_deg",
+                     "min_sigma_t_m", "min_sigma_r_deg"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name} must be >= 0")
+
+
+@dataclass(frozen=True)
+class LocalizationParams:
+    """Parameters of GL, LL and the state machine (metres, degrees)."""
+
+    gl_top_k: int = 10  # chosen on the 7-Scenes mapping pass (map 250-499, queries 0-249) and the office
+    gl_early_accept_inliers: int = 0  # > 0: stop GL at the first candidate with this many inliers (refine off)
+    # GL with joint refinement stops at the first VPR candidate that passes the joint check;
+    # > 0: also stop trying candidates once this much time (ms, whole query) is spent.
+    gl_time_budget_ms: float = 0.0
+    # GL confirmation: a GL pose must also explain matches with a second keyframe (a covisible
+    # neighbour of its node, else the next VPR candidate): repetitive textures can make one
+    # image pair agree on a wrong, shifted pose; two viewpoints rarely agree on the same wrong one.
+    gl_confirm: bool = True
+    ll_confirm: bool = True
+    confirm_min_inliers: int = 20
+    confirm_max_nodes: int = 2  # second keyframes tried for the confirmation
+    # An LL pose this close to a fresh prior (age <= confirm_skip_max_age_s) needs no second
+    # keyframe: whatever it could be wrong by is bounded by this distance plus the prior's error.
+    confirm_skip_within_m: float = 0.2
+    confirm_skip_within_deg: float = 5.0
+    confirm_skip_max_age_s: float = 0.5
+    # LL prior gate: an LL pose must lie within prior_gate_m + prior_gate_rate_mps * (age of the
+    # prior in s) and prior_gate_deg of the prior; otherwise that candidate is rejected.
+    prior_gate_m: float = 0.75
+    prior_gate_rate_mps: float = 1.5
+    prior_gate_deg: float = 30.0
+    candidate_radius_m: float = 3.0
+    max_view_angle_deg: float = 90.0
+    ll_max_candidates: int = 3
+    ll_failures_before_lost: int = 3
+    gl_trigger_distance_m: float = 7.5  # prior farther than this from every node -> GL
+    max_distance_to_node_m: float = 5.0  # an accepted pose must lie this close to its node
+    min_matches: int = 20
+    pnp: PnpParams = field(default_factory=PnpParams)
+    depth: DepthLookupParams = field(default_factory=DepthLookupParams)
+    # Joint multi-keyframe refinement (`refine.py`); when enabled it replaces the separate
+    # confirmation (gl_confirm / ll_confirm / confirm_* then only decide whether it must
+    # find a second consistent keyframe).
+    refine: RefineParams = field(default_factory=RefineParams)
+
+    def __post_init__(self) -> None:
+        if self.gl_top_k < 1 or self.ll_max_candidates < 1 or self.ll_failures_before_lost < 1:
+            raise ValueError("gl_top_k, ll_max_candidates and ll_failures_before_lost must be >= 1")
+        if self.candidate_radius_m <= 0 or not (0 < self.max_view_angle_deg <= 180):
+            raise ValueError("candidate_radius_m > 0 and max_view_angle_deg in (0, 180] required")
+        if self.gl_time_budget_ms < 0:
+            raise ValueError("gl_time_budget_ms must be >= 0 (0 = no budget)")
+        if self.prior_gate_m <= 0 or self.prior_gate_rate_mps < 0 or not (0 < self.prior_gate_deg <= 180):
+            raise ValueError("prior_gate_m > 0, prior_gate_rate_mps >= 0 and prior_gate_deg in (0, 180] required")
