@@ -97,6 +97,23 @@ def _convert(value: Any, tp: Any, path: str, source: str | None) -> Any:
     raise ConfigError(f"{_where(path, source)}: unsupported field type {tp!r}")  # pragma: no cover
 
 
+def _with_section_defaults(field: dataclasses.Field[Any], value: Mapping[str, Any]) -> Mapping[str, Any]:
+    """A partial mapping for a nested section keeps the section's DEFAULT values for the keys it
+    does not give (the parent's default instance, which may differ from the section class's own
+    defaults, and may be the only source of required keys such as level thresholds)."""
+    if field.default_factory is not dataclasses.MISSING:
+        default = field.default_factory()
+    elif field.default is not dataclasses.MISSING:
+        default = field.default
+    else:
+        return value
+    if default is None or not dataclasses.is_dataclass(default):
+        return value
+    merged = {f.name: getattr(default, f.name) for f in dataclasses.fields(default) if f.init}
+    merged.update(value)
+    return merged
+
+
 def _build(cls: type[T], data: Mapping[str, Any], prefix: str, source: str | None) -> T:
     hints = get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}  # type: ignore[arg-type]
@@ -110,7 +127,10 @@ def _build(cls: type[T], data: Mapping[str, Any], prefix: str, source: str | Non
     for name, field in fields.items():
         key = f"{prefix}.{name}" if prefix else name
         if name in data:
-            kwargs[name] = _convert(data[name], hints[name], key, source)
+            value = data[name]
+            if isinstance(value, Mapping) and dataclasses.is_dataclass(hints[name]):
+                value = _with_section_defaults(field, value)
+            kwargs[name] = _convert(value, hints[name], key, source)
         elif field.default is dataclasses.MISSING and field.default_factory is dataclasses.MISSING:
             raise ConfigError(f"missing required key {_where(key, source)}")
     try:

@@ -99,3 +99,16 @@ def test_no_config_is_the_default_preset() -> None:
 
     assert load_config(None) == load_config("default")
     assert load_config(None, ["mapping.keyframes.budget=7"]) == load_config("default", ["mapping.keyframes.budget=7"])
+
+
+def test_partial_section_override_keeps_the_section_defaults() -> None:
+    """Overriding one key of a nested section keeps that section's default values for the others,
+    including a default instance that differs from its class's defaults (covisibility PnP) and
+    sections whose class has required keys (diagnostics level thresholds)."""
+    from litevloc.config import load_config
+
+    base = load_config(None)
+    cfg = load_config(None, ["mapping.covisibility.pnp.reprojection_px=2.5", "diagnostics.vpr_ms.error=2500"])
+    assert cfg.mapping.covisibility.pnp.reprojection_px == 2.5
+    assert cfg.mapping.covisibility.pnp.min_inliers == base.mapping.covisibility.pnp.min_inliers != 40
+    assert cfg.diagnostics.vpr_ms.error == 2500 and cfg.diagnostics.vpr_ms.warn == base.diagnostics.vpr_ms.warn

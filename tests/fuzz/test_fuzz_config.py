@@ -15,19 +15,20 @@ from hypothesis import strategies as st
 from litevloc.config import ConfigError, LiteVLocConfig, load_config
 
 
-def _leaves(cls: type, prefix: tuple[str, ...] = ()) -> list[tuple[tuple[str, ...], Any]]:
+def _leaves(obj: Any, prefix: tuple[str, ...] = ()) -> list[tuple[tuple[str, ...], Any]]:
+    """Every scalar leaf of a configuration object, walked on its default values (nested
+    sections may have no defaults of their own, e.g. diagnostics level thresholds)."""
     out = []
-    obj = cls()
     for f in dataclasses.fields(obj):
         v = getattr(obj, f.name)
         if dataclasses.is_dataclass(v):
-            out += _leaves(type(v), (*prefix, f.name))
+            out += _leaves(v, (*prefix, f.name))
         else:
             out.append(((*prefix, f.name), v))
     return out
 
 
-LEAVES = _leaves(LiteVLocConfig)
+LEAVES = _leaves(LiteVLocConfig())
 scalars = st.one_of(st.none(), st.booleans(), st.integers(-10**6, 10**6), st.floats(allow_nan=True),
                     st.text(max_size=12), st.lists(st.floats(-10, 10), max_size=5))
 values = st.recursive(scalars, lambda c: st.lists(c, max_size=3) | st.dictionaries(st.text(max_size=6), c, max_size=3),
