@@ -26,11 +26,12 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from litevloc.base.errors import LiteVLocError
 from litevloc.pipelines.geometry import relative_pose_error
 from litevloc.pipelines.topomap.types import OccupancyGrid, TopoMap
 
 
-class MapDiffError(ValueError):
+class MapDiffError(LiteVLocError, ValueError):
     """Two maps cannot be compared (e.g. different ground planes)."""
 
 

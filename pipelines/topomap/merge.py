@@ -34,6 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from litevloc.base.errors import LiteVLocError
 from litevloc.pipelines.geometry import invert, relative_pose_error
 from litevloc.pipelines.pnp import PnpParams, solve_pnp
 from litevloc.pipelines.topomap.graphs import MatchFn
@@ -41,7 +42,7 @@ from litevloc.pipelines.topomap.occupancy import segment_is_free
 from litevloc.pipelines.topomap.types import OccupancyGrid, TopoMap
 
 
-class MapMergeError(ValueError):
+class MapMergeError(LiteVLocError, ValueError):
     """Two sessions cannot be merged (too little overlap, other models, other ground planes)."""
 
 

@@ -82,9 +82,13 @@ def test_thresholds_are_validated_config() -> None:
     cfg = from_mapping(LiteVLocConfig, {"diagnostics": {"pnp_ms": {"warn": 5, "error": 9}, "period_s": 2}})
     assert cfg.diagnostics.pnp_ms == LevelThresholds(5.0, 9.0) and cfg.diagnostics.period_s == 2.0
     for bad in ({"pnp_ms": {"warn": 9, "error": 5}}, {"vloc_rate_hz": {"warn": 0.1, "error": 1}},
-                {"period_s": 0}, {"no_such_key": 1}, {"pnp_ms": {"warn": 1}}):
+                {"period_s": 0}, {"no_such_key": 1}, {"pnp_ms": {"warn": 1e9}}):
         with pytest.raises(ConfigError, match="diagnostics"):
             from_mapping(LiteVLocConfig, {"diagnostics": bad})
+    # one threshold of a pair overridden: the other keeps its default
+    part = from_mapping(LiteVLocConfig, {"diagnostics": {"pnp_ms": {"warn": 1}}})
+    assert part.diagnostics.pnp_ms.warn == 1.0
+    assert part.diagnostics.pnp_ms.error == LiteVLocConfig().diagnostics.pnp_ms.error
 
 
 def test_vloc_stage_times_window() -> None:
