@@ -51,8 +51,8 @@ def sim_case(world: str) -> None:
     if not (old / "manifest.json").is_file():
         subprocess.run([*cli, "map", "build", str(d / "map.mcap"), "-o", str(old), "--force"], check=True)
     new = d / "map_new"
-    subprocess.run([*cli, "map", "update", str(old), str(d / "session.mcap"), "-o", str(new), "--force", "--json",
-                    str(d / "update.json")], check=True)
+    subprocess.run([*cli, "map", "update", str(old), str(d / "session.mcap"), "-o", str(new), "--force", "--every",
+                    "3", "--json", str(d / "update.json")], check=True)
     upd = json.loads((d / "update.json").read_text())
     subprocess.run([*cli, "map", "diff", str(old), str(new), "-o", str(OUT / "update_sim_diff.png")], check=True)
     loc = {}

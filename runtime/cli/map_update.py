@@ -46,6 +46,10 @@ def add_update_parser(msub: argparse._SubParsersAction) -> None:
     p.add_argument("--force", action="store_true", help="replace an existing output folder")
     p.add_argument("--align-every", type=int, default=5, metavar="N",
                    help="posed sessions: localize every N-th frame to align the session to the map (default 5)")
+    p.add_argument("--align-frames", type=int, default=40, metavar="N",
+                   help="posed sessions: stop aligning after N localized frames (default 40)")
+    p.add_argument("--every", type=int, default=1, metavar="N",
+                   help="use every N-th frame of the session for the update (default 1: all)")
     add_frames_arg(p)
     add_config_args(p)
     add_json_arg(p)
@@ -59,6 +63,8 @@ def update(args: argparse.Namespace) -> int:
         raise UserError(f"{args.output}: the new version must go to another folder (the map is never modified)")
     if args.output.exists() and not args.force:
         raise UserError(f"{args.output} exists; pass --force to replace it")
+    if min(args.align_every, args.align_frames, args.every) < 1:
+        raise UserError("--align-every, --align-frames and --every must be >= 1")
     cfg = config_of(args)
     bundle = load_bundle(cfg.models)
     topomap = check_map_models(load_map(args.map), bundle)
@@ -80,6 +86,8 @@ def update(args: argparse.Namespace) -> int:
             estimates.append(res.T_map_camera @ invert(T_gt))
             at.append(T_gt)
             weights.append(res.n_inliers)
+            if len(estimates) >= args.align_frames:
+                break
     aligned = 0
     if estimates:
         try:
@@ -95,7 +103,7 @@ def update(args: argparse.Namespace) -> int:
         for frame, T_gt in posed_frames(src):
             bar.update(1)
             n_frames += 1
-            if frame.depth is None:
+            if frame.depth is None or frame.index % args.every:
                 continue
             inliers = 0
             if T_map_session is not None:
@@ -135,8 +143,7 @@ def update(args: argparse.Namespace) -> int:
             ))
     if n_loc == 0:
         raise UserError(f"{args.src}: no frame localized against {args.map}; nothing to update from")
-    if args.align_every < 1:
-        raise UserError("--align-every must be >= 1")
+
     new_map, report = upd.finish(cfg.mapping.covisibility, cfg.mapping.connectivity, cfg.mapping.occupancy)
     parent_sha = hashlib.sha256((args.map / "manifest.json").read_bytes()).hexdigest()
     summary = {
