@@ -110,6 +110,43 @@ def bench_steps(world_name: str, sim_seconds: float) -> dict[str, float]:
     return out
 
 
+def bench_map_feed(world_name: str, sim_seconds: float) -> dict[str, float]:
+    """Rendering cost of feeding a mapping pass to the map builder, per frame of the pass:
+    `sim record` renders colour + depth and JPEG-encodes every frame (then `map build`
+    decodes them again); `map build sim:` renders depth only, and only for frames that
+    pass the motion pre-filter (colour later for the keyframes alone, not counted here)."""
+    from litevloc.config import load_config
+    from litevloc.pipelines.topomap.build import MapBuilder
+
+    cfg = load_config("default")
+    src = SimSequenceSource(load_world(world_name), "map", 0, duration=sim_seconds, params=cfg.sim)
+    n = src.frame_count()
+    src.frame(0)  # bake textures outside the timing
+    t0 = time.perf_counter()
+    for i in range(n):
+        f = src.frame(i)
+        _ok, buf = cv2.imencode(".jpg", f.color[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, 90])
+        cv2.imdecode(buf, cv2.IMREAD_COLOR)
+    full = (time.perf_counter() - t0) / n
+    t0 = time.perf_counter()
+    for i in range(n):
+        src.depth(i)
+    depth_all = (time.perf_counter() - t0) / n
+    b = MapBuilder(cfg.mapping, lambda im: None, lambda im: None, lambda a, b_: None, "x", "y")
+    poses = src.camera_poses()
+    K = cfg.sim.intrinsics.K
+    t0 = time.perf_counter()
+    for i, t in enumerate(src.frame_times):
+        if b.is_candidate(poses[i]):
+            b.add(int(t), None, src.depth(i), K, poses[i], i)
+        else:
+            b.add_pose(poses[i], i)
+    cand = (time.perf_counter() - t0) / n
+    return {"frames": n, "candidates": b.report.candidates, "rgbd_jpeg_ms_per_frame": full * 1e3,
+            "depth_all_ms_per_frame": depth_all * 1e3, "depth_candidates_ms_per_frame": cand * 1e3,
+            "speedup_depth_all": full / depth_all, "speedup_depth_candidates": full / cand}
+
+
 def bench_record(seconds: float) -> dict[str, float]:
     from litevloc.runtime.cli.main import main
 
@@ -268,6 +305,16 @@ def main() -> int:
             f"  {wn:7s} colour every step {st['rgbd_every_step_wall_per_sim_s']:.3f}; colour at 1 Hz "
             f"{st['rgbd_at_vloc_1hz_wall_per_sim_s']:.3f} (x{st['speedup_vloc_pattern']:.2f}); depth only "
             f"{st['depth_only_wall_per_sim_s']:.3f} (x{st['speedup_depth_only']:.2f})"
+        )
+    print("== mapping-pass feed, ms per frame of the pass (same run) ==")
+    for wn in ("floor",):
+        mf = bench_map_feed(wn, 10.0 if args.quick else 30.0)
+        results[f"map_feed_{wn}"] = mf
+        print(
+            f"  {wn:7s} {mf['frames']} frames ({mf['candidates']} candidates): colour+depth+JPEG "
+            f"{mf['rgbd_jpeg_ms_per_frame']:.1f}; depth only {mf['depth_all_ms_per_frame']:.1f} "
+            f"(x{mf['speedup_depth_all']:.2f}); depth for candidates only (builder pass 1 incl.) "
+            f"{mf['depth_candidates_ms_per_frame']:.1f} (x{mf['speedup_depth_candidates']:.2f})"
         )
     if args.steps_only:
         args.json.parent.mkdir(parents=True, exist_ok=True)
