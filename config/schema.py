@@ -26,11 +26,11 @@ from litevloc.base.params.fusion import FusionParams
 # editing; they move to litevloc.base.params after the merge. Until then importing the config
 # pulls cv2 and scipy through them (tests/config/test_layers.py names them).
 from litevloc.base.params.localization import LocalizationParams
+from litevloc.base.params.mapping import MappingParams
 from litevloc.base.params.models import ModelsConfig
 from litevloc.base.params.navigation import GoalParams, TrackerParams
 from litevloc.base.params.odometry import OdometryCheckParams
 from litevloc.base.params.sim import SimParams
-from litevloc.pipelines.topomap.build import MappingParams
 
 
 @dataclass(frozen=True)

@@ -43,12 +43,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.base.errors import LiteVLocError
+
 log = logging.getLogger(__name__)
 
 STATE_CODES = {"INIT": 0, "GLOBAL": 1, "TRACKING": 2, "LOST": 3, "FAILED": 4}  # GLOBAL: localizer only
 
 
-class ViewError(RuntimeError):
+class ViewError(LiteVLocError, RuntimeError):
     """The view could not be started (Rerun missing, no viewer can be spawned, bad path)."""
 
 

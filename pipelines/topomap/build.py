@@ -28,54 +28,26 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.pipelines.depth_lookup import DepthLookupParams, depth_at
+from litevloc.base.params.mapping import MappingParams as MappingParams
+from litevloc.pipelines.depth_lookup import depth_at
 from litevloc.pipelines.geometry import backproject_depth, check_rigid, rotation_angle, transform_points
 from litevloc.pipelines.topomap.graphs import (
-    ConnectivityParams,
-    CovisibilityParams,
     MatchFn,
     build_connectivity,
     build_covisibility,
     covisibility_candidates,
 )
 from litevloc.pipelines.topomap.keyframes import (
-    KeyframeParams,
     band_keys,
     budget_binds,
     coverage_keys_sliced,
     greedy_select,
 )
-from litevloc.pipelines.topomap.occupancy import OccupancyParams, build_occupancy
+from litevloc.pipelines.topomap.occupancy import build_occupancy
 from litevloc.pipelines.topomap.types import FeatureSet, NodeFeatures, TopoMap
 
 ExtractFn = Callable[[NDArray[np.uint8]], FeatureSet]
 DescribeFn = Callable[[NDArray[np.uint8]], NDArray[np.float32]]
-
-
-@dataclass(frozen=True)
-class MappingParams:
-    """All map-building parameters. `up` is the unit up vector of the map frame.
-
-    `covisibility_matcher` names the matcher the caller should inject for covisibility
-    verification (mutual-NN by default: PnP-RANSAC verification makes the cheap matcher
-    good enough, and it is ~100x faster than LightGlue over all keyframe pairs).
-    """
-
-    up: tuple[float, float, float] = (0.0, 0.0, 1.0)
-    covisibility_matcher: str = "mnn"
-    keyframes: KeyframeParams = field(default_factory=KeyframeParams)
-    occupancy: OccupancyParams = field(default_factory=OccupancyParams)
-    covisibility: CovisibilityParams = field(default_factory=CovisibilityParams)
-    connectivity: ConnectivityParams = field(default_factory=ConnectivityParams)
-    depth: DepthLookupParams = field(default_factory=DepthLookupParams)
-    jpeg_quality: int = 90
-
-    def __post_init__(self) -> None:
-        n = float(np.linalg.norm(self.up))
-        if not np.isfinite(n) or n < 1e-6:
-            raise ValueError(f"up must be a non-zero vector, got {self.up}")
-        if not (1 <= self.jpeg_quality <= 100):
-            raise ValueError("jpeg_quality must be in [1, 100]")
 
 
 @dataclass(eq=False)

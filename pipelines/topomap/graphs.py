@@ -19,50 +19,18 @@ Connectivity (CnG, for planning), the rule:
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.base.params.mapping import ConnectivityParams as ConnectivityParams
+from litevloc.base.params.mapping import CovisibilityParams as CovisibilityParams
 from litevloc.pipelines.geometry import backproject_pixels
-from litevloc.pipelines.pnp import PnpParams, solve_pnp
+from litevloc.pipelines.pnp import solve_pnp
 from litevloc.pipelines.topomap.occupancy import segment_is_free
 from litevloc.pipelines.topomap.types import FeatureSet, OccupancyGrid
 
 MatchFn = Callable[[FeatureSet, FeatureSet], tuple[NDArray[np.int64], NDArray[np.int64]]]
-
-
-@dataclass(frozen=True)
-class CovisibilityParams:
-    """Covisibility verification parameters."""
-
-    max_distance_m: float = 3.5
-    max_angle_deg: float = 90.0
-    min_inliers: int = 30
-    weight_saturation: int = 200
-    pnp: PnpParams = field(
-        default_factory=lambda: PnpParams(min_inliers=10, min_inlier_ratio=0.0, max_median_reprojection_px=3.0)
-    )
-
-    def __post_init__(self) -> None:
-        if self.max_distance_m <= 0 or not (0 < self.max_angle_deg <= 180):
-            raise ValueError("max_distance_m > 0 and max_angle_deg in (0, 180] required")
-        if self.min_inliers < 4 or self.weight_saturation < 1:
-            raise ValueError("min_inliers >= 4 and weight_saturation >= 1 required")
-
-
-@dataclass(frozen=True)
-class ConnectivityParams:
-    """Connectivity (reachability) parameters."""
-
-    max_line_of_sight_m: float = 2.0
-    max_line_of_sight_neighbours: int = 6
-
-    def __post_init__(self) -> None:
-        if self.max_line_of_sight_m < 0:
-            raise ValueError("max_line_of_sight_m must be >= 0")
-        if self.max_line_of_sight_neighbours < 1:
-            raise ValueError("max_line_of_sight_neighbours must be >= 1")
 
 
 def covisibility_candidates(T_map_camera: NDArray[np.float64], params: CovisibilityParams) -> list[tuple[int, int]]:

@@ -31,44 +31,16 @@ No randomness: the same input and parameters always select the same keyframes.
 from __future__ import annotations
 
 import heapq
-from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.base.params.mapping import KeyframeParams as KeyframeParams
 from litevloc.pipelines.geometry import rotation_angle
 
 _OFF = 1 << 20
 HEIGHT_QUANTUM_M = 0.1  # height slice of `coverage_keys_sliced` (m)
 _SLICES = 1 << 12  # height slices per key (+-204.8 m at 0.1 m)
-
-
-@dataclass(frozen=True)
-class KeyframeParams:
-    """Keyframe selection parameters (metres, degrees)."""
-
-    min_translation_m: float = 0.1
-    min_rotation_deg: float = 3.0
-    budget: int | None = None  # explicit cap on the keyframe count (None: coverage decides)
-    coverage: float = 0.95
-    cell_m: float = 0.25
-    heading_bins: int = 8
-    height_band_m: tuple[float, float] = (-2.0, 1.0)  # relative to the median camera height, along `up`
-    max_depth_m: float = 5.0
-    pixel_stride: int = 8
-    min_gain: int = 1
-
-    def __post_init__(self) -> None:
-        if self.min_translation_m < 0 or self.min_rotation_deg < 0:
-            raise ValueError("motion thresholds must be >= 0")
-        if self.budget is not None and self.budget < 1:
-            raise ValueError(f"budget must be >= 1, got {self.budget}")
-        if not (0 < self.coverage <= 1):
-            raise ValueError(f"coverage must be in (0, 1], got {self.coverage}")
-        if self.cell_m <= 0 or self.heading_bins < 1 or self.pixel_stride < 1 or self.max_depth_m <= 0:
-            raise ValueError("cell_m, max_depth_m must be > 0; heading_bins, pixel_stride >= 1")
-        if self.height_band_m[0] >= self.height_band_m[1]:
-            raise ValueError(f"height_band_m must be (low, high) with low < high, got {self.height_band_m}")
 
 
 def motion_prefilter(T_map_camera: NDArray[np.float64], params: KeyframeParams) -> list[int]:

@@ -8,29 +8,12 @@ UNKNOWN otherwise.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.base.params.mapping import OccupancyParams as OccupancyParams
 from litevloc.pipelines.topomap.keyframes import plane_axes
 from litevloc.pipelines.topomap.types import OccupancyGrid
-
-
-@dataclass(frozen=True)
-class OccupancyParams:
-    """Occupancy grid parameters (metres)."""
-
-    resolution_m: float = 0.1
-    obstacle_band_m: tuple[float, float] = (-1.0, 0.5)  # relative to the median camera height
-    min_points: int = 3
-    margin_m: float = 0.5
-
-    def __post_init__(self) -> None:
-        if self.resolution_m <= 0 or self.min_points < 1 or self.margin_m < 0:
-            raise ValueError("resolution_m > 0, min_points >= 1, margin_m >= 0 required")
-        if self.obstacle_band_m[0] >= self.obstacle_band_m[1]:
-            raise ValueError(f"obstacle_band_m must be (low, high) with low < high, got {self.obstacle_band_m}")
 
 
 def build_occupancy(

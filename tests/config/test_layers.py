@@ -13,23 +13,10 @@ import subprocess
 import sys
 from pathlib import Path
 
-import pytest
-
 ROOT = Path(__file__).resolve().parents[2]
 # Heavy or hardware modules the configuration must not load.
 HEAVY = ("cv2", "scipy", "rosbags", "gtsam", "onnxruntime", "zenoh", "matplotlib", "skimage", "depthai", "mcap",
          "litevloc.hw", "litevloc.models", "litevloc.runtime", "litevloc.hw.sim")
-# PENDING (issue 19): parameter classes that other branches were editing when the bottom layer was
-# made; `config/schema.py` still imports them from their algorithm modules (which pull cv2, and
-# with the topomap build, graph code). When they move to `litevloc.base.params`, delete this list,
-# the import of these modules below, and the xfail marker: the strict test then passes.
-PENDING = (
-    "litevloc.pipelines.localization.vloc",  # LocalizationParams (+ PnpParams, DepthLookupParams)
-    "litevloc.pipelines.topomap.keyframes",  # KeyframeParams
-    "litevloc.pipelines.topomap.build",  # MappingParams (+ OccupancyParams, graph parameters)
-)
-
-
 def _imports(path: Path) -> set[str]:
     mods: set[str] = set()
     for node in ast.walk(ast.parse(path.read_text())):
@@ -62,9 +49,8 @@ def test_hw_does_not_import_config() -> None:
     assert _offending("hw", ("litevloc.config", "litevloc.runtime")) == {}
 
 
-def test_config_imports_only_base_and_the_pending_modules() -> None:
-    bad = _offending("config", ("litevloc.hw", "litevloc.models", "litevloc.pipelines", "litevloc.runtime"))
-    assert bad == {"config/schema.py": sorted(PENDING[0::2])}, bad  # vloc and build (build imports keyframes)
+def test_config_imports_only_base() -> None:
+    assert _offending("config", ("litevloc.hw", "litevloc.models", "litevloc.pipelines", "litevloc.runtime")) == {}
 
 
 def _modules_loaded_by_config(preload: tuple[str, ...]) -> list[str]:
@@ -84,22 +70,7 @@ def _heavy(mods: list[str]) -> list[str]:
                   or m.startswith("litevloc.pipelines"))
 
 
-def test_config_itself_adds_no_heavy_module() -> None:
-    # With the pending modules already imported, importing the config must load nothing heavy
-    # of its own (no cv2/scipy/rosbags/simulator/hardware/algorithm module).
-    loaded = _modules_loaded_by_config(PENDING)
+def test_import_config_loads_no_heavy_module() -> None:
+    loaded = _modules_loaded_by_config(())
     assert "litevloc.config.schema" in loaded
     assert _heavy(loaded) == []
-
-
-@pytest.mark.xfail(strict=True, reason="PENDING: LocalizationParams, KeyframeParams, MappingParams still imported "
-                                       "from pipelines (cv2); they move to litevloc.base.params after the merge")
-def test_import_config_loads_no_heavy_module() -> None:
-    assert _heavy(_modules_loaded_by_config(())) == []
-
-
-def test_the_pending_modules_are_the_only_heavy_path() -> None:
-    heavy = _heavy(_modules_loaded_by_config(()))
-    assert heavy, "nothing heavy is left: remove the xfail above and the PENDING list"
-    assert not any(m.startswith(("scipy", "rosbags", "litevloc.hw", "gtsam", "onnxruntime", "zenoh")) for m in heavy)
-    assert set(PENDING) <= set(heavy)
