@@ -44,6 +44,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import threading
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -238,6 +239,16 @@ class OdometrySender:
         self.key_expr = key_expr
         self._pub = session.declare_publisher(key_expr)
         self.sent = 0
+
+    def wait_for_subscribers(self, timeout_s: float) -> bool:
+        """Wait until a subscriber matches the key: Zenoh declarations propagate asynchronously
+        and a put before that is silently dropped. True if one matched within `timeout_s`."""
+        deadline = time.monotonic() + timeout_s
+        while not self._pub.matching_status.matching:
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.01)
+        return True
 
     def send(self, odom: Odometry, twist: NDArray[np.floating] | None = None) -> None:
         self.send_raw(encode_odometry(odom, twist))

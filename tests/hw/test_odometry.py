@@ -96,7 +96,9 @@ def test_receive_over_zenoh_never_loses_a_message() -> None:
     with Bus(ZenohConfig(listen=(ep,))) as rx_bus, Bus(ZenohConfig(listen=(), connect=(ep,))) as tx_bus:
         rx = OdometryReceiver(rx_bus.session, "robot/odom", fifo.put)
         tx = OdometrySender(tx_bus.session, "robot/odom")
-        time.sleep(0.3)
+        # not a fixed sleep: under load the subscription took > 0.3 s to propagate and the first
+        # ~130 puts went nowhere (Zenoh drops a put that no subscriber matches yet)
+        assert tx.wait_for_subscribers(10.0)
         n = 1000
         for i in range(n):
             tx.send(Odometry((i + 1) * 5_000_000, make_T(np.eye(3), np.array([i * 0.01, 0, 0]))))
