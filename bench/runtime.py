@@ -7,10 +7,17 @@ each in its own process so CPU time and peak RSS are its own. A separate Zenoh s
 process measures publish -> receive latency of the fused poses on the wire.
 
 Reported: odometry-in -> pose-handed-to-Zenoh latency (p50/p99, inside the service), wire
-latency (p50/p99, second process), VLoc rate, frames dropped, odometry lost, CPU %, peak RSS.
+latency (p50/p99, second process), VLoc rate, frames dropped, odometry lost, CPU %, peak RSS,
+RSS growth (RSS sampled every 0.5 s: the last sample vs the first one after the service started).
 
-    litevloc demo            # once: makes out/demo/map and out/demo/query.mcap
-    python bench/runtime.py [--seconds 30]
+`--view` compares the threaded runtime without and with the live view (`--view-save` to a
+temporary .rrd: Rerun logging in the view thread) on the same input in the same run:
+fused-pose p99 and VLoc rate of view-on / view-off, the items the view dropped, RSS growth.
+
+Input: the simulated office (`out/demo/map`, the map `litevloc demo` builds, and
+`out/demo/query.mcap`, a query pass); both are made here when absent and then reused.
+
+    python bench/runtime.py [--seconds 30] [--view]
 """
 
 from __future__ import annotations
@@ -31,6 +38,49 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _common import ROOT, print_table, write_json
 
 
+def ensure_input(rec: Path, map_dir: Path, seconds: float) -> None:
+    """Record/build what is missing (cached): the office map (as `litevloc demo` does) and a
+    query pass of at least `seconds` + 10 s."""
+    from litevloc.runtime.cli.main import main as cli
+    from litevloc.runtime.cli.sim_navigate import ensure_map
+
+    if not (map_dir / "manifest.json").is_file():
+        if map_dir != ROOT / "out/demo/map":
+            raise SystemExit(f"no map at {map_dir} (only the default out/demo/map is made here)")
+        ensure_map("office", map_dir.parent, None)
+    if not rec.is_file():
+        argv = ["sim", "record", "office", "--pass", "query", "--seed", "1", "--duration", f"{max(seconds + 10, 60):g}",
+                "-o", str(rec)]
+        print(f"== litevloc {' '.join(argv)}", flush=True)
+        if cli(argv) != 0:
+            raise SystemExit("recording the query pass failed")
+
+
+class RssSampler:
+    """RSS (MB, /proc/self/statm) every `period_s` in a daemon thread."""
+
+    def __init__(self, period_s: float = 0.5) -> None:
+        import os
+        import threading
+
+        self.samples: list[float] = []
+        self._page_mb = os.sysconf("SC_PAGE_SIZE") / 2**20
+        self._stop = threading.Event()
+        self._t = threading.Thread(target=self._run, args=(period_s,), daemon=True)
+        self._t.start()
+
+    def _run(self, period_s: float) -> None:
+        while not self._stop.wait(period_s):
+            with open("/proc/self/statm") as f:
+                self.samples.append(int(f.read().split()[1]) * self._page_mb)
+
+    def stop(self) -> dict[str, float]:
+        self._stop.set()
+        self._t.join()
+        a = self.samples or [float("nan")]
+        return {"first_mb": a[0], "last_mb": a[-1], "max_mb": max(a), "growth_percent": 100 * (a[-1] / a[0] - 1)}
+
+
 def one_run(mode: str, rec: Path, map_dir: Path, seconds: float, endpoint: str, out: Path,
             overrides: list[str]) -> None:
     import dataclasses
@@ -40,7 +90,8 @@ def one_run(mode: str, rec: Path, map_dir: Path, seconds: float, endpoint: str, 
     from litevloc.hw.streams.mcap_io import McapSource
     from litevloc.runtime.app import build_app, with_endpoints
 
-    cfg = load_config("default", [f"runtime.mode={mode}", *overrides])
+    view = mode.endswith("+view")
+    cfg = load_config("default", [f"runtime.mode={mode.removesuffix('+view')}", *overrides])
     cfg = with_endpoints(cfg, [], [endpoint], None)
     cfg = dataclasses.replace(cfg, zenoh=dataclasses.replace(cfg.zenoh, listen=()))
     src = McapSource(rec, strict=False)
@@ -54,11 +105,14 @@ def one_run(mode: str, rec: Path, map_dir: Path, seconds: float, endpoint: str, 
                 break
             yield m
 
-    app = build_app(cfg, map_dir, limited(), 1.0)
+    app = build_app(cfg, map_dir, limited(), 1.0, view_save=out.with_suffix(".rrd") if view else None)
     ru0, t0 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
+    rss = RssSampler()
     res = app.service.run()
     wall = time.perf_counter() - t0
     ru1 = resource.getrusage(resource.RUSAGE_SELF)
+    rss_report = rss.stop()
+    view_report = None if app.view is None else app.view.report()
     app.close()
     st = res.status
     c = st.get("counters", {})
@@ -69,6 +123,8 @@ def one_run(mode: str, rec: Path, map_dir: Path, seconds: float, endpoint: str, 
         "vloc_hz": c.get("vloc_calls", 0) / seconds,
         "latency": st.get("latency", {}).get("odometry_to_publish", {}),
         "odometry_lost": c.get("odometry_in", 0) - c.get("odometry_fused", 0),
+        "rss": rss_report, "view": view_report,
+        "rrd_mb": out.with_suffix(".rrd").stat().st_size / 2**20 if view else None,
     }, default=float))
 
 
@@ -77,7 +133,9 @@ def main() -> None:
     ap.add_argument("--rec", type=Path, default=ROOT / "out/demo/query.mcap")
     ap.add_argument("--map", type=Path, default=ROOT / "out/demo/map")
     ap.add_argument("--seconds", type=float, default=30.0)
-    ap.add_argument("--modes", nargs="+", default=["realtime", "sequential"], choices=["realtime", "sequential"])
+    ap.add_argument("--modes", nargs="+", default=None, choices=["realtime", "sequential", "realtime+view"],
+                    help="default: realtime sequential (with --view: realtime realtime+view)")
+    ap.add_argument("--view", action="store_true", help="compare the threaded runtime with the live view off / on")
     ap.add_argument("--set", dest="overrides", action="append", default=[], help="config override, e.g. "
                     "models.intra_op_threads=1")
     ap.add_argument("--one", nargs=3, metavar=("MODE", "ENDPOINT", "OUT"), help=argparse.SUPPRESS)
@@ -85,8 +143,9 @@ def main() -> None:
     if args.one:
         one_run(args.one[0], args.rec, args.map, args.seconds, args.one[1], Path(args.one[2]), args.overrides)
         return
-    if not args.rec.is_file() or not args.map.is_dir():
-        raise SystemExit(f"needs {args.rec} and {args.map}: run `litevloc demo` first")
+    if args.modes is None:
+        args.modes = ["realtime", "realtime+view"] if args.view else ["realtime", "sequential"]
+    ensure_input(args.rec, args.map, args.seconds)
     sys.path.insert(0, str(ROOT / "tests" / "runtime"))
     from zenoh_helpers import finish_probe, free_port, start_probe
 
@@ -109,15 +168,18 @@ def main() -> None:
         return float(r["latency"].get(k) or float("nan"))
 
     rows = []
-    names = {"realtime": "threaded runtime (realtime)", "sequential": "sequential baseline"}
+    names = {"realtime": "threaded runtime (realtime)", "sequential": "sequential baseline",
+             "realtime+view": "threaded runtime + live view"}
     for name, r in ((names[m], results[m]) for m in args.modes):
         r["lag_s"] = max(r["wall_s"] - args.seconds, 0.0)
         rows.append([name, lat(r, "median_ms"), lat(r, "p99_ms"), r["wire_latency"].get("median_ms", float("nan")),
                      r["wire_latency"].get("p99_ms", float("nan")), r["vloc_hz"], r["frames_dropped"],
-                     r["odometry_lost"], r["cpu_percent"], r["peak_rss_mb"], r["wall_s"], r["lag_s"]])
+                     r["odometry_lost"], r["cpu_percent"], r["peak_rss_mb"], r["rss"]["growth_percent"],
+                     r["wall_s"], r["lag_s"]])
     print_table(f"Onboard service on {args.seconds:.0f} s of {args.rec.name} (15 Hz camera, 200 Hz odometry), 2 CPUs",
                 ["mode", "in-service p50 ms", "in-service p99 ms", "wire p50 ms", "wire p99 ms", "VLoc Hz",
-                 "frames dropped", "odom lost", "CPU %", "RSS MB", "wall s", "behind real time s"], rows)
+                 "frames dropped", "odom lost", "CPU %", "RSS MB", "RSS growth %", "wall s", "behind real time s"],
+                rows)
     print("in-service latency = odometry message dequeued -> fused pose handed to Zenoh. The sequential baseline\n"
           "handles each message quickly once it gets to it, but VLoc on every frame makes it fall behind the\n"
           "sensor stream: its poses are late by up to the 'behind real time' column.")
@@ -126,7 +188,18 @@ def main() -> None:
         ratio = results["sequential"]["wall_s"] / results["realtime"]["wall_s"]
         print(f"wall time for {args.seconds:.0f} s of sensor data: sequential / threaded = {ratio:.1f}x")
         out["wall_ratio"] = ratio
-    write_json("runtime", out)
+    if "realtime" in results and "realtime+view" in results:
+        off, on = results["realtime"], results["realtime+view"]
+        cmp = {"fused_p99_ratio": lat(on, "p99_ms") / lat(off, "p99_ms"),
+               "wire_p99_ratio": on["wire_latency"]["p99_ms"] / off["wire_latency"]["p99_ms"],
+               "vloc_hz_ratio": on["vloc_hz"] / off["vloc_hz"], "view": on["view"], "rrd_mb": on["rrd_mb"]}
+        print(f"view on / off: fused-pose p99 x{cmp['fused_p99_ratio']:.2f} in the service, "
+              f"x{cmp['wire_p99_ratio']:.2f} on the wire; VLoc rate x{cmp['vloc_hz_ratio']:.2f}; "
+              f"the view logged {on['view']['logged']}, dropped {on['view']['dropped']} of {on['view']['queued']}; "
+              f".rrd {on['rrd_mb']:.1f} MB; RSS growth {off['rss']['growth_percent']:.1f} % off, "
+              f"{on['rss']['growth_percent']:.1f} % on")
+        out["view_comparison"] = cmp
+    write_json("runtime" + ("_view" if "realtime+view" in results else ""), out)
 
 
 if __name__ == "__main__":

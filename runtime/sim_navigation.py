@@ -174,6 +174,7 @@ class _Driver:
         self.sub_T: NDArray[np.float64] | None = None
         self.status: dict[str, Any] = {}
         self.events: list[dict[str, Any]] = []
+        self.on_plan: Callable[[dict[str, Any]], None] | None = None  # the live view's put_plan, if on
         self.subgoals_xy: list[tuple[float, float]] = []
         self.records = {g.name: GoalRecord(g.name) for g in goals}
         self.path: list[NDArray[np.float64]] = []
@@ -213,6 +214,8 @@ class _Driver:
         with self.cond:
             if not self.status or st["seq"] > self.status["seq"]:
                 self.events.append(st)
+        if self.on_plan is not None:
+            self.on_plan(st)
             if not self.status or st["seq"] >= self.status["seq"]:
                 self.status = st
             self.cond.notify_all()
@@ -372,9 +375,11 @@ def _zenoh(cfg: LiteVLocConfig, listen: str, connect: tuple[str, ...]) -> Any:
 def run_navigation(
     world: World, cfg: LiteVLocConfig, map_path: Path, goals: list[Goal], start: NDArray[np.float64],
     localization: Literal["litevloc", "ground-truth"] = "litevloc", params: NavParams = NavParams(),
-    bundle: Any = None,
+    bundle: Any = None, view_spawn: bool = False, view_save: Path | None = None,
 ) -> NavRun:
-    """One closed-loop run (see the module docstring); `bundle`: models shared with the planner."""
+    """One closed-loop run (see the module docstring); `bundle`: models shared with the planner.
+    `view_spawn` / `view_save`: the live view of the runtime (litevloc localization only), with
+    the planner's path and subgoals."""
     from litevloc.pipelines.topomap.io import load_map
     from litevloc.runtime.vloc_models import load_bundle
 
@@ -411,7 +416,8 @@ def run_navigation(
                 def __iter__(self) -> Iterator[Message]:
                     return source_box[0]
 
-            app = build_app(rt_cfg, map_path, _Source(), 0.0, on_fused=on_fused)
+            app = build_app(rt_cfg, map_path, _Source(), 0.0, on_fused=on_fused, view_spawn=view_spawn,
+                            view_save=view_save)
             closers.append(app.close)
             last = {"published": 0}
 
@@ -442,6 +448,8 @@ def run_navigation(
         dr_bus = Bus(z_dr)
         closers.append(dr_bus.close)
         driver = _Driver(dr_bus, sim, goals, params, T_bc, on_step, color_for_vloc=localization == "litevloc")
+        if localization == "litevloc" and app.view is not None:
+            driver.on_plan = app.view.put_plan
         closers.append(driver.close)
         gen = driver.messages(np.asarray(start, np.float64))
         if localization == "litevloc":

@@ -174,6 +174,7 @@ class LiveView:
         self.last_error: str | None = None
         self._last_pose_put: int | None = None
         self._last_state: tuple[str, str] | None = None
+        self._last_plan: tuple[str, str, str] | None = None
         self._trail_logged_ns = 0
         self.rec = rr.RecordingStream(application_id)
         sinks: list[Any] = []
@@ -208,6 +209,10 @@ class LiveView:
     def put_status(self, status: Mapping[str, Any]) -> None:
         """From the status tick: the service's status snapshot."""
         self.queue.put(("status", status))
+
+    def put_plan(self, status: Mapping[str, Any]) -> None:
+        """From the planner's status (`litevloc/plan/status` JSON): goal, state, node path, subgoal."""
+        self.queue.put(("plan", status))
 
     def wrap_vloc(self, fn: Callable[[Any, Any], Any]) -> Callable[[Any, Any], Any]:
         """`vloc(frame, prior)` that also hands (frame, result) to the view."""
@@ -253,7 +258,9 @@ class LiveView:
             self._log_vloc(item[1], item[2])
         elif kind == "status":
             self._log_status(item[1])
-        self.logged[kind] += 1
+        elif kind == "plan":
+            self._log_plan(item[1])
+        self.logged[kind] = self.logged.get(kind, 0) + 1
 
     def _time(self, t_ns: int) -> None:
         self.rec.set_time("sensor_time", duration=t_ns * 1e-9)
@@ -326,7 +333,8 @@ class LiveView:
                 f"{getattr(res, 'n_matches', 0)} matches, {getattr(res, 'n_inliers', 0)} PnP inliers "
                 f"(ratio {float(getattr(res, 'inlier_ratio', 0.0)):.2f}), median reprojection "
                 f"{float(getattr(res, 'median_reprojection_px', float('nan'))):.2f} px\n\n"
-                "(the result carries match counts, not matched pixel pairs: no match lines are drawn)")
+                "matches with the reference keyframe: inliers green, outliers red (lines in the live "
+                "image point to where each match sits in the keyframe)")
         self.rec.log("images/match_info", rr.TextDocument(info))
         self.rec.log("status/vloc", rr.TextLog(info.split("\n")[0], level="INFO" if accepted else "WARN"))
         self.rec.log("plots/vloc_inliers", rr.Scalars(float(getattr(res, "n_inliers", 0))))
@@ -334,7 +342,8 @@ class LiveView:
         if m is not None and 0 <= ref < m.n_nodes:
             self.rec.log("images/keyframe", rr.EncodedImage(contents=m.images_jpeg[ref], media_type="image/jpeg"))
             kp = np.asarray(getattr(m.features[ref], "keypoints", np.zeros((0, 2))), dtype=np.float32)
-            self.rec.log("images/keyframe/keypoints", rr.Points2D(kp[:, :2], radii=1.5, colors=(255, 200, 0)))
+            self.rec.log("images/keyframe/keypoints", rr.Points2D(kp[:, :2], radii=1.0, colors=(255, 200, 0)))
+            self._log_matches(getattr(res, "matches", None), w, ref)
             self._log_pose("world/vloc/reference", m.T_map_camera[ref])
             rw, rh = (int(v) for v in m.image_size[ref])
             self.rec.log("world/vloc/reference", self._pinhole(m.K[ref], (rw, rh), (255, 150, 0), 0.3))
@@ -349,6 +358,49 @@ class LiveView:
                 self.rec.log("world/vloc/covariance", rr.Ellipsoids3D(
                     centers=[T[:3, 3]], half_sizes=[half], quaternions=[_quat_xyzw(Rm)], colors=(0, 220, 0),
                     labels=["3-sigma"]))
+
+    def _log_plan(self, st: Mapping[str, Any]) -> None:
+        """The planner's node path (orange strip through the keyframe positions) and its subgoal."""
+        rr = self.rr
+        t = st.get("pose_t_ns")
+        if t is not None:
+            self._time(int(t))
+        m = self.topomap
+        path = [int(n) for n in st.get("path") or []]
+        if m is not None and len(path) >= 2 and all(0 <= n < m.n_nodes for n in path):
+            self.rec.log("world/plan/path", rr.LineStrips3D([np.asarray(m.positions, dtype=np.float64)[path]],
+                                                            radii=0.03, colors=(255, 140, 0)))
+        else:
+            self.rec.log("world/plan/path", rr.Clear(recursive=False))
+        sub = st.get("subgoal_node")
+        if m is not None and sub is not None and 0 <= int(sub) < m.n_nodes:
+            self.rec.log("world/plan/subgoal", rr.Points3D([m.positions[int(sub)]], radii=0.08, colors=(255, 60, 200),
+                                                           labels=[f"subgoal {int(sub)}"]))
+        key = (str(st.get("state")), str(st.get("goal")), str(st.get("reason")))
+        if key != self._last_plan:
+            self._last_plan = key
+            level = "ERROR" if key[0] == "failed" else "INFO"
+            self.rec.log("status/planner", rr.TextLog(f"planner {key[0]}: goal {key[1]}: {key[2]}", level=level))
+
+    def _log_matches(self, matches: Any, live_width: int, ref: int) -> None:
+        """Inlier (green) / outlier (red) matches: points in both images, and in the live image a
+        segment from each live keypoint towards its keyframe keypoint (the keyframe image is shown
+        beside it, so a segment is the match's image-space displacement)."""
+        rr = self.rr
+        if matches is None or int(getattr(matches, "keyframe", -1)) != ref:
+            for path in ("images/live/matches", "images/keyframe/matches", "images/live/match_lines"):
+                self.rec.log(path, rr.Clear(recursive=False))
+            return
+        a = np.asarray(matches.live_px, dtype=np.float32).reshape(-1, 2)
+        b = np.asarray(matches.keyframe_px, dtype=np.float32).reshape(-1, 2)
+        inl = np.asarray(matches.inlier, dtype=bool).reshape(-1)
+        colors = np.where(inl[:, None], np.array([[40, 220, 60]], np.uint8), np.array([[230, 40, 40]], np.uint8))
+        scale = self.image_width / live_width if live_width > self.image_width else 1.0
+        self.rec.log("images/live/matches", rr.Points2D(a * scale, radii=2.0, colors=colors))
+        self.rec.log("images/keyframe/matches", rr.Points2D(b, radii=2.0, colors=colors))
+        self.rec.log("images/live/match_lines", rr.LineStrips2D(np.stack([a, b], axis=1) * scale, colors=colors,
+                                                               radii=0.5))
+        self.logged["matches"] = self.logged.get("matches", 0) + len(a)
 
     def _log_status(self, st: Mapping[str, Any]) -> None:
         rr = self.rr

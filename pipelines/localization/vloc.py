@@ -72,6 +72,22 @@ class CandidateAttempt:
 
 
 @dataclass(frozen=True, eq=False)
+class MatchedPixels:
+    """The live frame's matches with the reference keyframe, for display and diagnosis.
+
+    `live_px` (M, 2) and `keyframe_px` (M, 2) are pixel coordinates (x, y) in the live image and
+    in the reference keyframe's image; `inlier` (M,) is True where the live keypoint, lifted with
+    the live depth and moved by the accepted pose, reprojects into the keyframe within the PnP
+    reprojection threshold (False also where the live keypoint has no depth).
+    """
+
+    keyframe: int
+    live_px: NDArray[np.float32]
+    keyframe_px: NDArray[np.float32]
+    inlier: NDArray[np.bool_]
+
+
+@dataclass(frozen=True, eq=False)
 class LocalizationResult:
     """Outcome of one query. `accepted` False means "not localized" (pose is None)."""
 
@@ -90,6 +106,7 @@ class LocalizationResult:
     timings_ms: dict[str, float] = field(default_factory=dict)
     keyframes: tuple[int, ...] = ()  # keyframes whose matches support the pose (joint refinement)
     stop_reason: str = ""  # GL: why the candidate search stopped (passed, all tried, time budget)
+    matches: MatchedPixels | None = None  # accepted results: matches with `ref_node`, inliers marked
 
 
 @dataclass(frozen=True)
@@ -235,7 +252,7 @@ class VisualLocalizer:
 
     def _result(
         self, t_ns: int, mode: str, best: tuple[int, PnpResult, RefineResult | None] | None,
-        attempts: list[CandidateAttempt], timer: StageTimer, fail_reason: str,
+        attempts: list[CandidateAttempt], timer: StageTimer, fail_reason: str, q: _Query | None = None,
     ) -> LocalizationResult:
         if best is None:
             return LocalizationResult(t_ns, mode, False, fail_reason, attempts=tuple(attempts), timings_ms=timer.ms)
@@ -245,14 +262,32 @@ class VisualLocalizer:
             return LocalizationResult(
                 t_ns, mode, True, "ok", joint.T_map_camera, joint.covariance, node, n_match, joint.n_inliers,
                 joint.n_inliers / max(n_match, 1), joint.median_reprojection_px, tuple(attempts), timer.ms,
-                tuple(joint.inliers_per_keyframe),
+                tuple(joint.inliers_per_keyframe), matches=self._matched_pixels(q, node, joint.T_map_camera),
             )
         assert res.T_target_source is not None
         T = self.map.T_map_camera[node] @ res.T_target_source
         return LocalizationResult(
             t_ns, mode, True, "ok", T, res.covariance, node, res.n_matches, res.n_inliers, res.inlier_ratio,
             res.median_reprojection_px, tuple(attempts), timer.ms, (node,),
+            matches=self._matched_pixels(q, node, T),
         )
+
+    def _matched_pixels(self, q: _Query | None, node: int, T_map_live: NDArray[np.float64]) -> MatchedPixels | None:
+        """The cached matches of `q` with `node`, inliers marked under the accepted pose."""
+        if q is None:
+            return None
+        i_live, i_ref = q.matches(node)
+        live_px = np.asarray(q.feats.keypoints, dtype=np.float64).reshape(-1, 2)[i_live]
+        kf_px = np.asarray(self.map.features[node].keypoints, dtype=np.float64).reshape(-1, 2)[i_ref]
+        pts = q.points()[i_live]  # live camera frame, NaN without depth
+        T_kf_live = np.linalg.inv(self.map.T_map_camera[node]) @ T_map_live
+        p = pts @ T_kf_live[:3, :3].T + T_kf_live[:3, 3]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            uvw = p @ np.asarray(self.map.K[node], dtype=np.float64).T
+            proj = uvw[:, :2] / uvw[:, 2:3]
+            err = np.linalg.norm(proj - kf_px, axis=1)
+            inlier = np.isfinite(err) & (p[:, 2] > 0) & (err <= self.params.pnp.reprojection_px)
+        return MatchedPixels(node, live_px.astype(np.float32), kf_px.astype(np.float32), inlier)
 
     def _prepare(
         self, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, timer: StageTimer
@@ -328,7 +363,7 @@ class VisualLocalizer:
                                                  f"joint refinement rejected: {joint.reason}"))
                 reason = f"not localized: no verified pose was confirmed by a second keyframe (last: node {node})"
             timer.add("total", t_all)
-            return replace(self._result(t_ns, "global", best, attempts, timer, reason), stop_reason=stop)
+            return replace(self._result(t_ns, "global", best, attempts, timer, reason, q), stop_reason=stop)
         verified: list[tuple[int, PnpResult]] = []
         for node in order:
             res, att = self._verify(int(node), q, float(sims[node]))
@@ -351,7 +386,7 @@ class VisualLocalizer:
             reason = f"not localized: no verified pose was confirmed by a second keyframe (last: node {node})"
             attempts.append(CandidateAttempt(node, float(sims[node]), res.n_matches, res.n_inliers, why))
         timer.add("total", t_all)
-        return self._result(t_ns, "global", best, attempts, timer, reason)
+        return self._result(t_ns, "global", best, attempts, timer, reason, q)
 
     def _confirmed(self, node: int, T_map_live: NDArray[np.float64], q: _Query, fallback: list[int]) -> int:
         """Best count of matches explained by the pose over up to `confirm_max_nodes` other
@@ -446,7 +481,7 @@ class VisualLocalizer:
             attempts.append(att)
         timer.add("total", t_all)
         reason = "no map node near the prior" if not cands else "not localized: no candidate verified"
-        return self._result(t_ns, "local", best, attempts, timer, reason)
+        return self._result(t_ns, "local", best, attempts, timer, reason, q)
 
     # ---------------------------------------------------------------- state machine
     def _go(self, t_ns: int, to: TrackingState, reason: str) -> None:

@@ -18,6 +18,7 @@ from typing import Any
 
 from litevloc.runtime.cli.common import add_config_args, config_of, write_json
 from litevloc.runtime.cli.main import UserError
+from litevloc.runtime.cli.run import add_view_args
 
 
 def add_parser(ss: argparse._SubParsersAction) -> None:
@@ -36,6 +37,7 @@ def add_parser(ss: argparse._SubParsersAction) -> None:
                    help="folder for the cached map (default: out/navigate/WORLD)")
     n.add_argument("-o", "--output", type=Path, default=None, help="top-down PNG (default: OUT_DIR/navigate.png)")
     n.add_argument("--json", type=Path, default=None, help="results JSON")
+    add_view_args(n)  # --view / --view-save: the litevloc run's live view, with the planner's path
     add_config_args(n)
     n.set_defaults(func=run_navigate)
 
@@ -91,7 +93,7 @@ def map_summary(map_path: Path) -> dict[str, Any]:
 
 def navigate(world_name: str, cfg: Any, map_path: Path, goal_args: list[str] | None, start: str | None,
              modes: list[str], params: Any, world_seed: int | None = None, png: Path | None = None,
-             ) -> dict[str, Any]:
+             view_spawn: bool = False, view_save: Path | None = None) -> dict[str, Any]:
     """Run the loop for each localization mode; returns the results dict (and writes the PNG)."""
     from litevloc.hw.sim.world import load_world
     from litevloc.pipelines.topomap.io import load_map
@@ -118,7 +120,9 @@ def navigate(world_name: str, cfg: Any, map_path: Path, goal_args: list[str] | N
     runs = {}
     for mode in modes:
         print(f"== navigating {len(goals)} goals with {mode} localization", flush=True)
-        runs[mode] = run_navigation(world, cfg, map_path, goals, world.goal_places[start], mode, params, bundle)
+        view = {"view_spawn": view_spawn, "view_save": view_save} if mode == "litevloc" else {}
+        runs[mode] = run_navigation(world, cfg, map_path, goals, world.goal_places[start], mode, params, bundle,
+                                    **view)
         s = runs[mode].summary()
         print(f"   {s['goals_reached']}/{s['goals_total']} reached, {s['time_s']:.0f} s simulated, "
               f"{s['path_length_m']:.1f} m driven ({s['wall_s']:.0f} s wall)", flush=True)
@@ -178,7 +182,8 @@ def run_navigate(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise UserError(str(exc)) from exc
     png = args.output or args.out_dir / "navigate.png"
-    res = navigate(args.world, cfg, map_path, args.goals, args.start, modes, params, args.world_seed, png)
+    res = navigate(args.world, cfg, map_path, args.goals, args.start, modes, params, args.world_seed, png,
+                   view_spawn=bool(args.view), view_save=args.view_save)
     res["map_info"] = map_summary(map_path)
     for k in ("keyframes", "coverage", "bytes", "build_seconds"):
         res[f"map_{k}"] = res["map_info"][k]

@@ -34,12 +34,22 @@ def test_closed_loop_reaches_a_goal_with_litevloc(small_map: Path, tmp_path: Pat
         if world.is_free(xy, 0.45):
             start[:2, 3] = xy
             break
-    run = run_navigation(world, cfg, small_map, goal, start, "litevloc", NavParams(goal_timeout_s=40.0))
+    rrd = tmp_path / "nav.rrd"  # the live view saved (issue 17): map, poses, VLoc, planner path
+    run = run_navigation(world, cfg, small_map, goal, start, "litevloc", NavParams(goal_timeout_s=40.0),
+                         view_save=rrd)
     s = run.summary()
     assert s["goals_reached"] == 1, s["goals"]
     assert s["runtime"]["vloc_accepted"] >= 1 and s["planner"]["poses_in"] > 10
     assert s["localization_error_m"]["median"] < 0.2
     assert s["collisions"] == 0
+    from rerun.chunk import RrdReader
+
+    rows: dict[str, int] = {}
+    for chunk in RrdReader(rrd).store().stream():
+        rows[str(chunk.entity_path)] = rows.get(str(chunk.entity_path), 0) + chunk.num_rows
+    for path in ("/world/fused", "/world/vloc/camera", "/world/plan/path", "/world/plan/subgoal", "/status/planner",
+                 "/images/live/matches"):
+        assert rows.get(path, 0) > 0, (path, sorted(rows))
 
 
 def test_cli_goal_send_without_planner_reports_no_answer(tmp_path: Path) -> None:

@@ -17,8 +17,10 @@ import pytest
 
 from litevloc.hw.messages import RgbdFrame
 from litevloc.pipelines.geometry import make_T, so3_exp
+from litevloc.pipelines.localization.vloc import MatchedPixels
 from litevloc.pipelines.topomap.types import NodeFeatures, OccupancyGrid, TopoMap
 from litevloc.runtime.view import DropQueue, covariance_ellipsoid, occupied_points
+from tests.runtime.zenoh_helpers import free_port
 
 K = np.array([[100.0, 0, 80], [0, 100.0, 60], [0, 0, 1]])
 
@@ -53,6 +55,7 @@ class Res:
     inlier_ratio: float = 0.0
     median_reprojection_px: float = float("nan")
     timings_ms: dict[str, float] = field(default_factory=dict)
+    matches: Any = None
 
 
 @dataclass
@@ -102,6 +105,7 @@ def test_saved_stream_holds_every_part_of_the_view(tmp_path: Path) -> None:
     out = tmp_path / "view.rrd"
     view = LiveView(save=out, topomap=m, T_base_camera=np.eye(4), pose_hz=10.0)
     color = np.zeros((120, 160, 3), np.uint8)
+    rng = np.random.default_rng(1)
     for i in range(20):  # 200 Hz odometry for 1 s, VLoc at 5 Hz, status at 2 Hz
         t = i * 50_000_000
         for k in range(10):
@@ -111,7 +115,10 @@ def test_saved_stream_holds_every_part_of_the_view(tmp_path: Path) -> None:
             res = Res(t, ok, "ok" if ok else "too few inliers (3)", m.T_map_camera[1] if ok else None,
                       np.diag([1e-4, 1e-4, 4e-4, 1e-5, 1e-5, 1e-5]), ref_node=1, n_matches=120, n_inliers=80,
                       inlier_ratio=0.66, median_reprojection_px=1.2,
-                      timings_ms={"extract": 90.0, "vpr": 20.0, "match": 150.0, "pnp": 1.0, "total": 270.0})
+                      timings_ms={"extract": 90.0, "vpr": 20.0, "match": 150.0, "pnp": 1.0, "total": 270.0},
+                      matches=MatchedPixels(1, rng.uniform(0, 120, (40, 2)).astype(np.float32),
+                                            rng.uniform(0, 120, (40, 2)).astype(np.float32),
+                                            np.arange(40) % 3 != 0) if ok else None)
             view.put_vloc(RgbdFrame(t, color, None, K, index=i), res)
         if i % 10 == 0:
             view.put_status({"sensor_time_ns": t, "state": "TRACKING" if i else "INIT", "reasons": [],
@@ -119,7 +126,7 @@ def test_saved_stream_holds_every_part_of_the_view(tmp_path: Path) -> None:
                              "stages": {"fusion": {"latency": {"odometry": {"p99_ms": 0.5}}}}})
     rep = view.close()
     assert rep["errors"] == 0, rep["last_error"]
-    assert rep["logged"] == {"fused": 10, "vloc": 5, "status": 2}  # 1 s at 200 Hz thinned to 10 Hz
+    assert rep["logged"] == {"fused": 10, "vloc": 5, "status": 2, "matches": 4 * 40}  # 200 Hz thinned to 10 Hz
     assert out.is_file() and out.stat().st_size > 10_000
     rows: dict[str, int] = {}
     for chunk in RrdReader(out).store().stream():
@@ -127,7 +134,8 @@ def test_saved_stream_holds_every_part_of_the_view(tmp_path: Path) -> None:
     for path in ("/world/map/keyframes/0", "/world/map/keyframes/4", "/world/map/covisibility",
                  "/world/map/connectivity", "/world/map/occupancy", "/world/fused", "/world/fused_trail",
                  "/world/vloc/camera", "/world/vloc/covariance", "/world/vloc/reference", "/images/live",
-                 "/images/keyframe", "/images/keyframe/keypoints", "/images/match_info", "/status/tracking",
+                 "/images/keyframe", "/images/keyframe/keypoints", "/images/keyframe/matches", "/images/live/matches",
+                 "/images/live/match_lines", "/images/match_info", "/status/tracking",
                  "/status/vloc", "/plots/vloc_ms/extract", "/plots/vloc_ms/pnp", "/plots/runtime_ms/fusion_p99",
                  "/plots/state", "/plots/queues/odometry", "/plots/view_drops"):
         assert rows.get(path, 0) > 0, (path, sorted(rows))
@@ -151,3 +159,38 @@ def test_nothing_is_imported_with_the_view_off() -> None:
             "or m == 'litevloc.runtime.view']; print(bad); assert not bad")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stdout + r.stderr
+
+
+def _entity_rows(rrd: Path) -> dict[str, int]:
+    from rerun.chunk import RrdReader
+
+    rows: dict[str, int] = {}
+    for chunk in RrdReader(rrd).store().stream():
+        rows[str(chunk.entity_path)] = rows.get(str(chunk.entity_path), 0) + chunk.num_rows
+    return rows
+
+
+@pytest.mark.timeout(300)
+def test_replay_and_localize_save_the_view(seven_scenes_dir: Path, tmp_path: Path) -> None:
+    """`litevloc replay REC --map MAP --view-save` and `litevloc localize ... --view-save` on a
+    short 7-Scenes recording: the files hold the map, fused poses, VLoc results and status."""
+    from litevloc.runtime.cli.main import main
+
+    rec, mp = tmp_path / "s.mcap", tmp_path / "map"
+    assert main(["convert", str(seven_scenes_dir), str(rec), "--frames", "0:80:4", "--odometry-rate", "100"]) == 0
+    assert main(["map", "build", str(rec), "-o", str(mp), "--config", "7scenes"]) == 0
+    fast = ["--set", "models.matcher=mnn"]
+    replay_rrd, loc_rrd = tmp_path / "replay.rrd", tmp_path / "localize.rrd"
+    assert main(["replay", str(rec), "--config", "7scenes", "--map", str(mp), "--listen",
+                 f"tcp/127.0.0.1:{free_port()}", "--set", "runtime.mode=deterministic", *fast,
+                 "--view-save", str(replay_rrd)]) == 0
+    rows = _entity_rows(replay_rrd)
+    for path in ("/world/map/keyframes/0", "/world/map/connectivity", "/world/fused", "/world/vloc/camera",
+                 "/images/live", "/images/keyframe", "/status/tracking", "/plots/vloc_ms/extract",
+                 "/plots/runtime_ms/fusion_p99"):
+        assert rows.get(path, 0) > 0, (path, sorted(rows))
+    assert rows["/images/live"] == 20  # deterministic mode: every frame reached the view
+    assert main(["localize", str(mp), str(rec), "--config", "7scenes", "-o", str(tmp_path / "t.txt"), *fast,
+                 "--view-save", str(loc_rrd)]) == 0
+    rows = _entity_rows(loc_rrd)
+    assert rows.get("/world/vloc/camera", 0) > 0 and rows.get("/status/tracking", 0) > 0

@@ -13,7 +13,7 @@ import pytest
 from numpy.typing import NDArray
 
 from litevloc.pipelines import geometry as g
-from litevloc.pipelines.localization.vloc import LocalizationParams, TrackingState, VisualLocalizer
+from litevloc.pipelines.localization.vloc import LocalizationParams, StageTimer, TrackingState, VisualLocalizer
 from litevloc.pipelines.pnp import PnpParams
 from litevloc.pipelines.topomap.types import NodeFeatures, OccupancyGrid, TopoMap
 
@@ -232,3 +232,30 @@ def test_single_keyframe_behaviour_behind_a_parameter() -> None:
     r = loc.localize_global(0, IMG, s.look(pose(1.3, 5.0), vpr_best=1), K)
     assert r.accepted and r.keyframes == (r.ref_node,) and "refine" not in r.timings_ms
     assert "confirm" in r.timings_ms
+
+
+def test_accepted_results_carry_the_matched_pixels_with_inliers_marked() -> None:
+    """For the live view: the matches with the reference keyframe, inliers under the accepted
+    pose; a garbage-matching keyframe's matches are outliers, a rejected result carries none."""
+    m = make_map([0.0, 1.0, 2.0, 3.0])
+    s = Scene(m)
+    loc = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)
+    r = loc.localize_global(0, IMG, s.look(pose(1.3, 5.0), vpr_best=1), K)
+    assert r.accepted and r.matches is not None and r.matches.keyframe == r.ref_node
+    mp = r.matches
+    assert mp.live_px.shape == mp.keyframe_px.shape == (len(mp.inlier), 2) and len(mp.inlier) >= 30
+    ref_attempt = next(a for a in r.attempts if a.node == r.ref_node)
+    # the same matches PnP verified; inliers under the refined pose agree with PnP's (some
+    # synthetic points have no depth and are outliers in both)
+    assert len(mp.inlier) == ref_attempt.matches
+    assert abs(int(mp.inlier.sum()) - ref_attempt.inliers) <= 0.02 * len(mp.inlier)
+    assert loc._matched_pixels(None, r.ref_node, r.T_map_camera) is None
+    shifted = r.T_map_camera @ pose(0.5, 20.0)  # a pose 0.5 m / 20 deg off: (nearly) nothing reprojects
+    q_res = loc._matched_pixels(loc._query(IMG, s.look(pose(1.3, 5.0), vpr_best=1), K, StageTimer())[0],
+                                r.ref_node, shifted)
+    assert q_res is not None and q_res.inlier.mean() < 0.05
+    s2 = Scene(m)
+    s2.broken_nodes = {0, 1, 2, 3}
+    bad = VisualLocalizer(m, PARAMS, s2.extract, s2.describe, s2.match).localize_global(
+        0, IMG, s2.look(pose(1.3, 5.0), vpr_best=1), K)
+    assert not bad.accepted and bad.matches is None
