@@ -14,8 +14,8 @@ RSS growth (RSS sampled every 0.5 s: the last sample vs the first one after the 
 temporary .rrd: Rerun logging in the view thread) on the same input in the same run:
 fused-pose p99 and VLoc rate of view-on / view-off, the items the view dropped, RSS growth.
 
-Input: the simulated office (`out/demo/map`, the map `litevloc demo` builds, and
-`out/demo/query.mcap`, a query pass); both are made here when absent and then reused.
+Input: the simulated office's map and query pass (`bench/_common.office_inputs`: made here
+when absent, cached under out/bench/inputs/office), or `--map` / `--rec`.
 
     python bench/runtime.py [--seconds 30] [--view]
 """
@@ -35,25 +35,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from _common import ROOT, print_table, write_json
-
-
-def ensure_input(rec: Path, map_dir: Path, seconds: float) -> None:
-    """Record/build what is missing (cached): the office map (as `litevloc demo` does) and a
-    query pass of at least `seconds` + 10 s."""
-    from litevloc.runtime.cli.main import main as cli
-    from litevloc.runtime.cli.sim_navigate import ensure_map
-
-    if not (map_dir / "manifest.json").is_file():
-        if map_dir != ROOT / "out/demo/map":
-            raise SystemExit(f"no map at {map_dir} (only the default out/demo/map is made here)")
-        ensure_map("office", map_dir.parent, None)
-    if not rec.is_file():
-        argv = ["sim", "record", "office", "--pass", "query", "--seed", "1", "--duration", f"{max(seconds + 10, 60):g}",
-                "-o", str(rec)]
-        print(f"== litevloc {' '.join(argv)}", flush=True)
-        if cli(argv) != 0:
-            raise SystemExit("recording the query pass failed")
+from _common import ROOT, office_inputs, print_table, write_json
 
 
 class RssSampler:
@@ -130,8 +112,8 @@ def one_run(mode: str, rec: Path, map_dir: Path, seconds: float, endpoint: str, 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--rec", type=Path, default=ROOT / "out/demo/query.mcap")
-    ap.add_argument("--map", type=Path, default=ROOT / "out/demo/map")
+    ap.add_argument("--rec", type=Path, default=None, help="query recording (default: the office query pass)")
+    ap.add_argument("--map", type=Path, default=None, help="map folder (default: the office map)")
     ap.add_argument("--seconds", type=float, default=30.0)
     ap.add_argument("--modes", nargs="+", default=None, choices=["realtime", "sequential", "realtime+view"],
                     help="default: realtime sequential (with --view: realtime realtime+view)")
@@ -145,7 +127,9 @@ def main() -> None:
         return
     if args.modes is None:
         args.modes = ["realtime", "realtime+view"] if args.view else ["realtime", "sequential"]
-    ensure_input(args.rec, args.map, args.seconds)
+    if args.rec is None or args.map is None:
+        map_dir, rec = office_inputs()  # made when absent, cached under out/bench/inputs/office
+        args.rec, args.map = args.rec or rec, args.map or map_dir
     sys.path.insert(0, str(ROOT / "tests" / "runtime"))
     from zenoh_helpers import finish_probe, free_port, start_probe
 

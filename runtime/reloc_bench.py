@@ -25,10 +25,11 @@ from litevloc.config import LiteVLocConfig
 from litevloc.hw.streams.base import StreamSource
 from litevloc.models.registry import load_extractor, load_matcher
 from litevloc.models.types import Features
-from litevloc.pipelines.evaluation.reloc import reloc_metrics, write_mapfree_poses
+from litevloc.pipelines.evaluation.reloc import reloc_metrics
 from litevloc.pipelines.geometry import backproject_depth, invert, relative_pose_error
 from litevloc.pipelines.localization.vloc import relative_pose
 from litevloc.pipelines.topomap.types import TopoMap
+from litevloc.runtime.mapfree_submission import MapFreeQuery, score_submission, write_dataset, write_submission
 from litevloc.runtime.posed import posed_frames
 
 # The shipped LightGlue weights are for 128-d ALIKED descriptors (n16); t16 (64-d) pairs with mutual-NN.
@@ -113,6 +114,13 @@ def run_reloc(
     refs = [reference_node(topomap, T, f.depth, f.K) for f, T in queries]
     ref_images = {i: _decode(topomap.images_jpeg[i]) for i in sorted(set(refs))}
     results: dict[str, Any] = {"queries": len(queries), "reference_nodes": len(ref_images), "methods": {}}
+    if out_dir is not None:  # the map-free layout: ground truth per reference keyframe ("scene")
+        mf_queries = [MapFreeQuery(int(f.index), ref, np.asarray(f.K, np.float64),
+                                   (int(f.color.shape[1]), int(f.color.shape[0])),
+                                   invert(topomap.T_map_camera[ref]) @ T)
+                      for (f, T), ref in zip(queries, refs, strict=True)]
+        write_dataset(out_dir, mf_queries)
+        results["mapfree_layout"] = str(out_dir)
     for method in methods:
         topk = 512 if method.size_hw[0] * method.size_hw[1] <= 240 * 320 else 1024
         mcfg = dataclasses.replace(cfg.models, extractor_size=method.size_hw, max_keypoints=topk)
@@ -124,7 +132,8 @@ def run_reloc(
             return m.idx0, m.idx1
 
         ref_feats: dict[int, Features] = {i: extractor.extract(img) for i, img in ref_images.items()}
-        te, re_, times, rows = [], [], [], []
+        te, re_, times = [], [], []
+        estimates: dict[int, tuple[int, np.ndarray, float]] = {}
         for (frame, T_gt), ref in zip(queries, refs, strict=True):
             t0 = time.perf_counter()
             feats = extractor.extract(frame.color)
@@ -134,7 +143,7 @@ def run_reloc(
             T_ref_gt = invert(topomap.T_map_camera[ref]) @ T_gt
             if res is not None and res.accepted and res.T_target_source is not None:
                 dt, dr = relative_pose_error(res.T_target_source, T_ref_gt)
-                rows.append((f"frame-{frame.index:06d}", res.T_target_source, float(res.n_inliers)))
+                estimates[int(frame.index)] = (ref, res.T_target_source, float(res.n_inliers))
             else:
                 dt, dr = float("nan"), float("nan")
             te.append(dt)
@@ -143,6 +152,10 @@ def run_reloc(
                 on_query()
         metrics = reloc_metrics(np.array(te), np.array(re_), np.array(times))
         results["methods"][method.name] = metrics.as_dict()
-        if out_dir is not None:
-            write_mapfree_poses(out_dir / f"pose_{method.name.replace('@', '_').replace('+', '_')}.txt", rows)
+        if out_dir is not None:  # written, then scored from the files as the official scorer reads them
+            z = write_submission(out_dir / f"submission_{method.name.replace('@', '_').replace('+', '_')}.zip",
+                                 estimates)
+            results["methods"][method.name]["mapfree"] = {
+                "submission": str(z), "all_queries": score_submission(z, out_dir / "dataset" / "val"),
+                "every_5th_as_official_split": score_submission(z, out_dir / "dataset" / "val", subsample=5)}
     return results

@@ -10,13 +10,12 @@ precision at [5 cm, 5 deg], [25 cm, 5 deg], [1 m, 10 deg] — counted over ALL q
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.pipelines.geometry import invert, matrix_to_quat_xyzw, so3_log
+from litevloc.pipelines.geometry import invert, so3_log
 
 CHI2_95_3DOF = 7.814727903251178  # scipy.stats.chi2.ppf(0.95, 3)
 
@@ -73,23 +72,6 @@ def reloc_metrics(
         time_median_ms=float(np.median(times)) if len(times) else nan,
         time_p90_ms=float(np.percentile(times, 90)) if len(times) else nan,
     )
-
-
-def write_mapfree_poses(path: str | Path, rows: list[tuple[str, NDArray[np.float64], float]]) -> None:
-    """Write `frame qw qx qy qz tx ty tz confidence` lines (map-free submission format).
-
-    Each row is (frame name, T_ref_query, confidence). Map-free poses map reference-frame
-    points into the query camera, so the written transform is T_query_ref = inv(T_ref_query).
-    """
-    lines = []
-    for name, T_ref_query, conf in rows:
-        T = invert(T_ref_query)
-        x, y, z, w = matrix_to_quat_xyzw(T[:3, :3])
-        tx, ty, tz = T[:3, 3]
-        lines.append(f"{name} {w:.9f} {x:.9f} {y:.9f} {z:.9f} {tx:.9f} {ty:.9f} {tz:.9f} {conf:.3f}")
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    p.write_text("\n".join(lines) + ("\n" if lines else ""))
 
 
 def inside_95_ellipsoids(

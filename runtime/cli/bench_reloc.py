@@ -25,7 +25,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("map", type=Path)
     p.add_argument("src", type=Path, help="query recording or dataset folder with ground truth")
     p.add_argument("--methods", nargs="+", default=list(DEFAULT_METHODS), metavar="EXTRACTOR+MATCHER@HxW")
-    p.add_argument("--poses-dir", type=Path, default=None, help="write map-free style pose files here")
+    p.add_argument("--poses-dir", type=Path, default=None,
+                   help="write the results in the map-free benchmark's layout here (a submission zip per method, "
+                        "the ground truth as its dataset folder, references.csv) and score them from the files")
     add_frames_arg(p)
     add_config_args(p)
     add_json_arg(p)
@@ -52,5 +54,17 @@ def run(args: argparse.Namespace) -> int:
                 m["max_rot_deg"], m["precision_5cm_5deg"], m["precision_25cm_5deg"], m["precision_1m_10deg"],
                 m["time_median_ms"]]
         print(f"{name:<30}" + "  ".join(f"{v:>10.2f}" for v in vals))
+    if args.poses_dir is not None:
+        print(f"\nmap-free metrics, scored from the files in {args.poses_dir} (all queries; a query without an "
+              "estimate is a failure)")
+        hdr2 = ["method", "est %", "med t cm", "med r deg", "med VCRE px", "prec pose", "AUC pose", "prec VCRE",
+                "AUC VCRE"]
+        print("  ".join(f"{h:>11}" if i else f"{h:<30}" for i, h in enumerate(hdr2)))
+        for name, m in res["methods"].items():
+            mf = m["mapfree"]["all_queries"]
+            vals = [100 * mf["Estimates for % of frames"], 100 * mf["Average Median Translation Error"],
+                    mf["Average Median Rotation Error"], mf["Average Median Reprojection Error"],
+                    *(mf[k] for k in mf if k.startswith(("Precision", "AUC")))]
+            print(f"{name:<30}" + "  ".join(f"{v:>11.3f}" for v in vals))
     write_json(args.json, res)
     return 0

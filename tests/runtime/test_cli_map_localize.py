@@ -52,4 +52,14 @@ def test_bench_reloc_classical(small_map: Path, seven_scenes_dir: Path, tmp_path
     res = json.loads((tmp_path / "r.json").read_text())
     assert set(res["methods"]) == {"orb+nn-ratio@240x320", "sift+nn-ratio@240x320"}
     assert res["methods"]["sift+nn-ratio@240x320"]["queries"] == 3
+    # the map-free layout: scored from the files, consistent with our own errors
+    sift = res["methods"]["sift+nn-ratio@240x320"]
+    mf = sift["mapfree"]["all_queries"]
+    assert Path(sift["mapfree"]["submission"]).is_file() and (tmp_path / "references.csv").is_file()
+    refs = (tmp_path / "references.csv").read_text().splitlines()
+    assert refs[0] == "scene,frame,source_index,reference_keyframe" and len(refs) == 4
+    assert refs[1].split(",")[1] == "seq1/frame_00030.jpg"
+    assert abs(mf["Estimates for % of frames"] - sift["pct_estimated"] / 100) < 1e-9
+    if sift["estimated"] == 3:  # one scene or several: with every query estimated the medians agree
+        assert mf["Average Median Translation Error"] > 0
     assert main(["bench", "reloc", str(small_map), str(seven_scenes_dir), "--methods", "bad"]) == 2
