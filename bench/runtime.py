@@ -17,7 +17,7 @@ fused-pose p99 and VLoc rate of view-on / view-off, the items the view dropped, 
 Input: the simulated office's map and query pass (`bench/_common.office_inputs`: made here
 when absent, cached under out/bench/inputs/office), or `--map` / `--rec`.
 
-    python bench/runtime.py [--seconds 30] [--view]
+    python bench/runtime.py [--seconds 30] [--view] [--repeat 3]
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import json
 import resource
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -110,6 +111,21 @@ def one_run(mode: str, rec: Path, map_dir: Path, seconds: float, endpoint: str, 
     }, default=float))
 
 
+def median_leaves(dicts: list[dict]) -> dict:
+    """A dict shaped like dicts[0] whose numeric leaves are the median over `dicts`."""
+    out: dict = {}
+    for k, v in dicts[0].items():
+        vals = [d.get(k) for d in dicts]
+        if isinstance(v, dict):
+            out[k] = median_leaves([x if isinstance(x, dict) else {} for x in vals])
+        elif isinstance(v, int | float) and not isinstance(v, bool) and all(
+                isinstance(x, int | float) for x in vals):
+            out[k] = float(statistics.median(float(x) for x in vals))
+        else:
+            out[k] = v
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--rec", type=Path, default=None, help="query recording (default: the office query pass)")
@@ -120,6 +136,7 @@ def main() -> None:
     ap.add_argument("--view", action="store_true", help="compare the threaded runtime with the live view off / on")
     ap.add_argument("--set", dest="overrides", action="append", default=[], help="config override, e.g. "
                     "models.intra_op_threads=1")
+    ap.add_argument("--repeat", type=int, default=1, help="runs per mode, interleaved; medians reported")
     ap.add_argument("--one", nargs=3, metavar=("MODE", "ENDPOINT", "OUT"), help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.one:
@@ -133,20 +150,24 @@ def main() -> None:
     sys.path.insert(0, str(ROOT / "tests" / "runtime"))
     from zenoh_helpers import finish_probe, free_port, start_probe
 
-    results = {}
+    runs: dict[str, list[dict]] = {m: [] for m in args.modes}
     with tempfile.TemporaryDirectory() as tmp:
-        for mode in args.modes:
-            ep = f"tcp/127.0.0.1:{free_port()}"
-            probe_out, run_out = Path(tmp) / f"probe_{mode}.json", Path(tmp) / f"run_{mode}.json"
-            proc = start_probe(ep, probe_out, "pose", {}, timeout=args.seconds * 20 + 120, idle=15.0, listen=True)
-            subprocess.run([sys.executable, __file__, "--rec", str(args.rec), "--map", str(args.map), "--seconds",
-                            str(args.seconds), *[a for o in args.overrides for a in ("--set", o)],
-                            "--one", mode, ep, str(run_out)], check=True)
-            wire = finish_probe(proc, probe_out, timeout=60)["topics"]["pose"]
-            r = json.loads(run_out.read_text())
-            r["wire_latency"] = wire["latency"]
-            r["poses_received"] = wire["count"]
-            results[mode] = r
+        for rep in range(args.repeat):  # modes interleaved, so a change in machine load hits each alike
+            for mode in args.modes:
+                ep = f"tcp/127.0.0.1:{free_port()}"
+                probe_out, run_out = Path(tmp) / f"probe_{mode}_{rep}.json", Path(tmp) / f"run_{mode}_{rep}.json"
+                proc = start_probe(ep, probe_out, "pose", {}, timeout=args.seconds * 20 + 120, idle=15.0,
+                                   listen=True)
+                subprocess.run([sys.executable, __file__, "--rec", str(args.rec), "--map", str(args.map),
+                                "--seconds", str(args.seconds), *[a for o in args.overrides for a in ("--set", o)],
+                                "--one", mode, ep, str(run_out)], check=True)
+                wire = finish_probe(proc, probe_out, timeout=60)["topics"]["pose"]
+                r = json.loads(run_out.read_text())
+                r["wire_latency"] = wire["latency"]
+                r["poses_received"] = wire["count"]
+                runs[mode].append(r)
+    # per mode: the median of each number over the repeats (the single runs are kept in the JSON)
+    results = {m: {**median_leaves(rs), "runs": rs} if len(rs) > 1 else rs[0] for m, rs in runs.items()}
 
     def lat(r: dict, k: str) -> float:
         return float(r["latency"].get(k) or float("nan"))

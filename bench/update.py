@@ -35,7 +35,7 @@ from litevloc.runtime.vloc_models import check_map_models, load_bundle
 MAPS = ROOT / "out" / "maps"
 
 
-def sim_case(world: str) -> None:
+def sim_case(world: str, query_frames: str) -> None:
     """Old map vs updated map on a changed simulated world (see the module docstring)."""
     cli = [sys.executable, "-m", "litevloc.runtime.cli.main"]
     d = ROOT / "out" / "update_sim"
@@ -58,7 +58,7 @@ def sim_case(world: str) -> None:
     loc = {}
     for name, m in (("old", old), ("new", new)):
         subprocess.run([*cli, "localize", str(m), str(d / "query.mcap"), "-o", str(d / f"traj_{name}.txt"),
-                        "--json", str(d / f"loc_{name}.json")], check=True)
+                        "--frames", query_frames, "--json", str(d / f"loc_{name}.json")], check=True)
         loc[name] = json.loads((d / f"loc_{name}.json").read_text())
     keys = sorted(set(loc["old"]) & set(loc["new"]))
     rows = [[k, str(loc["old"][k]), str(loc["new"][k])] for k in keys if not isinstance(loc["old"][k], dict | list)]
@@ -74,9 +74,11 @@ def main() -> None:
     ap.add_argument("--queries", default="500:1000:10")
     ap.add_argument("--config", default="7scenes")
     ap.add_argument("--world", default=None, help="run the simulator case on WORLD and WORLD-changed instead")
+    ap.add_argument("--sim-queries", default="0::5", help="simulator case: query-pass frames to localize (15 Hz "
+                    "recording: every 5th is 3 Hz, the runtime's VLoc rate)")
     args = ap.parse_args()
     if args.world:
-        sim_case(args.world)
+        sim_case(args.world, args.sim_queries)
         return
     data = require_7scenes()
     old = build(data, "0:250", MAPS / "update_old", args.config)

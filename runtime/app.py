@@ -112,8 +112,12 @@ def build_app(
     if view_spawn or view_save is not None:
         from litevloc.runtime.view import LiveView
 
-        view = LiveView(save=view_save, spawn=view_spawn, topomap=topomap, T_base_camera=T_base_camera,
-                        nice=cfg.runtime.vloc_nice)
+        # Made in a thread at VLoc's nice: the view thread and Rerun's own threads (batcher, sinks)
+        # inherit it. Not lower: a view thread preempted while it holds the GIL stalls fusion
+        # (measured at nice 19: fused-pose p99 x3; at VLoc's nice 10: x1.0, see bench/runtime.py --view).
+        view = call_in_low_priority_thread(
+            lambda: LiveView(save=view_save, spawn=view_spawn, topomap=topomap, T_base_camera=T_base_camera,
+                             nice=cfg.runtime.vloc_nice), cfg.runtime.vloc_nice)
     bus = Bus(cfg.zenoh)
     try:
         diagnostics = DiagnosticsPublisher(cfg.diagnostics, map_id(map_path), topomap.n_nodes)

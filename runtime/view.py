@@ -3,7 +3,7 @@
 Off the hot path: producers (the VLoc thread, the fusion thread, the status tick, or the
 `localize` loop) only `put` a small tuple into a bounded latest-value queue (`DropQueue`;
 the oldest item is dropped when it is full, counted, never blocking); one view thread
-(niced like VLoc) turns items into Rerun log calls. Fused poses are thinned at the producer
+(at VLoc's nice, 10) turns items into Rerun log calls. Fused poses are thinned at the producer
 to `pose_hz` of sensor time before they are queued. Rerun is imported only when a
 `LiveView` is made, so nothing extra is imported with the view off.
 
@@ -48,6 +48,11 @@ from litevloc.base.errors import LiteVLocError
 log = logging.getLogger(__name__)
 
 STATE_CODES = {"INIT": 0, "GLOBAL": 1, "TRACKING": 2, "LOST": 3, "FAILED": 4}  # GLOBAL: localizer only
+
+
+# The view thread's Linux nice: VLoc's (runtime.vloc_nice). Lower priority would be worse: a
+# view thread preempted while it holds the GIL stalls the fusion thread (fused-pose p99 x3 at 19).
+VIEW_NICE = 10
 
 
 class ViewError(LiteVLocError, RuntimeError):
@@ -149,7 +154,7 @@ class LiveView:
 
     def __init__(self, *, save: Path | None = None, spawn: bool = False, topomap: Any = None,
                  T_base_camera: NDArray[np.float64] | None = None, queue_capacity: int = 256,
-                 pose_hz: float = 20.0, trail_points: int = 5000, image_width: int = 320, nice: int = 10,
+                 pose_hz: float = 20.0, trail_points: int = 2000, image_width: int = 320, nice: int = VIEW_NICE,
                  application_id: str = "litevloc") -> None:
         if save is None and not spawn:
             raise ViewError("the view needs a viewer to spawn (--view) or a file to save (--view-save)")
@@ -164,7 +169,9 @@ class LiveView:
             self.save_path.parent.mkdir(parents=True, exist_ok=True)
         self.queue = DropQueue(queue_capacity)
         self.pose_period_ns = int(1e9 / pose_hz) if pose_hz > 0 else 0
-        self.trail: deque[NDArray[np.float64]] = deque(maxlen=trail_points)
+        # the trail as a ring of positions (no per-point Python objects to gather when it is logged)
+        self._trail = np.zeros((max(trail_points, 2), 3))
+        self._trail_n = 0
         self.image_width = image_width
         self.nice = nice
         self.topomap = topomap
@@ -175,7 +182,7 @@ class LiveView:
         self._last_pose_put: int | None = None
         self._last_state: tuple[str, str] | None = None
         self._last_plan: tuple[str, str, str] | None = None
-        self._trail_logged_ns = 0
+        self._trail_logged_ns: int | None = None
         self.rec = rr.RecordingStream(application_id)
         sinks: list[Any] = []
         try:
@@ -262,12 +269,19 @@ class LiveView:
             self._log_plan(item[1])
         self.logged[kind] = self.logged.get(kind, 0) + 1
 
+    def _log(self, path: str, *args: Any, **kwargs: Any) -> None:
+        """One Rerun log call, then the GIL handed over: a thread waiting for it (fusion) gets it
+        now instead of at the interpreter's next switch interval (5 ms), so a burst of view
+        work never holds the GIL for more than one call."""
+        self.rec.log(path, *args, **kwargs)
+        time.sleep(0)
+
     def _time(self, t_ns: int) -> None:
         self.rec.set_time("sensor_time", duration=t_ns * 1e-9)
 
     def _log_pose(self, path: str, T: NDArray[np.float64], static: bool = False) -> None:
         T = np.asarray(T, dtype=np.float64)
-        self.rec.log(path, self.rr.Transform3D(translation=T[:3, 3],
+        self._log(path, self.rr.Transform3D(translation=T[:3, 3],
                                                  quaternion=self.rr.Quaternion(xyzw=_quat_xyzw(T[:3, :3]))),
                      static=static)
 
@@ -282,22 +296,22 @@ class LiveView:
         for i in range(m.n_nodes):
             self._log_pose(f"world/map/keyframes/{i}", m.T_map_camera[i], static=True)
             w, h = (int(v) for v in m.image_size[i])
-            self.rec.log(f"world/map/keyframes/{i}", self._pinhole(m.K[i], (w, h), (150, 150, 150), 0.15),
+            self._log(f"world/map/keyframes/{i}", self._pinhole(m.K[i], (w, h), (150, 150, 150), 0.15),
                          static=True)
-        self.rec.log("world/map/keyframe_ids", rr.Points3D(P, radii=0.02, colors=(200, 200, 200),
+        self._log("world/map/keyframe_ids", rr.Points3D(P, radii=0.02, colors=(200, 200, 200),
                                                            labels=[str(i) for i in range(m.n_nodes)],
                                                            show_labels=False), static=True)
         if len(m.covis_edges):
-            self.rec.log("world/map/covisibility", rr.LineStrips3D(P[np.asarray(m.covis_edges)], radii=0.004,
+            self._log("world/map/covisibility", rr.LineStrips3D(P[np.asarray(m.covis_edges)], radii=0.004,
                                                                    colors=(160, 160, 160)), static=True)
         if len(m.conn_edges):
-            self.rec.log("world/map/connectivity", rr.LineStrips3D(P[np.asarray(m.conn_edges)], radii=0.012,
+            self._log("world/map/connectivity", rr.LineStrips3D(P[np.asarray(m.conn_edges)], radii=0.012,
                                                                    colors=(60, 120, 255)), static=True)
         occ = occupied_points(m.grid)
         if len(occ):
-            self.rec.log("world/map/occupancy", rr.Points3D(occ, radii=float(m.grid.resolution) / 2,
+            self._log("world/map/occupancy", rr.Points3D(occ, radii=float(m.grid.resolution) / 2,
                                                             colors=(220, 70, 70)), static=True)
-        self.rec.log("images/match_info", rr.TextDocument(
+        self._log("images/match_info", rr.TextDocument(
             f"map: {m.n_nodes} keyframes, {len(m.covis_edges)} covisibility and {len(m.conn_edges)} "
             "connectivity edges"), static=True)
 
@@ -306,12 +320,16 @@ class LiveView:
         self._time(t_ns)
         T = np.asarray(T_map_base, dtype=np.float64) @ self.T_base_camera
         self._log_pose("world/fused", T)
-        self.rec.log("world/fused", rr.TransformAxes3D(axis_length=0.3) if hasattr(rr, "TransformAxes3D")
+        self._log("world/fused", rr.TransformAxes3D(axis_length=0.3) if hasattr(rr, "TransformAxes3D")
                      else rr.Points3D([[0.0, 0.0, 0.0]], radii=0.05))
-        self.trail.append(T[:3, 3].copy())
-        if t_ns - self._trail_logged_ns >= 500_000_000 and len(self.trail) >= 2:  # the strip at 2 Hz
+        cap = len(self._trail)
+        self._trail[self._trail_n % cap] = T[:3, 3]
+        self._trail_n += 1
+        if self._trail_n >= 2 and (self._trail_logged_ns is None or t_ns - self._trail_logged_ns >= 1_000_000_000):
             self._trail_logged_ns = t_ns
-            self.rec.log("world/fused_trail", rr.LineStrips3D([np.array(self.trail)], radii=0.01,
+            k = self._trail_n % cap
+            trail = self._trail[:self._trail_n] if self._trail_n <= cap else np.roll(self._trail, -k, axis=0)
+            self._log("world/fused_trail", rr.LineStrips3D([trail], radii=0.01,
                                                               colors=(40, 200, 80)))
 
     def _log_vloc(self, frame: Any, res: Any) -> None:
@@ -321,11 +339,11 @@ class LiveView:
         color = np.asarray(frame.color)
         h, w = color.shape[:2]
         jpeg = _jpeg(color, self.image_width)
-        self.rec.log("images/live", rr.EncodedImage(contents=jpeg, media_type="image/jpeg"))
+        self._log("images/live", rr.EncodedImage(contents=jpeg, media_type="image/jpeg"))
         for k in ("extract", "vpr", "match", "pnp", "total"):
             v = (getattr(res, "timings_ms", None) or {}).get(k)
             if v is not None:
-                self.rec.log(f"plots/vloc_ms/{k}", rr.Scalars(float(v)))
+                self._log(f"plots/vloc_ms/{k}", rr.Scalars(float(v)))
         accepted = bool(getattr(res, "accepted", False)) and getattr(res, "T_map_camera", None) is not None
         ref = int(getattr(res, "ref_node", -1))
         info = (f"{'ACCEPTED' if accepted else 'rejected'} ({getattr(res, 'mode', '?')}): "
@@ -335,27 +353,27 @@ class LiveView:
                 f"{float(getattr(res, 'median_reprojection_px', float('nan'))):.2f} px\n\n"
                 "matches with the reference keyframe: inliers green, outliers red (lines in the live "
                 "image point to where each match sits in the keyframe)")
-        self.rec.log("images/match_info", rr.TextDocument(info))
-        self.rec.log("status/vloc", rr.TextLog(info.split("\n")[0], level="INFO" if accepted else "WARN"))
-        self.rec.log("plots/vloc_inliers", rr.Scalars(float(getattr(res, "n_inliers", 0))))
+        self._log("images/match_info", rr.TextDocument(info))
+        self._log("status/vloc", rr.TextLog(info.split("\n")[0], level="INFO" if accepted else "WARN"))
+        self._log("plots/vloc_inliers", rr.Scalars(float(getattr(res, "n_inliers", 0))))
         m = self.topomap
         if m is not None and 0 <= ref < m.n_nodes:
-            self.rec.log("images/keyframe", rr.EncodedImage(contents=m.images_jpeg[ref], media_type="image/jpeg"))
+            self._log("images/keyframe", rr.EncodedImage(contents=m.images_jpeg[ref], media_type="image/jpeg"))
             kp = np.asarray(getattr(m.features[ref], "keypoints", np.zeros((0, 2))), dtype=np.float32)
-            self.rec.log("images/keyframe/keypoints", rr.Points2D(kp[:, :2], radii=1.0, colors=(255, 200, 0)))
+            self._log("images/keyframe/keypoints", rr.Points2D(kp[:, :2], radii=1.0, colors=(255, 200, 0)))
             self._log_matches(getattr(res, "matches", None), w, ref)
             self._log_pose("world/vloc/reference", m.T_map_camera[ref])
             rw, rh = (int(v) for v in m.image_size[ref])
-            self.rec.log("world/vloc/reference", self._pinhole(m.K[ref], (rw, rh), (255, 150, 0), 0.3))
+            self._log("world/vloc/reference", self._pinhole(m.K[ref], (rw, rh), (255, 150, 0), 0.3))
         if accepted:
             T = np.asarray(res.T_map_camera, dtype=np.float64)
             self._log_pose("world/vloc/camera", T)
-            self.rec.log("world/vloc/camera", self._pinhole(frame.K, (w, h), (0, 220, 0), 0.3))
-            self.rec.log("world/vloc/camera", rr.EncodedImage(contents=jpeg, media_type="image/jpeg"))
+            self._log("world/vloc/camera", self._pinhole(frame.K, (w, h), (0, 220, 0), 0.3))
+            self._log("world/vloc/camera", rr.EncodedImage(contents=jpeg, media_type="image/jpeg"))
             ell = covariance_ellipsoid(T, getattr(res, "covariance", None))
             if ell is not None:
                 half, Rm = ell
-                self.rec.log("world/vloc/covariance", rr.Ellipsoids3D(
+                self._log("world/vloc/covariance", rr.Ellipsoids3D(
                     centers=[T[:3, 3]], half_sizes=[half], quaternions=[_quat_xyzw(Rm)], colors=(0, 220, 0),
                     labels=["3-sigma"]))
 
@@ -368,19 +386,19 @@ class LiveView:
         m = self.topomap
         path = [int(n) for n in st.get("path") or []]
         if m is not None and len(path) >= 2 and all(0 <= n < m.n_nodes for n in path):
-            self.rec.log("world/plan/path", rr.LineStrips3D([np.asarray(m.positions, dtype=np.float64)[path]],
+            self._log("world/plan/path", rr.LineStrips3D([np.asarray(m.positions, dtype=np.float64)[path]],
                                                             radii=0.03, colors=(255, 140, 0)))
         else:
-            self.rec.log("world/plan/path", rr.Clear(recursive=False))
+            self._log("world/plan/path", rr.Clear(recursive=False))
         sub = st.get("subgoal_node")
         if m is not None and sub is not None and 0 <= int(sub) < m.n_nodes:
-            self.rec.log("world/plan/subgoal", rr.Points3D([m.positions[int(sub)]], radii=0.08, colors=(255, 60, 200),
+            self._log("world/plan/subgoal", rr.Points3D([m.positions[int(sub)]], radii=0.08, colors=(255, 60, 200),
                                                            labels=[f"subgoal {int(sub)}"]))
         key = (str(st.get("state")), str(st.get("goal")), str(st.get("reason")))
         if key != self._last_plan:
             self._last_plan = key
             level = "ERROR" if key[0] == "failed" else "INFO"
-            self.rec.log("status/planner", rr.TextLog(f"planner {key[0]}: goal {key[1]}: {key[2]}", level=level))
+            self._log("status/planner", rr.TextLog(f"planner {key[0]}: goal {key[1]}: {key[2]}", level=level))
 
     def _log_matches(self, matches: Any, live_width: int, ref: int) -> None:
         """Inlier (green) / outlier (red) matches: points in both images, and in the live image a
@@ -389,16 +407,16 @@ class LiveView:
         rr = self.rr
         if matches is None or int(getattr(matches, "keyframe", -1)) != ref:
             for path in ("images/live/matches", "images/keyframe/matches", "images/live/match_lines"):
-                self.rec.log(path, rr.Clear(recursive=False))
+                self._log(path, rr.Clear(recursive=False))
             return
         a = np.asarray(matches.live_px, dtype=np.float32).reshape(-1, 2)
         b = np.asarray(matches.keyframe_px, dtype=np.float32).reshape(-1, 2)
         inl = np.asarray(matches.inlier, dtype=bool).reshape(-1)
         colors = np.where(inl[:, None], np.array([[40, 220, 60]], np.uint8), np.array([[230, 40, 40]], np.uint8))
         scale = self.image_width / live_width if live_width > self.image_width else 1.0
-        self.rec.log("images/live/matches", rr.Points2D(a * scale, radii=2.0, colors=colors))
-        self.rec.log("images/keyframe/matches", rr.Points2D(b, radii=2.0, colors=colors))
-        self.rec.log("images/live/match_lines", rr.LineStrips2D(np.stack([a, b], axis=1) * scale, colors=colors,
+        self._log("images/live/matches", rr.Points2D(a * scale, radii=2.0, colors=colors))
+        self._log("images/keyframe/matches", rr.Points2D(b, radii=2.0, colors=colors))
+        self._log("images/live/match_lines", rr.LineStrips2D(np.stack([a, b], axis=1) * scale, colors=colors,
                                                                radii=0.5))
         self.logged["matches"] = self.logged.get("matches", 0) + len(a)
 
@@ -409,11 +427,11 @@ class LiveView:
             self._time(int(t))
         state = str(st.get("state", "INIT"))
         reasons = "; ".join(str(r) for r in st.get("reasons") or [])
-        self.rec.log("plots/state", rr.Scalars(float(STATE_CODES.get(state, 4))))
+        self._log("plots/state", rr.Scalars(float(STATE_CODES.get(state, 4))))
         if (state, reasons) != self._last_state:
             self._last_state = (state, reasons)
             level = {"TRACKING": "INFO", "INIT": "WARN", "GLOBAL": "WARN"}.get(state, "ERROR")
-            self.rec.log("status/tracking", rr.TextLog(f"{state}" + (f": {reasons}" if reasons else ""),
+            self._log("status/tracking", rr.TextLog(f"{state}" + (f": {reasons}" if reasons else ""),
                                                        level=level))
         stages = st.get("stages") or {}
         series = {
@@ -423,10 +441,10 @@ class LiveView:
         }
         for k, v in series.items():
             if v is not None and np.isfinite(float(v)):
-                self.rec.log(f"plots/runtime_ms/{k}", rr.Scalars(float(v)))
+                self._log(f"plots/runtime_ms/{k}", rr.Scalars(float(v)))
         for name, q in (st.get("queues") or {}).items():
-            self.rec.log(f"plots/queues/{name}", rr.Scalars(float(q.get("depth") or 0)))
-        self.rec.log("plots/view_drops", rr.Scalars(float(self.queue.drops)))
+            self._log(f"plots/queues/{name}", rr.Scalars(float(q.get("depth") or 0)))
+        self._log("plots/view_drops", rr.Scalars(float(self.queue.drops)))
 
     # ------------------------------------------------------------------ layout, end
     def blueprint(self) -> Any:
