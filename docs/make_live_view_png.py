@@ -1,7 +1,7 @@
 """Remake the README's live-view picture (docs/live_view_office.png).
 
-`litevloc replay` of the simulated office's query pass (the first 20 s) against the office
-map with `--view-save`, then the saved .rrd opened in Rerun's web viewer in headless Chromium
+`litevloc replay` (real time, threaded runtime) of the simulated office's query pass (its
+first 30 s, cut with `litevloc convert`) against the office map with `--view-save`, then the saved .rrd opened in Rerun's web viewer in headless Chromium
 (tests/runtime/browser.py) and screenshotted. Inputs come from bench/_common.office_inputs
 (made when absent). Needs chromium (`make browser`).
 
@@ -30,17 +30,19 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", type=Path, default=ROOT / "docs/live_view_office.png")
     ap.add_argument("--rrd", type=Path, default=ROOT / "out/docs/office_replay.rrd")
-    ap.add_argument("--frames", default="0:300", help="query frames to replay (15 Hz)")
+    ap.add_argument("--frames", default="0:450", help="query frames to replay (15 Hz)")
     args = ap.parse_args()
     if find_chromium() is None:
         raise SystemExit("needs chromium on PATH (make browser)")
     map_dir, query = office_inputs()
     args.rrd.parent.mkdir(parents=True, exist_ok=True)
-    cmd = [sys.executable, "-m", "litevloc.runtime.cli.main", "replay", str(query), "--map", str(map_dir),
-           "--frames", args.frames, "--rate", "0", "--set", "runtime.mode=deterministic",
-           "--listen", f"tcp/127.0.0.1:{free_port()}", "--view-save", str(args.rrd)]
-    print("$", " ".join(cmd), flush=True)
-    subprocess.run(cmd, check=True)
+    cut = args.rrd.with_suffix(".mcap")
+    cli = [sys.executable, "-m", "litevloc.runtime.cli.main"]
+    for cmd in ([*cli, "convert", str(query), str(cut), "--frames", args.frames],
+                [*cli, "replay", str(cut), "--map", str(map_dir), "--listen", f"tcp/127.0.0.1:{free_port()}",
+                 "--view-save", str(args.rrd)]):
+        print("$", " ".join(cmd[2:]), flush=True)
+        subprocess.run(cmd, check=True)
     with tempfile.TemporaryDirectory() as d:
         stats = screenshot_rrd(args.rrd, args.out, Path(d), free_port(), free_port(), timeout_s=300, settle_s=8.0)
     print(f"wrote {args.out} ({stats})")

@@ -17,11 +17,11 @@ Shown (entity paths; timeline `sensor_time` in seconds of sensor time):
 * `world/vloc/camera` each VLoc result (accepted: green frustum with the live image on it;
   rejected: nothing moves), `world/vloc/covariance` the 3-sigma position ellipsoid (map
   frame), `world/vloc/reference` the reference keyframe's frustum highlighted (orange).
-* `images/live` the live image; `images/keyframe` the matched keyframe's stored JPEG with its
-  cached keypoints. The localization result carries match and inlier COUNTS, not the
-  matched pixel pairs (`pipelines.localization.LocalizationResult`), so no match lines are
-  drawn: the counts, inlier ratio and reprojection error are logged beside the images
-  (`images/match_info`).
+* `images/matches` the live image and the matched keyframe side by side with each match
+  drawn as a segment (`images/matches/lines`: inliers green, outliers red; from the
+  result's `MatchedPixels`); `images/live` the live image and `images/keyframe` the
+  keyframe's stored JPEG with its cached keypoints and the matched points;
+  `images/match_info` the counts, inlier ratio and reprojection error.
 * `status/tracking` the tracking state and reasons as a text log (on every change) and
   `plots/state` (0 INIT, 1 GLOBAL, 2 TRACKING, 3 LOST, 4 FAILED); `status/vloc` each VLoc outcome.
 * `plots/vloc_ms/<stage>` extract / vpr / match / pnp / total per query;
@@ -131,17 +131,27 @@ def occupied_points(grid: Any, height: float = 0.0) -> NDArray[np.float64]:
     return np.asarray(xy @ axes + height * np.asarray(grid.up, dtype=np.float64), dtype=np.float64)
 
 
-def _jpeg(color: NDArray[np.uint8], max_width: int) -> bytes:
+def _resized(color: NDArray[np.uint8], max_width: int) -> NDArray[np.uint8]:
     import cv2
 
-    img: NDArray[Any] = np.asarray(color)
+    img: NDArray[np.uint8] = np.asarray(color)
     if img.shape[1] > max_width:
         s = max_width / img.shape[1]
-        img = cv2.resize(img, (max_width, round(img.shape[0] * s)), interpolation=cv2.INTER_AREA)
-    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(img[..., ::-1]), [cv2.IMWRITE_JPEG_QUALITY, 80])
+        img = np.asarray(cv2.resize(img, (max_width, round(img.shape[0] * s)), interpolation=cv2.INTER_AREA))
+    return img
+
+
+def _encode_jpeg(rgb: NDArray[np.uint8]) -> bytes:
+    import cv2
+
+    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(rgb[..., ::-1]), [cv2.IMWRITE_JPEG_QUALITY, 80])
     if not ok:
-        raise ValueError("JPEG encoding of the live image failed")
+        raise ValueError("JPEG encoding of a view image failed")
     return bytes(buf)
+
+
+def _jpeg(color: NDArray[np.uint8], max_width: int) -> bytes:
+    return _encode_jpeg(_resized(color, max_width))
 
 
 class LiveView:
@@ -182,6 +192,7 @@ class LiveView:
         self._last_pose_put: int | None = None
         self._last_state: tuple[str, str] | None = None
         self._last_plan: tuple[str, str, str] | None = None
+        self._kf_cache: dict[int, NDArray[np.uint8]] = {}
         self._trail_logged_ns: int | None = None
         self.rec = rr.RecordingStream(application_id)
         sinks: list[Any] = []
@@ -311,7 +322,7 @@ class LiveView:
         if len(occ):
             self._log("world/map/occupancy", rr.Points3D(occ, radii=float(m.grid.resolution) / 2,
                                                             colors=(220, 70, 70)), static=True)
-        self._log("images/match_info", rr.TextDocument(
+        self._log("world/map/info", rr.TextDocument(
             f"map: {m.n_nodes} keyframes, {len(m.covis_edges)} covisibility and {len(m.conn_edges)} "
             "connectivity edges"), static=True)
 
@@ -338,7 +349,8 @@ class LiveView:
         self._time(t_ns)
         color = np.asarray(frame.color)
         h, w = color.shape[:2]
-        jpeg = _jpeg(color, self.image_width)
+        live_small = _resized(color, self.image_width)
+        jpeg = _encode_jpeg(live_small)
         self._log("images/live", rr.EncodedImage(contents=jpeg, media_type="image/jpeg"))
         for k in ("extract", "vpr", "match", "pnp", "total"):
             v = (getattr(res, "timings_ms", None) or {}).get(k)
@@ -351,8 +363,7 @@ class LiveView:
                 f"{getattr(res, 'n_matches', 0)} matches, {getattr(res, 'n_inliers', 0)} PnP inliers "
                 f"(ratio {float(getattr(res, 'inlier_ratio', 0.0)):.2f}), median reprojection "
                 f"{float(getattr(res, 'median_reprojection_px', float('nan'))):.2f} px\n\n"
-                "matches with the reference keyframe: inliers green, outliers red (lines in the live "
-                "image point to where each match sits in the keyframe)")
+                "matches with the reference keyframe (live image | keyframe): inliers green, outliers red")
         self._log("images/match_info", rr.TextDocument(info))
         self._log("status/vloc", rr.TextLog(info.split("\n")[0], level="INFO" if accepted else "WARN"))
         self._log("plots/vloc_inliers", rr.Scalars(float(getattr(res, "n_inliers", 0))))
@@ -360,8 +371,9 @@ class LiveView:
         if m is not None and 0 <= ref < m.n_nodes:
             self._log("images/keyframe", rr.EncodedImage(contents=m.images_jpeg[ref], media_type="image/jpeg"))
             kp = np.asarray(getattr(m.features[ref], "keypoints", np.zeros((0, 2))), dtype=np.float32)
-            self._log("images/keyframe/keypoints", rr.Points2D(kp[:, :2], radii=1.0, colors=(255, 200, 0)))
-            self._log_matches(getattr(res, "matches", None), w, ref)
+            kf_scale = self._keyframe_rgb(ref).shape[1] / float(m.image_size[ref][0])  # JPEG px per keyframe px
+            self._log("images/keyframe/keypoints", rr.Points2D(kp[:, :2] * kf_scale, radii=1.0, colors=(255, 200, 0)))
+            self._log_matches(getattr(res, "matches", None), live_small, w, ref)
             self._log_pose("world/vloc/reference", m.T_map_camera[ref])
             rw, rh = (int(v) for v in m.image_size[ref])
             self._log("world/vloc/reference", self._pinhole(m.K[ref], (rw, rh), (255, 150, 0), 0.3))
@@ -400,24 +412,50 @@ class LiveView:
             level = "ERROR" if key[0] == "failed" else "INFO"
             self._log("status/planner", rr.TextLog(f"planner {key[0]}: goal {key[1]}: {key[2]}", level=level))
 
-    def _log_matches(self, matches: Any, live_width: int, ref: int) -> None:
-        """Inlier (green) / outlier (red) matches: points in both images, and in the live image a
-        segment from each live keypoint towards its keyframe keypoint (the keyframe image is shown
-        beside it, so a segment is the match's image-space displacement)."""
+    def _keyframe_rgb(self, ref: int) -> NDArray[np.uint8]:
+        """The keyframe's stored JPEG decoded (RGB), the last 32 cached."""
+        import cv2
+
+        img = self._kf_cache.get(ref)
+        if img is None:
+            bgr = cv2.imdecode(np.frombuffer(self.topomap.images_jpeg[ref], np.uint8), cv2.IMREAD_COLOR)
+            if bgr is None:
+                raise ValueError(f"keyframe {ref}'s image does not decode")
+            img = np.ascontiguousarray(bgr[:, :, ::-1])
+            if len(self._kf_cache) >= 32:
+                self._kf_cache.pop(next(iter(self._kf_cache)))
+            self._kf_cache[ref] = img
+        return img
+
+    def _log_matches(self, matches: Any, live_small: NDArray[np.uint8], live_width: int, ref: int) -> None:
+        """`images/matches`: the live image and the matched keyframe side by side at one height,
+        each match a segment between them, inliers green, outliers red (the classic match view);
+        the matched points also on `images/live` and `images/keyframe`."""
+        import cv2
+
         rr = self.rr
+        h1, w1 = live_small.shape[:2]
+        s1 = w1 / live_width
         if matches is None or int(getattr(matches, "keyframe", -1)) != ref:
-            for path in ("images/live/matches", "images/keyframe/matches", "images/live/match_lines"):
+            self._log("images/matches", rr.EncodedImage(contents=_encode_jpeg(live_small), media_type="image/jpeg"))
+            for path in ("images/matches/lines", "images/live/matches", "images/keyframe/matches"):
                 self._log(path, rr.Clear(recursive=False))
             return
+        kw, kh = (int(v) for v in self.topomap.image_size[ref])  # the keyframe's pixel frame
+        s2 = h1 / kh
+        w2 = max(1, round(kw * s2))
+        kf = np.asarray(cv2.resize(self._keyframe_rgb(ref), (w2, h1), interpolation=cv2.INTER_AREA))
+        composite = np.concatenate([live_small, kf], axis=1)
+        self._log("images/matches", rr.EncodedImage(contents=_encode_jpeg(composite), media_type="image/jpeg"))
         a = np.asarray(matches.live_px, dtype=np.float32).reshape(-1, 2)
         b = np.asarray(matches.keyframe_px, dtype=np.float32).reshape(-1, 2)
         inl = np.asarray(matches.inlier, dtype=bool).reshape(-1)
         colors = np.where(inl[:, None], np.array([[40, 220, 60]], np.uint8), np.array([[230, 40, 40]], np.uint8))
-        scale = self.image_width / live_width if live_width > self.image_width else 1.0
-        self._log("images/live/matches", rr.Points2D(a * scale, radii=2.0, colors=colors))
-        self._log("images/keyframe/matches", rr.Points2D(b, radii=2.0, colors=colors))
-        self._log("images/live/match_lines", rr.LineStrips2D(np.stack([a, b], axis=1) * scale, colors=colors,
-                                                               radii=0.5))
+        segs = np.stack([a * s1, b * s2 + np.array([w1, 0.0], np.float32)], axis=1)
+        self._log("images/matches/lines", rr.LineStrips2D(segs, colors=colors, radii=0.6))
+        self._log("images/live/matches", rr.Points2D(a * s1, radii=2.0, colors=colors))
+        kf_scale = self._keyframe_rgb(ref).shape[1] / kw  # stored JPEG pixels per keyframe pixel
+        self._log("images/keyframe/matches", rr.Points2D(b * kf_scale, radii=2.0, colors=colors))
         self.logged["matches"] = self.logged.get("matches", 0) + len(a)
 
     def _log_status(self, st: Mapping[str, Any]) -> None:
@@ -453,8 +491,8 @@ class LiveView:
             rrb.Horizontal(
                 rrb.Spatial3DView(origin="world", name="map, fused pose, VLoc"),
                 rrb.Vertical(
-                    rrb.Horizontal(rrb.Spatial2DView(origin="images/live", name="live image"),
-                                   rrb.Spatial2DView(origin="images/keyframe", name="matched keyframe")),
+                    rrb.Spatial2DView(origin="images/matches",
+                                      name="live image | matched keyframe (inliers green, outliers red)"),
                     rrb.Horizontal(rrb.TextDocumentView(origin="images/match_info", name="VLoc result"),
                                    rrb.TextLogView(origin="status", name="tracking state / VLoc")),
                     rrb.Horizontal(rrb.TimeSeriesView(origin="plots/vloc_ms", name="VLoc stages (ms)"),

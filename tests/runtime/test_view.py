@@ -135,7 +135,7 @@ def test_saved_stream_holds_every_part_of_the_view(tmp_path: Path) -> None:
                  "/world/map/connectivity", "/world/map/occupancy", "/world/fused", "/world/fused_trail",
                  "/world/vloc/camera", "/world/vloc/covariance", "/world/vloc/reference", "/images/live",
                  "/images/keyframe", "/images/keyframe/keypoints", "/images/keyframe/matches", "/images/live/matches",
-                 "/images/live/match_lines", "/images/match_info", "/status/tracking",
+                 "/images/matches", "/images/matches/lines", "/images/match_info", "/status/tracking",
                  "/status/vloc", "/plots/vloc_ms/extract", "/plots/vloc_ms/pnp", "/plots/runtime_ms/fusion_p99",
                  "/plots/state", "/plots/queues/odometry", "/plots/view_drops"):
         assert rows.get(path, 0) > 0, (path, sorted(rows))
