@@ -106,6 +106,7 @@ bench: $(VENV)/.dev-installed models $(BENCH_7S_MAP)/manifest.json
 	$(VENV)/bin/python bench/global_loc.py $(BENCH_7S_MAP) --config 7scenes
 	$(VENV)/bin/python bench/faults.py
 	$(VENV)/bin/python bench/runtime.py --rec $(BENCH_OFFICE)/query.mcap --map $(BENCH_OFFICE)/map
+	$(VENV)/bin/python bench/runtime.py --view --repeat 3
 	$(VENV)/bin/python bench/soak.py --minutes 2 --warmup-min 0.5 --window-min 0.5
 
 clean:

@@ -161,8 +161,15 @@ def main() -> None:
                 subprocess.run([sys.executable, __file__, "--rec", str(args.rec), "--map", str(args.map),
                                 "--seconds", str(args.seconds), *[a for o in args.overrides for a in ("--set", o)],
                                 "--one", mode, ep, str(run_out)], check=True)
-                wire = finish_probe(proc, probe_out, timeout=60)["topics"]["pose"]
                 r = json.loads(run_out.read_text())
+                if r["counters"].get("poses_published", 0) == 0:  # nothing to wait for: the probe would sit out
+                    proc.kill()                                      # its timeout
+                    proc.communicate(timeout=10)
+                    print(f"WARNING: {mode} run {rep} published no fused pose in {args.seconds:g} s "
+                          f"(counters {r['counters']})", flush=True)
+                    wire = {"count": 0, "latency": {}}
+                else:
+                    wire = finish_probe(proc, probe_out, timeout=60)["topics"]["pose"]
                 r["wire_latency"] = wire["latency"]
                 r["poses_received"] = wire["count"]
                 runs[mode].append(r)

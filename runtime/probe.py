@@ -10,7 +10,8 @@ decode errors, wire latency (receive time - the publisher's send time in the
 attachment, same-machine monotonic clock), and the decoded content (poses as
 [t_ns, x, y, z, qx, qy, qz, qw], status as parsed JSON). It prints `READY` on stdout
 once subscribed and connected, so a test can start publishing, and stops when every
-`--count` is reached, after `--idle` seconds without messages, or at `--timeout`.
+`--count` is reached, after `--idle` seconds without messages once the first one arrived (a
+publisher that is slow to start is waited for up to `--timeout`), or at `--timeout`.
 Exit code 0 when every count was reached, 3 on timeout.
 
 `--stamp-latency` also records, for `pose`, receive time - header stamp: end-to-end
@@ -49,7 +50,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--topics", default="pose,vloc,map_to_odom,status")
     ap.add_argument("--count", action="append", default=[], metavar="TOPIC=N", help="stop after N messages")
     ap.add_argument("--timeout", type=float, default=30.0)
-    ap.add_argument("--idle", type=float, default=0.0, help="stop after this long without messages (0 = never)")
+    ap.add_argument("--idle", type=float, default=0.0,
+                    help="stop after this long without messages, counted from the first one (0 = never)")
     ap.add_argument("--json", default=None, help="write the results here (default: stdout)")
     ap.add_argument("--keep", action="store_true", help="keep decoded poses/status in the JSON")
     ap.add_argument("--stamp-latency", action="store_true", help="pose: also receive time - header stamp")
@@ -130,9 +132,9 @@ def main(argv: list[str] | None = None) -> int:
         while not bus.connectivity()["connected"] and time.monotonic() < t_end:
             time.sleep(0.01)
         print("READY" if bus.connectivity()["connected"] else "NOT-CONNECTED", flush=True)
-    last_rx[0] = time.monotonic()
     while not done.is_set() and time.monotonic() < t_end:
-        if args.idle > 0 and time.monotonic() - last_rx[0] > args.idle:
+        got_any = any(r["count"] or r["decode_errors"] for r in res.values())
+        if args.idle > 0 and got_any and time.monotonic() - last_rx[0] > args.idle:
             break
         done.wait(0.05)
     for s in subs:
