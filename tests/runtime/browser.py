@@ -15,6 +15,7 @@ import json
 import os
 import select
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -154,7 +155,8 @@ def rerun_web_viewer(rrd: Path, web_port: int, grpc_port: int) -> Iterator[str]:
     proc = subprocess.Popen(
         [sys.executable, "-m", "rerun_cli", str(rrd), "--serve-web", "--bind", "127.0.0.1", "--web-viewer-port",
          str(web_port), "--port", str(grpc_port), "--hide-welcome-screen"],
-        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        start_new_session=True)  # its own process group: `rerun_cli` starts the native viewer as a child
     try:
         import urllib.request
 
@@ -170,11 +172,15 @@ def rerun_web_viewer(rrd: Path, web_port: int, grpc_port: int) -> Iterator[str]:
                 time.sleep(0.3)
         yield f"http://127.0.0.1:{web_port}/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A{grpc_port}%2Fproxy"
     finally:
-        proc.terminate()
+        # The whole group: terminating the Python wrapper alone left the native server running
+        # (serving and burning a core) after the test or the screenshot.
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGTERM)
         try:
             proc.wait(10)
         except subprocess.TimeoutExpired:
-            proc.kill()
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(proc.pid, signal.SIGKILL)
             proc.wait(5)
 
 
