@@ -193,6 +193,7 @@ class LiveView:
         self._last_state: tuple[str, str] | None = None
         self._last_plan: tuple[str, str, str] | None = None
         self._kf_cache: dict[int, NDArray[np.uint8]] = {}
+        self._kf_resized: dict[tuple[int, int], NDArray[np.uint8]] = {}
         self._trail_logged_ns: int | None = None
         self.rec = rr.RecordingStream(application_id)
         sinks: list[Any] = []
@@ -444,7 +445,12 @@ class LiveView:
         kw, kh = (int(v) for v in self.topomap.image_size[ref])  # the keyframe's pixel frame
         s2 = h1 / kh
         w2 = max(1, round(kw * s2))
-        kf = np.asarray(cv2.resize(self._keyframe_rgb(ref), (w2, h1), interpolation=cv2.INTER_AREA))
+        kf = self._kf_resized.get((ref, h1))
+        if kf is None:  # resized once per keyframe and height (the last 32 kept): tracking reuses a few
+            kf = np.asarray(cv2.resize(self._keyframe_rgb(ref), (w2, h1), interpolation=cv2.INTER_AREA))
+            if len(self._kf_resized) >= 32:
+                self._kf_resized.pop(next(iter(self._kf_resized)))
+            self._kf_resized[(ref, h1)] = kf
         composite = np.concatenate([live_small, kf], axis=1)
         self._log("images/matches", rr.EncodedImage(contents=_encode_jpeg(composite), media_type="image/jpeg"))
         a = np.asarray(matches.live_px, dtype=np.float32).reshape(-1, 2)
