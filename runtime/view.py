@@ -19,8 +19,7 @@ Shown (entity paths; timeline `sensor_time` in seconds of sensor time):
   frame), `world/vloc/reference` the reference keyframe's frustum highlighted (orange).
 * `images/matches` the live image and the matched keyframe side by side with each match
   drawn as a segment (`images/matches/lines`: inliers green, outliers red; from the
-  result's `MatchedPixels`); `images/live` the live image and `images/keyframe` the
-  keyframe's stored JPEG with its cached keypoints and the matched points;
+  result's `MatchedPixels`; a rejected result: the live image alone);
   `images/match_info` the counts, inlier ratio and reprojection error.
 * `status/tracking` the tracking state and reasons as a text log (on every change) and
   `plots/state` (0 INIT, 1 GLOBAL, 2 TRACKING, 3 LOST, 4 FAILED); `status/vloc` each VLoc outcome.
@@ -352,7 +351,6 @@ class LiveView:
         h, w = color.shape[:2]
         live_small = _resized(color, self.image_width)
         jpeg = _encode_jpeg(live_small)
-        self._log("images/live", rr.EncodedImage(contents=jpeg, media_type="image/jpeg"))
         for k in ("extract", "vpr", "match", "pnp", "total"):
             v = (getattr(res, "timings_ms", None) or {}).get(k)
             if v is not None:
@@ -369,12 +367,9 @@ class LiveView:
         self._log("status/vloc", rr.TextLog(info.split("\n")[0], level="INFO" if accepted else "WARN"))
         self._log("plots/vloc_inliers", rr.Scalars(float(getattr(res, "n_inliers", 0))))
         m = self.topomap
-        if m is not None and 0 <= ref < m.n_nodes:
-            self._log("images/keyframe", rr.EncodedImage(contents=m.images_jpeg[ref], media_type="image/jpeg"))
-            kp = np.asarray(getattr(m.features[ref], "keypoints", np.zeros((0, 2))), dtype=np.float32)
-            kf_scale = self._keyframe_rgb(ref).shape[1] / float(m.image_size[ref][0])  # JPEG px per keyframe px
-            self._log("images/keyframe/keypoints", rr.Points2D(kp[:, :2] * kf_scale, radii=1.0, colors=(255, 200, 0)))
-            self._log_matches(getattr(res, "matches", None), live_small, w, ref)
+        has_ref = m is not None and 0 <= ref < m.n_nodes
+        self._log_matches(getattr(res, "matches", None) if has_ref else None, live_small, w, ref)
+        if m is not None and has_ref:
             self._log_pose("world/vloc/reference", m.T_map_camera[ref])
             rw, rh = (int(v) for v in m.image_size[ref])
             self._log("world/vloc/reference", self._pinhole(m.K[ref], (rw, rh), (255, 150, 0), 0.3))
@@ -431,7 +426,7 @@ class LiveView:
     def _log_matches(self, matches: Any, live_small: NDArray[np.uint8], live_width: int, ref: int) -> None:
         """`images/matches`: the live image and the matched keyframe side by side at one height,
         each match a segment between them, inliers green, outliers red (the classic match view);
-        the matched points also on `images/live` and `images/keyframe`."""
+        a rejected result shows the live image alone."""
         import cv2
 
         rr = self.rr
@@ -439,8 +434,7 @@ class LiveView:
         s1 = w1 / live_width
         if matches is None or int(getattr(matches, "keyframe", -1)) != ref:
             self._log("images/matches", rr.EncodedImage(contents=_encode_jpeg(live_small), media_type="image/jpeg"))
-            for path in ("images/matches/lines", "images/live/matches", "images/keyframe/matches"):
-                self._log(path, rr.Clear(recursive=False))
+            self._log("images/matches/lines", rr.Clear(recursive=False))
             return
         kw, kh = (int(v) for v in self.topomap.image_size[ref])  # the keyframe's pixel frame
         s2 = h1 / kh
@@ -459,9 +453,6 @@ class LiveView:
         colors = np.where(inl[:, None], np.array([[40, 220, 60]], np.uint8), np.array([[230, 40, 40]], np.uint8))
         segs = np.stack([a * s1, b * s2 + np.array([w1, 0.0], np.float32)], axis=1)
         self._log("images/matches/lines", rr.LineStrips2D(segs, colors=colors, radii=0.6))
-        self._log("images/live/matches", rr.Points2D(a * s1, radii=2.0, colors=colors))
-        kf_scale = self._keyframe_rgb(ref).shape[1] / kw  # stored JPEG pixels per keyframe pixel
-        self._log("images/keyframe/matches", rr.Points2D(b * kf_scale, radii=2.0, colors=colors))
         self.logged["matches"] = self.logged.get("matches", 0) + len(a)
 
     def _log_status(self, st: Mapping[str, Any]) -> None:

@@ -48,7 +48,7 @@ def test_closed_loop_reaches_a_goal_with_litevloc(small_map: Path, tmp_path: Pat
     for chunk in RrdReader(rrd).store().stream():
         rows[str(chunk.entity_path)] = rows.get(str(chunk.entity_path), 0) + chunk.num_rows
     for path in ("/world/fused", "/world/vloc/camera", "/world/plan/path", "/world/plan/subgoal", "/status/planner",
-                 "/images/live/matches", "/images/matches/lines"):
+                 "/images/matches", "/images/matches/lines"):
         assert rows.get(path, 0) > 0, (path, sorted(rows))
 
 

@@ -133,13 +133,14 @@ def test_saved_stream_holds_every_part_of_the_view(tmp_path: Path) -> None:
         rows[str(chunk.entity_path)] = rows.get(str(chunk.entity_path), 0) + chunk.num_rows
     for path in ("/world/map/keyframes/0", "/world/map/keyframes/4", "/world/map/covisibility",
                  "/world/map/connectivity", "/world/map/occupancy", "/world/fused", "/world/fused_trail",
-                 "/world/vloc/camera", "/world/vloc/covariance", "/world/vloc/reference", "/images/live",
-                 "/images/keyframe", "/images/keyframe/keypoints", "/images/keyframe/matches", "/images/live/matches",
+                 "/world/vloc/camera", "/world/vloc/covariance", "/world/vloc/reference",
                  "/images/matches", "/images/matches/lines", "/images/match_info", "/status/tracking",
                  "/status/vloc", "/plots/vloc_ms/extract", "/plots/vloc_ms/pnp", "/plots/runtime_ms/fusion_p99",
                  "/plots/state", "/plots/queues/odometry", "/plots/view_drops"):
         assert rows.get(path, 0) > 0, (path, sorted(rows))
-    assert rows["/images/live"] == 5 and rows["/world/vloc/covariance"] == 4  # the rejected result moves nothing
+    assert rows["/images/matches"] == 5  # every result
+    assert rows["/images/matches/lines"] == 5  # 4 accepted results, and the rejected one clears them
+    assert rows["/world/vloc/covariance"] == 4  # the rejected result moves nothing
 
 
 def test_view_needs_a_sink() -> None:
@@ -186,10 +187,10 @@ def test_replay_and_localize_save_the_view(seven_scenes_dir: Path, tmp_path: Pat
                  "--view-save", str(replay_rrd)]) == 0
     rows = _entity_rows(replay_rrd)
     for path in ("/world/map/keyframes/0", "/world/map/connectivity", "/world/fused", "/world/vloc/camera",
-                 "/images/live", "/images/keyframe", "/status/tracking", "/plots/vloc_ms/extract",
+                 "/images/matches", "/images/matches/lines", "/status/tracking", "/plots/vloc_ms/extract",
                  "/plots/runtime_ms/fusion_p99"):
         assert rows.get(path, 0) > 0, (path, sorted(rows))
-    assert rows["/images/live"] == 20  # deterministic mode: every frame reached the view
+    assert rows["/images/matches"] == 20  # deterministic mode: every frame reached the view
     assert main(["localize", str(mp), str(rec), "--config", "7scenes", "-o", str(tmp_path / "t.txt"), *fast,
                  "--view-save", str(loc_rrd)]) == 0
     rows = _entity_rows(loc_rrd)
