@@ -135,9 +135,9 @@ def _read_poses(text: str, where: str, with_confidence: bool) -> dict[int, tuple
 
 def score_submission(submission: Path, dataset: Path, subsample: int = 1) -> dict[str, float]:
     """Score a submission zip against a split folder written by `write_dataset`
-    (`DIR/dataset/val`), as the
-    official scorer does (reference frames are not scored; `subsample` keeps every n-th
-    ground-truth frame of a scene, as the scorer's val/test protocol does)."""
+    (`DIR/dataset/val`), as the official scorer does: `subsample` keeps every n-th ground-truth
+    frame of a scene that has a pose file (its val/test protocol), and a scene without one
+    fails with all its frames."""
     if not submission.is_file():
         raise SubmissionError(f"no submission zip at {submission}")
     scenes = sorted(d for d in dataset.iterdir() if d.is_dir()) if dataset.is_dir() else []
@@ -155,10 +155,16 @@ def score_submission(submission: Path, dataset: Path, subsample: int = 1) -> dic
                 if p and not p[0].startswith("#"):
                     fx, fy, cx, cy, W, H = (float(v) for v in p[1:7])
                     intr[int(p[0][-9:-4])] = (np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]]), W, H)
-            gt = {k: v for i, (k, v) in enumerate(gt.items()) if i % subsample == 0}
             member = f"pose_{d.name}.txt"
-            est = (_read_poses(io.TextIOWrapper(z.open(member), encoding="utf-8").read(), f"{submission}:{member}",
-                               True) if member in names else {})
+            if member not in names:
+                # as the official scorer does: a scene without a pose file fails with ALL its frames
+                # (its subsampling applies only to scenes that have one)
+                failures += len(gt)
+                results[d.name] = []
+                continue
+            gt = {k: v for i, (k, v) in enumerate(gt.items()) if i % subsample == 0}
+            est = _read_poses(io.TextIOWrapper(z.open(member), encoding="utf-8").read(), f"{submission}:{member}",
+                              True)
             scores: list[QueryScore] = []
             for num, (T_gt, _) in gt.items():
                 if num not in est:

@@ -71,3 +71,16 @@ def test_malformed_submissions_are_named_errors(tmp_path: Path) -> None:
         score_submission(tmp_path / "missing.zip", tmp_path / "dataset" / "val")
     with pytest.raises(SubmissionError, match="does not fit"):
         write_submission(tmp_path / "x.zip", {123456: (3, np.eye(4), 1.0)})
+
+
+def test_a_scene_without_a_pose_file_fails_with_all_its_frames(tmp_path: Path) -> None:
+    """The official scorer's rule: a scene with no pose file counts every ground-truth frame as
+    a failure (its every-5th subsampling applies only to scenes that have a file)."""
+    qs = _queries(12)  # kf0003: 7 queries, kf0011: 5 queries
+    write_dataset(tmp_path, qs)
+    est = {q.source_index: (q.reference, q.T_ref_query_gt, 100.0) for q in qs if q.reference == 3}
+    z = write_submission(tmp_path / "s.zip", est)
+    split = tmp_path / "dataset" / "val"
+    assert score_submission(z, split)["Estimates for % of frames"] == pytest.approx(7 / 12)
+    # every 5th of kf0003 (frames 0 and 5: 2 estimated) + all 5 frames of kf0011 as failures
+    assert score_submission(z, split, subsample=5)["Estimates for % of frames"] == pytest.approx(2 / 7)
