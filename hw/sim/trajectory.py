@@ -24,9 +24,9 @@ from litevloc.base.errors import LiteVLocError
 from litevloc.hw.sim.simulator import SimParams, Simulator, base_pose
 from litevloc.hw.sim.world import World
 
-PassName = Literal["map", "query", "loop", "loop-back"]
-PASS_NAMES: tuple[str, ...] = ("map", "query", "loop", "loop-back")
-LOOP_BACK_LANE_M = 0.3  # "loop-back" drives this far off the corridor centre line, inner side
+PassName = Literal["map", "query", "loop", "loop-lane", "loop-back"]
+PASS_NAMES: tuple[str, ...] = ("map", "query", "loop", "loop-lane", "loop-back")
+LOOP_BACK_LANE_M = 0.3  # "loop-lane" / "loop-back" drive this far off the corridor centre line, inner side
 
 
 class PlanningError(LiteVLocError, RuntimeError):
@@ -101,12 +101,15 @@ def pass_tasks(
     """Start pose (4x4) and the task list of a map, query or loop pass.
 
     "loop" (layout "loop" worlds only): laps the ring corridor once and drives 10 m past
-    the start again, for drift and loop-closure tests. "loop-back": the same lap in the
-    opposite direction, LOOP_BACK_LANE_M off the centre line (towards the inner wall) — a
-    query pass that sees every place from another lane and the other way round.
+    the start again, for drift and loop-closure tests. "loop-lane": the same lap in the same
+    direction, LOOP_BACK_LANE_M off the centre line (towards the inner wall) — a query pass
+    that sees every place from another lane. "loop-back": that lane the other way round,
+    where a forward-looking camera sees every wall from the side the mapping lap never faced.
     """
     if pass_name == "loop":
         return _loop_tasks(world, params)
+    if pass_name == "loop-lane":
+        return _loop_tasks(world, params, lane=LOOP_BACK_LANE_M)
     if pass_name == "loop-back":
         return _loop_tasks(world, params, reverse=True, lane=LOOP_BACK_LANE_M)
     rng = np.random.default_rng([seed, 17, 0 if pass_name == "map" else 1])

@@ -54,10 +54,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument(
         "--pass",
         dest="pass_name",
-        choices=("map", "query", "loop", "loop-back"),
+        choices=("map", "query", "loop", "loop-lane", "loop-back"),
         default="map",
         help="map: every room with full turns; query: other route and lighting; "
-        "loop: lap the ring corridor (layout-loop worlds); loop-back: the other way, another lane",
+        "loop: lap the ring corridor (layout-loop worlds); loop-lane: the same way in another lane; "
+        "loop-back: the other way, another lane",
     )
     r.add_argument(
         "--plot", type=Path, default=None, help="also write a top-down PNG with the trajectory"

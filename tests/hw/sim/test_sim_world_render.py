@@ -161,6 +161,10 @@ def test_loop_pass_laps_the_ring_corridor(office) -> None:
     assert abs(start_b[1, 3] - start[1, 3]) > 0.25  # another lane
     with pytest.raises(PlanningError, match="layout 'loop'"):
         pass_tasks(office, "loop-back", 0, SimParams())
+    start_c, tasks_c = pass_tasks(loop, "loop-lane", 0, SimParams())  # the same way, in the other lane
+    assert np.allclose(start_c[:2, 0], [1.0, 0.0]) and abs(start_c[1, 3] - start[1, 3]) > 0.25
+    length_c = sum(float(np.linalg.norm(np.diff(t.path, axis=0), axis=1).sum()) for t in tasks_c if t.path is not None)
+    assert 185 <= length_c <= 215
 
 
 def test_depth_only_render_equals_full_render_depth(office) -> None:
