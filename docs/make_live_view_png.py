@@ -1,8 +1,9 @@
 """Remake the README's live-view picture (docs/live_view_office.png).
 
 `litevloc replay` (real time, threaded runtime) of the simulated office's query pass (its
-first 30 s, cut with `litevloc convert`) against the office map with `--view-save`, then the saved .rrd opened in Rerun's web viewer in headless Chromium
-(tests/runtime/browser.py) and screenshotted. Inputs come from bench/_common.office_inputs
+first 30 s, cut with `litevloc convert`) against the office map with `--view-save`, then the
+saved .rrd opened in Rerun's web viewer in headless Chromium (tests/runtime/browser.py) and
+screenshotted. Inputs come from bench/_common.office_inputs
 (made when absent). Needs chromium (`make browser`).
 
     python docs/make_live_view_png.py [--out docs/live_view_office.png]
