@@ -63,7 +63,7 @@ MYPY_STRICT := -p litevloc.base -m litevloc.models -m litevloc.models.types -m l
 	-m litevloc.models.catalog -m litevloc.models.classical -m litevloc.models.vpr -m litevloc.models.aliked \
 	-m litevloc.models.lightglue -m litevloc.models.ort -m litevloc.models.preprocess -m litevloc.models.config \
 	-m litevloc.pipelines.calibration -m litevloc.pipelines.depth_odometry -m litevloc.pipelines.odometry_drift \
-	-m litevloc.pipelines.stereo_depth -m litevloc.pipelines.geometry -m litevloc.pipelines.evaluation.trajectory \
+	-m litevloc.pipelines.stereo_depth -m litevloc.pipelines.geometry -m litevloc.pipelines.evaluation.trajectory -m litevloc.pipelines.evaluation.mapfree \
 	-p litevloc.pipelines.fusion
 
 mypy-namespace:
