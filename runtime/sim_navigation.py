@@ -214,11 +214,11 @@ class _Driver:
         with self.cond:
             if not self.status or st["seq"] > self.status["seq"]:
                 self.events.append(st)
-        if self.on_plan is not None:
-            self.on_plan(st)
             if not self.status or st["seq"] >= self.status["seq"]:
                 self.status = st
             self.cond.notify_all()
+        if self.on_plan is not None:
+            self.on_plan(st)
 
     def _wait(self, pred: Callable[[], bool], what: str, timeout: float | None = None) -> None:
         with self.cond:

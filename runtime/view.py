@@ -149,10 +149,6 @@ def _encode_jpeg(rgb: NDArray[np.uint8]) -> bytes:
     return bytes(buf)
 
 
-def _jpeg(color: NDArray[np.uint8], max_width: int) -> bytes:
-    return _encode_jpeg(_resized(color, max_width))
-
-
 class LiveView:
     """Rerun recording fed from a bounded queue by one view thread (see the module docstring).
 
@@ -191,7 +187,6 @@ class LiveView:
         self._last_pose_put: int | None = None
         self._last_state: tuple[str, str] | None = None
         self._last_plan: tuple[str, str, str] | None = None
-        self._kf_cache: dict[int, NDArray[np.uint8]] = {}
         self._kf_resized: dict[tuple[int, int], NDArray[np.uint8]] = {}
         self._trail_logged_ns: int | None = None
         self.rec = rr.RecordingStream(application_id)
@@ -368,7 +363,7 @@ class LiveView:
         self._log("plots/vloc_inliers", rr.Scalars(float(getattr(res, "n_inliers", 0))))
         m = self.topomap
         has_ref = m is not None and 0 <= ref < m.n_nodes
-        self._log_matches(getattr(res, "matches", None) if has_ref else None, live_small, w, ref)
+        self._log_matches(getattr(res, "matches", None) if has_ref else None, live_small, jpeg, w, ref)
         if m is not None and has_ref:
             self._log_pose("world/vloc/reference", m.T_map_camera[ref])
             rw, rh = (int(v) for v in m.image_size[ref])
@@ -408,43 +403,38 @@ class LiveView:
             level = "ERROR" if key[0] == "failed" else "INFO"
             self._log("status/planner", rr.TextLog(f"planner {key[0]}: goal {key[1]}: {key[2]}", level=level))
 
-    def _keyframe_rgb(self, ref: int) -> NDArray[np.uint8]:
-        """The keyframe's stored JPEG decoded (RGB), the last 32 cached."""
+    def _keyframe_at_height(self, ref: int, width: int, height: int) -> NDArray[np.uint8]:
+        """The keyframe's stored JPEG decoded (RGB) and resized to width x height; the last 32
+        kept (tracking reuses a few keyframes)."""
         import cv2
 
-        img = self._kf_cache.get(ref)
+        img = self._kf_resized.get((ref, height))
         if img is None:
             bgr = cv2.imdecode(np.frombuffer(self.topomap.images_jpeg[ref], np.uint8), cv2.IMREAD_COLOR)
             if bgr is None:
                 raise ValueError(f"keyframe {ref}'s image does not decode")
-            img = np.ascontiguousarray(bgr[:, :, ::-1])
-            if len(self._kf_cache) >= 32:
-                self._kf_cache.pop(next(iter(self._kf_cache)))
-            self._kf_cache[ref] = img
+            img = np.asarray(cv2.resize(np.ascontiguousarray(bgr[:, :, ::-1]), (width, height),
+                                        interpolation=cv2.INTER_AREA))
+            if len(self._kf_resized) >= 32:
+                self._kf_resized.pop(next(iter(self._kf_resized)))
+            self._kf_resized[(ref, height)] = img
         return img
 
-    def _log_matches(self, matches: Any, live_small: NDArray[np.uint8], live_width: int, ref: int) -> None:
+    def _log_matches(self, matches: Any, live_small: NDArray[np.uint8], live_jpeg: bytes, live_width: int,
+                     ref: int) -> None:
         """`images/matches`: the live image and the matched keyframe side by side at one height,
         each match a segment between them, inliers green, outliers red (the classic match view);
-        a rejected result shows the live image alone."""
-        import cv2
-
+        a rejected result shows the live image alone (`live_jpeg`, already encoded)."""
         rr = self.rr
         h1, w1 = live_small.shape[:2]
         s1 = w1 / live_width
         if matches is None or int(getattr(matches, "keyframe", -1)) != ref:
-            self._log("images/matches", rr.EncodedImage(contents=_encode_jpeg(live_small), media_type="image/jpeg"))
+            self._log("images/matches", rr.EncodedImage(contents=live_jpeg, media_type="image/jpeg"))
             self._log("images/matches/lines", rr.Clear(recursive=False))
             return
         kw, kh = (int(v) for v in self.topomap.image_size[ref])  # the keyframe's pixel frame
         s2 = h1 / kh
-        w2 = max(1, round(kw * s2))
-        kf = self._kf_resized.get((ref, h1))
-        if kf is None:  # resized once per keyframe and height (the last 32 kept): tracking reuses a few
-            kf = np.asarray(cv2.resize(self._keyframe_rgb(ref), (w2, h1), interpolation=cv2.INTER_AREA))
-            if len(self._kf_resized) >= 32:
-                self._kf_resized.pop(next(iter(self._kf_resized)))
-            self._kf_resized[(ref, h1)] = kf
+        kf = self._keyframe_at_height(ref, max(1, round(kw * s2)), h1)
         composite = np.concatenate([live_small, kf], axis=1)
         self._log("images/matches", rr.EncodedImage(contents=_encode_jpeg(composite), media_type="image/jpeg"))
         a = np.asarray(matches.live_px, dtype=np.float32).reshape(-1, 2)

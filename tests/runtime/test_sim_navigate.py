@@ -77,3 +77,28 @@ def test_map_from_the_simulator_reports_how_its_keyframes_were_chosen(small_map:
     assert not (small_map.parent / "map.mcap").exists()  # no recording round trip
     # a simulator source takes no --frames (a user error, exit 2)
     assert main(["map", "build", "sim:office?pass=map&duration=2", "-o", str(tmp_path / "m"), "--frames", "0:5"]) == 2
+
+
+def test_driver_status_callback_updates_state_and_feeds_the_view() -> None:
+    """The planner-status callback keeps the driver's status and events under its lock and
+    notifies waiters, with or without the live view's hook (a regression: the hook once
+    swallowed the status update when the view was off)."""
+    import threading
+    from types import SimpleNamespace
+
+    from litevloc.hw import ros_msgs
+    from litevloc.runtime.sim_navigation import _Driver
+
+    def sample(st: dict) -> SimpleNamespace:
+        msg = ros_msgs.typestore().types[ros_msgs.STRING](data=json.dumps(st))
+        data = ros_msgs.serialize(msg, ros_msgs.STRING)
+        return SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: data))
+
+    seen: list[dict] = []
+    for hook in (None, seen.append):
+        d = _Driver.__new__(_Driver)
+        d.cond, d.status, d.events, d.on_plan = threading.Condition(), {}, [], hook
+        d._on_status(sample({"seq": 1, "state": "navigating"}))
+        d._on_status(sample({"seq": 2, "state": "reached"}))
+        assert d.status["seq"] == 2 and [e["seq"] for e in d.events] == [1, 2]
+    assert [s["seq"] for s in seen] == [1, 2]
