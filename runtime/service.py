@@ -168,7 +168,7 @@ class Service:
             ("frames_in", "odometry_in", "odometry_ignored", "ground_truth_in", "vloc_calls", "vloc_accepted",
              "vloc_rejected", "fusion_accepted", "fusion_rejected", "odometry_fused", "poses_published",
              "poses_withheld", "map_to_odom_published", "vloc_published", "status_published",
-             "odometry_rejected", "odometry_gaps"), 0)
+             "odometry_rejected", "odometry_gaps", "vloc_votes", "fusion_initialised_by_votes"), 0)
         self.last_fused: Any = None
         self.sensor_now_ns: int | None = None
         self.last_vloc_accept_ns: int | None = None
@@ -446,6 +446,8 @@ class Service:
         self.last_vloc_reason = str(getattr(res, "reason", ""))
         if not getattr(res, "accepted", False) or getattr(res, "T_map_camera", None) is None:
             self.counters["vloc_rejected"] += 1
+            if getattr(res, "provisional", None) is not None:
+                self._fuse_vote(res)
             return
         self.counters["vloc_accepted"] += 1
         update = self.on_vloc(res)
@@ -459,6 +461,17 @@ class Service:
         self.last_vloc_accept_ns = t if self.last_vloc_accept_ns is None else max(self.last_vloc_accept_ns, t)
         self._m2o_due = True
         self._out(("vloc", t, res.T_map_camera, getattr(res, "covariance", None)))
+
+    def _fuse_vote(self, res: Any) -> None:
+        """A provisional (single-keyframe) GL pose: an initialisation vote for fusion only."""
+        self.counters["vloc_votes"] += 1
+        update = self.on_vloc(res)
+        if update is not None and bool(getattr(update, "accepted", False)):
+            self.counters["fusion_initialised_by_votes"] += 1
+            # the LOST timer starts here: without an accepted fix within lost_after_s -> LOST
+            t = int(res.t_ns)
+            self.last_vloc_accept_ns = t if self.last_vloc_accept_ns is None else max(self.last_vloc_accept_ns, t)
+            self._m2o_due = True
 
     # ------------------------------------------------------------------ publisher thread
     def _handle_publish(self, item: tuple[Any, ...]) -> None:
@@ -629,14 +642,18 @@ def localizer_callable(localizer: Any) -> VlocFn:
 
 def fusion_callables(fusion: Any) -> tuple[OdometryFn, VlocUpdateFn]:
     """An object with `add_odometry(t_ns, T_odom_base, covariance)` and
-    `add_vloc(t_ns, T_map_camera, covariance)` (the GTSAM `OnlineFusion`) -> the service's
-    `(on_odometry, on_vloc)`. The VLoc covariance is passed as `pipelines.pnp` gives it:
+    `add_vloc(t_ns, T_map_camera, covariance, vote_only=False)` (the GTSAM `OnlineFusion`) -> the
+    service's `(on_odometry, on_vloc)`; a rejected result with a provisional pose goes in as a vote.
+    The VLoc covariance is passed as `pipelines.pnp` gives it:
     6x6, camera-frame right perturbation, order (tx, ty, tz, rx, ry, rz)."""
 
     def on_odometry(o: Odometry) -> Any:
         return fusion.add_odometry(o.t_ns, o.T_odom_base, o.covariance)
 
     def on_vloc(r: Any) -> Any:
+        prov = getattr(r, "provisional", None)
+        if not getattr(r, "accepted", True) and prov is not None:  # a provisional GL pose: a vote
+            return fusion.add_vloc(r.t_ns, prov.T_map_camera, prov.covariance, vote_only=True)
         return fusion.add_vloc(r.t_ns, r.T_map_camera, r.covariance)
 
     return on_odometry, on_vloc

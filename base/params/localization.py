@@ -128,6 +128,13 @@ class LocalizationParams:
     # image pair agree on a wrong, shifted pose; two viewpoints rarely agree on the same wrong one.
     gl_confirm: bool = True
     ll_confirm: bool = True
+    # A GL pose that PnP verified with at least this many inliers but that no second keyframe
+    # sees (a place the map views from one keyframe only) is not accepted; it is returned as a
+    # provisional pose: fusion counts it as an initialisation vote (it needs `init_votes` votes
+    # whose T_map_odom agree over the odometry between them), and in GLOBAL state it is
+    # accepted when it agrees with the prior (the fused pose) within the LL prior gate.
+    # 0 disables both. 60 = 1.5 x the PnP minimum (simulator worlds; issue #15).
+    gl_vote_min_inliers: int = 60
     confirm_min_inliers: int = 20
     confirm_max_nodes: int = 2  # second keyframes tried for the confirmation
     # An LL pose this close to a fresh prior (age <= confirm_skip_max_age_s) needs no second
@@ -159,6 +166,8 @@ class LocalizationParams:
             raise ValueError("gl_top_k, ll_max_candidates and ll_failures_before_lost must be >= 1")
         if self.candidate_radius_m <= 0 or not (0 < self.max_view_angle_deg <= 180):
             raise ValueError("candidate_radius_m > 0 and max_view_angle_deg in (0, 180] required")
+        if self.gl_vote_min_inliers < 0:
+            raise ValueError("gl_vote_min_inliers must be >= 0 (0 = no provisional poses)")
         if self.gl_time_budget_ms < 0:
             raise ValueError("gl_time_budget_ms must be >= 0 (0 = no budget)")
         if self.prior_gate_m <= 0 or self.prior_gate_rate_mps < 0 or not (0 < self.prior_gate_deg <= 180):

@@ -29,6 +29,9 @@ Model
   Before that, `add_odometry` returns None (the message is still buffered and counted).
   After `reinit_after_rejects` consecutive gated rejections that agree among themselves,
   the filter re-initialises from them (recovers from a wrong start or a kidnapping).
+  A *vote* (`add_vloc(..., vote_only=True)`: a provisional GL pose that one keyframe alone
+  verified) counts only towards initialisation, like an accepted result; once the filter is
+  initialised, votes are ignored (`vote_ignored`).
   A GTSAM exception (counted as `solver_errors`) also returns the filter to
   uninitialised, so a numerical failure never kills the fusion stage.
 * **Output** at every odometry message: the newest optimised state composed with the
@@ -457,12 +460,22 @@ class OnlineFusion:
         t_ns: int,
         T_map_camera: NDArray[np.floating],
         covariance: NDArray[np.floating] | None = None,
+        vote_only: bool = False,
     ) -> VlocUpdate:
         """Fuse one VLoc result captured at `t_ns` (may be older than the newest odometry).
 
         `covariance`: 6x6 ROS order of `T_map_camera` (body-frame perturbation); None uses
-        the `vloc_sigma_*` parameters. Returns what happened (also counted in `stats()`).
+        the `vloc_sigma_*` parameters. `vote_only`: an initialisation vote (see the module
+        docstring), ignored once initialised. Returns what happened (also counted in `stats()`).
         """
+        if vote_only:
+            self._counts["votes"] += 1
+            if self._initialised:
+                self._vloc_reasons["vote_ignored"] += 1
+                return VlocUpdate(False, "vote_ignored")
+            res = self._add_vloc(int(t_ns), T_map_camera, covariance)
+            self._vloc_reasons[f"vote_{res.reason}"] += 1
+            return res
         self._counts["vloc"] += 1
         res = self._add_vloc(int(t_ns), T_map_camera, covariance)
         self._vloc_reasons[res.reason] += 1
@@ -559,6 +572,7 @@ class OnlineFusion:
             "odometry_rejected": dict(self._odom_rejects),
             "fused_outputs": self._counts["fused_outputs"],
             "vloc": self._counts["vloc"],
+            "votes": self._counts["votes"],  # provisional GL poses offered as initialisation votes
             "vloc_accepted": sum(
                 v
                 for k, v in self._vloc_reasons.items()

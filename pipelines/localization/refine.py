@@ -160,9 +160,9 @@ def refine_pose(
             continue
         used.append((ob, pts[keep], px[keep], _whitener(g[keep], pts[keep, 2], p)))
     matches = {ob.node: len(ob.points_live) for ob in observations}
-    if len(used) < p.min_keyframes:
-        return RefineResult(False, f"only {len(used)} keyframe(s) consistent with the initial pose "
-                            f"(< {p.min_keyframes})", T0, None, {}, matches)
+    if not used:  # (one consistent keyframe is still solved: its pose can be a provisional GL vote)
+        return RefineResult(False, f"no keyframe consistent with the initial pose (< {p.min_keyframes})",
+                            T0, None, {}, matches)
 
     def fun(d: F64) -> F64:
         T = _perturb(T0, d)

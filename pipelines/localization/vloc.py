@@ -17,6 +17,11 @@
   and stops at the first that passes (or when `gl_time_budget_ms` is spent; the result says
   why in `stop_reason`). `refine.enabled: false` restores the single-keyframe pose with the
   separate confirmation (the behaviour before issue #16).
+* Provisional poses: a GL candidate that PnP verifies strongly (`gl_vote_min_inliers`) but that
+  no second keyframe confirms is returned, not accepted, as `LocalizationResult.provisional`.
+  Fusion may count it as an initialisation vote (several must agree over the odometry between
+  them); in GLOBAL state with a prior (the fused pose), one that agrees with the prior within
+  the LL prior gate is accepted (the prior is the independent second view).
 * `VisualLocalizer.process` runs the state machine INIT -> GLOBAL -> TRACKING -> LOST ->
   GLOBAL, exposing each transition with its reason.
 
@@ -88,6 +93,20 @@ class MatchedPixels:
 
 
 @dataclass(frozen=True, eq=False)
+class ProvisionalPose:
+    """A GL pose verified by one keyframe only (no second keyframe sees the place): not a fix.
+
+    `T_map_camera` 4x4 (metres), `covariance` 6x6 camera-frame right perturbation
+    (tx, ty, tz, rx, ry, rz) from the single-keyframe solve; `node` the keyframe, `n_inliers`
+    its inliers under the pose."""
+
+    T_map_camera: NDArray[np.float64]
+    covariance: NDArray[np.float64]
+    node: int
+    n_inliers: int
+
+
+@dataclass(frozen=True, eq=False)
 class LocalizationResult:
     """Outcome of one query. `accepted` False means "not localized" (pose is None)."""
 
@@ -107,6 +126,7 @@ class LocalizationResult:
     keyframes: tuple[int, ...] = ()  # keyframes whose matches support the pose (joint refinement)
     stop_reason: str = ""  # GL: why the candidate search stopped (passed, all tried, time budget)
     matches: MatchedPixels | None = None  # accepted results: matches with `ref_node`, inliers marked
+    provisional: ProvisionalPose | None = None  # rejected GL results only (see ProvisionalPose)
 
 
 @dataclass(frozen=True)
@@ -272,6 +292,24 @@ class VisualLocalizer:
             matches=self._matched_pixels(q, node, T),
         )
 
+    def _single_keyframe(self, node: int, joint: RefineResult) -> ProvisionalPose | None:
+        """The joint solve's pose when it failed only for want of a second keyframe and `node`
+        itself explains at least `gl_vote_min_inliers` matches under it; else None."""
+        rp, need = self.params.refine, self.params.gl_vote_min_inliers
+        if need <= 0 or joint.accepted or joint.covariance is None:
+            return None
+        if joint.consistent_keyframes >= rp.min_keyframes or joint.inliers_per_keyframe.get(node, 0) < need:
+            return None
+        if joint.shift_m > rp.max_shift_m or joint.shift_deg > rp.max_shift_deg:
+            return None
+        return ProvisionalPose(joint.T_map_camera, joint.covariance, node, joint.inliers_per_keyframe[node])
+
+    def _within_gate(self, T: NDArray[np.float64], prior: NDArray[np.float64], prior_age_s: float) -> bool:
+        """The LL prior gate: within prior_gate_m + prior_gate_rate_mps * age and prior_gate_deg."""
+        dt, dr = relative_pose_error(T, prior)
+        gate_m = self.params.prior_gate_m + self.params.prior_gate_rate_mps * max(prior_age_s, 0.0)
+        return bool(dt <= gate_m and dr <= self.params.prior_gate_deg)
+
     def _matched_pixels(self, q: _Query | None, node: int, T_map_live: NDArray[np.float64]) -> MatchedPixels | None:
         """The cached matches of `q` with `node`, inliers marked under the accepted pose."""
         if q is None:
@@ -325,10 +363,17 @@ class VisualLocalizer:
 
     # ---------------------------------------------------------------- GL and LL
     def localize_global(
-        self, t_ns: int, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64]
+        self, t_ns: int, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64],
+        prior_T_map_camera: NDArray[np.float64] | None = None, prior_age_s: float = 0.0,
     ) -> LocalizationResult:
         """VPR top-k + geometric verification; the best accepted candidate wins (after the
-        joint refinement / confirmation by a second keyframe, see `LocalizationParams`)."""
+        joint refinement / confirmation by a second keyframe, see `LocalizationParams`).
+
+        With joint refinement on, a candidate that only its own keyframe confirms becomes the
+        result's `provisional` pose (most inliers first), or is accepted when it agrees with
+        `prior_T_map_camera` (age `prior_age_s`, s) within the LL prior gate."""
+        prior = None if prior_T_map_camera is None else check_rigid(prior_T_map_camera, "prior T_map_camera",
+                                                                      atol=1e-4)
         timer = StageTimer()
         t_all = time.perf_counter()
         q, desc = self._query(color, depth, K, timer)
@@ -338,6 +383,7 @@ class VisualLocalizer:
         best: tuple[int, PnpResult, RefineResult | None] | None = None
         reason = "not localized: no VPR candidate verified"
         stop = f"all {len(order)} VPR candidates tried"
+        provisional: ProvisionalPose | None = None
         if self.params.refine.enabled:
             # Bounded cost: candidates in VPR order, each verified and jointly refined at once;
             # the first that passes the joint check wins; the time budget stops the search.
@@ -359,11 +405,22 @@ class VisualLocalizer:
                     best = (node, res, joint)
                     stop = f"candidate {k + 1} of {len(order)} passed the joint check"
                     break
+                single = self._single_keyframe(node, joint)
+                if single is not None and prior is not None and self._within_gate(single.T_map_camera, prior,
+                                                                                  prior_age_s):
+                    attempts.append(CandidateAttempt(node, att.similarity, att.matches, att.inliers,
+                                                     "one keyframe only; agrees with the prior"))
+                    best = (node, res, replace(joint, accepted=True, reason="ok"))
+                    stop = f"candidate {k + 1} of {len(order)}: one keyframe, agrees with the prior"
+                    break
+                if single is not None and (provisional is None or single.n_inliers > provisional.n_inliers):
+                    provisional = single
                 attempts.append(CandidateAttempt(node, att.similarity, att.matches, att.inliers,
                                                  f"joint refinement rejected: {joint.reason}"))
                 reason = f"not localized: no verified pose was confirmed by a second keyframe (last: node {node})"
             timer.add("total", t_all)
-            return replace(self._result(t_ns, "global", best, attempts, timer, reason, q), stop_reason=stop)
+            out = replace(self._result(t_ns, "global", best, attempts, timer, reason, q), stop_reason=stop)
+            return out if out.accepted or provisional is None else replace(out, provisional=provisional)
         verified: list[tuple[int, PnpResult]] = []
         for node in order:
             res, att = self._verify(int(node), q, float(sims[node]))
@@ -491,16 +548,17 @@ class VisualLocalizer:
 
     def process(
         self, t_ns: int, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64],
-        prior_T_map_camera: NDArray[np.float64] | None = None,
+        prior_T_map_camera: NDArray[np.float64] | None = None, prior_age_s: float = 0.0,
     ) -> LocalizationResult:
-        """One frame through the state machine. The prior (e.g. the fused pose at `t_ns`)
-        is used in TRACKING; without one, the last accepted VLoc pose is the prior."""
+        """One frame through the state machine. The prior (e.g. the fused pose at `t_ns`,
+        `prior_age_s` old) is used in TRACKING; without one, the last accepted VLoc pose is the
+        prior. In GLOBAL state it can accept a single-keyframe GL pose that agrees with it."""
         if self.state in (TrackingState.INIT, TrackingState.LOST):
             why = "start-up" if self.state == TrackingState.INIT else "recover from LOST"
             self._go(t_ns, TrackingState.GLOBAL, why)
         if self.state == TrackingState.TRACKING:
             if prior_T_map_camera is not None:
-                prior, age = prior_T_map_camera, 0.0
+                prior, age = prior_T_map_camera, prior_age_s
             else:
                 assert self.last_pose is not None
                 prior, age = self.last_pose, (t_ns - self.last_pose_t_ns) * 1e-9
@@ -517,7 +575,7 @@ class VisualLocalizer:
                     self._go(t_ns, TrackingState.LOST, f"{self.failures} consecutive LL failures")
                     self.failures = 0
                 return res
-        res = self.localize_global(t_ns, color, depth, K)
+        res = self.localize_global(t_ns, color, depth, K, prior_T_map_camera, prior_age_s)
         if res.accepted:
             self.failures = 0
             self.last_pose, self.last_pose_t_ns = res.T_map_camera, t_ns

@@ -206,3 +206,20 @@ def test_solver_error_is_counted_and_the_filter_restarts() -> None:
     assert st["solver_errors"] == 1 and not f.initialised
     assert f.add_vloc(200_000_000, np.eye(4)).reason == "initialised"  # recovers from the next VLoc
     assert f.add_odometry(300_000_000, np.eye(4)) is not None
+
+
+def test_votes_only_initialise_and_are_ignored_afterwards() -> None:
+    """Provisional (single-keyframe) GL poses count towards initialisation, never after it."""
+    f = OnlineFusion(FusionParams(init_votes=2), np.eye(4))
+    for k in range(50):
+        f.add_odometry(k * 10_000_000, np.eye(4))
+    assert f.add_vloc(100_000_000, np.eye(4), vote_only=True).reason == "awaiting_init"
+    assert not f.initialised
+    r = f.add_vloc(200_000_000, make_T(np.eye(3), [0.01, 0, 0]), vote_only=True)
+    assert r.accepted and r.reason == "initialised" and f.initialised
+    far = make_T(np.eye(3), [5.0, 0, 0])
+    assert f.add_vloc(300_000_000, far, vote_only=True).reason == "vote_ignored"
+    out = f.add_odometry(500_000_000, np.eye(4))
+    assert out is not None and np.linalg.norm(out.T_map_base[:3, 3]) < 0.05  # the ignored vote moved nothing
+    s = f.stats()
+    assert s["votes"] == 3 and s["vloc"] == 0 and s["vloc_by_reason"]["vote_initialised"] == 1

@@ -259,3 +259,40 @@ def test_accepted_results_carry_the_matched_pixels_with_inliers_marked() -> None
     bad = VisualLocalizer(m, PARAMS, s2.extract, s2.describe, s2.match).localize_global(
         0, IMG, s2.look(pose(1.3, 5.0), vpr_best=1), K)
     assert not bad.accepted and bad.matches is None
+
+
+def test_place_seen_by_one_keyframe_is_provisional_until_a_prior_agrees() -> None:
+    """A one-keyframe map: PnP verifies the place, no second keyframe can confirm it. GL returns
+    a provisional pose (a fusion vote), not a fix; with a prior that agrees, GLOBAL accepts it."""
+    from dataclasses import replace
+
+    m = make_map([0.0])
+    s = Scene(m)
+    loc = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)
+    T_true = pose(0.3, 5.0)
+    depth = s.look(T_true, vpr_best=0)
+    r = loc.localize_global(0, IMG, depth, K)
+    assert not r.accepted and r.T_map_camera is None and r.provisional is not None
+    assert r.provisional.node == 0 and r.provisional.n_inliers >= PARAMS.gl_vote_min_inliers
+    dt, dr = g.relative_pose_error(r.provisional.T_map_camera, T_true)
+    assert dt < 0.01 and dr < 0.5
+    assert r.provisional.covariance.shape == (6, 6)
+    # a prior 2 m away (beyond the 0.75 m gate): still not a fix
+    far = loc.localize_global(0, IMG, depth, K, pose(2.3, 5.0))
+    assert not far.accepted and far.provisional is not None
+    # the same prior, but old enough that the gate (0.75 m + 1.5 m/s * age) covers it
+    old = loc.localize_global(0, IMG, depth, K, pose(2.3, 5.0), prior_age_s=2.0)
+    assert old.accepted
+    # the state machine: GLOBAL without a prior stays GLOBAL, with an agreeing prior -> TRACKING
+    assert not loc.process(0, IMG, depth, K).accepted and loc.state == TrackingState.GLOBAL
+    acc = loc.process(1, IMG, depth, K, pose(0.4, 3.0))
+    assert acc.accepted and acc.provisional is None and loc.state == TrackingState.TRACKING
+    assert "agrees with the prior" in acc.stop_reason
+    dt, _ = g.relative_pose_error(acc.T_map_camera, T_true)
+    assert dt < 0.01
+    # too few inliers for a vote, or votes disabled: nothing provisional
+    for p in (replace(PARAMS, gl_vote_min_inliers=0), replace(PARAMS, gl_vote_min_inliers=100_000)):
+        r0 = VisualLocalizer(m, p, s.extract, s.describe, s.match).localize_global(0, IMG, depth, K, pose(0.3))
+        assert not r0.accepted and r0.provisional is None
+    with pytest.raises(ValueError, match="gl_vote_min_inliers"):
+        LocalizationParams(gl_vote_min_inliers=-1)
