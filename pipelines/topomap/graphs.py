@@ -1,8 +1,9 @@
 """The two graphs of the map.
 
 Covisibility (CvG, for localization): for keyframe pairs closer than `max_distance_m`
-whose optical axes differ by less than `max_angle_deg`, match the cached features, lift
-node i's matched keypoints with its depth and solve PnP into node j (RANSAC, seeded).
+whose optical axes differ by less than `max_angle_deg` (pairs from a KD-tree), match the
+cached features (by default guided by the two mapping poses, see `CovisibilityParams.matching`),
+lift node i's matched keypoints with its depth and solve PnP into node j (RANSAC, seeded).
 An edge exists if the PnP inliers reach `min_inliers`; weight = min(inliers /
 `weight_saturation`, 1).
 
@@ -22,10 +23,12 @@ from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial import cKDTree
 
 from litevloc.base.params.mapping import ConnectivityParams as ConnectivityParams
 from litevloc.base.params.mapping import CovisibilityParams as CovisibilityParams
 from litevloc.pipelines.geometry import backproject_pixels
+from litevloc.pipelines.guided_matching import match_by_projection
 from litevloc.pipelines.pnp import solve_pnp
 from litevloc.pipelines.topomap.occupancy import segment_is_free
 from litevloc.pipelines.topomap.types import FeatureSet, OccupancyGrid
@@ -34,24 +37,52 @@ MatchFn = Callable[[FeatureSet, FeatureSet], tuple[NDArray[np.int64], NDArray[np
 
 
 def covisibility_candidates(T_map_camera: NDArray[np.float64], params: CovisibilityParams) -> list[tuple[int, int]]:
-    """Pairs (i < j) passing the distance and viewing-angle gates."""
-    pos = T_map_camera[:, :3, 3]
-    z = T_map_camera[:, :3, 2]
-    cos_max = np.cos(np.radians(params.max_angle_deg))
-    pairs = []
-    for i in range(len(pos)):
-        for j in range(i + 1, len(pos)):
-            if np.linalg.norm(pos[i] - pos[j]) <= params.max_distance_m and float(z[i] @ z[j]) >= cos_max:
-                pairs.append((i, j))
-    return pairs
+    """Pairs (i < j), sorted, passing the distance and viewing-angle gates (T_map_camera (N, 4, 4))."""
+    T = np.asarray(T_map_camera, dtype=np.float64).reshape(-1, 4, 4)
+    if len(T) < 2:
+        return []
+    pos, z = T[:, :3, 3], T[:, :3, 2]
+    pairs = cKDTree(pos).query_pairs(params.max_distance_m, output_type="ndarray")
+    if len(pairs) == 0:
+        return []
+    pairs = np.sort(pairs, axis=1)
+    cos = np.einsum("ij,ij->i", z[pairs[:, 0]], z[pairs[:, 1]])
+    pairs = pairs[cos >= np.cos(np.radians(params.max_angle_deg))]
+    pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+    return [(int(i), int(j)) for i, j in pairs]
 
 
 def verify_pair(
     f_i: FeatureSet, depth_i: NDArray[np.float32], K_i: NDArray[np.float64], f_j: FeatureSet, K_j: NDArray[np.float64],
     match: MatchFn, params: CovisibilityParams,
 ) -> int:
-    """PnP inliers of node i's depth-lifted keypoints against node j's pixels (0 if none)."""
+    """PnP inliers of node i's depth-lifted keypoints against node j's pixels (0 if none),
+    with the matches of `match`."""
     i0, i1 = match(f_i, f_j)
+    return pnp_inliers(f_i, depth_i, K_i, f_j, K_j, i0, i1, params)
+
+
+def guided_pair_matches(
+    f_i: FeatureSet, depth_i: NDArray[np.float32], K_i: NDArray[np.float64], T_i: NDArray[np.float64],
+    f_j: FeatureSet, K_j: NDArray[np.float64], T_j: NDArray[np.float64], params: CovisibilityParams,
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Matches (indices into i's and j's keypoints) of node i's depth-lifted keypoints
+    (`depth_i` (N,) metres per keypoint, NaN = none) projected into node j with the mapping
+    poses `T_i`, `T_j` (T_map_camera)."""
+    z = np.asarray(depth_i, dtype=np.float64)
+    pts = np.full((len(z), 3), np.nan)
+    ok = np.isfinite(z) & (z > 0)
+    if ok.any():
+        pts[ok] = backproject_pixels(K_i, np.asarray(f_i.keypoints, dtype=np.float64)[ok], z[ok])
+    return match_by_projection(pts, f_i.descriptors, T_i, f_j.keypoints, f_j.descriptors, K_j, T_j,
+                               params.guided_radius_px, params.guided_min_similarity, True)
+
+
+def pnp_inliers(
+    f_i: FeatureSet, depth_i: NDArray[np.float32], K_i: NDArray[np.float64], f_j: FeatureSet, K_j: NDArray[np.float64],
+    i0: NDArray[np.int64], i1: NDArray[np.int64], params: CovisibilityParams,
+) -> int:
+    """PnP inliers of the matched pairs (i0 into node i, lifted with `depth_i`; i1 into node j)."""
     if len(i0) < 4:
         return 0
     z = depth_i[i0]
@@ -71,7 +102,12 @@ def build_covisibility(
     """(E,2) edges, (E,) inliers, (E,) weights of the covisibility graph."""
     edges, inl = [], []
     for i, j in covisibility_candidates(T_map_camera, params):
-        n = verify_pair(features[i], keypoint_depth[i], K[i], features[j], K[j], match, params)
+        if params.matching == "guided":
+            i0, i1 = guided_pair_matches(features[i], keypoint_depth[i], K[i], T_map_camera[i],
+                                         features[j], K[j], T_map_camera[j], params)
+        else:
+            i0, i1 = match(features[i], features[j])
+        n = pnp_inliers(features[i], keypoint_depth[i], K[i], features[j], K[j], i0, i1, params)
         if on_pair is not None:
             on_pair()
         if n >= params.min_inliers:

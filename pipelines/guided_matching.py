@@ -1,0 +1,80 @@
+"""Feature matching guided by known poses (no model run): ~1 ms per image pair.
+
+Used where both poses are known or hypothesised: the joint refinement of a live pose over
+extra keyframes (`pipelines.localization.refine`) and the covisibility graph of a map whose
+keyframe poses come from the mapping trajectory (`pipelines.topomap.graphs`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+F64 = NDArray[np.float64]
+
+
+def _similarity(a: NDArray, b: NDArray) -> F64:
+    """(Na, Nb) descriptor similarity in [-1, 1]: cosine for float descriptors, 1 - 2 * normalised
+    Hamming distance for binary (uint8) ones."""
+    if a.dtype == np.uint8:
+        bits = np.unpackbits(a, axis=1).astype(np.float32)
+        bbits = np.unpackbits(b, axis=1).astype(np.float32)
+        ham = bits @ (1 - bbits).T + (1 - bits) @ bbits.T
+        return np.asarray(1.0 - 2.0 * ham / bits.shape[1], dtype=np.float64)
+    an = a / np.maximum(np.linalg.norm(a, axis=1, keepdims=True), 1e-12)
+    bn = b / np.maximum(np.linalg.norm(b, axis=1, keepdims=True), 1e-12)
+    return np.asarray(an @ bn.T, dtype=np.float64)
+
+
+def match_by_projection(
+    points_live: NDArray[np.floating], desc_live: NDArray, T_map_live: NDArray[np.floating],
+    kf_keypoints: NDArray[np.floating], kf_desc: NDArray, K_kf: NDArray[np.floating],
+    T_map_kf: NDArray[np.floating], radius_px: float, min_similarity: float, global_mutual: bool,
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Matches by projection: live points (N, 3, live camera frame, metres; NaN rows skipped)
+    are projected into the keyframe (pinhole `K_kf`) with the poses `T_map_live`, `T_map_kf`;
+    each is paired with the keyframe keypoint (M, 2, pixels) within `radius_px` whose
+    descriptor is most similar, if that pair is the mutual best among such candidates and
+    similarity >= `min_similarity`. `global_mutual`: also require each pair to be the mutual
+    nearest neighbour in descriptor space over ALL keypoints of both images, so a wrong pose
+    cannot confirm itself on a repetitive texture (the pose then only filters matches).
+
+    Returns (live indices, keyframe indices), int64 arrays of equal length.
+    """
+    pts = np.asarray(points_live, dtype=np.float64).reshape(-1, 3)
+    kp = np.asarray(kf_keypoints, dtype=np.float64).reshape(-1, 2)
+    empty = (np.zeros(0, np.int64), np.zeros(0, np.int64))
+    if len(pts) == 0 or len(kp) == 0:
+        return empty
+    T_kl = np.linalg.inv(np.asarray(T_map_kf, dtype=np.float64)) @ np.asarray(T_map_live, dtype=np.float64)
+    q = pts @ T_kl[:3, :3].T + T_kl[:3, 3]
+    ok = np.all(np.isfinite(q), axis=1) & (q[:, 2] > 1e-3)
+    idx = np.nonzero(ok)[0]
+    if len(idx) == 0:
+        return empty
+    uv = q[idx, :2] / q[idx, 2:3] * [K_kf[0, 0], K_kf[1, 1]] + [K_kf[0, 2], K_kf[1, 2]]
+    near = cKDTree(kp).query_ball_point(uv, r=radius_px)
+    rows = np.repeat(np.arange(len(idx)), [len(n) for n in near])
+    if len(rows) == 0:
+        return empty
+    cols = np.fromiter((c for n in near for c in n), dtype=np.int64, count=len(rows))
+    S = _similarity(np.asarray(desc_live)[idx], np.asarray(kf_desc))
+    sim = S[rows, cols]
+    keep = sim >= min_similarity
+    if global_mutual:
+        best_kf = np.argmax(S, axis=1)
+        best_live = np.argmax(S, axis=0)
+        keep &= (best_kf[rows] == cols) & (best_live[cols] == rows)
+    rows, cols, sim = rows[keep], cols[keep], sim[keep]
+    if len(rows) == 0:
+        return empty
+    # mutual best: highest similarity per live point, then per keyframe keypoint
+    order = np.lexsort((-sim, rows))
+    rows, cols, sim = rows[order], cols[order], sim[order]
+    first = np.r_[True, rows[1:] != rows[:-1]]
+    rows, cols, sim = rows[first], cols[first], sim[first]
+    order = np.lexsort((-sim, cols))
+    rows, cols = rows[order], cols[order]
+    first = np.r_[True, cols[1:] != cols[:-1]]
+    return idx[rows[first]].astype(np.int64), cols[first].astype(np.int64)
