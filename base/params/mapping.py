@@ -73,8 +73,12 @@ class CovisibilityParams:
     # the poses only filter matches they did not choose; ~1 ms per pair); "model" runs the
     # configured matcher (LightGlue: ~250 ms per pair on 2 CPUs, 661 of the 960 s that the
     # 268-keyframe floor map took to build).
+    # The radius absorbs the mapping poses' error: on the 7-Scenes mapping pass the ground-truth
+    # relative poses of keyframe pairs are off by up to ~2.5 deg (25 px at f = 585) and colour and
+    # depth are not registered; 8 px kept 11 of the 31 edges the matcher found (frames 0:200:4,
+    # ORB), 40 px 27 of 31 (70 of 84 on frames 200:500:6), with no edge the matcher did not find.
     matching: Literal["guided", "model"] = "guided"
-    guided_radius_px: float = 8.0
+    guided_radius_px: float = 40.0
     guided_min_similarity: float = 0.6
     pnp: PnpParams = field(
         default_factory=lambda: PnpParams(min_inliers=10, min_inlier_ratio=0.0, max_median_reprojection_px=3.0)
