@@ -256,6 +256,19 @@ class _Driver:
                         rec.outcome = "failed"
                         rec.reason += f"; but {d:.2f} m from the true goal place (> {self.params.success_radius_m})"
 
+    def _bumper(self, T_world_base: NDArray[np.float64]) -> None:
+        """A simulated bumper: points of a ring just outside the robot that lie on a wall or
+        box (within 3 cm of one) become contact obstacles of the local planner."""
+        r = self.sim.params.robot_radius + 0.02
+        ang = np.linspace(-np.pi, np.pi, 36, endpoint=False)
+        ring_base = np.stack([r * np.cos(ang), r * np.sin(ang)], 1)
+        T = np.asarray(T_world_base, np.float64)
+        ring_world = ring_base @ T[:2, :2].T + T[:2, 3]
+        touch = self.sim.world.clearance(ring_world) < 0.03
+        if touch.any():
+            assert self.T_odom_base is not None
+            self.local.add_contacts(ring_base[touch], self.T_odom_base)
+
     def _path_since(self, t0: int, t1: int) -> float:
         pts = [p[1:] for p in self.path if t0 <= p[0] <= t1]
         return float(np.linalg.norm(np.diff(np.array(pts), axis=0), axis=1).sum()) if len(pts) > 1 else 0.0
@@ -336,6 +349,8 @@ class _Driver:
     def _after(self, step: Any) -> None:
         self.collisions += int(step.collided)
         self.last_collided = bool(step.collided)
+        if step.collided and self.T_odom_base is not None:
+            self._bumper(step.T_world_base)
         if step.odometry:
             self.T_odom_base = step.odometry[-1].T_odom_base
         self.path.append(np.array([step.t_ns, *step.T_world_base[:2, 3]]))

@@ -9,6 +9,9 @@ subgoal (with penalties for low clearance and turning) is driven. A subgoal far 
 side or behind is first faced by turning in place. The camera only sees ahead, so the
 obstacle points of the last few frames are kept in the odometry frame (short-term memory,
 drift over a few seconds is negligible) to remember door frames that left the view.
+Contacts (a bumper: where the robot touched something, `add_contacts`) are kept the same way
+and block arcs like seen obstacles: a door frame beside the robot, which the forward camera
+cannot see, is otherwise driven into again and again.
 
 Frames: `base_link` x forward, y left, z up on the floor; the depth image is in the camera
 optical frame mounted at `T_base_camera`.
@@ -48,6 +51,12 @@ class LocalPlannerParams:
     memory_step_m: float = 0.1
     memory_step_deg: float = 8.0
     voxel_m: float = 0.05  # obstacle points are thinned to one per voxel
+    contact_points: int = 64  # bumper contacts remembered (odometry frame), newest kept
+    # Recovery: after this many consecutive commands without a drivable arc (blocked / turned
+    # back and forth in a tight spot, e.g. diagonally in a doorway), back straight up along the
+    # way the robot came (free: it just drove there) for `recover_commands` commands.
+    recover_after: int = 15
+    recover_commands: int = 8
 
     def __post_init__(self) -> None:
         if not 0 < self.min_speed <= self.max_speed:
@@ -66,7 +75,7 @@ class LocalPlannerParams:
 class Command:
     v: float  # m/s
     omega: float  # rad/s
-    reason: str  # "arc" | "turn" | "arrived" | "blocked"
+    reason: str  # "arc" | "turn" | "arrived" | "blocked" | "squeeze" | "recover"
     clearance_m: float = float("inf")
 
 
@@ -113,6 +122,16 @@ class LocalPlanner:
         self.memory: list[NDArray[np.float64]] = []  # (M, 2) obstacle points, odometry frame
         self._mem_pose: NDArray[np.float64] | None = None  # x, y, yaw of the last stored frame
         self._turn_sign = 0.0  # while blocked, keep turning the same way (no dithering)
+        self.contacts = np.zeros((0, 2))  # (C, 2) bumper contact points, odometry frame
+        self._stuck = 0  # consecutive commands without a drivable arc
+        self._reversing = 0  # recovery commands left
+
+    def add_contacts(self, pts_base: NDArray[np.floating], T_odom_base: NDArray[np.floating]) -> None:
+        """Remember (N, 2) contact points (base frame, m) as obstacles, stored in the odometry
+        frame (`T_odom_base` 4x4); the newest `contact_points` are kept."""
+        T = np.asarray(T_odom_base, np.float64)
+        pts = np.asarray(pts_base, np.float64).reshape(-1, 2) @ T[:2, :2].T + T[:2, 3]
+        self.contacts = np.concatenate([self.contacts, pts])[-self.params.contact_points:]
 
     def _remember(self, pts_base: NDArray[np.float64], T_odom_base: NDArray[np.floating]) -> NDArray[np.float64]:
         """Store this frame's points (odom frame); all remembered points in the base frame."""
@@ -150,9 +169,27 @@ class LocalPlanner:
         pts = np.zeros((0, 2)) if depth is None else self._thin(obstacle_points(depth, K, T_base_camera, p))
         if T_odom_base is not None and p.memory_frames > 0:
             pts = self._thin(self._remember(pts, T_odom_base))
+        if T_odom_base is not None and len(self.contacts):
+            T = np.asarray(T_odom_base, np.float64)
+            pts = np.concatenate([pts, (self.contacts - T[:2, 3]) @ T[:2, :2]])
         dist = float(np.hypot(*g))
         if dist < p.arrive_m:
+            self._stuck = self._reversing = 0
             return Command(0.0, 0.0, "arrived")
+        if self._reversing > 0:
+            self._reversing -= 1
+            return Command(-p.min_speed, 0.0, "recover")
+        cmd = self._choose(g, dist, pts)
+        self._stuck = 0 if cmd.reason in ("arc", "squeeze") else self._stuck + 1
+        if self._stuck >= p.recover_after:
+            self._stuck, self._reversing, self._turn_sign = 0, p.recover_commands - 1, 0.0
+            return Command(-p.min_speed, 0.0, "recover")
+        return cmd
+
+    def _choose(self, g: NDArray[np.float64], dist: float, pts: NDArray[np.float64]) -> Command:
+        """Turn, an arc, a squeeze or blocked, from the subgoal `g` (base frame, `dist` m away)
+        and the obstacle points `pts` (M, 2, base frame)."""
+        p = self.params
         bearing = float(np.arctan2(g[1], g[0]))
         if abs(bearing) > np.radians(p.turn_in_place_deg):
             return Command(0.0, float(np.clip(p.turn_gain * bearing, -p.max_omega, p.max_omega)), "turn")

@@ -78,3 +78,36 @@ def test_memory_keeps_obstacles_that_left_the_view() -> None:
     lp.command(np.array([4.0, 0.0]), np.full((P.height, P.width), np.nan, np.float32), K, T_BC, T_odom_base=T1)
     pts = lp._remember(np.zeros((0, 2)), T1)
     assert len(pts) > 10 and np.median(pts[:, 1]) < -1.0  # to the right (-y) of the turned robot
+
+
+def test_bumper_contacts_block_arcs_the_camera_cannot_see() -> None:
+    """A door frame touched on the right, out of view: arcs into it are refused afterwards."""
+    lp = LocalPlanner()
+    T = np.eye(4)
+    empty = np.full((P.height, P.width), np.nan, np.float32)
+    goal = np.array([1.5, -0.9])  # ahead-right: without contacts the planner curves right
+    assert lp.command(goal, empty, K, T_BC, T_odom_base=T).omega < -0.05
+    # contacts from the front-right quarter of the robot's outline (a bumper)
+    ang = np.radians(np.arange(-80, -10, 10))
+    lp.add_contacts(0.32 * np.stack([np.cos(ang), np.sin(ang)], 1), T)
+    c = lp.command(goal, empty, K, T_BC, T_odom_base=T)
+    assert not (c.reason == "arc" and c.omega < -0.05), c  # no longer into the contact
+    # contacts are kept in the odometry frame: after moving 1 m forward they lie behind
+    T2 = np.eye(4)
+    T2[0, 3] = 1.0
+    assert lp.command(np.array([1.5, -0.9]), empty, K, T_BC, T_odom_base=T2).omega < -0.05
+
+
+def test_stuck_without_a_drivable_arc_backs_up_then_tries_again() -> None:
+    p = LocalPlannerParams(recover_after=5, recover_commands=3)
+    lp = LocalPlanner(p)
+    wall = wall_depth(0.2)  # a wall right in front, everywhere: every arc blocked
+    cmds = [lp.command(np.array([4.0, 0.1]), wall, K, T_BC) for _ in range(10)]
+    reasons = [c.reason for c in cmds]
+    assert reasons[:4] == ["blocked"] * 4
+    assert reasons[4:7] == ["recover"] * 3  # 5th blocked command -> straight back for 3 commands
+    assert reasons[7:] == ["blocked"] * 3  # then tries again
+    assert all(c.v < 0 and c.omega == 0.0 for c in cmds[4:7])
+    # arriving resets the count
+    lp.command(np.array([0.01, 0.0]), None, K, T_BC)
+    assert lp.command(np.array([4.0, 0.1]), wall, K, T_BC).reason == "blocked"
