@@ -11,7 +11,7 @@ status: every status_period_s (Periodic) -> publisher.publish_status + `Service.
 
 Injected callables (the lead plugs the real ones; tests use fakes):
 
-* `vloc(frame: RgbdFrame, prior_T_map_camera: 4x4 | None) -> LocalizationResult`
+* `vloc(frame: RgbdFrame, prior: VlocPrior | None) -> LocalizationResult`
   (anything with `t_ns, accepted, reason, T_map_camera, covariance`); runs in the vloc thread.
 * `on_odometry(odom: Odometry) -> FusedPose | None` (anything with `t_ns, T_map_base,
   T_map_odom, covariance, initialised`); `on_vloc(result) -> update` (anything with
@@ -19,8 +19,10 @@ Injected callables (the lead plugs the real ones; tests use fakes):
   object needs no lock. Only VLoc-accepted results are passed to `on_vloc`.
 * `publisher`: `runtime.bus.LiteVLocPublisher` or a fake with the same four methods.
 
-The prior for VLoc is the latest fused pose: `T_map_base @ T_base_camera` (None until
-fusion is initialised). Fused covariances are converted with `covariance_to_ros` (e.g.
+The prior for VLoc is the fused pose at the frame's stamp (`runtime.vloc_prior`): the latest
+`T_map_odom` applied to the odometry interpolated at `t_frame`, times `T_base_camera`, with
+its age (seconds since the last VLoc fix fusion accepted); None until fusion is initialised.
+Fused covariances are converted with `covariance_to_ros` (e.g.
 `bus.gtsam_to_ros_covariance`) before publishing; default: already in ROS order.
 
 Tracking state (status `state`, and the LOST flag on published poses): INIT until a
@@ -67,10 +69,11 @@ from litevloc.runtime.metrics import LatencyWindow, jsonable, now_ns
 from litevloc.runtime.pacing import paced
 from litevloc.runtime.queues import BoundedFifo, LatestMailbox, QueueBase, QueueClosed
 from litevloc.runtime.stages import Periodic, Stage, StageInput, StageState, _StageThread, configure_threads
+from litevloc.runtime.vloc_prior import OdometryHistory, VlocPrior, prior_at
 
 log = logging.getLogger(__name__)
 
-VlocFn = Callable[[RgbdFrame, NDArray[np.float64] | None], Any]
+VlocFn = Callable[[RgbdFrame, VlocPrior | None], Any]
 OdometryFn = Callable[[Odometry], Any]
 VlocUpdateFn = Callable[[Any], Any]
 
@@ -170,6 +173,7 @@ class Service:
              "poses_withheld", "map_to_odom_published", "vloc_published", "status_published",
              "odometry_rejected", "odometry_gaps", "vloc_votes", "fusion_initialised_by_votes"), 0)
         self.last_fused: Any = None
+        self.odometry_history = OdometryHistory()  # fused odometry poses, for the prior at a frame's stamp
         self.sensor_now_ns: int | None = None
         self.last_vloc_accept_ns: int | None = None
         self.last_vloc_reason: str | None = None
@@ -358,12 +362,19 @@ class Service:
                 self._progress.notify_all()
 
     # ------------------------------------------------------------------ vloc thread
-    def prior(self) -> NDArray[np.float64] | None:
-        """T_map_camera from the latest initialised fused pose (None before)."""
+    def prior(self, t_frame_ns: int | None = None) -> VlocPrior | None:
+        """The VLoc prior at `t_frame_ns` (see the module docstring); at the newest odometry
+        when None. None before fusion is initialised."""
         f = self.last_fused
         if f is None or not getattr(f, "initialised", True):
             return None
-        return np.asarray(f.T_map_base, dtype=np.float64) @ self.T_base_camera
+        T_m2o = getattr(f, "T_map_odom", None)
+        t = int(f.t_ns) if t_frame_ns is None else int(t_frame_ns)
+        got = None if T_m2o is None else prior_at(t, T_m2o, self.odometry_history, self.T_base_camera,
+                                                   self.last_vloc_accept_ns)
+        if got is None:  # a fusion without T_map_odom: its latest pose
+            return VlocPrior(np.asarray(f.T_map_base, dtype=np.float64) @ self.T_base_camera, 0.0, False)
+        return got
 
     def _handle_frame(self, frame: RgbdFrame) -> None:
         res = self._vloc(frame)
@@ -375,7 +386,7 @@ class Service:
 
     def _vloc(self, frame: RgbdFrame) -> Any:
         self.counters["vloc_calls"] += 1
-        return self.vloc_fn(frame, self.prior())
+        return self.vloc_fn(frame, self.prior(frame.t_ns))
 
     # ------------------------------------------------------------------ fusion thread
     def _handle_odometry_item(self, item: tuple[int, Odometry]) -> None:
@@ -390,6 +401,7 @@ class Service:
             if fused is None and self.last_fused is not None:  # fusion refused it (time not increasing, bad pose)
                 self.counters["odometry_rejected"] += 1
             if fused is not None:
+                self.odometry_history.add(odom.t_ns, odom.T_odom_base)
                 self.last_fused = fused
                 if self.on_fused is not None:
                     self.on_fused(fused)
@@ -634,8 +646,11 @@ def localizer_callable(localizer: Any) -> VlocFn:
     Pair it with `state_fn=lambda: str(localizer.state)` so the status (and the LOST flag)
     follow the localizer's state machine."""
 
-    def vloc(frame: RgbdFrame, prior: NDArray[np.float64] | None) -> Any:
-        return localizer.process(frame.t_ns, frame.color, frame.depth, frame.K, prior)
+    def vloc(frame: RgbdFrame, prior: VlocPrior | None) -> Any:
+        if prior is None:
+            return localizer.process(frame.t_ns, frame.color, frame.depth, frame.K, None)
+        return localizer.process(frame.t_ns, frame.color, frame.depth, frame.K, prior.T_map_camera,
+                                 prior_age_s=prior.age_s)
 
     return vloc
 

@@ -1,0 +1,92 @@
+"""The VLoc prior at a frame's stamp: the fused map->odom correction applied to the odometry
+interpolated at `t_frame`, with the age of the information it rests on.
+
+The fusion thread records every odometry pose it fuses (`OdometryHistory.add`); the VLoc
+thread asks for the prior of the frame it is about to localize (`prior_at`). A frame taken
+by VLoc is older than the newest odometry (the camera pipeline and VLoc's own latency),
+so the latest fused pose would put the prior where the robot is *now*, not where it was
+when the frame was captured; and its age is the time since the last VLoc fix the fused
+pose rests on, not 0.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from litevloc.base.geometry import interpolate_pose_at
+
+F64 = NDArray[np.float64]
+
+
+@dataclass(frozen=True, eq=False)
+class VlocPrior:
+    """`T_map_camera` (4x4, metres) at the frame's stamp; `age_s`: seconds from the last VLoc
+    fix fusion accepted to the frame's stamp (0 if the frame is older than that fix);
+    `interpolated`: False where the stamp lay outside the odometry history and the nearest
+    odometry pose was used (the age then includes the gap)."""
+
+    T_map_camera: F64
+    age_s: float
+    interpolated: bool = True
+
+
+class OdometryHistory:
+    """The last `capacity` (t_ns, T_odom_base) odometry poses, thread-safe (one writer, any readers)."""
+
+    def __init__(self, capacity: int = 4000) -> None:
+        if capacity < 2:
+            raise ValueError("capacity must be >= 2")
+        self._t = np.zeros(capacity, np.int64)
+        self._T = np.zeros((capacity, 4, 4))
+        self._n = 0  # poses written in total
+        self._lock = threading.Lock()
+
+    def add(self, t_ns: int, T_odom_base: NDArray[np.floating]) -> None:
+        """Append a pose; one not newer than the last is ignored (time must increase)."""
+        with self._lock:
+            cap = len(self._t)
+            if self._n and t_ns <= self._t[(self._n - 1) % cap]:
+                return
+            self._t[self._n % cap] = t_ns
+            self._T[self._n % cap] = T_odom_base
+            self._n += 1
+
+    def __len__(self) -> int:
+        return min(self._n, len(self._t))
+
+    def at(self, t_ns: int) -> tuple[F64, int] | None:
+        """(T_odom_base at `t_ns`, stamp used): interpolated inside the history; outside it,
+        the nearest end's pose and stamp. None while empty."""
+        with self._lock:
+            n, cap = self._n, len(self._t)
+            if n == 0:
+                return None
+            order = np.arange(n - min(n, cap), n) % cap
+            times, poses = self._t[order].copy(), self._T[order].copy()
+        if t_ns <= times[0]:
+            return poses[0], int(times[0])
+        if t_ns >= times[-1]:
+            return poses[-1], int(times[-1])
+        k = int(np.searchsorted(times, t_ns))
+        return interpolate_pose_at(t_ns, times[k - 1 : k + 1], poses[k - 1 : k + 1]), t_ns
+
+
+def prior_at(
+    t_frame_ns: int, T_map_odom: NDArray[np.floating], history: OdometryHistory, T_base_camera: NDArray[np.floating],
+    last_fix_ns: int | None,
+) -> VlocPrior | None:
+    """`T_map_odom @ T_odom_base(t_frame) @ T_base_camera` and its age (see `VlocPrior`);
+    None without odometry. `last_fix_ns`: stamp of the last VLoc result fusion accepted
+    (None: unknown, counted as 0)."""
+    got = history.at(t_frame_ns)
+    if got is None:
+        return None
+    T_odom_base, t_used = got
+    T = np.asarray(T_map_odom, np.float64) @ T_odom_base @ np.asarray(T_base_camera, np.float64)
+    since = 0 if last_fix_ns is None else t_frame_ns - last_fix_ns
+    gap = abs(t_frame_ns - t_used)
+    return VlocPrior(T, max(since, 0) * 1e-9 + gap * 1e-9, interpolated=gap == 0)

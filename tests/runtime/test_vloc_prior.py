@@ -1,0 +1,73 @@
+"""The VLoc prior at the frame's stamp (T_map_odom @ odometry interpolated at t_frame) with its age."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from litevloc.config.schema import RuntimeConfig
+from litevloc.hw.messages import Odometry, RgbdFrame
+from litevloc.pipelines.geometry import relative_pose_error
+from litevloc.pipelines.odometry_drift import T_BASE_CAMERA_OPTICAL
+from litevloc.runtime.service import Service
+from litevloc.runtime.vloc_prior import OdometryHistory, prior_at
+from tests.runtime.fakes import MS, T_MAP_ODOM_TRUE, FakeFusion, FakePublisher, Result, T_odom_base_at
+
+
+def test_history_interpolates_and_clamps_at_the_ends() -> None:
+    h = OdometryHistory(capacity=50)
+    assert h.at(0) is None
+    for k in range(120):  # wraps the ring twice
+        h.add(k * 10 * MS, T_odom_base_at(k * 10 * MS))
+    h.add(500 * MS, np.eye(4))  # not newer than the last: ignored
+    assert len(h) == 50
+    T, t = h.at(1105 * MS)  # between two samples
+    assert t == 1105 * MS
+    dt, dr = relative_pose_error(T, T_odom_base_at(1105 * MS))
+    assert dt < 1e-3 and dr < 0.01
+    T, t = h.at(0)  # older than the history (the first 70 were overwritten): the oldest kept
+    assert t == 700 * MS and np.allclose(T, T_odom_base_at(700 * MS))
+    T, t = h.at(5000 * MS)  # newer: the newest
+    assert t == 1190 * MS
+    p = prior_at(5000 * MS, np.eye(4), h, np.eye(4), last_fix_ns=1000 * MS)
+    assert p is not None and not p.interpolated
+    assert p.age_s == pytest.approx(4.0 + (5000 - 1190) * 1e-3)  # since the fix, plus the gap
+
+
+def test_delayed_frame_gets_the_pose_at_its_stamp_and_its_true_age() -> None:
+    """The frame VLoc takes is 0.5 s older than the newest odometry: its prior is where the
+    robot was then (the latest fused pose is 0.25 m and 9 deg further on), and its age counts
+    from the last fix."""
+    fusion = FakeFusion()
+    svc = Service([], lambda f, p: None, fusion.add_odometry, fusion.add_vloc, FakePublisher(),
+                  RuntimeConfig(mode="sequential"))
+    t_fix = 100 * MS
+    for k in range(0, 201):  # odometry at 200 Hz for 1 s
+        t = k * 5 * MS + 1
+        svc._handle_odometry_item((0, Odometry(t, T_odom_base_at(t))))
+        if k == 20:  # a VLoc fix at 0.1 s
+            T = T_MAP_ODOM_TRUE @ T_odom_base_at(t_fix) @ T_BASE_CAMERA_OPTICAL
+            svc._handle_result(Result(t_fix, True, "ok", T, np.eye(6) * 1e-4))
+    t_frame = 500 * MS  # newest odometry: 1.0 s
+    prior = svc.prior(t_frame)
+    assert prior is not None and prior.interpolated
+    truth = T_MAP_ODOM_TRUE @ T_odom_base_at(t_frame) @ T_BASE_CAMERA_OPTICAL
+    dt, dr = relative_pose_error(prior.T_map_camera, truth)
+    assert dt < 1e-3 and dr < 0.05
+    assert prior.age_s == pytest.approx(0.4)
+    latest = svc.prior()  # what the service used to hand VLoc: the newest fused pose, age 0 then
+    assert latest is not None
+    dt, dr = relative_pose_error(latest.T_map_camera, truth)
+    assert dt > 0.2 and dr > 5.0
+    # the localizer adapter hands both on
+    seen: list[tuple[np.ndarray | None, float]] = []
+
+    class Loc:
+        def process(self, t_ns: int, color: object, depth: object, K: object, prior: np.ndarray | None,
+                    prior_age_s: float = 0.0) -> None:
+            seen.append((prior, prior_age_s))
+
+    from litevloc.runtime.service import localizer_callable
+    frame = RgbdFrame(t_frame, np.zeros((8, 8, 3), np.uint8), None, np.eye(3))
+    localizer_callable(Loc())(frame, prior)
+    assert seen[0][0] is prior.T_map_camera and seen[0][1] == pytest.approx(0.4)
