@@ -78,11 +78,14 @@ def query(map_dir: Path, config: str, pass_name: str = "loop-lane", rate: float 
     src = SimSequenceSource(load_world("loop"), pass_name, 1, params=cfg.sim)
     app = build_app(cfg, map_dir, src, rate)
     vloc: list[tuple[int, bool, np.ndarray | None]] = []
+    how: list[str] = []  # per accepted result: "local", "global" or "global+prior" (one keyframe + the prior)
     inner = app.localizer.process
 
     def process(t_ns: int, *a: Any, **k: Any) -> Any:
         r = inner(t_ns, *a, **k)
         vloc.append((int(t_ns), bool(r.accepted), None if r.T_map_camera is None else np.array(r.T_map_camera)))
+        if r.accepted and r.T_map_camera is not None:
+            how.append("global+prior" if "agrees with the prior" in r.stop_reason else str(r.mode))
         return r
 
     app.localizer.process = process
@@ -109,6 +112,9 @@ def query(map_dir: Path, config: str, pass_name: str = "loop-lane", rate: float 
         "vloc_ate_m": _rmse(v_err), "vloc_err_median_m": float(np.median(v_err)) if len(v_err) else None,
         "vloc_err_p90_m": float(np.percentile(v_err, 90)) if len(v_err) else None,
         "vloc_accepted_over_0_5m": int((v_err > 0.5).sum()),  # wrong places accepted (repetitive corridor)
+        "vloc_accepted_by_mode": {m: how.count(m) for m in sorted(set(how))},
+        "vloc_over_0_5m_by_mode": {m: int(sum(e > 0.5 for e, h in zip(v_err, how, strict=True) if h == m))
+                                   for m in sorted(set(how))},
         "vloc_err_max_m": float(v_err.max()) if len(v_err) else None,
         "fused_ate_m": _rmse(f_err), "fused_err_median_m": float(np.median(f_err)) if len(f_err) else None,
         "fused_poses": len(f_err), "odometry_ate_m": _rmse(o_err), "odometry_final_error_m": float(o_err[-1]),

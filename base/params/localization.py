@@ -147,6 +147,12 @@ class LocalizationParams:
     prior_gate_m: float = 0.75
     prior_gate_rate_mps: float = 1.5
     prior_gate_deg: float = 30.0
+    # A fused prior (the runtime's: odometry since the last fix, at the frame's stamp) grows
+    # with the odometry's drift, not with the robot's speed: its gate grows at this rate per
+    # second since the last fix (the simulator's seeded drift: 26 m over the 405 s loop lap,
+    # 0.064 m/s). It may skip the second keyframe (confirm_skip_*) while its growth is at most
+    # what a last-VLoc-pose prior is allowed (prior_gate_rate_mps * confirm_skip_max_age_s).
+    prior_gate_rate_fused_mps: float = 0.1
     candidate_radius_m: float = 3.0
     max_view_angle_deg: float = 90.0
     ll_max_candidates: int = 3
@@ -170,5 +176,7 @@ class LocalizationParams:
             raise ValueError("gl_vote_min_inliers must be >= 0 (0 = no provisional poses)")
         if self.gl_time_budget_ms < 0:
             raise ValueError("gl_time_budget_ms must be >= 0 (0 = no budget)")
+        if self.prior_gate_rate_fused_mps < 0:
+            raise ValueError("prior_gate_rate_fused_mps must be >= 0")
         if self.prior_gate_m <= 0 or self.prior_gate_rate_mps < 0 or not (0 < self.prior_gate_deg <= 180):
             raise ValueError("prior_gate_m > 0, prior_gate_rate_mps >= 0 and prior_gate_deg in (0, 180] required")

@@ -304,11 +304,20 @@ class VisualLocalizer:
             return None
         return ProvisionalPose(joint.T_map_camera, joint.covariance, node, joint.inliers_per_keyframe[node])
 
-    def _within_gate(self, T: NDArray[np.float64], prior: NDArray[np.float64], prior_age_s: float) -> bool:
-        """The LL prior gate: within prior_gate_m + prior_gate_rate_mps * age and prior_gate_deg."""
+    def _prior_growth_m(self, prior_age_s: float, fused: bool) -> float:
+        """How far the prior may have wandered in `prior_age_s` (m): odometry drift for a fused
+        prior, the robot's top speed for the last VLoc pose."""
+        p = self.params
+        return (p.prior_gate_rate_fused_mps if fused else p.prior_gate_rate_mps) * max(prior_age_s, 0.0)
+
+    def _fresh(self, growth_m: float) -> bool:
+        """A prior fresh enough to stand in for a second keyframe (see `confirm_skip_*`)."""
+        return growth_m <= self.params.prior_gate_rate_mps * self.params.confirm_skip_max_age_s
+
+    def _within_gate(self, T: NDArray[np.float64], prior: NDArray[np.float64], growth_m: float) -> bool:
+        """The prior gate: within prior_gate_m + growth_m and prior_gate_deg."""
         dt, dr = relative_pose_error(T, prior)
-        gate_m = self.params.prior_gate_m + self.params.prior_gate_rate_mps * max(prior_age_s, 0.0)
-        return bool(dt <= gate_m and dr <= self.params.prior_gate_deg)
+        return bool(dt <= self.params.prior_gate_m + growth_m and dr <= self.params.prior_gate_deg)
 
     def _matched_pixels(self, q: _Query | None, node: int, T_map_live: NDArray[np.float64]) -> MatchedPixels | None:
         """The cached matches of `q` with `node`, inliers marked under the accepted pose."""
@@ -370,8 +379,9 @@ class VisualLocalizer:
         joint refinement / confirmation by a second keyframe, see `LocalizationParams`).
 
         With joint refinement on, a candidate that only its own keyframe confirms becomes the
-        result's `provisional` pose (most inliers first), or is accepted when it agrees with
-        `prior_T_map_camera` (age `prior_age_s`, s) within the LL prior gate."""
+        result's `provisional` pose (most inliers first), or is accepted when it agrees with the
+        fused prior `prior_T_map_camera` (`prior_age_s` s since its last fix; only while fresh,
+        see `_fresh`) within the prior gate."""
         prior = None if prior_T_map_camera is None else check_rigid(prior_T_map_camera, "prior T_map_camera",
                                                                       atol=1e-4)
         timer = StageTimer()
@@ -384,6 +394,7 @@ class VisualLocalizer:
         reason = "not localized: no VPR candidate verified"
         stop = f"all {len(order)} VPR candidates tried"
         provisional: ProvisionalPose | None = None
+        growth = self._prior_growth_m(prior_age_s, fused=True)
         if self.params.refine.enabled:
             # Bounded cost: candidates in VPR order, each verified and jointly refined at once;
             # the first that passes the joint check wins; the time budget stops the search.
@@ -406,8 +417,8 @@ class VisualLocalizer:
                     stop = f"candidate {k + 1} of {len(order)} passed the joint check"
                     break
                 single = self._single_keyframe(node, joint)
-                if single is not None and prior is not None and self._within_gate(single.T_map_camera, prior,
-                                                                                  prior_age_s):
+                if single is not None and prior is not None and self._fresh(growth) and self._within_gate(
+                        single.T_map_camera, prior, growth):
                     attempts.append(CandidateAttempt(node, att.similarity, att.matches, att.inliers,
                                                      "one keyframe only; agrees with the prior"))
                     best = (node, res, replace(joint, accepted=True, reason="ok"))
@@ -493,11 +504,13 @@ class VisualLocalizer:
 
     def localize_local(
         self, t_ns: int, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64],
-        prior_T_map_camera: NDArray[np.float64], prior_age_s: float = 0.0,
+        prior_T_map_camera: NDArray[np.float64], prior_age_s: float = 0.0, fused_prior: bool = False,
     ) -> LocalizationResult:
         """LL from a prior pose; candidates tried in similarity order until one is accepted.
 
-        A candidate's pose must also pass the prior gate (see `LocalizationParams`)."""
+        A candidate's pose must also pass the prior gate (see `LocalizationParams`), which grows
+        with `prior_age_s` at the fused-prior rate (`fused_prior`: odometry since the last fix)
+        or at the robot's top speed (the last VLoc pose)."""
         prior = check_rigid(prior_T_map_camera, "prior T_map_camera", atol=1e-4)
         timer = StageTimer()
         t_all = time.perf_counter()
@@ -505,7 +518,8 @@ class VisualLocalizer:
         attempts: list[CandidateAttempt] = []
         best: tuple[int, PnpResult, RefineResult | None] | None = None
         cands = self.local_candidates(prior, desc)
-        gate_m = self.params.prior_gate_m + self.params.prior_gate_rate_mps * max(prior_age_s, 0.0)
+        growth = self._prior_growth_m(prior_age_s, fused_prior)
+        gate_m = self.params.prior_gate_m + growth
         for node, sim in cands:
             res, att = self._verify(node, q, sim)
             if res is not None and res.accepted and res.T_target_source is not None:
@@ -517,7 +531,7 @@ class VisualLocalizer:
                     attempts.append(att)
                     continue
                 close = (dt <= self.params.confirm_skip_within_m and dr <= self.params.confirm_skip_within_deg
-                         and prior_age_s <= self.params.confirm_skip_max_age_s)
+                         and self._fresh(growth))
                 joint: RefineResult | None = None
                 if self.params.refine.enabled:
                     need = self.params.refine.min_keyframes if self.params.ll_confirm and not close else 1
@@ -557,12 +571,13 @@ class VisualLocalizer:
             why = "start-up" if self.state == TrackingState.INIT else "recover from LOST"
             self._go(t_ns, TrackingState.GLOBAL, why)
         if self.state == TrackingState.TRACKING:
+            fused = prior_T_map_camera is not None
             if prior_T_map_camera is not None:
                 prior, age = prior_T_map_camera, prior_age_s
             else:
                 assert self.last_pose is not None
                 prior, age = self.last_pose, (t_ns - self.last_pose_t_ns) * 1e-9
-            res = self.localize_local(t_ns, color, depth, K, prior, prior_age_s=age)
+            res = self.localize_local(t_ns, color, depth, K, prior, prior_age_s=age, fused_prior=fused)
             if res.accepted:
                 self.failures = 0
                 self.last_pose, self.last_pose_t_ns = res.T_map_camera, t_ns

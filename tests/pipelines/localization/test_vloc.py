@@ -280,9 +280,11 @@ def test_place_seen_by_one_keyframe_is_provisional_until_a_prior_agrees() -> Non
     # a prior 2 m away (beyond the 0.75 m gate): still not a fix
     far = loc.localize_global(0, IMG, depth, K, pose(2.3, 5.0))
     assert not far.accepted and far.provisional is not None
-    # the same prior, but old enough that the gate (0.75 m + 1.5 m/s * age) covers it
-    old = loc.localize_global(0, IMG, depth, K, pose(2.3, 5.0), prior_age_s=2.0)
-    assert old.accepted
+    # a close prior that rests on a fix long ago (its growth beyond what may stand in for a
+    # second keyframe): not a fix either
+    stale = loc.localize_global(0, IMG, depth, K, pose(0.4, 3.0), prior_age_s=60.0)
+    assert not stale.accepted and stale.provisional is not None
+    assert loc.localize_global(0, IMG, depth, K, pose(0.4, 3.0), prior_age_s=2.0).accepted
     # the state machine: GLOBAL without a prior stays GLOBAL, with an agreeing prior -> TRACKING
     assert not loc.process(0, IMG, depth, K).accepted and loc.state == TrackingState.GLOBAL
     acc = loc.process(1, IMG, depth, K, pose(0.4, 3.0))
@@ -296,3 +298,16 @@ def test_place_seen_by_one_keyframe_is_provisional_until_a_prior_agrees() -> Non
         assert not r0.accepted and r0.provisional is None
     with pytest.raises(ValueError, match="gl_vote_min_inliers"):
         LocalizationParams(gl_vote_min_inliers=-1)
+
+
+def test_fused_prior_gate_grows_with_odometry_drift_not_speed() -> None:
+    """A prior 1.5 m from the truth, 5 s since its fix: as the last VLoc pose (top speed 1.5 m/s)
+    the gate covers it; as a fused prior (odometry drift, 0.1 m/s) it does not."""
+    m = make_map([0.0, 1.0, 2.0, 3.0])
+    s = Scene(m)
+    loc = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)
+    depth = s.look(pose(2.1), vpr_best=2)
+    assert loc.localize_local(0, IMG, depth, K, pose(0.6), prior_age_s=5.0).accepted
+    r = loc.localize_local(0, IMG, depth, K, pose(0.6), prior_age_s=5.0, fused_prior=True)
+    assert not r.accepted and all("inconsistent with the prior" in a.reason for a in r.attempts if a.inliers)
+    assert loc.localize_local(0, IMG, depth, K, pose(1.6), prior_age_s=5.0, fused_prior=True).accepted
