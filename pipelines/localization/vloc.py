@@ -314,10 +314,14 @@ class VisualLocalizer:
         """A prior fresh enough to stand in for a second keyframe (see `confirm_skip_*`)."""
         return growth_m <= self.params.prior_gate_rate_mps * self.params.confirm_skip_max_age_s
 
-    def _within_gate(self, T: NDArray[np.float64], prior: NDArray[np.float64], growth_m: float) -> bool:
-        """The prior gate: within prior_gate_m + growth_m and prior_gate_deg."""
+    def _gate_m(self, growth_m: float, fused: bool) -> float:
+        """The prior gate's radius (m): its base (fused or last-pose prior) + the growth."""
+        return (self.params.prior_gate_fused_m if fused else self.params.prior_gate_m) + growth_m
+
+    def _within_gate(self, T: NDArray[np.float64], prior: NDArray[np.float64], gate_m: float) -> bool:
+        """The prior gate: within gate_m and prior_gate_deg."""
         dt, dr = relative_pose_error(T, prior)
-        return bool(dt <= self.params.prior_gate_m + growth_m and dr <= self.params.prior_gate_deg)
+        return bool(dt <= gate_m and dr <= self.params.prior_gate_deg)
 
     def _matched_pixels(self, q: _Query | None, node: int, T_map_live: NDArray[np.float64]) -> MatchedPixels | None:
         """The cached matches of `q` with `node`, inliers marked under the accepted pose."""
@@ -418,7 +422,7 @@ class VisualLocalizer:
                     break
                 single = self._single_keyframe(node, joint)
                 if single is not None and prior is not None and self._fresh(growth) and self._within_gate(
-                        single.T_map_camera, prior, growth):
+                        single.T_map_camera, prior, self._gate_m(growth, fused=True)):
                     attempts.append(CandidateAttempt(node, att.similarity, att.matches, att.inliers,
                                                      "one keyframe only; agrees with the prior"))
                     best = (node, res, replace(joint, accepted=True, reason="ok"))
@@ -519,7 +523,7 @@ class VisualLocalizer:
         best: tuple[int, PnpResult, RefineResult | None] | None = None
         cands = self.local_candidates(prior, desc)
         growth = self._prior_growth_m(prior_age_s, fused_prior)
-        gate_m = self.params.prior_gate_m + growth
+        gate_m = self._gate_m(growth, fused_prior)
         for node, sim in cands:
             res, att = self._verify(node, q, sim)
             if res is not None and res.accepted and res.T_target_source is not None:

@@ -75,7 +75,7 @@ def guided_pair_matches(
     if ok.any():
         pts[ok] = backproject_pixels(K_i, np.asarray(f_i.keypoints, dtype=np.float64)[ok], z[ok])
     return match_by_projection(pts, f_i.descriptors, T_i, f_j.keypoints, f_j.descriptors, K_j, T_j,
-                               params.guided_radius_px, params.guided_min_similarity, True)
+                               params.guided_radius_px, params.guided_min_similarity, params.guided_global_mutual)
 
 
 def pnp_inliers(
