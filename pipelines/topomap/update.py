@@ -1,12 +1,17 @@
 """Refresh a map from a new session (`litevloc map update MAP SRC -o NEW`).
 
 The new session is localized against the map (by the caller: the runtime's localizer);
-each localized frame is then compared with the keyframes that cover its place (position
-within `place_radius_m`, viewing direction within `place_angle_deg`): the number of that
-keyframe's matches the frame's pose explains (reprojection within `reprojection_px`) is the
-match quality. Then:
+each localized frame is then compared with the nearest keyframes that look its way
+(position within `match_radius_m`, viewing direction within `place_angle_deg`): the number
+of a keyframe's matches the frame's pose explains (reprojection within `reprojection_px`)
+is the match quality. A keyframe *covers* the frame's place when it is also within
+`place_radius_m`. Then:
 
-* **new place**: no keyframe covers the frame's place -> the frame is a keyframe candidate;
+* **known place**: some nearby keyframe explains at least `changed_max_consistent` matches
+  (the map already localizes this view, even between keyframes more than `place_radius_m`
+  apart) -> nothing to add;
+* **new place**: no keyframe covers the frame's place and none nearby explains enough
+  matches -> the frame is a keyframe candidate;
 * **changed place**: keyframes cover it but explain fewer than `changed_max_consistent`
   matches (moved furniture, new posters, other lighting) -> a keyframe candidate too;
 * **retired node**: a keyframe visited at least `retire_min_visits` times whose best
@@ -52,6 +57,9 @@ class UpdateParams:
 
     place_radius_m: float = 0.5
     place_angle_deg: float = 30.0
+    # keyframes this close (and within place_angle_deg) may show a frame's place as known by
+    # their matches; the localizer's own LL candidates reach this far (pipelines/localization)
+    match_radius_m: float = 1.5
     nodes_checked: int = 3  # covering keyframes matched per frame (nearest first)
     reprojection_px: float = 4.0
     changed_max_consistent: int = 40
@@ -61,10 +69,13 @@ class UpdateParams:
     min_spacing_deg: float = 15.0
 
     def __post_init__(self) -> None:
-        for name in ("place_radius_m", "place_angle_deg", "reprojection_px", "min_spacing_m", "min_spacing_deg"):
+        for name in ("place_radius_m", "place_angle_deg", "match_radius_m", "reprojection_px", "min_spacing_m",
+                     "min_spacing_deg"):
             v = getattr(self, name)
             if not (v > 0 and np.isfinite(v)):
                 raise ValueError(f"{name} must be a finite number > 0, got {v}")
+        if self.match_radius_m < self.place_radius_m:
+            raise ValueError("match_radius_m must be >= place_radius_m")
         if self.nodes_checked < 1 or self.retire_min_visits < 1:
             raise ValueError("nodes_checked and retire_min_visits must be >= 1")
         if not (0 <= self.retire_max_consistent < self.changed_max_consistent):
@@ -143,12 +154,17 @@ class MapUpdate:
         self.points: list[NDArray[np.float32]] = []
         self.report = UpdateReport()
 
-    def covering_nodes(self, T_map_camera: NDArray[np.float64]) -> list[int]:
-        """Keyframes covering the pose's place, nearest first."""
+    def nearby_nodes(self, T_map_camera: NDArray[np.float64], radius_m: float) -> list[int]:
+        """Keyframes within `radius_m` of the pose looking within `place_angle_deg` of its
+        direction, nearest first."""
         p, z = T_map_camera[:3, 3], T_map_camera[:3, 2]
-        near = self._tree.query_ball_point(p, r=self.params.place_radius_m)
+        near = self._tree.query_ball_point(p, r=radius_m)
         ok = [int(i) for i in near if float(self.map.T_map_camera[i, :3, 2] @ z) >= self._cos_place]
         return sorted(ok, key=lambda i: float(np.linalg.norm(self.map.positions[i] - p)))
+
+    def covering_nodes(self, T_map_camera: NDArray[np.float64]) -> list[int]:
+        """Keyframes covering the pose's place (within `place_radius_m`), nearest first."""
+        return self.nearby_nodes(T_map_camera, self.params.place_radius_m)
 
     def _spaced(self, T: NDArray[np.float64], others: list[NDArray[np.float64]]) -> bool:
         p = self.params
@@ -163,25 +179,29 @@ class MapUpdate:
         r = self.report
         r.frames += 1
         self.cameras.append(obs.T_map_camera[:3, 3].copy())
-        cover = self.covering_nodes(obs.T_map_camera)[: self.params.nodes_checked]
+        near = self.nearby_nodes(obs.T_map_camera, self.params.match_radius_m)[: self.params.nodes_checked]
         quality = {node: consistent_matches(obs.T_map_camera, obs.features, obs.keypoint_depth, obs.K,
                                             self.map.features[node], self.map.T_map_camera[node], self.map.K[node],
-                                            self.match, self.params.reprojection_px) for node in cover}
+                                            self.match, self.params.reprojection_px) for node in near}
+        radius = self.params.place_radius_m
+        cover = [n for n in near if float(np.linalg.norm(self.map.positions[n] - obs.T_map_camera[:3, 3])) <= radius]
         best = max(quality.values(), default=0)
+        best_cover = max((quality[n] for n in cover), default=0)
         matchable = max(best, obs.localization_inliers) >= self.params.changed_max_consistent
-        if matchable:
-            for node, n in quality.items():
+        if matchable:  # visits (for retirement) only by keyframes at the frame's own place
+            for node in cover:
                 r.visits[node] = r.visits.get(node, 0) + 1
-                r.best_consistent[node] = max(r.best_consistent.get(node, 0), n)
+                r.best_consistent[node] = max(r.best_consistent.get(node, 0), quality[node])
+        thr = self.params.changed_max_consistent
+        if (best_cover if cover else best) >= thr:
+            r.known += 1  # a covering keyframe still matches, or (no keyframe at the place) a nearby one does
+            return "known"
         if not cover:
             status = "new place"
             r.new_place += 1
             near_nodes = [self.map.T_map_camera[i] for i in
                           self._tree.query_ball_point(obs.T_map_camera[:3, 3], r=self.params.min_spacing_m)]
             keep = self._spaced(obs.T_map_camera, near_nodes + [c.T_map_camera for c in self.candidates])
-        elif best >= self.params.changed_max_consistent:
-            r.known += 1
-            return "known"
         elif matchable:
             status = "changed place"
             r.changed_place += 1

@@ -59,9 +59,9 @@ def base_map(seven_scenes_dir: Path) -> TopoMap:
     return build_7scenes(seven_scenes_dir, "0:250:3", PARAMS).finish()
 
 
-def run_update(m: TopoMap, folder: Path, frames: str, quality_map: TopoMap | None = None
-               ) -> tuple[TopoMap, MapUpdate]:
-    upd = MapUpdate(m, orb_match, UpdateParams())
+def run_update(m: TopoMap, folder: Path, frames: str, quality_map: TopoMap | None = None,
+               params: UpdateParams | None = None) -> tuple[TopoMap, MapUpdate]:
+    upd = MapUpdate(m, orb_match, params or UpdateParams())
     for obs in observations(folder, frames, quality_map):
         upd.observe(obs)
     new, _ = upd.finish(PARAMS.covisibility, PARAMS.connectivity, PARAMS.occupancy)
@@ -74,6 +74,21 @@ def test_unchanged_revisit_changes_nothing(base_map: TopoMap, seven_scenes_dir: 
     assert r.retired == [] and len(r.added) <= 0.1 * base_map.n_nodes, (r.retired, r.added)
     assert r.known >= 0.8 * r.frames
     np.testing.assert_allclose(new.T_map_camera[: base_map.n_nodes], base_map.T_map_camera)
+
+
+def test_frames_between_keyframes_that_match_are_known_places(base_map: TopoMap, seven_scenes_dir: Path) -> None:
+    # a place radius too small for any keyframe to cover a frame: only the matches of the
+    # nearby keyframes can tell that the map already knows these views (#18: corridor frames
+    # between keyframes more than place_radius_m apart counted as new places)
+    tight = UpdateParams(place_radius_m=1e-3, match_radius_m=1e-3, min_spacing_m=0.01)
+    _, radius_only = run_update(base_map, seven_scenes_dir, "1:250:12", params=tight)
+    _, by_matches = run_update(base_map, seven_scenes_dir, "1:250:12",
+                               params=dataclasses.replace(tight, match_radius_m=1.5))
+    a, b = radius_only.report, by_matches.report
+    assert a.frames == b.frames > 10
+    assert a.new_place >= 0.9 * a.frames, a
+    assert b.known >= 0.8 * b.frames, b
+    assert len(by_matches.candidates) <= 0.2 * len(radius_only.candidates) + 1
 
 
 def test_new_places_add_keyframes(base_map: TopoMap, seven_scenes_dir: Path, tmp_path: Path) -> None:
@@ -112,3 +127,5 @@ def test_changed_appearance_retires_and_replaces(base_map: TopoMap, seven_scenes
 def test_params_validated() -> None:
     with pytest.raises(ValueError, match="retire_max_consistent"):
         UpdateParams(retire_max_consistent=50, changed_max_consistent=40)
+    with pytest.raises(ValueError, match="match_radius_m"):
+        UpdateParams(place_radius_m=1.0, match_radius_m=0.5)
