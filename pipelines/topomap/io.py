@@ -1,4 +1,4 @@
-"""On-disk map format (version 1) and its validating loader.
+"""On-disk map format (version 2; version 1 still loads) and its validating loader.
 
 A map is a folder:
 
@@ -9,7 +9,8 @@ nodes/image_size.npy          (N,2) int32 (w,h)   nodes/t_ns.npy         (N,) in
 nodes/frame_index.npy         (N,) int64          vpr/descriptors.npy    (N,D) int8, vpr/scale.npy (N,) float32
 features/offsets.npy          (N+1,) int64: node i owns rows offsets[i]:offsets[i+1]
 features/keypoints.npy        (M,2) float32       features/scores.npy    (M,) float32
-features/descriptors.npy      (M,Df) float16 (or uint8 for binary descriptors)
+features/descriptors.npy      (M,Df) int8 codes (or uint8 for binary descriptors; version 1: float16)
+features/descriptor_scale.npy (M,) float32 > 0: row scale of int8 codes (version 2, float descriptors)
 graph/covisibility_edges.npy  (E,2) int64 i<j     graph/covisibility_inliers.npy (E,) int32
 graph/covisibility_weight.npy (E,) float32 (0,1]  graph/connectivity_edges.npy   (F,2) int64 i<j
 graph/connectivity_metres.npy (F,) float32 >= 0
@@ -18,10 +19,13 @@ grid/frame.npy                (12,) float64: origin(2), resolution, up(3), plane
 images/NNNNNN.jpg             keyframe images (JPEG), one per node
 ```
 
-Local float descriptors are stored as float16 (half the bytes). Place descriptors are
-stored as int8 with one float32 scale per node (symmetric quantisation, a quarter of the
-bytes: 1280-d EfficientNet-GeM costs 1.3 KB per node); cosine similarities change by
-< 2e-3, far below the margins that rank places. The loader returns float32 unit vectors.
+Local float descriptors are stored as int8 codes with one float32 scale per keypoint
+(symmetric quantisation: 132 bytes for a 128-d ALIKED descriptor, 52 % of float16's 256,
+which version 1 stored; local features are most of a map's bytes, #15). Place descriptors
+are stored the same way, one scale per node (1280-d EfficientNet-GeM costs 1.3 KB per
+node); cosine similarities change by < 2e-3, far below the margins that rank places or
+matches (`tests/pipelines/topomap/test_io.py` checks LightGlue-style nearest neighbours).
+The loader returns float32 (place descriptors as unit vectors).
 Plain `.npy` files (never pickle; loaded with `allow_pickle=False`) so building twice
 gives byte-identical files. `load_map` checks everything and raises `MapFormatError`
 naming the file and the problem: missing, unlisted, truncated (size), checksum, wrong
@@ -45,7 +49,8 @@ from litevloc.base.errors import LiteVLocError
 from litevloc.pipelines.topomap.types import FeatureStore, OccupancyGrid, TopoMap
 
 FORMAT = "litevloc-map"
-VERSION = 1
+VERSION = 2
+READABLE_VERSIONS = (1, 2)
 MANIFEST = "manifest.json"
 
 
@@ -73,24 +78,29 @@ def _quantise(v: NDArray[np.floating]) -> tuple[NDArray[np.int8], NDArray[np.flo
 
 def map_arrays(m: TopoMap) -> dict[str, NDArray[Any]]:
     """The map's arrays keyed by their relative file path."""
-    if isinstance(m.features, FeatureStore):  # a loaded map: its arrays as they are
+    desc_scale: NDArray[np.float32] | None = None
+    if isinstance(m.features, FeatureStore):  # a loaded map: its arrays as they are (v1 float16 re-encoded)
         fs = m.features
         offsets, kps, scores, desc = fs.offsets, fs.keypoints, fs.scores, fs.descriptors
-        desc_dtype = np.float16 if np.dtype(desc.dtype).kind == "f" else desc.dtype
+        desc_scale = fs.descriptor_scale
+        if np.dtype(desc.dtype).kind == "f":
+            desc, desc_scale = _quantise(desc)
     else:
         feats = list(m.features)
         offsets = np.concatenate([[0], np.cumsum([len(f.keypoints) for f in feats])]).astype(np.int64)
         desc_dim = feats[0].descriptors.shape[1] if feats and feats[0].descriptors.ndim == 2 else 0
         desc_dtype = feats[0].descriptors.dtype if feats else np.float32
-        if np.dtype(desc_dtype).kind == "f":
-            desc_dtype = np.float16
         kps = np.concatenate([f.keypoints for f in feats]).astype(np.float32).reshape(-1, 2)
         scores = np.concatenate([f.scores for f in feats]).astype(np.float32)
-        desc = np.concatenate([f.descriptors for f in feats], dtype=desc_dtype, casting="same_kind")\
-            .reshape(-1, desc_dim)
+        if np.dtype(desc_dtype).kind == "f":
+            desc, desc_scale = _quantise(np.concatenate([np.asarray(f.descriptors, np.float32).reshape(-1, desc_dim)
+                                                         for f in feats]).reshape(-1, desc_dim))
+        else:
+            desc = np.concatenate([f.descriptors for f in feats], dtype=desc_dtype, casting="same_kind")\
+                .reshape(-1, desc_dim)
     g = m.grid
     vpr_codes, vpr_scale = _quantise(m.vpr)
-    return {
+    out: dict[str, NDArray[Any]] = {
         "nodes/T_map_camera.npy": m.T_map_camera.astype(np.float64),
         "nodes/K.npy": m.K.astype(np.float64),
         "nodes/image_size.npy": m.image_size.astype(np.int32),
@@ -101,7 +111,7 @@ def map_arrays(m: TopoMap) -> dict[str, NDArray[Any]]:
         "features/offsets.npy": np.asarray(offsets, np.int64),
         "features/keypoints.npy": np.asarray(kps, np.float32),
         "features/scores.npy": np.asarray(scores, np.float32),
-        "features/descriptors.npy": np.asarray(desc, desc_dtype),
+        "features/descriptors.npy": np.asarray(desc),
         "graph/covisibility_edges.npy": m.covis_edges.astype(np.int64).reshape(-1, 2),
         "graph/covisibility_inliers.npy": m.covis_inliers.astype(np.int32),
         "graph/covisibility_weight.npy": m.covis_weight.astype(np.float32),
@@ -110,6 +120,9 @@ def map_arrays(m: TopoMap) -> dict[str, NDArray[Any]]:
         "grid/cells.npy": g.cells.astype(np.uint8),
         "grid/frame.npy": np.concatenate([g.origin, [g.resolution], g.up, g.plane_axes.reshape(6)]).astype(np.float64),
     }
+    if desc_scale is not None:
+        out["features/descriptor_scale.npy"] = np.asarray(desc_scale, np.float32)
+    return out
 
 
 def save_map(m: TopoMap, folder: str | Path, overwrite: bool = False) -> Path:
@@ -168,8 +181,9 @@ def read_manifest(folder: Path) -> dict[str, Any]:
         raise _fail(folder, MANIFEST, f"not valid JSON ({exc})") from exc
     if not isinstance(man, dict) or man.get("format") != FORMAT:
         raise _fail(folder, MANIFEST, f"format must be {FORMAT!r}")
-    if man.get("version") != VERSION:
-        raise _fail(folder, MANIFEST, f"unsupported map version {man.get('version')!r} (this build reads {VERSION})")
+    if man.get("version") not in READABLE_VERSIONS:
+        raise _fail(folder, MANIFEST, f"unsupported map version {man.get('version')!r} (this build reads "
+                    f"{', '.join(map(str, READABLE_VERSIONS))})")
     files = man.get("files")
     if not isinstance(files, dict):
         raise _fail(folder, MANIFEST, "'files' must be a mapping of path -> {sha256, bytes}")
@@ -392,6 +406,13 @@ def _rigid_rows(T: NDArray[np.float64], atol: float) -> NDArray[np.bool_]:
 _STREAMED = {"features/keypoints.npy", "features/scores.npy", "features/descriptors.npy"}
 
 
+def _positive_rows(root: Path, rel: str) -> RowCheck:
+    def check(a: NDArray[Any], first: int) -> None:
+        if a.size and not bool(a.min() > 0):
+            raise _fail(root, rel, f"scales must be > 0 (row {first + int(np.argmin(a))})")
+    return check
+
+
 def load_map(folder: str | Path) -> TopoMap:
     """Load and validate a map folder (see module docstring); MapFormatError on any problem.
 
@@ -464,9 +485,16 @@ def load_map(folder: str | Path) -> TopoMap:
     if len(kps) != M:
         raise _fail(root, "features/offsets.npy", f"must rise from 0 to {len(kps)} (keypoint count)")
     scores = _streamed_npy(root, "features/scores.npy", files["features/scores.npy"], np.float32, (M,))
+    v1 = man["version"] == 1
     desc = _streamed_npy(root, "features/descriptors.npy", files["features/descriptors.npy"],
-                         (np.float16, np.uint8), (M, None))
-    feats = FeatureStore(off, kps, desc, scores, size)
+                         (np.float16, np.uint8) if v1 else (np.int8, np.uint8), (M, None))
+    desc_scale = None
+    if desc.dtype == np.int8:
+        rel = "features/descriptor_scale.npy"
+        if rel not in files:
+            raise _fail(root, rel, "not listed in manifest.json (int8 descriptors need their row scales)")
+        desc_scale = _streamed_npy(root, rel, files[rel], np.float32, (M,), _positive_rows(root, rel))
+    feats = FeatureStore(off, kps, desc, scores, size, descriptor_scale=desc_scale)
     ce = arr("graph/covisibility_edges.npy", np.int64, (None, 2))
     ci = arr("graph/covisibility_inliers.npy", np.int32, (len(ce),))
     cw = arr("graph/covisibility_weight.npy", np.float32, (len(ce),))

@@ -54,15 +54,21 @@ class FeatureStore(Sequence[Any]):
     `NodeFeatures`, made on access (no per-node objects or copies at load time).
 
     offsets: (N+1,) int64, node i owns rows offsets[i]:offsets[i+1] of
-    keypoints (M, 2) float32 pixels, descriptors (M, D) (float16 on disk: returned as
-    float32 per node; may be a read-only memory map) and scores (M,) float32;
+    keypoints (M, 2) float32 pixels, descriptors (M, D) and scores (M,) float32 (each may be
+    a read-only memory map). Float descriptors are float16 or int8 codes with one float32
+    scale per row in `descriptor_scale` (M,) (map format 2); either comes out as float32
+    per node. Binary (uint8) descriptors are returned as they are;
     image_size: (N, 2) int (width, height). `convert` (optional) is applied to each
     node's NodeFeatures on access (e.g. to the model layer's feature type)."""
 
     def __init__(self, offsets: NDArray[np.int64], keypoints: NDArray[np.float32], descriptors: NDArray,
                  scores: NDArray[np.float32], image_size: NDArray[np.integer],
-                 convert: Callable[[NodeFeatures], Any] | None = None) -> None:
+                 convert: Callable[[NodeFeatures], Any] | None = None,
+                 descriptor_scale: NDArray[np.float32] | None = None) -> None:
+        if (descriptors.dtype == np.int8) != (descriptor_scale is not None):
+            raise ValueError("int8 descriptors need descriptor_scale (one float32 per row), and only they")
         self.offsets, self.keypoints, self.descriptors, self.scores = offsets, keypoints, descriptors, scores
+        self.descriptor_scale = descriptor_scale
         self.image_size = image_size
         self.convert = convert
 
@@ -77,7 +83,10 @@ class FeatureStore(Sequence[Any]):
             raise IndexError(f"node {i} not in 0..{n - 1}")
         a, b = int(self.offsets[i]), int(self.offsets[i + 1])
         d = self.descriptors[a:b]
-        d = d.astype(np.float32) if d.dtype == np.float16 else np.asarray(d)
+        if self.descriptor_scale is not None:
+            d = d.astype(np.float32) * self.descriptor_scale[a:b, None]
+        else:
+            d = d.astype(np.float32) if d.dtype == np.float16 else np.asarray(d)
         f = NodeFeatures(self.keypoints[a:b], d, self.scores[a:b],
                          (int(self.image_size[i, 0]), int(self.image_size[i, 1])))
         return f if self.convert is None else self.convert(f)
@@ -98,7 +107,8 @@ class FeatureStore(Sequence[Any]):
 
     def mapped(self, convert: Callable[[NodeFeatures], Any]) -> FeatureStore:
         """The same store with `convert` applied to each node's features on access."""
-        return FeatureStore(self.offsets, self.keypoints, self.descriptors, self.scores, self.image_size, convert)
+        return FeatureStore(self.offsets, self.keypoints, self.descriptors, self.scores, self.image_size, convert,
+                            self.descriptor_scale)
 
 
 @dataclass(frozen=True, eq=False)
