@@ -51,7 +51,7 @@ from numpy.typing import NDArray
 from litevloc.config.schema import PlannerConfig
 from litevloc.hw import ros_msgs
 from litevloc.pipelines.geometry import invert
-from litevloc.pipelines.navigation.planner import GoalResult, NavStatus, SubgoalTracker, localize_goal
+from litevloc.pipelines.navigation.planner import GoalResult, NavStatus, SubgoalTracker, localize_goal, segment_clear
 from litevloc.pipelines.topomap.types import TopoMap
 from litevloc.runtime.metrics import jsonable
 
@@ -131,7 +131,8 @@ class GoalPlanner:
         # where the base stands at each node: the keyframe camera pose moved back to the base, level
         self.node_base = np.stack([level_pose(T @ self.T_camera_base) for T in topomap.T_map_camera])
         self.tracker = SubgoalTracker(topomap, params.tracker, self.node_base[:, :3, 3])
-        self.queue: deque[tuple[str, int, float]] = deque()  # (name, node, inliers)
+        # (name, node, inliers, level base pose at the goal image's place or None)
+        self.queue: deque[tuple[str, int, float, NDArray[np.float64] | None]] = deque()
         self.active: str | None = None
         self.goals_received = 0
         self.seq = 0
@@ -140,6 +141,8 @@ class GoalPlanner:
         self._last_pub_t: int | None = None
         self._last_sub_node: int | None = None
         self._nav: NavStatus | None = None
+        self._goal_base: NDArray[np.float64] | None = None  # metric goal of the active goal (map frame)
+        self._final = False  # driving from the goal node to the goal image's own place
 
     # ----------------------------------------------------------------- helpers
     def _status(self, state: str, reason: str, goal: str | None, nav: NavStatus | None = None,
@@ -165,8 +168,18 @@ class GoalPlanner:
         return np.asarray(T_map_base, np.float64)[:3, 3]
 
     def subgoal_of(self, node: int, t_ns: int, T_map_base: NDArray[np.float64]) -> Subgoal:
-        T_map_sub = self.node_base[node].copy()
+        final = self._final and self._goal_base is not None
+        T_map_sub = (self._goal_base if final and self._goal_base is not None else self.node_base[node]).copy()
         return Subgoal(t_ns, node, T_map_sub, invert(T_map_base) @ T_map_sub)
+
+    def goal_base_pose(self, res: GoalResult) -> NDArray[np.float64] | None:
+        """Where the base should stand for the goal image (level, at the goal node's height),
+        or None when the map gave no metric goal pose or the final approach is off."""
+        if res.T_map_goal is None or res.node is None or not self.params.tracker.final_approach:
+            return None
+        T = level_pose(np.asarray(res.T_map_goal, np.float64) @ self.T_camera_base)
+        T[2, 3] = self.node_base[res.node, 2, 3]
+        return T
 
     @property
     def busy(self) -> bool:
@@ -192,8 +205,12 @@ class GoalPlanner:
         if res.node is None:
             self._emit(out, "failed", f"goal {name!r}: {res.reason}", name)
             return out
-        self.queue.append((name, res.node, float(res.inliers)))
+        goal_base = self.goal_base_pose(res)
+        self.queue.append((name, res.node, float(res.inliers), goal_base))
         where = f"goal {name!r} at node {res.node} ({res.inliers} inliers)"
+        if goal_base is not None:
+            d = float(np.linalg.norm(goal_base[:2, 3] - self.node_base[res.node, :2, 3]))
+            where += f", its place {d:.2f} m from the node ({res.pose_inliers} PnP inliers)"
         was_active = self.active
         if self.active is None:
             self._start_next(out)
@@ -213,7 +230,7 @@ class GoalPlanner:
         if what == "all":
             self.queue.clear()
         if self.active is not None:
-            name, self.active = self.active, None
+            name, self.active, self._final = self.active, None, False
             self._emit(out, "failed", f"goal {name!r} cancelled", name, goal_node=self.tracker.goal)
         self._start_next(out)
         if what == "all" and self.active is None:
@@ -222,13 +239,14 @@ class GoalPlanner:
 
     def _start_next(self, out: list[Output]) -> None:
         while self.active is None and self.queue and self.pose is not None:
-            name, node, _ = self.queue.popleft()
+            name, node, _, goal_base = self.queue.popleft()
             T = self.pose[1]
             nav = self.tracker.set_goal(node, self.robot_position(T))
             if nav.state == "failed":
                 self._emit(out, "failed", f"goal {name!r}: {nav.reason}", name, goal_node=node)
                 continue
             self.active, self._nav = name, nav
+            self._goal_base, self._final = goal_base, False
             self._last_sub_node = None
             self._emit(out, "planned", f"goal {name!r}: {nav.reason}", name, nav, node)
             self._publish_subgoal(out, nav, force=True)
@@ -251,8 +269,22 @@ class GoalPlanner:
         if self.active is None:
             self._start_next(out)
             return out
+        if self._final:
+            return self._final_approach(out, T)
         before = self.tracker.replans
         nav = self._nav = self.tracker.update(self.robot_position(T))
+        if nav.state == "reached" and self._goal_base is not None:
+            node = self.tracker.goal
+            assert node is not None
+            a, b = self.node_base[node, :3, 3], self._goal_base[:3, 3]
+            clearance = self.params.tracker.clearance_m
+            if clearance == 0 or segment_clear(self.map, a, b, clearance):
+                self._final = True
+                self._emit(out, "planned", f"goal {self.active!r}: at node {node}; on to the goal image's place "
+                           f"{np.linalg.norm(b[:2] - a[:2]):.2f} m away", self.active, nav, node)
+                return self._final_approach(out, T)
+            nav = NavStatus("reached", f"{nav.reason}; the goal image's place is not in clear sight of it "
+                                       f"({np.linalg.norm(b[:2] - a[:2]):.2f} m away)")
         if nav.state == "reached":
             name, self.active = self.active, None
             self._emit(out, "reached", f"goal {name!r}: {nav.reason}", name, goal_node=self.tracker.goal)
@@ -267,6 +299,24 @@ class GoalPlanner:
                 why = "replanned (strayed from the path)" if self.tracker.replans != before else "next subgoal"
                 self._emit(out, "planned", f"goal {self.active!r}: {why}", self.active, nav, self.tracker.goal)
             self._publish_subgoal(out, nav)
+        return out
+
+
+    def _final_approach(self, out: list[Output], T: NDArray[np.float64]) -> list[Output]:
+        """From the goal node straight to the goal image's place (subgoal = that place)."""
+        assert self._goal_base is not None and self.pose is not None
+        node = self.tracker.goal
+        d = float(np.linalg.norm(self._goal_base[:3, 3] - self.robot_position(T)))
+        reach = self.params.tracker.reach_m
+        if d <= reach:
+            name, self.active, self._final = self.active, None, False
+            self._emit(out, "reached", f"goal {name!r}: within {reach} m of the goal image's place "
+                       f"(past node {node})", name, goal_node=node)
+            self._start_next(out)
+            return out
+        nav = NavStatus("planned", "final approach", node, (node,) if node is not None else (), d)
+        self._nav = nav
+        self._publish_subgoal(out, nav)
         return out
 
 

@@ -14,16 +14,27 @@ class GoalParams:
     min_inliers: int = 40
     ransac_px: float = 2.0
     seed: int = 0
+    # metric goal pose (maps with keypoint depth): PnP of the goal image against the chosen
+    # keyframe's depth-lifted keypoints; the place is already verified (min_inliers), so a
+    # pose needs fewer inliers, and it must lie within pose_max_m of the keyframe
+    pose_min_inliers: int = 20
+    pose_px: float = 4.0
+    pose_max_m: float = 5.0
 
     def __post_init__(self) -> None:
         if self.top_k < 1 or self.min_inliers < 8 or self.ransac_px <= 0:
             raise ValueError("top_k >= 1, min_inliers >= 8 and ransac_px > 0 required")
+        if self.pose_min_inliers < 6 or self.pose_px <= 0 or self.pose_max_m <= 0:
+            raise ValueError("pose_min_inliers >= 6, pose_px > 0 and pose_max_m > 0 required")
 
 
 @dataclass(frozen=True)
 class TrackerParams:
     reach_m: float = 0.5
     stray_m: float = 2.0
+    # after the goal node, drive on to the goal image's own place (when the map gave it a
+    # metric pose and the straight way there is clear for clearance_m); False = stop at the node
+    final_approach: bool = True
     # advance past a reached node only once the straight way on to the next one is clear for
     # a robot of this radius in the map's occupancy grid (else keep approaching the node,
     # down to reach_m / 3); 0 = off

@@ -270,7 +270,7 @@ class MapBuilder:
             raise ValueError(f"frame {c.index}: pass 2 image is {w}x{h}, pass 1 saw {c.size[0]}x{c.size[1]}")
         c.jpeg = jpeg
         c.features = NodeFeatures(np.asarray(feats.keypoints, np.float32), np.asarray(feats.descriptors),
-                                  np.asarray(feats.scores, np.float32), (w, h))
+                                  np.asarray(feats.scores, np.float32), (w, h), np.asarray(c.kp_depth, np.float32))
         c.vpr = np.asarray(self.describe(color), np.float32)
 
     def finish(self, on_pair: Callable[[], None] | None = None, selected: list[int] | None = None) -> TopoMap:

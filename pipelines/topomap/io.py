@@ -11,6 +11,8 @@ features/offsets.npy          (N+1,) int64: node i owns rows offsets[i]:offsets[
 features/keypoints.npy        (M,2) float32       features/scores.npy    (M,) float32
 features/descriptors.npy      (M,Df) int8 codes (or uint8 for binary descriptors; version 1: float16)
 features/descriptor_scale.npy (M,) float32 > 0: row scale of int8 codes (version 2, float descriptors)
+features/depth.npy            (M,) float16 >= 0: mapping depth at each keypoint, metres, 0 = none
+                              (version 2, optional: maps without it still load)
 graph/covisibility_edges.npy  (E,2) int64 i<j     graph/covisibility_inliers.npy (E,) int32
 graph/covisibility_weight.npy (E,) float32 (0,1]  graph/connectivity_edges.npy   (F,2) int64 i<j
 graph/connectivity_metres.npy (F,) float32 >= 0
@@ -79,10 +81,12 @@ def _quantise(v: NDArray[np.floating]) -> tuple[NDArray[np.int8], NDArray[np.flo
 def map_arrays(m: TopoMap) -> dict[str, NDArray[Any]]:
     """The map's arrays keyed by their relative file path."""
     desc_scale: NDArray[np.float32] | None = None
+    depth: NDArray[np.float16] | None = None
     if isinstance(m.features, FeatureStore):  # a loaded map: its arrays as they are (v1 float16 re-encoded)
         fs = m.features
         offsets, kps, scores, desc = fs.offsets, fs.keypoints, fs.scores, fs.descriptors
         desc_scale = fs.descriptor_scale
+        depth = None if fs.depth is None else _depth16(np.asarray(fs.depth))
         if np.dtype(desc.dtype).kind == "f":
             desc, desc_scale = _quantise(desc)
     else:
@@ -92,6 +96,9 @@ def map_arrays(m: TopoMap) -> dict[str, NDArray[Any]]:
         desc_dtype = feats[0].descriptors.dtype if feats else np.float32
         kps = np.concatenate([f.keypoints for f in feats]).astype(np.float32).reshape(-1, 2)
         scores = np.concatenate([f.scores for f in feats]).astype(np.float32)
+        if any(getattr(f, "depth", None) is not None for f in feats):  # nodes without it: 0 (none)
+            depth = _depth16(np.concatenate([np.zeros(len(f.keypoints), np.float32) if getattr(f, "depth", None) is None
+                                             else np.asarray(f.depth, np.float32).reshape(-1) for f in feats]))
         if np.dtype(desc_dtype).kind == "f":
             desc, desc_scale = _quantise(np.concatenate([np.asarray(f.descriptors, np.float32).reshape(-1, desc_dim)
                                                          for f in feats]).reshape(-1, desc_dim))
@@ -122,7 +129,16 @@ def map_arrays(m: TopoMap) -> dict[str, NDArray[Any]]:
     }
     if desc_scale is not None:
         out["features/descriptor_scale.npy"] = np.asarray(desc_scale, np.float32)
+    if depth is not None:
+        out["features/depth.npy"] = depth
     return out
+
+
+def _depth16(z: NDArray[np.floating]) -> NDArray[np.float16]:
+    """Keypoint depths (metres, NaN/<= 0 = none) as stored: float16, 0 = none (float16 keeps
+    3 significant digits: 4 mm at 5 m)."""
+    z = np.asarray(z, np.float32)
+    return np.where(np.isfinite(z) & (z > 0) & (z < 65000), z, 0).astype(np.float16)
 
 
 def save_map(m: TopoMap, folder: str | Path, overwrite: bool = False) -> Path:
@@ -413,6 +429,13 @@ def _positive_rows(root: Path, rel: str) -> RowCheck:
     return check
 
 
+def _nonnegative_rows(root: Path, rel: str) -> RowCheck:
+    def check(a: NDArray[Any], first: int) -> None:
+        if a.size and not bool(a.min() >= 0):
+            raise _fail(root, rel, f"depths must be >= 0 (row {first + int(np.argmin(a))})")
+    return check
+
+
 def load_map(folder: str | Path) -> TopoMap:
     """Load and validate a map folder (see module docstring); MapFormatError on any problem.
 
@@ -494,7 +517,11 @@ def load_map(folder: str | Path) -> TopoMap:
         if rel not in files:
             raise _fail(root, rel, "not listed in manifest.json (int8 descriptors need their row scales)")
         desc_scale = _streamed_npy(root, rel, files[rel], np.float32, (M,), _positive_rows(root, rel))
-    feats = FeatureStore(off, kps, desc, scores, size, descriptor_scale=desc_scale)
+    depth = None
+    if "features/depth.npy" in files:
+        rel = "features/depth.npy"
+        depth = _streamed_npy(root, rel, files[rel], np.float16, (M,), _nonnegative_rows(root, rel))
+    feats = FeatureStore(off, kps, desc, scores, size, descriptor_scale=desc_scale, depth=depth)
     ce = arr("graph/covisibility_edges.npy", np.int64, (None, 2))
     ci = arr("graph/covisibility_inliers.npy", np.int32, (len(ce),))
     cw = arr("graph/covisibility_weight.npy", np.float32, (len(ce),))

@@ -41,12 +41,16 @@ class FeatureSet(Protocol):
 
 @dataclass(frozen=True, eq=False)
 class NodeFeatures:
-    """Cached local features of a keyframe (keypoints in the stored keyframe image's pixels)."""
+    """Cached local features of a keyframe (keypoints in the stored keyframe image's pixels).
+
+    `depth` (N,) float32: the mapping frame's depth at each keypoint along the camera's z
+    axis (metres; NaN where there was none), or None for maps made without it."""
 
     keypoints: NDArray[np.float32]
     descriptors: NDArray
     scores: NDArray[np.float32]
     image_size: tuple[int, int]  # (width, height)
+    depth: NDArray[np.float32] | None = None
 
 
 class FeatureStore(Sequence[Any]):
@@ -57,18 +61,21 @@ class FeatureStore(Sequence[Any]):
     keypoints (M, 2) float32 pixels, descriptors (M, D) and scores (M,) float32 (each may be
     a read-only memory map). Float descriptors are float16 or int8 codes with one float32
     scale per row in `descriptor_scale` (M,) (map format 2); either comes out as float32
-    per node. Binary (uint8) descriptors are returned as they are;
+    per node. Binary (uint8) descriptors are returned as they are. `depth` (M,) (optional):
+    keypoint depth in metres, 0 = none; returned per node as float32 with NaN for none;
     image_size: (N, 2) int (width, height). `convert` (optional) is applied to each
     node's NodeFeatures on access (e.g. to the model layer's feature type)."""
 
     def __init__(self, offsets: NDArray[np.int64], keypoints: NDArray[np.float32], descriptors: NDArray,
                  scores: NDArray[np.float32], image_size: NDArray[np.integer],
                  convert: Callable[[NodeFeatures], Any] | None = None,
-                 descriptor_scale: NDArray[np.float32] | None = None) -> None:
+                 descriptor_scale: NDArray[np.float32] | None = None,
+                 depth: NDArray[np.floating] | None = None) -> None:
         if (descriptors.dtype == np.int8) != (descriptor_scale is not None):
             raise ValueError("int8 descriptors need descriptor_scale (one float32 per row), and only they")
         self.offsets, self.keypoints, self.descriptors, self.scores = offsets, keypoints, descriptors, scores
         self.descriptor_scale = descriptor_scale
+        self.depth = depth  # (M,) metres, 0 = none (as stored), or None
         self.image_size = image_size
         self.convert = convert
 
@@ -87,8 +94,12 @@ class FeatureStore(Sequence[Any]):
             d = d.astype(np.float32) * self.descriptor_scale[a:b, None]
         else:
             d = d.astype(np.float32) if d.dtype == np.float16 else np.asarray(d)
+        z = None
+        if self.depth is not None:
+            z = np.asarray(self.depth[a:b], np.float32)
+            z = np.where(z > 0, z, np.float32(np.nan))
         f = NodeFeatures(self.keypoints[a:b], d, self.scores[a:b],
-                         (int(self.image_size[i, 0]), int(self.image_size[i, 1])))
+                         (int(self.image_size[i, 0]), int(self.image_size[i, 1])), z)
         return f if self.convert is None else self.convert(f)
 
     @overload
@@ -108,7 +119,7 @@ class FeatureStore(Sequence[Any]):
     def mapped(self, convert: Callable[[NodeFeatures], Any]) -> FeatureStore:
         """The same store with `convert` applied to each node's features on access."""
         return FeatureStore(self.offsets, self.keypoints, self.descriptors, self.scores, self.image_size, convert,
-                            self.descriptor_scale)
+                            self.descriptor_scale, self.depth)
 
 
 @dataclass(frozen=True, eq=False)
@@ -185,6 +196,18 @@ class TopoMap:
     def connectivity_csr(self) -> Any:
         """Connectivity graph as a symmetric scipy.sparse CSR matrix of metres (see node_index)."""
         return connectivity_matrix(self.conn_edges, self.conn_metres, self.n_nodes)
+
+    def keypoint_depth(self, node: int) -> NDArray[np.float32] | None:
+        """(N_node,) mapping depth (metres, NaN = none) at each of the node's keypoints, or None
+        when the map has none (maps before format 2, features converted in memory)."""
+        f = self.features
+        if isinstance(f, FeatureStore):
+            if f.depth is None:
+                return None
+            z = np.asarray(f.depth[int(f.offsets[node]):int(f.offsets[node + 1])], np.float32)
+            return np.where(z > 0, z, np.float32(np.nan))
+        d = getattr(f[node], "depth", None)
+        return None if d is None else np.asarray(d, np.float32)
 
     def covisible_neighbours(self, node: int) -> list[tuple[int, float]]:
         """(neighbour id, weight) pairs of `node` in the covisibility graph, strongest first."""

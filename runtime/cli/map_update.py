@@ -131,12 +131,13 @@ def update(args: argparse.Namespace) -> int:
                     raise UserError(f"JPEG encoding of frame {frame.index} failed")
                 jpeg = enc.tobytes()
             h, w = frame.color.shape[:2]
+            kp_depth = depth_at(frame.depth, feats.keypoints, cfg.mapping.depth)
             upd.observe(Observation(
                 t_ns=frame.t_ns, index=frame.index, T_map_camera=T, K=np.asarray(frame.K, np.float64),
                 image_size=(w, h),
                 features=NodeFeatures(np.asarray(feats.keypoints, np.float32), np.asarray(feats.descriptors),
-                                      np.asarray(feats.scores, np.float32), (w, h)),
-                keypoint_depth=depth_at(frame.depth, feats.keypoints, cfg.mapping.depth),
+                                      np.asarray(feats.scores, np.float32), (w, h), kp_depth),
+                keypoint_depth=kp_depth,
                 vpr=np.asarray(bundle.describe(frame.color), np.float32), jpeg=jpeg,
                 points_map=(pts_cam[:: 4] @ T[:3, :3].T + T[:3, 3]).astype(np.float32),
                 localization_inliers=inliers,

@@ -20,14 +20,18 @@ from tests.runtime.zenoh_helpers import free_port
 T_BC = np.eye(4)  # camera at the base: node base positions = node camera positions
 
 
-def planner(locate_nodes: dict[int, int | None], **tracker: float) -> GoalPlanner:
-    """Nodes 0..3 on a line 1 m apart (x = 0..3 m); goal image k (first byte) -> node."""
+def planner(locate_nodes: dict[int, int | None], goal_places: dict[int, np.ndarray] | None = None,
+            **tracker: float) -> GoalPlanner:
+    """Nodes 0..3 on a line 1 m apart (x = 0..3 m); goal image k (first byte) -> node (and,
+    in `goal_places`, the goal camera's metric pose in the map)."""
     m = grid_map([(0, 1, 1.0), (1, 2, 1.0), (2, 3, 1.0)], 4)
 
     def locate(rgb: np.ndarray) -> GoalResult:
-        node = locate_nodes[int(rgb[0, 0, 0])]
+        k = int(rgb[0, 0, 0])
+        node = locate_nodes[k]
         return GoalResult(node, 50 if node is not None else 3, "ok" if node is not None else
-                          "goal image matches no map place (best 3 inliers < 40)")
+                          "goal image matches no map place (best 3 inliers < 40)", (),
+                          (goal_places or {}).get(k), 80)
 
     cfg = PlannerConfig(tracker=TrackerParams(reach_m=0.3, stray_m=1.5, clearance_m=0.0, **tracker))
     return GoalPlanner(m, locate, cfg, T_BC)
@@ -84,6 +88,37 @@ def test_sequence_of_goals_subgoals_advance_and_reach() -> None:
     outs += p.on_pose(16, pose(0.0))
     st = [o[1] for o in outs if o[0] == "status"][-1]
     assert st["state"] == "reached" and st["goal"] == "b" and not st["busy"] and st["pose_t_ns"] in (15, 16)
+
+
+def test_final_approach_drives_on_to_the_goal_images_place() -> None:
+    place = pose(2.0)
+    place[1, 3] = 0.8  # the goal image was taken 0.8 m beside node 2
+    p = planner({1: 2, 2: 1}, goal_places={1: place})
+    outs = p.add_goal("beside", img(1))  # no pose yet: queued, with where its place is
+    assert "its place 0.80 m from the node (80 PnP inliers)" in outs[0][1]["reason"]
+    for t, x in enumerate((0.0, 0.05, 1.0)):
+        p.on_pose(t, pose(x))
+    outs = p.on_pose(3, pose(2.0))  # at the goal node: not reached yet, on to the place
+    assert kinds(outs) == ["status:planned", "subgoal"] and "goal image's place 0.80 m away" in outs[0][1]["reason"]
+    sub = outs[1][1]
+    np.testing.assert_allclose(sub.T_map_subgoal[:3, 3], place[:3, 3], atol=1e-9)
+    np.testing.assert_allclose(sub.T_base_subgoal[:3, 3], [0.0, 0.8, 0.0], atol=1e-9)
+    beside = pose(2.0)
+    beside[1, 3] = 0.4  # 0.4 m short of the place (> reach 0.3 m)
+    assert kinds(p.on_pose(4, beside)) == ["subgoal"]
+    beside[1, 3] = 0.6
+    outs = p.on_pose(5, beside)
+    assert kinds(outs) == ["status:reached"] and "goal image's place" in outs[0][1]["reason"]
+    # a goal without a metric place (or with final_approach off) stops at its node as before
+    outs = p.add_goal("node only", img(2))
+    outs += p.on_pose(6, pose(2.0))
+    outs += p.on_pose(7, pose(1.0))
+    assert "status:reached" in kinds(outs) and "goal node 1" in outs[-1][1]["reason"]
+    off = planner({1: 2}, goal_places={1: place}, final_approach=False)
+    off.add_goal("x", img(1))
+    for t, x in enumerate((0.0, 0.05, 1.0)):
+        off.on_pose(t, pose(x))
+    assert kinds(off.on_pose(3, pose(2.0))) == ["status:reached"]
 
 
 def test_replan_when_strayed_and_cancel() -> None:

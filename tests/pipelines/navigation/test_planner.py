@@ -104,3 +104,27 @@ def test_tracker_nearest_node_is_the_brute_force_one() -> None:
     rng = np.random.default_rng(0)
     for p in rng.uniform(-3, 12, (200, 3)):
         assert tr.nearest_node(p) == int(np.argmin(np.linalg.norm(m.positions - p, axis=1)))
+
+
+def test_goal_pose_from_keypoint_depth_is_metric() -> None:
+    from tests.pipelines.localization.test_vloc import POINTS
+
+    m = make_vloc_map([0.0, 1.0, 2.0, 3.0])
+    feats = []
+    for Ti, f in zip(m.T_map_camera, m.features, strict=True):
+        pc = g.transform_points(g.invert(Ti), POINTS[f.descriptors[:, 0].astype(np.int64)])
+        feats.append(dataclasses.replace(f, depth=pc[:, 2].astype(np.float32)))
+    md = dataclasses.replace(m, features=feats)
+    T_goal = pose(2.3, yaw_deg=10.0)  # 0.3 m past node 2, turned 10 deg
+    goal, _ = observe(T_goal)
+    desc = np.zeros(4, np.float32)
+    desc[2] = 1.0
+    res = localize_goal(goal, desc, K, md, match_by_id, GoalParams(top_k=4))
+    assert res.node is not None and res.T_map_goal is not None and res.pose_inliers > 100
+    np.testing.assert_allclose(res.T_map_goal, T_goal, atol=1e-6)
+    # a map without keypoint depth (format 1, or features converted in memory): the node only
+    res2 = localize_goal(goal, desc, K, m, match_by_id, GoalParams(top_k=4))
+    assert res2.node == res.node and res2.T_map_goal is None and res2.reason == "ok"
+    # a pose beyond pose_max_m of its keyframe is not trusted
+    res3 = localize_goal(goal, desc, K, md, match_by_id, GoalParams(top_k=4, pose_max_m=0.1))
+    assert res3.node is not None and res3.T_map_goal is None

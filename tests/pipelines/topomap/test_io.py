@@ -50,6 +50,12 @@ def assert_same(a: object, b: object, where: str) -> None:
         codes, scale = _quantise(a)
         np.testing.assert_array_equal(np.asarray(b, np.float32), codes.astype(np.float32) * scale[:, None],
                                       err_msg=where)
+    elif isinstance(a, np.ndarray) and where.endswith(".depth"):
+        # keypoint depth is stored as float16 metres, 0 = none (documented): that rounding, NaN kept
+        assert isinstance(b, np.ndarray) and b.shape == a.shape and b.dtype == np.float32, where
+        np.testing.assert_array_equal(np.isnan(b), ~(np.isfinite(a) & (a > 0)), err_msg=where)
+        ok = ~np.isnan(b)
+        np.testing.assert_array_equal(b[ok], a[ok].astype(np.float16).astype(np.float32), err_msg=where)
     elif isinstance(a, np.ndarray):
         assert isinstance(b, np.ndarray) and a.dtype == b.dtype, (where, a.dtype, getattr(b, "dtype", None))
         np.testing.assert_array_equal(a, b, err_msg=where)
@@ -235,6 +241,12 @@ def test_streamed_feature_files_are_fully_checked(saved_map: Path, tmp_path: Pat
     _replace_array(dq, "features/descriptor_scale.npy", scale)
     with pytest.raises(MapFormatError, match=r"features/descriptor_scale\.npy: scales must be > 0"):
         load_map(dq)
+    dz = copy(saved_map, tmp_path / "z")
+    z = np.asarray(m.features.depth).copy()  # type: ignore[attr-defined]
+    z[-1] = -1.0
+    _replace_array(dz, "features/depth.npy", z)
+    with pytest.raises(MapFormatError, match=r"features/depth\.npy: depths must be >= 0"):
+        load_map(dz)
     desc[-1, -1] = np.inf  # the last value of the largest file: the streaming check reads to the end
     d = copy(saved_map, tmp_path / "a")
     _replace_array(d, "features/descriptors.npy", desc)
