@@ -149,14 +149,15 @@ def open_session(cfg: ZenohConfig) -> Any:
 class TopicPublisher:
     """A declared Zenoh publisher for one ROS type; counts puts and times them."""
 
-    def __init__(self, session: Any, key_expr: str, typename: str, attach_send_time: bool = True) -> None:
+    def __init__(self, session: Any, key_expr: str, typename: str, attach_send_time: bool = True,
+                 reliable: bool = False) -> None:
         import zenoh
 
         self.key_expr, self.typename = key_expr, typename
         self.attach_send_time = attach_send_time
         self._pub = session.declare_publisher(
             key_expr, encoding=zenoh.Encoding.APPLICATION_CDR.with_schema(typename),
-            congestion_control=zenoh.CongestionControl.DROP,
+            congestion_control=zenoh.CongestionControl.BLOCK if reliable else zenoh.CongestionControl.DROP,
         )
         self.sent = 0
         self.errors = 0
@@ -220,9 +221,12 @@ class Bus:
     def key(self, topic: str) -> str:
         return topic_key(self.cfg.namespace, topic)
 
-    def publisher(self, topic: str, typename: str | None = None) -> TopicPublisher:
+    def publisher(self, topic: str, typename: str | None = None, reliable: bool = False) -> TopicPublisher:
+        """A publisher on a namespaced topic. Streams (poses, subgoals) drop a message when the
+        transport is congested (the next one supersedes it); `reliable` publishers (goals,
+        cancels, planner status: each message is an event) block until it is queued instead."""
         tn = typename or TOPICS[topic][1]
-        return TopicPublisher(self.session, self.key(topic), tn, self.cfg.attach_send_time)
+        return TopicPublisher(self.session, self.key(topic), tn, self.cfg.attach_send_time, reliable)
 
     def subscribe(self, key_expr: str, callback: Callable[[Any], None]) -> Any:
         """Declare a callback subscriber on a literal key expression (not namespaced)."""

@@ -337,7 +337,7 @@ class PlannerService:
         self.pubs = {
             "subgoal": bus.publisher(KEYS["subgoal"], ros_msgs.POSE_STAMPED),
             "subgoal_base": bus.publisher(KEYS["subgoal_base"], ros_msgs.POSE_STAMPED),
-            "status": bus.publisher(KEYS["status"], ros_msgs.STRING),
+            "status": bus.publisher(KEYS["status"], ros_msgs.STRING, reliable=True),
         }
         self.subs = [
             bus.session.declare_subscriber(bus.key(KEYS["pose"]), self._on_pose_sample),

@@ -191,8 +191,8 @@ class _Driver:
             bus.session.declare_subscriber(bus.key(KEYS["subgoal"]), self._on_sub_map),
             bus.session.declare_subscriber(bus.key(KEYS["status"]), self._on_status),
         ]
-        self.goal_pub = bus.publisher(KEYS["goal_image"], ros_msgs.COMPRESSED_IMAGE)
-        self.cancel_pub = bus.publisher(KEYS["goal_cancel"], ros_msgs.STRING)
+        self.goal_pub = bus.publisher(KEYS["goal_image"], ros_msgs.COMPRESSED_IMAGE, reliable=True)
+        self.cancel_pub = bus.publisher(KEYS["goal_cancel"], ros_msgs.STRING, reliable=True)
 
     # ------------------------------------------------------------ callbacks
     def _on_sub(self, sample: Any) -> None:
@@ -307,12 +307,15 @@ class _Driver:
         # a goal put before the planner's subscription has reached this session would be dropped
         if not self.goal_pub.wait_for_subscribers(p.answer_timeout_s):
             raise NavigationRunError("the planner service never subscribed to goal images")
-        for g in self.goals:
+        # one goal at a time, each acknowledged before the next (a burst of images is what a
+        # congested transport would have to queue); the error names the goal that got no answer
+        base = self.status.get("goals_received", 0)
+        for k, g in enumerate(self.goals):
             self.goal_pub.put(ros_msgs.compressed_image_msg(step.t_ns, g.jpeg, "jpeg", g.name))
+            self._wait(lambda k=k: self.status.get("goals_received", 0) >= base + k + 1,  # type: ignore[misc]
+                       f"goal image {g.name!r} ({k + 1} of {len(self.goals)}) not acknowledged",
+                       timeout=max(p.answer_timeout_s, 60.0))  # model inference, loaded CPUs
         self.goals_sent = True
-        n = len(self.goals)
-        self._wait(lambda: self.status.get("goals_received", 0) >= n, f"{n} goal images not acknowledged",
-                   timeout=max(p.answer_timeout_s, 60.0 * n))  # model inference, loaded CPUs
         dt = 1.0 / p.control_hz
         vloc_every = max(1, round(p.control_hz / p.vloc_hz))
         k = 0

@@ -51,8 +51,8 @@ def send_goals(bus: Any, images: list[tuple[str, bytes]], cancel: str | None = N
             ev.notify_all()
 
     sub = bus.session.declare_subscriber(bus.key(KEYS["status"]), on_status)
-    gpub = bus.publisher(KEYS["goal_image"], ros_msgs.COMPRESSED_IMAGE)
-    cpub = bus.publisher(KEYS["goal_cancel"], ros_msgs.STRING)
+    gpub = bus.publisher(KEYS["goal_image"], ros_msgs.COMPRESSED_IMAGE, reliable=True)
+    cpub = bus.publisher(KEYS["goal_cancel"], ros_msgs.STRING, reliable=True)
     try:
         # a put before the planner's subscription has reached us would be dropped silently
         if images and not gpub.wait_for_subscribers(max(wait_s, 2.0)):
