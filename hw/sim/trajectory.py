@@ -5,8 +5,10 @@
   radius plus a margin free.
 * `pass_tasks`: the "map" pass visits every room (in a door-graph depth-first order,
   through corridors) and turns a full circle at each room centre, so the map sees every
-  direction; a "query" pass visits the rooms in another (seeded) order at other spots
-  with partial turns only.
+  direction; "map-rooms" also turns a full circle halfway between the centre and each end
+  of the room's long axis (as a person mapping a building walks a room, so views from near
+  its walls are in the map too); a "query" pass visits the rooms in another (seeded) order
+  at other spots with partial turns only.
 * `follow`: a pure-pursuit controller with turn-in-place, run on `Simulator` at the
   odometry rate; returns ground truth and odometry without rendering.
 """
@@ -24,8 +26,8 @@ from litevloc.base.errors import LiteVLocError
 from litevloc.hw.sim.simulator import SimParams, Simulator, base_pose
 from litevloc.hw.sim.world import World
 
-PassName = Literal["map", "query", "loop", "loop-lane", "loop-back"]
-PASS_NAMES: tuple[str, ...] = ("map", "query", "loop", "loop-lane", "loop-back")
+PassName = Literal["map", "query", "loop", "loop-lane", "loop-back", "map-rooms"]
+PASS_NAMES: tuple[str, ...] = ("map", "query", "loop", "loop-lane", "loop-back", "map-rooms")
 LOOP_BACK_LANE_M = 0.3  # "loop-lane" / "loop-back" drive this far off the corridor centre line, inner side
 
 
@@ -95,6 +97,21 @@ def _random_spot(
     return np.array([(jj[k] + 0.5) * res, (ii[k] + 0.5) * res])
 
 
+def _side_spots(world: World, label: int, centre: NDArray[np.float64], clear: float) -> list[NDArray[np.float64]]:
+    """Free spots of room `label` halfway from its centre to each end of its longer bbox axis."""
+    x0, y0, x1, y1 = world.regions[label].bbox
+    axis = np.array([1.0, 0.0]) if x1 - x0 >= y1 - y0 else np.array([0.0, 1.0])
+    half = 0.25 * max(x1 - x0, y1 - y0)
+    out = []
+    for sign in (-1.0, 1.0):
+        for frac in (1.0, 0.75, 0.5):  # nearer the centre where furniture is in the way
+            p = centre + sign * frac * half * axis
+            if world.is_free(p, clear) and world.region_at(p) == label:
+                out.append(p)
+                break
+    return out
+
+
 def pass_tasks(
     world: World, pass_name: PassName, seed: int, params: SimParams
 ) -> tuple[NDArray[np.float64], list[Task]]:
@@ -112,10 +129,11 @@ def pass_tasks(
         return _loop_tasks(world, params, lane=LOOP_BACK_LANE_M)
     if pass_name == "loop-back":
         return _loop_tasks(world, params, reverse=True, lane=LOOP_BACK_LANE_M)
-    rng = np.random.default_rng([seed, 17, 0 if pass_name == "map" else 1])
+    mapping = pass_name in ("map", "map-rooms")
+    rng = np.random.default_rng([seed, 17, 0 if mapping else 1])
     rooms = [k for k, r in world.regions.items() if r.kind == "room"]
     graph = _door_graph(world)
-    if pass_name == "map":
+    if mapping:
         order: list[int] = []
         seen: set[int] = set()
         stack = [rooms[0]]
@@ -128,6 +146,9 @@ def pass_tasks(
                 order.append(k)
             stack += sorted(graph[k], reverse=True)
         spots = [world.room_centre(k) for k in order]
+        if pass_name == "map-rooms":
+            spots = [p for k, c in zip(order, spots, strict=True)
+                     for p in [c, *_side_spots(world, k, c, params.robot_radius + 0.3)]]
     else:
         order = [int(k) for k in rng.permutation(rooms)]
         spots = [_random_spot(world, k, rng, params.robot_radius + 0.5) for k in order]
@@ -139,7 +160,7 @@ def pass_tasks(
         if i > 0:
             tasks.append(Task("goto", plan_path(world, cur, xy, params.robot_radius)))
             cur = xy
-        if pass_name == "map":
+        if mapping:
             tasks.append(Task("turn", angle=2 * np.pi * (1 if i % 2 == 0 else -1)))
         else:
             tasks.append(Task("turn", angle=float(rng.uniform(-1.5, 1.5))))

@@ -28,6 +28,9 @@ def add_parser(ss: argparse._SubParsersAction) -> None:
     n.add_argument("--goals", nargs="+", default=None,
                    help="goal place names or image files (default: every goal place but --start)")
     n.add_argument("--start", default=None, help="goal place to start at (default: the first)")
+    n.add_argument("--map-pass", choices=("map", "map-rooms"), default="map",
+                   help="simulated mapping pass when no --map is given: 'map' turns a full circle at each room "
+                        "centre, 'map-rooms' also halfway to each end of the room")
     n.add_argument("--localization", choices=("litevloc", "ground-truth", "both"), default="both")
     n.add_argument("--vloc-hz", type=float, default=1.0, help="frames to VLoc per simulated second")
     n.add_argument("--goal-timeout", type=float, default=120.0, metavar="S", help="simulated seconds per goal")
@@ -43,7 +46,7 @@ def add_parser(ss: argparse._SubParsersAction) -> None:
 
 
 def ensure_map(world_name: str, out_dir: Path, config: str | None, map_duration: float | None = None,
-               world_seed: int | None = None) -> Path:
+               world_seed: int | None = None, map_pass: str = "map") -> Path:
     """A map of the world from a simulated mapping pass, built once under out_dir.
 
     The pass is fed to `map build` straight from the simulator (`sim:WORLD?pass=map`):
@@ -58,7 +61,7 @@ def ensure_map(world_name: str, out_dir: Path, config: str | None, map_duration:
     if (map_dir / "manifest.json").is_file():
         return map_dir
     out_dir.mkdir(parents=True, exist_ok=True)
-    q: dict[str, str] = {"pass": "map", "seed": "0"}
+    q: dict[str, str] = {"pass": map_pass, "seed": "0"}
     if map_duration:
         q["duration"] = str(map_duration)
     if world_seed is not None:
@@ -174,8 +177,10 @@ def run_navigate(args: argparse.Namespace) -> int:
     cfg = config_of(args)
     t0 = time.perf_counter()
     if args.out_dir is None:
-        args.out_dir = Path("out/navigate") / Path(args.world).stem
-    map_path = args.map or ensure_map(args.world, args.out_dir, args.config, world_seed=args.world_seed)
+        stem = Path(args.world).stem
+        args.out_dir = Path("out/navigate") / (stem if args.map_pass == "map" else f"{stem}-{args.map_pass}")
+    map_path = args.map or ensure_map(args.world, args.out_dir, args.config, world_seed=args.world_seed,
+                                      map_pass=args.map_pass)
     modes = ["litevloc", "ground-truth"] if args.localization == "both" else [args.localization]
     try:
         params = NavParams(vloc_hz=args.vloc_hz, goal_timeout_s=args.goal_timeout, seed=args.seed)

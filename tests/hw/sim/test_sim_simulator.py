@@ -199,3 +199,22 @@ def test_depth_only_steps_render_no_colour_and_keep_the_frame_clock(office) -> N
         if sb.frame is not None:  # same frame index and noise seed as the all-colour run
             assert sb.frame.index == sa.frame.index
             np.testing.assert_array_equal(sb.frame.color, sa.frame.color)
+
+
+def test_map_rooms_pass_also_turns_near_each_end_of_every_room(office) -> None:
+    from litevloc.hw.sim.simulator import SimParams
+    from litevloc.hw.sim.trajectory import pass_tasks
+
+    params = SimParams()
+    _, plain = pass_tasks(office, "map", 0, params)
+    start, rooms = pass_tasks(office, "map-rooms", 0, params)
+    n_rooms = sum(r.kind == "room" for r in office.regions.values())
+    turns = [t for t in rooms if t.kind == "turn"]
+    assert sum(t.kind == "turn" for t in plain) == n_rooms
+    assert len(turns) == 3 * n_rooms  # the centre and two side spots of every room (office: all free)
+    assert all(abs(abs(t.angle) - 2 * np.pi) < 1e-9 for t in turns)
+    ends = [start[:2, 3]] + [t.path[-1] for t in rooms if t.kind == "goto"]
+    assert len(ends) == len(turns)
+    for p in ends:  # every spot is free for the robot and inside a room
+        assert office.is_free(p, params.robot_radius + 0.3)
+        assert office.regions[office.region_at(p)].kind == "room"
