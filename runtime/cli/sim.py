@@ -1,6 +1,6 @@
 """`litevloc sim`: simulated worlds -> MCAP recordings, plans and contact sheets.
 
-    litevloc sim record WORLD -o REC.mcap [--seed N] [--duration S] [--pass map|query|loop]
+    litevloc sim record WORLD -o REC.mcap [--seed N] [--duration S] [--pass map|map-rooms|query|loop|...]
                         [--json PATH] [--plot PNG]
     litevloc sim plot WORLD -o PLAN.png [--seed N] [--duration S] [--sheet SHEET.png]
     litevloc sim goals WORLD -o DIR [--seed N]
@@ -54,9 +54,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument(
         "--pass",
         dest="pass_name",
-        choices=("map", "query", "loop", "loop-lane", "loop-back"),
+        choices=("map", "map-rooms", "query", "loop", "loop-lane", "loop-back"),
         default="map",
-        help="map: every room with full turns; query: other route and lighting; "
+        help="map: every room with full turns; map-rooms: also halfway to each end of every room; "
+        "query: other route and lighting; "
         "loop: lap the ring corridor (layout-loop worlds); loop-lane: the same way in another lane; "
         "loop-back: the other way, another lane",
     )
