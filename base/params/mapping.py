@@ -131,8 +131,13 @@ class MappingParams:
     connectivity: ConnectivityParams = field(default_factory=ConnectivityParams)
     depth: DepthLookupParams = field(default_factory=DepthLookupParams)
     jpeg_quality: int = 90
+    # keep only the strongest N keypoints of each keyframe in the map (0 = all the extractor
+    # gives): local features are most of a map's bytes (#15); queries still use all theirs
+    stored_keypoints: int = 0
 
     def __post_init__(self) -> None:
+        if self.stored_keypoints < 0:
+            raise ValueError(f"stored_keypoints must be >= 0 (0 = all), got {self.stored_keypoints}")
         n = float(np.linalg.norm(self.up))
         if not np.isfinite(n) or n < 1e-6:
             raise ValueError(f"up must be a non-zero vector, got {self.up}")

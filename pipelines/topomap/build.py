@@ -124,6 +124,17 @@ class BuildReport:
     voxel_bytes: int = 0  # occupancy accumulator
 
 
+def strongest(feats: FeatureSet, n: int) -> NodeFeatures | FeatureSet:
+    """The `n` highest-scoring keypoints of `feats` in their original order (n = 0: all)."""
+    k = len(feats.keypoints)
+    if n <= 0 or k <= n:
+        return feats
+    keep = np.sort(np.argsort(-np.asarray(feats.scores), kind="stable")[:n])
+    size = getattr(feats, "image_size", (0, 0))
+    return NodeFeatures(np.asarray(feats.keypoints)[keep], np.asarray(feats.descriptors)[keep],
+                        np.asarray(feats.scores)[keep], size)
+
+
 class MapBuilder:
     """Two streaming passes over posed frames (see module docstring), then `finish()`."""
 
@@ -258,7 +269,7 @@ class MapBuilder:
                jpeg: bytes | None = None) -> None:
         """Pass 2: image data of selected candidate `pos` (features, keypoint depth, VPR, JPEG)."""
         c = self.candidates[pos]
-        feats = self.extract(color)
+        feats = strongest(self.extract(color), self.params.stored_keypoints)
         c.kp_depth = depth_at(depth, feats.keypoints, self.params.depth)
         if jpeg is None:
             ok, enc = cv2.imencode(".jpg", color[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, self.params.jpeg_quality])

@@ -84,3 +84,22 @@ def test_pose_only_frames_give_the_same_map_as_full_frames() -> None:
     assert lazy.report.frames == full.report.frames and lazy.report.candidates == full.report.candidates
     np.testing.assert_array_equal(m_lazy.frame_index, m_full.frame_index)
     np.testing.assert_array_equal(m_lazy.grid.cells, m_full.grid.cells)
+
+
+def test_stored_keypoints_keeps_the_strongest_with_their_depth() -> None:
+    import dataclasses
+
+    full = build_two_pass(_builder([]), lambda _c: _frames(1))
+    b = _builder([])
+    b.params = dataclasses.replace(b.params, stored_keypoints=40)
+    small = build_two_pass(b, lambda _c: _frames(1))
+    assert small.n_nodes == full.n_nodes
+    for f_all, f in zip(full.features, small.features, strict=True):
+        n = min(40, len(f_all.keypoints))
+        assert len(f.keypoints) == n and f.depth is not None and len(f.depth) == n
+        # the kept ones are the strongest, in their original order
+        assert np.sort(f.scores)[0] >= np.sort(f_all.scores)[::-1][n - 1]
+        idx = [int(np.flatnonzero((f_all.keypoints == kp).all(axis=1))[0]) for kp in f.keypoints]
+        assert idx == sorted(idx)
+    with pytest.raises(ValueError, match="stored_keypoints"):
+        MappingParams(stored_keypoints=-1)
