@@ -7,6 +7,8 @@ keyframe poses come from the mapping trajectory (`pipelines.topomap.graphs`).
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
@@ -14,7 +16,7 @@ from scipy.spatial import cKDTree
 F64 = NDArray[np.float64]
 
 
-def _similarity(a: NDArray, b: NDArray) -> F64:
+def _similarity(a: NDArray[Any], b: NDArray[Any]) -> F64:
     """(Na, Nb) descriptor similarity in [-1, 1]: cosine for float descriptors, 1 - 2 * normalised
     Hamming distance for binary (uint8) ones."""
     if a.dtype == np.uint8:
@@ -28,8 +30,8 @@ def _similarity(a: NDArray, b: NDArray) -> F64:
 
 
 def match_by_projection(
-    points_live: NDArray[np.floating], desc_live: NDArray, T_map_live: NDArray[np.floating],
-    kf_keypoints: NDArray[np.floating], kf_desc: NDArray, K_kf: NDArray[np.floating],
+    points_live: NDArray[np.floating], desc_live: NDArray[Any], T_map_live: NDArray[np.floating],
+    kf_keypoints: NDArray[np.floating], kf_desc: NDArray[Any], K_kf: NDArray[np.floating],
     T_map_kf: NDArray[np.floating], radius_px: float, min_similarity: float, global_mutual: bool,
 ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """Matches by projection: live points (N, 3, live camera frame, metres; NaN rows skipped)

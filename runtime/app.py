@@ -147,7 +147,7 @@ def build_app(
 
         service = Service(
             source, vloc_fn, on_odom, on_vloc, publisher, cfg.runtime, rate=rate,
-            T_base_camera=T_base_camera, state_fn=lambda: str(localizer.state), odometry_receiver=receiver,
+            T_base_camera=T_base_camera, odometry_receiver=receiver,
             on_ground_truth=recorder.on_ground_truth, on_fused=fused_hook,
         )
     except Exception:

@@ -9,8 +9,8 @@ with fx, fy > 0 and last row (0, 0, 1); stamp a non-negative int.
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -27,6 +27,9 @@ class RejectedFrame:
     reason: str
     T_map_camera: None = None
     covariance: None = None
+    timings_ms: Mapping[str, float] = field(default_factory=dict)
+    provisional: None = None
+    tracking_state: str = ""
 
 
 def frame_problem(frame: Any) -> str | None:

@@ -12,7 +12,7 @@ def paced(
     messages: Iterable[Message],
     rate: float,
     clock: Callable[[], float] = time.monotonic,
-    sleep: Callable[[float], None] = time.sleep,
+    sleep: Callable[[float], object] = time.sleep,
 ) -> Iterator[Message]:
     """Yield messages no earlier than their recorded time offset divided by `rate`.
 

@@ -122,6 +122,10 @@ class QueueBase(Generic[T]):
     def _maxlen(self) -> int | None:
         return None
 
+    def put(self, item: T) -> None:
+        """Enqueue `item` (each queue kind says what happens when it is full)."""
+        raise NotImplementedError
+
     def attach(self, waker: Waker) -> None:
         """Make this queue wake `waker` (a stage reading several queues shares one)."""
         self.waker = waker

@@ -1,4 +1,4 @@
-"""The onboard service skeleton: stage threads wired from injected callables.
+"""The onboard service shell: stage threads and queues around the `LocalizationCore`.
 
 ```
 source thread --frames: LatestMailbox (realtime) / BoundedFifo (deterministic)--> vloc stage
@@ -9,26 +9,24 @@ fusion stage --outbox: BoundedFifo--> publisher stage (Zenoh)
 status: every status_period_s (Periodic) -> publisher.publish_status + `Service.status()`
 ```
 
+Every decision (fusion calls, tracking state, map->odom throttle, what to publish) is the
+core's (`runtime.localization_core`); this module only moves messages: it paces the
+source, runs the VLoc callable and the core's steps in their threads (or inline), publishes
+the core's typed outputs and assembles the status from the core's report, the queues and
+the stages.
+
 Injected callables (the lead plugs the real ones; tests use fakes):
 
-* `vloc(frame: RgbdFrame, prior: VlocPrior | None) -> LocalizationResult`
-  (anything with `t_ns, accepted, reason, T_map_camera, covariance`); runs in the vloc thread.
-* `on_odometry(odom: Odometry) -> FusedPose | None` (anything with `t_ns, T_map_base,
-  T_map_odom, covariance, initialised`); `on_vloc(result) -> update` (anything with
-  `accepted`, `reason`, or None); both run in the fusion thread only, so the fusion
-  object needs no lock. Only VLoc-accepted results are passed to `on_vloc`.
+* `vloc(frame: RgbdFrame, prior: VlocPrior | None) -> VlocOutcome` (e.g. `LocalizationResult`
+  via `localizer_callable`, which also reports the localizer's tracking state); runs in the
+  vloc thread.
+* `on_odometry(odom) -> FusedPoseLike | None` and `on_vloc(result) -> FusionUpdateLike | None`
+  (e.g. `fusion_callables(OnlineFusion)`); both run in the fusion thread only, so the fusion
+  object needs no lock.
 * `publisher`: `runtime.bus.LiteVLocPublisher` or a fake with the same four methods.
 
-The prior for VLoc is the fused pose at the frame's stamp (`runtime.vloc_prior`): the latest
-`T_map_odom` applied to the odometry interpolated at `t_frame`, times `T_base_camera`, with
-its age (seconds since the last VLoc fix fusion accepted); None until fusion is initialised.
 Fused covariances are converted with `covariance_to_ros` (e.g.
 `bus.gtsam_to_ros_covariance`) before publishing; default: already in ROS order.
-
-Tracking state (status `state`, and the LOST flag on published poses): INIT until a
-fused pose is initialised; then TRACKING while a VLoc update was accepted by fusion
-within `lost_after_s` of sensor time (odometry stamps), LOST otherwise or when the
-optional `state_fn()` (e.g. the localizer's state machine) says LOST.
 
 Modes (`RuntimeConfig.mode`):
 * `realtime`: the source is paced at `rate` (1 = recorded timing); frames go through a
@@ -49,13 +47,14 @@ A stage that FAILS stops the service with its traceback summary in the result.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import signal
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -64,18 +63,35 @@ from litevloc.base.errors import LiteVLocError
 from litevloc.config.schema import RuntimeConfig
 from litevloc.hw.messages import GroundTruthPose, Message, Odometry, RgbdFrame
 from litevloc.pipelines.odometry_drift import T_BASE_CAMERA_OPTICAL
-from litevloc.runtime.diagnostics import VlocStageTimes
+from litevloc.runtime.localization_core import (
+    CoreOutput,
+    FusedPoseLike,
+    FusionUpdateLike,
+    LocalizationCore,
+    MapToOdomOut,
+    OdometryFn,
+    PoseOut,
+    VlocOut,
+    VlocOutcome,
+    VlocUpdateFn,
+)
 from litevloc.runtime.metrics import LatencyWindow, jsonable, now_ns
 from litevloc.runtime.pacing import paced
 from litevloc.runtime.queues import BoundedFifo, LatestMailbox, QueueBase, QueueClosed
 from litevloc.runtime.stages import Periodic, Stage, StageInput, StageState, _StageThread, configure_threads
-from litevloc.runtime.vloc_prior import OdometryHistory, VlocPrior, prior_at
+from litevloc.runtime.vloc_prior import VlocPrior
+
+if TYPE_CHECKING:
+    from litevloc.pipelines.fusion.online import OnlineFusion
+    from litevloc.pipelines.localization.vloc import VisualLocalizer
 
 log = logging.getLogger(__name__)
 
-VlocFn = Callable[[RgbdFrame, VlocPrior | None], Any]
-OdometryFn = Callable[[Odometry], Any]
-VlocUpdateFn = Callable[[Any], Any]
+VlocFn = Callable[[RgbdFrame, VlocPrior | None], VlocOutcome]
+
+#: counters the shell owns (the core's are in `localization_core.CORE_COUNTERS`)
+SHELL_COUNTERS = ("frames_in", "odometry_in", "odometry_ignored", "ground_truth_in", "vloc_calls", "poses_published",
+                  "poses_withheld", "map_to_odom_published", "vloc_published", "status_published")
 
 
 class PublisherLike(Protocol):
@@ -127,10 +143,9 @@ class Service:
         rate: float = 1.0,
         T_base_camera: NDArray[np.float64] = T_BASE_CAMERA_OPTICAL,
         covariance_to_ros: Callable[[NDArray[np.float64]], NDArray[np.float64]] | None = None,
-        state_fn: Callable[[], str] | None = None,
         odometry_receiver: Callable[[Callable[[Odometry], None]], Any] | None = None,
         on_ground_truth: Callable[[GroundTruthPose], None] | None = None,
-        on_fused: Callable[[Any], None] | None = None,
+        on_fused: Callable[[FusedPoseLike], None] | None = None,
         configure_thread_counts: bool = True,
     ) -> None:
         self.params = p = params or RuntimeConfig()
@@ -139,12 +154,11 @@ class Service:
         if p.odometry_input == "zenoh" and odometry_receiver is None:
             raise ValueError("runtime.odometry_input is 'zenoh' but no odometry receiver was given")
         self.source, self.rate = source, rate
-        self.vloc_fn, self.on_odometry, self.on_vloc = vloc, on_odometry, on_vloc
+        self.vloc_fn = vloc
         self.publisher = publisher
-        self.T_base_camera = np.asarray(T_base_camera, dtype=np.float64)
-        self.covariance_to_ros = covariance_to_ros
-        self.state_fn = state_fn
-        self.on_ground_truth, self.on_fused = on_ground_truth, on_fused
+        self.on_ground_truth = on_ground_truth
+        self.core = LocalizationCore(on_odometry, on_vloc, p, np.asarray(T_base_camera, dtype=np.float64),
+                                     covariance_to_ros, on_fused, window=p.latency_window)
         self._odometry_receiver_factory = odometry_receiver
         self.odometry_receiver: Any = None
         if configure_thread_counts:
@@ -161,34 +175,20 @@ class Service:
         )
         self.odometry: BoundedFifo[tuple[int, Odometry]] = BoundedFifo("odometry", p.odometry_queue_capacity,
                                                                          window=w)
-        self.results: BoundedFifo[Any] = BoundedFifo("vloc_results", p.result_queue_capacity, window=w)
-        self.outbox: BoundedFifo[tuple[Any, ...]] = BoundedFifo("outbox", p.publish_queue_capacity, window=w)
+        self.results: BoundedFifo[VlocOutcome] = BoundedFifo("vloc_results", p.result_queue_capacity, window=w)
+        self.outbox: BoundedFifo[CoreOutput] = BoundedFifo("outbox", p.publish_queue_capacity, window=w)
         # publish_inline: the fusion thread publishes itself (one thread hop less); else via the outbox
-        self._out: Callable[[tuple[Any, ...]], None] = self._handle_publish if p.publish_inline else self.outbox.put
+        self._out: Callable[[CoreOutput], None] = self._handle_publish if p.publish_inline else self.outbox.put
 
         # state written by one thread each (see the stage that owns it)
-        self.counters: dict[str, int] = dict.fromkeys(
-            ("frames_in", "odometry_in", "odometry_ignored", "ground_truth_in", "vloc_calls", "vloc_accepted",
-             "vloc_rejected", "fusion_accepted", "fusion_rejected", "odometry_fused", "poses_published",
-             "poses_withheld", "map_to_odom_published", "vloc_published", "status_published",
-             "odometry_rejected", "odometry_gaps", "vloc_votes", "fusion_initialised_by_votes"), 0)
-        self.last_fused: Any = None
-        self.odometry_history = OdometryHistory()  # fused odometry poses, for the prior at a frame's stamp
-        self.sensor_now_ns: int | None = None
-        self.last_vloc_accept_ns: int | None = None
-        self.last_vloc_reason: str | None = None
-        self.last_fusion_reason: str | None = None
-        self._last_m2o_ns: int | None = None
-        self._m2o_due = False
+        self.shell_counters: dict[str, int] = dict.fromkeys(SHELL_COUNTERS, 0)
         self._odom_pushed = 0
         self._odom_done = 0
         self._frames_pushed = 0
         self._vloc_done = 0
         self._last_odom_wall: float | None = None
         self._last_frame_wall: float | None = None
-        self._max_gap_s = p.odometry_checks.max_gap_s
         self.e2e = LatencyWindow(w)  # odometry into the FIFO -> pose handed to Zenoh (ms)
-        self.vloc_times = VlocStageTimes(w)  # per-query extract/vpr/match/pnp ms (litevloc/diagnostics)
         self._t_start = time.monotonic()
         self._status: dict[str, Any] = {}
         self._fatal: str | None = None
@@ -205,6 +205,11 @@ class Service:
         self.publish_stage = Stage("publisher", [StageInput(self.outbox, self._handle_publish)], self._stop, oe, mr)
         self.status_stage = Periodic("status", self._status_tick, p.status_period_s, threading.Event())
         self.stages: list[_StageThread] = [self.source_stage, self.vloc_stage, self.fusion_stage, self.publish_stage]
+
+    @property
+    def counters(self) -> dict[str, int]:
+        """A snapshot of the shell's and the core's counters."""
+        return {**self.shell_counters, **self.core.counters}
 
     # ------------------------------------------------------------------ control
     def stop(self, reason: str = "stop requested") -> None:
@@ -250,8 +255,9 @@ class Service:
         for st in reversed(self.stages):
             st.start()
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
-        chain = [(self.source_stage, [self.frames, self.odometry]), (self.vloc_stage, [self.results]),
-                 (self.fusion_stage, [self.outbox])]
+        chain: list[tuple[_StageThread, list[QueueBase[Any]]]] = [
+            (self.source_stage, [self.frames, self.odometry]), (self.vloc_stage, [self.results]),
+            (self.fusion_stage, [self.outbox])]
         closed: set[str] = set()
         while True:
             failed = [st for st in self.stages if st.state == StageState.FAILED]
@@ -325,13 +331,13 @@ class Service:
             if self._stop.is_set():
                 return
             if isinstance(msg, Odometry):
-                self.counters["odometry_in"] += 1
+                self.shell_counters["odometry_in"] += 1
                 if live_odom:
-                    self.counters["odometry_ignored"] += 1
+                    self.shell_counters["odometry_ignored"] += 1
                 else:
                     self._push_odometry(msg)
             elif isinstance(msg, RgbdFrame):
-                self.counters["frames_in"] += 1
+                self.shell_counters["frames_in"] += 1
                 self._last_frame_wall = time.monotonic()
                 if det:
                     pushed = self._odom_pushed
@@ -352,7 +358,7 @@ class Service:
                     if not self._wait_progress(frame_done, f"VLoc + fusion of frame {msg.index} (t={msg.t_ns} ns)"):
                         return
             elif isinstance(msg, GroundTruthPose):
-                self.counters["ground_truth_in"] += 1
+                self.shell_counters["ground_truth_in"] += 1
                 if self.on_ground_truth is not None:
                     self.on_ground_truth(msg)
 
@@ -362,20 +368,6 @@ class Service:
                 self._progress.notify_all()
 
     # ------------------------------------------------------------------ vloc thread
-    def prior(self, t_frame_ns: int | None = None) -> VlocPrior | None:
-        """The VLoc prior at `t_frame_ns` (see the module docstring); at the newest odometry
-        when None. None before fusion is initialised."""
-        f = self.last_fused
-        if f is None or not getattr(f, "initialised", True):
-            return None
-        T_m2o = getattr(f, "T_map_odom", None)
-        t = int(f.t_ns) if t_frame_ns is None else int(t_frame_ns)
-        got = None if T_m2o is None else prior_at(t, T_m2o, self.odometry_history, self.T_base_camera,
-                                                   self.last_vloc_accept_ns)
-        if got is None:  # a fusion without T_map_odom: its latest pose
-            return VlocPrior(np.asarray(f.T_map_base, dtype=np.float64) @ self.T_base_camera, 0.0, False)
-        return got
-
     def _handle_frame(self, frame: RgbdFrame) -> None:
         res = self._vloc(frame)
         try:
@@ -384,127 +376,45 @@ class Service:
             if not self._stop.is_set():
                 raise
 
-    def _vloc(self, frame: RgbdFrame) -> Any:
-        self.counters["vloc_calls"] += 1
-        return self.vloc_fn(frame, self.prior(frame.t_ns))
+    def _vloc(self, frame: RgbdFrame) -> VlocOutcome:
+        self.shell_counters["vloc_calls"] += 1
+        return self.vloc_fn(frame, self.core.prior(frame.t_ns))
 
     # ------------------------------------------------------------------ fusion thread
     def _handle_odometry_item(self, item: tuple[int, Odometry]) -> None:
         t_in, odom = item
         self._last_odom_wall = time.monotonic()
-        if self.sensor_now_ns is not None and (odom.t_ns - self.sensor_now_ns) * 1e-9 > self._max_gap_s:
-            self.counters["odometry_gaps"] += 1  # (the Zenoh receiver counts its own; this is every input)
-        self.sensor_now_ns = odom.t_ns
         try:
-            fused = self.on_odometry(odom)
-            self.counters["odometry_fused"] += 1
-            if fused is None and self.last_fused is not None:  # fusion refused it (time not increasing, bad pose)
-                self.counters["odometry_rejected"] += 1
-            if fused is not None:
-                self.odometry_history.add(odom.t_ns, odom.T_odom_base)
-                self.last_fused = fused
-                if self.on_fused is not None:
-                    self.on_fused(fused)
-                self._emit_fused(fused, t_in)
+            for out in self.core.odometry(odom, t_in):
+                self._out(out)
         finally:
             self._odom_done += 1
             self._notify_progress()
 
-    def tracking_state(self) -> tuple[str, list[str]]:
-        """(INIT | TRACKING | LOST, reasons) from fusion/VLoc progress (see module docstring)."""
-        reasons: list[str] = []
-        f = self.last_fused
-        if f is None or not getattr(f, "initialised", True):
-            return "INIT", ["waiting for the first accepted VLoc fix"]
-        state = "TRACKING"
-        if self.state_fn is not None:
-            s = str(self.state_fn())
-            if s == "LOST":
-                state = "LOST"
-                reasons.append("localizer state machine is LOST")
-        now, last = self.sensor_now_ns, self.last_vloc_accept_ns
-        if now is not None and last is not None and (now - last) * 1e-9 > self.params.lost_after_s:
-            state = "LOST"
-            reasons.append(f"no VLoc fix accepted for {(now - last) * 1e-9:.1f} s (> {self.params.lost_after_s:g})")
-        return state, reasons
-
-    def _emit_fused(self, fused: Any, t_in: int) -> None:
-        state, _ = self.tracking_state()
-        lost = state == "LOST"
-        if not getattr(fused, "initialised", True):
-            return
-        cov = getattr(fused, "covariance", None)
-        if cov is not None and self.covariance_to_ros is not None:
-            cov = self.covariance_to_ros(np.asarray(cov))
-        self._out(("pose", t_in, int(fused.t_ns), fused.T_map_base, cov, lost))
-        T_m2o = getattr(fused, "T_map_odom", None)
-        if T_m2o is not None:
-            due = self._m2o_due or self._last_m2o_ns is None or (
-                (fused.t_ns - self._last_m2o_ns) * 1e-9 >= self.params.map_to_odom_period_s)
-            if due:
-                self._m2o_due = False
-                self._last_m2o_ns = int(fused.t_ns)
-                self._out(("map_to_odom", int(fused.t_ns), T_m2o, lost))
-
-    def _handle_result(self, res: Any) -> None:
+    def _handle_result(self, res: VlocOutcome) -> None:
         try:
-            self._fuse_result(res)
+            for out in self.core.vloc_result(res):
+                self._out(out)
         finally:
             self._vloc_done += 1
             self._notify_progress()
 
-    def _fuse_result(self, res: Any) -> None:
-        self.vloc_times.add(getattr(res, "timings_ms", None))
-        self.last_vloc_reason = str(getattr(res, "reason", ""))
-        if not getattr(res, "accepted", False) or getattr(res, "T_map_camera", None) is None:
-            self.counters["vloc_rejected"] += 1
-            if getattr(res, "provisional", None) is not None:
-                self._fuse_vote(res)
-            return
-        self.counters["vloc_accepted"] += 1
-        update = self.on_vloc(res)
-        ok = True if update is None else bool(getattr(update, "accepted", True))
-        self.last_fusion_reason = None if update is None else str(getattr(update, "reason", ""))
-        if not ok:
-            self.counters["fusion_rejected"] += 1
-            return
-        self.counters["fusion_accepted"] += 1
-        t = int(res.t_ns)
-        self.last_vloc_accept_ns = t if self.last_vloc_accept_ns is None else max(self.last_vloc_accept_ns, t)
-        self._m2o_due = True
-        self._out(("vloc", t, res.T_map_camera, getattr(res, "covariance", None)))
-
-    def _fuse_vote(self, res: Any) -> None:
-        """A provisional (single-keyframe) GL pose: an initialisation vote for fusion only."""
-        self.counters["vloc_votes"] += 1
-        update = self.on_vloc(res)
-        if update is not None and bool(getattr(update, "accepted", False)):
-            self.counters["fusion_initialised_by_votes"] += 1
-            # the LOST timer starts here: without an accepted fix within lost_after_s -> LOST
-            t = int(res.t_ns)
-            self.last_vloc_accept_ns = t if self.last_vloc_accept_ns is None else max(self.last_vloc_accept_ns, t)
-            self._m2o_due = True
-
     # ------------------------------------------------------------------ publisher thread
-    def _handle_publish(self, item: tuple[Any, ...]) -> None:
-        kind = item[0]
-        pub = self.publisher
-        if kind == "pose":
-            _, t_in, t_ns, T, cov, lost = item
-            if pub is None or pub.publish_pose(t_ns, T, cov, lost):
-                self.counters["poses_published"] += 1
-                self.e2e.add_since(t_in)
+    def _handle_publish(self, out: CoreOutput) -> None:
+        pub, c = self.publisher, self.shell_counters
+        if isinstance(out, PoseOut):
+            if pub is None or pub.publish_pose(out.t_ns, out.T_map_base, out.covariance, out.lost):
+                c["poses_published"] += 1
+                self.e2e.add_since(out.t_in_ns)
             else:
-                self.counters["poses_withheld"] += 1
-        elif kind == "map_to_odom":
-            _, t_ns, T, lost = item
-            if pub is None or pub.publish_map_to_odom(t_ns, T, lost):
-                self.counters["map_to_odom_published"] += 1
-        elif kind == "vloc":
-            _, t_ns, T, cov = item
+                c["poses_withheld"] += 1
+        elif isinstance(out, MapToOdomOut):
+            if pub is None or pub.publish_map_to_odom(out.t_ns, out.T_map_odom, out.lost):
+                c["map_to_odom_published"] += 1
+        elif isinstance(out, VlocOut):
             if pub is not None:
-                pub.publish_vloc(t_ns, T, cov)
-            self.counters["vloc_published"] += 1
+                pub.publish_vloc(out.t_ns, out.T_map_camera, out.covariance)
+            c["vloc_published"] += 1
 
     # ------------------------------------------------------------------ sequential baseline
     def _run_sequential(self, timeout_s: float | None) -> ServiceResult:
@@ -518,13 +428,13 @@ class Service:
                     break
                 t_in = now_ns()
                 if isinstance(msg, Odometry):
-                    self.counters["odometry_in"] += 1
+                    self.shell_counters["odometry_in"] += 1
                     self._handle_odometry_item((t_in, msg))
                 elif isinstance(msg, RgbdFrame):
-                    self.counters["frames_in"] += 1
+                    self.shell_counters["frames_in"] += 1
                     self._handle_result(self._vloc(msg))
                 elif isinstance(msg, GroundTruthPose):
-                    self.counters["ground_truth_in"] += 1
+                    self.shell_counters["ground_truth_in"] += 1
                     if self.on_ground_truth is not None:
                         self.on_ground_truth(msg)
                 while self.outbox.ready():  # publish inline
@@ -559,7 +469,7 @@ class Service:
         if self.publisher is not None:
             try:
                 self.publisher.publish_status(st)
-                self.counters["status_published"] += 1
+                self.shell_counters["status_published"] += 1
             except Exception as exc:
                 log.warning("status publish failed: %s", exc)
 
@@ -569,7 +479,8 @@ class Service:
 
     def _build_status(self) -> dict[str, Any]:
         p = self.params
-        state, reasons = self.tracking_state()
+        core = self.core.report()
+        state, reasons = core["state"], core["reasons"]
         stages = {st.name: st.status() for st in self.stages}
         for name, s in stages.items():
             if s["state"] == "FAILED":
@@ -588,12 +499,9 @@ class Service:
             if odo.get("gaps"):
                 reasons.append(f"odometry time jumped forward {odo['gaps']} time(s) "
                                f"(max {odo['max_gap_seen_s']:.3f} s)")
-        if self.counters["odometry_gaps"] and p.odometry_input == "source":
-            reasons.append(f"odometry time jumped forward {self.counters['odometry_gaps']} time(s) "
-                           f"(> {self._max_gap_s:g} s)")
-        if self.counters["odometry_rejected"]:
-            reasons.append(f"fusion rejected {self.counters['odometry_rejected']} odometry message(s) "
-                           "(time not increasing or invalid pose)")
+        gaps = self.core.counters["odometry_gaps"]
+        if gaps and p.odometry_input == "source":
+            reasons.append(f"odometry time jumped forward {gaps} time(s) (> {p.odometry_checks.max_gap_s:g} s)")
         running = not self._stop.is_set() and self.source_stage.state == StageState.RUNNING
         age = None if self._last_odom_wall is None else time.monotonic() - self._last_odom_wall
         odo["seconds_since_last"] = odo.get("seconds_since_last", age)
@@ -611,22 +519,17 @@ class Service:
             "t_wall": time.time(),
             "uptime_s": time.monotonic() - self._t_start,
             "mode": p.mode,
+            **core,
             "state": state,
             "reasons": reasons,
             "running": running,
-            "counters": dict(self.counters),
+            "counters": self.counters,
             "frames_dropped": queues["frames"]["drops"],
-            "last_vloc_reason": self.last_vloc_reason,
-            "last_fusion_reason": self.last_fusion_reason,
-            "sensor_time_ns": self.sensor_now_ns,
             "odometry": odo,
             "latency": {"odometry_to_publish": self.e2e.summary()},
-            "vloc_stages": self.vloc_times.summary(),
             "queues": queues,
             "stages": stages,
         }
-        if self.state_fn is not None:
-            out["vloc_state"] = str(self.state_fn())
         pub_status = getattr(self.publisher, "status", None)
         if callable(pub_status):
             try:
@@ -640,35 +543,39 @@ class Service:
 
 
 # ---------------------------------------------------------------------- adapters
-def localizer_callable(localizer: Any) -> VlocFn:
+def localizer_callable(localizer: VisualLocalizer) -> VlocFn:
     """`pipelines.localization.vloc.VisualLocalizer` -> the service's `vloc(frame, prior)`.
 
-    Pair it with `state_fn=lambda: str(localizer.state)` so the status (and the LOST flag)
-    follow the localizer's state machine."""
+    Each result carries the localizer's tracking state after the query (read in the VLoc
+    thread that runs the localizer), so the status and the LOST flag follow its state machine."""
 
-    def vloc(frame: RgbdFrame, prior: VlocPrior | None) -> Any:
+    def vloc(frame: RgbdFrame, prior: VlocPrior | None) -> VlocOutcome:
         if prior is None:
-            return localizer.process(frame.t_ns, frame.color, frame.depth, frame.K, None)
-        return localizer.process(frame.t_ns, frame.color, frame.depth, frame.K, prior.T_map_camera,
-                                 prior_age_s=prior.age_s)
+            res = localizer.process(frame.t_ns, frame.color, frame.depth, frame.K, None)
+        else:
+            res = localizer.process(frame.t_ns, frame.color, frame.depth, frame.K, prior.T_map_camera,
+                                    prior_age_s=prior.age_s)
+        return dataclasses.replace(res, tracking_state=str(localizer.state))
 
     return vloc
 
 
-def fusion_callables(fusion: Any) -> tuple[OdometryFn, VlocUpdateFn]:
+def fusion_callables(fusion: OnlineFusion) -> tuple[OdometryFn, VlocUpdateFn]:
     """An object with `add_odometry(t_ns, T_odom_base, covariance)` and
     `add_vloc(t_ns, T_map_camera, covariance, vote_only=False)` (the GTSAM `OnlineFusion`) -> the
     service's `(on_odometry, on_vloc)`; a rejected result with a provisional pose goes in as a vote.
     The VLoc covariance is passed as `pipelines.pnp` gives it:
     6x6, camera-frame right perturbation, order (tx, ty, tz, rx, ry, rz)."""
 
-    def on_odometry(o: Odometry) -> Any:
+    def on_odometry(o: Odometry) -> FusedPoseLike | None:
         return fusion.add_odometry(o.t_ns, o.T_odom_base, o.covariance)
 
-    def on_vloc(r: Any) -> Any:
-        prov = getattr(r, "provisional", None)
-        if not getattr(r, "accepted", True) and prov is not None:  # a provisional GL pose: a vote
+    def on_vloc(r: VlocOutcome) -> FusionUpdateLike:
+        prov = r.provisional
+        if not r.accepted and prov is not None:  # a provisional GL pose: a vote
             return fusion.add_vloc(r.t_ns, prov.T_map_camera, prov.covariance, vote_only=True)
+        if r.T_map_camera is None:
+            raise ValueError(f"VLoc result at t={r.t_ns} ns is accepted but has no pose")
         return fusion.add_vloc(r.t_ns, r.T_map_camera, r.covariance)
 
     return on_odometry, on_vloc

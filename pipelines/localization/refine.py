@@ -29,6 +29,7 @@ split (bench/accuracy.py) so that ~95 % of errors fall inside their 95 % ellipso
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -125,7 +126,7 @@ def _whitener(g: F64, z_live: F64, p: RefineParams) -> F64:
     s = np.sqrt(s2)
     k = 1.0 - s / np.sqrt(s2 + a)  # shrink along u from 1/s to 1/sqrt(s^2 + a)
     eye = np.broadcast_to(np.eye(2), (len(g), 2, 2))
-    return (eye - k[:, None, None] * u[:, :, None] * u[:, None, :]) / s
+    return np.asarray((eye - k[:, None, None] * u[:, :, None] * u[:, None, :]) / s, dtype=np.float64)
 
 
 def _perturb(T: F64, d: NDArray[np.floating]) -> F64:
@@ -229,8 +230,8 @@ def joint_covariance(information: list[F64], params: RefineParams) -> F64:
 
 
 def guided_matches(
-    points_live: NDArray[np.floating], desc_live: NDArray, T_map_live: NDArray[np.floating],
-    kf_keypoints: NDArray[np.floating], kf_desc: NDArray, K_kf: NDArray[np.floating],
+    points_live: NDArray[np.floating], desc_live: NDArray[Any], T_map_live: NDArray[np.floating],
+    kf_keypoints: NDArray[np.floating], kf_desc: NDArray[Any], K_kf: NDArray[np.floating],
     T_map_kf: NDArray[np.floating], params: RefineParams,
 ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """`pipelines.guided_matching.match_by_projection` with the refinement's radius,

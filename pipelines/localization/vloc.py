@@ -127,6 +127,7 @@ class LocalizationResult:
     stop_reason: str = ""  # GL: why the candidate search stopped (passed, all tried, time budget)
     matches: MatchedPixels | None = None  # accepted results: matches with `ref_node`, inliers marked
     provisional: ProvisionalPose | None = None  # rejected GL results only (see ProvisionalPose)
+    tracking_state: str = ""  # the localizer's state after this query, when the caller reports it
 
 
 @dataclass(frozen=True)

@@ -33,7 +33,7 @@ class FeatureSet(Protocol):
     def keypoints(self) -> NDArray[np.float32]: ...  # (N, 2) pixels (u, v)
 
     @property
-    def descriptors(self) -> NDArray: ...  # (N, D)
+    def descriptors(self) -> NDArray[Any]: ...  # (N, D)
 
     @property
     def scores(self) -> NDArray[np.float32]: ...  # (N,)
@@ -47,7 +47,7 @@ class NodeFeatures:
     axis (metres; NaN where there was none), or None for maps made without it."""
 
     keypoints: NDArray[np.float32]
-    descriptors: NDArray
+    descriptors: NDArray[Any]
     scores: NDArray[np.float32]
     image_size: tuple[int, int]  # (width, height)
     depth: NDArray[np.float32] | None = None
@@ -66,7 +66,7 @@ class FeatureStore(Sequence[Any]):
     image_size: (N, 2) int (width, height). `convert` (optional) is applied to each
     node's NodeFeatures on access (e.g. to the model layer's feature type)."""
 
-    def __init__(self, offsets: NDArray[np.int64], keypoints: NDArray[np.float32], descriptors: NDArray,
+    def __init__(self, offsets: NDArray[np.int64], keypoints: NDArray[np.float32], descriptors: NDArray[Any],
                  scores: NDArray[np.float32], image_size: NDArray[np.integer],
                  convert: Callable[[NodeFeatures], Any] | None = None,
                  descriptor_scale: NDArray[np.float32] | None = None,

@@ -48,11 +48,16 @@ class SyntheticSource:
 
 @dataclass(frozen=True)
 class Result:
+    """A VLoc result as the service takes it (`runtime.localization_core.VlocOutcome`)."""
+
     t_ns: int
     accepted: bool
     reason: str
     T_map_camera: np.ndarray | None = None
     covariance: np.ndarray | None = None
+    timings_ms: dict[str, float] = field(default_factory=dict)
+    provisional: None = None
+    tracking_state: str = ""
 
 
 class FakeVloc:

@@ -33,6 +33,9 @@ class OracleResult:
     reason: str
     T_map_camera: np.ndarray | None = None
     covariance: np.ndarray | None = None
+    timings_ms: dict[str, float] = field(default_factory=dict)
+    provisional: None = None
+    tracking_state: str = ""
 
 
 @lru_cache(maxsize=4)

@@ -109,6 +109,8 @@ class _TimedResult:
     T_map_camera: Any = None
     covariance: Any = None
     timings_ms: dict[str, float] = field(default_factory=dict)
+    provisional: None = None
+    tracking_state: str = ""
 
 
 def _timed(vloc: FakeVloc):

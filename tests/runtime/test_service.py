@@ -324,8 +324,7 @@ def test_adapters_for_localizer_and_fusion() -> None:
     on_odom, on_vloc = fusion_callables(Fusion())
     src = SyntheticSource(seconds=0.5)
     pub = FakePublisher()
-    svc = Service(src, localizer_callable(loc), on_odom, on_vloc, pub, RuntimeConfig(mode="deterministic"),
-                  state_fn=lambda: loc.state)
+    svc = Service(src, localizer_callable(loc), on_odom, on_vloc, pub, RuntimeConfig(mode="deterministic"))
     res = svc.run(timeout_s=20)
     assert res.ok and res.status["vloc_state"] == "TRACKING"
     assert sum(c == "process" for c, _ in calls) == src.frame_count() == sum(c == "vloc" for c, _ in calls)

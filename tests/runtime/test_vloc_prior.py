@@ -49,13 +49,13 @@ def test_delayed_frame_gets_the_pose_at_its_stamp_and_its_true_age() -> None:
             T = T_MAP_ODOM_TRUE @ T_odom_base_at(t_fix) @ T_BASE_CAMERA_OPTICAL
             svc._handle_result(Result(t_fix, True, "ok", T, np.eye(6) * 1e-4))
     t_frame = 500 * MS  # newest odometry: 1.0 s
-    prior = svc.prior(t_frame)
+    prior = svc.core.prior(t_frame)
     assert prior is not None and prior.interpolated
     truth = T_MAP_ODOM_TRUE @ T_odom_base_at(t_frame) @ T_BASE_CAMERA_OPTICAL
     dt, dr = relative_pose_error(prior.T_map_camera, truth)
     assert dt < 1e-3 and dr < 0.05
     assert prior.age_s == pytest.approx(0.4)
-    latest = svc.prior()  # what the service used to hand VLoc: the newest fused pose, age 0 then
+    latest = svc.core.prior()  # what the service used to hand VLoc: the newest fused pose, age 0 then
     assert latest is not None
     dt, dr = relative_pose_error(latest.T_map_camera, truth)
     assert dt > 0.2 and dr > 5.0
@@ -63,11 +63,15 @@ def test_delayed_frame_gets_the_pose_at_its_stamp_and_its_true_age() -> None:
     seen: list[tuple[np.ndarray | None, float]] = []
 
     class Loc:
+        state = "LOCAL"
+
         def process(self, t_ns: int, color: object, depth: object, K: object, prior: np.ndarray | None,
-                    prior_age_s: float = 0.0) -> None:
+                    prior_age_s: float = 0.0) -> Result:
             seen.append((prior, prior_age_s))
+            return Result(t_ns, False, "too few inliers")
 
     from litevloc.runtime.service import localizer_callable
     frame = RgbdFrame(t_frame, np.zeros((8, 8, 3), np.uint8), None, np.eye(3))
-    localizer_callable(Loc())(frame, prior)
+    out = localizer_callable(Loc())(frame, prior)
     assert seen[0][0] is prior.T_map_camera and seen[0][1] == pytest.approx(0.4)
+    assert out.tracking_state == "LOCAL"  # the localizer's state travels with its result

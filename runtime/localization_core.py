@@ -1,0 +1,298 @@
+"""The onboard localization core: every decision between the sensor messages and what is
+published, single-threaded and free of I/O.
+
+`LocalizationCore` owns the tracking state (one state machine, with reasons), the fusion
+callbacks, the map->odom throttle, the counters of what it decided and the core part of the
+status report. Its two steps return typed outputs; the shell (`runtime.service.Service`)
+runs them in threads (realtime, deterministic) or inline (sequential) and publishes the
+outputs, so every mode takes the same decisions from the same inputs.
+
+```
+odometry(odom, t_in_ns)  -> [PoseOut, MapToOdomOut]   (fusion thread)
+vloc_result(result)      -> [VlocOut]                  (fusion thread)
+prior(t_frame_ns)        -> VlocPrior | None           (vloc thread: reads a reference and a locked buffer)
+```
+
+Tracking state (`tracking_state()`): INIT until a fused pose is initialised; then TRACKING
+while a VLoc fix was accepted by fusion within `lost_after_s` of sensor time (odometry
+stamps), LOST otherwise, or when the localizer reported LOST with its latest result
+(`VlocOutcome.tracking_state`, set by the VLoc stage right after the query: no state is read
+across threads).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from litevloc.config.schema import RuntimeConfig
+from litevloc.hw.messages import Odometry
+from litevloc.runtime.diagnostics import VlocStageTimes
+from litevloc.runtime.vloc_prior import OdometryHistory, VlocPrior, prior_at
+
+F64 = NDArray[np.float64]
+
+#: counters the core owns (the shell owns the source, VLoc-call and publishing counters)
+CORE_COUNTERS = ("vloc_accepted", "vloc_rejected", "fusion_accepted", "fusion_rejected", "odometry_fused",
+                 "odometry_rejected", "odometry_gaps", "vloc_votes", "fusion_initialised_by_votes")
+
+
+class ProvisionalLike(Protocol):
+    """A single-keyframe GL pose offered to fusion as an initialisation vote."""
+
+    @property
+    def T_map_camera(self) -> NDArray[np.floating]: ...
+
+    @property
+    def covariance(self) -> NDArray[np.floating] | None: ...
+
+
+class VlocOutcome(Protocol):
+    """What the service needs from one VLoc query (`pipelines.localization.vloc.LocalizationResult`).
+
+    `T_map_camera` 4x4 (metres), None unless accepted; `covariance` 6x6 camera-frame
+    perturbation (tx, ty, tz, rx, ry, rz); `timings_ms` per stage; `provisional` only on
+    rejected GL results; `tracking_state` the localizer's state after this query ("" = unknown).
+    """
+
+    @property
+    def t_ns(self) -> int: ...
+
+    @property
+    def accepted(self) -> bool: ...
+
+    @property
+    def reason(self) -> str: ...
+
+    @property
+    def T_map_camera(self) -> NDArray[np.floating] | None: ...
+
+    @property
+    def covariance(self) -> NDArray[np.floating] | None: ...
+
+    @property
+    def timings_ms(self) -> Mapping[str, float]: ...
+
+    @property
+    def provisional(self) -> ProvisionalLike | None: ...
+
+    @property
+    def tracking_state(self) -> str: ...
+
+
+class FusedPoseLike(Protocol):
+    """A fused pose (`pipelines.fusion.online.FusedPose`): 4x4 `T_map_base`, `T_map_odom`, 6x6
+    `covariance` (GTSAM or ROS order, see `covariance_to_ros`); `initialised` False before the
+    first fix."""
+
+    @property
+    def t_ns(self) -> int: ...
+
+    @property
+    def T_map_base(self) -> NDArray[np.floating]: ...
+
+    @property
+    def T_map_odom(self) -> NDArray[np.floating]: ...
+
+    @property
+    def covariance(self) -> NDArray[np.floating] | None: ...
+
+    @property
+    def initialised(self) -> bool: ...
+
+
+class FusionUpdateLike(Protocol):
+    """Fusion's answer to a VLoc fix (`pipelines.fusion.online.VlocUpdate`)."""
+
+    @property
+    def accepted(self) -> bool: ...
+
+    @property
+    def reason(self) -> str: ...
+
+
+OdometryFn = Callable[[Odometry], FusedPoseLike | None]
+VlocUpdateFn = Callable[[VlocOutcome], FusionUpdateLike | None]
+
+
+@dataclass(frozen=True, eq=False)
+class PoseOut:
+    """Publish the fused pose. `t_in_ns`: wall clock when its odometry entered the service."""
+
+    t_ns: int
+    T_map_base: NDArray[np.floating]
+    covariance: NDArray[np.floating] | None  # 6x6 ROS order
+    lost: bool
+    t_in_ns: int
+
+
+@dataclass(frozen=True, eq=False)
+class MapToOdomOut:
+    """Publish the map->odom correction (4x4)."""
+
+    t_ns: int
+    T_map_odom: NDArray[np.floating]
+    lost: bool
+
+
+@dataclass(frozen=True, eq=False)
+class VlocOut:
+    """Publish a VLoc fix that fusion accepted (4x4 `T_map_camera`, 6x6 covariance or None)."""
+
+    t_ns: int
+    T_map_camera: NDArray[np.floating]
+    covariance: NDArray[np.floating] | None
+
+
+CoreOutput = PoseOut | MapToOdomOut | VlocOut
+
+
+class LocalizationCore:
+    """See the module docstring. Not thread-safe except `prior()`, which the VLoc thread may
+    call while the fusion thread steps the core."""
+
+    def __init__(
+        self,
+        on_odometry: OdometryFn,
+        on_vloc: VlocUpdateFn,
+        params: RuntimeConfig,
+        T_base_camera: F64,
+        covariance_to_ros: Callable[[F64], F64] | None = None,
+        on_fused: Callable[[FusedPoseLike], None] | None = None,
+        window: int = 2000,
+    ) -> None:
+        self.on_odometry, self.on_vloc, self.params = on_odometry, on_vloc, params
+        self.T_base_camera = np.asarray(T_base_camera, dtype=np.float64)
+        self.covariance_to_ros, self.on_fused = covariance_to_ros, on_fused
+        self.counters: dict[str, int] = dict.fromkeys(CORE_COUNTERS, 0)
+        self.last_fused: FusedPoseLike | None = None
+        self.odometry_history = OdometryHistory()  # fused odometry poses, for the prior at a frame's stamp
+        self.sensor_now_ns: int | None = None
+        self.last_vloc_accept_ns: int | None = None
+        self.last_vloc_reason: str | None = None
+        self.last_fusion_reason: str | None = None
+        self.localizer_state = ""  # as reported with the latest VLoc result
+        self.vloc_times = VlocStageTimes(window)  # per-query extract/vpr/match/pnp ms
+        self._last_m2o_ns: int | None = None
+        self._m2o_due = False
+
+    # ------------------------------------------------------------------ steps
+    def odometry(self, odom: Odometry, t_in_ns: int) -> list[CoreOutput]:
+        """One odometry message through fusion; the pose (and map->odom when due) to publish."""
+        if self.sensor_now_ns is not None and (odom.t_ns - self.sensor_now_ns) * 1e-9 > \
+                self.params.odometry_checks.max_gap_s:
+            self.counters["odometry_gaps"] += 1  # (the Zenoh receiver counts its own; this is every input)
+        self.sensor_now_ns = odom.t_ns
+        fused = self.on_odometry(odom)
+        self.counters["odometry_fused"] += 1
+        if fused is None:
+            if self.last_fused is not None:  # fusion refused it (time not increasing, bad pose)
+                self.counters["odometry_rejected"] += 1
+            return []
+        self.odometry_history.add(odom.t_ns, odom.T_odom_base)
+        self.last_fused = fused
+        if self.on_fused is not None:
+            self.on_fused(fused)
+        if not fused.initialised:
+            return []
+        lost = self.tracking_state()[0] == "LOST"
+        cov = fused.covariance
+        if cov is not None and self.covariance_to_ros is not None:
+            cov = self.covariance_to_ros(np.asarray(cov, dtype=np.float64))
+        t = int(fused.t_ns)
+        outs: list[CoreOutput] = [PoseOut(t, fused.T_map_base, cov, lost, t_in_ns)]
+        due = self._m2o_due or self._last_m2o_ns is None or (
+            (t - self._last_m2o_ns) * 1e-9 >= self.params.map_to_odom_period_s)
+        if due:
+            self._m2o_due = False
+            self._last_m2o_ns = t
+            outs.append(MapToOdomOut(t, fused.T_map_odom, lost))
+        return outs
+
+    def vloc_result(self, res: VlocOutcome) -> list[CoreOutput]:
+        """One VLoc result: accepted fixes go to fusion; a provisional GL pose goes in as a vote."""
+        self.vloc_times.add(res.timings_ms)
+        self.last_vloc_reason = str(res.reason)
+        if res.tracking_state:
+            self.localizer_state = str(res.tracking_state)
+        if not res.accepted or res.T_map_camera is None:
+            self.counters["vloc_rejected"] += 1
+            if res.provisional is not None:
+                self._vote(res)
+            return []
+        self.counters["vloc_accepted"] += 1
+        update = self.on_vloc(res)
+        self.last_fusion_reason = None if update is None else str(update.reason)
+        if update is not None and not update.accepted:
+            self.counters["fusion_rejected"] += 1
+            return []
+        self.counters["fusion_accepted"] += 1
+        self._fix_accepted(int(res.t_ns))
+        return [VlocOut(int(res.t_ns), res.T_map_camera, res.covariance)]
+
+    def _vote(self, res: VlocOutcome) -> None:
+        """A provisional (single-keyframe) GL pose: an initialisation vote for fusion only."""
+        self.counters["vloc_votes"] += 1
+        update = self.on_vloc(res)
+        if update is not None and update.accepted:
+            self.counters["fusion_initialised_by_votes"] += 1
+            self._fix_accepted(int(res.t_ns))  # the LOST timer starts here
+
+    def _fix_accepted(self, t_ns: int) -> None:
+        last = self.last_vloc_accept_ns
+        self.last_vloc_accept_ns = t_ns if last is None else max(last, t_ns)
+        self._m2o_due = True
+
+    # ------------------------------------------------------------------ reads
+    def prior(self, t_frame_ns: int | None = None) -> VlocPrior | None:
+        """The VLoc prior at `t_frame_ns`: the latest `T_map_odom` applied to the odometry
+        interpolated at the frame's stamp, times `T_base_camera`, with its age (seconds since
+        the last fix fusion accepted); at the newest odometry when None. None before fusion
+        is initialised."""
+        f = self.last_fused
+        if f is None or not f.initialised:
+            return None
+        t = int(f.t_ns) if t_frame_ns is None else int(t_frame_ns)
+        got = prior_at(t, f.T_map_odom, self.odometry_history, self.T_base_camera, self.last_vloc_accept_ns)
+        if got is None:  # no odometry history around that stamp: the latest fused pose
+            return VlocPrior(np.asarray(f.T_map_base, dtype=np.float64) @ self.T_base_camera, 0.0, False)
+        return got
+
+    def tracking_state(self) -> tuple[str, list[str]]:
+        """(INIT | TRACKING | LOST, reasons); see the module docstring."""
+        f = self.last_fused
+        if f is None or not f.initialised:
+            return "INIT", ["waiting for the first accepted VLoc fix"]
+        state, reasons = "TRACKING", []
+        if self.localizer_state == "LOST":
+            state = "LOST"
+            reasons.append("localizer state machine is LOST")
+        now, last = self.sensor_now_ns, self.last_vloc_accept_ns
+        if now is not None and last is not None and (now - last) * 1e-9 > self.params.lost_after_s:
+            state = "LOST"
+            reasons.append(f"no VLoc fix accepted for {(now - last) * 1e-9:.1f} s (> {self.params.lost_after_s:g})")
+        return state, reasons
+
+    def report(self) -> dict[str, Any]:
+        """The core's part of the status report (JSON-able values)."""
+        state, reasons = self.tracking_state()
+        c = self.counters
+        if c["odometry_rejected"]:
+            reasons.append(f"fusion rejected {c['odometry_rejected']} odometry message(s) "
+                           "(time not increasing or invalid pose)")
+        out: dict[str, Any] = {
+            "state": state,
+            "reasons": reasons,
+            "counters": dict(c),
+            "last_vloc_reason": self.last_vloc_reason,
+            "last_fusion_reason": self.last_fusion_reason,
+            "sensor_time_ns": self.sensor_now_ns,
+            "vloc_stages": self.vloc_times.summary(),
+        }
+        if self.localizer_state:
+            out["vloc_state"] = self.localizer_state
+        return out
