@@ -53,3 +53,24 @@ def test_session_threads_and_optimisation(model_cache: Path) -> None:
     assert so.intra_op_num_threads == 2 and so.inter_op_num_threads == 1
     assert so.graph_optimization_level == ort.GraphOptimizationLevel.ORT_ENABLE_ALL
     assert sess.get_providers() == ["CPUExecutionProvider"]
+    assert so.get_session_config_entry("session.use_env_allocators") == "1"
+
+
+def test_sessions_share_one_cpu_arena(model_cache: Path) -> None:
+    """Two sessions built by make_session run correctly on the one registered arena, and
+    registering again is a no-op (ORT raises if the same allocator is registered twice)."""
+    import numpy as np
+
+    from litevloc.models.ort import register_shared_cpu_arena
+
+    path, _ = locate("aliked-t16-240x320-k512", ModelsConfig(cache_dir=str(model_cache)))
+    a = make_session(path, ("cpu",), 2)
+    b = make_session(path, ("cpu",), 1)
+    register_shared_cpu_arena()
+    inp = a.get_inputs()[0]
+    shape = [d if isinstance(d, int) else 1 for d in inp.shape]
+    x = np.random.default_rng(0).random(shape, dtype=np.float32)
+    out_a = a.run(None, {inp.name: x})
+    out_b = b.run(None, {inp.name: x})
+    for u, v in zip(out_a, out_b, strict=True):
+        np.testing.assert_allclose(u, v, rtol=1e-4, atol=1e-4)
