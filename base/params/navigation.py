@@ -20,12 +20,24 @@ class GoalParams:
     pose_min_inliers: int = 20
     pose_px: float = 4.0
     pose_max_m: float = 5.0
+    # ambiguity veto (maps with keypoint depth): the top_k candidates' metric goal poses are
+    # grouped into places (within agree_m and agree_deg of each other); a goal is refused as
+    # ambiguous when another place's support (sum of PnP inliers) is more than
+    # 1/ambiguity_ratio of the chosen place's: the same poster in two rooms. 0 = off.
+    # Chosen on the office and `bland` worlds (the floor is reported on, not tuned on).
+    ambiguity_ratio: float = 2.0
+    agree_m: float = 0.5
+    agree_deg: float = 20.0
 
     def __post_init__(self) -> None:
         if self.top_k < 1 or self.min_inliers < 8 or self.ransac_px <= 0:
             raise ValueError("top_k >= 1, min_inliers >= 8 and ransac_px > 0 required")
         if self.pose_min_inliers < 6 or self.pose_px <= 0 or self.pose_max_m <= 0:
             raise ValueError("pose_min_inliers >= 6, pose_px > 0 and pose_max_m > 0 required")
+        if self.ambiguity_ratio < 0 or 0 < self.ambiguity_ratio < 1:
+            raise ValueError("ambiguity_ratio must be 0 (off) or >= 1")
+        if self.agree_m <= 0 or not 0 < self.agree_deg <= 180:
+            raise ValueError("agree_m > 0 and 0 < agree_deg <= 180 required")
 
 
 @dataclass(frozen=True)

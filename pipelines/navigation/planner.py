@@ -7,7 +7,10 @@
   at least `min_inliers`. A goal that matches no place is reported as such. Where the map
   stores keypoint depth, `goal_pose` then gives the goal camera's metric pose (PnP against
   the keyframe's depth-lifted keypoints), so the robot can drive to where the image was
-  taken rather than to the keyframe that saw it.
+  taken rather than to the keyframe that saw it. With depth, every candidate gets such a
+  pose, and a goal that verifies as well (within `ambiguity_ratio`) at another place is
+  refused as ambiguous: the same poster hangs in two rooms, and guessing sends the robot
+  to the wrong one.
 * `shortest_path`: Dijkstra on the connectivity graph (edge weights in metres) with
   `scipy.sparse.csgraph.dijkstra` on the map's CSR matrix (built once per map); ~1 ms at
   10,000 nodes where the former pure-Python heap took tens (`bench/scale.py`).
@@ -58,16 +61,17 @@ class GoalResult:
 def goal_pose(
     goal_feats: FeatureSet, K_goal: NDArray[np.float64], node_feats: FeatureSet,
     node_depth: NDArray[np.float32] | None, K_node: NDArray[np.float64], match: MatchFn, params: GoalParams,
+    matches: tuple[NDArray[np.int64], NDArray[np.int64]] | None = None,
 ) -> tuple[NDArray[np.float64] | None, int]:
     """(T_node_goal, inliers): the goal camera's pose in the keyframe camera's frame (4x4,
     metres) by PnP + RANSAC of the goal's keypoints against the keyframe's keypoints lifted
     with their mapping depth (`node_depth` (N_node,) metres, NaN = none); (None, inliers)
     when there is no depth, too few inliers (< `pose_min_inliers`) or the pose is farther
-    than `pose_max_m`."""
+    than `pose_max_m`. `matches` (goal indices, node indices): already computed, else `match`."""
     if node_depth is None:
         return None, 0
     depth = node_depth
-    i_goal, i_node = match(goal_feats, node_feats)
+    i_goal, i_node = match(goal_feats, node_feats) if matches is None else matches
     z = np.asarray(depth, np.float64)[i_node]
     ok = np.isfinite(z) & (z > 0)
     if int(ok.sum()) < params.pose_min_inliers:
@@ -95,10 +99,11 @@ def goal_pose(
 
 def essential_inliers(
     f0: FeatureSet, K0: NDArray[np.float64], f1: FeatureSet, K1: NDArray[np.float64], match: MatchFn,
-    params: GoalParams,
+    params: GoalParams, matches: tuple[NDArray[np.int64], NDArray[np.int64]] | None = None,
 ) -> int:
-    """Inliers of an essential matrix (RANSAC) between two images' matched features."""
-    i0, i1 = match(f0, f1)
+    """Inliers of an essential matrix (RANSAC) between two images' matched features
+    (`matches`: already computed, else `match(f0, f1)`)."""
+    i0, i1 = match(f0, f1) if matches is None else matches
     if len(i0) < 8:
         return 0
     p0 = cv2.undistortPoints(np.asarray(f0.keypoints, np.float64)[i0].reshape(-1, 1, 2), K0, None).reshape(-1, 2)
@@ -110,27 +115,74 @@ def essential_inliers(
     return 0 if E is None or mask is None else int(mask.sum())
 
 
+@dataclass(frozen=True)
+class _Candidate:
+    node: int
+    similarity: float
+    inliers: int  # essential-matrix inliers
+    T_map_goal: NDArray[np.float64] | None
+    pose_inliers: int
+
+
+def _places(cands: list[_Candidate], agree_m: float, agree_deg: float) -> list[list[_Candidate]]:
+    """Candidates with a metric goal pose grouped into places: greedy, strongest PnP first; a
+    candidate joins the first place whose seed pose lies within agree_m and agree_deg (angle
+    between the optical axes) of its own."""
+    cos_max = float(np.cos(np.radians(agree_deg)))
+    places: list[list[_Candidate]] = []
+    for c in sorted((c for c in cands if c.T_map_goal is not None), key=lambda c: -c.pose_inliers):
+        assert c.T_map_goal is not None
+        for place in places:
+            seed = place[0].T_map_goal
+            assert seed is not None
+            if (np.linalg.norm(seed[:3, 3] - c.T_map_goal[:3, 3]) <= agree_m
+                    and float(seed[:3, 2] @ c.T_map_goal[:3, 2]) >= cos_max):
+                place.append(c)
+                break
+        else:
+            places.append([c])
+    return places
+
+
 def localize_goal(
     goal_feats: FeatureSet, goal_desc: NDArray[np.float32], K_goal: NDArray[np.float64], topomap: TopoMap,
     match: MatchFn, params: GoalParams = GoalParams(),
 ) -> GoalResult:
-    """Map node of a goal image, or `node=None` with the reason."""
+    """Map node (and, with keypoint depth, metric pose) of a goal image, or `node=None` with
+    the reason: no candidate verifies (< `min_inliers`), or the goal is ambiguous (another
+    place's PnP support exceeds 1/`ambiguity_ratio` of the chosen one's). One match per
+    top-k candidate serves both the essential matrix and the PnP."""
     sims = topomap.vpr @ np.asarray(goal_desc, np.float32)
     order = np.argsort(-sims, kind="stable")[: params.top_k]
-    cands = []
-    for node in order:
-        n = essential_inliers(goal_feats, K_goal, topomap.features[int(node)], topomap.K[int(node)], match, params)
-        cands.append((int(node), float(sims[node]), n))
-    best = max(cands, key=lambda c: (c[2], c[1]))
-    if best[2] < params.min_inliers:
-        return GoalResult(None, best[2], f"goal image matches no map place (best {best[2]} inliers < "
-                          f"{params.min_inliers})", tuple(cands))
-    node = best[0]
-    T_node_goal, n_pose = goal_pose(goal_feats, K_goal, topomap.features[node], topomap.keypoint_depth(node),
-                                    topomap.K[node], match, params)
-    if T_node_goal is None:
-        return GoalResult(node, best[2], "ok", tuple(cands), None, n_pose)
-    return GoalResult(node, best[2], "ok", tuple(cands), topomap.T_map_camera[node] @ T_node_goal, n_pose)
+    cands: list[_Candidate] = []
+    for node in (int(n) for n in order):
+        feats, K_node = topomap.features[node], topomap.K[node]
+        pairs = match(goal_feats, feats)
+        n_e = essential_inliers(goal_feats, K_goal, feats, K_node, match, params, pairs)
+        T_node_goal, n_pose = goal_pose(goal_feats, K_goal, feats, topomap.keypoint_depth(node), K_node, match,
+                                        params, pairs)
+        T_map_goal = None if T_node_goal is None else topomap.T_map_camera[node] @ T_node_goal
+        cands.append(_Candidate(node, float(sims[node]), n_e, T_map_goal, n_pose))
+    table = tuple((c.node, c.similarity, c.inliers) for c in cands)
+    best = max(cands, key=lambda c: (c.inliers, c.similarity))
+    if best.inliers < params.min_inliers:
+        return GoalResult(None, best.inliers, f"goal image matches no map place (best {best.inliers} inliers < "
+                          f"{params.min_inliers})", table)
+    if best.T_map_goal is not None and params.ambiguity_ratio > 0:
+        places = _places(cands, params.agree_m, params.agree_deg)
+        support = [sum(c.pose_inliers for c in p) for p in places]
+        mine = next(i for i, p in enumerate(places) if best in p)
+        rivals = [(s, p[0]) for i, (s, p) in enumerate(zip(support, places, strict=True)) if i != mine]
+        if rivals:
+            s_rival, rival = max(rivals, key=lambda r: r[0])
+            if s_rival * params.ambiguity_ratio > support[mine]:
+                assert rival.T_map_goal is not None
+                apart = float(np.linalg.norm(rival.T_map_goal[:3, 3] - best.T_map_goal[:3, 3]))
+                return GoalResult(None, best.inliers,
+                                  f"goal image is ambiguous: it verifies at nodes {best.node} and {rival.node}, "
+                                  f"{apart:.1f} m apart (PnP support {support[mine]} vs {s_rival}, need "
+                                  f"x{params.ambiguity_ratio:g})", table, None, best.pose_inliers)
+    return GoalResult(best.node, best.inliers, "ok", table, best.T_map_goal, best.pose_inliers)
 
 
 def shortest_path(topomap: TopoMap, start: int, goal: int) -> tuple[list[int], float]:

@@ -106,7 +106,7 @@ def test_tracker_nearest_node_is_the_brute_force_one() -> None:
         assert tr.nearest_node(p) == int(np.argmin(np.linalg.norm(m.positions - p, axis=1)))
 
 
-def test_goal_pose_from_keypoint_depth_is_metric() -> None:
+def _depth_map():  # type: ignore[no-untyped-def]
     from tests.pipelines.localization.test_vloc import POINTS
 
     m = make_vloc_map([0.0, 1.0, 2.0, 3.0])
@@ -114,7 +114,12 @@ def test_goal_pose_from_keypoint_depth_is_metric() -> None:
     for Ti, f in zip(m.T_map_camera, m.features, strict=True):
         pc = g.transform_points(g.invert(Ti), POINTS[f.descriptors[:, 0].astype(np.int64)])
         feats.append(dataclasses.replace(f, depth=pc[:, 2].astype(np.float32)))
-    md = dataclasses.replace(m, features=feats)
+    return dataclasses.replace(m, features=feats)
+
+
+def test_goal_pose_from_keypoint_depth_is_metric() -> None:
+    md = _depth_map()
+    m = make_vloc_map([0.0, 1.0, 2.0, 3.0])
     T_goal = pose(2.3, yaw_deg=10.0)  # 0.3 m past node 2, turned 10 deg
     goal, _ = observe(T_goal)
     desc = np.zeros(4, np.float32)
@@ -128,3 +133,41 @@ def test_goal_pose_from_keypoint_depth_is_metric() -> None:
     # a pose beyond pose_max_m of its keyframe is not trusted
     res3 = localize_goal(goal, desc, K, md, match_by_id, GoalParams(top_k=4, pose_max_m=0.1))
     assert res3.node is not None and res3.T_map_goal is None
+
+
+def test_goal_that_verifies_at_two_places_is_refused_as_ambiguous() -> None:
+    """Node 0 sees a copy of node 2's view (the same poster hung 2 m away): both verify, their
+    metric goal poses lie 2 m apart with equal support (top_k=2: VPR ranks node 2, then node 0),
+    so the goal is refused and the reason names both nodes; a weak copy (a third of the
+    keypoints) does not veto the strong place."""
+    md = _depth_map()
+    feats = list(md.features)
+    feats[0] = feats[2]
+    twin = dataclasses.replace(md, features=feats)
+    T_goal = pose(2.3, yaw_deg=10.0)
+    goal, _ = observe(T_goal)
+    desc = np.zeros(4, np.float32)
+    desc[2] = 1.0
+    res = localize_goal(goal, desc, K, twin, match_by_id, GoalParams(top_k=2))
+    assert res.node is None and res.T_map_goal is None
+    assert "ambiguous" in res.reason and "0" in res.reason and "2" in res.reason and "2.0 m apart" in res.reason
+    # the veto off: a node is chosen as before
+    res_off = localize_goal(goal, desc, K, twin, match_by_id, GoalParams(top_k=2, ambiguity_ratio=0))
+    assert res_off.node in (0, 2) and res_off.reason == "ok"
+    # a weak copy: node 0 keeps every third keypoint of node 2's view
+    f2 = feats[2]
+    keep = np.arange(0, len(f2.keypoints), 3)
+    weak = dataclasses.replace(f2, keypoints=f2.keypoints[keep], descriptors=f2.descriptors[keep],
+                               scores=f2.scores[keep], depth=f2.depth[keep])
+    feats[0] = weak
+    res_weak = localize_goal(goal, desc, K, dataclasses.replace(md, features=feats), match_by_id,
+                             GoalParams(top_k=2))
+    assert res_weak.node == 2 and res_weak.reason == "ok" and res_weak.T_map_goal is not None
+    np.testing.assert_allclose(res_weak.T_map_goal, T_goal, atol=1e-6)
+
+
+def test_goal_params_validate_the_ambiguity_veto() -> None:
+    with pytest.raises(ValueError, match="ambiguity_ratio"):
+        GoalParams(ambiguity_ratio=0.5)
+    with pytest.raises(ValueError, match="agree_m"):
+        GoalParams(agree_m=0.0)
