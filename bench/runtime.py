@@ -10,6 +10,10 @@ Reported: odometry-in -> pose-handed-to-Zenoh latency (p50/p99, inside the servi
 latency (p50/p99, second process), VLoc rate, frames dropped, odometry lost, CPU %, peak RSS,
 RSS growth (RSS sampled every 0.5 s: the last sample vs the first one after the service started).
 
+Frames reach the service as `litevloc run` gives them: colour undecoded, decoded only when
+VLoc takes a frame (`runtime.sources.service_messages`); mode `realtime+eager` decodes every
+frame at the source as before, for an A/B in the same run (`--modes realtime realtime+eager`).
+
 `--view` compares the threaded runtime without and with the live view (`--view-save` to a
 temporary .rrd: Rerun logging in the view thread) on the same input in the same run:
 fused-pose p99 and VLoc rate of view-on / view-off, the items the view dropped, RSS growth.
@@ -69,20 +73,22 @@ def one_run(mode: str, rec: Path, map_dir: Path, seconds: float, endpoint: str, 
     import dataclasses
 
     from litevloc.config import load_config
-    from litevloc.hw.messages import Message
+    from litevloc.hw.messages import SourceMessage
     from litevloc.hw.streams.mcap_io import McapSource
     from litevloc.runtime.app import build_app, with_endpoints
+    from litevloc.runtime.sources import service_messages
 
     view = mode.endswith("+view")
-    cfg = load_config("default", [f"runtime.mode={mode.removesuffix('+view')}", *overrides])
+    eager = mode.endswith("+eager")
+    cfg = load_config("default", [f"runtime.mode={mode.split('+')[0]}", *overrides])
     cfg = with_endpoints(cfg, [], [endpoint], None)
     cfg = dataclasses.replace(cfg, zenoh=dataclasses.replace(cfg.zenoh, listen=()))
     src = McapSource(rec, strict=False)
     n_frames = int(seconds * 15)
 
-    def limited() -> Iterator[Message]:
+    def limited() -> Iterator[SourceMessage]:
         t_end = None
-        for m in src:
+        for m in (src if eager else service_messages(src)):
             t_end = m.t_ns + int(seconds * 1e9) if t_end is None else t_end
             if m.t_ns > t_end:
                 break
@@ -131,7 +137,8 @@ def main() -> None:
     ap.add_argument("--rec", type=Path, default=None, help="query recording (default: the office query pass)")
     ap.add_argument("--map", type=Path, default=None, help="map folder (default: the office map)")
     ap.add_argument("--seconds", type=float, default=30.0)
-    ap.add_argument("--modes", nargs="+", default=None, choices=["realtime", "sequential", "realtime+view"],
+    ap.add_argument("--modes", nargs="+", default=None, choices=["realtime", "sequential", "realtime+view",
+                                                                     "realtime+eager"],
                     help="default: realtime sequential (with --view: realtime realtime+view)")
     ap.add_argument("--view", action="store_true", help="compare the threaded runtime with the live view off / on")
     ap.add_argument("--set", dest="overrides", action="append", default=[], help="config override, e.g. "
@@ -181,7 +188,8 @@ def main() -> None:
 
     rows = []
     names = {"realtime": "threaded runtime (realtime)", "sequential": "sequential baseline",
-             "realtime+view": "threaded runtime + live view"}
+             "realtime+view": "threaded runtime + live view",
+             "realtime+eager": "threaded runtime, every frame decoded at the source"}
     for name, r in ((names[m], results[m]) for m in args.modes):
         r["lag_s"] = max(r["wall_s"] - args.seconds, 0.0)
         rows.append([name, lat(r, "median_ms"), lat(r, "p99_ms"), r["wire_latency"].get("median_ms", float("nan")),

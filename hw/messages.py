@@ -10,6 +10,10 @@ own format.
 * `RgbdFrame.K`: 3x3 float64 intrinsics of `color`.
 * `RgbdFrame.color_jpeg`: the JPEG the colour was decoded from, when a source had one;
   recorders store it as is, so recording never re-encodes (no generation loss).
+* `EncodedRgbdFrame`: a frame whose colour is still the source's compressed bytes. A source
+  asked to defer decoding (`McapSource(defer_color=True)`) yields it to the service, where it
+  passes the latest-frame mailbox as is and only the frames VLoc takes are decoded
+  (`decode()`): the frames the mailbox drops are never decompressed.
 * `Odometry.T_odom_base`: 4x4 pose of `base_link` in the `odom` frame.
 * `GroundTruthPose.T_world_camera`: 4x4 pose of the camera optical frame in the
   dataset's world frame (the map frame for evaluation).
@@ -17,6 +21,7 @@ own format.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -51,6 +56,40 @@ class RgbdFrame:
 
 
 @dataclass(frozen=True, eq=False)
+class EncodedRgbdFrame:
+    """One colour (+ depth) frame with the colour not decoded yet (see the module docstring).
+
+    `color_data`: the source's JPEG/PNG bytes; `depth` as in `RgbdFrame` (already metres,
+    its size checked against the colour's at `decode`); `where` names the frame in errors.
+    """
+
+    t_ns: int
+    color_data: bytes
+    depth: NDArray[np.float32] | None
+    K: NDArray[np.float64]
+    index: int = 0
+    frame_id: str = "camera"
+    is_jpeg: bool = True  # keep the bytes as `RgbdFrame.color_jpeg` (recorders store them as is)
+    where: str = ""
+
+    def decode(self, decode_color: Callable[[bytes, str], NDArray[np.uint8]] | None = None) -> RgbdFrame:
+        """The decoded `RgbdFrame`; StreamError naming the frame when the colour does not decode
+        or the depth's size differs from the colour's. `decode_color(bytes, where) -> HxWx3 RGB`
+        defaults to `hw.streams.posed_folder.decode_color` (OpenCV, imported here, not at load)."""
+        if decode_color is None:
+            from litevloc.hw.streams.posed_folder import decode_color as opencv_decode
+
+            decode_color = opencv_decode
+        where = self.where or f"frame {self.index} at {self.t_ns} ns"
+        color = decode_color(self.color_data, where)
+        if self.depth is not None and self.depth.shape != color.shape[:2]:
+            raise StreamError(f"depth {self.depth.shape[1]}x{self.depth.shape[0]} does not match colour "
+                              f"{color.shape[1]}x{color.shape[0]}: {where}")
+        return RgbdFrame(t_ns=self.t_ns, color=color, depth=self.depth, K=self.K, index=self.index,
+                         frame_id=self.frame_id, color_jpeg=self.color_data if self.is_jpeg else None)
+
+
+@dataclass(frozen=True, eq=False)
 class Odometry:
     """Proprioceptive odometry sample."""
 
@@ -72,6 +111,7 @@ class GroundTruthPose:
 
 
 Message = RgbdFrame | Odometry | GroundTruthPose
+SourceMessage = Message | EncodedRgbdFrame  # what a source asked to defer colour decoding yields
 
 
 @dataclass

@@ -9,7 +9,7 @@ error, not a hang.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -18,8 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litevloc.config import LiteVLocConfig
-from litevloc.hw.messages import GroundTruthPose
-from litevloc.hw.streams.base import StreamSource
+from litevloc.hw.messages import GroundTruthPose, SourceMessage
 from litevloc.pipelines.fusion.online import OnlineFusion
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map
@@ -92,7 +91,7 @@ def map_id(map_path: Path) -> str:
 
 
 def build_app(
-    cfg: LiteVLocConfig, map_path: Path, source: StreamSource, rate: float,
+    cfg: LiteVLocConfig, map_path: Path, source: Iterable[SourceMessage], rate: float,
     on_fused: Callable[[Any], None] | None = None, record: bool = True,
     view_spawn: bool = False, view_save: Path | None = None,
 ) -> App:

@@ -34,7 +34,7 @@ from typing import Any, Literal
 import numpy as np
 
 from litevloc.base.errors import LiteVLocError
-from litevloc.hw.messages import Message, Odometry, RgbdFrame
+from litevloc.hw.messages import EncodedRgbdFrame, Odometry, RgbdFrame, SourceMessage
 
 FaultKind = Literal["camera_dropout", "depth_invalid", "odometry_gap", "odometry_backwards", "vloc_outliers",
                     "slow_consumer"]
@@ -124,19 +124,22 @@ class FaultInjector:
             self.counts[kind] += 1
 
     # ------------------------------------------------------------------ source
-    def source(self, messages: Iterable[Message]) -> Iterator[Message]:
-        """The source with camera/depth/odometry faults applied (sets the sensor time origin)."""
+    def source(self, messages: Iterable[SourceMessage]) -> Iterator[SourceMessage]:
+        """The source with camera/depth/odometry faults applied (sets the sensor time origin).
+        Frames may be decoded (`RgbdFrame`) or not (`EncodedRgbdFrame`: invalid depth takes the
+        size of its depth, which the decoder checks against the colour's)."""
         for m in messages:
             if self.t0_ns is None:
                 self.t0_ns = m.t_ns
-            if isinstance(m, RgbdFrame):
+            if isinstance(m, RgbdFrame | EncodedRgbdFrame):
                 if self._active("camera_dropout", m.t_ns):
                     self._count("camera_dropout")
                     continue
                 if self._active("depth_invalid", m.t_ns):
                     self._count("depth_invalid")
-                    h, w = m.color.shape[:2]
-                    m = dataclasses.replace(m, depth=np.full((h, w), np.nan, dtype=np.float32))
+                    hw = m.color.shape[:2] if isinstance(m, RgbdFrame) else None if m.depth is None else m.depth.shape
+                    if hw is not None:
+                        m = dataclasses.replace(m, depth=np.full(hw, np.nan, dtype=np.float32))
             elif isinstance(m, Odometry):
                 if self._active("odometry_gap", m.t_ns):
                     self._count("odometry_gap")

@@ -4,16 +4,23 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterable, Iterator
+from typing import Protocol, TypeVar
 
-from litevloc.hw.messages import Message
+
+class Stamped(Protocol):
+    @property
+    def t_ns(self) -> int: ...
+
+
+M = TypeVar("M", bound=Stamped)
 
 
 def paced(
-    messages: Iterable[Message],
+    messages: Iterable[M],
     rate: float,
     clock: Callable[[], float] = time.monotonic,
     sleep: Callable[[float], object] = time.sleep,
-) -> Iterator[Message]:
+) -> Iterator[M]:
     """Yield messages no earlier than their recorded time offset divided by `rate`.
 
     rate = 1 plays in real time, 2 twice as fast, 0 as fast as possible. The schedule

@@ -61,8 +61,9 @@ from numpy.typing import NDArray
 
 from litevloc.base.errors import LiteVLocError
 from litevloc.config.schema import RuntimeConfig
-from litevloc.hw.messages import GroundTruthPose, Message, Odometry, RgbdFrame
+from litevloc.hw.messages import EncodedRgbdFrame, GroundTruthPose, Odometry, RgbdFrame, SourceMessage, StreamError
 from litevloc.pipelines.odometry_drift import T_BASE_CAMERA_OPTICAL
+from litevloc.runtime.frame_guard import RejectedFrame
 from litevloc.runtime.localization_core import (
     CoreOutput,
     FusedPoseLike,
@@ -91,7 +92,8 @@ VlocFn = Callable[[RgbdFrame, VlocPrior | None], VlocOutcome]
 
 #: counters the shell owns (the core's are in `localization_core.CORE_COUNTERS`)
 SHELL_COUNTERS = ("frames_in", "odometry_in", "odometry_ignored", "ground_truth_in", "vloc_calls", "poses_published",
-                  "poses_withheld", "map_to_odom_published", "vloc_published", "status_published")
+                  "poses_withheld", "map_to_odom_published", "vloc_published", "status_published",
+                  "frames_decoded", "frames_undecodable")
 
 
 class PublisherLike(Protocol):
@@ -133,7 +135,7 @@ class Service:
 
     def __init__(
         self,
-        source: Iterable[Message],
+        source: Iterable[SourceMessage],
         vloc: VlocFn,
         on_odometry: OdometryFn,
         on_vloc: VlocUpdateFn,
@@ -170,7 +172,7 @@ class Service:
         self._progress = threading.Condition()  # deterministic lockstep only
         det = p.mode == "deterministic"
         w = p.latency_window
-        self.frames: QueueBase[RgbdFrame] = (
+        self.frames: QueueBase[RgbdFrame | EncodedRgbdFrame] = (
             BoundedFifo("frames", capacity=1_000_000, window=w) if det else LatestMailbox("frames", window=w)
         )
         self.odometry: BoundedFifo[tuple[int, Odometry]] = BoundedFifo("odometry", p.odometry_queue_capacity,
@@ -326,7 +328,7 @@ class Service:
     def _run_source(self) -> None:
         det = self.params.mode == "deterministic"
         live_odom = self.params.odometry_input == "zenoh"
-        msgs: Iterable[Message] = self.source if det else paced(self.source, self.rate, sleep=self._stop.wait)
+        msgs: Iterable[SourceMessage] = self.source if det else paced(self.source, self.rate, sleep=self._stop.wait)
         for msg in msgs:
             if self._stop.is_set():
                 return
@@ -336,7 +338,7 @@ class Service:
                     self.shell_counters["odometry_ignored"] += 1
                 else:
                     self._push_odometry(msg)
-            elif isinstance(msg, RgbdFrame):
+            elif isinstance(msg, RgbdFrame | EncodedRgbdFrame):
                 self.shell_counters["frames_in"] += 1
                 self._last_frame_wall = time.monotonic()
                 if det:
@@ -368,7 +370,7 @@ class Service:
                 self._progress.notify_all()
 
     # ------------------------------------------------------------------ vloc thread
-    def _handle_frame(self, frame: RgbdFrame) -> None:
+    def _handle_frame(self, frame: RgbdFrame | EncodedRgbdFrame) -> None:
         res = self._vloc(frame)
         try:
             self.results.put(res)
@@ -376,8 +378,17 @@ class Service:
             if not self._stop.is_set():
                 raise
 
-    def _vloc(self, frame: RgbdFrame) -> VlocOutcome:
+    def _vloc(self, frame: RgbdFrame | EncodedRgbdFrame) -> VlocOutcome:
+        """VLoc of one frame; an `EncodedRgbdFrame` is decoded here, after the mailbox that drops
+        stale frames, and one that does not decode is a counted, rejected result."""
         self.shell_counters["vloc_calls"] += 1
+        if isinstance(frame, EncodedRgbdFrame):
+            try:
+                frame = frame.decode()
+            except StreamError as exc:
+                self.shell_counters["frames_undecodable"] += 1
+                return RejectedFrame(frame.t_ns, False, f"bad frame: {exc}")
+            self.shell_counters["frames_decoded"] += 1
         return self.vloc_fn(frame, self.core.prior(frame.t_ns))
 
     # ------------------------------------------------------------------ fusion thread
@@ -430,7 +441,7 @@ class Service:
                 if isinstance(msg, Odometry):
                     self.shell_counters["odometry_in"] += 1
                     self._handle_odometry_item((t_in, msg))
-                elif isinstance(msg, RgbdFrame):
+                elif isinstance(msg, RgbdFrame | EncodedRgbdFrame):
                     self.shell_counters["frames_in"] += 1
                     self._handle_result(self._vloc(msg))
                 elif isinstance(msg, GroundTruthPose):

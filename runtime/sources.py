@@ -9,12 +9,12 @@ related by `T_BASE_CAMERA_OPTICAL` (base_link = the camera, in REP-103 body axes
 from __future__ import annotations
 
 import heapq
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 import numpy as np
 
-from litevloc.hw.messages import Message, Odometry, StreamError, StreamStats
+from litevloc.hw.messages import Message, Odometry, SourceMessage, StreamError, StreamStats
 from litevloc.hw.streams.base import StreamSource
 from litevloc.hw.streams.mcap_io import McapSource
 from litevloc.hw.streams.posed_folder import PosedFolderSource
@@ -56,6 +56,16 @@ def open_source(
     if is_tum_folder(p):
         return TumRgbdSource(p, frames, strict=strict)
     raise StreamError(f"{p}: not a 7-Scenes folder (frame-NNNNNN.color.jpg) nor a TUM folder (rgb.txt)")
+
+
+def service_messages(src: StreamSource) -> Iterable[SourceMessage]:
+    """What the service reads from `src`: a recording read non-strictly gives its frames with
+    the colour undecoded (the service decodes only the frames VLoc takes, after the mailbox
+    that drops the stale ones); every other source (and a strict read, which checks each
+    frame as it reads it) is read as it is."""
+    if isinstance(src, McapSource) and not src.strict:
+        return src.messages(defer_color=True)
+    return src
 
 
 class SimulatedOdometrySource:

@@ -29,7 +29,9 @@ class CameraConfig:
     undistort: bool = True  # undistort colour on device, so K is a pinhole model
     timestamp_at: Literal["start", "middle", "end"] = "middle"  # which instant of the exposure
     clock: Literal["realtime", "monotonic"] = "realtime"
-    jpeg_quality: int = 95  # 0 = pass raw colour; >0 = JPEG round trip on host (see below)
+    # 0 = pass raw colour; >0 = JPEG round trip on host when recording (`litevloc record`: the
+    # recording then holds the live pixels); `litevloc run` records nothing and skips it
+    jpeg_quality: int = 95
     imu: bool = False
     imu_rate_hz: int = 200
     queue_size: int = 4

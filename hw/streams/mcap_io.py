@@ -31,10 +31,12 @@ from mcap.writer import CompressionType, Writer
 
 from litevloc.hw import ros_msgs
 from litevloc.hw.messages import (
+    EncodedRgbdFrame,
     GroundTruthPose,
     Message,
     Odometry,
     RgbdFrame,
+    SourceMessage,
     StreamError,
     StreamStats,
     depth_from_millimetres,
@@ -182,6 +184,10 @@ class McapSource:
     `strict=True` (offline tools): any malformed message or time going backwards raises
     `StreamError` naming the file, topic and time. `strict=False` (live/replay into a
     running service): such messages are counted in `stats.skipped` and dropped.
+    `messages(defer_color=True)` (the service's source; only with `strict=False`): frames
+    come as `EncodedRgbdFrame`, their colour decoded by whoever takes them (`decode()`), so
+    frames a consumer drops are never decompressed; a colour that does not decode is then
+    the consumer's to count.
     """
 
     def __init__(self, path: str | Path, frames: slice = slice(None), strict: bool = True) -> None:
@@ -232,6 +238,17 @@ class McapSource:
         self.stats.skip(reason)
 
     def __iter__(self) -> Iterator[Message]:
+        for m in self._read(defer_color=False):
+            assert not isinstance(m, EncodedRgbdFrame)  # only yielded when deferring
+            yield m
+
+    def messages(self, defer_color: bool = False) -> Iterator[SourceMessage]:
+        """The recording's messages; with `defer_color`, frames as `EncodedRgbdFrame`."""
+        if defer_color and self.strict:
+            raise ValueError("defer_color needs strict=False: a strict read checks every frame as it reads it")
+        return self._read(defer_color)
+
+    def _read(self, defer_color: bool) -> Iterator[SourceMessage]:
         selected = set(self._selected)
         pending: dict[int, dict[str, Any]] = {}
         frame_counter = 0
@@ -274,7 +291,7 @@ class McapSource:
                     if TOPIC_COLOR in parts and TOPIC_INFO in parts and (TOPIC_DEPTH in parts or not self.has_depth):
                         del pending[t_ns]
                         if parts["index"] in selected:
-                            frame = self._make_frame(t_ns, parts)
+                            frame = self._make_frame(t_ns, parts, defer_color)
                             if frame is not None:
                                 self.stats.messages += 1
                                 yield frame
@@ -292,12 +309,20 @@ class McapSource:
             if parts.get("index") in selected or TOPIC_COLOR not in parts:
                 self._fail("incomplete frame (missing colour, depth or camera_info)", f"stamp {t_ns}")
 
-    def _make_frame(self, t_ns: int, parts: dict[str, Any]) -> RgbdFrame | None:
+    def _make_frame(self, t_ns: int, parts: dict[str, Any], defer_color: bool = False
+                    ) -> RgbdFrame | EncodedRgbdFrame | None:
         try:
             cmsg = parts[TOPIC_COLOR]
             jpeg = bytes(np.asarray(cmsg.data, dtype=np.uint8).tobytes())
-            color = decode_color(jpeg, f"{self.path} colour at {t_ns} ns")
+            is_jpeg = cmsg.format.lower().startswith(("jpeg", "jpg"))
             K = ros_msgs.camera_info_K(parts[TOPIC_INFO])
+            if defer_color:
+                mm_d = ros_msgs.depth_image_to_mm(parts[TOPIC_DEPTH]) if TOPIC_DEPTH in parts else None
+                return EncodedRgbdFrame(
+                    t_ns=t_ns, color_data=jpeg, depth=None if mm_d is None else depth_from_millimetres(mm_d), K=K,
+                    index=int(parts["index"]), frame_id=cmsg.header.frame_id or "camera", is_jpeg=is_jpeg,
+                    where=f"{self.path} colour at {t_ns} ns")
+            color = decode_color(jpeg, f"{self.path} colour at {t_ns} ns")
             depth = None
             if TOPIC_DEPTH in parts:
                 mm = ros_msgs.depth_image_to_mm(parts[TOPIC_DEPTH])
@@ -313,7 +338,7 @@ class McapSource:
         return RgbdFrame(
             t_ns=t_ns, color=color, depth=depth, K=K, index=int(parts["index"]),
             frame_id=cmsg.header.frame_id or "camera",
-            color_jpeg=jpeg if cmsg.format.lower().startswith(("jpeg", "jpg")) else None,
+            color_jpeg=jpeg if is_jpeg else None,
         )
 
     def _make_other(self, topic: str, t_ns: int, msg: Any) -> Message | None:

@@ -64,9 +64,14 @@ def open_configured_source(cfg: Any, path: Path | None) -> Any:
         return open_source(path, strict=cfg.source.strict, rgbd_calibration=cfg.rgbd_calibration)
     kind = cfg.source.kind
     if kind == "oak-d":
+        import dataclasses
+
         from litevloc.hw.oak import OakSource
 
-        return OakSource(cfg.camera, strict=cfg.source.strict)
+        # `camera.jpeg_quality` is the JPEG round trip that makes a recording's pixels the live
+        # ones (`litevloc record`); the service records nothing, so it takes the raw colour
+        # (#19: encode only when recording)
+        return OakSource(dataclasses.replace(cfg.camera, jpeg_quality=0), strict=cfg.source.strict)
     if not cfg.source.path:
         raise UserError(f"config source.kind is {kind!r} but source.path is empty; give --source")
     return open_source(cfg.source.path, parse_frames(cfg.source.frames or None), strict=cfg.source.strict,
@@ -91,7 +96,10 @@ def run_service(args: argparse.Namespace, source_path: Path | None, rate: float 
             raise UserError(str(exc)) from exc
     view_args = {"view_spawn": bool(getattr(args, "view", False)), "view_save": getattr(args, "view_save", None)}
     try:
-        app = build_app(cfg, map_path, src, cfg.replay.rate if rate is None else rate, record=record, **view_args)
+        from litevloc.runtime.sources import service_messages
+
+        app = build_app(cfg, map_path, service_messages(src), cfg.replay.rate if rate is None else rate,
+                        record=record, **view_args)
     except Exception as exc:
         if view_args["view_spawn"] or view_args["view_save"] is not None:  # (rerun is imported only then)
             from litevloc.runtime.view import ViewError

@@ -330,3 +330,45 @@ def test_adapters_for_localizer_and_fusion() -> None:
     assert sum(c == "process" for c, _ in calls) == src.frame_count() == sum(c == "vloc" for c, _ in calls)
     assert sum(c == "odom" for c, _ in calls) == src.n_odometry()
     check_poses(pub.poses)
+
+
+def encoded_source(src: SyntheticSource, corrupt: frozenset[int] = frozenset()) -> list:
+    """`src`'s messages with every frame as an `EncodedRgbdFrame` (PNG bytes of its colour, JPEG
+    bytes cut short for the indices in `corrupt`), as `McapSource.messages(defer_color=True)`."""
+    import cv2
+
+    from litevloc.hw.messages import EncodedRgbdFrame, RgbdFrame
+
+    out: list = []
+    for m in src:
+        if isinstance(m, RgbdFrame):
+            data = b"\xff\xd8\xff\xe0 cut" if m.index in corrupt else cv2.imencode(".png", m.color)[1].tobytes()
+            m = EncodedRgbdFrame(m.t_ns, data, m.depth, m.K, m.index, is_jpeg=False)
+        out.append(m)
+    return out
+
+
+@pytest.mark.timeout(30)
+def test_realtime_decodes_only_the_frames_vloc_takes() -> None:
+    """Frames arrive undecoded; the mailbox drops stale ones before any decoding, so the frames
+    decoded are exactly those VLoc saw, fewer than arrived (#19: work after the drop point)."""
+    src = SyntheticSource(seconds=1.0, odom_hz=200, frame_hz=30)
+    svc, vloc, _, _ = make("realtime", vloc=FakeVloc(delay_s=0.08), src=encoded_source(src), rate=1.0)  # type: ignore[arg-type]
+    res = svc.run(timeout_s=20)
+    assert res.ok, res.reason
+    c, st = res.status["counters"], res.status
+    assert c["frames_in"] == src.frame_count() and st["frames_dropped"] > 0
+    assert c["frames_decoded"] == len(vloc.seen) == src.frame_count() - st["frames_dropped"]
+    assert c["frames_undecodable"] == 0
+
+
+@pytest.mark.timeout(30)
+def test_undecodable_frame_is_a_counted_rejection_not_a_crash() -> None:
+    src = SyntheticSource()
+    svc, vloc, _, _ = make("deterministic", src=encoded_source(src, frozenset({3})))  # type: ignore[arg-type]
+    res = svc.run(timeout_s=20)
+    assert res.ok and res.reason == "end of source", res.reason
+    c = res.status["counters"]
+    assert c["frames_undecodable"] == 1 and c["frames_decoded"] == src.frame_count() - 1
+    assert 3 not in vloc.seen and len(vloc.seen) == src.frame_count() - 1
+    assert c["vloc_accepted"] == src.frame_count() - 1

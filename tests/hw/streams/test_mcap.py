@@ -140,3 +140,47 @@ def test_nan_pose_is_rejected(tmp_path: Path) -> None:
         rec._put(TOPIC_ODOM, 5, msg)
     with pytest.raises(StreamError, match="NaN"):
         list(McapSource(path))
+
+
+def test_deferred_colour_decodes_to_the_same_frames(tmp_path: Path) -> None:
+    """`messages(defer_color=True)` yields the same messages with frames as `EncodedRgbdFrame`;
+    decoding one gives exactly the eagerly read frame (pixels, depth, K, stamp, JPEG bytes)."""
+    from litevloc.hw.messages import EncodedRgbdFrame
+
+    write(tmp_path / "a.mcap", synthetic_messages())
+    eager = list(McapSource(tmp_path / "a.mcap", strict=False))
+    lazy = list(McapSource(tmp_path / "a.mcap", strict=False).messages(defer_color=True))
+    assert len(eager) == len(lazy)
+    n_frames = 0
+    for a, b in zip(eager, lazy, strict=True):
+        if isinstance(a, RgbdFrame):
+            assert isinstance(b, EncodedRgbdFrame) and b.color_data == a.color_jpeg
+            d = b.decode()
+            assert np.array_equal(d.color, a.color) and np.array_equal(d.K, a.K)
+            assert np.array_equal(np.isnan(d.depth), np.isnan(a.depth))
+            assert np.array_equal(d.depth[~np.isnan(d.depth)], a.depth[~np.isnan(a.depth)])
+            assert (d.t_ns, d.index, d.frame_id, d.color_jpeg) == (a.t_ns, a.index, a.frame_id, a.color_jpeg)
+            n_frames += 1
+        else:
+            assert type(a) is type(b) and a.t_ns == b.t_ns
+    assert n_frames == 6
+    with pytest.raises(ValueError, match="strict=False"):
+        McapSource(tmp_path / "a.mcap").messages(defer_color=True)
+
+
+def test_deferred_corrupt_colour_fails_at_decode_naming_the_frame(tmp_path: Path) -> None:
+    import dataclasses
+
+    msgs = synthetic_messages(2)
+    frames = [i for i, m in enumerate(msgs) if isinstance(m, RgbdFrame)]
+    msgs[frames[1]] = dataclasses.replace(msgs[frames[1]], color_jpeg=b"\xff\xd8\xff\xe0 cut short")
+    write(tmp_path / "c.mcap", msgs)
+    lazy = [m for m in McapSource(tmp_path / "c.mcap", strict=False).messages(defer_color=True)
+            if not isinstance(m, Odometry | GroundTruthPose)]
+    assert len(lazy) == 2
+    lazy[0].decode()
+    with pytest.raises(StreamError, match=r"truncated.*c\.mcap colour at"):
+        lazy[1].decode()
+    # read eagerly, the same frame is counted and skipped by the reader
+    live = McapSource(tmp_path / "c.mcap", strict=False)
+    assert sum(isinstance(m, RgbdFrame) for m in live) == 1 and live.stats.skipped == {"bad frame": 1}
