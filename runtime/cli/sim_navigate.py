@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -46,13 +47,14 @@ def add_parser(ss: argparse._SubParsersAction) -> None:
 
 
 def ensure_map(world_name: str, out_dir: Path, config: str | None, map_duration: float | None = None,
-               world_seed: int | None = None, map_pass: str = "map") -> Path:
+               world_seed: int | None = None, map_pass: str = "map", overrides: Sequence[str] = ()) -> Path:
     """A map of the world from a simulated mapping pass, built once under out_dir.
 
     The pass is fed to `map build` straight from the simulator (`sim:WORLD?pass=map`):
     depth-only rendering for keyframe selection, colour for the keyframes only, no MCAP
     recording and no JPEG round trip (`sim record` + `map build REC` give the same map
-    up to image noise and JPEG artefacts)."""
+    up to image noise and JPEG artefacts). `overrides`: `KEY=VALUE` config overrides of the
+    build (`--set`), e.g. `mapping.keyframes.budget=34`."""
     from urllib.parse import urlencode
 
     from litevloc.runtime.cli.main import main
@@ -67,7 +69,8 @@ def ensure_map(world_name: str, out_dir: Path, config: str | None, map_duration:
     if world_seed is not None:
         q["world_seed"] = str(world_seed)
     cfg = ["--config", config] if config else []
-    argv = ["map", "build", f"sim:{world_name}?{urlencode(q)}", "-o", str(map_dir), "--force", *cfg,
+    sets = [a for kv in overrides for a in ("--set", kv)]
+    argv = ["map", "build", f"sim:{world_name}?{urlencode(q)}", "-o", str(map_dir), "--force", *cfg, *sets,
             "--json", str(out_dir / "map.json")]
     print(f"== litevloc {' '.join(argv)}", flush=True)
     if main(argv) != 0:

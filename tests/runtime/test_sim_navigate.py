@@ -102,3 +102,30 @@ def test_driver_status_callback_updates_state_and_feeds_the_view() -> None:
         d._on_status(sample({"seq": 2, "state": "reached"}))
         assert d.status["seq"] == 2 and [e["seq"] for e in d.events] == [1, 2]
     assert [s["seq"] for s in seen] == [1, 2]
+
+
+def test_ensure_map_passes_build_overrides_and_reuses_a_built_map(tmp_path: Path,
+                                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    """`ensure_map(..., overrides=...)` hands each KEY=VALUE to `map build` as `--set` (the
+    density benchmark caps the keyframe budget this way) and builds nothing when the map exists."""
+    import litevloc.runtime.cli.main as cli_main
+    from litevloc.runtime.cli.sim_navigate import ensure_map
+
+    calls: list[list[str]] = []
+
+    def fake_main(argv: list[str]) -> int:
+        calls.append(argv)
+        out = Path(argv[argv.index("-o") + 1])
+        out.mkdir(parents=True)
+        (out / "manifest.json").write_text("{}")
+        return 0
+
+    monkeypatch.setattr(cli_main, "main", fake_main)
+    got = ensure_map("office", tmp_path / "m", "default", overrides=["mapping.keyframes.budget=17"])
+    assert got == tmp_path / "m" / "map" and len(calls) == 1
+    argv = calls[0]
+    assert argv[:2] == ["map", "build"] and argv[2].startswith("sim:office?")
+    i = argv.index("--set")
+    assert argv[i + 1] == "mapping.keyframes.budget=17" and argv[argv.index("--config") + 1] == "default"
+    assert ensure_map("office", tmp_path / "m", "default", overrides=["mapping.keyframes.budget=17"]) == got
+    assert len(calls) == 1  # cached
