@@ -135,6 +135,13 @@ class LocalizationParams:
     # accepted when it agrees with the prior (the fused pose) within the LL prior gate.
     # 0 disables both. 60 = 1.5 x the PnP minimum (simulator worlds; issue #15).
     gl_vote_min_inliers: int = 60
+    # A GL candidate whose PnP inliers span less than this (m) along the map's up vector (10th
+    # to 90th percentile of their heights) rests on the floor or the ceiling alone: tiles repeat
+    # in every room and under 90-degree turns, so PnP finds a shifted, turned pose that a second
+    # keyframe on the same tiles confirms (bland world: 1.1 m / 99 deg off, 42-47 inliers, from
+    # a start facing a wall the map never saw). Rejected in GL only: LL's prior gate bounds that
+    # aliasing. 0 disables. Chosen on the simulator (issue #15 item 6).
+    gl_min_support_height_m: float = 0.15
     confirm_min_inliers: int = 20
     confirm_max_nodes: int = 2  # second keyframes tried for the confirmation
     # An LL pose this close to a fresh prior (age <= confirm_skip_max_age_s) needs no second
@@ -179,6 +186,8 @@ class LocalizationParams:
             raise ValueError("candidate_radius_m > 0 and max_view_angle_deg in (0, 180] required")
         if self.gl_vote_min_inliers < 0:
             raise ValueError("gl_vote_min_inliers must be >= 0 (0 = no provisional poses)")
+        if self.gl_min_support_height_m < 0:
+            raise ValueError("gl_min_support_height_m must be >= 0 (0 = off)")
         if self.gl_time_budget_ms < 0:
             raise ValueError("gl_time_budget_ms must be >= 0 (0 = no budget)")
         if self.prior_gate_rate_fused_mps < 0 or self.prior_gate_fused_m <= 0:

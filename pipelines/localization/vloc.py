@@ -271,6 +271,33 @@ class VisualLocalizer:
         )
         return res, CandidateAttempt(node, similarity, n_matches, res.n_inliers if res else 0, reason)
 
+    def support_height_spread(self, node: int, res: PnpResult, q: _Query) -> float:
+        """Extent (m) along the map's up vector of the live points that support a verified pose
+        (10th to 90th percentile of the PnP inliers' heights in the map frame); inf when the
+        pose or the inliers are missing. Near 0: every inlier lies on one horizontal plane (the
+        floor or the ceiling), whose tiles repeat in every room and under 90-degree turns."""
+        if res.T_target_source is None or res.n_inliers == 0:
+            return float("inf")
+        i_live, _ = q.matches(node)
+        pts = q.points()[i_live]
+        pts = pts[np.all(np.isfinite(pts), axis=1)][res.inliers]  # the rows relative_pose solved on
+        T = self.map.T_map_camera[node] @ res.T_target_source
+        h = (pts @ T[:3, :3].T + T[:3, 3]) @ np.asarray(self.map.grid.up, dtype=np.float64)
+        lo, hi = np.percentile(h, [10.0, 90.0])
+        return float(hi - lo)
+
+    def _flat_support(self, node: int, res: PnpResult, q: _Query) -> str:
+        """A rejection reason when a GL pose rests on one horizontal plane only (see
+        `LocalizationParams.gl_min_support_height_m`), else ''."""
+        need = self.params.gl_min_support_height_m
+        if need <= 0:
+            return ""
+        spread = self.support_height_spread(node, res, q)
+        if spread >= need:
+            return ""
+        return (f"support on one horizontal plane only (inliers span {spread:.2f} m < {need:g} "
+                "along up: floor or ceiling tiles repeat)")
+
     def _result(
         self, t_ns: int, mode: str, best: tuple[int, PnpResult, RefineResult | None] | None,
         attempts: list[CandidateAttempt], timer: StageTimer, fail_reason: str, q: _Query | None = None,
@@ -413,6 +440,10 @@ class VisualLocalizer:
                 if res is None or not res.accepted or res.T_target_source is None:
                     attempts.append(att)
                     continue
+                flat = self._flat_support(node, res, q)
+                if flat:
+                    attempts.append(CandidateAttempt(node, att.similarity, att.matches, att.inliers, flat))
+                    continue
                 T = self.map.T_map_camera[node] @ res.T_target_source
                 joint = self._joint(node, T, q, [int(n) for n in order],
                                     self.params.refine.min_keyframes if self.params.gl_confirm else 1)
@@ -440,6 +471,10 @@ class VisualLocalizer:
         verified: list[tuple[int, PnpResult]] = []
         for node in order:
             res, att = self._verify(int(node), q, float(sims[node]))
+            flat = "" if res is None or not res.accepted else self._flat_support(int(node), res, q)
+            if flat:
+                attempts.append(CandidateAttempt(int(node), att.similarity, att.matches, att.inliers, flat))
+                continue
             attempts.append(att)
             if res is not None and res.accepted:
                 verified.append((int(node), res))

@@ -311,3 +311,32 @@ def test_fused_prior_gate_grows_with_odometry_drift_not_speed() -> None:
     r = loc.localize_local(0, IMG, depth, K, pose(0.6), prior_age_s=5.0, fused_prior=True)
     assert not r.accepted and all("inconsistent with the prior" in a.reason for a in r.attempts if a.inliers)
     assert loc.localize_local(0, IMG, depth, K, pose(1.6), prior_age_s=5.0, fused_prior=True).accepted
+
+
+def test_gl_refuses_a_pose_resting_on_the_floor_alone(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every point on one horizontal plane (the map's up is -y here): floor tiles repeat, so GL
+    refuses the pose with the reason; the same scene with the check off is accepted (scenes with
+    height pass the check: the other tests run with its default)."""
+    import sys
+
+    mod = sys.modules[__name__]
+    flat = POINTS.copy()
+    flat[:, 1] = 1.4  # 1.4 m below the cameras (y down)
+    monkeypatch.setattr(mod, "POINTS", flat)
+    m = make_map([0.0, 1.0, 2.0, 3.0])
+    s = Scene(m)
+    depth = s.look(pose(1.1), vpr_best=1)
+    loc = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)
+    res = loc.localize_global(0, IMG, depth, K)
+    assert not res.accepted and res.provisional is None
+    assert any("one horizontal plane" in a.reason for a in res.attempts), res.attempts
+    off = VisualLocalizer(m, LocalizationParams(pnp=PnpParams(min_inliers=30), gl_top_k=3, gl_min_support_height_m=0.0),
+                          s.extract, s.describe, s.match)
+    res = off.localize_global(0, IMG, depth, K)
+    assert res.accepted and res.T_map_camera is not None
+    assert np.linalg.norm(res.T_map_camera[:3, 3] - pose(1.1)[:3, 3]) < 0.02
+
+
+def test_support_height_spread_parameter_is_validated() -> None:
+    with pytest.raises(ValueError, match="gl_min_support_height_m"):
+        LocalizationParams(gl_min_support_height_m=-0.1)
