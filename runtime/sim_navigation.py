@@ -336,6 +336,13 @@ class _Driver:
                 for r in self._pending():
                     r.outcome, r.reason = "failed", "never planned (no pose / no path)"
                 return
+            if not self.pose_seen and (self.sim._t_ns - t0) * 1e-9 > p.goal_timeout_s:
+                # no fused pose at all after looking around for a goal's time: nothing can be
+                # planned, and a run that waits for one would never end
+                for r in self._pending():
+                    r.outcome = "failed"
+                    r.reason = f"never localized: no pose within {p.goal_timeout_s:g} s of turning in place"
+                return
             v, w = self._command(self.sim._t_ns, t0)
             k += 1
             to_vloc = self.color_for_vloc and k % vloc_every == 0

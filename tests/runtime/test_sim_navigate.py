@@ -52,6 +52,26 @@ def test_closed_loop_reaches_a_goal_with_litevloc(small_map: Path, tmp_path: Pat
         assert rows.get(path, 0) > 0, (path, sorted(rows))
 
 
+def test_a_run_that_never_localizes_ends_with_the_reason(small_map: Path) -> None:
+    """Started where the map (the start room only) sees nothing, the robot turns in place; after
+    a goal's time without any pose the run ends and every goal fails as never localized."""
+    from litevloc.config import load_config
+    from litevloc.hw.sim.world import load_world
+    from litevloc.runtime.sim_navigation import NavParams, render_goals, run_navigation
+
+    cfg = load_config("default")
+    world = load_world("office")
+    far = sorted(world.goal_places)[-1]
+    goal = render_goals(world, cfg, ["room_00"])
+    run = run_navigation(world, cfg, small_map, goal, world.goal_places[far].copy(), "litevloc",
+                         NavParams(goal_timeout_s=6.0))
+    s = run.summary()
+    assert s["goals_reached"] == 0 and s["runtime"]["fusion_accepted"] == 0, s
+    (g,) = s["goals"]
+    assert g["outcome"] == "failed" and g["reason"].startswith("never localized"), g
+    assert 6.0 <= s["time_s"] < 8.0
+
+
 def test_cli_goal_send_without_planner_reports_no_answer(tmp_path: Path) -> None:
     import cv2
 
