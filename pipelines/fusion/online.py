@@ -30,8 +30,9 @@ Model
   After `reinit_after_rejects` consecutive gated rejections that agree among themselves,
   the filter re-initialises from them (recovers from a wrong start or a kidnapping).
   A *vote* (`add_vloc(..., vote_only=True)`: a provisional GL pose that one keyframe alone
-  verified) counts only towards initialisation, like an accepted result; once the filter is
-  initialised, votes are ignored (`vote_ignored`).
+  verified) counts only towards initialisation, like an accepted result, and votes from the
+  same keyframe (`source`) count once; once the filter is initialised, votes are ignored
+  (`vote_ignored`).
   A GTSAM exception (counted as `solver_errors`) also returns the filter to
   uninitialised, so a numerical failure never kills the fusion stage.
 * **Output** at every odometry message: the newest optimised state composed with the
@@ -190,6 +191,7 @@ class _Candidate:
     T_map_base: F64
     T_odom_base: F64
     cov: F64  # gtsam order
+    source: int | None = None  # the map keyframe a vote rests on (None: not a vote, or unknown)
 
     @property
     def T_map_odom(self) -> F64:
@@ -461,19 +463,23 @@ class OnlineFusion:
         T_map_camera: NDArray[np.floating],
         covariance: NDArray[np.floating] | None = None,
         vote_only: bool = False,
+        source: int | None = None,
     ) -> VlocUpdate:
         """Fuse one VLoc result captured at `t_ns` (may be older than the newest odometry).
 
         `covariance`: 6x6 ROS order of `T_map_camera` (body-frame perturbation); None uses
         the `vloc_sigma_*` parameters. `vote_only`: an initialisation vote (see the module
-        docstring), ignored once initialised. Returns what happened (also counted in `stats()`).
+        docstring), ignored once initialised. `source`: the map keyframe a vote rests on; votes
+        from one keyframe count once towards initialisation (the newer replaces the older): the
+        same view seen again is not a second piece of evidence, and an aliased view repeats its
+        wrong pose. Returns what happened (also counted in `stats()`).
         """
         if vote_only:
             self._counts["votes"] += 1
             if self._initialised:
                 self._vloc_reasons["vote_ignored"] += 1
                 return VlocUpdate(False, "vote_ignored")
-            res = self._add_vloc(int(t_ns), T_map_camera, covariance)
+            res = self._add_vloc(int(t_ns), T_map_camera, covariance, source)
             self._vloc_reasons[f"vote_{res.reason}"] += 1
             return res
         self._counts["vloc"] += 1
@@ -482,7 +488,8 @@ class OnlineFusion:
         return res
 
     def _add_vloc(
-        self, t_ns: int, T_map_camera: NDArray[np.floating], covariance: NDArray[np.floating] | None
+        self, t_ns: int, T_map_camera: NDArray[np.floating], covariance: NDArray[np.floating] | None,
+        source: int | None = None,
     ) -> VlocUpdate:
         p = self.params
         T_mc = _valid_pose(T_map_camera)
@@ -500,7 +507,7 @@ class OnlineFusion:
         T_ob = self._odom_at(t_ns)
         if T_ob is None:
             return VlocUpdate(False, "too_old" if t_ns < self._odom[0][0] else "ahead_of_odometry")
-        cand = _Candidate(t_ns, T_mb, T_ob, cov)
+        cand = _Candidate(t_ns, T_mb, T_ob, cov, source)
         if not self._initialised:
             return self._try_init(cand)
         return self._attach_prior(cand, gate=True)
@@ -551,6 +558,10 @@ class OnlineFusion:
         )
 
     def _try_init(self, cand: _Candidate) -> VlocUpdate:
+        if cand.source is not None:  # one keyframe, one vote: the newer replaces the older
+            kept = [c for c in self._candidates if c.source != cand.source]
+            self._candidates.clear()
+            self._candidates.extend(kept)
         self._candidates.append(cand)
         if len(self._candidates) >= self.params.init_votes and self._agree(list(self._candidates)):
             return self._initialise(list(self._candidates), "initialised")

@@ -223,3 +223,23 @@ def test_votes_only_initialise_and_are_ignored_afterwards() -> None:
     assert out is not None and np.linalg.norm(out.T_map_base[:3, 3]) < 0.05  # the ignored vote moved nothing
     s = f.stats()
     assert s["votes"] == 3 and s["vloc"] == 0 and s["vloc_by_reason"]["vote_initialised"] == 1
+
+
+def test_votes_from_one_keyframe_count_once() -> None:
+    """The same keyframe's view seen twice is one piece of evidence (an aliased view repeats its
+    wrong pose): the newer vote replaces the older; a vote from another keyframe that agrees
+    initialises, and untagged votes keep counting as before."""
+    f = OnlineFusion(FusionParams(init_votes=2), np.eye(4))
+    for k in range(50):
+        f.add_odometry(k * 10_000_000, np.eye(4))
+    assert f.add_vloc(100_000_000, np.eye(4), vote_only=True, source=7).reason == "awaiting_init"
+    assert f.add_vloc(150_000_000, make_T(np.eye(3), [0.01, 0, 0]), vote_only=True, source=7).reason == \
+        "awaiting_init"
+    assert not f.initialised
+    r = f.add_vloc(200_000_000, make_T(np.eye(3), [0.02, 0, 0]), vote_only=True, source=8)
+    assert r.accepted and r.reason == "initialised" and f.initialised
+    g = OnlineFusion(FusionParams(init_votes=2), np.eye(4))
+    for k in range(50):
+        g.add_odometry(k * 10_000_000, np.eye(4))
+    g.add_vloc(100_000_000, np.eye(4), vote_only=True)
+    assert g.add_vloc(150_000_000, np.eye(4), vote_only=True).reason == "initialised"
