@@ -9,7 +9,7 @@ place) is driven twice in the closed loop of `litevloc sim navigate`: with LiteV
 localization (runtime in sequential mode, VLoc at 1 Hz of simulated time, GTSAM fusion,
 poses and subgoals over Zenoh on loopback) and with ground-truth localization (the
 baseline, measured in the same run). Reported per goal: success, simulated time to the
-goal, path length; per world: totals and LiteVLoc / ground-truth ratios.
+goal, path length; per world: totals and LiteVLoc / ground-truth ratios over the goals both reached.
 
 `bland` is the texture-poor, repetitive test world (issue #15 item 6). `--map-pass map-rooms`
 maps with a full circle also halfway to each end of every room (results keyed WORLD-map-rooms).
@@ -71,7 +71,10 @@ def main(argv: list[str] | None = None) -> int:
         rows.append([name, "TOTAL", f"{res['goals_reached']}/{res['goals_total']}", res["time_s"],
                      res["path_length_m"], f"{b['goals_reached']}/{b['goals_total']}", b["time_s"],
                      b["path_length_m"]])
-        rows.append([name, "ratio LiteVLoc/GT", "", res["ratios"]["time"], res["ratios"]["path_length"], "", "", ""])
+        r = res["ratios"]
+        rows.append([name, f"ratio LiteVLoc/GT ({r['goals_compared']} both reached)", "",
+                     "n/a" if r["time"] is None else r["time"], "n/a" if r["path_length"] is None else r["path_length"],
+                     "", "", ""])
         _save(results)  # after each world: a long world cannot lose the others' results
     print_table("Image-goal navigation (simulated time; GT = ground-truth localization baseline)",
                 ["world", "goal", "LiteVLoc", "time s", "path m", "GT", "time s", "path m"], rows)

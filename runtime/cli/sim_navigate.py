@@ -142,14 +142,25 @@ def navigate(world_name: str, cfg: Any, map_path: Path, goal_args: list[str] | N
         base = runs["ground-truth"].summary()
         base.pop("trace", None)
         out["baseline"] = base
-        out["ratios"] = {
-            "path_length": round(res["path_length_m"] / max(base["path_length_m"], 1e-9), 3),
-            "time": round(res["time_s"] / max(base["time_s"], 1e-9), 3),
-        }
+        out["ratios"] = _ratios(res["goals"], base["goals"])
     if png is not None:
         out["png"] = str(plot_navigation(world, load_map(map_path), list(runs.values()), goals, png,
                                          f"LiteVLoc image-goal navigation: {world_name}"))
     out["per_goal_time_s"] = [g["time_s"] for g in res["goals"]]
+    return out
+
+
+def _ratios(goals: list[dict[str, Any]], base_goals: list[dict[str, Any]]) -> dict[str, Any]:
+    """LiteVLoc / ground-truth time and path over the goals both reached (None when there is
+    none: a run that reached nothing has no meaningful ratio), and how many goals that is."""
+    base = {g["name"]: g for g in base_goals}
+    both = [(g, base[g["name"]]) for g in goals
+            if g["outcome"] == "reached" and base.get(g["name"], {}).get("outcome") == "reached"]
+    out: dict[str, Any] = {"goals_compared": len(both), "path_length": None, "time": None}
+    if both:
+        for key, field in (("path_length", "path_length_m"), ("time", "time_s")):
+            den = sum(b[field] for _, b in both)
+            out[key] = round(sum(g[field] for g, _ in both) / den, 3) if den > 0 else None
     return out
 
 
@@ -170,7 +181,10 @@ def print_table(res: dict[str, Any]) -> None:
     if "baseline" in res:
         b = res["baseline"]
         line += (f"; ground truth: {b['goals_reached']}/{b['goals_total']}, {b['time_s']:.0f} s, "
-                 f"{b['path_length_m']:.1f} m; path ratio {res['ratios']['path_length']:.2f}")
+                 f"{b['path_length_m']:.1f} m")
+        r = res["ratios"]
+        line += (f"; path ratio {r['path_length']:.2f} over the {r['goals_compared']} goal(s) both reached"
+                 if r["path_length"] is not None else "; no goal reached by both: no ratio")
     print(line)
 
 
