@@ -45,10 +45,8 @@ def main(argv: list[str] | None = None) -> int:
     cfg = load_config("default")
     results = {}
     rows = []
-    for name in args.worlds:
-        world = name
-        if args.map_pass != "map":
-            name = f"{world}-{args.map_pass}"
+    for world in args.worlds:
+        name = world if args.map_pass == "map" else f"{world}-{args.map_pass}"
         t0 = time.perf_counter()
         try:
             map_path = ensure_map(world, args.maps_dir / name, "default", map_pass=args.map_pass)

@@ -271,6 +271,13 @@ class VisualLocalizer:
         )
         return res, CandidateAttempt(node, similarity, n_matches, res.n_inliers if res else 0, reason)
 
+    def _verify_global(self, node: int, q: _Query, similarity: float) -> tuple[PnpResult | None, CandidateAttempt]:
+        """`_verify`, then the floor check (GL only): a pose resting on one horizontal plane
+        comes back as no result, its attempt carrying the reason."""
+        res, att = self._verify(node, q, similarity)
+        flat = "" if res is None or not res.accepted else self._flat_support(node, res, q)
+        return (None, replace(att, reason=flat)) if flat else (res, att)
+
     def support_height_spread(self, node: int, res: PnpResult, q: _Query) -> float:
         """Extent (m) along the map's up vector of the live points that support a verified pose
         (10th to 90th percentile of the PnP inliers' heights in the map frame); inf when the
@@ -436,13 +443,9 @@ class VisualLocalizer:
                 if budget > 0 and spent > budget:
                     stop = f"time budget spent ({spent:.0f} ms > {budget:g}) after {k} of {len(order)} candidates"
                     break
-                res, att = self._verify(node, q, float(sims[node]))
+                res, att = self._verify_global(node, q, float(sims[node]))
                 if res is None or not res.accepted or res.T_target_source is None:
                     attempts.append(att)
-                    continue
-                flat = self._flat_support(node, res, q)
-                if flat:
-                    attempts.append(CandidateAttempt(node, att.similarity, att.matches, att.inliers, flat))
                     continue
                 T = self.map.T_map_camera[node] @ res.T_target_source
                 joint = self._joint(node, T, q, [int(n) for n in order],
@@ -470,11 +473,7 @@ class VisualLocalizer:
             return out if out.accepted or provisional is None else replace(out, provisional=provisional)
         verified: list[tuple[int, PnpResult]] = []
         for node in order:
-            res, att = self._verify(int(node), q, float(sims[node]))
-            flat = "" if res is None or not res.accepted else self._flat_support(int(node), res, q)
-            if flat:
-                attempts.append(CandidateAttempt(int(node), att.similarity, att.matches, att.inliers, flat))
-                continue
+            res, att = self._verify_global(int(node), q, float(sims[node]))
             attempts.append(att)
             if res is not None and res.accepted:
                 verified.append((int(node), res))
