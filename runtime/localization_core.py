@@ -50,9 +50,6 @@ class ProvisionalLike(Protocol):
     @property
     def covariance(self) -> NDArray[np.floating] | None: ...
 
-    @property
-    def node(self) -> int: ...  # the map keyframe it rests on (its votes count once)
-
 
 class VlocOutcome(Protocol):
     """What the service needs from one VLoc query (`pipelines.localization.vloc.LocalizationResult`).

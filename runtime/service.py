@@ -573,9 +573,8 @@ def localizer_callable(localizer: VisualLocalizer) -> VlocFn:
 
 def fusion_callables(fusion: OnlineFusion) -> tuple[OdometryFn, VlocUpdateFn]:
     """An object with `add_odometry(t_ns, T_odom_base, covariance)` and
-    `add_vloc(t_ns, T_map_camera, covariance, vote_only=False, source=None)` (the GTSAM
-    `OnlineFusion`) -> the service's `(on_odometry, on_vloc)`; a rejected result with a provisional
-    pose goes in as a vote, tagged with its keyframe (one keyframe's votes count once).
+    `add_vloc(t_ns, T_map_camera, covariance, vote_only=False)` (the GTSAM `OnlineFusion`) -> the
+    service's `(on_odometry, on_vloc)`; a rejected result with a provisional pose goes in as a vote.
     The VLoc covariance is passed as `pipelines.pnp` gives it:
     6x6, camera-frame right perturbation, order (tx, ty, tz, rx, ry, rz)."""
 
@@ -585,7 +584,7 @@ def fusion_callables(fusion: OnlineFusion) -> tuple[OdometryFn, VlocUpdateFn]:
     def on_vloc(r: VlocOutcome) -> FusionUpdateLike:
         prov = r.provisional
         if not r.accepted and prov is not None:  # a provisional GL pose: a vote
-            return fusion.add_vloc(r.t_ns, prov.T_map_camera, prov.covariance, vote_only=True, source=prov.node)
+            return fusion.add_vloc(r.t_ns, prov.T_map_camera, prov.covariance, vote_only=True)
         if r.T_map_camera is None:
             raise ValueError(f"VLoc result at t={r.t_ns} ns is accepted but has no pose")
         return fusion.add_vloc(r.t_ns, r.T_map_camera, r.covariance)

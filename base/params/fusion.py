@@ -42,6 +42,10 @@ class FusionParams:
     init_votes: int = 2
     init_max_trans_m: float = 0.5
     init_max_rot_deg: float = 10.0
+    # initialisation votes must fall within this many seconds (capture stamps) of the newest:
+    # a true match persists over consecutive frames, a coincidental alias recurs only at one
+    # heading (bland: the same wrong view voted twice, 113 s and several turns apart)
+    init_window_s: float = 5.0
     reinit_after_rejects: int = 5
     covariance_period_s: float = 1.0  # at most one marginal covariance per this time
     odom_buffer_s: float = 5.0  # odometry kept for late VLoc (>= lag_s)
@@ -62,6 +66,7 @@ class FusionParams:
             "robust_k",
             "init_max_trans_m",
             "init_max_rot_deg",
+            "init_window_s",
             "covariance_period_s",
             "odom_buffer_s",
         )

@@ -22,7 +22,8 @@ Model
   odometry noise since.
 * **Bounded graph**: GTSAM's `IncrementalFixedLagSmoother` (iSAM2 that marginalises
   states older than `lag_s`): states in the graph ~ lag_s / keyframe_period_s.
-* **Initialisation**: once `init_votes` consecutive VLoc poses agree (their `T_map_odom`
+* **Initialisation**: once `init_votes` consecutive VLoc poses captured within
+  `init_window_s` of each other agree (their `T_map_odom`
   within `init_max_trans_m` / `init_max_rot_deg`; `init_votes = 1` takes the very first
   one), the first state is put at the oldest vote's capture time with its prior, the
   buffered odometry since becomes keyframes, and the other votes are added as priors.
@@ -30,9 +31,8 @@ Model
   After `reinit_after_rejects` consecutive gated rejections that agree among themselves,
   the filter re-initialises from them (recovers from a wrong start or a kidnapping).
   A *vote* (`add_vloc(..., vote_only=True)`: a provisional GL pose that one keyframe alone
-  verified) counts only towards initialisation, like an accepted result, and votes from the
-  same keyframe (`source`) count once; once the filter is initialised, votes are ignored
-  (`vote_ignored`).
+  verified) counts only towards initialisation, like an accepted result; once the filter is
+  initialised, votes are ignored (`vote_ignored`).
   A GTSAM exception (counted as `solver_errors`) also returns the filter to
   uninitialised, so a numerical failure never kills the fusion stage.
 * **Output** at every odometry message: the newest optimised state composed with the
@@ -191,7 +191,6 @@ class _Candidate:
     T_map_base: F64
     T_odom_base: F64
     cov: F64  # gtsam order
-    source: int | None = None  # the map keyframe a vote rests on (None: not a vote, or unknown)
 
     @property
     def T_map_odom(self) -> F64:
@@ -463,23 +462,19 @@ class OnlineFusion:
         T_map_camera: NDArray[np.floating],
         covariance: NDArray[np.floating] | None = None,
         vote_only: bool = False,
-        source: int | None = None,
     ) -> VlocUpdate:
         """Fuse one VLoc result captured at `t_ns` (may be older than the newest odometry).
 
         `covariance`: 6x6 ROS order of `T_map_camera` (body-frame perturbation); None uses
         the `vloc_sigma_*` parameters. `vote_only`: an initialisation vote (see the module
-        docstring), ignored once initialised. `source`: the map keyframe a vote rests on; votes
-        from one keyframe count once towards initialisation (the newer replaces the older): the
-        same view seen again is not a second piece of evidence, and an aliased view repeats its
-        wrong pose. Returns what happened (also counted in `stats()`).
+        docstring), ignored once initialised. Returns what happened (also counted in `stats()`).
         """
         if vote_only:
             self._counts["votes"] += 1
             if self._initialised:
                 self._vloc_reasons["vote_ignored"] += 1
                 return VlocUpdate(False, "vote_ignored")
-            res = self._add_vloc(int(t_ns), T_map_camera, covariance, source)
+            res = self._add_vloc(int(t_ns), T_map_camera, covariance)
             self._vloc_reasons[f"vote_{res.reason}"] += 1
             return res
         self._counts["vloc"] += 1
@@ -488,8 +483,7 @@ class OnlineFusion:
         return res
 
     def _add_vloc(
-        self, t_ns: int, T_map_camera: NDArray[np.floating], covariance: NDArray[np.floating] | None,
-        source: int | None = None,
+        self, t_ns: int, T_map_camera: NDArray[np.floating], covariance: NDArray[np.floating] | None
     ) -> VlocUpdate:
         p = self.params
         T_mc = _valid_pose(T_map_camera)
@@ -507,7 +501,7 @@ class OnlineFusion:
         T_ob = self._odom_at(t_ns)
         if T_ob is None:
             return VlocUpdate(False, "too_old" if t_ns < self._odom[0][0] else "ahead_of_odometry")
-        cand = _Candidate(t_ns, T_mb, T_ob, cov, source)
+        cand = _Candidate(t_ns, T_mb, T_ob, cov)
         if not self._initialised:
             return self._try_init(cand)
         return self._attach_prior(cand, gate=True)
@@ -558,10 +552,10 @@ class OnlineFusion:
         )
 
     def _try_init(self, cand: _Candidate) -> VlocUpdate:
-        if cand.source is not None:  # one keyframe, one vote: the newer replaces the older
-            kept = [c for c in self._candidates if c.source != cand.source]
-            self._candidates.clear()
-            self._candidates.extend(kept)
+        oldest = cand.t_ns - int(self.params.init_window_s * 1e9)
+        kept = [c for c in self._candidates if c.t_ns >= oldest]  # votes too far apart do not combine
+        self._candidates.clear()
+        self._candidates.extend(kept)
         self._candidates.append(cand)
         if len(self._candidates) >= self.params.init_votes and self._agree(list(self._candidates)):
             return self._initialise(list(self._candidates), "initialised")

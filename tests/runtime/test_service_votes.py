@@ -16,8 +16,7 @@ from tests.runtime.fakes import T_MAP_ODOM_TRUE, FakePublisher, SyntheticSource,
 
 
 class VotingVloc:
-    """Never accepts; returns the true pose as a provisional one (a place one keyframe sees),
-    from keyframes 3 and 4 in turn (votes of one keyframe count once in fusion)."""
+    """Never accepts; returns the true pose as a provisional one (a place one keyframe sees)."""
 
     def __init__(self) -> None:
         self.priors: list[np.ndarray | None] = []
@@ -25,7 +24,7 @@ class VotingVloc:
     def __call__(self, frame: RgbdFrame, prior: np.ndarray | None) -> LocalizationResult:
         self.priors.append(prior)
         T = T_MAP_ODOM_TRUE @ T_odom_base_at(frame.t_ns) @ T_BASE_CAMERA_OPTICAL
-        prov = ProvisionalPose(T, np.eye(6) * 1e-4, node=3 + len(self.priors) % 2, n_inliers=90)
+        prov = ProvisionalPose(T, np.eye(6) * 1e-4, node=3, n_inliers=90)
         return LocalizationResult(frame.t_ns, "global", False, "not localized: one keyframe only", provisional=prov)
 
 

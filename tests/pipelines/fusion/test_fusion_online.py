@@ -225,21 +225,23 @@ def test_votes_only_initialise_and_are_ignored_afterwards() -> None:
     assert s["votes"] == 3 and s["vloc"] == 0 and s["vloc_by_reason"]["vote_initialised"] == 1
 
 
-def test_votes_from_one_keyframe_count_once() -> None:
-    """The same keyframe's view seen twice is one piece of evidence (an aliased view repeats its
-    wrong pose): the newer vote replaces the older; a vote from another keyframe that agrees
-    initialises, and untagged votes keep counting as before."""
-    f = OnlineFusion(FusionParams(init_votes=2), np.eye(4))
-    for k in range(50):
-        f.add_odometry(k * 10_000_000, np.eye(4))
-    assert f.add_vloc(100_000_000, np.eye(4), vote_only=True, source=7).reason == "awaiting_init"
-    assert f.add_vloc(150_000_000, make_T(np.eye(3), [0.01, 0, 0]), vote_only=True, source=7).reason == \
-        "awaiting_init"
+def test_votes_farther_apart_than_the_window_do_not_combine() -> None:
+    """Initialisation votes combine only within `init_window_s` (capture stamps): the same
+    pose voted again after a long gap (an alias seen again after a turn) does not initialise,
+    two consecutive ones do."""
+    f = OnlineFusion(FusionParams(init_votes=2, init_window_s=5.0), np.eye(4))
+    t_odom = 0
+
+    def vote(t_ns: int, x: float) -> str:
+        nonlocal t_odom
+        while t_odom <= t_ns + 10_000_000:  # odometry (at rest) up to just after the capture
+            f.add_odometry(t_odom, np.eye(4))
+            t_odom += 10_000_000
+        return f.add_vloc(t_ns, make_T(np.eye(3), [x, 0, 0]), vote_only=True).reason
+
+    assert vote(100_000_000, 0.0) == "awaiting_init"
+    assert vote(6_100_000_000, 0.01) == "awaiting_init"  # 6 s later: the first vote has expired
     assert not f.initialised
-    r = f.add_vloc(200_000_000, make_T(np.eye(3), [0.02, 0, 0]), vote_only=True, source=8)
-    assert r.accepted and r.reason == "initialised" and f.initialised
-    g = OnlineFusion(FusionParams(init_votes=2), np.eye(4))
-    for k in range(50):
-        g.add_odometry(k * 10_000_000, np.eye(4))
-    g.add_vloc(100_000_000, np.eye(4), vote_only=True)
-    assert g.add_vloc(150_000_000, np.eye(4), vote_only=True).reason == "initialised"
+    assert vote(9_000_000_000, 0.02) == "initialised" and f.initialised  # 2.9 s after the second
+    with pytest.raises(ValueError, match="init_window_s"):
+        FusionParams(init_window_s=0.0)
