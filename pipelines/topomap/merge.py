@@ -414,7 +414,7 @@ def join_maps(A: TopoMap, B_in_A: TopoMap, links: list[Link], alignment: Alignme
         t_ns=np.concatenate([A.t_ns, B_in_A.t_ns[kb]]), frame_index=np.concatenate([A.frame_index,
                                                                                        B_in_A.frame_index[kb]]),
         vpr=np.concatenate([A.vpr, B_in_A.vpr[kb]]),
-        features=[*A.features, *(B_in_A.features[b] for b in keep_b)],
+        features=[*(A.stored_features(a) for a in range(nA)), *(B_in_A.stored_features(b) for b in keep_b)],
         images_jpeg=[*A.images_jpeg, *(B_in_A.images_jpeg[b] for b in keep_b)],
         covis_edges=ce, covis_inliers=np.asarray([int(v[0]) for v in cv], np.int32),
         covis_weight=np.asarray([v[1] for v in cv], np.float32),

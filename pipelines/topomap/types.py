@@ -209,6 +209,17 @@ class TopoMap:
         d = getattr(f[node], "depth", None)
         return None if d is None else np.asarray(d, np.float32)
 
+    def stored_features(self, node: int) -> NodeFeatures:
+        """The node's features as a map stores them, keypoint depth included, whatever view
+        `features` gives (a loaded map's store converted for a matcher drops the depth): what
+        maps made from this one (merge, update) must carry on."""
+        f = self.features[node]
+        size = getattr(f, "image_size", None)
+        if size is None:
+            size = (int(self.image_size[node, 0]), int(self.image_size[node, 1]))
+        return NodeFeatures(np.asarray(f.keypoints, np.float32), np.asarray(f.descriptors),
+                            np.asarray(f.scores, np.float32), (int(size[0]), int(size[1])), self.keypoint_depth(node))
+
     def covisible_neighbours(self, node: int) -> list[tuple[int, float]]:
         """(neighbour id, weight) pairs of `node` in the covisibility graph, strongest first."""
         w = self._covis_weight_of

@@ -20,7 +20,7 @@ from litevloc.pipelines.topomap.merge import (
     merge_sessions,
     transform_map,
 )
-from litevloc.pipelines.topomap.types import TopoMap
+from litevloc.pipelines.topomap.types import FeatureStore, TopoMap
 
 from .helpers import SEVEN_SCENES_UP, build_7scenes, orb_match
 
@@ -65,6 +65,26 @@ def test_merge_recovers_the_frame_offset(sessions: tuple[TopoMap, TopoMap], tmp_
     out = save_map(merged, tmp_path / "merged")
     again = load_map(out)
     assert again.n_nodes == merged.n_nodes and "merged_sessions" in again.meta
+
+
+def test_merge_of_loaded_maps_keeps_keypoint_depth(sessions: tuple[TopoMap, TopoMap], tmp_path: Path) -> None:
+    """Loaded maps are viewed through the matcher's converter (`check_map_models`), which has
+    no keypoint depth; the merged map must still store it (metric goal poses need it)."""
+    import dataclasses
+
+    loaded = []
+    for name, m in zip("AB", sessions, strict=True):
+        store = load_map(save_map(m, tmp_path / name)).features
+        assert isinstance(store, FeatureStore) and store.depth is not None
+        loaded.append(dataclasses.replace(m, features=store.mapped(lambda f: dataclasses.replace(f, depth=None))))
+    A, B = loaded
+    assert getattr(A.features[0], "depth", None) is None  # what the converter hands the merge
+    merged, _report, _al, _links = merge_sessions(A, B, orb_match, MergeParams())
+    again = load_map(save_map(merged, tmp_path / "merged"))
+    for node in range(again.n_nodes):
+        z = again.keypoint_depth(node)
+        assert z is not None and np.isfinite(z).any(), node
+    np.testing.assert_allclose(again.keypoint_depth(0), A.keypoint_depth(0), rtol=1e-3)
 
 
 def test_wrong_links_do_not_bend_the_alignment(sessions: tuple[TopoMap, TopoMap]) -> None:

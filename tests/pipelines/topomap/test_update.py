@@ -129,3 +129,18 @@ def test_params_validated() -> None:
         UpdateParams(retire_max_consistent=50, changed_max_consistent=40)
     with pytest.raises(ValueError, match="match_radius_m"):
         UpdateParams(place_radius_m=1.0, match_radius_m=0.5)
+
+
+def test_update_of_a_loaded_map_keeps_keypoint_depth(base_map: TopoMap, seven_scenes_dir: Path,
+                                                     tmp_path: Path) -> None:
+    """The runtime views a loaded map through the matcher's converter, which has no keypoint
+    depth; the kept nodes of the new version must still store it."""
+    store = load_map(save_map(base_map, tmp_path / "v1")).features
+    viewed = dataclasses.replace(base_map, features=store.mapped(lambda f: dataclasses.replace(f, depth=None)))
+    assert getattr(viewed.features[0], "depth", None) is None
+    new, upd = run_update(viewed, seven_scenes_dir, "250:500:25")
+    assert upd.report.retired == []  # the old nodes come first, in order
+    again = load_map(save_map(new, tmp_path / "v2"))
+    for node in range(base_map.n_nodes):  # (this test's observations carry no depth of their own)
+        z = again.keypoint_depth(node)
+        assert z is not None and np.isfinite(z).any(), node
