@@ -12,7 +12,9 @@ import argparse
 import hashlib
 import json
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Generic, TypeVar
 
 import cv2
 import numpy as np
@@ -35,6 +37,24 @@ from litevloc.runtime.cli.common import (
 )
 from litevloc.runtime.cli.main import UserError
 from litevloc.runtime.posed import posed_frames
+
+_Out = TypeVar("_Out")
+
+
+class _OncePerImage(Generic[_Out]):
+    """`fn(image)` computed once per image object: the update extracts a frame's features and
+    VPR descriptor for its localization and again for its observation (the same arrays)."""
+
+    def __init__(self, fn: Callable[[np.ndarray], _Out]) -> None:
+        self._fn = fn
+        self._image: np.ndarray | None = None  # held, so its identity cannot be reused
+        self._out: _Out | None = None
+
+    def __call__(self, image: np.ndarray) -> _Out:
+        if image is not self._image or self._out is None:
+            self._out = self._fn(image)
+            self._image = image
+        return self._out
 
 
 def add_update_parser(msub: argparse._SubParsersAction) -> None:
@@ -68,7 +88,8 @@ def update(args: argparse.Namespace) -> int:
     cfg = config_of(args)
     bundle = load_bundle(cfg.models)
     topomap = check_map_models(load_map(args.map), bundle)
-    loc = VisualLocalizer(topomap, cfg.localization, bundle.extract, bundle.describe, bundle.match)
+    extract, describe = _OncePerImage(bundle.extract), _OncePerImage(bundle.describe)
+    loc = VisualLocalizer(topomap, cfg.localization, extract, describe, bundle.match)
     upd = MapUpdate(topomap, bundle.match, UpdateParams())
     kp = cfg.mapping.keyframes
     t0 = time.perf_counter()
@@ -120,7 +141,7 @@ def update(args: argparse.Namespace) -> int:
                 if T_gt is not None:
                     errors.append(relative_pose_error(T, T_gt))
             n_loc += 1
-            feats = bundle.extract(frame.color)
+            feats = extract(frame.color)
             pts_cam, _ = backproject_depth(frame.depth, frame.K, stride=kp.pixel_stride)
             pts_cam = pts_cam[pts_cam[:, 2] <= kp.max_depth_m]
             jpeg = frame.color_jpeg
@@ -138,7 +159,7 @@ def update(args: argparse.Namespace) -> int:
                 features=NodeFeatures(np.asarray(feats.keypoints, np.float32), np.asarray(feats.descriptors),
                                       np.asarray(feats.scores, np.float32), (w, h), kp_depth),
                 keypoint_depth=kp_depth,
-                vpr=np.asarray(bundle.describe(frame.color), np.float32), jpeg=jpeg,
+                vpr=np.asarray(describe(frame.color), np.float32), jpeg=jpeg,
                 points_map=(pts_cam[:: 4] @ T[:3, :3].T + T[:3, 3]).astype(np.float32),
                 localization_inliers=inliers,
             ))
