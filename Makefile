@@ -107,6 +107,7 @@ bench: $(VENV)/.dev-installed models $(BENCH_7S_MAP)/manifest.json
 	$(VENV)/bin/python bench/density.py --world office
 	$(VENV)/bin/python bench/runtime_queues.py
 	$(VENV)/bin/python bench/global_loc.py $(BENCH_7S_MAP) --config 7scenes
+	$(VENV)/bin/python bench/merge.py
 	$(VENV)/bin/python bench/faults.py
 	$(VENV)/bin/python bench/runtime.py --rec $(BENCH_OFFICE)/query.mcap --map $(BENCH_OFFICE)/map
 	$(VENV)/bin/python bench/runtime.py --view --repeat 3
