@@ -42,6 +42,7 @@ from litevloc.pipelines.topomap.keyframes import (
     budget_binds,
     coverage_keys_sliced,
     greedy_select,
+    moved,
 )
 from litevloc.pipelines.topomap.occupancy import build_occupancy
 from litevloc.pipelines.topomap.types import FeatureSet, NodeFeatures, TopoMap
@@ -167,9 +168,7 @@ class MapBuilder:
             return True
         kp = self.params.keyframes
         min_rot = np.radians(kp.min_rotation_deg)
-        last = self.candidates[-1].T
-        if not (np.linalg.norm(T[:3, 3] - last[:3, 3]) >= kp.min_translation_m
-                or rotation_angle(last[:3, :3].T @ T[:3, :3]) >= min_rot):
+        if not moved(self.candidates[-1].T, T, kp):
             return False
         if kp.min_translation_m <= 0:
             return True

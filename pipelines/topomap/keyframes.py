@@ -43,17 +43,20 @@ HEIGHT_QUANTUM_M = 0.1  # height slice of `coverage_keys_sliced` (m)
 _SLICES = 1 << 12  # height slices per key (+-204.8 m at 0.1 m)
 
 
+def moved(last: NDArray[np.float64], T: NDArray[np.float64], params: KeyframeParams) -> bool:
+    """Did the camera move >= `min_translation_m` or turn >= `min_rotation_deg` from the
+    4x4 pose `last` to the 4x4 pose `T` (the motion pre-filter's test)?"""
+    return bool(np.linalg.norm(T[:3, 3] - last[:3, 3]) >= params.min_translation_m
+                or rotation_angle(last[:3, :3].T @ T[:3, :3]) >= np.radians(params.min_rotation_deg))
+
+
 def motion_prefilter(T_map_camera: NDArray[np.float64], params: KeyframeParams) -> list[int]:
     """Indices (into the (N,4,4) pose array) of frames passing the motion pre-filter."""
     if len(T_map_camera) == 0:
         return []
     kept = [0]
-    min_rot = np.radians(params.min_rotation_deg)
     for i in range(1, len(T_map_camera)):
-        last = T_map_camera[kept[-1]]
-        dt = float(np.linalg.norm(T_map_camera[i][:3, 3] - last[:3, 3]))
-        dr = rotation_angle(last[:3, :3].T @ T_map_camera[i][:3, :3])
-        if dt >= params.min_translation_m or dr >= min_rot:
+        if moved(T_map_camera[kept[-1]], T_map_camera[i], params):
             kept.append(i)
     return kept
 

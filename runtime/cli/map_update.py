@@ -19,10 +19,12 @@ from typing import Generic, TypeVar
 import cv2
 import numpy as np
 
+from litevloc.hw.messages import RgbdFrame
 from litevloc.pipelines.depth_lookup import depth_at
 from litevloc.pipelines.geometry import backproject_depth, invert, relative_pose_error
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map, save_map
+from litevloc.pipelines.topomap.keyframes import moved
 from litevloc.pipelines.topomap.merge import MapMergeError, MergeParams, robust_alignment
 from litevloc.pipelines.topomap.types import NodeFeatures
 from litevloc.pipelines.topomap.update import MapUpdate, Observation, UpdateParams
@@ -69,7 +71,10 @@ def add_update_parser(msub: argparse._SubParsersAction) -> None:
     p.add_argument("--align-frames", type=int, default=40, metavar="N",
                    help="posed sessions: stop aligning after N localized frames (default 40)")
     p.add_argument("--every", type=int, default=1, metavar="N",
-                   help="use every N-th frame of the session for the update (default 1: all)")
+                   help="consider every N-th frame of the session (default 1: all); of those, a frame is "
+                        "compared with the map only after the camera moved or turned by the mapping "
+                        "pre-filter's mapping.keyframes.min_translation_m / min_rotation_deg since the last "
+                        "compared frame")
     add_frames_arg(p)
     add_config_args(p)
     add_json_arg(p)
@@ -119,7 +124,8 @@ def update(args: argparse.Namespace) -> int:
         aligned = int(al.consistent.sum())
         print(f"{args.src}: session frame aligned to the map by {aligned}/{len(estimates)} localized frames")
     src = source_of(args, cfg)
-    n_frames, n_loc, errors = 0, 0, []
+    n_frames, n_loc, n_still, errors = 0, 0, 0, []
+    last_T: np.ndarray | None = None  # pose of the last frame compared with the map
     with progress(src.frame_count(), "map update") as bar:
         for frame, T_gt in posed_frames(src):
             bar.update(1)
@@ -127,19 +133,29 @@ def update(args: argparse.Namespace) -> int:
             if frame.depth is None or frame.index % args.every:
                 continue
             inliers = 0
+            localize: Callable[[], int] | None = None
             if T_map_session is not None:
                 if T_gt is None:
                     continue
                 T = T_map_session @ T_gt
-                res = loc.localize_local(frame.t_ns, frame.color, frame.depth, frame.K, T)
-                inliers = res.n_inliers if res.accepted else 0
-            else:
+                if last_T is not None and not moved(last_T, T, kp):
+                    n_still += 1
+                    continue
+
+                def localize(f: RgbdFrame = frame, T_prior: np.ndarray = T) -> int:
+                    res = loc.localize_local(f.t_ns, f.color, f.depth, f.K, T_prior)
+                    return res.n_inliers if res.accepted else 0
+            else:  # the localizer tracks every frame; only frames that moved are compared
                 res = loc.process(frame.t_ns, frame.color, frame.depth, frame.K)
                 if not res.accepted or res.T_map_camera is None:
                     continue
                 T, inliers = res.T_map_camera, res.n_inliers
                 if T_gt is not None:
                     errors.append(relative_pose_error(T, T_gt))
+                if last_T is not None and not moved(last_T, T, kp):
+                    n_still += 1
+                    continue
+            last_T = T
             n_loc += 1
             feats = extract(frame.color)
             pts_cam, _ = backproject_depth(frame.depth, frame.K, stride=kp.pixel_stride)
@@ -162,14 +178,15 @@ def update(args: argparse.Namespace) -> int:
                 vpr=np.asarray(describe(frame.color), np.float32), jpeg=jpeg,
                 points_map=(pts_cam[:: 4] @ T[:3, :3].T + T[:3, 3]).astype(np.float32),
                 localization_inliers=inliers,
-            ))
+            ), localize)
     if n_loc == 0:
         raise UserError(f"{args.src}: no frame localized against {args.map}; nothing to update from")
 
     new_map, report = upd.finish(cfg.mapping.covisibility, cfg.mapping.connectivity, cfg.mapping.occupancy)
     parent_sha = hashlib.sha256((args.map / "manifest.json").read_bytes()).hexdigest()
     summary = {
-        "map": str(args.map), "src": str(args.src), "frames": n_frames, "localized": n_loc,
+        "map": str(args.map), "src": str(args.src), "frames": n_frames, "compared": n_loc,
+        "skipped_not_moved": n_still,
         "known_place": report.known, "new_place": report.new_place, "changed_place": report.changed_place,
         "unreliable": report.unreliable,
         "nodes_before": topomap.n_nodes, "nodes_after": new_map.n_nodes, "added": len(report.added),
@@ -181,11 +198,12 @@ def update(args: argparse.Namespace) -> int:
         e = np.asarray(errors)
         summary["localization_median_m"] = float(np.median(e[:, 0]))
     new_map.meta.update({"parent_map": str(args.map), "parent_manifest_sha256": parent_sha,
-                         "update": json.dumps({k: summary[k] for k in ("src", "frames", "localized", "added",
+                         "update": json.dumps({k: summary[k] for k in ("src", "frames", "compared", "added",
                                                                         "retired", "retired_ids")})})
     save_map(new_map, args.output, overwrite=args.force)
-    print(f"{args.src}: {n_loc}/{n_frames} frames localized; places known {report.known}, new "
-          f"{report.new_place}, changed {report.changed_place}")
+    print(f"{args.src}: {n_loc}/{n_frames} frames compared with the map ({n_still} closer than the mapping "
+          f"pre-filter to the last one); places known {report.known}, new {report.new_place}, changed "
+          f"{report.changed_place}, unreliable {report.unreliable}")
     print(f"wrote {args.output}: {topomap.n_nodes} -> {new_map.n_nodes} keyframes (+{len(report.added)} added, "
           f"-{len(report.retired)} retired) in {summary['seconds']:.1f} s; parent {args.map}")
     write_json(args.json, summary)

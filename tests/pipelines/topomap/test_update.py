@@ -144,3 +144,30 @@ def test_update_of_a_loaded_map_keeps_keypoint_depth(base_map: TopoMap, seven_sc
     for node in range(base_map.n_nodes):  # (this test's observations carry no depth of their own)
         z = again.keypoint_depth(node)
         assert z is not None and np.isfinite(z).any(), node
+
+
+def test_localization_is_asked_for_only_where_the_keyframes_do_not_match(base_map: TopoMap,
+                                                                         seven_scenes_dir: Path) -> None:
+    """A posed session localizes a frame only to tell a changed place from an unreliable
+    frame: frames that the nearby keyframes already explain never call `localize`."""
+    upd = MapUpdate(base_map, orb_match)
+    asked: list[int] = []
+    statuses = []
+    for obs in observations(seven_scenes_dir, "1:250:12"):
+        statuses.append(upd.observe(obs, localize=lambda i=obs.index: asked.append(i) or 0))
+    known = statuses.count("known")
+    assert known >= 0.8 * len(statuses) and len(asked) == len(statuses) - known, (statuses, asked)
+    # a localization with enough support turns an otherwise unreliable frame into a changed place
+    rng = np.random.default_rng(1)
+    feats = [NodeFeatures(f.keypoints, rng.integers(0, 256, f.descriptors.shape, dtype=np.uint8), f.scores,
+                          f.image_size) for f in base_map.features]
+    scrambled = dataclasses.replace(base_map, features=feats)
+    obs = next(o for o in observations(seven_scenes_dir, "1:250:12") if MapUpdate(scrambled, orb_match)
+               .covering_nodes(o.T_map_camera))
+    assert MapUpdate(scrambled, orb_match).observe(obs, localize=lambda: 0) == "unreliable"
+    assert MapUpdate(scrambled, orb_match).observe(obs, localize=lambda: 100) == "changed place"
+
+
+def test_candidates_are_spaced_by_the_place_they_cover() -> None:
+    p = UpdateParams()
+    assert (p.min_spacing_m, p.min_spacing_deg) == (p.place_radius_m, p.place_angle_deg)
