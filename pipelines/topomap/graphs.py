@@ -52,16 +52,6 @@ def covisibility_candidates(T_map_camera: NDArray[np.float64], params: Covisibil
     return [(int(i), int(j)) for i, j in pairs]
 
 
-def verify_pair(
-    f_i: FeatureSet, depth_i: NDArray[np.float32], K_i: NDArray[np.float64], f_j: FeatureSet, K_j: NDArray[np.float64],
-    match: MatchFn, params: CovisibilityParams,
-) -> int:
-    """PnP inliers of node i's depth-lifted keypoints against node j's pixels (0 if none),
-    with the matches of `match`."""
-    i0, i1 = match(f_i, f_j)
-    return pnp_inliers(f_i, depth_i, K_i, f_j, K_j, i0, i1, params)
-
-
 def guided_pair_matches(
     f_i: FeatureSet, depth_i: NDArray[np.float32], K_i: NDArray[np.float64], T_i: NDArray[np.float64],
     f_j: FeatureSet, K_j: NDArray[np.float64], T_j: NDArray[np.float64], params: CovisibilityParams,
@@ -94,6 +84,20 @@ def pnp_inliers(
     return res.n_inliers if res.T_target_source is not None else 0
 
 
+def pair_inliers(
+    f_i: FeatureSet, depth_i: NDArray[np.float32], K_i: NDArray[np.float64], T_i: NDArray[np.float64],
+    f_j: FeatureSet, K_j: NDArray[np.float64], T_j: NDArray[np.float64], match: MatchFn, params: CovisibilityParams,
+) -> int:
+    """A covisibility candidate pair's PnP inliers (node i lifted with `depth_i` into node j),
+    with matches guided by the mapping poses `T_i`, `T_j` or from `match`, as
+    `params.matching` says."""
+    if params.matching == "guided":
+        i0, i1 = guided_pair_matches(f_i, depth_i, K_i, T_i, f_j, K_j, T_j, params)
+    else:
+        i0, i1 = match(f_i, f_j)
+    return pnp_inliers(f_i, depth_i, K_i, f_j, K_j, i0, i1, params)
+
+
 def build_covisibility(
     T_map_camera: NDArray[np.float64], K: NDArray[np.float64], features: list[FeatureSet],
     keypoint_depth: list[NDArray[np.float32]], match: MatchFn, params: CovisibilityParams,
@@ -102,12 +106,8 @@ def build_covisibility(
     """(E,2) edges, (E,) inliers, (E,) weights of the covisibility graph."""
     edges, inl = [], []
     for i, j in covisibility_candidates(T_map_camera, params):
-        if params.matching == "guided":
-            i0, i1 = guided_pair_matches(features[i], keypoint_depth[i], K[i], T_map_camera[i],
-                                         features[j], K[j], T_map_camera[j], params)
-        else:
-            i0, i1 = match(features[i], features[j])
-        n = pnp_inliers(features[i], keypoint_depth[i], K[i], features[j], K[j], i0, i1, params)
+        n = pair_inliers(features[i], keypoint_depth[i], K[i], T_map_camera[i], features[j], K[j], T_map_camera[j],
+                         match, params)
         if on_pair is not None:
             on_pair()
         if n >= params.min_inliers:

@@ -17,7 +17,9 @@ is the match quality. A keyframe *covers* the frame's place when it is also with
 * **retired node**: a keyframe visited at least `retire_min_visits` times whose best
   match quality stayed at or below `retire_max_consistent` no longer matches its place. A
   visit counts only when the frame itself matched well (another covering keyframe, or the
-  localization, reached `changed_max_consistent`): a blurred frame retires nothing;
+  localization, reached `changed_max_consistent`): a blurred frame retires nothing. The
+  keyframes are matched nearest first and the first that explains `changed_max_consistent`
+  matches ends the search, so a visit is counted only for a keyframe actually matched;
 * a frame at a mapped place that matched well neither there nor in its localization is
   skipped as unreliable (counted). The localization's support is asked for (`observe`'s
   `localize`) only when the nearby keyframes did not match well: a posed session need not
@@ -29,7 +31,8 @@ is the match quality. A keyframe *covers* the frame's place when it is also with
   does, so a closer one would be a second keyframe for the same place.
 
 `MapUpdate.finish` writes nothing: it returns the new map (old nodes minus retired, plus
-added; covisibility verified by PnP for every new node; connectivity repaired around
+added; covisibility verified by PnP for every new node, matched as the map build matches
+(`CovisibilityParams.matching`: guided by the poses by default); connectivity repaired around
 retired nodes and extended to new ones through free space; the occupancy grid extended
 with the new observations — obstacles are added, never cleared) and a report. Pure: arrays
 and an injected matcher in, a map out.
@@ -49,7 +52,7 @@ from litevloc.pipelines.topomap.graphs import (
     ConnectivityParams,
     CovisibilityParams,
     MatchFn,
-    verify_pair,
+    pair_inliers,
 )
 from litevloc.pipelines.topomap.occupancy import OccupancyParams, build_occupancy, segment_is_free
 from litevloc.pipelines.topomap.types import FeatureSet, NodeFeatures, OccupancyGrid, TopoMap
@@ -191,22 +194,30 @@ class MapUpdate:
         r.frames += 1
         self.cameras.append(obs.T_map_camera[:3, 3].copy())
         near = self.nearby_nodes(obs.T_map_camera, self.params.match_radius_m)[: self.params.nodes_checked]
-        quality = {node: consistent_matches(obs.T_map_camera, obs.features, obs.keypoint_depth, obs.K,
-                                            self.map.features[node], self.map.T_map_camera[node], self.map.K[node],
-                                            self.match, self.params.reprojection_px) for node in near}
         radius = self.params.place_radius_m
         cover = [n for n in near if float(np.linalg.norm(self.map.positions[n] - obs.T_map_camera[:3, 3])) <= radius]
-        best = max(quality.values(), default=0)
-        best_cover = max((quality[n] for n in cover), default=0)
         thr = self.params.changed_max_consistent
+        # Nearest first (the covering keyframes are a prefix of `near`); the first keyframe that
+        # explains `thr` matches decides the frame (known place, or changed place when it lies
+        # beyond every covering one), so the rest are not matched.
+        quality: dict[int, int] = {}
+        for node in near:
+            quality[node] = consistent_matches(obs.T_map_camera, obs.features, obs.keypoint_depth, obs.K,
+                                               self.map.features[node], self.map.T_map_camera[node], self.map.K[node],
+                                               self.match, self.params.reprojection_px)
+            if quality[node] >= thr:
+                break
+        best = max(quality.values(), default=0)
+        best_cover = max((quality[n] for n in cover if n in quality), default=0)
         support = obs.localization_inliers
         if best < thr and localize is not None:
             support = max(support, int(localize()))
         matchable = max(best, support) >= thr
-        if matchable:  # visits (for retirement) only by keyframes at the frame's own place
+        if matchable:  # visits (for retirement) only by keyframes matched at the frame's own place
             for node in cover:
-                r.visits[node] = r.visits.get(node, 0) + 1
-                r.best_consistent[node] = max(r.best_consistent.get(node, 0), quality[node])
+                if node in quality:
+                    r.visits[node] = r.visits.get(node, 0) + 1
+                    r.best_consistent[node] = max(r.best_consistent.get(node, 0), quality[node])
         if (best_cover if cover else best) >= thr:
             r.known += 1  # a covering keyframe still matches, or (no keyframe at the place) a nearby one does
             return "known"
@@ -262,7 +273,8 @@ class MapUpdate:
             for b in tree.query_ball_point(pos[a], r=covisibility.max_distance_m):
                 if b == a or (b > a) or float(z[a] @ z[b]) < cos_max:
                     continue  # each new pair once (b < a covers kept nodes and earlier new ones)
-                n_in = verify_pair(c.features, c.keypoint_depth, c.K, feats[b], K[b], self.match, covisibility)
+                n_in = pair_inliers(c.features, c.keypoint_depth, c.K, T[a], feats[b], K[b], T[b], self.match,
+                                    covisibility)
                 if on_pair is not None:
                     on_pair()
                 if n_in >= covisibility.min_inliers:

@@ -171,3 +171,21 @@ def test_localization_is_asked_for_only_where_the_keyframes_do_not_match(base_ma
 def test_candidates_are_spaced_by_the_place_they_cover() -> None:
     p = UpdateParams()
     assert (p.min_spacing_m, p.min_spacing_deg) == (p.place_radius_m, p.place_angle_deg)
+
+
+def test_the_first_keyframe_that_explains_the_frame_ends_the_search(base_map: TopoMap,
+                                                                    seven_scenes_dir: Path) -> None:
+    calls = [0]
+
+    def counting(a, b):  # type: ignore[no-untyped-def]
+        calls[0] += 1
+        return orb_match(a, b)
+
+    upd = MapUpdate(base_map, counting)
+    frames = list(observations(seven_scenes_dir, "1:250:12"))
+    near = [len(upd.nearby_nodes(o.T_map_camera, upd.params.match_radius_m)[: upd.params.nodes_checked])
+            for o in frames]
+    statuses = [upd.observe(o) for o in frames]
+    assert statuses.count("known") >= 0.8 * len(frames)
+    assert sum(near) >= 2 * len(frames)  # up to 3 keyframes were within reach of most frames ...
+    assert calls[0] <= 1.3 * len(frames), (calls[0], len(frames), sum(near))  # ... one was matched
