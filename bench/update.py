@@ -12,7 +12,8 @@ median/max error with the old map vs the updated one; `map diff` of the two vers
 `--world office` runs the simulator case instead: the map of `office` (mapping pass), an
 update session in `office-changed` (posters re-textured, furniture moved: its mapping pass
 with another seed), and the changed world's query pass localized (`litevloc localize`, the
-state machine) with the old and the updated map.
+state machine) with the old and the updated map. `--world floor` does the same on the
+15-room floor (`floor-changed`; recordings cached under out/update_sim/floor).
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ MAPS = ROOT / "out" / "maps"
 def sim_case(world: str, query_frames: str) -> None:
     """Old map vs updated map on a changed simulated world (see the module docstring)."""
     cli = [sys.executable, "-m", "litevloc.runtime.cli.main"]
-    d = ROOT / "out" / "update_sim"
+    d = ROOT / "out" / "update_sim" / world
     d.mkdir(parents=True, exist_ok=True)
     changed = f"{world}-changed"
     recs = {"map": (world, "map", 0), "session": (changed, "map", 3), "query": (changed, "query", 5)}
@@ -54,7 +55,7 @@ def sim_case(world: str, query_frames: str) -> None:
     subprocess.run([*cli, "map", "update", str(old), str(d / "session.mcap"), "-o", str(new), "--force",
                     "--json", str(d / "update.json")], check=True)
     upd = json.loads((d / "update.json").read_text())
-    subprocess.run([*cli, "map", "diff", str(old), str(new), "-o", str(OUT / "update_sim_diff.png")], check=True)
+    subprocess.run([*cli, "map", "diff", str(old), str(new), "-o", str(OUT / f"update_{world}_diff.png")], check=True)
     loc = {}
     for name, m in (("old", old), ("new", new)):
         subprocess.run([*cli, "localize", str(m), str(d / "query.mcap"), "-o", str(d / f"traj_{name}.txt"),

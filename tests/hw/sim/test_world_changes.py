@@ -10,10 +10,11 @@ import pytest
 from litevloc.hw.sim.world import World, load_world, load_world_spec
 
 
-def test_changed_world_keeps_walls_and_changes_posters_and_furniture() -> None:
-    base = load_world("office")
-    changed = load_world("office-changed")
-    assert load_world_spec("office-changed").change_seed >= 0
+@pytest.mark.parametrize("world", ["office", "floor"])
+def test_changed_world_keeps_walls_and_changes_posters_and_furniture(world: str) -> None:
+    base = load_world(world)
+    changed = load_world(f"{world}-changed")
+    assert load_world_spec(f"{world}-changed").change_seed >= 0
     np.testing.assert_array_equal(base.labels, changed.labels)
     assert [f for f in base.faces if f.kind != "box"] == [f for f in changed.faces if f.kind != "box"]
     assert base.goal_places.keys() == changed.goal_places.keys()
