@@ -187,9 +187,9 @@ class MapUpdate:
         """Classify one localized frame: 'known', 'new place', 'changed place' or 'unreliable'.
 
         `localize`, if given, returns the PnP inliers of the frame's own localization against
-        the map (0 = not localized); it is called only when no nearby keyframe explains
-        `changed_max_consistent` matches, and its count then stands beside
-        `obs.localization_inliers`."""
+        the map (0 = not localized); it is called only when keyframes cover the frame's place
+        but none nearby explains `changed_max_consistent` matches (changed place or unreliable
+        frame?), and its count then stands beside `obs.localization_inliers`."""
         r = self.report
         r.frames += 1
         self.cameras.append(obs.T_map_camera[:3, 3].copy())
@@ -210,7 +210,7 @@ class MapUpdate:
         best = max(quality.values(), default=0)
         best_cover = max((quality[n] for n in cover if n in quality), default=0)
         support = obs.localization_inliers
-        if best < thr and localize is not None:
+        if best < thr and localize is not None and cover:  # (no covering keyframe: a new place either way)
             support = max(support, int(localize()))
         matchable = max(best, support) >= thr
         if matchable:  # visits (for retirement) only by keyframes matched at the frame's own place
