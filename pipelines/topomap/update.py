@@ -28,7 +28,12 @@ is the match quality. A keyframe *covers* the frame's place when it is also with
   other (and, for new places, that far from every keyframe), so a session adds keyframes
   where the map lacks them, not at every frame. The defaults are the place criterion
   (`place_radius_m`, `place_angle_deg`): a kept candidate covers its place as a keyframe
-  does, so a closer one would be a second keyframe for the same place.
+  does, so a closer one would be a second keyframe for the same place;
+* a frame that no old keyframe explains is next compared with the keyframes this update
+  has already added (nearest first, the same reach and test): if one explains it, it is
+  known by the added keyframe (`UpdateReport.known_by_added`), not a new candidate. The
+  session's frames thus extend the map as a keyframe would serve them: along a new path a
+  keyframe is added where the last added one stops matching, not at every `min_spacing_m`.
 
 `MapUpdate.finish` writes nothing: it returns the new map (old nodes minus retired, plus
 added; covisibility verified by PnP for every new node, matched as the map build matches
@@ -42,12 +47,14 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from litevloc.pipelines.geometry import backproject_pixels, invert, rotation_angle
+from litevloc.pipelines.guided_matching import match_by_projection
 from litevloc.pipelines.topomap.graphs import (
     ConnectivityParams,
     CovisibilityParams,
@@ -69,6 +76,15 @@ class UpdateParams:
     match_radius_m: float = 1.5
     nodes_checked: int = 3  # covering keyframes matched per frame (nearest first)
     reprojection_px: float = 4.0
+    # How a frame is matched with a keyframe before counting the matches its pose explains:
+    # "model" runs the configured matcher (LightGlue: ~156 ms per pair on 2 CPUs, most of an
+    # update's time), "guided" pairs keypoints by projecting with the pose (a few ms; see
+    # `guided_consistent_matches`). Chosen on the simulator (office update session, 316
+    # frame-keyframe pairs, ALIKED): at the same changed_max_consistent = 40 guided and
+    # LightGlue counts agree on 98.4 % of the pairs (1 pair above only with LightGlue, 4 only
+    # guided; without the global mutual test 95.6 %, 14 only guided).
+    matching: Literal["guided", "model"] = "guided"
+    guided_min_similarity: float = 0.6
     changed_max_consistent: int = 40
     retire_max_consistent: int = 15
     retire_min_visits: int = 2
@@ -85,6 +101,10 @@ class UpdateParams:
                 raise ValueError(f"{name} must be a finite number > 0, got {v}")
         if self.match_radius_m < self.place_radius_m:
             raise ValueError("match_radius_m must be >= place_radius_m")
+        if self.matching not in ("guided", "model"):
+            raise ValueError(f"matching must be 'guided' or 'model', got {self.matching!r}")
+        if not (-1.0 <= self.guided_min_similarity <= 1.0):
+            raise ValueError(f"guided_min_similarity must be in [-1, 1], got {self.guided_min_similarity}")
         if self.nodes_checked < 1 or self.retire_min_visits < 1:
             raise ValueError("nodes_checked and retire_min_visits must be >= 1")
         if not (0 <= self.retire_max_consistent < self.changed_max_consistent):
@@ -115,6 +135,7 @@ class UpdateReport:
     new_place: int = 0
     changed_place: int = 0
     unreliable: int = 0  # at a mapped place, but neither the place's keyframes nor the localization matched well
+    known_by_added: int = 0  # explained by a keyframe this update added (counted in `known` too)
     added: list[int] = field(default_factory=list)  # new node ids in the updated map
     retired: list[int] = field(default_factory=list)  # node ids of the old map
     visits: dict[int, int] = field(default_factory=dict)
@@ -142,6 +163,29 @@ def consistent_matches(
     proj = (pc[front, :2] / pc[front, 2:3]) * [K_node[0, 0], K_node[1, 1]] + [K_node[0, 2], K_node[1, 2]]
     ref = np.asarray(node_feats.keypoints, np.float64)[i_node[ok]][front]
     return int(np.count_nonzero(np.linalg.norm(proj - ref, axis=1) <= reprojection_px))
+
+
+def guided_consistent_matches(
+    T_map_camera: NDArray[np.float64], feats: FeatureSet, keypoint_depth: NDArray[np.float32],
+    K: NDArray[np.float64], node_feats: FeatureSet, T_map_node: NDArray[np.float64], K_node: NDArray[np.float64],
+    reprojection_px: float, min_similarity: float,
+) -> int:
+    """As `consistent_matches`, with the matches found by the pose itself (no model run,
+    ~1-5 ms): each depth-lifted keypoint of the frame is projected into the keyframe and
+    paired with the most similar keyframe keypoint within `reprojection_px` (mutual best,
+    descriptor similarity >= `min_similarity`, `guided_matching.match_by_projection`) that is
+    also the mutual nearest neighbour over all keypoints of both images: the pose filters the
+    matches, it does not choose them (so it cannot confirm itself on a repetitive texture)."""
+    z = np.asarray(keypoint_depth, np.float64)
+    pts = np.full((len(z), 3), np.nan)
+    ok = np.isfinite(z) & (z > 0)
+    if not ok.any():
+        return 0
+    pts[ok] = backproject_pixels(K, np.asarray(feats.keypoints, np.float64)[ok], z[ok])
+    i_live, _ = match_by_projection(pts, feats.descriptors, T_map_camera, node_feats.keypoints,
+                                    node_feats.descriptors, K_node, T_map_node, reprojection_px, min_similarity,
+                                    global_mutual=True)
+    return len(i_live)
 
 
 def _stack(arrays: list[NDArray[np.floating]], shape: tuple[int, ...]) -> NDArray[np.float64]:
@@ -188,8 +232,9 @@ class MapUpdate:
 
         `localize`, if given, returns the PnP inliers of the frame's own localization against
         the map (0 = not localized); it is called only when keyframes cover the frame's place
-        but none nearby explains `changed_max_consistent` matches (changed place or unreliable
-        frame?), and its count then stands beside `obs.localization_inliers`."""
+        but neither they nor a keyframe this update added explain `changed_max_consistent`
+        matches (changed place or unreliable frame?), and its count then stands beside
+        `obs.localization_inliers`."""
         r = self.report
         r.frames += 1
         self.cameras.append(obs.T_map_camera[:3, 3].copy())
@@ -202,24 +247,29 @@ class MapUpdate:
         # beyond every covering one), so the rest are not matched.
         quality: dict[int, int] = {}
         for node in near:
-            quality[node] = consistent_matches(obs.T_map_camera, obs.features, obs.keypoint_depth, obs.K,
-                                               self.map.features[node], self.map.T_map_camera[node], self.map.K[node],
-                                               self.match, self.params.reprojection_px)
+            quality[node] = self._consistent(obs, self.map.features[node], self.map.T_map_camera[node],
+                                             self.map.K[node])
             if quality[node] >= thr:
                 break
         best = max(quality.values(), default=0)
         best_cover = max((quality[n] for n in cover if n in quality), default=0)
+        explained = (best_cover if cover else best) >= thr
+        by_added = not explained and self._explained_by_added(obs)
         support = obs.localization_inliers
-        if best < thr and localize is not None and cover:  # (no covering keyframe: a new place either way)
+        if best < thr and not by_added and localize is not None and cover:  # (no cover: a new place either way)
             support = max(support, int(localize()))
-        matchable = max(best, support) >= thr
+        matchable = max(best, support) >= thr or by_added
         if matchable:  # visits (for retirement) only by keyframes matched at the frame's own place
             for node in cover:
                 if node in quality:
                     r.visits[node] = r.visits.get(node, 0) + 1
                     r.best_consistent[node] = max(r.best_consistent.get(node, 0), quality[node])
-        if (best_cover if cover else best) >= thr:
+        if explained:
             r.known += 1  # a covering keyframe still matches, or (no keyframe at the place) a nearby one does
+            return "known"
+        if by_added:
+            r.known += 1
+            r.known_by_added += 1
             return "known"
         if not cover:
             status = "new place"
@@ -238,6 +288,33 @@ class MapUpdate:
         if keep:
             self.candidates.append(obs)
         return status
+
+    def _consistent(self, obs: Observation, node_feats: FeatureSet, T_map_node: NDArray[np.float64],
+                    K_node: NDArray[np.float64]) -> int:
+        """Matches between the frame and a keyframe that the frame's pose explains."""
+        p = self.params
+        if p.matching == "guided":
+            return guided_consistent_matches(obs.T_map_camera, obs.features, obs.keypoint_depth, obs.K, node_feats,
+                                             T_map_node, K_node, p.reprojection_px, p.guided_min_similarity)
+        return consistent_matches(obs.T_map_camera, obs.features, obs.keypoint_depth, obs.K, node_feats, T_map_node,
+                                  K_node, self.match, p.reprojection_px)
+
+    def _explained_by_added(self, obs: Observation) -> bool:
+        """Whether a keyframe added by this update (within `match_radius_m`, looking within
+        `place_angle_deg`; nearest `nodes_checked` first) explains `changed_max_consistent`
+        matches of the frame."""
+        if not self.candidates:
+            return False
+        p = self.params
+        pos = np.stack([c.T_map_camera[:3, 3] for c in self.candidates])
+        z = np.stack([c.T_map_camera[:3, 2] for c in self.candidates])
+        d = np.linalg.norm(pos - obs.T_map_camera[:3, 3], axis=1)
+        ok = np.nonzero((d <= p.match_radius_m) & (z @ obs.T_map_camera[:3, 2] >= self._cos_place))[0]
+        for k in ok[np.argsort(d[ok], kind="stable")][: p.nodes_checked]:
+            c = self.candidates[int(k)]
+            if self._consistent(obs, c.features, c.T_map_camera, c.K) >= p.changed_max_consistent:
+                return True
+        return False
 
     def retired_nodes(self) -> list[int]:
         p, r = self.params, self.report

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from litevloc.hw.messages import GroundTruthPose, RgbdFrame
 from litevloc.hw.streams.base import parse_frames
@@ -20,7 +21,13 @@ from litevloc.pipelines.topomap.build import MappingParams
 from litevloc.pipelines.topomap.io import load_map, save_map
 from litevloc.pipelines.topomap.keyframes import KeyframeParams
 from litevloc.pipelines.topomap.types import NodeFeatures, TopoMap
-from litevloc.pipelines.topomap.update import MapUpdate, Observation, UpdateParams, consistent_matches
+from litevloc.pipelines.topomap.update import (
+    MapUpdate,
+    Observation,
+    UpdateParams,
+    consistent_matches,
+    guided_consistent_matches,
+)
 
 from .helpers import SEVEN_SCENES_UP, build_7scenes, orb_extract, orb_match, thumb_describe
 
@@ -103,6 +110,28 @@ def test_new_places_add_keyframes(base_map: TopoMap, seven_scenes_dir: Path, tmp
     # the new version is a valid map
     again = load_map(save_map(new, tmp_path / "v2"))
     assert again.n_nodes == new.n_nodes
+
+
+def test_frames_an_added_keyframe_explains_add_nothing(base_map: TopoMap, seven_scenes_dir: Path) -> None:
+    """A frame that no old keyframe explains is compared with the keyframes the update has
+    added: along a new path a keyframe is added where the last added one stops matching, not
+    at every spacing step."""
+    # (a place radius too small for any old keyframe to cover or explain a frame: every frame
+    # is at a new place, as on a path the map never saw)
+    tight = UpdateParams(place_radius_m=1e-3, match_radius_m=1e-3, min_spacing_m=0.01, min_spacing_deg=1.0)
+    reach = dataclasses.replace(tight, match_radius_m=1.5)  # ... but added keyframes reach 1.5 m
+    frames = list(observations(seven_scenes_dir, "250:500:10"))
+    only_spacing = MapUpdate(base_map, orb_match, tight)
+    chained = MapUpdate(base_map, orb_match, reach)
+    chained._tree = only_spacing._tree = cKDTree(np.full((1, 3), 1e6))  # the old keyframes out of reach
+    for obs in frames:
+        only_spacing.observe(obs)
+        chained.observe(obs)
+    a, b = only_spacing.report, chained.report
+    assert a.new_place == a.frames == b.frames == len(frames) and a.known_by_added == 0
+    assert b.known_by_added == b.known >= 0.3 * b.frames, b
+    assert 0 < len(chained.candidates) <= 0.7 * len(only_spacing.candidates), (len(chained.candidates),
+                                                                              len(only_spacing.candidates))
 
 
 def test_changed_appearance_retires_and_replaces(base_map: TopoMap, seven_scenes_dir: Path) -> None:
@@ -189,7 +218,7 @@ def test_the_first_keyframe_that_explains_the_frame_ends_the_search(base_map: To
         calls[0] += 1
         return orb_match(a, b)
 
-    upd = MapUpdate(base_map, counting)
+    upd = MapUpdate(base_map, counting, UpdateParams(matching="model"))
     frames = list(observations(seven_scenes_dir, "1:250:12"))
     near = [len(upd.nearby_nodes(o.T_map_camera, upd.params.match_radius_m)[: upd.params.nodes_checked])
             for o in frames]
@@ -197,3 +226,33 @@ def test_the_first_keyframe_that_explains_the_frame_ends_the_search(base_map: To
     assert statuses.count("known") >= 0.8 * len(frames)
     assert sum(near) >= 2 * len(frames)  # up to 3 keyframes were within reach of most frames ...
     assert calls[0] <= 1.3 * len(frames), (calls[0], len(frames), sum(near))  # ... one was matched
+
+
+def test_guided_consistency_counts_what_the_pose_explains(base_map: TopoMap, seven_scenes_dir: Path) -> None:
+    """The default consistency check finds its matches by the pose: a right pose explains
+    about as many as the matcher's, a pose 0.3 m off or a re-textured keyframe almost none."""
+    upd = MapUpdate(base_map, orb_match)
+    assert upd.params.matching == "guided"
+    m = base_map
+    pairs = 0
+    for obs in observations(seven_scenes_dir, "1:250:25"):
+        node = upd.covering_nodes(obs.T_map_camera)[:1]
+        if not node:
+            continue
+        n = node[0]
+        args = (obs.features, obs.keypoint_depth, obs.K, m.features[n], m.T_map_camera[n], m.K[n])
+        model = consistent_matches(obs.T_map_camera, *args[:6], orb_match, 4.0)
+        guided = guided_consistent_matches(obs.T_map_camera, *args, 4.0, 0.6)
+        if model < 40:
+            continue
+        pairs += 1
+        assert guided >= 0.5 * model, (obs.index, n, model, guided)
+        off = obs.T_map_camera.copy()
+        off[:3, 3] += [0.3, 0.0, 0.0]
+        assert guided_consistent_matches(off, *args, 4.0, 0.6) <= 0.2 * guided
+        f = m.features[n]
+        rng = np.random.default_rng(obs.index)
+        scrambled = NodeFeatures(f.keypoints, rng.integers(0, 256, f.descriptors.shape, dtype=np.uint8), f.scores,
+                                 f.image_size)
+        assert guided_consistent_matches(obs.T_map_camera, *args[:3], scrambled, *args[4:], 4.0, 0.6) < 10
+    assert pairs >= 3
