@@ -10,8 +10,12 @@ is the match quality. A keyframe *covers* the frame's place when it is also with
 * **known place**: some nearby keyframe explains at least `changed_max_consistent` matches
   (the map already localizes this view, even between keyframes more than `place_radius_m`
   apart) -> nothing to add;
-* **new place**: no keyframe covers the frame's place and none nearby explains enough
-  matches -> the frame is a keyframe candidate;
+* **new place**: no keyframe covers the frame's place, none nearby explains enough
+  matches, and the frame's own localization against the map (the localizer reaches farther
+  keyframes, at other angles, with the matcher) has fewer than `changed_max_consistent`
+  inliers -> the frame is a keyframe candidate. A frame the map localizes well from
+  elsewhere is a known place (`UpdateReport.known_by_localization`): a new keyframe is
+  added where the map fails to localize, not wherever the session left the mapped path;
 * **changed place**: keyframes cover it but explain fewer than `changed_max_consistent`
   matches (moved furniture, new posters, other lighting) -> a keyframe candidate too;
 * **retired node**: a keyframe visited at least `retire_min_visits` times whose best
@@ -22,8 +26,8 @@ is the match quality. A keyframe *covers* the frame's place when it is also with
   matches ends the search, so a visit is counted only for a keyframe actually matched;
 * a frame at a mapped place that matched well neither there nor in its localization is
   skipped as unreliable (counted). The localization's support is asked for (`observe`'s
-  `localize`) only when the nearby keyframes did not match well: a posed session need not
-  localize the frames the map already knows;
+  `localize`) only when neither the nearby keyframes nor an added one matched well: a posed
+  session need not localize the frames the map already knows;
 * candidates are kept only when at least `min_spacing_m` / `min_spacing_deg` from each
   other (and, for new places, that far from every keyframe), so a session adds keyframes
   where the map lacks them, not at every frame. The defaults are the place criterion
@@ -136,6 +140,7 @@ class UpdateReport:
     changed_place: int = 0
     unreliable: int = 0  # at a mapped place, but neither the place's keyframes nor the localization matched well
     known_by_added: int = 0  # explained by a keyframe this update added (counted in `known` too)
+    known_by_localization: int = 0  # no keyframe covers it, but the map localizes it well (in `known` too)
     added: list[int] = field(default_factory=list)  # new node ids in the updated map
     retired: list[int] = field(default_factory=list)  # node ids of the old map
     visits: dict[int, int] = field(default_factory=dict)
@@ -231,10 +236,10 @@ class MapUpdate:
         """Classify one localized frame: 'known', 'new place', 'changed place' or 'unreliable'.
 
         `localize`, if given, returns the PnP inliers of the frame's own localization against
-        the map (0 = not localized); it is called only when keyframes cover the frame's place
-        but neither they nor a keyframe this update added explain `changed_max_consistent`
-        matches (changed place or unreliable frame?), and its count then stands beside
-        `obs.localization_inliers`."""
+        the map (0 = not localized); it is called only when neither the nearby keyframes nor
+        a keyframe this update added explain `changed_max_consistent` matches (known from
+        elsewhere, new place, changed place or unreliable frame?), and its count then stands
+        beside `obs.localization_inliers`."""
         r = self.report
         r.frames += 1
         self.cameras.append(obs.T_map_camera[:3, 3].copy())
@@ -256,7 +261,7 @@ class MapUpdate:
         explained = (best_cover if cover else best) >= thr
         by_added = not explained and self._explained_by_added(obs)
         support = obs.localization_inliers
-        if best < thr and not by_added and localize is not None and cover:  # (no cover: a new place either way)
+        if best < thr and not by_added and localize is not None:
             support = max(support, int(localize()))
         matchable = max(best, support) >= thr or by_added
         if matchable:  # visits (for retirement) only by keyframes matched at the frame's own place
@@ -270,6 +275,10 @@ class MapUpdate:
         if by_added:
             r.known += 1
             r.known_by_added += 1
+            return "known"
+        if not cover and support >= thr:
+            r.known += 1
+            r.known_by_localization += 1
             return "known"
         if not cover:
             status = "new place"

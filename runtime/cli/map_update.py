@@ -189,6 +189,7 @@ def update(args: argparse.Namespace) -> int:
         "skipped_not_moved": n_still,
         "known_place": report.known, "new_place": report.new_place, "changed_place": report.changed_place,
         "unreliable": report.unreliable, "known_by_added": report.known_by_added,
+        "known_by_localization": report.known_by_localization,
         "nodes_before": topomap.n_nodes, "nodes_after": new_map.n_nodes, "added": len(report.added),
         "retired": len(report.retired), "retired_ids": report.retired,
         "added_fraction": len(report.added) / topomap.n_nodes, "seconds": time.perf_counter() - t0,
@@ -204,7 +205,8 @@ def update(args: argparse.Namespace) -> int:
     print(f"{args.src}: {n_loc}/{n_frames} frames compared with the map ({n_still} closer than the mapping "
           f"pre-filter to the last one); places known {report.known}, new {report.new_place}, changed "
           f"{report.changed_place}, unreliable {report.unreliable} (known by a keyframe this update added: "
-          f"{report.known_by_added})")
+          f"{report.known_by_added}; by the localization, no keyframe covering them: "
+          f"{report.known_by_localization})")
     print(f"wrote {args.output}: {topomap.n_nodes} -> {new_map.n_nodes} keyframes (+{len(report.added)} added, "
           f"-{len(report.retired)} retired) in {summary['seconds']:.1f} s; parent {args.map}")
     write_json(args.json, summary)
