@@ -27,6 +27,7 @@ built if absent (out/maps/7s, frames 0-499, `--config 7scenes`).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -215,6 +216,9 @@ def main() -> None:
     cfg = load_config(args.config, args.overrides)
     bundle = load_bundle(cfg.models)
     topomap = check_map_models(load_map(args.map), bundle)
+    # the map's feature store makes each node's features on access: fixed objects, so the
+    # model cache can tell the node of a match from the object it is given
+    topomap = dataclasses.replace(topomap, features=list(topomap.features))
     folder = args.map.name if args.src is None else f"{args.map.name}-{data.stem}"
     cache = ModelCache(ROOT / "out" / "cache" / "accuracy" / folder, bundle, topomap)
     results = [run_config(c, CONFIGS[c], args, data, cache, topomap) for c in args.configs]
