@@ -168,6 +168,16 @@ class LocalizationParams:
     candidate_radius_m: float = 3.0
     max_view_angle_deg: float = 90.0
     ll_max_candidates: int = 3
+    # LL with a fresh prior (see confirm_skip_max_age_s) first matches each candidate by
+    # projecting the live points with the prior (refine.guided_*: radius, similarity, mutual
+    # nearest neighbours over all keypoints; ~5 ms); with at least this many matches they stand
+    # in for the matcher's (a PnP that fails on them falls back to the matcher). 0 = off.
+    # Chosen on the simulated office query pass (ground-truth prior, 158 LL queries, 1 thread):
+    # LightGlue calls per LL query 1.40 -> 0.59 with 60, median error 0.81 -> 1.08 cm, max
+    # 10.6 -> 19.1 cm; in the service (bench/runtime.py, same session) VLoc 2.07 -> 3.07 Hz.
+    # 7-Scenes (bench/accuracy.py, held-out): within [5 cm, 5 deg] 56.6 -> 55.8 %, median
+    # 3.78 -> 3.85 cm, LL latency median 310 -> 179 ms.
+    ll_guided_min_matches: int = 60
     ll_failures_before_lost: int = 3
     gl_trigger_distance_m: float = 7.5  # prior farther than this from every node -> GL
     max_distance_to_node_m: float = 5.0  # an accepted pose must lie this close to its node
@@ -180,6 +190,8 @@ class LocalizationParams:
     refine: RefineParams = field(default_factory=RefineParams)
 
     def __post_init__(self) -> None:
+        if self.ll_guided_min_matches < 0:
+            raise ValueError(f"ll_guided_min_matches must be >= 0, got {self.ll_guided_min_matches}")
         if self.gl_top_k < 1 or self.ll_max_candidates < 1 or self.ll_failures_before_lost < 1:
             raise ValueError("gl_top_k, ll_max_candidates and ll_failures_before_lost must be >= 1")
         if self.candidate_radius_m <= 0 or not (0 < self.max_view_angle_deg <= 180):

@@ -229,6 +229,26 @@ class _Query:
         return KeyframeObservations(node, pts[ok], kp, self.loc.map.K[node], self.loc.map.T_map_camera[node])
 
 
+    def try_guided(self, node: int, T_map_live: NDArray[np.float64], min_matches: int) -> bool:
+        """Match `node` by projecting with `T_map_live` (a fresh prior) instead of the matcher;
+        the matches are kept (and returned by `matches`) only when at least `min_matches`."""
+        if node in self._matches:
+            return False
+        t0 = time.perf_counter()
+        m = self.loc.map
+        f = m.features[node]
+        i_live, i_kf = guided_matches(self.points(), self.feats.descriptors, T_map_live, f.keypoints, f.descriptors,
+                                      m.K[node], m.T_map_camera[node], self.loc.params.refine)
+        self.timer.add("guided_match", t0)
+        if len(i_live) < min_matches:
+            return False
+        self._matches[node] = (i_live, i_kf)
+        return True
+
+    def forget(self, node: int) -> None:
+        """Drop `node`'s cached matches (the next `matches` runs the matcher)."""
+        self._matches.pop(node, None)
+
     def guided_observations(self, node: int, T_map_live: NDArray[np.float64]) -> KeyframeObservations:
         """Matches with `node` found by projecting the live points with `T_map_live` (no model)."""
         m = self.loc.map
@@ -270,6 +290,18 @@ class VisualLocalizer:
             self.params, q.timer,
         )
         return res, CandidateAttempt(node, similarity, n_matches, res.n_inliers if res else 0, reason)
+
+    def _verify_local(self, node: int, q: _Query, similarity: float,
+                      guided_prior: NDArray[np.float64] | None) -> tuple[PnpResult | None, CandidateAttempt]:
+        """`_verify`, first on matches guided by a fresh prior when given (see
+        `LocalizationParams.ll_guided_min_matches`); the matcher's when those are too few or
+        their PnP fails."""
+        if guided_prior is not None and q.try_guided(node, guided_prior, self.params.ll_guided_min_matches):
+            res, att = self._verify(node, q, similarity)
+            if res is not None and res.accepted:
+                return res, att
+            q.forget(node)
+        return self._verify(node, q, similarity)
 
     def _verify_global(self, node: int, q: _Query, similarity: float) -> tuple[PnpResult | None, CandidateAttempt]:
         """`_verify`, then the floor check (GL only): a pose resting on one horizontal plane
@@ -559,8 +591,9 @@ class VisualLocalizer:
         cands = self.local_candidates(prior, desc)
         growth = self._prior_growth_m(prior_age_s, fused_prior)
         gate_m = self._gate_m(growth, fused_prior)
+        guided_first = self.params.ll_guided_min_matches > 0 and self._fresh(growth)
         for node, sim in cands:
-            res, att = self._verify(node, q, sim)
+            res, att = self._verify_local(node, q, sim, prior if guided_first else None)
             if res is not None and res.accepted and res.T_target_source is not None:
                 T = self.map.T_map_camera[node] @ res.T_target_source
                 dt, dr = relative_pose_error(T, prior)

@@ -111,7 +111,9 @@ class Scene:
 
 
 IMG = np.zeros((H, W, 3), np.uint8)
-PARAMS = LocalizationParams(pnp=PnpParams(min_inliers=30), gl_top_k=3)
+# (a broken node is modelled by the matcher's output: LL matching guided by a fresh prior,
+# which would not call it, is off here and tested on its own below)
+PARAMS = LocalizationParams(pnp=PnpParams(min_inliers=30), gl_top_k=3, ll_guided_min_matches=0)
 
 
 def test_global_localization_exact() -> None:
@@ -340,3 +342,34 @@ def test_gl_refuses_a_pose_resting_on_the_floor_alone(monkeypatch: pytest.Monkey
 def test_support_height_spread_parameter_is_validated() -> None:
     with pytest.raises(ValueError, match="gl_min_support_height_m"):
         LocalizationParams(gl_min_support_height_m=-0.1)
+
+
+def test_local_matching_guided_by_a_fresh_prior() -> None:
+    """With a fresh prior LL matches by projecting with it (no matcher call); a prior too far
+    off for the guided matches falls back to the matcher; with the option off the matcher runs."""
+    m = make_map([0.0, 1.0, 2.0, 3.0])
+    s = Scene(m)
+    calls = [0]
+
+    def counting(a: Feats, b: NodeFeatures) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        calls[0] += 1
+        return s.match(a, b)
+
+    guided = LocalizationParams(pnp=PnpParams(min_inliers=30), gl_top_k=3, ll_guided_min_matches=60)
+    loc = VisualLocalizer(m, guided, s.extract, s.describe, counting)
+    T_true = pose(2.1, 3.0)
+    depth = s.look(T_true, vpr_best=2)
+    near = T_true.copy()
+    near[:3, 3] += [0.01, 0.0, 0.01]
+    r = loc.localize_local(0, IMG, depth, K, prior_T_map_camera=near)
+    assert r.accepted and calls[0] == 0 and "guided_match" in r.timings_ms
+    assert g.relative_pose_error(r.T_map_camera, T_true)[0] < 0.005
+    far = pose(2.1 + 0.15, 3.0)  # 15 cm off: projections land ~5-10 px away at 4-9 m depth ...
+    far[:3, :3] = g.so3_exp(np.array([0, np.radians(8.0), 0]))  # ... and 5 deg of yaw: ~20 px
+    r = loc.localize_local(0, IMG, depth, K, prior_T_map_camera=far)
+    assert r.accepted and calls[0] >= 1  # the matcher's matches
+    assert g.relative_pose_error(r.T_map_camera, T_true)[0] < 0.005
+    calls[0] = 0
+    off = VisualLocalizer(m, PARAMS, s.extract, s.describe, counting)
+    r = off.localize_local(0, IMG, depth, K, prior_T_map_camera=near)
+    assert r.accepted and calls[0] >= 1
