@@ -108,6 +108,11 @@ bench: $(VENV)/.dev-installed models $(BENCH_7S_MAP)/manifest.json
 	$(VENV)/bin/python bench/runtime_queues.py
 	$(VENV)/bin/python bench/global_loc.py $(BENCH_7S_MAP) --config 7scenes
 	$(VENV)/bin/python bench/merge.py
+	$(VENV)/bin/python bench/update.py
+	$(VENV)/bin/python bench/accuracy.py --map $(BENCH_7S_MAP)
+	$(VENV)/bin/python bench/scale.py
+	$(VENV)/bin/python bench/relocalize.py
+	$(VENV)/bin/python bench/loop.py
 	$(VENV)/bin/python bench/faults.py
 	$(VENV)/bin/python bench/runtime.py --rec $(BENCH_OFFICE)/query.mcap --map $(BENCH_OFFICE)/map
 	$(VENV)/bin/python bench/runtime.py --view --repeat 3
