@@ -228,7 +228,6 @@ class _Query:
         kp = np.asarray(self.loc.map.features[node].keypoints, dtype=np.float64)[i_ref[ok]]
         return KeyframeObservations(node, pts[ok], kp, self.loc.map.K[node], self.loc.map.T_map_camera[node])
 
-
     def try_guided(self, node: int, T_map_live: NDArray[np.float64], min_matches: int) -> bool:
         """Match `node` by projecting with `T_map_live` (a fresh prior) instead of the matcher;
         the matches are kept (and returned by `matches`) only when at least `min_matches`."""

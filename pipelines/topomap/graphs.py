@@ -52,6 +52,18 @@ def covisibility_candidates(T_map_camera: NDArray[np.float64], params: Covisibil
     return [(int(i), int(j)) for i, j in pairs]
 
 
+def lift_keypoints(K: NDArray[np.float64], keypoints: NDArray[np.floating],
+                   depth: NDArray[np.floating]) -> NDArray[np.float64]:
+    """(N, 3) camera-frame points of N keypoints (pixels) lifted with their depth (N,) metres;
+    NaN rows where the depth is missing (NaN or <= 0)."""
+    z = np.asarray(depth, dtype=np.float64)
+    pts = np.full((len(z), 3), np.nan)
+    ok = np.isfinite(z) & (z > 0)
+    if ok.any():
+        pts[ok] = backproject_pixels(K, np.asarray(keypoints, dtype=np.float64).reshape(-1, 2)[ok], z[ok])
+    return pts
+
+
 def guided_pair_matches(
     f_i: FeatureSet, depth_i: NDArray[np.float32], K_i: NDArray[np.float64], T_i: NDArray[np.float64],
     f_j: FeatureSet, K_j: NDArray[np.float64], T_j: NDArray[np.float64], params: CovisibilityParams,
@@ -59,11 +71,7 @@ def guided_pair_matches(
     """Matches (indices into i's and j's keypoints) of node i's depth-lifted keypoints
     (`depth_i` (N,) metres per keypoint, NaN = none) projected into node j with the mapping
     poses `T_i`, `T_j` (T_map_camera)."""
-    z = np.asarray(depth_i, dtype=np.float64)
-    pts = np.full((len(z), 3), np.nan)
-    ok = np.isfinite(z) & (z > 0)
-    if ok.any():
-        pts[ok] = backproject_pixels(K_i, np.asarray(f_i.keypoints, dtype=np.float64)[ok], z[ok])
+    pts = lift_keypoints(K_i, f_i.keypoints, depth_i)
     return match_by_projection(pts, f_i.descriptors, T_i, f_j.keypoints, f_j.descriptors, K_j, T_j,
                                params.guided_radius_px, params.guided_min_similarity, params.guided_global_mutual)
 

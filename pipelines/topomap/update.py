@@ -63,6 +63,7 @@ from litevloc.pipelines.topomap.graphs import (
     ConnectivityParams,
     CovisibilityParams,
     MatchFn,
+    lift_keypoints,
     pair_inliers,
 )
 from litevloc.pipelines.topomap.occupancy import OccupancyParams, build_occupancy, segment_is_free
@@ -181,12 +182,7 @@ def guided_consistent_matches(
     descriptor similarity >= `min_similarity`, `guided_matching.match_by_projection`) that is
     also the mutual nearest neighbour over all keypoints of both images: the pose filters the
     matches, it does not choose them (so it cannot confirm itself on a repetitive texture)."""
-    z = np.asarray(keypoint_depth, np.float64)
-    pts = np.full((len(z), 3), np.nan)
-    ok = np.isfinite(z) & (z > 0)
-    if not ok.any():
-        return 0
-    pts[ok] = backproject_pixels(K, np.asarray(feats.keypoints, np.float64)[ok], z[ok])
+    pts = lift_keypoints(K, feats.keypoints, keypoint_depth)
     i_live, _ = match_by_projection(pts, feats.descriptors, T_map_camera, node_feats.keypoints,
                                     node_feats.descriptors, K_node, T_map_node, reprojection_px, min_similarity,
                                     global_mutual=True)
