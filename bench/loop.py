@@ -79,16 +79,17 @@ def query(map_dir: Path, config: str, pass_name: str = "loop-lane", rate: float 
     app = build_app(cfg, map_dir, src, rate)
     vloc: list[tuple[int, bool, np.ndarray | None]] = []
     how: list[str] = []  # per accepted result: "local", "global" or "global+prior" (one keyframe + the prior)
-    inner = app.localizer.process
+    inner = app.service.vloc_fn  # the service's vloc(frame, prior): in this process or the VLoc process
 
-    def process(t_ns: int, *a: Any, **k: Any) -> Any:
-        r = inner(t_ns, *a, **k)
-        vloc.append((int(t_ns), bool(r.accepted), None if r.T_map_camera is None else np.array(r.T_map_camera)))
+    def process(frame: Any, prior: Any) -> Any:
+        r = inner(frame, prior)
+        vloc.append((int(r.t_ns), bool(r.accepted), None if r.T_map_camera is None else np.array(r.T_map_camera)))
         if r.accepted and r.T_map_camera is not None:
-            how.append("global+prior" if "agrees with the prior" in r.stop_reason else str(r.mode))
+            how.append("global+prior" if "agrees with the prior" in getattr(r, "stop_reason", "")
+                       else str(getattr(r, "mode", "")))
         return r
 
-    app.localizer.process = process
+    app.service.vloc_fn = process
     t0 = time.perf_counter()
     try:
         res = app.service.run()

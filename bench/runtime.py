@@ -14,6 +14,9 @@ Frames reach the service as `litevloc run` gives them: colour undecoded, decoded
 VLoc takes a frame (`runtime.sources.service_messages`); mode `realtime+eager` decodes every
 frame at the source as before, for an A/B in the same run (`--modes realtime realtime+eager`).
 
+`--modes realtime+thread realtime+process` compares VLoc in a thread of the service with VLoc
+in its own process (`runtime.vloc_process`; RSS and CPU then include the child's).
+
 `--view` compares the threaded runtime without and with the live view (`--view-save` to a
 temporary .rrd: Rerun logging in the view thread) on the same input in the same run:
 fused-pose p99 and VLoc rate of view-on / view-off, the items the view dropped, RSS growth.
@@ -44,13 +47,15 @@ from _common import ROOT, office_inputs, print_table, write_json
 
 
 class RssSampler:
-    """RSS (MB, /proc/self/statm) every `period_s` in a daemon thread."""
+    """RSS (MB, /proc/self/statm plus that of `pids`, e.g. the VLoc process) every `period_s`
+    in a daemon thread."""
 
-    def __init__(self, period_s: float = 0.5) -> None:
+    def __init__(self, period_s: float = 0.5, pids: tuple[int, ...] = ()) -> None:
         import os
         import threading
 
         self.samples: list[float] = []
+        self._files = ["/proc/self/statm", *(f"/proc/{p}/statm" for p in pids)]
         self._page_mb = os.sysconf("SC_PAGE_SIZE") / 2**20
         self._stop = threading.Event()
         self._t = threading.Thread(target=self._run, args=(period_s,), daemon=True)
@@ -58,14 +63,31 @@ class RssSampler:
 
     def _run(self, period_s: float) -> None:
         while not self._stop.wait(period_s):
-            with open("/proc/self/statm") as f:
-                self.samples.append(int(f.read().split()[1]) * self._page_mb)
+            pages = 0
+            for name in self._files:
+                try:
+                    with open(name) as f:
+                        pages += int(f.read().split()[1])
+                except OSError:  # a child that has ended
+                    pass
+            self.samples.append(pages * self._page_mb)
 
     def stop(self) -> dict[str, float]:
         self._stop.set()
         self._t.join()
         a = self.samples or [float("nan")]
         return {"first_mb": a[0], "last_mb": a[-1], "max_mb": max(a), "growth_percent": 100 * (a[-1] / a[0] - 1)}
+
+
+def proc_cpu_s(pid: int | None) -> float:
+    """User + system CPU seconds of process `pid` so far (/proc/PID/stat); 0 for None."""
+    import os
+
+    if pid is None:
+        return 0.0
+    with open(f"/proc/{pid}/stat") as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def one_run(mode: str, rec: Path, map_dir: Path, seconds: float, endpoint: str, out: Path,
@@ -80,7 +102,9 @@ def one_run(mode: str, rec: Path, map_dir: Path, seconds: float, endpoint: str, 
 
     view = mode.endswith("+view")
     eager = mode.endswith("+eager")
-    cfg = load_config("default", [f"runtime.mode={mode.split('+')[0]}", *overrides])
+    placement = {"realtime+process": ["runtime.vloc_process=true"],  # VLoc in its own process / in a thread,
+                 "realtime+thread": ["runtime.vloc_process=false"]}.get(mode, [])  # whatever the preset says
+    cfg = load_config("default", [f"runtime.mode={mode.split('+')[0]}", *overrides, *placement])
     cfg = with_endpoints(cfg, [], [endpoint], None)
     cfg = dataclasses.replace(cfg, zenoh=dataclasses.replace(cfg.zenoh, listen=()))
     src = McapSource(rec, strict=False)
@@ -95,20 +119,26 @@ def one_run(mode: str, rec: Path, map_dir: Path, seconds: float, endpoint: str, 
             yield m
 
     app = build_app(cfg, map_dir, limited(), 1.0, view_save=out.with_suffix(".rrd") if view else None)
+    child = app.vloc_process.pid if app.vloc_process is not None else None  # runtime.vloc_process
     ru0, t0 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
-    rss = RssSampler()
+    child_cpu0 = proc_cpu_s(child)
+    rss = RssSampler(pids=() if child is None else (child,))
     res = app.service.run()
     wall = time.perf_counter() - t0
     ru1 = resource.getrusage(resource.RUSAGE_SELF)
+    child_cpu = proc_cpu_s(child) - child_cpu0
     rss_report = rss.stop()
     view_report = None if app.view is None else app.view.report()
     app.close()
+    child_peak_mb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024 if child is not None else 0.0
     st = res.status
     c = st.get("counters", {})
     out.write_text(json.dumps({
         "mode": mode, "ok": res.ok, "reason": res.reason, "wall_s": wall, "frames": n_frames,
-        "cpu_percent": 100 * ((ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)) / wall,
-        "peak_rss_mb": ru1.ru_maxrss / 1024, "counters": c, "frames_dropped": st.get("frames_dropped"),
+        "cpu_percent": 100 * ((ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime) + child_cpu) / wall,
+        # with the VLoc process: the service's peak plus the child's (an upper bound of their sum's peak)
+        "peak_rss_mb": ru1.ru_maxrss / 1024 + child_peak_mb, "child_peak_rss_mb": child_peak_mb,
+        "vloc_process": child is not None, "counters": c, "frames_dropped": st.get("frames_dropped"),
         "vloc_hz": c.get("vloc_calls", 0) / seconds,
         "latency": st.get("latency", {}).get("odometry_to_publish", {}),
         "odometry_lost": c.get("odometry_in", 0) - c.get("odometry_fused", 0),
@@ -138,7 +168,8 @@ def main() -> None:
     ap.add_argument("--map", type=Path, default=None, help="map folder (default: the office map)")
     ap.add_argument("--seconds", type=float, default=30.0)
     ap.add_argument("--modes", nargs="+", default=None, choices=["realtime", "sequential", "realtime+view",
-                                                                     "realtime+eager"],
+                                                                     "realtime+eager", "realtime+process",
+                                                                     "realtime+thread"],
                     help="default: realtime sequential (with --view: realtime realtime+view)")
     ap.add_argument("--view", action="store_true", help="compare the threaded runtime with the live view off / on")
     ap.add_argument("--set", dest="overrides", action="append", default=[], help="config override, e.g. "
@@ -189,7 +220,9 @@ def main() -> None:
     rows = []
     names = {"realtime": "threaded runtime (realtime)", "sequential": "sequential baseline",
              "realtime+view": "threaded runtime + live view",
-             "realtime+eager": "threaded runtime, every frame decoded at the source"}
+             "realtime+eager": "threaded runtime, every frame decoded at the source",
+             "realtime+process": "threaded runtime, VLoc in its own process",
+             "realtime+thread": "threaded runtime, VLoc in a thread of the service"}
     for name, r in ((names[m], results[m]) for m in args.modes):
         r["lag_s"] = max(r["wall_s"] - args.seconds, 0.0)
         rows.append([name, lat(r, "median_ms"), lat(r, "p99_ms"), r["wire_latency"].get("median_ms", float("nan")),

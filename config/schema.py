@@ -213,6 +213,11 @@ class RuntimeConfig:
     # (0 = normal priority): VLoc is throughput work, fusion and publishing are latency work.
     # With VLoc niced, the fusion thread gets a core the moment an odometry message arrives.
     vloc_nice: int = 10
+    # true: in realtime and deterministic mode the localizer (models, map) runs in a child process
+    # at `vloc_nice` and the VLoc thread only waits on a pipe (runtime/vloc_process.py), so VLoc's
+    # Python glue never holds the GIL the fusion thread needs; false: in the service's VLoc thread.
+    # The sequential baseline always runs it inline.
+    vloc_process: bool = False
     # sys.setswitchinterval: how long a thread may hold the GIL while another waits. Python's
     # 5 ms default lets a GIL-holding VLoc step delay fused poses by 5-25 ms (measured, see
     # bench/runtime_queues.py); 0.5 ms keeps the fusion->publish p99 near 1-2 ms.

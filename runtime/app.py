@@ -22,12 +22,14 @@ from litevloc.hw.messages import GroundTruthPose, SourceMessage
 from litevloc.pipelines.fusion.online import OnlineFusion
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map
+from litevloc.pipelines.topomap.types import TopoMap
 from litevloc.runtime.bus import Bus, LiteVLocPublisher
 from litevloc.runtime.diagnostics import DiagnosticsPublisher
 from litevloc.runtime.frame_guard import FrameGuard
-from litevloc.runtime.service import Service, fusion_callables, localizer_callable
+from litevloc.runtime.service import Service, VlocFn, fusion_callables, localizer_callable
 from litevloc.runtime.stages import call_in_low_priority_thread
 from litevloc.runtime.vloc_models import check_map_models, load_bundle
+from litevloc.runtime.vloc_process import VlocProcess, VlocWorkerSpec
 
 
 @dataclass
@@ -56,14 +58,17 @@ class Recorder:
 class App:
     service: Service
     bus: Bus
-    localizer: VisualLocalizer
+    localizer: VisualLocalizer | None  # None when VLoc runs in its own process (`vloc_process`)
     fusion: OnlineFusion
     recorder: Recorder
     T_base_camera: NDArray[np.float64]
     view: Any = None  # runtime.view.LiveView with --view / --view-save
+    vloc_process: VlocProcess | None = None  # runtime.vloc_process: the child that runs the localizer
 
     def close(self) -> None:
         self.bus.close()
+        if self.vloc_process is not None:
+            self.vloc_process.close()
         if self.view is not None:
             self.view.close()
 
@@ -98,12 +103,26 @@ def build_app(
     """Load map and models, open the bus, and wire the service (nothing runs yet).
 
     `view_spawn` / `view_save`: the live view (`runtime.view`, imported only then), fed off
-    the hot path from the VLoc callable, the fused-pose hook and the status tick."""
-    models = dataclasses.replace(cfg.models, intra_op_threads=cfg.runtime.ort_intra_op_threads)
-    # Sessions made in a low-priority thread: their intra-op threads inherit the VLoc thread's nice.
-    bundle = call_in_low_priority_thread(lambda: load_bundle(models), cfg.runtime.vloc_nice)
-    topomap = check_map_models(load_map(map_path), bundle)
-    localizer = VisualLocalizer(topomap, cfg.localization, bundle.extract, bundle.describe, bundle.match)
+    the hot path from the VLoc callable, the fused-pose hook and the status tick.
+
+    With `runtime.vloc_process` (realtime and deterministic modes) the models and the map are
+    loaded by the VLoc child process (`runtime.vloc_process`), which is started and has loaded
+    them when this returns; this process loads the map only for the live view."""
+    localizer: VisualLocalizer | None = None
+    vloc_proc: VlocProcess | None = None
+    topomap: TopoMap | None
+    inner_vloc: VlocFn
+    if cfg.runtime.vloc_process and cfg.runtime.mode != "sequential":
+        vloc_proc = VlocProcess(VlocWorkerSpec(cfg, Path(map_path)))
+        inner_vloc = vloc_proc
+        topomap = load_map(map_path) if (view_spawn or view_save is not None) else None
+    else:
+        models = dataclasses.replace(cfg.models, intra_op_threads=cfg.runtime.ort_intra_op_threads)
+        # Sessions made in a low-priority thread: their intra-op threads inherit the VLoc thread's nice.
+        bundle = call_in_low_priority_thread(lambda: load_bundle(models), cfg.runtime.vloc_nice)
+        topomap = check_map_models(load_map(map_path), bundle)
+        localizer = VisualLocalizer(topomap, cfg.localization, bundle.extract, bundle.describe, bundle.match)
+        inner_vloc = localizer_callable(localizer)
     T_base_camera = cfg.fusion.T_base_camera()
     fusion = OnlineFusion(cfg.fusion.params, T_base_camera)
     recorder = Recorder(enabled=record)
@@ -117,9 +136,15 @@ def build_app(
         view = call_in_low_priority_thread(
             lambda: LiveView(save=view_save, spawn=view_spawn, topomap=topomap, T_base_camera=T_base_camera,
                              nice=cfg.runtime.vloc_nice), cfg.runtime.vloc_nice)
-    bus = Bus(cfg.zenoh)
     try:
-        diagnostics = DiagnosticsPublisher(cfg.diagnostics, map_id(map_path), topomap.n_nodes)
+        bus = Bus(cfg.zenoh)
+    except Exception:
+        if vloc_proc is not None:
+            vloc_proc.close()
+        raise
+    try:
+        n_nodes = topomap.n_nodes if topomap is not None else _manifest_nodes(Path(map_path))
+        diagnostics = DiagnosticsPublisher(cfg.diagnostics, map_id(map_path), n_nodes)
         publisher = LiteVLocPublisher(bus, cfg.runtime.lost_policy, cfg.runtime.lost_variance,
                                       diagnostics=diagnostics)
         on_odom, on_vloc = fusion_callables(fusion)
@@ -139,7 +164,7 @@ def build_app(
             if view is not None:
                 view.put_fused(f)
 
-        vloc_fn = FrameGuard(localizer_callable(localizer))
+        vloc_fn = FrameGuard(inner_vloc)
         if view is not None:
             vloc_fn = view.wrap_vloc(vloc_fn)
             publisher.on_status = view.put_status
@@ -151,7 +176,16 @@ def build_app(
         )
     except Exception:
         bus.close()
+        if vloc_proc is not None:
+            vloc_proc.close()
         if view is not None:
             view.close()
         raise
-    return App(service, bus, localizer, fusion, recorder, T_base_camera, view)
+    return App(service, bus, localizer, fusion, recorder, T_base_camera, view, vloc_proc)
+
+
+def _manifest_nodes(map_path: Path) -> int:
+    """The node count a map's manifest states (the VLoc process validated the whole map)."""
+    import json
+
+    return int(json.loads((map_path / "manifest.json").read_text())["nodes"])
