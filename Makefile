@@ -56,17 +56,10 @@ test: $(VENV)/.dev-installed models browser
 # check and `lint-cross` go through a symlinked `litevloc` namespace tree instead.
 MYPY_NS := out/mypy-namespace
 MYPY_NS_RUN := MYPYPATH=$(MYPY_NS) $(VENV)/bin/mypy --namespace-packages
-# mypy --strict clean (issue 19): the bottom layer, the run-time model layer (not models/export,
-# torch), the pipelines modules no other branch was editing, and the service core and shell.
-# Still to do: the rest of runtime, hw,
-# pipelines/localization, pnp, depth_lookup, topomap, navigation/planner, evaluation/reloc.
-MYPY_STRICT := -p litevloc.base -m litevloc.models -m litevloc.models.types -m litevloc.models.registry \
-	-m litevloc.models.catalog -m litevloc.models.classical -m litevloc.models.vpr -m litevloc.models.aliked \
-	-m litevloc.models.lightglue -m litevloc.models.ort -m litevloc.models.preprocess -m litevloc.models.config \
-	-m litevloc.pipelines.calibration -m litevloc.pipelines.depth_odometry -m litevloc.pipelines.odometry_drift \
-	-m litevloc.pipelines.stereo_depth -m litevloc.pipelines.geometry -m litevloc.pipelines.evaluation.trajectory -m litevloc.pipelines.evaluation.mapfree \
-	-p litevloc.pipelines.fusion -m litevloc.runtime.localization_core -m litevloc.runtime.vloc_prior \
-	-m litevloc.runtime.service
+# mypy --strict clean (issue 19): the bottom layer, all of models and pipelines, and the service
+# core and shell. Still to do: runtime and hw, strict only for the runtime modules listed here.
+MYPY_STRICT := -p litevloc.base -p litevloc.models -p litevloc.pipelines -m litevloc.runtime.localization_core \
+	-m litevloc.runtime.vloc_prior -m litevloc.runtime.service
 
 mypy-namespace:
 	rm -rf $(MYPY_NS) && mkdir -p $(MYPY_NS)/litevloc

@@ -22,11 +22,16 @@ Only this package (models/export) imports torch.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import torch
 import torch.nn.functional as F
 from torch import nn
+
+if TYPE_CHECKING:
+    from torch.onnx._internal.torchscript_exporter.jit_utils import GraphContext
 
 # c1, c2, c3, c4, dim, K (SDDH kernel), M (SDDH sample positions)
 ALIKED_CFGS: dict[str, tuple[int, int, int, int, int, int, int]] = {
@@ -60,7 +65,9 @@ class DeformableConv2d(nn.Module):
         max_offset = max(h, w) / 4.0
         offset = self.offset_conv(x).clamp(-max_offset, max_offset)  # (B, 18, H, W)
         if self.mode == "deformconv":
-            out: torch.Tensor = DeformConvFunction.apply(x, self.regular_conv.weight, offset)
+            # torch leaves Function.apply unannotated; its signature is that of forward below
+            deform_conv: Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor] = DeformConvFunction.apply
+            out: torch.Tensor = deform_conv(x, self.regular_conv.weight, offset)
             return out
         return deform_conv3x3(x, self.regular_conv.weight, offset)
 
@@ -95,12 +102,14 @@ class DeformConvFunction(torch.autograd.Function):
     """
 
     @staticmethod
-    def forward(ctx, x, weight, offset):
+    def forward(
+        ctx: torch.autograd.function.FunctionCtx, x: torch.Tensor, weight: torch.Tensor, offset: torch.Tensor
+    ) -> torch.Tensor:
         return deform_conv3x3(x, weight, offset)
 
     @staticmethod
-    def symbolic(g, x, weight, offset):
-        return g.op(
+    def symbolic(g: GraphContext, x: torch._C.Value, weight: torch._C.Value, offset: torch._C.Value) -> torch._C.Value:
+        out: torch._C.Value = g.op(
             "DeformConv",
             x,
             weight,
@@ -112,6 +121,7 @@ class DeformConvFunction(torch.autograd.Function):
             group_i=1,
             offset_group_i=1,
         )
+        return out
 
 
 class ConvBlock(nn.Module):
@@ -125,7 +135,8 @@ class ConvBlock(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         x = self.gate(self.bn1(self.conv1(x)))
-        return self.gate(self.bn2(self.conv2(x)))
+        y: torch.Tensor = self.gate(self.bn2(self.conv2(x)))
+        return y
 
 
 class ResBlock(nn.Module):
@@ -147,7 +158,8 @@ class ResBlock(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         out = self.gate(self.bn1(self.conv1(x)))
         out = self.bn2(self.conv2(out))
-        return self.gate(out + self.downsample(x))
+        y: torch.Tensor = self.gate(out + self.downsample(x))
+        return y
 
 
 class SDDH(nn.Module):

@@ -85,7 +85,8 @@ class SelfBlock(nn.Module):
         q, k = apply_rotary(enc, q), apply_rotary(enc, k)
         ctx = _attention(q, k, v)
         msg = self.out_proj(ctx.transpose(1, 2).reshape(b, n, d))
-        return x + self.ffn(torch.cat([x, msg], -1))
+        out: torch.Tensor = x + self.ffn(torch.cat([x, msg], -1))
+        return out
 
 
 class CrossBlock(nn.Module):
@@ -128,7 +129,8 @@ class TransformerLayer(nn.Module):
     def forward(
         self, d0: torch.Tensor, d1: torch.Tensor, e0: torch.Tensor, e1: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        return self.cross_attn(self.self_attn(d0, e0), self.self_attn(d1, e1))
+        out: tuple[torch.Tensor, torch.Tensor] = self.cross_attn(self.self_attn(d0, e0), self.self_attn(d1, e1))
+        return out
 
 
 class MatchAssignment(nn.Module):
@@ -154,7 +156,8 @@ class TokenConfidence(nn.Module):
 
     def forward(self, d: torch.Tensor) -> torch.Tensor:
         """(B, N, dim) -> (B, N) confidence that the token's match will not change any more."""
-        return self.token(d).squeeze(-1)
+        conf: torch.Tensor = self.token(d).squeeze(-1)
+        return conf
 
 
 def matchability(head: nn.Module, d: torch.Tensor) -> torch.Tensor:

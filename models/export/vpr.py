@@ -98,7 +98,8 @@ class MBConv(nn.Module):
             y = F.relu6(self._bn0(self._expand_conv(y)))
         y = F.relu6(self._bn1(self._depthwise_conv(y)))
         y = self._bn2(self._project_conv(y))
-        return y + x if self.skip else y
+        out: torch.Tensor = y + x if self.skip else y
+        return out
 
 
 class EfficientNetLite0GeM(nn.Module):
@@ -180,7 +181,8 @@ class CosPlaceR18(nn.Module):
         )
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.aggregation(self.backbone(x))
+        desc: torch.Tensor = self.aggregation(self.backbone(x))
+        return desc
 
 
 def load_cosplace(checkpoint: Path) -> CosPlaceR18:

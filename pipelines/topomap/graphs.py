@@ -19,7 +19,7 @@ Connectivity (CnG, for planning), the rule:
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -107,8 +107,8 @@ def pair_inliers(
 
 
 def build_covisibility(
-    T_map_camera: NDArray[np.float64], K: NDArray[np.float64], features: list[FeatureSet],
-    keypoint_depth: list[NDArray[np.float32]], match: MatchFn, params: CovisibilityParams,
+    T_map_camera: NDArray[np.float64], K: NDArray[np.float64], features: Sequence[FeatureSet],
+    keypoint_depth: Sequence[NDArray[np.float32]], match: MatchFn, params: CovisibilityParams,
     on_pair: Callable[[], None] | None = None,
 ) -> tuple[NDArray[np.int64], NDArray[np.int32], NDArray[np.float32]]:
     """(E,2) edges, (E,) inliers, (E,) weights of the covisibility graph."""

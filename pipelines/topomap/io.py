@@ -42,7 +42,7 @@ import json
 import shutil
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, overload
+from typing import Any, cast, overload
 
 import numpy as np
 from numpy.typing import NDArray
@@ -375,7 +375,7 @@ def _streamed_npy(
     if problem is not None:
         raise problem_error(folder, rel, problem)
     try:
-        a = np.load(p, mmap_mode="r", allow_pickle=False)
+        a = cast(NDArray[Any], np.load(p, mmap_mode="r", allow_pickle=False))  # a .npy file: an ndarray (memmap)
     except (ValueError, OSError, EOFError) as exc:
         raise _fail(folder, rel, f"not a readable .npy array ({exc})") from exc
     if a.shape != tuple(a_shape) or a.dtype != np.dtype(a_dtype):
@@ -392,7 +392,7 @@ def problem_error(folder: Path, rel: str, problem: str) -> MapFormatError:
 
 def _array(folder: Path, rel: str, data: bytes, dtype: Any, shape: tuple[int | None, ...]) -> NDArray[Any]:
     try:
-        a = np.load(io.BytesIO(data), allow_pickle=False)
+        a: NDArray[Any] = np.load(io.BytesIO(data), allow_pickle=False)  # .npy bytes: an ndarray
     except (ValueError, OSError, EOFError) as exc:
         raise _fail(folder, rel, f"not a readable .npy array ({exc})") from exc
     dtypes = dtype if isinstance(dtype, tuple) else (dtype,)

@@ -24,6 +24,7 @@ frame into A's map frame; node poses are `T_map_camera`.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -128,13 +129,8 @@ def transform_map(m: TopoMap, T_new_old: NDArray[np.float64]) -> TopoMap:
     g = m.grid
     axes = g.plane_axes @ R.T  # (2, 3): rows rotated into the new frame
     grid = OccupancyGrid(g.cells, g.origin + axes @ t, g.resolution, R @ g.up, axes)
-    return _replace(m, T_map_camera=np.einsum("ij,njk->nik", T, m.T_map_camera), grid=grid)
-
-
-def _replace(m: TopoMap, **kw: object) -> TopoMap:
-    import dataclasses
-
-    return dataclasses.replace(m, **kw)
+    T_map_camera: NDArray[np.float64] = np.einsum("ij,njk->nik", T, m.T_map_camera)
+    return dataclasses.replace(m, T_map_camera=T_map_camera, grid=grid)
 
 
 # ---------------------------------------------------------------------- landmarks
@@ -234,7 +230,7 @@ def find_links(
 
 
 def _pose3(T: NDArray[np.float64]) -> gtsam.Pose3:
-    return gtsam.Pose3(gtsam.Rot3(T[:3, :3]), gtsam.Point3(*T[:3, 3]))
+    return gtsam.Pose3(gtsam.Rot3(T[:3, :3]), np.array(T[:3, 3], dtype=float))
 
 
 def robust_alignment(
@@ -439,8 +435,6 @@ def merge_sessions(
     links, tried = find_links(A, B, match, params, on_node)
     alignment = align(links, B, params)
     merged, report = join_maps(A, transform_map(B, alignment.T_A_B), links, alignment, params)
-    import dataclasses
-
     report = dataclasses.replace(report, links_tried=tried)
     merged.meta["merge_T_first_second"] = json.dumps([list(r) for r in report.T_A_B])
     merged.meta["merge_links"] = f"{report.links_consistent}/{report.links_verified}"

@@ -339,7 +339,7 @@ class MapUpdate:
         cands = self.candidates
         T = np.concatenate([m.T_map_camera[kept], _stack([c.T_map_camera for c in cands], (4, 4))])
         K = np.concatenate([m.K[kept], _stack([c.K for c in cands], (3, 3))])
-        feats: list[FeatureSet] = [*(m.stored_features(i) for i in kept), *(c.features for c in cands)]
+        feats: list[NodeFeatures] = [*(m.stored_features(i) for i in kept), *(c.features for c in cands)]
         grid = self._grid(occupancy)
         # covisibility: old edges between kept nodes + verified edges of every new node
         covis: dict[tuple[int, int], tuple[int, float]] = {}
