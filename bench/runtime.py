@@ -14,6 +14,8 @@ Frames reach the service as `litevloc run` gives them: colour undecoded, decoded
 VLoc takes a frame (`runtime.sources.service_messages`); mode `realtime+eager` decodes every
 frame at the source as before, for an A/B in the same run (`--modes realtime realtime+eager`).
 
+`--modes realtime realtime+alt --alt-set KEY=VALUE ...` is an A/B of any runtime setting in one
+run (e.g. the fused-pose latency settings: `--alt-set runtime.fusion_rt_priority=0`).
 `--modes realtime+thread realtime+process` compares VLoc in a thread of the service with VLoc
 in its own process (`runtime.vloc_process`; RSS and CPU then include the child's).
 
@@ -47,24 +49,33 @@ from _common import ROOT, office_inputs, print_table, write_json
 
 
 class RssSampler:
-    """RSS (MB, /proc/self/statm plus that of `pids`, e.g. the VLoc process) every `period_s`
-    in a daemon thread."""
+    """RSS (MB) of this process plus its child processes (the VLoc process, the recording
+    reader: `runtime.vloc_process`, `runtime.recording_process`) every `period_s` in a daemon
+    thread."""
 
-    def __init__(self, period_s: float = 0.5, pids: tuple[int, ...] = ()) -> None:
+    def __init__(self, period_s: float = 0.5) -> None:
         import os
         import threading
 
         self.samples: list[float] = []
-        self._files = ["/proc/self/statm", *(f"/proc/{p}/statm" for p in pids)]
         self._page_mb = os.sysconf("SC_PAGE_SIZE") / 2**20
         self._stop = threading.Event()
         self._t = threading.Thread(target=self._run, args=(period_s,), daemon=True)
         self._t.start()
 
     def _run(self, period_s: float) -> None:
+        import glob
+
         while not self._stop.wait(period_s):
             pages = 0
-            for name in self._files:
+            children = set()
+            for name in glob.glob("/proc/self/task/*/children"):
+                try:
+                    with open(name) as f:
+                        children.update(f.read().split())
+                except OSError:
+                    pass
+            for name in ["/proc/self/statm", *(f"/proc/{c}/statm" for c in sorted(children))]:
                 try:
                     with open(name) as f:
                         pages += int(f.read().split()[1])
@@ -91,7 +102,7 @@ def proc_cpu_s(pid: int | None) -> float:
 
 
 def one_run(mode: str, rec: Path, map_dir: Path, seconds: float, endpoint: str, out: Path,
-            overrides: list[str]) -> None:
+            overrides: list[str], alt_overrides: list[str] | None = None) -> None:
     import dataclasses
 
     from litevloc.config import load_config
@@ -103,7 +114,8 @@ def one_run(mode: str, rec: Path, map_dir: Path, seconds: float, endpoint: str, 
     view = mode.endswith("+view")
     eager = mode.endswith("+eager")
     placement = {"realtime+process": ["runtime.vloc_process=true"],  # VLoc in its own process / in a thread,
-                 "realtime+thread": ["runtime.vloc_process=false"]}.get(mode, [])  # whatever the preset says
+                 "realtime+thread": ["runtime.vloc_process=false"],  # whatever the preset says
+                 "realtime+alt": alt_overrides}.get(mode, [])
     cfg = load_config("default", [f"runtime.mode={mode.split('+')[0]}", *overrides, *placement])
     cfg = with_endpoints(cfg, [], [endpoint], None)
     cfg = dataclasses.replace(cfg, zenoh=dataclasses.replace(cfg.zenoh, listen=()))
@@ -112,7 +124,8 @@ def one_run(mode: str, rec: Path, map_dir: Path, seconds: float, endpoint: str, 
 
     def limited() -> Iterator[SourceMessage]:
         t_end = None
-        for m in (src if eager else service_messages(src)):
+        reader = cfg.runtime.recording_process and cfg.runtime.mode != "sequential"
+        for m in (src if eager else service_messages(src, reader_process=reader)):
             t_end = m.t_ns + int(seconds * 1e9) if t_end is None else t_end
             if m.t_ns > t_end:
                 break
@@ -121,23 +134,25 @@ def one_run(mode: str, rec: Path, map_dir: Path, seconds: float, endpoint: str, 
     app = build_app(cfg, map_dir, limited(), 1.0, view_save=out.with_suffix(".rrd") if view else None)
     child = app.vloc_process.pid if app.vloc_process is not None else None  # runtime.vloc_process
     ru0, t0 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
-    child_cpu0 = proc_cpu_s(child)
-    rss = RssSampler(pids=() if child is None else (child,))
+    child_cpu0 = proc_cpu_s(child)  # the VLoc process loaded its models before t0: not counted
+    ruc0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    rss = RssSampler()
     res = app.service.run()
     wall = time.perf_counter() - t0
     ru1 = resource.getrusage(resource.RUSAGE_SELF)
-    child_cpu = proc_cpu_s(child) - child_cpu0
     rss_report = rss.stop()
     view_report = None if app.view is None else app.view.report()
-    app.close()
-    child_peak_mb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024 if child is not None else 0.0
+    app.close()  # ends (and reaps) the VLoc process; the recording reader ended with the source
+    ruc1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    child_cpu = (ruc1.ru_utime - ruc0.ru_utime) + (ruc1.ru_stime - ruc0.ru_stime) - child_cpu0
     st = res.status
     c = st.get("counters", {})
     out.write_text(json.dumps({
         "mode": mode, "ok": res.ok, "reason": res.reason, "wall_s": wall, "frames": n_frames,
         "cpu_percent": 100 * ((ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime) + child_cpu) / wall,
-        # with the VLoc process: the service's peak plus the child's (an upper bound of their sum's peak)
-        "peak_rss_mb": ru1.ru_maxrss / 1024 + child_peak_mb, "child_peak_rss_mb": child_peak_mb,
+        # this process and its children (VLoc process, recording reader) together: the largest
+        # sampled sum, or this process's own peak where that is larger
+        "peak_rss_mb": max(ru1.ru_maxrss / 1024, rss_report["max_mb"]), "self_peak_rss_mb": ru1.ru_maxrss / 1024,
         "vloc_process": child is not None, "counters": c, "frames_dropped": st.get("frames_dropped"),
         "vloc_hz": c.get("vloc_calls", 0) / seconds,
         "latency": st.get("latency", {}).get("odometry_to_publish", {}),
@@ -169,16 +184,20 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=30.0)
     ap.add_argument("--modes", nargs="+", default=None, choices=["realtime", "sequential", "realtime+view",
                                                                      "realtime+eager", "realtime+process",
-                                                                     "realtime+thread"],
+                                                                     "realtime+thread", "realtime+alt"],
                     help="default: realtime sequential (with --view: realtime realtime+view)")
     ap.add_argument("--view", action="store_true", help="compare the threaded runtime with the live view off / on")
     ap.add_argument("--set", dest="overrides", action="append", default=[], help="config override, e.g. "
                     "models.intra_op_threads=1")
+    ap.add_argument("--alt-set", dest="alt_overrides", action="append", default=[],
+                    help="config override of mode realtime+alt only (an A/B against realtime in the same run), "
+                    "e.g. runtime.fusion_rt_priority=0")
     ap.add_argument("--repeat", type=int, default=1, help="runs per mode, interleaved; medians reported")
     ap.add_argument("--one", nargs=3, metavar=("MODE", "ENDPOINT", "OUT"), help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.one:
-        one_run(args.one[0], args.rec, args.map, args.seconds, args.one[1], Path(args.one[2]), args.overrides)
+        one_run(args.one[0], args.rec, args.map, args.seconds, args.one[1], Path(args.one[2]), args.overrides,
+                args.alt_overrides)
         return
     if args.modes is None:
         args.modes = ["realtime", "realtime+view"] if args.view else ["realtime", "sequential"]
@@ -198,6 +217,7 @@ def main() -> None:
                                    listen=True)
                 subprocess.run([sys.executable, __file__, "--rec", str(args.rec), "--map", str(args.map),
                                 "--seconds", str(args.seconds), *[a for o in args.overrides for a in ("--set", o)],
+                                *[a for o in args.alt_overrides for a in ("--alt-set", o)],
                                 "--one", mode, ep, str(run_out)], check=True)
                 r = json.loads(run_out.read_text())
                 if r["counters"].get("poses_published", 0) == 0:  # nothing to wait for: the probe would sit out
@@ -222,7 +242,8 @@ def main() -> None:
              "realtime+view": "threaded runtime + live view",
              "realtime+eager": "threaded runtime, every frame decoded at the source",
              "realtime+process": "threaded runtime, VLoc in its own process",
-             "realtime+thread": "threaded runtime, VLoc in a thread of the service"}
+             "realtime+thread": "threaded runtime, VLoc in a thread of the service",
+             "realtime+alt": "threaded runtime with " + " ".join(args.alt_overrides)}
     for name, r in ((names[m], results[m]) for m in args.modes):
         r["lag_s"] = max(r["wall_s"] - args.seconds, 0.0)
         rows.append([name, lat(r, "median_ms"), lat(r, "p99_ms"), r["wire_latency"].get("median_ms", float("nan")),
@@ -236,7 +257,8 @@ def main() -> None:
     print("in-service latency = odometry message dequeued -> fused pose handed to Zenoh. The sequential baseline\n"
           "handles each message quickly once it gets to it, but VLoc on every frame makes it fall behind the\n"
           "sensor stream: its poses are late by up to the 'behind real time' column.")
-    out: dict = {"seconds": args.seconds, "overrides": args.overrides, **results}
+    out: dict = {"seconds": args.seconds, "overrides": args.overrides, "alt_overrides": args.alt_overrides,
+                 **results}
     if "realtime" in results and "sequential" in results:
         ratio = results["sequential"]["wall_s"] / results["realtime"]["wall_s"]
         print(f"wall time for {args.seconds:.0f} s of sensor data: sequential / threaded = {ratio:.1f}x")

@@ -192,9 +192,13 @@ class RuntimeConfig:
     odometry_queue_capacity: int = 4096
     result_queue_capacity: int = 64
     publish_queue_capacity: int = 4096
-    # true: the fusion thread serialises and puts on Zenoh itself (one GIL hand-off less per pose);
-    # false: through the outbox FIFO to a publisher thread (fusion never waits on the network)
-    publish_inline: bool = False
+    # true: the fusion thread serialises and puts on Zenoh itself (one thread hand-off less per pose;
+    # a Zenoh put does not wait for the network); false: through the outbox FIFO to a publisher thread
+    publish_inline: bool = True
+    # true: odometry that makes a fusion keyframe due is answered from the current estimate and the
+    # smoother update (~1-3 ms, every fusion.keyframe_period_s = 5 % of 200 Hz odometry) runs after
+    # the pose is handed on (published, with publish_inline); false: before, as the pose's own cost.
+    defer_fusion_updates: bool = True
     status_period_s: float = 1.0
     map_to_odom_period_s: float = 0.1  # sensor time between map_to_odom messages (and after each VLoc fix)
     stage_join_timeout_s: float = 5.0  # shutdown: a stage not ending by then is reported
@@ -213,11 +217,22 @@ class RuntimeConfig:
     # (0 = normal priority): VLoc is throughput work, fusion and publishing are latency work.
     # With VLoc niced, the fusion thread gets a core the moment an odometry message arrives.
     vloc_nice: int = 10
+    # 1-99: the fusion and publisher threads run SCHED_FIFO at this priority, so a fused pose never
+    # waits for a core behind VLoc or I/O threads (bench/runtime.py, office, 2 CPUs: in-service p99
+    # 5.8 -> 2.7 ms with publish_inline and defer_fusion_updates); 0: normal scheduling. Needs
+    # CAP_SYS_NICE or an rtprio limit (systemd LimitRTPRIO=); without, the threads keep normal
+    # priority and the log and status (stages.fusion.scheduling) say why.
+    fusion_rt_priority: int = 10
     # true: in realtime and deterministic mode the localizer (models, map) runs in a child process
-    # at `vloc_nice` and the VLoc thread only waits on a pipe (runtime/vloc_process.py), so VLoc's
-    # Python glue never holds the GIL the fusion thread needs; false: in the service's VLoc thread.
-    # The sequential baseline always runs it inline.
+    # at `vloc_nice` and the VLoc thread only waits on a pipe (runtime/vloc_process.py): VLoc's
+    # Python glue never holds the service's GIL and a crash in it cannot take fusion down. Costs
+    # ~80 MB RSS (a second interpreter); with fusion_rt_priority the p99 gain is small (2.7 -> 2.2
+    # ms, one run), so off by default. The sequential baseline always runs VLoc inline.
     vloc_process: bool = False
+    # true: a recording the service replays (`litevloc replay/run --source REC`, realtime and
+    # deterministic mode) is read and decoded in a child process (runtime/recording_process.py):
+    # the MCAP reader and CDR decoding of 200 Hz odometry otherwise hold the service's GIL.
+    recording_process: bool = True
     # sys.setswitchinterval: how long a thread may hold the GIL while another waits. Python's
     # 5 ms default lets a GIL-holding VLoc step delay fused poses by 5-25 ms (measured, see
     # bench/runtime_queues.py); 0.5 ms keeps the fusion->publish p99 near 1-2 ms.
@@ -243,6 +258,8 @@ class RuntimeConfig:
                 raise ValueError(f"runtime.{name} must be >= 1, got {getattr(self, name)}")
         if self.stage_max_restarts < 0:
             raise ValueError("runtime.stage_max_restarts must be >= 0")
+        if not 0 <= self.fusion_rt_priority <= 99:
+            raise ValueError(f"runtime.fusion_rt_priority must be in [0, 99], got {self.fusion_rt_priority}")
         if not 0 <= self.vloc_nice <= 19:
             raise ValueError(f"runtime.vloc_nice must be in [0, 19], got {self.vloc_nice}")
         if not (1e-5 <= self.gil_switch_interval_s <= 0.1):

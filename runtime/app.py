@@ -147,7 +147,10 @@ def build_app(
         diagnostics = DiagnosticsPublisher(cfg.diagnostics, map_id(map_path), n_nodes)
         publisher = LiteVLocPublisher(bus, cfg.runtime.lost_policy, cfg.runtime.lost_variance,
                                       diagnostics=diagnostics)
-        on_odom, on_vloc = fusion_callables(fusion)
+        # The smoother update a fusion keyframe needs (~1-3 ms, every fusion.keyframe_period_s) runs
+        # after the pose is handed on, not before (runtime.defer_fusion_updates).
+        defer = cfg.runtime.defer_fusion_updates
+        on_odom, on_vloc = fusion_callables(fusion, defer_updates=defer)
         receiver: Callable[[Callable[[Any], None]], Any] | None = None
         if cfg.runtime.odometry_input == "zenoh":
             from litevloc.hw.odometry import OdometryReceiver
@@ -173,6 +176,7 @@ def build_app(
             source, vloc_fn, on_odom, on_vloc, publisher, cfg.runtime, rate=rate,
             T_base_camera=T_base_camera, odometry_receiver=receiver,
             on_ground_truth=recorder.on_ground_truth, on_fused=fused_hook,
+            after_odometry=fusion.flush if defer else None,
         )
     except Exception:
         bus.close()

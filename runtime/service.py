@@ -24,6 +24,9 @@ Injected callables (the lead plugs the real ones; tests use fakes):
   (e.g. `fusion_callables(OnlineFusion)`); both run in the fusion thread only, so the fusion
   object needs no lock.
 * `publisher`: `runtime.bus.LiteVLocPublisher` or a fake with the same four methods.
+* `after_odometry()` (optional): called in the fusion thread after each odometry message's
+  outputs were handed on (published, with `publish_inline`), e.g. `OnlineFusion.flush`: the
+  smoother update that `fusion_callables(..., defer_updates=True)` left for after the pose.
 
 Fused covariances are converted with `covariance_to_ros` (e.g.
 `bus.gtsam_to_ros_covariance`) before publishing; default: already in ROS order.
@@ -148,6 +151,7 @@ class Service:
         odometry_receiver: Callable[[Callable[[Odometry], None]], Any] | None = None,
         on_ground_truth: Callable[[GroundTruthPose], None] | None = None,
         on_fused: Callable[[FusedPoseLike], None] | None = None,
+        after_odometry: Callable[[], None] | None = None,
         configure_thread_counts: bool = True,
     ) -> None:
         self.params = p = params or RuntimeConfig()
@@ -159,6 +163,7 @@ class Service:
         self.vloc_fn = vloc
         self.publisher = publisher
         self.on_ground_truth = on_ground_truth
+        self.after_odometry = after_odometry
         self.core = LocalizationCore(on_odometry, on_vloc, p, np.asarray(T_base_camera, dtype=np.float64),
                                      covariance_to_ros, on_fused, window=p.latency_window)
         self._odometry_receiver_factory = odometry_receiver
@@ -202,9 +207,10 @@ class Service:
         self.fusion_stage = Stage(
             "fusion",
             [StageInput(self.odometry, self._handle_odometry_item), StageInput(self.results, self._handle_result)],
-            self._stop, oe, mr,
+            self._stop, oe, mr, rt_priority=p.fusion_rt_priority,
         )
-        self.publish_stage = Stage("publisher", [StageInput(self.outbox, self._handle_publish)], self._stop, oe, mr)
+        self.publish_stage = Stage("publisher", [StageInput(self.outbox, self._handle_publish)], self._stop, oe, mr,
+                                   rt_priority=p.fusion_rt_priority)
         self.status_stage = Periodic("status", self._status_tick, p.status_period_s, threading.Event())
         self.stages: list[_StageThread] = [self.source_stage, self.vloc_stage, self.fusion_stage, self.publish_stage]
 
@@ -294,6 +300,8 @@ class Service:
         for st in (self.vloc_stage, self.fusion_stage, self.publish_stage):
             st.wake()
         stuck = [st.name for st in self.stages if not st.join(p.stage_join_timeout_s)]
+        if "source" not in stuck:
+            self._close_source()
         self.status_stage.stop_event.set()
         self.status_stage.join(p.stage_join_timeout_s)
         if self.status_stage.state == StageState.CREATED:
@@ -305,6 +313,16 @@ class Service:
         status = self.status()
         status["stop_reason"] = reason
         return ServiceResult(ok=ok, reason=reason, status=status)
+
+    def _close_source(self) -> None:
+        """Close the source where it can be closed (a generator, a recording read in a child
+        process), so what it holds (files, the reader process) ends with the service."""
+        close = getattr(self.source, "close", None)
+        if callable(close):
+            try:
+                close()
+            except Exception as exc:  # e.g. a generator still running in a stuck source thread
+                log.warning("could not close the source: %s", exc)
 
     # ------------------------------------------------------------------ source thread
     def _push_odometry(self, odom: Odometry) -> None:
@@ -398,6 +416,8 @@ class Service:
         try:
             for out in self.core.odometry(odom, t_in):
                 self._out(out)
+            if self.after_odometry is not None:  # work the pose must not wait for (deferred fusion update)
+                self.after_odometry()
         finally:
             self._odom_done += 1
             self._notify_progress()
@@ -459,6 +479,7 @@ class Service:
             else:
                 self._stop_reason = self._stop_reason or "end of source"
             self.source_stage.state = StageState.DONE
+            self._close_source()
         except Exception as exc:
             from litevloc.runtime.stages import traceback_summary
 
@@ -571,14 +592,20 @@ def localizer_callable(localizer: VisualLocalizer) -> VlocFn:
     return vloc
 
 
-def fusion_callables(fusion: OnlineFusion) -> tuple[OdometryFn, VlocUpdateFn]:
+def fusion_callables(fusion: OnlineFusion, defer_updates: bool = False) -> tuple[OdometryFn, VlocUpdateFn]:
     """An object with `add_odometry(t_ns, T_odom_base, covariance)` and
     `add_vloc(t_ns, T_map_camera, covariance, vote_only=False)` (the GTSAM `OnlineFusion`) -> the
     service's `(on_odometry, on_vloc)`; a rejected result with a provisional pose goes in as a vote.
     The VLoc covariance is passed as `pipelines.pnp` gives it:
-    6x6, camera-frame right perturbation, order (tx, ty, tz, rx, ry, rz)."""
+    6x6, camera-frame right perturbation, order (tx, ty, tz, rx, ry, rz).
+
+    `defer_updates`: odometry that makes a fusion keyframe due returns its pose before the
+    smoother update, which waits for `fusion.flush()` (pass it to the `Service` as
+    `after_odometry`, so the pose is published first)."""
 
     def on_odometry(o: Odometry) -> FusedPoseLike | None:
+        if defer_updates:
+            return fusion.add_odometry(o.t_ns, o.T_odom_base, o.covariance, defer_update=True)
         return fusion.add_odometry(o.t_ns, o.T_odom_base, o.covariance)
 
     def on_vloc(r: VlocOutcome) -> FusionUpdateLike:

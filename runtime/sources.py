@@ -58,12 +58,18 @@ def open_source(
     raise StreamError(f"{p}: not a 7-Scenes folder (frame-NNNNNN.color.jpg) nor a TUM folder (rgb.txt)")
 
 
-def service_messages(src: StreamSource) -> Iterable[SourceMessage]:
+def service_messages(src: StreamSource, reader_process: bool = False) -> Iterable[SourceMessage]:
     """What the service reads from `src`: a recording read non-strictly gives its frames with
     the colour undecoded (the service decodes only the frames VLoc takes, after the mailbox
     that drops the stale ones); every other source (and a strict read, which checks each
-    frame as it reads it) is read as it is."""
+    frame as it reads it) is read as it is. `reader_process` (config `runtime.recording_process`):
+    such a recording is read in a child process (`runtime.recording_process`), so its decoding
+    does not hold the service's GIL."""
     if isinstance(src, McapSource) and not src.strict:
+        if reader_process:
+            from litevloc.runtime.recording_process import RecordingReaderProcess
+
+            return RecordingReaderProcess(src)
         return src.messages(defer_color=True)
     return src
 

@@ -23,7 +23,8 @@ parent VLoc thread --(frame, prior)--> pipe --> child: VisualLocalizer.process
   child that died is `VlocProcessError` naming its exit code, on this and every later call.
 * `close()` asks the child to end, then terminates it after `join_timeout_s`. The child ignores
   SIGINT/SIGTERM (a terminal's Ctrl-C or systemd reaches the whole process group: the parent
-  decides when VLoc ends) and ends by itself when the parent's end of the pipe closes.
+  decides when VLoc ends) and ends by itself when the parent's end of the pipe closes; one left
+  running at exit is killed (`runtime.child_processes`).
 
 The pipe carries pickles between two processes of this program only (multiprocessing's
 `Connection`); nothing a user hands us is unpickled.
@@ -44,6 +45,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from litevloc.base.errors import LiteVLocError
+from litevloc.runtime.child_processes import end_child, start_child
 
 if TYPE_CHECKING:
     from multiprocessing.connection import Connection
@@ -133,10 +135,8 @@ class VlocProcess:
 
     def __init__(self, spec: VlocWorkerSpec) -> None:
         self.spec = spec
-        ctx = multiprocessing.get_context("spawn")
-        self._conn, child = ctx.Pipe(duplex=True)
-        self._proc = ctx.Process(target=_worker_main, args=(spec, child), name="litevloc-vloc", daemon=True)
-        self._proc.start()
+        self._conn, child = multiprocessing.get_context("spawn").Pipe(duplex=True)
+        self._proc = start_child(_worker_main, (spec, child), "litevloc-vloc")
         child.close()  # the child's end lives in the child only: its exit closes the pipe here
         self._lock = threading.Lock()
         self._dead: str | None = None
@@ -199,7 +199,6 @@ class VlocProcess:
             if self._proc.is_alive():
                 log.warning("VLoc process %s did not stop within %g s: terminating", self._proc.pid,
                             self.spec.join_timeout_s)
-                self._proc.kill()
-                self._proc.join(self.spec.join_timeout_s)
+                end_child(self._proc, self.spec.join_timeout_s)
             self._conn.close()
             self._dead = self._dead or "the VLoc process was closed"

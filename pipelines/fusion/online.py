@@ -238,6 +238,7 @@ class OnlineFusion:
         self._cov_state: F64 = np.zeros((6, 6))  # gtsam order, marginal of the newest key at _cov_t
         self._cov_t: int | None = None
         self._cov_key_T_odom: F64 = np.eye(4)
+        self._pending_keyframe: tuple[int, F64] | None = None  # add_odometry(defer_update=True)
 
     def _stamp(self, t_ns: int) -> float:
         assert self._t0_ns is not None
@@ -332,17 +333,30 @@ class OnlineFusion:
         self._counts[reason] += 1
         return VlocUpdate(True, reason, None)
 
-    def _maybe_keyframe(self, t_ns: int, T_odom_base: F64) -> None:
-        key_prev, t_prev, T_prev = self._keys[-1]
+    def _keyframe_due(self, t_ns: int, T_odom_base: F64) -> bool:
+        _, t_prev, T_prev = self._keys[-1]
         D = _inv(T_prev) @ T_odom_base
         p = self.params
-        due = (
+        return (
             (t_ns - t_prev) >= p.keyframe_period_s * 1e9
             or float(D[:3, 3] @ D[:3, 3]) >= p.keyframe_dist_m**2
             or _angle(D[:3, :3]) >= math.radians(p.keyframe_angle_deg)
         )
-        if not due:
+
+    def flush(self) -> None:
+        """Add the keyframe that `add_odometry(..., defer_update=True)` left due (one smoother
+        update, ~1-3 ms); nothing when none is pending. `add_odometry` and `add_vloc` call it
+        first, so a caller that never calls it gets every keyframe one message later."""
+        pending, self._pending_keyframe = self._pending_keyframe, None
+        if pending is not None and self._initialised:
+            self._maybe_keyframe(*pending)
+
+    def _maybe_keyframe(self, t_ns: int, T_odom_base: F64) -> None:
+        if not self._keyframe_due(t_ns, T_odom_base):
             return
+        key_prev, _, T_prev = self._keys[-1]
+        D = _inv(T_prev) @ T_odom_base
+        p = self.params
         key = gtsam.symbol("x", self._next_index)
         self._next_index += 1
         graph = gtsam.NonlinearFactorGraph()
@@ -394,8 +408,16 @@ class OnlineFusion:
         t_ns: int,
         T_odom_base: NDArray[np.floating],
         covariance: NDArray[np.floating] | None = None,
+        *,
+        defer_update: bool = False,
     ) -> FusedPose | None:
         """Feed one odometry message; returns the fused pose at t_ns (None before init).
+
+        `defer_update`: when this message makes a new keyframe due, the pose is computed from
+        the current estimate and the smoother update (the only costly step: ~1-3 ms, every
+        `keyframe_period_s`) is left for `flush()`, so a caller can publish the pose first. The
+        keyframe's factor is the same either way; the pose differs from the updated one by
+        what one odometry between-factor moves the estimate (sub-millimetre).
 
         A message with a non-finite or non-rigid pose, a bad covariance, or a time not
         after the previous message is rejected, counted in `stats()["odometry_rejected"]`,
@@ -405,6 +427,7 @@ class OnlineFusion:
         driver-reported odometry covariances are rarely calibrated.
         """
         self._counts["odometry"] += 1
+        self.flush()
         t_ns = int(t_ns)
         T = _valid_pose(T_odom_base)
         if T is None:
@@ -427,9 +450,13 @@ class OnlineFusion:
             self._counts["odometry_with_covariance"] += 1  # validated; the model sets the noise
         if not self._initialised:
             return None
-        self._maybe_keyframe(t_ns, T)
-        if not self._initialised:  # the solver failed on this keyframe (counted)
-            return None
+        if defer_update:
+            if self._keyframe_due(t_ns, T):
+                self._pending_keyframe = (t_ns, T)
+        else:
+            self._maybe_keyframe(t_ns, T)
+            if not self._initialised:  # the solver failed on this keyframe (counted)
+                return None
         out = self._output(t_ns, T)
         self._counts["fused_outputs"] += 1
         return out
@@ -469,6 +496,7 @@ class OnlineFusion:
         the `vloc_sigma_*` parameters. `vote_only`: an initialisation vote (see the module
         docstring), ignored once initialised. Returns what happened (also counted in `stats()`).
         """
+        self.flush()
         if vote_only:
             self._counts["votes"] += 1
             if self._initialised:

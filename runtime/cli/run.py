@@ -98,7 +98,8 @@ def run_service(args: argparse.Namespace, source_path: Path | None, rate: float 
     try:
         from litevloc.runtime.sources import service_messages
 
-        app = build_app(cfg, map_path, service_messages(src), cfg.replay.rate if rate is None else rate,
+        msgs = service_messages(src, reader_process=cfg.runtime.recording_process and cfg.runtime.mode != "sequential")
+        app = build_app(cfg, map_path, msgs, cfg.replay.rate if rate is None else rate,
                         record=record, **view_args)
     except Exception as exc:
         if view_args["view_spawn"] or view_args["view_save"] is not None:  # (rerun is imported only then)

@@ -103,11 +103,12 @@ def test_ten_percent_vloc_outliers_2m_off() -> None:
 @pytest.mark.timeout(60)
 def test_slow_consumer_backs_up_outbox_not_fusion() -> None:
     """Publishing slows to 20 ms per pose for 1 s of sensor time: the outbox absorbs it, fusion
-    is not held up, no odometry is lost, and the backlog drains."""
+    is not held up, no odometry is lost, and the backlog drains. (The outbox path: `publish_inline`
+    off; inline, the fusion thread puts on Zenoh itself, where pose puts drop rather than wait.)"""
     src = SyntheticSource(seconds=3.0)
     fusion, pub = FakeFusion(), FakePublisher()
-    svc = Service(src, FakeVloc(), fusion.add_odometry, fusion.add_vloc, pub, RuntimeConfig(), rate=1.0,
-                  configure_thread_counts=False)
+    svc = Service(src, FakeVloc(), fusion.add_odometry, fusion.add_vloc, pub, RuntimeConfig(publish_inline=False),
+                  rate=1.0, configure_thread_counts=False)
     inj = FaultInjector(["slow_consumer@1:1,delay_ms=20"]).apply(svc)
     seen: list[dict[str, Any]] = []
     done = threading.Event()
