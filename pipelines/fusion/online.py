@@ -416,8 +416,9 @@ class OnlineFusion:
         `defer_update`: when this message makes a new keyframe due, the pose is computed from
         the current estimate and the smoother update (the only costly step: ~1-3 ms, every
         `keyframe_period_s`) is left for `flush()`, so a caller can publish the pose first. The
-        keyframe's factor is the same either way; the pose differs from the updated one by
-        what one odometry between-factor moves the estimate (sub-millimetre).
+        keyframe's factor is the same either way; such a message's pose lacks what that update
+        moves the estimate (iSAM2 converges over updates; a 90 s synthetic session: 99 % of the
+        poses identical, at most 1.2 cm apart, the same ATE; tests/pipelines/fusion).
 
         A message with a non-finite or non-rigid pose, a bad covariance, or a time not
         after the previous message is rejected, counted in `stats()["odometry_rejected"]`,

@@ -162,3 +162,37 @@ def test_low_priority_threads_and_their_children() -> None:
     q.close()
     assert stage.join(5.0)
     assert got == [max(base, 9)] and stage.status()["nice"] == max(base, 9)
+
+
+def test_realtime_priority_is_what_the_status_says() -> None:
+    """A stage with `rt_priority` runs SCHED_FIFO where permitted (and threads it starts do not);
+    where not permitted it keeps normal priority and says why. Either way the status is true."""
+    import os
+
+    from litevloc.runtime.stages import use_realtime_priority
+
+    stop = threading.Event()
+    q: BoundedFifo[int] = BoundedFifo("q", 4)
+    seen: list[tuple[int, int]] = []
+
+    def handler(_item: int) -> None:
+        child: list[int] = []
+        t = threading.Thread(target=lambda: child.append(os.sched_getscheduler(threading.get_native_id())))
+        t.start()
+        t.join()
+        own = os.sched_getscheduler(threading.get_native_id()) & ~os.SCHED_RESET_ON_FORK
+        seen.append((own, child[0]))
+
+    stage = Stage("rt", [StageInput(q, handler)], stop, rt_priority=7)
+    stage.start()
+    q.put(1)
+    q.close()
+    assert stage.join(5.0)
+    (own, child_policy), = seen
+    text = stage.status()["scheduling"]
+    if text == "SCHED_FIFO 7":
+        assert own == os.SCHED_FIFO and child_policy == os.SCHED_OTHER  # reset on fork
+    else:
+        assert own == os.SCHED_OTHER and "not permitted" in text
+    assert use_realtime_priority(0) == "normal"
+    assert os.sched_getscheduler(threading.get_native_id()) == os.SCHED_OTHER  # the caller is untouched
