@@ -58,6 +58,7 @@ class RssSampler:
         import threading
 
         self.samples: list[float] = []
+        self.pss_samples: list[float] = []  # proportional set size: shared pages split between processes
         self._page_mb = os.sysconf("SC_PAGE_SIZE") / 2**20
         self._stop = threading.Event()
         self._t = threading.Thread(target=self._run, args=(period_s,), daemon=True)
@@ -75,19 +76,24 @@ class RssSampler:
                         children.update(f.read().split())
                 except OSError:
                     pass
-            for name in ["/proc/self/statm", *(f"/proc/{c}/statm" for c in sorted(children))]:
+            pss_kb = 0
+            for pid in ["self", *sorted(children)]:
                 try:
-                    with open(name) as f:
+                    with open(f"/proc/{pid}/statm") as f:
                         pages += int(f.read().split()[1])
-                except OSError:  # a child that has ended
+                    with open(f"/proc/{pid}/smaps_rollup") as f:
+                        pss_kb += next(int(line.split()[1]) for line in f if line.startswith("Pss:"))
+                except (OSError, StopIteration):  # a child that has ended
                     pass
             self.samples.append(pages * self._page_mb)
+            self.pss_samples.append(pss_kb / 1024)
 
     def stop(self) -> dict[str, float]:
         self._stop.set()
         self._t.join()
         a = self.samples or [float("nan")]
-        return {"first_mb": a[0], "last_mb": a[-1], "max_mb": max(a), "growth_percent": 100 * (a[-1] / a[0] - 1)}
+        return {"first_mb": a[0], "last_mb": a[-1], "max_mb": max(a), "growth_percent": 100 * (a[-1] / a[0] - 1),
+                "max_pss_mb": max(self.pss_samples or [float("nan")])}
 
 
 def proc_cpu_s(pid: int | None) -> float:
@@ -153,6 +159,7 @@ def one_run(mode: str, rec: Path, map_dir: Path, seconds: float, endpoint: str, 
         # this process and its children (VLoc process, recording reader) together: the largest
         # sampled sum, or this process's own peak where that is larger
         "peak_rss_mb": max(ru1.ru_maxrss / 1024, rss_report["max_mb"]), "self_peak_rss_mb": ru1.ru_maxrss / 1024,
+        "peak_pss_mb": rss_report["max_pss_mb"],
         "vloc_process": child is not None, "counters": c, "frames_dropped": st.get("frames_dropped"),
         "vloc_hz": c.get("vloc_calls", 0) / seconds,
         "latency": st.get("latency", {}).get("odometry_to_publish", {}),
@@ -248,15 +255,19 @@ def main() -> None:
         r["lag_s"] = max(r["wall_s"] - args.seconds, 0.0)
         rows.append([name, lat(r, "median_ms"), lat(r, "p99_ms"), r["wire_latency"].get("median_ms", float("nan")),
                      r["wire_latency"].get("p99_ms", float("nan")), r["vloc_hz"], r["frames_dropped"],
-                     r["odometry_lost"], r["cpu_percent"], r["peak_rss_mb"], r["rss"]["growth_percent"],
+                     r["odometry_lost"], r["cpu_percent"], r["peak_rss_mb"], r["self_peak_rss_mb"], r["peak_pss_mb"],
+                     r["rss"]["growth_percent"],
                      r["wall_s"], r["lag_s"]])
     print_table(f"Onboard service on {args.seconds:.0f} s of {args.rec.name} (15 Hz camera, 200 Hz odometry), 2 CPUs",
                 ["mode", "in-service p50 ms", "in-service p99 ms", "wire p50 ms", "wire p99 ms", "VLoc Hz",
-                 "frames dropped", "odom lost", "CPU %", "RSS MB", "RSS growth %", "wall s", "behind real time s"],
+                 "frames dropped", "odom lost", "CPU %", "RSS MB", "own RSS MB", "PSS MB", "RSS growth %", "wall s",
+                 "behind real time s"],
                 rows)
     print("in-service latency = odometry message dequeued -> fused pose handed to Zenoh. The sequential baseline\n"
           "handles each message quickly once it gets to it, but VLoc on every frame makes it fall behind the\n"
-          "sensor stream: its poses are late by up to the 'behind real time' column.")
+          "sensor stream: its poses are late by up to the 'behind real time' column.\n"
+          "RSS = the service process and its children (recording reader, VLoc process) summed; own RSS = the\n"
+          "service process alone; PSS = their proportional set sizes summed (shared pages counted once).")
     out: dict = {"seconds": args.seconds, "overrides": args.overrides, "alt_overrides": args.alt_overrides,
                  **results}
     if "realtime" in results and "sequential" in results:

@@ -160,7 +160,14 @@ def one_run(rec: Path, map_dir: Path, minutes: float, rate: float, endpoint: str
                 break
 
     svc.e2e.add_since = add_since
-    svc.on_ground_truth, svc.on_fused = on_gt, on_fused
+    prev_fused = svc.core.on_fused  # the core calls it for every fused pose (the service shell does not)
+
+    def fused_hook(f: Any) -> None:
+        if prev_fused is not None:
+            prev_fused(f)
+        on_fused(f)
+
+    svc.on_ground_truth, svc.core.on_fused = on_gt, fused_hook
     samples: list[dict[str, Any]] = []
     done = threading.Event()
 
