@@ -135,6 +135,8 @@ def run_reloc(
         te, re_, times = [], [], []
         estimates: dict[int, tuple[int, np.ndarray, float]] = {}
         for (frame, T_gt), ref in zip(queries, refs, strict=True):
+            if frame.depth is None:  # `queries` keeps only frames with depth
+                raise ValueError(f"query frame {frame.index} has no depth")
             t0 = time.perf_counter()
             feats = extractor.extract(frame.color)
             res, _, _ = relative_pose(feats, frame.depth, frame.K, ref_feats[ref], topomap.K[ref], match,

@@ -324,7 +324,7 @@ class _Driver:
             if not self._pending():
                 return
             active = next((r for r in self._pending() if r.t_start_ns is not None), None)
-            if active is not None and active.reason != "timeout" and \
+            if active is not None and active.t_start_ns is not None and active.reason != "timeout" and \
                     (self.sim._t_ns - active.t_start_ns) * 1e-9 > p.goal_timeout_s:
                 active.reason = "timeout"
                 self.cancel_pub.put(ros_msgs.typestore().types[ros_msgs.STRING](data="current"))

@@ -39,7 +39,7 @@ _BAKE_CACHE: dict[int, BakedTextures] = {}
 
 def baked_textures(world: World) -> BakedTextures:
     """Textures of `world`, baked once per World object."""
-    tex = getattr(world, "_baked", None)
+    tex = world._baked
     if tex is None:
         tex = bake(world)
         world._baked = tex
@@ -113,7 +113,7 @@ class Renderer:
         fppm = self.tex.floor_ppm
         self._floor_mips = [self.tex.floor]
         for _ in range(2):
-            self._floor_mips.append(cv2.pyrDown(self._floor_mips[-1]))
+            self._floor_mips.append(np.asarray(cv2.pyrDown(self._floor_mips[-1]), dtype=np.uint8))
         self._fppm = fppm
 
     # ------------------------------------------------------------------ public
@@ -147,8 +147,8 @@ class Renderer:
         rays, ray_len = _pixel_rays(K.fx, K.fy, K.cx, K.cy, K.width, K.height)
         level = np.allclose(R_vc, np.eye(3), atol=1e-9)
         if level:
-            xn = (np.arange(K.width) - K.cx) / K.fx
-            yn = (np.arange(K.height) - K.cy) / K.fy
+            xn = np.asarray((np.arange(K.width) - K.cx) / K.fx, dtype=np.float64)
+            yn = np.asarray((np.arange(K.height) - K.cy) / K.fy, dtype=np.float64)
             col, rng_ = self._render_level(p, R_wv, xn, yn, K.fx, want_color)
             depth = rng_ / ray_len
             return col, depth.astype(np.float32)

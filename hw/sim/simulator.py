@@ -125,6 +125,13 @@ class Simulator:
             raise RuntimeError("call reset() first")
         return base_pose(*self._state)
 
+    @property
+    def state(self) -> tuple[float, float, float]:
+        """Ground-plane pose (x, y, yaw) of the robot; `reset()` must have been called."""
+        if self._state is None:
+            raise RuntimeError("call reset() first")
+        return self._state
+
     def reset(self, T_world_base: NDArray[np.floating], t_ns: int = 0) -> SimStep:
         """Place the robot (pose on the ground plane; only x, y and yaw are used)."""
         T = np.asarray(T_world_base, dtype=np.float64)

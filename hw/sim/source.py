@@ -18,7 +18,14 @@ from litevloc.hw.messages import GroundTruthPose, Message, Odometry, StreamStats
 from litevloc.hw.sim.realism import Lighting, sample_lighting
 from litevloc.hw.sim.render import Renderer
 from litevloc.hw.sim.simulator import SimParams, camera_pose, render_frame
-from litevloc.hw.sim.trajectory import PASS_NAMES, FollowResult, PassName, follow, pass_tasks
+from litevloc.hw.sim.trajectory import (
+    PASS_NAMES,
+    FollowResult,
+    PassName,
+    follow,
+    is_pass_name,
+    pass_tasks,
+)
 from litevloc.hw.sim.world import World
 from litevloc.pipelines.geometry import interpolate_pose_at
 
@@ -157,7 +164,7 @@ def open_sim_source(uri: str, params: SimParams | None = None) -> SimSequenceSou
     except ValueError as exc:
         raise ValueError(f"{uri!r}: {exc}") from exc
     pass_name = query.get("pass", "map")
-    if pass_name not in PASS_NAMES:
+    if not is_pass_name(pass_name):
         raise ValueError(f"{uri!r}: pass must be one of {PASS_NAMES}")
     return SimSequenceSource(
         load_world(world_name, seed=world_seed), pass_name, seed, duration, params

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, TypeGuard
 
 import numpy as np
 from numpy.typing import NDArray
@@ -29,6 +29,11 @@ from litevloc.hw.sim.world import World
 PassName = Literal["map", "query", "loop", "loop-lane", "loop-back", "map-rooms"]
 PASS_NAMES: tuple[str, ...] = ("map", "query", "loop", "loop-lane", "loop-back", "map-rooms")
 LOOP_BACK_LANE_M = 0.3  # "loop-lane" / "loop-back" drive this far off the corridor centre line, inner side
+
+
+def is_pass_name(name: str) -> TypeGuard[PassName]:
+    """Whether `name` is one of `PASS_NAMES` (narrows a string to `PassName`)."""
+    return name in PASS_NAMES
 
 
 class PlanningError(LiteVLocError, RuntimeError):
@@ -228,7 +233,7 @@ def follow(
         idx = 0
         turned = 0.0
         while ts[-1] < max_t:
-            x, y, yaw = sim._state
+            x, y, yaw = sim.state
             if task.kind == "turn":
                 remaining = task.angle - turned
                 if abs(remaining) < 0.02:
@@ -265,9 +270,9 @@ def follow(
             # acceleration limits
             v_cmd = float(np.clip(v_cmd, v_prev - 1.0 * dt, v_prev + 1.0 * dt))
             w_cmd = float(np.clip(w_cmd, w_prev - 4.0 * dt, w_prev + 4.0 * dt))
-            yaw_before = sim._state[2]
+            yaw_before = sim.state[2]
             step = sim.step(v_cmd, w_cmd, dt)
-            turned += sim._state[2] - yaw_before
+            turned += sim.state[2] - yaw_before
             v_prev, w_prev = (0.0, 0.0) if step.collided else (v_cmd, w_cmd)
             collisions += int(step.collided)
             for o in step.odometry:

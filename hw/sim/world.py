@@ -27,13 +27,16 @@ import importlib.util
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
 from litevloc.base.loader import ConfigError, from_mapping, load_yaml
+
+if TYPE_CHECKING:
+    from litevloc.hw.sim.textures import BakedTextures
 
 
 def _worlds_dir() -> Path:
@@ -210,6 +213,8 @@ class World:
         if spec.change_seed >= 0:
             self._apply_changes(np.random.default_rng(spec.change_seed), spec.change_fraction)
         self.goal_places: dict[str, NDArray[np.float64]] = self._make_goals()
+        # textures baked on first render (`litevloc.hw.sim.render.baked_textures`), cached here
+        self._baked: BakedTextures | None = None
 
     # ------------------------------------------------------------------ layout
     @property

@@ -96,9 +96,11 @@ def map_arrays(m: TopoMap) -> dict[str, NDArray[Any]]:
         desc_dtype = feats[0].descriptors.dtype if feats else np.float32
         kps = np.concatenate([f.keypoints for f in feats]).astype(np.float32).reshape(-1, 2)
         scores = np.concatenate([f.scores for f in feats]).astype(np.float32)
-        if any(getattr(f, "depth", None) is not None for f in feats):  # nodes without it: 0 (none)
-            depth = _depth16(np.concatenate([np.zeros(len(f.keypoints), np.float32) if getattr(f, "depth", None) is None
-                                             else np.asarray(f.depth, np.float32).reshape(-1) for f in feats]))
+        node_depth = [getattr(f, "depth", None) for f in feats]  # only NodeFeatures carry it
+        if any(d is not None for d in node_depth):  # nodes without it: 0 (none)
+            depth = _depth16(np.concatenate([np.zeros(len(f.keypoints), np.float32) if d is None
+                                             else np.asarray(d, np.float32).reshape(-1)
+                                             for f, d in zip(feats, node_depth, strict=True)]))
         if np.dtype(desc_dtype).kind == "f":
             desc, desc_scale = _quantise(np.concatenate([np.asarray(f.descriptors, np.float32).reshape(-1, desc_dim)
                                                          for f in feats]).reshape(-1, desc_dim))

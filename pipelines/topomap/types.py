@@ -156,7 +156,7 @@ class TopoMap:
     t_ns: NDArray[np.int64]  # (N,) capture times
     frame_index: NDArray[np.int64]  # (N,) index of the frame in the source stream
     vpr: NDArray[np.float32]  # (N, D) L2-normalised place descriptors
-    features: Sequence[NodeFeatures]  # list, or a FeatureStore (loaded maps)
+    features: Sequence[FeatureSet]  # NodeFeatures (or the model layer's Features) list, or a FeatureStore
     images_jpeg: Sequence[bytes]  # list, or a lazy verified reader (loaded maps)
     covis_edges: NDArray[np.int64]  # (E, 2), i < j
     covis_inliers: NDArray[np.int32]  # (E,)

@@ -60,8 +60,8 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise UserError(str(exc)) from exc
     K = np.asarray(K_depth)
-    init = ColorDepthCalibration(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]),
-                                 tuple(float(v) for v in args.translation_prior))
+    tx, ty, tz = (float(v) for v in args.translation_prior)  # argparse nargs=3: exactly three
+    init = ColorDepthCalibration(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), (tx, ty, tz))
     try:
         res = calibrate_color_depth(colors, depths, np.stack(poses), K, init, params)
     except ValueError as exc:

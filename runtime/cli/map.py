@@ -197,19 +197,19 @@ def _print_storage(s: dict[str, int]) -> None:
 def info(args: argparse.Namespace) -> int:
     m = load_map(args.map)
     s = storage_summary(args.map)
+    b = {k: v for k, v in m.meta.items() if k.startswith(("keyframe_", "build_"))}
     data = {
         "nodes": m.n_nodes, "covisibility_edges": len(m.covis_edges), "connectivity_edges": len(m.conn_edges),
         "extractor": m.extractor, "vpr_model": m.vpr_model, "vpr_dim": int(m.vpr.shape[1]),
         "keypoints_per_node": float(sum(len(f.keypoints) for f in m.features) / m.n_nodes),
         "connectivity_metres_total": float(m.conn_metres.sum()), "grid_cells": list(m.grid.cells.shape),
         "grid_resolution_m": m.grid.resolution, **s,
-        "build": {k: v for k, v in m.meta.items() if k.startswith(("keyframe_", "build_"))},
+        "build": b,
     }
     print(f"{args.map}: {m.n_nodes} nodes, {len(m.covis_edges)} covisibility edges, "
           f"{len(m.conn_edges)} connectivity edges ({data['connectivity_metres_total']:.1f} m); "
           f"features {m.extractor} ({data['keypoints_per_node']:.0f}/node), VPR {m.vpr_model} ({data['vpr_dim']}-d)")
     _print_storage(s)
-    b = data["build"]
     if b:
         print(f"keyframes: coverage {b.get('keyframe_coverage')} (target {b.get('keyframe_coverage_target')}), "
               f"budget {b.get('keyframe_budget')}{' (BOUND)' if b.get('keyframe_budget_bound') == 'True' else ''}, "

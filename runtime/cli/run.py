@@ -94,15 +94,16 @@ def run_service(args: argparse.Namespace, source_path: Path | None, rate: float 
             faults = FaultInjector(args.fault)  # parsed before the (slow) model loading
         except FaultSpecError as exc:
             raise UserError(str(exc)) from exc
-    view_args = {"view_spawn": bool(getattr(args, "view", False)), "view_save": getattr(args, "view_save", None)}
+    view_spawn = bool(getattr(args, "view", False))
+    view_save: Path | None = getattr(args, "view_save", None)
     try:
         from litevloc.runtime.sources import service_messages
 
         msgs = service_messages(src, reader_process=cfg.runtime.recording_process and cfg.runtime.mode != "sequential")
         app = build_app(cfg, map_path, msgs, cfg.replay.rate if rate is None else rate,
-                        record=record, **view_args)
+                        record=record, view_spawn=view_spawn, view_save=view_save)
     except Exception as exc:
-        if view_args["view_spawn"] or view_args["view_save"] is not None:  # (rerun is imported only then)
+        if view_spawn or view_save is not None:  # (rerun is imported only then)
             from litevloc.runtime.view import ViewError
 
             if isinstance(exc, ViewError):

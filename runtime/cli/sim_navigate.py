@@ -15,7 +15,7 @@ import argparse
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from litevloc.runtime.cli.common import add_config_args, config_of, write_json
 from litevloc.runtime.cli.main import UserError
@@ -125,10 +125,17 @@ def navigate(world_name: str, cfg: Any, map_path: Path, goal_args: list[str] | N
     bundle = load_bundle(cfg.models)
     runs = {}
     for mode in modes:
+        localization: Literal["litevloc", "ground-truth"]
+        if mode == "litevloc":
+            localization = "litevloc"
+        elif mode == "ground-truth":
+            localization = "ground-truth"
+        else:
+            raise UserError(f"unknown localization mode {mode!r}: litevloc or ground-truth")
         print(f"== navigating {len(goals)} goals with {mode} localization", flush=True)
-        view = {"view_spawn": view_spawn, "view_save": view_save} if mode == "litevloc" else {}
-        runs[mode] = run_navigation(world, cfg, map_path, goals, world.goal_places[start], mode, params, bundle,
-                                    **view)
+        view = localization == "litevloc"  # the live view shows the runtime: litevloc only
+        runs[mode] = run_navigation(world, cfg, map_path, goals, world.goal_places[start], localization, params,
+                                    bundle, view_spawn=view_spawn and view, view_save=view_save if view else None)
         s = runs[mode].summary()
         print(f"   {s['goals_reached']}/{s['goals_total']} reached, {s['time_s']:.0f} s simulated, "
               f"{s['path_length_m']:.1f} m driven ({s['wall_s']:.0f} s wall)", flush=True)
