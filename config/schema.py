@@ -219,7 +219,7 @@ class RuntimeConfig:
     vloc_nice: int = 10
     # 1-99: the fusion and publisher threads run SCHED_FIFO at this priority, so a fused pose never
     # waits for a core behind VLoc or I/O threads (bench/runtime.py, office, 2 CPUs: in-service p99
-    # 5.8 -> 2.7 ms with publish_inline and defer_fusion_updates); 0: normal scheduling. Needs
+    # 6.1 -> 1.3 ms with publish_inline, defer_fusion_updates and recording_process); 0: normal. Needs
     # CAP_SYS_NICE or an rtprio limit (systemd LimitRTPRIO=); without, the threads keep normal
     # priority and the log and status (stages.fusion.scheduling) say why.
     fusion_rt_priority: int = 10

@@ -21,7 +21,7 @@ from litevloc.config import LiteVLocConfig
 from litevloc.hw.messages import GroundTruthPose, SourceMessage
 from litevloc.pipelines.fusion.online import OnlineFusion
 from litevloc.pipelines.localization.vloc import VisualLocalizer
-from litevloc.pipelines.topomap.io import load_map
+from litevloc.pipelines.topomap.io import load_map, read_manifest
 from litevloc.pipelines.topomap.types import TopoMap
 from litevloc.runtime.bus import Bus, LiteVLocPublisher
 from litevloc.runtime.diagnostics import DiagnosticsPublisher
@@ -143,7 +143,8 @@ def build_app(
             vloc_proc.close()
         raise
     try:
-        n_nodes = topomap.n_nodes if topomap is not None else _manifest_nodes(Path(map_path))
+        # (with the VLoc process, the child validated the whole map; the node count is the manifest's)
+        n_nodes = topomap.n_nodes if topomap is not None else int(read_manifest(Path(map_path))["nodes"])
         diagnostics = DiagnosticsPublisher(cfg.diagnostics, map_id(map_path), n_nodes)
         publisher = LiteVLocPublisher(bus, cfg.runtime.lost_policy, cfg.runtime.lost_variance,
                                       diagnostics=diagnostics)
@@ -187,9 +188,3 @@ def build_app(
         raise
     return App(service, bus, localizer, fusion, recorder, T_base_camera, view, vloc_proc)
 
-
-def _manifest_nodes(map_path: Path) -> int:
-    """The node count a map's manifest states (the VLoc process validated the whole map)."""
-    import json
-
-    return int(json.loads((map_path / "manifest.json").read_text())["nodes"])

@@ -79,7 +79,7 @@ class RecordingReaderProcess:
         if self._proc is not None:
             raise RuntimeError("a RecordingReaderProcess is iterated once")
         self._conn, child = multiprocessing.get_context("spawn").Pipe(duplex=False)
-        self._proc = start_child(_reader_main, (self.src.path, self.src._frames, self.batch, child),
+        self._proc = start_child(_reader_main, (self.src.path, self.src.frames, self.batch, child),
                                  "litevloc-recording")
         child.close()
         try:

@@ -89,8 +89,9 @@ def use_realtime_priority(priority: int) -> str:
 
     A latency-critical thread of a robot's stack (here: fusion and publishing) preempts every
     normal thread the moment it wakes; at normal priority on a 2-core machine it waits for a
-    core behind the VLoc and I/O threads (measured: fused-pose p99 5 ms -> 0.9 ms, see
-    `bench/runtime.py`). SCHED_RESET_ON_FORK: threads this one starts run at normal priority.
+    core behind the VLoc and I/O threads (`bench/runtime.py`, office: fused-pose p99 6.1 -> 1.3 ms
+    together with inline publishing, deferred fusion updates and the recording reader process).
+    SCHED_RESET_ON_FORK: threads this one starts run at normal priority.
     Needs CAP_SYS_NICE or an rtprio limit >= `priority` (systemd `LimitRTPRIO=`, or
     `@robot - rtprio 20` in /etc/security/limits.conf); without, the thread keeps normal
     priority and the reason is returned and logged (never an error: the service still works).

@@ -37,7 +37,6 @@ import logging
 import multiprocessing
 import os
 import signal
-import sys
 import threading
 import time
 from dataclasses import dataclass
@@ -72,17 +71,6 @@ class VlocWorkerSpec:
     join_timeout_s: float = 5.0
 
 
-def _lower_process_priority(nice: int) -> int | None:
-    if nice <= 0 or not sys.platform.startswith("linux"):
-        return None
-    try:
-        os.setpriority(os.PRIO_PROCESS, 0, max(nice, os.getpriority(os.PRIO_PROCESS, 0)))
-        return os.getpriority(os.PRIO_PROCESS, 0)
-    except OSError as exc:  # pragma: no cover - platform dependent
-        log.warning("VLoc process: could not lower its priority: %s", exc)
-        return None
-
-
 def _worker_main(spec: VlocWorkerSpec, conn: Connection) -> None:
     """The child: load models and map, then answer `("frame", frame, prior)` until told to stop."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -93,11 +81,11 @@ def _worker_main(spec: VlocWorkerSpec, conn: Connection) -> None:
         from litevloc.pipelines.localization.vloc import VisualLocalizer
         from litevloc.pipelines.topomap.io import load_map
         from litevloc.runtime.service import localizer_callable
-        from litevloc.runtime.stages import configure_threads, traceback_summary
+        from litevloc.runtime.stages import configure_threads, lower_thread_priority, traceback_summary
         from litevloc.runtime.vloc_models import check_map_models, load_bundle
 
         rt = spec.config.runtime
-        nice = _lower_process_priority(rt.vloc_nice)  # before any thread starts: onnxruntime's inherit it
+        nice = lower_thread_priority(rt.vloc_nice)  # the main thread, before any other starts: they inherit it
         configure_threads(rt.cv_threads, rt.ort_intra_op_threads, rt.ort_inter_op_threads)
         models = dataclasses.replace(spec.config.models, intra_op_threads=rt.ort_intra_op_threads)
         bundle = load_bundle(models)

@@ -218,6 +218,11 @@ class McapSource:
             stamps = self._color_stamps()
             self._window = (stamps[self._selected[0]], stamps[self._selected[-1]])
 
+    @property
+    def frames(self) -> slice:
+        """The frame selection this source was opened with (`--frames`)."""
+        return self._frames
+
     def frame_count(self) -> int:
         return len(self._selected)
 

@@ -238,7 +238,7 @@ class OnlineFusion:
         self._cov_state: F64 = np.zeros((6, 6))  # gtsam order, marginal of the newest key at _cov_t
         self._cov_t: int | None = None
         self._cov_key_T_odom: F64 = np.eye(4)
-        self._pending_keyframe: tuple[int, F64] | None = None  # add_odometry(defer_update=True)
+        self._pending_keyframe: tuple[int, F64, F64] | None = None  # (t, T_odom_base, D): defer_update=True
 
     def _stamp(self, t_ns: int) -> float:
         assert self._t0_ns is not None
@@ -333,15 +333,17 @@ class OnlineFusion:
         self._counts[reason] += 1
         return VlocUpdate(True, reason, None)
 
-    def _keyframe_due(self, t_ns: int, T_odom_base: F64) -> bool:
+    def _due_increment(self, t_ns: int, T_odom_base: F64) -> F64 | None:
+        """The odometry increment from the newest keyframe when a new keyframe is due, else None."""
         _, t_prev, T_prev = self._keys[-1]
         D = _inv(T_prev) @ T_odom_base
         p = self.params
-        return (
+        due = (
             (t_ns - t_prev) >= p.keyframe_period_s * 1e9
             or float(D[:3, 3] @ D[:3, 3]) >= p.keyframe_dist_m**2
             or _angle(D[:3, :3]) >= math.radians(p.keyframe_angle_deg)
         )
+        return D if due else None
 
     def flush(self) -> None:
         """Add the keyframe that `add_odometry(..., defer_update=True)` left due (one smoother
@@ -349,13 +351,16 @@ class OnlineFusion:
         first, so a caller that never calls it gets every keyframe one message later."""
         pending, self._pending_keyframe = self._pending_keyframe, None
         if pending is not None and self._initialised:
-            self._maybe_keyframe(*pending)
+            self._add_keyframe(*pending)
 
     def _maybe_keyframe(self, t_ns: int, T_odom_base: F64) -> None:
-        if not self._keyframe_due(t_ns, T_odom_base):
-            return
+        D = self._due_increment(t_ns, T_odom_base)
+        if D is not None:
+            self._add_keyframe(t_ns, T_odom_base, D)
+
+    def _add_keyframe(self, t_ns: int, T_odom_base: F64, D: F64) -> None:
+        """A new state at `t_ns`, `D` (odometry) after the newest keyframe: one smoother update."""
         key_prev, _, T_prev = self._keys[-1]
-        D = _inv(T_prev) @ T_odom_base
         p = self.params
         key = gtsam.symbol("x", self._next_index)
         self._next_index += 1
@@ -452,8 +457,9 @@ class OnlineFusion:
         if not self._initialised:
             return None
         if defer_update:
-            if self._keyframe_due(t_ns, T):
-                self._pending_keyframe = (t_ns, T)
+            D = self._due_increment(t_ns, T)
+            if D is not None:
+                self._pending_keyframe = (t_ns, T, D)
         else:
             self._maybe_keyframe(t_ns, T)
             if not self._initialised:  # the solver failed on this keyframe (counted)

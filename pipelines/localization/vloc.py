@@ -234,10 +234,7 @@ class _Query:
         if node in self._matches:
             return False
         t0 = time.perf_counter()
-        m = self.loc.map
-        f = m.features[node]
-        i_live, i_kf = guided_matches(self.points(), self.feats.descriptors, T_map_live, f.keypoints, f.descriptors,
-                                      m.K[node], m.T_map_camera[node], self.loc.params.refine)
+        i_live, i_kf = self._guided(node, T_map_live)
         self.timer.add("guided_match", t0)
         if len(i_live) < min_matches:
             return False
@@ -248,13 +245,19 @@ class _Query:
         """Drop `node`'s cached matches (the next `matches` runs the matcher)."""
         self._matches.pop(node, None)
 
+    def _guided(self, node: int, T_map_live: NDArray[np.float64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """(live, keyframe) indices of the matches with `node` found by projecting the live
+        points with `T_map_live` (no model)."""
+        m = self.loc.map
+        f = m.features[node]
+        return guided_matches(self.points(), self.feats.descriptors, T_map_live, f.keypoints, f.descriptors,
+                              m.K[node], m.T_map_camera[node], self.loc.params.refine)
+
     def guided_observations(self, node: int, T_map_live: NDArray[np.float64]) -> KeyframeObservations:
         """Matches with `node` found by projecting the live points with `T_map_live` (no model)."""
         m = self.loc.map
-        f = m.features[node]
-        i_live, i_kf = guided_matches(self.points(), self.feats.descriptors, T_map_live, f.keypoints, f.descriptors,
-                                      m.K[node], m.T_map_camera[node], self.loc.params.refine)
-        kp = np.asarray(f.keypoints, dtype=np.float64)[i_kf]
+        i_live, i_kf = self._guided(node, T_map_live)
+        kp = np.asarray(m.features[node].keypoints, dtype=np.float64)[i_kf]
         return KeyframeObservations(node, self.points()[i_live], kp, m.K[node], m.T_map_camera[node])
 
 
