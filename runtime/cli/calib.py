@@ -32,8 +32,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "(default: Kinect v1 nominal, colour camera 2.5 cm along +x of the depth camera)")
     p.add_argument("--estimate-translation", action="store_true",
                    help="also estimate the translation (weakly observable; see pipelines/calibration.py)")
-    p.add_argument("--pair-gaps", type=int, nargs="+", default=[1, 2, 3], metavar="N",
-                   help="pair each frame with the one N positions later in the selected frames")
+    p.add_argument("--pair-gaps", type=int, nargs="+", default=None, metavar="N",
+                   help="pair each frame with the one N positions later in the selected frames (default: "
+                        f"{' '.join(map(str, CalibrationParams.pair_gaps))}: wide viewpoint changes, like a "
+                        "live frame's to its keyframe)")
     add_frames_arg(p)
     add_json_arg(p)
     p.set_defaults(func=run)
@@ -55,7 +57,8 @@ def run(args: argparse.Namespace) -> int:
     if len(colors) < 2 or K_depth is None:
         raise UserError(f"{args.src}: need >= 2 frames with depth and ground truth, got {len(colors)}")
     try:
-        params = CalibrationParams(pair_gaps=tuple(args.pair_gaps), min_parallax_m=0.02,
+        gaps = CalibrationParams.pair_gaps if args.pair_gaps is None else tuple(args.pair_gaps)
+        params = CalibrationParams(pair_gaps=gaps, min_parallax_m=0.02,
                                    estimate_translation=args.estimate_translation)
     except ValueError as exc:
         raise UserError(str(exc)) from exc
