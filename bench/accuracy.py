@@ -7,7 +7,9 @@ a frame without an accepted pose is a failure) for each configuration:
 * `joint`    — the defaults: joint multi-keyframe refinement (`pipelines/localization/refine.py`).
 * `start`    — the starting point of issue #16: single-keyframe PnP pose + separate
                confirmation (`localization.refine.enabled=false`) with the localization block
-               the 7scenes preset carried before (thresholds tuned on the query pass).
+               the 7scenes preset carried before (thresholds tuned on the query pass) and
+               the colour calibration it carried then (`START_CALIBRATION`), in its own map
+               `<map>-start` built with that calibration.
 
 and prints: share of all query frames within [2 cm, 2 deg], [5 cm, 5 deg], [25 cm, 5 deg];
 accepted share; median / max error of accepted poses; poses wrong by > 0.5 m; covariance
@@ -18,7 +20,7 @@ Models run once per frame and pair: features, VPR descriptors and matches are ca
 out/cache/accuracy/ (npz, no pickle) with the time each model call took, so the
 configurations share them and a cached call counts its recorded time in the latency
 (latency = geometry measured now + the model time measured when it first ran). The map is
-built if absent (out/maps/7s, frames 0-499, `--config 7scenes`).
+built if absent (out/maps/7s, frames 0-499, `--config 7scenes`; `start`: out/maps/7s-start).
 
     python bench/accuracy.py [--frames 500:1000] [--map out/maps/7s] [--configs joint start]
         [--set K=V ...] [--name accuracy]
@@ -43,6 +45,7 @@ from litevloc.hw.streams.base import parse_frames
 from litevloc.models.types import Features
 from litevloc.pipelines.evaluation.reloc import inside_95_ellipsoids
 from litevloc.pipelines.geometry import relative_pose_error, so3_log
+from litevloc.pipelines.localization.refine import viewpoint_angle_rad
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map
 from litevloc.runtime.posed import posed_frames
@@ -50,8 +53,12 @@ from litevloc.runtime.sources import open_source
 from litevloc.runtime.vloc_models import check_map_models, load_bundle
 
 # The `localization:` block of config/presets/7scenes.yaml before issue #16 (tuned on the query pass).
+# With the colour calibration the preset carried then (frames 0:500:3, pairs 3-9 frames apart).
 START = ["localization.refine.enabled=false", "localization.gl_top_k=10", "localization.confirm_min_inliers=15",
          "localization.confirm_max_nodes=3", "localization.pnp.min_inliers=30"]
+START_CALIBRATION = ["rgbd_calibration.color_fx=515.1845", "rgbd_calibration.color_fy=518.5869",
+                     "rgbd_calibration.color_cx=318.7434", "rgbd_calibration.color_cy=226.2822",
+                     "rgbd_calibration.quat_xyzw_color_depth=[-0.009544,-0.013322,-0.000174,0.999866]"]
 CONFIGS: dict[str, list[str]] = {"joint": [], "start": START}
 PUBLISHED = [  # redkitchen, from the papers (dense scene-specific models), for reference only
     {"method": "DSAC* (RGB-D)", "median_cm": 1.9, "median_deg": 0.80, "within_5cm_5deg_pct": 92.4},
@@ -122,19 +129,28 @@ class ModelCache:
         return self.data[key + "_l"], self.data[key + "_r"]
 
 
-def ensure_map(path: Path, data: Path) -> None:
+def ensure_map(path: Path, data: Path, overrides: list[str]) -> None:
     if (path / "manifest.json").is_file():
         return
     from litevloc.runtime.cli.main import main as cli
 
-    print(f"building the map {path} (frames 0-499, --config 7scenes) ...")
-    if cli(["map", "build", str(data), "--frames", "0:500", "-o", str(path), "--config", "7scenes"]) != 0:
+    print(f"building the map {path} (frames 0-499, --config 7scenes {' '.join(overrides)}) ...")
+    sets = [a for o in overrides for a in ("--set", o)]
+    if cli(["map", "build", str(data), "--frames", "0:500", "-o", str(path), "--config", "7scenes", *sets]) != 0:
         raise SystemExit(f"map build failed for {path}")
+
+
+def map_of(name: str, args: argparse.Namespace) -> tuple[Path, list[str]]:
+    """The map a configuration localizes in, and the calibration overrides it was built with:
+    `start` has its own map (`<map>-start`), built with the starting point's colour calibration."""
+    if name == "start" and args.src is None:
+        return args.map.parent / f"{args.map.name}-start", START_CALIBRATION
+    return args.map, []
 
 
 def run_config(name: str, overrides: list[str], args: argparse.Namespace, data: Path, cache: ModelCache,
                topomap: Any) -> dict[str, Any]:
-    cfg = load_config(args.config, overrides + args.overrides)
+    cfg = load_config(args.config, overrides + map_of(name, args)[1] + args.overrides)
     loc = VisualLocalizer(topomap, cfg.localization, cache.extract, cache.describe, cache.match)
     src = open_source(data, parse_frames(args.frames), strict=True, rgbd_calibration=cfg.rgbd_calibration)
     rows: list[dict[str, Any]] = []
@@ -155,7 +171,10 @@ def run_config(name: str, overrides: list[str], args: argparse.Namespace, data: 
             et, er = relative_pose_error(res.T_map_camera, T_gt)
             E = np.linalg.inv(res.T_map_camera) @ T_gt  # right perturbation: T_gt = T_est @ E
             row.update(err_m=et, err_deg=er, err_cam_m=E[:3, 3].tolist(), err_cam_rotvec=so3_log(E[:3, :3]).tolist(),
-                       err_map_m=(T_gt[:3, 3] - res.T_map_camera[:3, 3]).tolist(), ref_node=res.ref_node)
+                       err_map_m=(T_gt[:3, 3] - res.T_map_camera[:3, 3]).tolist(), ref_node=res.ref_node,
+                       keyframe_nodes=list(res.keyframes),
+                       view_angle_deg=float(np.degrees(viewpoint_angle_rad(
+                           res.T_map_camera, topomap.T_map_camera[list(res.keyframes or (res.ref_node,))]))))
             if res.covariance is not None:
                 inside = inside_95_ellipsoids(res.T_map_camera, T_gt, res.covariance)
                 row["in_ellipsoid_t"], row["in_ellipsoid_r"] = inside
@@ -206,22 +225,25 @@ def main() -> None:
     ap.add_argument("--src", type=Path, default=None, help="another posed recording (default: 7-Scenes)")
     ap.add_argument("--config", default="7scenes", help="preset of --src (default 7scenes)")
     args = ap.parse_args()
-    if args.src is None:
-        data = require_7scenes()
-        ensure_map(args.map, data)
-    else:
-        data = args.src
-        if not (args.map / "manifest.json").is_file():
-            raise SystemExit(f"no map at {args.map} (build one for {args.src} first)")
+    data = require_7scenes() if args.src is None else args.src
+    for c in args.configs:
+        path, calibration = map_of(c, args)
+        if args.src is None:
+            ensure_map(path, data, calibration)
+        elif not (path / "manifest.json").is_file():
+            raise SystemExit(f"no map at {path} (build one for {args.src} first)")
     cfg = load_config(args.config, args.overrides)
     bundle = load_bundle(cfg.models)
-    topomap = check_map_models(load_map(args.map), bundle)
-    # the map's feature store makes each node's features on access: fixed objects, so the
-    # model cache can tell the node of a match from the object it is given
-    topomap = dataclasses.replace(topomap, features=list(topomap.features))
-    folder = args.map.name if args.src is None else f"{args.map.name}-{data.stem}"
-    cache = ModelCache(ROOT / "out" / "cache" / "accuracy" / folder, bundle, topomap)
-    results = [run_config(c, CONFIGS[c], args, data, cache, topomap) for c in args.configs]
+    results = []
+    for c in args.configs:
+        path = map_of(c, args)[0]
+        topomap = check_map_models(load_map(path), bundle)
+        # the map's feature store makes each node's features on access: fixed objects, so the
+        # model cache can tell the node of a match from the object it is given
+        topomap = dataclasses.replace(topomap, features=list(topomap.features))
+        folder = path.name if args.src is None else f"{path.name}-{data.stem}"
+        cache = ModelCache(ROOT / "out" / "cache" / "accuracy" / folder, bundle, topomap)
+        results.append(run_config(c, CONFIGS[c], args, data, cache, topomap))
     cols = ["within_2cm_2deg_pct", "within_5cm_5deg_pct", "within_25cm_5deg_pct", "accepted_pct", "median_cm",
             "median_deg", "max_cm", "wrong_over_0.5m", "calib_t_pct", "calib_r_pct", "ll_latency_median_ms",
             "ll_latency_p90_ms"]

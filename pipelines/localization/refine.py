@@ -18,12 +18,17 @@ Cauchy scale is in units of sigma.
 Covariance (6x6, right perturbation of `T_map_camera`, order (t, rotvec), the convention
 of `pipelines.pnp`): the Gauss-Newton covariance of the whitened solve over the inliers,
     Sigma_pts = s2 (J^T J)^-1,  s2 = max(whitened residual variance, 1),
-plus a systematic term that more points and more keyframes do not average out — the live
-depth's calibration and the map's poses against the live frame (on 7-Scenes the errors of
-neighbouring query frames share the same few-centimetre offset whichever keyframes are used):
-    Sigma = Sigma_pts + diag(sigma_sys_t^2 I3, sigma_sys_r^2 I3),
-then the diagonal is clamped below by `min_sigma_*`. `sigma_sys_*` are chosen on a tuning
-split (bench/accuracy.py) so that ~95 % of errors fall inside their 95 % ellipsoid.
+plus a systematic term that more points and more keyframes do not average out — the
+sensor's calibration (intrinsics, depth-to-colour extrinsic, depth distortion) and the map's
+poses against the live frame. Calibration errors do not cancel in the relative pose between
+the live frame and a keyframe: their effect grows with how far the view is turned from the
+keyframes (the commutator of a calibration error with the relative rotation; on 7-Scenes the
+rotation error correlates with that angle at r = 0.8, about 3-5 % of it):
+    sigma_t(theta)^2 = sigma_sys_t^2 + (sigma_sys_t_per_rad theta)^2   (same for rotation),
+    Sigma = Sigma_pts + diag(sigma_t(theta)^2 I3, sigma_r(theta)^2 I3),
+with theta = `viewpoint_angle_rad` of the joint pose and its consistent keyframes; then the
+diagonal is clamped below by `min_sigma_*`. The four `sigma_sys_*` are fitted by maximum
+likelihood on a tuning split inside the mapping pass (bench/accuracy.py, see RefineParams).
 """
 
 from __future__ import annotations
@@ -205,7 +210,8 @@ def refine_pose(
         s2 = max(float(rw @ rw) / max(len(rw) - 6, 1), 1.0)
         info.append(Jw.T @ Jw / s2)
     med = float(np.median(np.concatenate(errs))) if errs else float("nan")
-    cov = joint_covariance(info, p) if info else None
+    theta = viewpoint_angle_rad(T, np.stack([ob.T_map_kf for ob, *_ in used if ob.node in inl])) if inl else 0.0
+    cov = joint_covariance(info, p, theta) if info else None
     if len(inl) < p.min_keyframes:
         reason = f"only {len(inl)} keyframe(s) consistent with the joint pose (< {p.min_keyframes})"
     elif shift_m > p.max_shift_m or shift_deg > p.max_shift_deg:
@@ -215,15 +221,29 @@ def refine_pose(
     return RefineResult(reason == "ok", reason, T, cov, inl, matches, med, shift_m, shift_deg)
 
 
-def joint_covariance(information: list[F64], params: RefineParams) -> F64:
-    """6x6 covariance from per-keyframe information matrices (see the module docstring)."""
+def viewpoint_angle_rad(T_map_camera: NDArray[np.floating], T_map_keyframes: NDArray[np.floating]) -> float:
+    """Mean rotation angle (radians) between a camera pose (4x4) and keyframe poses (K, 4, 4):
+    how far the live view is turned from the keyframes that support it."""
+    R = np.asarray(T_map_camera, dtype=np.float64)[:3, :3]
+    Rk = np.asarray(T_map_keyframes, dtype=np.float64).reshape(-1, 4, 4)[:, :3, :3]
+    if len(Rk) == 0:
+        return 0.0
+    cos = (np.einsum("kij,ij->k", Rk, R) - 1.0) / 2.0  # trace(Rk^T R) = sum_ij Rk_ij R_ij
+    return float(np.mean(np.arccos(np.clip(cos, -1.0, 1.0))))
+
+
+def joint_covariance(information: list[F64], params: RefineParams, view_angle_rad: float = 0.0) -> F64:
+    """6x6 covariance from per-keyframe information matrices (see the module docstring);
+    `view_angle_rad`: `viewpoint_angle_rad` of the pose and its consistent keyframes."""
     total = np.sum(information, axis=0) if information else np.zeros((6, 6))
     try:
         cov = np.linalg.inv(total)
     except np.linalg.LinAlgError:
         cov = np.diag([1e2] * 6)
     cov = 0.5 * (cov + cov.T)
-    cov += np.diag([params.sigma_sys_t_m**2] * 3 + [np.radians(params.sigma_sys_r_deg) ** 2] * 3)
+    var_t = params.sigma_sys_t_m**2 + (params.sigma_sys_t_per_rad * view_angle_rad) ** 2
+    var_r = np.radians(params.sigma_sys_r_deg) ** 2 + (params.sigma_sys_r_per_rad * view_angle_rad) ** 2
+    cov += np.diag([var_t] * 3 + [var_r] * 3)
     floor = np.array([params.min_sigma_t_m] * 3 + [np.radians(params.min_sigma_r_deg)] * 3) ** 2
     cov[np.diag_indices(6)] = np.maximum(np.diag(cov), floor)
     return cov

@@ -9,7 +9,13 @@ import pytest
 from scipy.stats import chi2
 
 from litevloc.pipelines.geometry import make_T, so3_exp, so3_log
-from litevloc.pipelines.localization.refine import KeyframeObservations, RefineParams, refine_pose
+from litevloc.pipelines.localization.refine import (
+    KeyframeObservations,
+    RefineParams,
+    joint_covariance,
+    refine_pose,
+    viewpoint_angle_rad,
+)
 
 K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
 T_MAP_LIVE = make_T(so3_exp(np.array([0.05, -0.3, 0.02])), np.array([0.4, -0.1, 0.2]))
@@ -83,6 +89,7 @@ def test_covariance_is_calibrated_without_keyframe_error() -> None:
     """Monte Carlo with pixel noise = the model's sigma and no keyframe or depth error: the
     95 % ellipsoid holds ~95 % of the errors (the keyframe term and floors switched off)."""
     p = RefineParams(sigma_sys_t_m=0.0, sigma_sys_r_deg=0.0, min_sigma_t_m=0.0, min_sigma_r_deg=0.0,
+                     sigma_sys_t_per_rad=0.0, sigma_sys_r_per_rad=0.0,
                      depth_sigma_a=0.0, depth_sigma_b=0.0, keypoint_sigma_px=1.0)
     rng = np.random.default_rng(3)
     inside_t, inside_r = [], []
@@ -108,6 +115,33 @@ def test_systematic_term_widens_the_covariance() -> None:
     assert np.all(np.diag(wide.covariance)[:3] > np.diag(tight.covariance)[:3])
 
 
+def test_viewpoint_angle_is_the_mean_rotation_to_the_keyframes() -> None:
+    T = make_T(so3_exp(np.array([0.0, 0.4, 0.0])), np.array([1.0, 2.0, 0.0]))
+    kfs = np.stack([T @ make_T(so3_exp(np.array([0.0, 0.0, 0.3])), np.array([0.5, 0.0, 0.0])),
+                    T @ make_T(so3_exp(np.array([0.1, 0.0, 0.0])), np.zeros(3))])
+    assert viewpoint_angle_rad(T, kfs) == pytest.approx(0.2, abs=1e-9)
+    assert viewpoint_angle_rad(T, kfs[:0]) == 0.0
+
+
+def test_systematic_term_grows_with_the_viewpoint_angle() -> None:
+    """sigma_sys(theta)^2 = sigma0^2 + (k theta)^2, theta the angle to the consistent keyframes."""
+    rng = np.random.default_rng(6)
+    obs = _observations(rng, 200, 0.5)
+    base = RefineParams(sigma_sys_t_m=0.0, sigma_sys_r_deg=0.0, min_sigma_t_m=0.0, min_sigma_r_deg=0.0,
+                        sigma_sys_t_per_rad=0.0, sigma_sys_r_per_rad=0.0)
+    flat = refine_pose(T_MAP_LIVE, obs, base)
+    grown = refine_pose(T_MAP_LIVE, obs, replace(base, sigma_sys_t_per_rad=0.1, sigma_sys_r_per_rad=0.05))
+    assert flat.covariance is not None and grown.covariance is not None
+    theta = viewpoint_angle_rad(grown.T_map_camera, np.stack([kf for kf in KF_POSES]))
+    assert theta > 0.05
+    added = np.diag(grown.covariance) - np.diag(flat.covariance)
+    assert np.allclose(added[:3], (0.1 * theta) ** 2, rtol=1e-6)
+    assert np.allclose(added[3:], (0.05 * theta) ** 2, rtol=1e-6)
+    # the same pose, keyframes looking the same way: nothing is added
+    assert np.allclose(joint_covariance([np.eye(6)], replace(base, sigma_sys_t_per_rad=0.1), 0.0),
+                       joint_covariance([np.eye(6)], base, 0.0))
+
+
 def test_depth_noise_down_weights_far_points() -> None:
     """With range-dependent depth noise the solve still converges and the covariance grows."""
     rng = np.random.default_rng(5)
@@ -120,7 +154,8 @@ def test_depth_noise_down_weights_far_points() -> None:
 
 
 @pytest.mark.parametrize("kw", [{"max_keyframes": 0}, {"min_keyframes": 4}, {"loss": "l2"}, {"inlier_px": 0},
-                                {"gate_px": 1.0}, {"sigma_sys_t_m": -1.0}, {"loss_scale": 0}])
+                                {"gate_px": 1.0}, {"sigma_sys_t_m": -1.0}, {"loss_scale": 0},
+                                {"sigma_sys_r_per_rad": -0.1}])
 def test_bad_params_are_errors(kw: dict) -> None:
     with pytest.raises(ValueError):
         RefineParams(**kw)
