@@ -101,9 +101,10 @@ def map_arrays(m: TopoMap) -> dict[str, NDArray[Any]]:
             depth = _depth16(np.concatenate([np.zeros(len(f.keypoints), np.float32) if d is None
                                              else np.asarray(d, np.float32).reshape(-1)
                                              for f, d in zip(feats, node_depth, strict=True)]))
-        if np.dtype(desc_dtype).kind == "f":
-            desc, desc_scale = _quantise(np.concatenate([np.asarray(f.descriptors, np.float32).reshape(-1, desc_dim)
-                                                         for f in feats]).reshape(-1, desc_dim))
+        if np.dtype(desc_dtype).kind == "f":  # node by node: memory holds the int8 codes, not a float copy of all
+            parts = [_quantise(np.asarray(f.descriptors, np.float32).reshape(-1, desc_dim)) for f in feats]
+            desc = np.concatenate([c for c, _ in parts]).reshape(-1, desc_dim)
+            desc_scale = np.concatenate([sc for _, sc in parts]).astype(np.float32)
         else:
             desc = np.concatenate([f.descriptors for f in feats], dtype=desc_dtype, casting="same_kind")\
                 .reshape(-1, desc_dim)
