@@ -150,7 +150,8 @@ def map_of(name: str, args: argparse.Namespace) -> tuple[Path, list[str]]:
 
 def run_config(name: str, overrides: list[str], args: argparse.Namespace, data: Path, cache: ModelCache,
                topomap: Any) -> dict[str, Any]:
-    cfg = load_config(args.config, overrides + map_of(name, args)[1] + args.overrides)
+    """`overrides`: the configuration's, including the calibration its map was built with."""
+    cfg = load_config(args.config, overrides + args.overrides)
     loc = VisualLocalizer(topomap, cfg.localization, cache.extract, cache.describe, cache.match)
     src = open_source(data, parse_frames(args.frames), strict=True, rgbd_calibration=cfg.rgbd_calibration)
     rows: list[dict[str, Any]] = []
@@ -226,8 +227,8 @@ def main() -> None:
     ap.add_argument("--config", default="7scenes", help="preset of --src (default 7scenes)")
     args = ap.parse_args()
     data = require_7scenes() if args.src is None else args.src
-    for c in args.configs:
-        path, calibration = map_of(c, args)
+    maps = {c: map_of(c, args) for c in args.configs}
+    for path, calibration in maps.values():
         if args.src is None:
             ensure_map(path, data, calibration)
         elif not (path / "manifest.json").is_file():
@@ -236,14 +237,14 @@ def main() -> None:
     bundle = load_bundle(cfg.models)
     results = []
     for c in args.configs:
-        path = map_of(c, args)[0]
+        path, calibration = maps[c]
         topomap = check_map_models(load_map(path), bundle)
         # the map's feature store makes each node's features on access: fixed objects, so the
         # model cache can tell the node of a match from the object it is given
         topomap = dataclasses.replace(topomap, features=list(topomap.features))
         folder = path.name if args.src is None else f"{path.name}-{data.stem}"
         cache = ModelCache(ROOT / "out" / "cache" / "accuracy" / folder, bundle, topomap)
-        results.append(run_config(c, CONFIGS[c], args, data, cache, topomap))
+        results.append(run_config(c, CONFIGS[c] + calibration, args, data, cache, topomap))
     cols = ["within_2cm_2deg_pct", "within_5cm_5deg_pct", "within_25cm_5deg_pct", "accepted_pct", "median_cm",
             "median_deg", "max_cm", "wrong_over_0.5m", "calib_t_pct", "calib_r_pct", "ll_latency_median_ms",
             "ll_latency_p90_ms"]

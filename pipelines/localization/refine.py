@@ -41,7 +41,7 @@ from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
 from litevloc.base.params.localization import RefineParams as RefineParams
-from litevloc.pipelines.geometry import make_T, so3_exp
+from litevloc.pipelines.geometry import make_T, rotation_angle, so3_exp
 from litevloc.pipelines.guided_matching import match_by_projection
 
 F64 = NDArray[np.float64]
@@ -226,10 +226,7 @@ def viewpoint_angle_rad(T_map_camera: NDArray[np.floating], T_map_keyframes: NDA
     how far the live view is turned from the keyframes that support it."""
     R = np.asarray(T_map_camera, dtype=np.float64)[:3, :3]
     Rk = np.asarray(T_map_keyframes, dtype=np.float64).reshape(-1, 4, 4)[:, :3, :3]
-    if len(Rk) == 0:
-        return 0.0
-    cos = (np.einsum("kij,ij->k", Rk, R) - 1.0) / 2.0  # trace(Rk^T R) = sum_ij Rk_ij R_ij
-    return float(np.mean(np.arccos(np.clip(cos, -1.0, 1.0))))
+    return float(np.mean([rotation_angle(r.T @ R) for r in Rk])) if len(Rk) else 0.0
 
 
 def joint_covariance(information: list[F64], params: RefineParams, view_angle_rad: float = 0.0) -> F64:
