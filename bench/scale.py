@@ -154,7 +154,7 @@ def replicate(base: TopoMap, n: int) -> TopoMap:
     feats = FeatureStore(np.concatenate([[0], np.cumsum(counts)]).astype(np.int64), bf.keypoints[rows_all],
                          np.asarray(bf.descriptors)[rows_all], bf.scores[rows_all], size_all,
                          descriptor_scale=None if bf.descriptor_scale is None else bf.descriptor_scale[rows_all],
-                         depth=None if bf.depth is None else np.asarray(bf.depth)[rows_all])
+                         depth=None if bf.depth is None else np.asarray(bf.depth)[rows_all], codebook=bf.codebook)
     return TopoMap(
         T_map_camera=Tn, K=np.concatenate(K), image_size=size_all, t_ns=np.concatenate(t_ns),
         frame_index=np.concatenate(fidx), vpr=np.concatenate(vpr), features=feats, images_jpeg=imgs,

@@ -134,8 +134,15 @@ class MappingParams:
     # keep only the strongest N keypoints of each keyframe in the map (0 = all the extractor
     # gives): local features are most of a map's bytes (#15); queries still use all theirs
     stored_keypoints: int = 0
+    # bytes per stored float local descriptor: a product quantiser with this many 8-bit
+    # sub-codes and a codebook trained on the map (`pipelines/topomap/descriptor_codec.py`;
+    # must divide the descriptor dimension; 32 for 128-d ALIKED: 4x smaller than int8), or
+    # 0 = int8 codes + one float32 scale per descriptor (map format 2, D + 4 bytes)
+    descriptor_bytes: int = 32
 
     def __post_init__(self) -> None:
+        if not 0 <= self.descriptor_bytes <= 4096:
+            raise ValueError(f"descriptor_bytes must be in [0, 4096] (0 = int8 codes), got {self.descriptor_bytes}")
         if self.stored_keypoints < 0:
             raise ValueError(f"stored_keypoints must be >= 0 (0 = all), got {self.stored_keypoints}")
         n = float(np.linalg.norm(self.up))

@@ -23,6 +23,7 @@ from typing import Any, Protocol, overload
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.pipelines.topomap.descriptor_codec import decode
 from litevloc.pipelines.topomap.node_index import NodeIndex, connectivity_matrix, neighbour_lists
 
 
@@ -59,9 +60,11 @@ class FeatureStore(Sequence[Any]):
 
     offsets: (N+1,) int64, node i owns rows offsets[i]:offsets[i+1] of
     keypoints (M, 2) float32 pixels, descriptors (M, D) and scores (M,) float32 (each may be
-    a read-only memory map). Float descriptors are float16 or int8 codes with one float32
-    scale per row in `descriptor_scale` (M,) (map format 2); either comes out as float32
-    per node. Binary (uint8) descriptors are returned as they are. `depth` (M,) (optional):
+    a read-only memory map). Float descriptors are float16, int8 codes with one float32
+    scale per row in `descriptor_scale` (M,) (map format 2), or product-quantiser codes
+    (M, S) uint8 with their `codebook` (S, K, D/S) float32 (map format 3,
+    `descriptor_codec`); each comes out as float32 (M_node, D) per node. Binary (uint8)
+    descriptors without a codebook are returned as they are. `depth` (M,) (optional):
     keypoint depth in metres, 0 = none; returned per node as float32 with NaN for none;
     image_size: (N, 2) int (width, height). `convert` (optional) is applied to each
     node's NodeFeatures on access (e.g. to the model layer's feature type)."""
@@ -70,9 +73,14 @@ class FeatureStore(Sequence[Any]):
                  scores: NDArray[np.float32], image_size: NDArray[np.integer],
                  convert: Callable[[NodeFeatures], Any] | None = None,
                  descriptor_scale: NDArray[np.float32] | None = None,
-                 depth: NDArray[np.floating] | None = None) -> None:
+                 depth: NDArray[np.floating] | None = None, codebook: NDArray[np.float32] | None = None) -> None:
         if (descriptors.dtype == np.int8) != (descriptor_scale is not None):
             raise ValueError("int8 descriptors need descriptor_scale (one float32 per row), and only they")
+        if codebook is not None and (descriptors.dtype != np.uint8 or codebook.ndim != 3
+                                     or descriptors.shape[1:] != codebook.shape[:1]):
+            raise ValueError(f"product-quantiser codes must be (M, S) uint8 for an (S, K, d) codebook, got "
+                             f"{descriptors.dtype} {descriptors.shape} for {codebook.shape}")
+        self.codebook = codebook
         self.offsets, self.keypoints, self.descriptors, self.scores = offsets, keypoints, descriptors, scores
         self.descriptor_scale = descriptor_scale
         self.depth = depth  # (M,) metres, 0 = none (as stored), or None
@@ -90,7 +98,9 @@ class FeatureStore(Sequence[Any]):
             raise IndexError(f"node {i} not in 0..{n - 1}")
         a, b = int(self.offsets[i]), int(self.offsets[i + 1])
         d = self.descriptors[a:b]
-        if self.descriptor_scale is not None:
+        if self.codebook is not None:
+            d = decode(d, self.codebook)
+        elif self.descriptor_scale is not None:
             d = d.astype(np.float32) * self.descriptor_scale[a:b, None]
         else:
             d = d.astype(np.float32) if d.dtype == np.float16 else np.asarray(d)
@@ -119,7 +129,7 @@ class FeatureStore(Sequence[Any]):
     def mapped(self, convert: Callable[[NodeFeatures], Any]) -> FeatureStore:
         """The same store with `convert` applied to each node's features on access."""
         return FeatureStore(self.offsets, self.keypoints, self.descriptors, self.scores, self.image_size, convert,
-                            self.descriptor_scale, self.depth)
+                            self.descriptor_scale, self.depth, self.codebook)
 
 
 @dataclass(frozen=True, eq=False)

@@ -107,7 +107,7 @@ def build(args: argparse.Namespace) -> int:
                          "keyframe_budget": str(r.budget), "keyframe_budget_bound": str(r.budget_bound),
                          "keyframe_candidates": str(r.candidates), "build_frames": str(r.frames),
                          "build_seconds": f"{t2 - t0:.1f}"})
-    save_map(topomap, args.output, overwrite=args.force)
+    save_map(topomap, args.output, overwrite=args.force, descriptor_bytes=cfg.mapping.descriptor_bytes)
     storage = storage_summary(args.output)
     summary = {
         "map": str(args.output), "frames": r.frames, "frames_without_pose": missing_pose,

@@ -76,7 +76,7 @@ def merge(args: argparse.Namespace) -> int:
               f"duplicates dropped; +{report.cross_covisibility_edges} covisibility, "
               f"+{report.cross_connectivity_edges} connectivity edges across sessions")
     merged.meta["sessions"] = json.dumps([str(m) for m in args.maps])
-    save_map(merged, args.output, overwrite=args.force)
+    save_map(merged, args.output, overwrite=args.force, descriptor_bytes=cfg.mapping.descriptor_bytes)
     s = storage_summary(args.output)
     print(f"wrote {args.output}: {merged.n_nodes} keyframes, {len(merged.covis_edges)} covisibility + "
           f"{len(merged.conn_edges)} connectivity edges in {time.perf_counter() - t0:.1f} s")

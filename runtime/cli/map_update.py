@@ -201,7 +201,7 @@ def update(args: argparse.Namespace) -> int:
     new_map.meta.update({"parent_map": str(args.map), "parent_manifest_sha256": parent_sha,
                          "update": json.dumps({k: summary[k] for k in ("src", "frames", "compared", "added",
                                                                         "retired", "retired_ids")})})
-    save_map(new_map, args.output, overwrite=args.force)
+    save_map(new_map, args.output, overwrite=args.force, descriptor_bytes=cfg.mapping.descriptor_bytes)
     print(f"{args.src}: {n_loc}/{n_frames} frames compared with the map ({n_still} closer than the mapping "
           f"pre-filter to the last one); places known {report.known}, new {report.new_place}, changed "
           f"{report.changed_place}, unreliable {report.unreliable} (known by a keyframe this update added: "

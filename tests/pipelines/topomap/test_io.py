@@ -304,3 +304,87 @@ def test_int8_descriptors_keep_nearest_neighbours() -> None:
     assert np.mean(s32.argmax(axis=1) == s8.argmax(axis=1)) >= 0.99
     assert float(np.abs(s32 - s8).max()) < 0.01
     assert codes.nbytes + scale.nbytes < 0.52 * ref.astype(np.float16).nbytes
+
+
+def float_feature_map(m: TopoMap, dim: int = 128) -> TopoMap:
+    """The map with float unit descriptors (clustered, like learned ones) instead of ORB's bits."""
+    from litevloc.pipelines.topomap.types import NodeFeatures
+
+    from .test_descriptor_codec import clustered_descriptors
+
+    feats = []
+    for i, f in enumerate(m.features):
+        d = clustered_descriptors(len(f.keypoints), dim, seed=i)
+        feats.append(NodeFeatures(f.keypoints, d, f.scores, f.image_size, getattr(f, "depth", None)))
+    return dataclasses.replace(m, features=feats)
+
+
+def test_product_quantised_descriptors_round_trip(built_map: TopoMap, tmp_path: Path) -> None:
+    from litevloc.pipelines.topomap.descriptor_codec import decode, encode
+
+    m = float_feature_map(built_map)
+    saved = save_map(m, tmp_path / "pq")  # the default: 32 bytes per descriptor
+    man = json.loads((saved / "manifest.json").read_text())
+    assert man["version"] == 3 and man["descriptor_codec"] == "pq"
+    loaded = load_map(saved)
+    book = loaded.features.codebook  # type: ignore[attr-defined]
+    assert book.shape == (32, 256, 4) and loaded.features.descriptors.shape[1] == 32  # type: ignore[attr-defined]
+    for i in (0, m.n_nodes - 1):
+        a = np.asarray(m.features[i].descriptors)
+        b = loaded.features[i].descriptors
+        assert b.dtype == np.float32 and b.shape == a.shape
+        np.testing.assert_array_equal(b, decode(encode(a, book), book))  # exactly the codec's rounding
+        assert float(np.median(np.sum(a * b, axis=1))) > 0.95
+    # re-saving a loaded map keeps its codes and codebook byte for byte; other encodings re-encode
+    again = json.loads((save_map(loaded, tmp_path / "again") / "manifest.json").read_text())["files"]
+    for rel in ("features/descriptors.npy", "features/descriptor_codebook.npy", "features/keypoints.npy"):
+        assert again[rel] == man["files"][rel]
+    as_int8 = load_map(save_map(loaded, tmp_path / "int8", descriptor_bytes=0))
+    assert as_int8.features.codebook is None and as_int8.features.descriptor_scale is not None  # type: ignore[attr-defined]
+    np.testing.assert_allclose(as_int8.features[1].descriptors, loaded.features[1].descriptors, atol=0.01)
+    # a quarter of the int8 encoding's bytes (132 per 128-d descriptor)
+    files = man["files"]
+    pq_bytes = files["features/descriptors.npy"]["bytes"] + files["features/descriptor_codebook.npy"]["bytes"]
+    int8_files = json.loads((tmp_path / "int8" / "manifest.json").read_text())["files"]
+    int8_bytes = int8_files["features/descriptors.npy"]["bytes"] + int8_files["features/descriptor_scale.npy"]["bytes"]
+    n = len(loaded.features.descriptors)  # type: ignore[attr-defined]
+    assert int8_bytes >= 132 * n and pq_bytes <= 32 * n + 32 * 256 * 4 * 4 + 256
+    with pytest.raises(MapFormatError, match=r"descriptor_bytes: .*divisible"):
+        save_map(m, tmp_path / "bad", descriptor_bytes=48)
+
+
+def test_product_quantiser_problems_are_named(built_map: TopoMap, tmp_path: Path) -> None:
+    saved = save_map(float_feature_map(built_map, dim=16), tmp_path / "pq", descriptor_bytes=4)
+    codes = np.asarray(load_map(saved).features.descriptors).copy()  # type: ignore[attr-defined]
+    d = copy(saved, tmp_path / "a")
+    book = np.load(d / "features/descriptor_codebook.npy")
+    _replace_array(d, "features/descriptor_codebook.npy", book[:, :100].copy())
+    codes[-1, 2] = 200  # the last row: the streaming check reads to the end
+    _replace_array(d, "features/descriptors.npy", codes)
+    with pytest.raises(MapFormatError, match=r"features/descriptors\.npy: codes must be < 100"):
+        load_map(d)
+    d = copy(saved, tmp_path / "b")
+    rewrite_manifest(d, lambda man: man["files"].pop("features/descriptor_codebook.npy"))
+    with pytest.raises(MapFormatError, match=r"descriptor_codebook\.npy: not listed"):
+        load_map(d)
+    d = copy(saved, tmp_path / "c")
+    rewrite_manifest(d, lambda man: man.__setitem__("descriptor_codec", "zip"))
+    with pytest.raises(MapFormatError, match="'descriptor_codec' must be one of"):
+        load_map(d)
+    d = copy(saved, tmp_path / "d")
+    rewrite_manifest(d, lambda man: man.__setitem__("version", 2))
+    with pytest.raises(MapFormatError, match="needs map version 3"):
+        load_map(d)
+    d = copy(saved, tmp_path / "e")
+    _replace_array(d, "features/descriptor_codebook.npy", np.zeros((4, 300, 4), np.float32))
+    with pytest.raises(MapFormatError, match=r"descriptor_codebook\.npy: shape \(4, 300, 4\)"):
+        load_map(d)
+    d = copy(saved, tmp_path / "f")
+    _replace_array(d, "features/descriptors.npy", codes[:, :3].copy())
+    with pytest.raises(MapFormatError, match=r"features/descriptors\.npy: shape"):
+        load_map(d)
+    d = copy(saved, tmp_path / "g")
+    book[0, 0, 0] = np.nan
+    _replace_array(d, "features/descriptor_codebook.npy", book)
+    with pytest.raises(MapFormatError, match=r"descriptor_codebook\.npy: contains NaN"):
+        load_map(d)
