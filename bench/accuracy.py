@@ -8,7 +8,8 @@ a frame without an accepted pose is a failure) for each configuration:
 * `start`    — the starting point of issue #16: single-keyframe PnP pose + separate
                confirmation (`localization.refine.enabled=false`) with the localization block
                the 7scenes preset carried before (thresholds tuned on the query pass) and
-               the colour calibration it carried then (`START_CALIBRATION`), in its own map
+               the colour calibration it carried then (`START_CALIBRATION`) and format-2 int8 descriptors,
+               in its own map
                `<map>-start` built with that calibration.
 
 and prints: share of all query frames within [2 cm, 2 deg], [5 cm, 5 deg], [25 cm, 5 deg];
@@ -56,6 +57,7 @@ from litevloc.runtime.vloc_models import check_map_models, load_bundle
 # With the colour calibration the preset carried then (frames 0:500:3, pairs 3-9 frames apart).
 START = ["localization.refine.enabled=false", "localization.gl_top_k=10", "localization.confirm_min_inliers=15",
          "localization.confirm_max_nodes=3", "localization.pnp.min_inliers=30"]
+START_MAP_FORMAT = ["mapping.descriptor_bytes=0"]
 START_CALIBRATION = ["rgbd_calibration.color_fx=515.1845", "rgbd_calibration.color_fy=518.5869",
                      "rgbd_calibration.color_cx=318.7434", "rgbd_calibration.color_cy=226.2822",
                      "rgbd_calibration.quat_xyzw_color_depth=[-0.009544,-0.013322,-0.000174,0.999866]"]
@@ -229,8 +231,8 @@ def main() -> None:
     data = require_7scenes() if args.src is None else args.src
     maps = {c: map_of(c, args) for c in args.configs}
     for path, calibration in maps.values():
-        if args.src is None:
-            ensure_map(path, data, calibration)
+        if args.src is None:  # the starting point's map also keeps its int8 descriptors (map format 2)
+            ensure_map(path, data, calibration + (START_MAP_FORMAT if calibration == START_CALIBRATION else []))
         elif not (path / "manifest.json").is_file():
             raise SystemExit(f"no map at {path} (build one for {args.src} first)")
     cfg = load_config(args.config, args.overrides)

@@ -8,7 +8,9 @@ nodes/T_map_camera.npy        (N,4,4) float64     nodes/K.npy            (N,3,3)
 nodes/image_size.npy          (N,2) int32 (w,h)   nodes/t_ns.npy         (N,) int64
 nodes/frame_index.npy         (N,) int64          vpr/descriptors.npy    (N,D) int8, vpr/scale.npy (N,) float32
 features/offsets.npy          (N+1,) int64: node i owns rows offsets[i]:offsets[i+1]
-features/keypoints.npy        (M,2) float32       features/scores.npy    (M,) float32
+features/keypoints.npy        (M,2) uint16: 1/8 px steps from -0.5 px (version 3; float32 pixels in
+                              version 1-2, or beyond 8191 px)
+features/scores.npy           (M,) float16 (version 3; float32 in version 1-2)
 features/descriptors.npy      float descriptors: (M,S) uint8 product-quantiser codes (manifest
                               descriptor_codec "pq", version 3) or (M,Df) int8 codes ("int8",
                               version 2-3; version 1: float16); binary descriptors: (M,Df) uint8
@@ -63,7 +65,14 @@ from litevloc.pipelines.topomap.descriptor_codec import (
     train,
     training_rows,
 )
-from litevloc.pipelines.topomap.types import FeatureStore, OccupancyGrid, TopoMap
+from litevloc.pipelines.topomap.types import (
+    KEYPOINT_FIXED_MAX,
+    FeatureStore,
+    OccupancyGrid,
+    TopoMap,
+    keypoints_from_fixed,
+    keypoints_to_fixed,
+)
 
 FORMAT = "litevloc-map"
 VERSION = 3
@@ -185,8 +194,8 @@ def map_arrays(m: TopoMap, descriptor_bytes: int = DEFAULT_DESCRIPTOR_BYTES) -> 
         "vpr/descriptors.npy": vpr_codes,
         "vpr/scale.npy": vpr_scale,
         "features/offsets.npy": np.asarray(offsets, np.int64),
-        "features/keypoints.npy": np.asarray(kps, np.float32),
-        "features/scores.npy": np.asarray(scores, np.float32),
+        "features/keypoints.npy": _stored_keypoints(kps),
+        "features/scores.npy": _scores16(scores),
         "graph/covisibility_edges.npy": m.covis_edges.astype(np.int64).reshape(-1, 2),
         "graph/covisibility_inliers.npy": m.covis_inliers.astype(np.int32),
         "graph/covisibility_weight.npy": m.covis_weight.astype(np.float32),
@@ -199,6 +208,27 @@ def map_arrays(m: TopoMap, descriptor_bytes: int = DEFAULT_DESCRIPTOR_BYTES) -> 
     if depth is not None:
         out["features/depth.npy"] = depth
     return out
+
+
+def _stored_keypoints(kps: NDArray[Any]) -> NDArray[Any]:
+    """Keypoints as stored: uint16 steps of 1/8 px (format 3; kept as they are when already
+    so), or float32 where a coordinate lies beyond the fixed-point range (images > 8191 px)."""
+    if np.dtype(kps.dtype) == np.uint16:
+        return np.asarray(kps)
+    k = np.asarray(kps, np.float32).reshape(-1, 2)
+    if k.size and not (k.min() >= -0.5 and k.max() <= KEYPOINT_FIXED_MAX):
+        return k
+    return keypoints_to_fixed(k)
+
+
+def _scores16(scores: NDArray[Any]) -> NDArray[np.float16]:
+    """Keypoint scores as stored (format 3): float16, clipped to its range (scores only rank
+    a node's keypoints, which are stored strongest first)."""
+    s = np.asarray(scores)
+    if s.dtype == np.float16:
+        return s
+    f16 = float(np.finfo(np.float16).max)
+    return np.clip(np.asarray(s, np.float32), -f16, f16).astype(np.float16)
 
 
 def _depth16(z: NDArray[np.floating]) -> NDArray[np.float16]:
@@ -601,6 +631,8 @@ def load_map(folder: str | Path) -> TopoMap:
 
     def in_image(k: NDArray[Any], first: int) -> None:
         """Keypoints of rows first.. lie inside their node's image (one array operation)."""
+        if k.dtype == np.uint16:
+            k = keypoints_from_fixed(k)
         # rows past offsets[-1] (a count mismatch, reported after the pass) count as the last node's
         owner = np.minimum(np.searchsorted(off, np.arange(first, first + len(k)), side="right") - 1, N - 1)
         out = (k.min(axis=1) < -0.5) | (k[:, 0] > wh[owner, 0]) | (k[:, 1] > wh[owner, 1])
@@ -609,13 +641,15 @@ def load_map(folder: str | Path) -> TopoMap:
             raise _fail(root, "features/keypoints.npy",
                         f"keypoints of node {i} fall outside its {int(size[i, 0])}x{int(size[i, 1])} image")
 
-    kps = _streamed_npy(root, "features/keypoints.npy", files["features/keypoints.npy"], np.float32, (None, 2),
-                        in_image if N else None)
+    v3 = man["version"] >= 3  # fixed-point keypoints and float16 scores
+    codebook = _codebook(root, man)  # the manifest's codec first: it decides what the features must be
+    kps = _streamed_npy(root, "features/keypoints.npy", files["features/keypoints.npy"],
+                        (np.float32, np.uint16) if v3 else np.float32, (None, 2), in_image if N else None)
     if len(kps) != M:
         raise _fail(root, "features/offsets.npy", f"must rise from 0 to {len(kps)} (keypoint count)")
-    scores = _streamed_npy(root, "features/scores.npy", files["features/scores.npy"], np.float32, (M,))
+    scores = _streamed_npy(root, "features/scores.npy", files["features/scores.npy"],
+                           (np.float32, np.float16) if v3 else np.float32, (M,))
     v1 = man["version"] == 1
-    codebook = _codebook(root, man)
     desc = _streamed_npy(root, "features/descriptors.npy", files["features/descriptors.npy"],
                          (np.float16, np.uint8) if v1 else (np.int8, np.uint8),
                          (M, None if codebook is None else codebook.shape[0]),

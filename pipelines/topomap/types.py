@@ -54,23 +54,43 @@ class NodeFeatures:
     depth: NDArray[np.float32] | None = None
 
 
+KEYPOINT_SUBPIXELS = 8  # fixed-point keypoints (map format 3): uint16 steps of 1/8 pixel from -0.5 px
+KEYPOINT_FIXED_MAX = (65535 / KEYPOINT_SUBPIXELS) - 0.5  # largest storable coordinate, pixels
+
+
+def keypoints_to_fixed(kp: NDArray[np.floating]) -> NDArray[np.uint16]:
+    """(M, 2) pixel coordinates in [-0.5, KEYPOINT_FIXED_MAX] -> uint16 steps of 1/8 px
+    (rounding moves a keypoint by <= 1/16 px); ValueError outside that range."""
+    k = np.asarray(kp, np.float32)
+    if k.size and not (k.min() >= -0.5 and k.max() <= KEYPOINT_FIXED_MAX):
+        raise ValueError(f"keypoints must lie in [-0.5, {KEYPOINT_FIXED_MAX}] px for fixed-point storage")
+    return np.round((k + np.float32(0.5)) * np.float32(KEYPOINT_SUBPIXELS)).astype(np.uint16)
+
+
+def keypoints_from_fixed(q: NDArray[Any]) -> NDArray[np.float32]:
+    """uint16 steps of 1/8 px -> float32 pixels (the inverse of `keypoints_to_fixed`)."""
+    return (np.asarray(q, np.float32) * np.float32(1 / KEYPOINT_SUBPIXELS) - np.float32(0.5)).astype(np.float32)
+
+
 class FeatureStore(Sequence[Any]):
     """The cached local features of all N nodes in concatenated arrays; item i is node i's
     `NodeFeatures`, made on access (no per-node objects or copies at load time).
 
     offsets: (N+1,) int64, node i owns rows offsets[i]:offsets[i+1] of
-    keypoints (M, 2) float32 pixels, descriptors (M, D) and scores (M,) float32 (each may be
-    a read-only memory map). Float descriptors are float16, int8 codes with one float32
-    scale per row in `descriptor_scale` (M,) (map format 2), or product-quantiser codes
-    (M, S) uint8 with their `codebook` (S, K, D/S) float32 (map format 3,
-    `descriptor_codec`); each comes out as float32 (M_node, D) per node. Binary (uint8)
+    keypoints (M, 2) float32 pixels or uint16 fixed point (`keypoints_to_fixed`, map format
+    3), descriptors (M, D) and scores (M,) float32 or float16 (each may be a read-only
+    memory map); keypoints and scores come out as float32 per node. Float descriptors are
+    float16, int8 codes with one float32 scale per row in `descriptor_scale` (M,) (map
+    format 2), or product-quantiser codes (M, S) uint8 with their `codebook` (S, K, D/S)
+    float32 (map format 3, `descriptor_codec`); each comes out as float32 (M_node, D) per
+    node. Binary (uint8)
     descriptors without a codebook are returned as they are. `depth` (M,) (optional):
     keypoint depth in metres, 0 = none; returned per node as float32 with NaN for none;
     image_size: (N, 2) int (width, height). `convert` (optional) is applied to each
     node's NodeFeatures on access (e.g. to the model layer's feature type)."""
 
-    def __init__(self, offsets: NDArray[np.int64], keypoints: NDArray[np.float32], descriptors: NDArray[Any],
-                 scores: NDArray[np.float32], image_size: NDArray[np.integer],
+    def __init__(self, offsets: NDArray[np.int64], keypoints: NDArray[Any], descriptors: NDArray[Any],
+                 scores: NDArray[Any], image_size: NDArray[np.integer],
                  convert: Callable[[NodeFeatures], Any] | None = None,
                  descriptor_scale: NDArray[np.float32] | None = None,
                  depth: NDArray[np.floating] | None = None, codebook: NDArray[np.float32] | None = None) -> None:
@@ -108,7 +128,9 @@ class FeatureStore(Sequence[Any]):
         if self.depth is not None:
             z = np.asarray(self.depth[a:b], np.float32)
             z = np.where(z > 0, z, np.float32(np.nan))
-        f = NodeFeatures(self.keypoints[a:b], d, self.scores[a:b],
+        kp = self.keypoints[a:b]
+        kp = keypoints_from_fixed(kp) if kp.dtype == np.uint16 else np.asarray(kp)
+        f = NodeFeatures(kp, d, np.asarray(self.scores[a:b], np.float32),
                          (int(self.image_size[i, 0]), int(self.image_size[i, 1])), z)
         return f if self.convert is None else self.convert(f)
 

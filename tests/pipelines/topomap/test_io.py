@@ -50,6 +50,17 @@ def assert_same(a: object, b: object, where: str) -> None:
         codes, scale = _quantise(a)
         np.testing.assert_array_equal(np.asarray(b, np.float32), codes.astype(np.float32) * scale[:, None],
                                       err_msg=where)
+    elif isinstance(a, np.ndarray) and where.endswith(".keypoints"):
+        # stored as uint16 steps of 1/8 px (documented): exactly that rounding, within 1/16 px
+        from litevloc.pipelines.topomap.types import keypoints_from_fixed, keypoints_to_fixed
+
+        assert isinstance(b, np.ndarray) and b.shape == a.shape and b.dtype == np.float32, where
+        np.testing.assert_array_equal(b, keypoints_from_fixed(keypoints_to_fixed(a)), err_msg=where)
+        assert float(np.abs(b - a).max(initial=0)) <= 1 / 16 + 1e-4, where
+    elif isinstance(a, np.ndarray) and where.endswith(".scores"):
+        # stored as float16 (documented): that rounding, and the same strongest-first order
+        assert isinstance(b, np.ndarray) and b.shape == a.shape and b.dtype == np.float32, where
+        np.testing.assert_array_equal(b, a.astype(np.float16).astype(np.float32), err_msg=where)
     elif isinstance(a, np.ndarray) and where.endswith(".depth"):
         # keypoint depth is stored as float16 metres, 0 = none (documented): that rounding, NaN kept
         assert isinstance(b, np.ndarray) and b.shape == a.shape and b.dtype == np.float32, where
@@ -180,7 +191,7 @@ def test_pickled_array_is_refused(saved_map: Path, tmp_path: Path) -> None:
 
 def test_loaded_features_and_images_are_lazy_and_exact(saved_map: Path, tmp_path: Path) -> None:
     from litevloc.pipelines.topomap.io import map_arrays
-    from litevloc.pipelines.topomap.types import FeatureStore
+    from litevloc.pipelines.topomap.types import FeatureStore, keypoints_from_fixed
 
     m = load_map(saved_map)
     assert isinstance(m.features, FeatureStore)
@@ -193,7 +204,8 @@ def test_loaded_features_and_images_are_lazy_and_exact(saved_map: Path, tmp_path
         stored = arrays["features/descriptors.npy"][a:b]
         assert f.descriptors.dtype == (np.float32 if stored.dtype == np.float16 else stored.dtype)
         assert np.array_equal(f.descriptors, stored.astype(f.descriptors.dtype))
-        assert np.array_equal(f.keypoints, arrays["features/keypoints.npy"][a:b])
+        assert np.array_equal(f.keypoints, keypoints_from_fixed(arrays["features/keypoints.npy"][a:b]))
+        assert np.array_equal(f.scores, arrays["features/scores.npy"][a:b].astype(np.float32))
     assert np.array_equal(m.features[-1].descriptors, m.features[m.n_nodes - 1].descriptors)
     assert len(list(m.features)) == m.n_nodes and len(m.features[1:3]) == 2
     with pytest.raises(IndexError):
@@ -215,6 +227,13 @@ def test_loaded_features_and_images_are_lazy_and_exact(saved_map: Path, tmp_path
         m2.images_jpeg[0]
 
 
+def as_v1(d: Path, m: TopoMap) -> None:
+    """Keypoints and scores of map `d` (loaded as `m`) rewritten as versions 1-2 stored them: float32."""
+    store = m.features
+    _replace_array(d, "features/keypoints.npy", np.concatenate([f.keypoints for f in store]).astype(np.float32))
+    _replace_array(d, "features/scores.npy", np.asarray(store.scores, np.float32))  # type: ignore[attr-defined]
+
+
 def test_streamed_feature_files_are_fully_checked(saved_map: Path, tmp_path: Path) -> None:
     m = load_map(saved_map)
     M = len(m.features.descriptors)  # type: ignore[attr-defined]
@@ -224,6 +243,9 @@ def test_streamed_feature_files_are_fully_checked(saved_map: Path, tmp_path: Pat
     with pytest.raises(MapFormatError, match=r"features/descriptors\.npy: dtype float16, expected int8"):
         load_map(d0)  # version 2 stores float descriptors as int8 codes
     rewrite_manifest(d0, lambda man: man.__setitem__("version", 1))
+    with pytest.raises(MapFormatError, match=r"features/keypoints\.npy: dtype uint16, expected float32"):
+        load_map(d0)  # fixed-point keypoints are format 3's
+    as_v1(d0, m)
     f0 = load_map(d0).features[1]  # a version-1 map: float16 on disk, float32 per node on access
     assert f0.descriptors.dtype == np.float32 and f0.descriptors.shape[1] == 8
     # version 2: int8 codes and one float32 scale per row, float32 per node on access
@@ -251,6 +273,7 @@ def test_streamed_feature_files_are_fully_checked(saved_map: Path, tmp_path: Pat
     d = copy(saved_map, tmp_path / "a")
     _replace_array(d, "features/descriptors.npy", desc)
     rewrite_manifest(d, lambda man: man.__setitem__("version", 1))
+    as_v1(d, m)
     with pytest.raises(MapFormatError, match=r"features/descriptors\.npy: contains NaN"):
         load_map(d)
     d2 = copy(saved_map, tmp_path / "b")
@@ -266,7 +289,7 @@ def test_streamed_feature_files_are_fully_checked(saved_map: Path, tmp_path: Pat
         load_map(d3)
     d4 = copy(saved_map, tmp_path / "d")
     kps = np.asarray(m.features.keypoints).copy()  # type: ignore[attr-defined]
-    kps[-1, 0] = 1e4
+    kps[-1, 0] = 65000  # 8124.5 px
     _replace_array(d4, "features/keypoints.npy", kps)
     with pytest.raises(MapFormatError, match=f"keypoints of node {m.n_nodes - 1} fall outside"):
         load_map(d4)
@@ -388,3 +411,17 @@ def test_product_quantiser_problems_are_named(built_map: TopoMap, tmp_path: Path
     _replace_array(d, "features/descriptor_codebook.npy", book)
     with pytest.raises(MapFormatError, match=r"descriptor_codebook\.npy: contains NaN"):
         load_map(d)
+
+
+def test_keypoints_beyond_the_fixed_point_range_stay_float() -> None:
+    from litevloc.pipelines.topomap.io import _stored_keypoints
+    from litevloc.pipelines.topomap.types import KEYPOINT_FIXED_MAX, keypoints_from_fixed, keypoints_to_fixed
+
+    k = np.array([[-0.5, 0.0], [100.3, 7.06], [KEYPOINT_FIXED_MAX, 2.0]], np.float32)
+    q = _stored_keypoints(k)
+    assert q.dtype == np.uint16
+    assert float(np.abs(keypoints_from_fixed(q) - k).max()) <= 1 / 16
+    big = np.array([[9000.0, 1.0]], np.float32)  # a > 8191 px image: float32, as format 2 stored them
+    assert _stored_keypoints(big).dtype == np.float32
+    with pytest.raises(ValueError, match="fixed-point"):
+        keypoints_to_fixed(big)
