@@ -139,7 +139,7 @@ class MappingParams:
     # bytes per stored float local descriptor: a product quantiser with this many 8-bit
     # sub-codes and a codebook trained on the map (`pipelines/topomap/descriptor_codec.py`;
     # must divide the descriptor dimension; 32 for 128-d ALIKED: 4x smaller than int8), or
-    # 0 = int8 codes + one float32 scale per descriptor (map format 2, D + 4 bytes)
+    # 0 (or >= D) = int8 codes + one float32 scale per descriptor (map format 2, D + 4 bytes)
     descriptor_bytes: int = 32
 
     def __post_init__(self) -> None:

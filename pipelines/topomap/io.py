@@ -122,9 +122,10 @@ def _store_float_rows(fs: FeatureStore) -> NodeDescriptors:
 def _encode_float(rows: NodeDescriptors, counts: Sequence[int], dim: int,
                   descriptor_bytes: int) -> dict[str, NDArray[Any]]:
     """Float descriptors, node by node (memory holds the codes, not a float copy of all), as
-    int8 codes + row scales (`descriptor_bytes` 0) or product-quantiser codes + codebook."""
+    int8 codes + row scales (`descriptor_bytes` 0, or no fewer than the dimensions) or
+    product-quantiser codes + codebook."""
     n = len(counts)
-    if descriptor_bytes == 0:
+    if descriptor_bytes == 0 or descriptor_bytes >= dim:  # as many bytes as dimensions: int8 codes are no larger
         parts = [_quantise(rows(i).reshape(-1, dim)) for i in range(n)]
         return {"features/descriptors.npy": np.concatenate([c for c, _ in parts]).reshape(-1, dim),
                 "features/descriptor_scale.npy": np.concatenate([sc for _, sc in parts]).astype(np.float32)}
@@ -157,7 +158,7 @@ def map_arrays(m: TopoMap, descriptor_bytes: int = DEFAULT_DESCRIPTOR_BYTES) -> 
         counts = np.diff(np.asarray(offsets)).tolist()
         if fs.codebook is not None and descriptor_bytes == fs.codebook.shape[0]:
             enc = {"features/descriptors.npy": fs.descriptors, "features/descriptor_codebook.npy": fs.codebook}
-        elif fs.descriptor_scale is not None and descriptor_bytes == 0:
+        elif fs.descriptor_scale is not None and (descriptor_bytes == 0 or descriptor_bytes >= fs.descriptors.shape[1]):
             enc = {"features/descriptors.npy": fs.descriptors, "features/descriptor_scale.npy": fs.descriptor_scale}
         elif fs.codebook is not None or np.dtype(fs.descriptors.dtype).kind in "fi":
             dim = fs.codebook.shape[0] * fs.codebook.shape[2] if fs.codebook is not None else fs.descriptors.shape[1]

@@ -19,8 +19,10 @@ from litevloc.pipelines.topomap.io import MapFormatError, load_map, save_map
 from tests.pipelines.localization.test_vloc import make_map
 
 
-@pytest.fixture(scope="module")
-def good_map(tmp_path_factory: pytest.TempPathFactory) -> Path:
+@pytest.fixture(scope="module", params=[0, 1], ids=["int8", "pq"])
+def good_map(tmp_path_factory: pytest.TempPathFactory, request: pytest.FixtureRequest) -> Path:
+    """A valid map in each float-descriptor encoding: int8 codes (format 2's) and product-
+    quantiser codes with their codebook (format 3's default; one byte for these 17-d descriptors)."""
     d = tmp_path_factory.mktemp("fuzzmap") / "map"
     import dataclasses
 
@@ -32,7 +34,10 @@ def good_map(tmp_path_factory: pytest.TempPathFactory) -> Path:
     # the localizer tests' descriptors carry point ids (up to ~1e5): scaled into float16's range,
     # the map format's descriptor storage, so the good map is a valid map
     feats = [dataclasses.replace(f, descriptors=f.descriptors / 1e5) for f in m.features]
-    save_map(dataclasses.replace(m, features=feats, images_jpeg=[jpg.tobytes()] * m.n_nodes), d)
+    save_map(dataclasses.replace(m, features=feats, images_jpeg=[jpg.tobytes()] * m.n_nodes), d,
+             descriptor_bytes=request.param)
+    codec = json.loads((d / "manifest.json").read_text())["descriptor_codec"]
+    assert codec == ("int8" if request.param == 0 else "pq")
     load_map(d)
     return d
 

@@ -374,6 +374,9 @@ def test_product_quantised_descriptors_round_trip(built_map: TopoMap, tmp_path: 
     assert int8_bytes >= 132 * n and pq_bytes <= 32 * n + 32 * 256 * 4 * 4 + 256
     with pytest.raises(MapFormatError, match=r"descriptor_bytes: .*divisible"):
         save_map(m, tmp_path / "bad", descriptor_bytes=48)
+    # no fewer bytes than dimensions: int8 codes (a quantiser could not be smaller)
+    small = save_map(float_feature_map(built_map, dim=16), tmp_path / "small", descriptor_bytes=32)
+    assert json.loads((small / "manifest.json").read_text())["descriptor_codec"] == "int8"
 
 
 def test_product_quantiser_problems_are_named(built_map: TopoMap, tmp_path: Path) -> None:
