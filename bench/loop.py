@@ -79,6 +79,7 @@ def query(map_dir: Path, config: str, pass_name: str = "loop-lane", rate: float 
     app = build_app(cfg, map_dir, src, rate)
     vloc: list[tuple[int, bool, np.ndarray | None]] = []
     how: list[str] = []  # per accepted result: "local", "global" or "global+prior" (one keyframe + the prior)
+    detail: list[dict[str, Any]] = []  # per accepted result: what accepted it, and the prior it had
     inner = app.service.vloc_fn  # the service's vloc(frame, prior): in this process or the VLoc process
 
     def process(frame: Any, prior: Any) -> Any:
@@ -87,6 +88,13 @@ def query(map_dir: Path, config: str, pass_name: str = "loop-lane", rate: float 
         if r.accepted and r.T_map_camera is not None:
             how.append("global+prior" if "agrees with the prior" in getattr(r, "stop_reason", "")
                        else str(getattr(r, "mode", "")))
+            T_prior = getattr(prior, "T_map_camera", None)
+            detail.append({"t_s": round(int(r.t_ns) * 1e-9, 3), "ref_node": int(r.ref_node),
+                           "keyframes": [int(k) for k in r.keyframes], "inliers": int(r.n_inliers),
+                           "matches": int(r.n_matches), "reason": str(r.reason),
+                           "prior_age_s": None if prior is None else round(float(prior.age_s), 2),
+                           "from_prior_m": None if T_prior is None else
+                           round(float(np.linalg.norm(np.asarray(r.T_map_camera)[:3, 3] - T_prior[:3, 3])), 3)})
         return r
 
     app.service.vloc_fn = process
@@ -117,6 +125,9 @@ def query(map_dir: Path, config: str, pass_name: str = "loop-lane", rate: float 
         "vloc_over_0_5m_by_mode": {m: int(sum(e > 0.5 for e, h in zip(v_err, how, strict=True) if h == m))
                                    for m in sorted(set(how))},
         "vloc_err_max_m": float(v_err.max()) if len(v_err) else None,
+        # accepted poses more than 0.5 m off: how each was accepted (diagnosis of the wrong places)
+        "vloc_outliers": [{"err_m": round(float(e), 3), "mode": h, **d}
+                          for e, h, d in zip(v_err, how, detail, strict=True) if e > 0.5],
         "fused_ate_m": _rmse(f_err), "fused_err_median_m": float(np.median(f_err)) if len(f_err) else None,
         "fused_poses": len(f_err), "odometry_ate_m": _rmse(o_err), "odometry_final_error_m": float(o_err[-1]),
         "odometry_max_error_m": float(o_err.max()),
