@@ -130,8 +130,10 @@ class MappingParams:
     covisibility: CovisibilityParams = field(default_factory=CovisibilityParams)
     connectivity: ConnectivityParams = field(default_factory=ConnectivityParams)
     depth: DepthLookupParams = field(default_factory=DepthLookupParams)
-    # keyframe images are for people (live view, map diff) and `bench reloc`, not localization:
-    # 75 stores them in 55 % of the bytes of 90 (`loop`: 2.26 vs 4.14 MB for 311 keyframes)
+    # JPEG quality of keyframe images encoded from raw colour (a source's own JPEG bytes, e.g. a
+    # recording's, are stored as they are). They are for people (live view, map diff) and
+    # `bench reloc`, not localization: 75 stores them in 55 % of the bytes of 90 (`loop`: 2.26
+    # vs 4.14 MB for 311 keyframes)
     jpeg_quality: int = 75
     # keep only the strongest N keypoints of each keyframe in the map (0 = all the extractor
     # gives): local features are most of a map's bytes (#15); queries still use all theirs
