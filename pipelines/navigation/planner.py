@@ -10,7 +10,8 @@
   taken rather than to the keyframe that saw it. With depth, every candidate gets such a
   pose, and a goal that verifies as well (within `ambiguity_ratio`) at another place is
   refused as ambiguous: the same poster hangs in two rooms, and guessing sends the robot
-  to the wrong one.
+  to the wrong one. Candidates whose goal poses agree, or whose keyframes are covisible in
+  the map, are one place.
 * `shortest_path`: Dijkstra on the connectivity graph (edge weights in metres) with
   `scipy.sparse.csgraph.dijkstra` on the map's CSR matrix (built once per map); ~1 ms at
   10,000 nodes where the former pure-Python heap took tens (`bench/scale.py`).
@@ -124,10 +125,13 @@ class _Candidate:
     pose_inliers: int
 
 
-def _places(cands: list[_Candidate], agree_m: float, agree_deg: float) -> list[list[_Candidate]]:
+def _places(cands: list[_Candidate], agree_m: float, agree_deg: float,
+            covisible: Callable[[int, int], bool] = lambda a, b: False) -> list[list[_Candidate]]:
     """Candidates with a metric goal pose grouped into places: greedy, strongest PnP first; a
     candidate joins the first place whose seed pose lies within agree_m and agree_deg (angle
-    between the optical axes) of its own."""
+    between the optical axes) of its own, or whose seed's keyframe is covisible with its own
+    (the map verified that the two keyframes see the same scene: in a long corridor the
+    goal poses of neighbouring keyframes can differ by a metre, and that is one place)."""
     cos_max = float(np.cos(np.radians(agree_deg)))
     places: list[list[_Candidate]] = []
     for c in sorted((c for c in cands if c.T_map_goal is not None), key=lambda c: -c.pose_inliers):
@@ -135,8 +139,8 @@ def _places(cands: list[_Candidate], agree_m: float, agree_deg: float) -> list[l
         for place in places:
             seed = place[0].T_map_goal
             assert seed is not None
-            if (np.linalg.norm(seed[:3, 3] - c.T_map_goal[:3, 3]) <= agree_m
-                    and float(seed[:3, 2] @ c.T_map_goal[:3, 2]) >= cos_max):
+            if covisible(place[0].node, c.node) or (np.linalg.norm(seed[:3, 3] - c.T_map_goal[:3, 3]) <= agree_m
+                                                    and float(seed[:3, 2] @ c.T_map_goal[:3, 2]) >= cos_max):
                 place.append(c)
                 break
         else:
@@ -169,7 +173,8 @@ def localize_goal(
         return GoalResult(None, best.inliers, f"goal image matches no map place (best {best.inliers} inliers < "
                           f"{params.min_inliers})", table)
     if best.T_map_goal is not None and params.ambiguity_ratio > 0:
-        places = _places(cands, params.agree_m, params.agree_deg)
+        covis = topomap.covisibility_lists
+        places = _places(cands, params.agree_m, params.agree_deg, lambda a, b: b in covis[a])
         support = [sum(c.pose_inliers for c in p) for p in places]
         mine = next(i for i, p in enumerate(places) if best in p)
         rivals = [(s, p[0]) for i, (s, p) in enumerate(zip(support, places, strict=True)) if i != mine]

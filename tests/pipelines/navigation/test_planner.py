@@ -166,6 +166,25 @@ def test_goal_that_verifies_at_two_places_is_refused_as_ambiguous() -> None:
     np.testing.assert_allclose(res_weak.T_map_goal, T_goal, atol=1e-6)
 
 
+def test_covisible_keyframes_are_one_place_not_a_rival() -> None:
+    """The twin map again, but the map's covisibility graph links nodes 0 and 2 (it verified
+    that the two keyframes see the same scene, as neighbours in a corridor do, whose goal poses
+    can still differ by a metre): one place, so the goal is placed on the strongest node."""
+    md = _depth_map()
+    feats = list(md.features)
+    feats[0] = feats[2]
+    twin = dataclasses.replace(md, features=feats)
+    linked = dataclasses.replace(twin, covis_edges=np.array([[0, 2]], np.int64), covis_inliers=np.array([50], np.int32),
+                                 covis_weight=np.array([0.5], np.float32))
+    T_goal = pose(2.3, yaw_deg=10.0)
+    goal, _ = observe(T_goal)
+    desc = np.zeros(4, np.float32)
+    desc[2] = 1.0
+    assert localize_goal(goal, desc, K, twin, match_by_id, GoalParams(top_k=2)).node is None  # not linked: refused
+    res = localize_goal(goal, desc, K, linked, match_by_id, GoalParams(top_k=2))
+    assert res.node in (0, 2) and res.reason == "ok" and res.T_map_goal is not None
+
+
 def test_goal_params_validate_the_ambiguity_veto() -> None:
     with pytest.raises(ValueError, match="ambiguity_ratio"):
         GoalParams(ambiguity_ratio=0.5)
