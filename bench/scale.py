@@ -59,7 +59,7 @@ from _common import ROOT, print_table, require_7scenes
 from litevloc.pipelines.topomap.io import load_map, save_map
 from litevloc.pipelines.topomap.types import FeatureStore, OccupancyGrid, TopoMap
 
-SCALE_VERSION = "1"  # bump when `replicate` changes (cached maps are rebuilt)
+SCALE_VERSION = "2"  # bump when `replicate` or the map format changes (cached maps are rebuilt); 2: format 3
 NOISE = 0.1  # norm of the VPR descriptor perturbation (per component sd = NOISE / sqrt(D))
 GAP_M = 1.0  # unknown margin around each tile
 
