@@ -143,6 +143,7 @@ class GoalPlanner:
         self._nav: NavStatus | None = None
         self._goal_base: NDArray[np.float64] | None = None  # metric goal of the active goal (map frame)
         self._final = False  # driving from the goal node to the goal image's own place
+        self._progress: tuple[float, int] | None = None  # (closest remaining m, its t_ns) of the active goal
 
     # ----------------------------------------------------------------- helpers
     def _status(self, state: str, reason: str, goal: str | None, nav: NavStatus | None = None,
@@ -246,7 +247,7 @@ class GoalPlanner:
                 self._emit(out, "failed", f"goal {name!r}: {nav.reason}", name, goal_node=node)
                 continue
             self.active, self._nav = name, nav
-            self._goal_base, self._final = goal_base, False
+            self._goal_base, self._final, self._progress = goal_base, False, None
             self._last_sub_node = None
             self._emit(out, "planned", f"goal {name!r}: {nav.reason}", name, nav, node)
             self._publish_subgoal(out, nav, force=True)
@@ -269,6 +270,8 @@ class GoalPlanner:
         if self.active is None:
             self._start_next(out)
             return out
+        if self._stalled(out):
+            return out
         if self._final:
             return self._final_approach(out, T)
         before = self.tracker.replans
@@ -279,7 +282,7 @@ class GoalPlanner:
             a, b = self.node_base[node, :3, 3], self._goal_base[:3, 3]
             clearance = self.params.tracker.clearance_m
             if clearance == 0 or segment_clear(self.map, a, b, clearance):
-                self._final = True
+                self._final, self._progress = True, None  # progress counts on the straight distance now
                 self._emit(out, "planned", f"goal {self.active!r}: at node {node}; on to the goal image's place "
                            f"{np.linalg.norm(b[:2] - a[:2]):.2f} m away", self.active, nav, node)
                 return self._final_approach(out, T)
@@ -301,6 +304,25 @@ class GoalPlanner:
             self._publish_subgoal(out, nav)
         return out
 
+
+    def _stalled(self, out: list[Output]) -> bool:
+        """Fail the active goal when the robot has come no `stall_progress_m` closer to it (path
+        length left, or the straight distance on the final approach) in `stall_s` of sensor time."""
+        p = self.params.tracker
+        if p.stall_s <= 0 or self.active is None or self._nav is None or self.pose is None:
+            return False
+        t_ns = self.pose[0]
+        left = float(self._nav.remaining_m)
+        if self._progress is None or left <= self._progress[0] - p.stall_progress_m or t_ns < self._progress[1]:
+            self._progress = (left, t_ns)
+            return False
+        if (t_ns - self._progress[1]) * 1e-9 < p.stall_s:
+            return False
+        name, self.active, self._final = self.active, None, False
+        self._emit(out, "failed", f"goal {name!r}: no progress for {p.stall_s:g} s ({left:.1f} m left, closest "
+                   f"{self._progress[0]:.1f} m): blocked?", name, goal_node=self.tracker.goal)
+        self._start_next(out)
+        return True
 
     def _final_approach(self, out: list[Output], T: NDArray[np.float64]) -> list[Output]:
         """From the goal node straight to the goal image's place (subgoal = that place)."""

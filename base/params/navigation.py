@@ -51,7 +51,14 @@ class TrackerParams:
     # a robot of this radius in the map's occupancy grid (else keep approaching the node,
     # down to reach_m / 3); 0 = off
     clearance_m: float = 0.45
+    # a goal fails ("no progress") when the robot has not come stall_progress_m closer to it
+    # in stall_s seconds of sensor time (blocked by a door frame, or a goal on the other side
+    # of a wall): it is reported with its reason instead of being pushed at forever; 0 = off
+    stall_s: float = 30.0
+    stall_progress_m: float = 0.25
 
     def __post_init__(self) -> None:
         if self.reach_m <= 0 or self.stray_m <= self.reach_m or self.clearance_m < 0:
             raise ValueError("need 0 < reach_m < stray_m and clearance_m >= 0")
+        if not (0 <= self.stall_s < float("inf")) or self.stall_progress_m <= 0:
+            raise ValueError("need a finite stall_s >= 0 (0 = off) and stall_progress_m > 0")

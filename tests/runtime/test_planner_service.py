@@ -135,6 +135,35 @@ def test_replan_when_strayed_and_cancel() -> None:
     assert "unknown cancel" in p.cancel("everything")[0][1]["reason"]
 
 
+def test_a_goal_without_progress_fails_with_its_reason_and_the_next_starts() -> None:
+    """Blocked 1 m short of node 3 (a door frame): after stall_s of sensor time without coming
+    stall_progress_m closer, the goal fails with the reason and the queued one starts; steady
+    slow progress never trips it."""
+    s = 1_000_000_000
+    p = planner({1: 3, 2: 0}, stall_s=10.0)
+    p.on_pose(0, pose(0.0))
+    p.add_goal("blocked", img(1))
+    p.add_goal("next", img(2))
+    outs = []
+    for k in range(1, 30):
+        outs = p.on_pose(k * s, pose(2.0 if k >= 2 else 1.0))  # at x = 2 m from t = 2 s on, no closer
+        if any(kind == "status:failed" for kind in kinds(outs)):
+            break
+    failed = [o for o in outs if o[0] == "status" and o[1]["state"] == "failed"]
+    assert failed and failed[0][1]["goal"] == "blocked" and "no progress for 10 s" in failed[0][1]["reason"]
+    assert k == 13  # 10 s after the last progress it saw (the pose at t = 2 s, checked on the next one)
+    assert p.active == "next"
+    slow = planner({1: 3}, stall_s=10.0)
+    slow.on_pose(0, pose(0.0))
+    slow.add_goal("slow", img(1))
+    for k in range(1, 60):  # 0.05 m/s: 0.25 m every 5 s
+        assert "status:failed" not in kinds(slow.on_pose(k * s, pose(0.05 * k)))
+    off = planner({1: 3}, stall_s=0.0)
+    off.on_pose(0, pose(0.0))
+    off.add_goal("patient", img(1))
+    assert all("status:failed" not in kinds(off.on_pose(k * s, pose(1.0))) for k in range(1, 200))
+
+
 def test_undecodable_goal_bytes_fail_with_reason() -> None:
     p = planner({})
     outs = p.add_goal("junk", b"not an image at all" * 10)
@@ -187,6 +216,8 @@ def test_planner_config_validation() -> None:
         PlannerConfig(publish_period_s=-1)
     with pytest.raises(ValueError, match="clearance_m"):
         TrackerParams(clearance_m=-0.1)
+    with pytest.raises(ValueError, match="stall_s"):
+        TrackerParams(stall_s=-1.0)
 
 
 def test_planner_section_loads_from_config() -> None:
