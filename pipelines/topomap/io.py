@@ -60,13 +60,11 @@ from litevloc.base.params.mapping import MappingParams
 from litevloc.pipelines.topomap.descriptor_codec import (
     MAX_CENTROIDS,
     check_layout,
-    decode,
     encode,
     train,
     training_rows,
 )
 from litevloc.pipelines.topomap.types import (
-    KEYPOINT_FIXED_MAX,
     FeatureStore,
     OccupancyGrid,
     TopoMap,
@@ -106,17 +104,10 @@ def _quantise(v: NDArray[np.floating]) -> tuple[NDArray[np.int8], NDArray[np.flo
 NodeDescriptors = Callable[[int], NDArray[np.float32]]  # node id -> (n_i, D) float32 descriptors
 
 
-def _store_float_rows(fs: FeatureStore) -> NodeDescriptors:
-    """Node i's float descriptors of a store, decoded from whatever codes it holds (no `convert`)."""
-    def rows(i: int) -> NDArray[np.float32]:
-        a, b = int(fs.offsets[i]), int(fs.offsets[i + 1])
-        d = fs.descriptors[a:b]
-        if fs.codebook is not None:
-            return decode(d, fs.codebook)
-        if fs.descriptor_scale is not None:
-            return np.asarray(d, np.float32) * np.asarray(fs.descriptor_scale[a:b], np.float32)[:, None]
-        return np.asarray(d, np.float32)
-    return rows
+def _int8_codes(descriptor_bytes: int, dim: int) -> bool:
+    """Float descriptors stored as int8 codes + row scales: asked for (0), or no fewer bytes
+    than dimensions (a quantiser could not be smaller)."""
+    return descriptor_bytes == 0 or descriptor_bytes >= dim
 
 
 def _encode_float(rows: NodeDescriptors, counts: Sequence[int], dim: int,
@@ -125,7 +116,7 @@ def _encode_float(rows: NodeDescriptors, counts: Sequence[int], dim: int,
     int8 codes + row scales (`descriptor_bytes` 0, or no fewer than the dimensions) or
     product-quantiser codes + codebook."""
     n = len(counts)
-    if descriptor_bytes == 0 or descriptor_bytes >= dim:  # as many bytes as dimensions: int8 codes are no larger
+    if _int8_codes(descriptor_bytes, dim):
         parts = [_quantise(rows(i).reshape(-1, dim)) for i in range(n)]
         return {"features/descriptors.npy": np.concatenate([c for c, _ in parts]).reshape(-1, dim),
                 "features/descriptor_scale.npy": np.concatenate([sc for _, sc in parts]).astype(np.float32)}
@@ -158,11 +149,12 @@ def map_arrays(m: TopoMap, descriptor_bytes: int = DEFAULT_DESCRIPTOR_BYTES) -> 
         counts = np.diff(np.asarray(offsets)).tolist()
         if fs.codebook is not None and descriptor_bytes == fs.codebook.shape[0]:
             enc = {"features/descriptors.npy": fs.descriptors, "features/descriptor_codebook.npy": fs.codebook}
-        elif fs.descriptor_scale is not None and (descriptor_bytes == 0 or descriptor_bytes >= fs.descriptors.shape[1]):
+        elif fs.descriptor_scale is not None and _int8_codes(descriptor_bytes, fs.descriptors.shape[1]):
             enc = {"features/descriptors.npy": fs.descriptors, "features/descriptor_scale.npy": fs.descriptor_scale}
         elif fs.codebook is not None or np.dtype(fs.descriptors.dtype).kind in "fi":
             dim = fs.codebook.shape[0] * fs.codebook.shape[2] if fs.codebook is not None else fs.descriptors.shape[1]
-            enc = _encode_float(_store_float_rows(fs), counts, dim, descriptor_bytes)
+            enc = _encode_float(lambda i: np.asarray(fs.node_descriptors(i), np.float32), counts, dim,
+                                descriptor_bytes)
         else:  # binary descriptors: stored as they are
             enc = {"features/descriptors.npy": fs.descriptors}
     else:
@@ -217,9 +209,10 @@ def _stored_keypoints(kps: NDArray[Any]) -> NDArray[Any]:
     if np.dtype(kps.dtype) == np.uint16:
         return np.asarray(kps)
     k = np.asarray(kps, np.float32).reshape(-1, 2)
-    if k.size and not (k.min() >= -0.5 and k.max() <= KEYPOINT_FIXED_MAX):
+    try:
+        return keypoints_to_fixed(k)
+    except ValueError:  # beyond the fixed-point range
         return k
-    return keypoints_to_fixed(k)
 
 
 def _scores16(scores: NDArray[Any]) -> NDArray[np.float16]:

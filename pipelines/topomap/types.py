@@ -83,8 +83,7 @@ class FeatureStore(Sequence[Any]):
     float16, int8 codes with one float32 scale per row in `descriptor_scale` (M,) (map
     format 2), or product-quantiser codes (M, S) uint8 with their `codebook` (S, K, D/S)
     float32 (map format 3, `descriptor_codec`); each comes out as float32 (M_node, D) per
-    node. Binary (uint8)
-    descriptors without a codebook are returned as they are. `depth` (M,) (optional):
+    node. Binary (uint8) descriptors without a codebook are returned as they are. `depth` (M,) (optional):
     keypoint depth in metres, 0 = none; returned per node as float32 with NaN for none;
     image_size: (N, 2) int (width, height). `convert` (optional) is applied to each
     node's NodeFeatures on access (e.g. to the model layer's feature type)."""
@@ -117,13 +116,7 @@ class FeatureStore(Sequence[Any]):
         if not 0 <= i < n:
             raise IndexError(f"node {i} not in 0..{n - 1}")
         a, b = int(self.offsets[i]), int(self.offsets[i + 1])
-        d = self.descriptors[a:b]
-        if self.codebook is not None:
-            d = decode(d, self.codebook)
-        elif self.descriptor_scale is not None:
-            d = d.astype(np.float32) * self.descriptor_scale[a:b, None]
-        else:
-            d = d.astype(np.float32) if d.dtype == np.float16 else np.asarray(d)
+        d = self.node_descriptors(i)
         z = None
         if self.depth is not None:
             z = np.asarray(self.depth[a:b], np.float32)
@@ -133,6 +126,18 @@ class FeatureStore(Sequence[Any]):
         f = NodeFeatures(kp, d, np.asarray(self.scores[a:b], np.float32),
                          (int(self.image_size[i, 0]), int(self.image_size[i, 1])), z)
         return f if self.convert is None else self.convert(f)
+
+    def node_descriptors(self, i: int) -> NDArray[Any]:
+        """Node i's descriptors decoded from what the store holds: float32 (M_node, D) for float
+        descriptors (product-quantiser codes, int8 codes + scales, float16), binary as they are
+        (no `convert`)."""
+        a, b = int(self.offsets[i]), int(self.offsets[i + 1])
+        d = self.descriptors[a:b]
+        if self.codebook is not None:
+            return decode(d, self.codebook)
+        if self.descriptor_scale is not None:
+            return np.asarray(d.astype(np.float32) * self.descriptor_scale[a:b, None], np.float32)
+        return d.astype(np.float32) if d.dtype == np.float16 else np.asarray(d)
 
     @overload
     def __getitem__(self, i: int) -> Any: ...
