@@ -131,6 +131,16 @@ class LocalizationResult:
 
 
 @dataclass(frozen=True)
+class HeldPose:
+    """A GL pose that disagreed with the fused prior, held until a later frame repeats it
+    (`LocalizationParams.gl_repeat_within_s`): both 4x4 `T_map_camera`, stamp in ns."""
+
+    t_ns: int
+    T_map_camera: NDArray[np.float64]
+    prior_T_map_camera: NDArray[np.float64]
+
+
+@dataclass(frozen=True)
 class Transition:
     t_ns: int
     from_state: TrackingState
@@ -275,6 +285,7 @@ class VisualLocalizer:
         self.last_pose: NDArray[np.float64] | None = None
         self.last_pose_t_ns = 0
         self.transitions: deque[Transition] = deque(maxlen=100)
+        self.held: HeldPose | None = None  # a GL pose outside the prior's gate, awaiting a repeat
         # Covisible neighbours of each node, strongest edge first (computed once, used per query).
         self._neighbours = topomap.covisibility_lists
 
@@ -629,6 +640,41 @@ class VisualLocalizer:
         return self._result(t_ns, "local", best, attempts, timer, reason, q)
 
     # ---------------------------------------------------------------- state machine
+    def _hold_unless_repeated(self, res: LocalizationResult, prior_T_map_camera: NDArray[np.float64],
+                              prior_age_s: float) -> LocalizationResult:
+        """An accepted GL result as it is when it lies inside the gate of a fresh fused prior
+        (see `_fresh`) or repeats the held pose (see `LocalizationParams.gl_repeat_within_s`);
+        otherwise it is held and the result says so (not accepted)."""
+        p = self.params
+        if p.gl_repeat_within_s <= 0 or res.T_map_camera is None:
+            return res
+        T = np.asarray(res.T_map_camera, np.float64)
+        prior = np.asarray(prior_T_map_camera, np.float64)
+        growth = self._prior_growth_m(prior_age_s, fused=True)
+        gate = self._gate_m(growth, fused=True)
+        inside, fresh = self._within_gate(T, prior, gate), self._fresh(growth)
+        if inside and fresh:
+            self.held = None
+            return res
+        held = self.held
+        if held is not None:
+            dt_s = (res.t_ns - held.t_ns) * 1e-9
+            if 0 < dt_s <= p.gl_repeat_within_s:
+                # where the held pose is now: carried by the prior's motion since then (odometry)
+                expected = held.T_map_camera @ np.linalg.inv(held.prior_T_map_camera) @ prior
+                et, er = relative_pose_error(T, expected)
+                tol = p.prior_gate_fused_m + p.prior_gate_rate_fused_mps * dt_s
+                if et <= tol and er <= p.gl_repeat_deg:
+                    self.held = None
+                    return replace(res, stop_reason=f"{res.stop_reason}; repeats the pose held {dt_s:.2f} s "
+                                   f"before ({et:.2f} m, {er:.1f} deg), {gate:.2f} m gate of the prior")
+        dt, dr = relative_pose_error(T, prior)
+        self.held = HeldPose(res.t_ns, T, prior)
+        why = (f"{dt:.2f} m / {dr:.0f} deg from the prior, outside its gate ({gate:.2f} m, {p.prior_gate_deg:g} deg)"
+               if not inside else f"the prior is {prior_age_s:.1f} s past its last fix, too old to confirm it")
+        return replace(res, accepted=False, T_map_camera=None, covariance=None, matches=None,
+                       reason=f"not localized: GL pose {why}; held until a later frame repeats it")
+
     def _go(self, t_ns: int, to: TrackingState, reason: str) -> None:
         if to != self.state:
             self.transitions.append(Transition(t_ns, self.state, to, reason))
@@ -665,6 +711,8 @@ class VisualLocalizer:
                     self.failures = 0
                 return res
         res = self.localize_global(t_ns, color, depth, K, prior_T_map_camera, prior_age_s)
+        if res.accepted and prior_T_map_camera is not None:
+            res = self._hold_unless_repeated(res, prior_T_map_camera, prior_age_s)
         if res.accepted:
             self.failures = 0
             self.last_pose, self.last_pose_t_ns = res.T_map_camera, t_ns

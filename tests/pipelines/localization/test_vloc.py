@@ -174,8 +174,11 @@ def test_state_machine_transitions() -> None:
                       ("GLOBAL", "TRACKING")]
     assert "3 consecutive LL failures" in loc.transitions[2].reason
     # A prior far from every node sends the machine back to GL.
+    # The GL pose lies outside that prior's gate: held until a later frame repeats it.
     r = loc.process(7, IMG, s.look(pose(3.0), 3), K, prior_T_map_camera=pose(50.0))
-    assert r.mode == "global" and r.accepted
+    assert r.mode == "global" and not r.accepted and "held until a later frame repeats it" in r.reason
+    r = loc.process(8, IMG, s.look(pose(3.0), 3), K, prior_T_map_camera=pose(50.0))
+    assert r.mode == "global" and r.accepted and "repeats the pose held" in r.stop_reason
 
 
 def test_missing_depth_is_an_error() -> None:
@@ -373,3 +376,46 @@ def test_local_matching_guided_by_a_fresh_prior() -> None:
     off = VisualLocalizer(m, PARAMS, s.extract, s.describe, counting)
     r = off.localize_local(0, IMG, depth, K, prior_T_map_camera=near)
     assert r.accepted and calls[0] >= 1
+
+
+def test_gl_pose_outside_the_prior_gate_is_held_until_a_later_frame_repeats_it() -> None:
+    """A GL pose far from the fused prior is not accepted on one frame: the next GL pose must
+    repeat it once carried over by the prior's own motion (the odometry) between the frames.
+    One that lands elsewhere replaces the held pose; one inside the gate is accepted at once."""
+    from dataclasses import replace
+
+    m = make_map([0.0, 1.0, 2.0, 3.0])
+    s = Scene(m)
+    loc = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)
+    sec = 1_000_000_000
+    # the prior is 1.6 m off (a 10 s old fix: gate 0.25 + 1.0 m); the robot moves +0.3 m
+    r = loc.process(1 * sec, IMG, s.look(pose(1.0), 1), K, pose(2.6), prior_age_s=10.0)
+    assert not r.accepted and r.T_map_camera is None and r.covariance is None
+    assert "1.60 m" in r.reason and "outside its gate (1.25 m" in r.reason and loc.state == TrackingState.GLOBAL
+    # the next GL pose lands 1.3 m from where the held one has gone (to 1.3 m): not a repeat;
+    # it is held in its place
+    r = loc.process(2 * sec, IMG, s.look(pose(0.0), 0), K, pose(2.9), prior_age_s=11.0)
+    assert not r.accepted and loc.held is not None and loc.held.t_ns == 2 * sec
+    # a repeat of the held pose (the robot moved +0.3 m, and so did the prior): accepted
+    r = loc.process(3 * sec, IMG, s.look(pose(0.3), 0), K, pose(3.2), prior_age_s=12.0)
+    assert r.accepted and loc.state == TrackingState.TRACKING and "repeats the pose held 1.00 s" in r.stop_reason
+    assert g.relative_pose_error(r.T_map_camera, pose(0.3))[0] < 0.01 and loc.held is None
+    # a pose inside the gate of a fresh prior needs no repeat; inside the gate of a stale prior
+    # (10 s past its fix: beyond the 7.5 s a prior may stand in for a second view) it does
+    fresh = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)
+    assert fresh.process(1, IMG, s.look(pose(1.0), 1), K, pose(1.2), prior_age_s=0.0).accepted
+    stale = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)
+    r = stale.process(1 * sec, IMG, s.look(pose(1.0), 1), K, pose(1.2), prior_age_s=10.0)
+    assert not r.accepted and "the prior is 10.0 s past its last fix, too old to confirm it" in r.reason
+    assert stale.process(2 * sec, IMG, s.look(pose(1.2), 1), K, pose(1.4), prior_age_s=11.0).accepted
+    # too late for a repeat: held again instead
+    late = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)
+    assert not late.process(0, IMG, s.look(pose(1.0), 1), K, pose(3.0)).accepted
+    assert not late.process(6 * sec, IMG, s.look(pose(1.0), 1), K, pose(3.0)).accepted
+    # off: accepted at once, as before
+    off = VisualLocalizer(m, replace(PARAMS, gl_repeat_within_s=0.0), s.extract, s.describe, s.match)
+    assert off.process(0, IMG, s.look(pose(1.0), 1), K, pose(3.0)).accepted
+    with pytest.raises(ValueError, match="gl_repeat"):
+        LocalizationParams(gl_repeat_within_s=-1.0)
+    with pytest.raises(ValueError, match="gl_repeat"):
+        LocalizationParams(gl_repeat_deg=0.0)
