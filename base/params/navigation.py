@@ -56,9 +56,18 @@ class TrackerParams:
     # of a wall): it is reported with its reason instead of being pushed at forever; 0 = off
     stall_s: float = 30.0
     stall_progress_m: float = 0.25
+    # an edge driven more than against_view_deg away from both of its keyframes' optical axes
+    # costs against_view_cost times its length: a forward-looking camera driven that way faces
+    # away from all the map saw there (the loop world's ring, mapped one way round: 2 of
+    # 154-242 VLoc queries accepted driving it backwards): such a way is taken only where it is
+    # less than 1/against_view_cost of the way along the map's views; 1 = plan by length alone
+    against_view_cost: float = 10.0
+    against_view_deg: float = 120.0
 
     def __post_init__(self) -> None:
         if self.reach_m <= 0 or self.stray_m <= self.reach_m or self.clearance_m < 0:
             raise ValueError("need 0 < reach_m < stray_m and clearance_m >= 0")
+        if not (1.0 <= self.against_view_cost < float("inf")) or not 0 < self.against_view_deg <= 180:
+            raise ValueError("need a finite against_view_cost >= 1 (1 = off) and 0 < against_view_deg <= 180")
         if not (0 <= self.stall_s < float("inf")) or self.stall_progress_m <= 0:
             raise ValueError("need a finite stall_s >= 0 (0 = off) and stall_progress_m > 0")

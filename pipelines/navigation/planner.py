@@ -15,6 +15,8 @@
 * `shortest_path`: Dijkstra on the connectivity graph (edge weights in metres) with
   `scipy.sparse.csgraph.dijkstra` on the map's CSR matrix (built once per map); ~1 ms at
   10,000 nodes where the former pure-Python heap took tens (`bench/scale.py`).
+  The tracker plans on `against_view_graph`: an edge driven against both of its keyframes'
+  viewing directions costs `tracker.against_view_cost` times its length.
 * `SubgoalTracker`: follows the path node by node, advancing when the robot is within
   `reach_m` of the current subgoal, replanning from the nearest node when the robot strays
   farther than `stray_m` from the path segment it is on (last reached node or start ->
@@ -26,9 +28,11 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
+import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.sparse.csgraph import dijkstra
 
@@ -190,13 +194,37 @@ def localize_goal(
     return GoalResult(best.node, best.inliers, "ok", table, best.T_map_goal, best.pose_inliers)
 
 
-def shortest_path(topomap: TopoMap, start: int, goal: int) -> tuple[list[int], float]:
-    """Node sequence start..goal and its length (m) on the connectivity graph."""
+def against_view_graph(topomap: TopoMap, cost: float, against_deg: float) -> Any:
+    """The connectivity graph as a directed CSR matrix whose edge i -> j costs `cost` times its
+    length (m) when the way from node i to node j points more than `against_deg` away from both
+    keyframes' optical axes: a forward-looking camera driven that way faces away from all that
+    the map saw there and cannot localize (a corridor mapped one way round, driven back). Other
+    edges, and edges shorter than 1 cm (no direction), keep their length. `cost` 1: the map's
+    own (symmetric) matrix."""
+    G = topomap.connectivity_csr
+    if cost == 1.0:
+        return G
+    C = G.tocoo()
+    i, j, w = C.row, C.col, C.data.astype(np.float64)
+    pos = np.asarray(topomap.positions, np.float64)
+    axis = np.asarray(topomap.T_map_camera, np.float64)[:, :3, 2]
+    d = pos[j] - pos[i]
+    length = np.linalg.norm(d, axis=1)
+    u = d / np.maximum(length, 1e-12)[:, None]
+    facing = np.maximum(np.einsum("ij,ij->i", axis[i], u), np.einsum("ij,ij->i", axis[j], u))
+    against = (length >= 0.01) & (facing < np.cos(np.radians(against_deg)))
+    return sp.csr_matrix((np.where(against, w * cost, w), (i, j)), shape=G.shape)
+
+
+def shortest_path(topomap: TopoMap, start: int, goal: int, graph: Any | None = None) -> tuple[list[int], float]:
+    """Node sequence start..goal and its length (m) on the connectivity graph; the path is the
+    cheapest in `graph` (default: the map's connectivity matrix, costs = metres; see
+    `against_view_graph`), its length is always in metres."""
     n = topomap.n_nodes
     if not (0 <= start < n and 0 <= goal < n):
         raise NavigationError(f"node ids must be in 0..{n - 1}, got {start} -> {goal}")
     G = topomap.connectivity_csr
-    dist, prev = dijkstra(G, directed=True, indices=start, return_predecessors=True)
+    dist, prev = dijkstra(G if graph is None else graph, directed=True, indices=start, return_predecessors=True)
     if not np.isfinite(dist[goal]):
         raise NavigationError(f"no path from node {start} to node {goal} in the connectivity graph")
     path = [goal]
@@ -259,6 +287,7 @@ class SubgoalTracker:
         if self.positions.shape != (topomap.n_nodes, 3):
             raise ValueError(f"positions must be ({topomap.n_nodes}, 3), got {self.positions.shape}")
         self.index = NodeIndex(self.positions)
+        self.graph = against_view_graph(topomap, params.against_view_cost, params.against_view_deg)
         self.goal: int | None = None
         self.path: list[int] = []
         self.status = NavStatus("idle", "no goal")
@@ -273,7 +302,7 @@ class SubgoalTracker:
         start = self.nearest_node(position)
         self._seg_start = np.asarray(position, dtype=np.float64)[:3].copy()
         try:
-            self.path, length = shortest_path(self.map, start, self.goal)
+            self.path, length = shortest_path(self.map, start, self.goal, self.graph)
         except NavigationError as exc:
             self.status = NavStatus("failed", str(exc))
             return self.status

@@ -190,3 +190,40 @@ def test_goal_params_validate_the_ambiguity_veto() -> None:
         GoalParams(ambiguity_ratio=0.5)
     with pytest.raises(ValueError, match="agree_m"):
         GoalParams(agree_m=0.0)
+
+
+def ring_map(n: int = 12, radius: float = 3.0):  # type: ignore[no-untyped-def]
+    """n keyframes on a ring, every camera facing along it counter-clockwise (a corridor
+    mapped one way round), edges between neighbours."""
+    m = make_vloc_map([float(i) for i in range(n)])
+    T = np.tile(np.eye(4), (n, 1, 1))
+    for k in range(n):
+        a = 2 * np.pi * k / n
+        z = np.array([-np.sin(a), 0.0, np.cos(a)])  # optical axis: the ring's tangent
+        y = np.array([0.0, 1.0, 0.0])
+        T[k, :3, :3] = np.column_stack([np.cross(y, z), y, z])
+        T[k, :3, 3] = radius * np.array([np.cos(a), 0.0, np.sin(a)])
+    e = np.array([(k, (k + 1) % n) for k in range(n)], np.int64)
+    w = np.linalg.norm(T[e[:, 0], :3, 3] - T[e[:, 1], :3, 3], axis=1).astype(np.float32)
+    return dataclasses.replace(m, T_map_camera=T, conn_edges=e, conn_metres=w)
+
+
+def test_planner_keeps_to_the_maps_viewing_direction_unless_the_way_back_is_far_shorter() -> None:
+    m = ring_map()
+    chord = float(m.conn_metres[0])
+    here = m.positions[0]
+    # node 10 is 2 edges back, 10 edges ahead: with the default cost (10x) the way ahead wins
+    tr = SubgoalTracker(m, TrackerParams())
+    st = tr.set_goal(10, here)
+    assert st.path == tuple(range(11)) and np.isclose(st.remaining_m, 10 * chord, rtol=1e-5)
+    # node 11: 1 edge back (cost 10) vs 11 ahead: back, and its length is in metres
+    st = tr.set_goal(11, here)
+    assert st.path == (0, 11) and np.isclose(st.remaining_m, chord, rtol=1e-5)
+    # by length alone (cost 1), back to node 10
+    flat = SubgoalTracker(m, TrackerParams(against_view_cost=1.0))
+    assert flat.set_goal(10, here).path == (0, 11, 10)
+    # a narrower cone: with 179 deg nothing counts as against the views
+    assert SubgoalTracker(m, TrackerParams(against_view_deg=179.0)).set_goal(10, here).path == (0, 11, 10)
+    for bad in ({"against_view_cost": 0.5}, {"against_view_cost": float("inf")}, {"against_view_deg": 0.0}):
+        with pytest.raises(ValueError, match="against_view"):
+            TrackerParams(**bad)  # type: ignore[arg-type]
