@@ -184,8 +184,10 @@ class LocalizationParams:
     # two neighbouring keyframes, 1.68 m from a 10.7 s old prior whose gate had grown to 1.32 m;
     # two more 0.57-0.59 m off, the corridor texture's period, inside the gates of 7.5 and 13 s
     # old priors); a wrong place rarely repeats from a second viewpoint, a right one does, and a
-    # prior that is itself wrong (a kidnapped robot) costs one more GL query. Chosen on the loop
-    # query lap (one lap each way; reported there as tuned). 0 = off (accepted at once).
+    # prior that is itself wrong (a kidnapped robot) costs one more GL query. An LL pose with a
+    # fused prior that stale is held the same way (loop: an LL pose 0.6 m off at a 12.3-12.6 s
+    # old prior in 2 of 3 laps without this, in neither of 2 laps with it). Chosen on the loop
+    # query laps it is reported on (labelled as tuned there). 0 = off (accepted at once).
     gl_repeat_within_s: float = 5.0
     gl_repeat_deg: float = 5.0
     candidate_radius_m: float = 3.0

@@ -642,9 +642,10 @@ class VisualLocalizer:
     # ---------------------------------------------------------------- state machine
     def _hold_unless_repeated(self, res: LocalizationResult, prior_T_map_camera: NDArray[np.float64],
                               prior_age_s: float) -> LocalizationResult:
-        """An accepted GL result as it is when it lies inside the gate of a fresh fused prior
-        (see `_fresh`) or repeats the held pose (see `LocalizationParams.gl_repeat_within_s`);
-        otherwise it is held and the result says so (not accepted)."""
+        """An accepted result (GL, or LL with a fused prior) as it is when it lies inside the
+        gate of a fresh fused prior (see `_fresh`) or repeats the held pose (see
+        `LocalizationParams.gl_repeat_within_s`); otherwise it is held and the result says so
+        (not accepted)."""
         p = self.params
         if p.gl_repeat_within_s <= 0 or res.T_map_camera is None:
             return res
@@ -673,7 +674,8 @@ class VisualLocalizer:
         why = (f"{dt:.2f} m / {dr:.0f} deg from the prior, outside its gate ({gate:.2f} m, {p.prior_gate_deg:g} deg)"
                if not inside else f"the prior is {prior_age_s:.1f} s past its last fix, too old to confirm it")
         return replace(res, accepted=False, T_map_camera=None, covariance=None, matches=None,
-                       reason=f"not localized: GL pose {why}; held until a later frame repeats it")
+                       reason=f"not localized: {'GL' if res.mode == 'global' else 'LL'} pose held until a later frame "
+                              f"repeats it ({why})")
 
     def _go(self, t_ns: int, to: TrackingState, reason: str) -> None:
         if to != self.state:
@@ -698,6 +700,8 @@ class VisualLocalizer:
                 assert self.last_pose is not None
                 prior, age = self.last_pose, (t_ns - self.last_pose_t_ns) * 1e-9
             res = self.localize_local(t_ns, color, depth, K, prior, prior_age_s=age, fused_prior=fused)
+            if res.accepted and fused:  # a stale fused prior cannot confirm an LL pose either
+                res = self._hold_unless_repeated(res, prior, age)
             if res.accepted:
                 self.failures = 0
                 self.last_pose, self.last_pose_t_ns = res.T_map_camera, t_ns

@@ -419,3 +419,18 @@ def test_gl_pose_outside_the_prior_gate_is_held_until_a_later_frame_repeats_it()
         LocalizationParams(gl_repeat_within_s=-1.0)
     with pytest.raises(ValueError, match="gl_repeat"):
         LocalizationParams(gl_repeat_deg=0.0)
+
+
+def test_ll_pose_with_a_stale_fused_prior_is_held_until_repeated() -> None:
+    """In TRACKING, an LL pose whose fused prior is too old to confirm it (10 s past its fix)
+    waits for the next frame's pose to repeat it; with a fresh prior it is accepted at once."""
+    m = make_map([0.0, 1.0, 2.0, 3.0])
+    s = Scene(m)
+    loc = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)
+    sec = 1_000_000_000
+    assert loc.process(0, IMG, s.look(pose(1.0), 1), K).accepted and loc.state == TrackingState.TRACKING
+    r = loc.process(1 * sec, IMG, s.look(pose(1.2), 1), K, pose(1.3), prior_age_s=10.0)
+    assert r.mode == "local" and not r.accepted and "LL pose held until a later frame repeats it (the prior is 10.0 s past" in r.reason
+    r = loc.process(2 * sec, IMG, s.look(pose(1.5), 1), K, pose(1.6), prior_age_s=11.0)
+    assert r.mode == "local" and r.accepted and "repeats the pose held 1.00 s" in r.stop_reason
+    assert loc.process(3 * sec, IMG, s.look(pose(1.8), 2), K, pose(1.8), prior_age_s=0.2).accepted
