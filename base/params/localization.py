@@ -177,9 +177,9 @@ class LocalizationParams:
     # A GL pose outside the fused prior's gate (prior_gate_fused_m + its growth, prior_gate_deg),
     # or with a prior too old to stand in for a second view (growth beyond what confirm_skip_*
     # allows: 7.5 s at the fused rate), is held, not accepted, until the GL pose of a later
-    # frame, at most gl_repeat_within_s after it, repeats it: carried over by the prior's own
+    # frame, at most repeat_within_s after it, repeats it: carried over by the prior's own
     # motion between the two frames (the odometry), the two must agree within
-    # prior_gate_fused_m + prior_gate_rate_fused_mps x the time between them and gl_repeat_deg.
+    # prior_gate_fused_m + prior_gate_rate_fused_mps x the time between them and repeat_deg.
     # A stale prior cannot veto a wrong place (loop world: a GL pose 1.79 m off, confirmed by
     # two neighbouring keyframes, 1.68 m from a 10.7 s old prior whose gate had grown to 1.32 m;
     # two more 0.57-0.59 m off, the corridor texture's period, inside the gates of 7.5 and 13 s
@@ -188,8 +188,8 @@ class LocalizationParams:
     # fused prior that stale is held the same way (loop: an LL pose 0.6 m off at a 12.3-12.6 s
     # old prior in 2 of 3 laps without this, in neither of 2 laps with it). Chosen on the loop
     # query laps it is reported on (labelled as tuned there). 0 = off (accepted at once).
-    gl_repeat_within_s: float = 5.0
-    gl_repeat_deg: float = 5.0
+    repeat_within_s: float = 5.0
+    repeat_deg: float = 5.0
     candidate_radius_m: float = 3.0
     max_view_angle_deg: float = 90.0
     ll_max_candidates: int = 3
@@ -227,8 +227,8 @@ class LocalizationParams:
             raise ValueError("gl_min_support_height_m must be >= 0 (0 = off)")
         if self.gl_time_budget_ms < 0:
             raise ValueError("gl_time_budget_ms must be >= 0 (0 = no budget)")
-        if self.gl_repeat_within_s < 0 or not 0 < self.gl_repeat_deg <= 180:
-            raise ValueError("gl_repeat_within_s must be >= 0 (0 = off) and gl_repeat_deg in (0, 180]")
+        if self.repeat_within_s < 0 or not 0 < self.repeat_deg <= 180:
+            raise ValueError("repeat_within_s must be >= 0 (0 = off) and repeat_deg in (0, 180]")
         if self.prior_gate_rate_fused_mps < 0 or self.prior_gate_fused_m <= 0:
             raise ValueError("prior_gate_rate_fused_mps must be >= 0 and prior_gate_fused_m > 0")
         if self.prior_gate_m <= 0 or self.prior_gate_rate_mps < 0 or not (0 < self.prior_gate_deg <= 180):

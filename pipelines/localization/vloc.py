@@ -132,8 +132,9 @@ class LocalizationResult:
 
 @dataclass(frozen=True)
 class HeldPose:
-    """A GL pose that disagreed with the fused prior, held until a later frame repeats it
-    (`LocalizationParams.gl_repeat_within_s`): both 4x4 `T_map_camera`, stamp in ns."""
+    """A GL or LL pose that its fused prior could not confirm (outside its gate, or the prior
+    too stale), held until a later frame repeats it (`LocalizationParams.repeat_within_s`):
+    both 4x4 `T_map_camera`, stamp in ns."""
 
     t_ns: int
     T_map_camera: NDArray[np.float64]
@@ -285,7 +286,7 @@ class VisualLocalizer:
         self.last_pose: NDArray[np.float64] | None = None
         self.last_pose_t_ns = 0
         self.transitions: deque[Transition] = deque(maxlen=100)
-        self.held: HeldPose | None = None  # a GL pose outside the prior's gate, awaiting a repeat
+        self.held: HeldPose | None = None  # a pose the prior could not confirm, awaiting a repeat
         # Covisible neighbours of each node, strongest edge first (computed once, used per query).
         self._neighbours = topomap.covisibility_lists
 
@@ -644,32 +645,32 @@ class VisualLocalizer:
                               prior_age_s: float) -> LocalizationResult:
         """An accepted result (GL, or LL with a fused prior) as it is when it lies inside the
         gate of a fresh fused prior (see `_fresh`) or repeats the held pose (see
-        `LocalizationParams.gl_repeat_within_s`); otherwise it is held and the result says so
+        `LocalizationParams.repeat_within_s`); otherwise it is held and the result says so
         (not accepted)."""
         p = self.params
-        if p.gl_repeat_within_s <= 0 or res.T_map_camera is None:
+        if p.repeat_within_s <= 0 or res.T_map_camera is None:
             return res
         T = np.asarray(res.T_map_camera, np.float64)
         prior = np.asarray(prior_T_map_camera, np.float64)
         growth = self._prior_growth_m(prior_age_s, fused=True)
         gate = self._gate_m(growth, fused=True)
-        inside, fresh = self._within_gate(T, prior, gate), self._fresh(growth)
+        dt, dr = relative_pose_error(T, prior)
+        inside, fresh = dt <= gate and dr <= p.prior_gate_deg, self._fresh(growth)
         if inside and fresh:
             self.held = None
             return res
         held = self.held
         if held is not None:
             dt_s = (res.t_ns - held.t_ns) * 1e-9
-            if 0 < dt_s <= p.gl_repeat_within_s:
+            if 0 < dt_s <= p.repeat_within_s:
                 # where the held pose is now: carried by the prior's motion since then (odometry)
                 expected = held.T_map_camera @ np.linalg.inv(held.prior_T_map_camera) @ prior
                 et, er = relative_pose_error(T, expected)
                 tol = p.prior_gate_fused_m + p.prior_gate_rate_fused_mps * dt_s
-                if et <= tol and er <= p.gl_repeat_deg:
+                if et <= tol and er <= p.repeat_deg:
                     self.held = None
                     return replace(res, stop_reason=f"{res.stop_reason}; repeats the pose held {dt_s:.2f} s "
                                    f"before ({et:.2f} m, {er:.1f} deg), {gate:.2f} m gate of the prior")
-        dt, dr = relative_pose_error(T, prior)
         self.held = HeldPose(res.t_ns, T, prior)
         why = (f"{dt:.2f} m / {dr:.0f} deg from the prior, outside its gate ({gate:.2f} m, {p.prior_gate_deg:g} deg)"
                if not inside else f"the prior is {prior_age_s:.1f} s past its last fix, too old to confirm it")

@@ -413,12 +413,12 @@ def test_gl_pose_outside_the_prior_gate_is_held_until_a_later_frame_repeats_it()
     assert not late.process(0, IMG, s.look(pose(1.0), 1), K, pose(3.0)).accepted
     assert not late.process(6 * sec, IMG, s.look(pose(1.0), 1), K, pose(3.0)).accepted
     # off: accepted at once, as before
-    off = VisualLocalizer(m, replace(PARAMS, gl_repeat_within_s=0.0), s.extract, s.describe, s.match)
+    off = VisualLocalizer(m, replace(PARAMS, repeat_within_s=0.0), s.extract, s.describe, s.match)
     assert off.process(0, IMG, s.look(pose(1.0), 1), K, pose(3.0)).accepted
-    with pytest.raises(ValueError, match="gl_repeat"):
-        LocalizationParams(gl_repeat_within_s=-1.0)
-    with pytest.raises(ValueError, match="gl_repeat"):
-        LocalizationParams(gl_repeat_deg=0.0)
+    with pytest.raises(ValueError, match="repeat_"):
+        LocalizationParams(repeat_within_s=-1.0)
+    with pytest.raises(ValueError, match="repeat_"):
+        LocalizationParams(repeat_deg=0.0)
 
 
 def test_ll_pose_with_a_stale_fused_prior_is_held_until_repeated() -> None:
@@ -430,7 +430,8 @@ def test_ll_pose_with_a_stale_fused_prior_is_held_until_repeated() -> None:
     sec = 1_000_000_000
     assert loc.process(0, IMG, s.look(pose(1.0), 1), K).accepted and loc.state == TrackingState.TRACKING
     r = loc.process(1 * sec, IMG, s.look(pose(1.2), 1), K, pose(1.3), prior_age_s=10.0)
-    assert r.mode == "local" and not r.accepted and "LL pose held until a later frame repeats it (the prior is 10.0 s past" in r.reason
+    assert r.mode == "local" and not r.accepted
+    assert "LL pose held until a later frame repeats it (the prior is 10.0 s past" in r.reason
     r = loc.process(2 * sec, IMG, s.look(pose(1.5), 1), K, pose(1.6), prior_age_s=11.0)
     assert r.mode == "local" and r.accepted and "repeats the pose held 1.00 s" in r.stop_reason
     assert loc.process(3 * sec, IMG, s.look(pose(1.8), 2), K, pose(1.8), prior_age_s=0.2).accepted
