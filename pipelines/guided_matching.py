@@ -80,3 +80,20 @@ def match_by_projection(
     rows, cols = rows[order], cols[order]
     first = np.r_[True, cols[1:] != cols[:-1]]
     return idx[rows[first]].astype(np.int64), cols[first].astype(np.int64)
+
+
+def mutual_nn_count(desc_a: NDArray[Any], desc_b: NDArray[Any], min_similarity: float) -> int:
+    """Number of mutual nearest neighbours between two descriptor sets ((Na, D) and (Nb, D),
+    float or binary uint8) whose similarity (`_similarity`: cosine, or 1 - 2 x normalised
+    Hamming) is at least `min_similarity`. No model run, ~1 ms for 512 x 512 ALIKED
+    descriptors: a cheap score of how much two images share, used to order GL candidates
+    before the matcher runs on them."""
+    a, b = np.asarray(desc_a), np.asarray(desc_b)
+    if len(a) == 0 or len(b) == 0:
+        return 0
+    S = _similarity(a, b)
+    best_b = np.argmax(S, axis=1)
+    best_a = np.argmax(S, axis=0)
+    rows = np.arange(len(a))
+    mutual = best_a[best_b] == rows
+    return int(np.count_nonzero(mutual & (S[rows, best_b] >= min_similarity)))

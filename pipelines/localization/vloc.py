@@ -14,8 +14,10 @@
   (the extra keyframes matched by projection, no second model run); it is accepted only if
   enough keyframes are consistent with the joint pose (this replaces the separate
   confirmation), and its covariance comes from that solve. GL tries VPR candidates in order
-  and stops at the first that passes (or when `gl_time_budget_ms` is spent; the result says
-  why in `stop_reason`). `refine.enabled: false` restores the single-keyframe pose with the
+  (re-ordered by a cheap mutual-nearest-neighbour count, `gl_rerank`) and stops at the first
+  that passes, or when the time budget would be overrun (`gl_time_budget_ms`; while recovering
+  after tracking was lost, `lost_cost_ratio` x the running mean LL query time); the result
+  says why in `stop_reason`. `refine.enabled: false` restores the single-keyframe pose with the
   separate confirmation (the behaviour before issue #16).
 * Provisional poses: a GL candidate that PnP verifies strongly (`gl_vote_min_inliers`) but that
   no second keyframe confirms is returned, not accepted, as `LocalizationResult.provisional`.
@@ -44,6 +46,7 @@ from numpy.typing import NDArray
 from litevloc.base.params.localization import LocalizationParams as LocalizationParams
 from litevloc.pipelines.depth_lookup import depth_at
 from litevloc.pipelines.geometry import backproject_pixels, check_rigid, relative_pose_error
+from litevloc.pipelines.guided_matching import mutual_nn_count
 from litevloc.pipelines.localization.refine import (
     KeyframeObservations,
     RefineResult,
@@ -52,6 +55,8 @@ from litevloc.pipelines.localization.refine import (
 )
 from litevloc.pipelines.pnp import PnpResult, solve_pnp
 from litevloc.pipelines.topomap.types import FeatureSet, TopoMap
+
+LL_COST_WINDOW = 50  # LL queries whose median wall time sets the bound on a recovering GL query
 
 ExtractFn = Callable[[NDArray[np.uint8]], FeatureSet]
 DescribeFn = Callable[[NDArray[np.uint8]], NDArray[np.float32]]
@@ -287,6 +292,9 @@ class VisualLocalizer:
         self.last_pose_t_ns = 0
         self.transitions: deque[Transition] = deque(maxlen=100)
         self.held: HeldPose | None = None  # a pose the prior could not confirm, awaiting a repeat
+        # wall times (ms) of the last LL queries: their median bounds a recovering GL query
+        # (see `gl_budget_ms`)
+        self.ll_wall_ms: deque[float] = deque(maxlen=LL_COST_WINDOW)
         # Covisible neighbours of each node, strongest edge first (computed once, used per query).
         self._neighbours = topomap.covisibility_lists
 
@@ -459,9 +467,12 @@ class VisualLocalizer:
     def localize_global(
         self, t_ns: int, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64],
         prior_T_map_camera: NDArray[np.float64] | None = None, prior_age_s: float = 0.0,
+        recovering: bool = False,
     ) -> LocalizationResult:
         """VPR top-k + geometric verification; the best accepted candidate wins (after the
         joint refinement / confirmation by a second keyframe, see `LocalizationParams`).
+        `recovering` (after tracking was lost) bounds the query's wall time by the LL cost, see
+        `gl_budget_ms`; `gl_time_budget_ms` bounds it always.
 
         With joint refinement on, a candidate that only its own keyframe confirms becomes the
         result's `provisional` pose (most inliers first), or is accepted when it agrees with the
@@ -472,8 +483,9 @@ class VisualLocalizer:
         timer = StageTimer()
         t_all = time.perf_counter()
         q, desc = self._query(color, depth, K, timer)
+        front_ms = (time.perf_counter() - t_all) * 1e3  # feature extraction and VPR, as in an LL query
         sims = self.map.vpr @ desc
-        order = np.argsort(-sims, kind="stable")[: self.params.gl_top_k]
+        order = self._rerank(np.argsort(-sims, kind="stable")[: self.params.gl_top_k], q)
         attempts: list[CandidateAttempt] = []
         best: tuple[int, PnpResult, RefineResult | None] | None = None
         reason = "not localized: no VPR candidate verified"
@@ -484,18 +496,26 @@ class VisualLocalizer:
             # Bounded cost: candidates in VPR order, each verified and jointly refined at once;
             # the first that passes the joint check wins; the time budget stops the search.
             budget = self.params.gl_time_budget_ms
+            candidates_ms = 0.0  # verification time (match, PnP, joint refinement) of the candidates so far
             for k, node in enumerate(int(n) for n in order):
                 spent = (time.perf_counter() - t_all) * 1e3
-                if budget > 0 and spent > budget:
-                    stop = f"time budget spent ({spent:.0f} ms > {budget:g}) after {k} of {len(order)} candidates"
+                ahead = candidates_ms / max(k, 1)  # this query's mean cost per candidate so far
+                if k == 1 and recovering:
+                    budget = self.gl_budget_ms(nominal_ll_ms=front_ms + candidates_ms)
+                if k > 0 and budget > 0 and spent + ahead > budget:
+                    stop = (f"time budget ({budget:.0f} ms) would be overrun: {spent:.0f} ms spent + "
+                            f"{ahead:.0f} ms per candidate, after {k} of {len(order)} candidates")
                     break
+                t_cand = time.perf_counter()
                 res, att = self._verify_global(node, q, float(sims[node]))
                 if res is None or not res.accepted or res.T_target_source is None:
                     attempts.append(att)
+                    candidates_ms += (time.perf_counter() - t_cand) * 1e3
                     continue
                 T = self.map.T_map_camera[node] @ res.T_target_source
                 joint = self._joint(node, T, q, [int(n) for n in order],
                                     self.params.refine.min_keyframes if self.params.gl_confirm else 1)
+                candidates_ms += (time.perf_counter() - t_cand) * 1e3
                 if joint.accepted:
                     attempts.append(att)
                     best = (node, res, joint)
@@ -540,6 +560,30 @@ class VisualLocalizer:
             attempts.append(CandidateAttempt(node, float(sims[node]), res.n_matches, res.n_inliers, why))
         timer.add("total", t_all)
         return self._result(t_ns, "global", best, attempts, timer, reason, q)
+
+    def _rerank(self, order: NDArray[np.int64], q: _Query) -> NDArray[np.int64]:
+        """The VPR candidates `order` (best first) re-ordered by their mutual-nearest-neighbour
+        count with the live descriptors (`gl_rerank`), VPR order breaking ties."""
+        if not self.params.gl_rerank or len(order) < 2:
+            return order
+        t0 = time.perf_counter()
+        live = np.asarray(q.feats.descriptors)
+        counts = [mutual_nn_count(live, self.map.features[int(n)].descriptors, self.params.gl_rerank_min_similarity)
+                  for n in order]
+        q.timer.add("rerank", t0)
+        return order[np.argsort(-np.asarray(counts), kind="stable")]
+
+    def gl_budget_ms(self, nominal_ll_ms: float = float("inf")) -> float:
+        """The wall-time bound (ms) on a GL query while recovering: `lost_cost_ratio` x the cost
+        of an LL query, the median wall time of the last `LL_COST_WINDOW` LL queries or
+        `nominal_ll_ms` (the GL query's own feature extraction and VPR plus one candidate's
+        verification: what an LL query that runs the matcher once costs) where lower or where
+        no LL query has run; and `gl_time_budget_ms` when set (the smaller bound); 0 = none."""
+        bounds = [b for b in (self.params.gl_time_budget_ms,) if b > 0]
+        ll = min(float(np.median(self.ll_wall_ms)) if self.ll_wall_ms else float("inf"), nominal_ll_ms)
+        if self.params.lost_cost_ratio > 0 and np.isfinite(ll):
+            bounds.append(self.params.lost_cost_ratio * ll)
+        return min(bounds) if bounds else 0.0
 
     def _confirmed(self, node: int, T_map_live: NDArray[np.float64], q: _Query, fallback: list[int]) -> int:
         """Best count of matches explained by the pose over up to `confirm_max_nodes` other
@@ -701,6 +745,8 @@ class VisualLocalizer:
                 assert self.last_pose is not None
                 prior, age = self.last_pose, (t_ns - self.last_pose_t_ns) * 1e-9
             res = self.localize_local(t_ns, color, depth, K, prior, prior_age_s=age, fused_prior=fused)
+            if "total" in res.timings_ms:
+                self.ll_wall_ms.append(res.timings_ms["total"])
             if res.accepted and fused:  # a stale fused prior cannot confirm an LL pose either
                 res = self._hold_unless_repeated(res, prior, age)
             if res.accepted:
@@ -715,7 +761,8 @@ class VisualLocalizer:
                     self._go(t_ns, TrackingState.LOST, f"{self.failures} consecutive LL failures")
                     self.failures = 0
                 return res
-        res = self.localize_global(t_ns, color, depth, K, prior_T_map_camera, prior_age_s)
+        res = self.localize_global(t_ns, color, depth, K, prior_T_map_camera, prior_age_s,
+                                   recovering=self.last_pose is not None)  # it has tracked before
         if res.accepted and prior_T_map_camera is not None:
             res = self._hold_unless_repeated(res, prior_T_map_camera, prior_age_s)
         if res.accepted:

@@ -6,14 +6,20 @@ matcher that pairs equal descriptors is perfect; tests inject failures explicitl
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pytest
 from numpy.typing import NDArray
 
 from litevloc.pipelines import geometry as g
-from litevloc.pipelines.localization.vloc import LocalizationParams, StageTimer, TrackingState, VisualLocalizer
+from litevloc.pipelines.localization.vloc import (
+    LocalizationParams,
+    StageTimer,
+    TrackingState,
+    VisualLocalizer,
+    _Query,
+)
 from litevloc.pipelines.pnp import PnpParams
 from litevloc.pipelines.topomap.types import NodeFeatures, OccupancyGrid, TopoMap
 
@@ -199,7 +205,8 @@ def test_joint_refinement_uses_several_keyframes_and_matches_each_once() -> None
         calls.append(next(i for i, f in enumerate(m.features) if f is b))
         return s.match(a, b)
 
-    loc = VisualLocalizer(m, PARAMS, s.extract, s.describe, counting_match)
+    # candidates in VPR order (the re-ordering by mutual neighbours has its own test)
+    loc = VisualLocalizer(m, replace(PARAMS, gl_rerank=False), s.extract, s.describe, counting_match)
     T_true = pose(1.3, 5.0)
     r = loc.localize_global(0, IMG, s.look(T_true, vpr_best=1), K)
     assert r.accepted and len(r.keyframes) >= 2 and r.ref_node == 1  # the first VPR candidate that passes
@@ -217,12 +224,74 @@ def test_gl_time_budget_stops_the_search_and_says_so() -> None:
     slow = LocalizationParams(pnp=PnpParams(min_inliers=30), gl_top_k=3, gl_time_budget_ms=1e-6)
     loc = VisualLocalizer(m, slow, s.extract, s.describe, s.match)
     r = loc.localize_global(0, IMG, s.look(pose(1.0), 1), K)
-    assert not r.accepted and "time budget" in r.stop_reason and len(r.attempts) == 0
+    # one candidate is always verified; the next would overrun the budget
+    assert not r.accepted and "time budget" in r.stop_reason and len(r.attempts) == 1
+    assert "after 1 of 3 candidates" in r.stop_reason
     loc = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)
     r = loc.localize_global(0, IMG, s.look(pose(1.0), 1), K)
     assert not r.accepted and r.stop_reason == "all 3 VPR candidates tried" and len(r.attempts) == 3
     with pytest.raises(ValueError):
         LocalizationParams(gl_time_budget_ms=-1)
+
+
+def test_gl_candidates_are_tried_in_order_of_shared_mutual_neighbours() -> None:
+    m = make_map([0.0, 1.0, 2.0, 3.0])
+    s = Scene(m)
+    # VPR ranks node 0 first, but the live frame shares its features with node 2
+    depth = s.look(pose(2.0), vpr_best=0)
+    off = VisualLocalizer(m, replace(PARAMS, gl_rerank=False), s.extract, s.describe, s.match)
+    r = off.localize_global(0, IMG, depth, K)
+    assert r.attempts[0].node == 0
+    on = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)
+    r = on.localize_global(0, IMG, depth, K)
+    assert r.accepted and r.ref_node == 2 and [a.node for a in r.attempts] == [2] and "rerank" in r.timings_ms
+    # the nearer the keyframe, the more it shares: node 2 (0 m), 3 (1 m), 0 (2 m)
+    assert on._rerank(np.array([0, 3, 2]), _query(on, depth)).tolist() == [2, 3, 0]
+    with pytest.raises(ValueError, match="gl_rerank_min_similarity"):
+        LocalizationParams(gl_rerank_min_similarity=1.5)
+
+
+def _query(loc: VisualLocalizer, depth: NDArray[np.float32]) -> _Query:
+    q, _ = loc._query(IMG, depth, K, StageTimer())
+    return q
+
+
+def test_recovering_gl_is_bounded_by_the_ll_cost() -> None:
+    m = make_map([0.0, 1.0, 2.0, 3.0])
+    s = Scene(m)
+    loc = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)
+    assert loc.gl_budget_ms() == 0.0  # no LL cost known: no bound
+    assert loc.gl_budget_ms(nominal_ll_ms=150.0) == 300.0  # the GL query's own front end + one candidate
+    assert loc.process(1, IMG, s.look(pose(0.5), 0), K).accepted
+    assert not loc.ll_wall_ms
+    assert loc.process(2, IMG, s.look(pose(0.8), 1), K).mode == "local"
+    assert len(loc.ll_wall_ms) == 1 and loc.ll_wall_ms[0] > 0
+    assert loc.gl_budget_ms() == pytest.approx(2.0 * loc.ll_wall_ms[0])
+    s.broken_nodes = {0, 1, 2, 3}
+    for t in range(3, 6):
+        loc.process(t, IMG, s.look(pose(0.9), 1), K)
+    assert loc.state == TrackingState.LOST
+    loc.ll_wall_ms.extend([1e-6] * 60)  # LL queries that cost nothing: one candidate per GL query
+    r = loc.process(6, IMG, s.look(pose(0.9), 1), K)
+    assert r.mode == "global" and len(r.attempts) == 1 and "would be overrun" in r.stop_reason
+    s.broken_nodes = set()
+    r = loc.process(7, IMG, s.look(pose(2.0), 2), K)
+    assert r.accepted and r.mode == "global" and loc.state == TrackingState.TRACKING
+    # the median of the last LL queries sets the bound; the configured budget and the LL bound:
+    # the smaller wins; ratio 0 turns the bound off
+    loc.ll_wall_ms.extend([100.0] * 30 + [1000.0] * 20)
+    assert loc.gl_budget_ms() == 200.0
+    assert loc.gl_budget_ms(nominal_ll_ms=80.0) == 160.0  # the lower of the two
+    assert VisualLocalizer(m, replace(PARAMS, gl_time_budget_ms=50.0), s.extract, s.describe, s.match
+                           ).gl_budget_ms() == 50.0
+    both = VisualLocalizer(m, replace(PARAMS, gl_time_budget_ms=500.0), s.extract, s.describe, s.match)
+    both.ll_wall_ms.append(100.0)
+    assert both.gl_budget_ms() == 200.0
+    free = VisualLocalizer(m, replace(PARAMS, lost_cost_ratio=0.0), s.extract, s.describe, s.match)
+    free.ll_wall_ms.append(100.0)
+    assert free.gl_budget_ms() == 0.0
+    with pytest.raises(ValueError, match="lost_cost_ratio"):
+        LocalizationParams(lost_cost_ratio=-1)
 
 
 def test_single_keyframe_behaviour_behind_a_parameter() -> None:
