@@ -81,7 +81,7 @@ def run_world(world: str, args: argparse.Namespace) -> dict[str, Any]:
     from litevloc.runtime.vloc_models import check_map_models, load_bundle
 
     mp, q = prepare(world, args.out, args.query_seed)
-    cfg = load_config("default")
+    cfg = load_config("default", args.overrides)
     bundle = load_bundle(cfg.models)
     topomap = check_map_models(load_map(mp), bundle)
     loc = VisualLocalizer(topomap, cfg.localization, bundle.extract, bundle.describe, bundle.match)
@@ -235,6 +235,8 @@ def main() -> int:
     ap.add_argument("--prior", choices=["odometry", "last"], default="odometry",
                     help="LL prior: the last accepted VLoc pose carried on by the true relative motion since "
                          "(drift-free odometry, as the fused pose) or the last VLoc pose as it is")
+    ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                    help="config override for the query pass, e.g. --set localization.lost_cost_ratio=0")
     ap.add_argument("--max-s", type=float, default=0.0, help="use only the first S s of the query pass (0 = all)")
     ap.add_argument("--resummarise", type=Path, help="recompute the summaries of an earlier JSON (no localization)")
     args = ap.parse_args()
