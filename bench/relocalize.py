@@ -1,6 +1,6 @@
 """Time to relocalize after tracking is lost, and what being LOST costs (issue #15 item 6).
 
-`python bench/relocalize.py [--worlds office bland] [--json PATH]`
+`python bench/relocalize.py [--worlds office bland floor] [--json PATH]`
 
 Per world: a mapping pass is recorded and a map built (`litevloc sim record WORLD --pass
 map`, `litevloc map build`, `--config default`; cached in out/reloc/), and a query pass
@@ -223,7 +223,7 @@ def summarise(world: str, events: list[tuple[float, str]], queries: list[dict[st
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--worlds", nargs="+", default=["office", "bland"])
+    ap.add_argument("--worlds", nargs="+", default=["office", "bland", "floor"])
     ap.add_argument("--json", type=Path, default=ROOT / "out" / "bench" / "relocalize.json")
     ap.add_argument("--out", type=Path, default=ROOT / "out" / "reloc", help="recordings and maps (cached)")
     ap.add_argument("--vloc-hz", type=float, default=1.0)
