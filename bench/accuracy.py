@@ -49,6 +49,7 @@ from litevloc.pipelines.geometry import relative_pose_error, so3_log
 from litevloc.pipelines.localization.refine import viewpoint_angle_rad
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map
+from litevloc.pipelines.topomap.types import NodeFeatures
 from litevloc.runtime.posed import posed_frames
 from litevloc.runtime.sources import open_source
 from litevloc.runtime.vloc_models import check_map_models, load_bundle
@@ -243,7 +244,10 @@ def main() -> None:
         topomap = check_map_models(load_map(path), bundle)
         # the map's feature store makes each node's features on access: fixed objects, so the
         # model cache can tell the node of a match from the object it is given
-        topomap = dataclasses.replace(topomap, features=list(topomap.features))
+        # (kept as NodeFeatures with the map's keypoint depth, which plain feature objects drop)
+        topomap = dataclasses.replace(topomap, features=[
+            NodeFeatures(f.keypoints, f.descriptors, f.scores, f.image_size, topomap.keypoint_depth(k))
+            for k, f in enumerate(topomap.features)])
         folder = path.name if args.src is None else f"{path.name}-{data.stem}"
         cache = ModelCache(ROOT / "out" / "cache" / "accuracy" / folder, bundle, topomap)
         results.append(run_config(c, CONFIGS[c] + calibration, args, data, cache, topomap))
