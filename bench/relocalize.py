@@ -55,9 +55,9 @@ def cli(*args: str) -> None:
 def prepare(world: str, out: Path, seed: int) -> tuple[Path, Path]:
     """(map folder, query recording), recorded and built when absent."""
     rec, mp, q = out / f"{world}-map.mcap", out / f"{world}-map", out / f"{world}-query-s{seed}.mcap"
-    if not rec.is_file():
-        cli("sim", "record", world, "-o", str(rec), "--pass", "map")
-    if not (mp / "manifest.json").is_file():
+    if not (mp / "manifest.json").is_file():  # the mapping pass is recorded only to build the map
+        if not rec.is_file():
+            cli("sim", "record", world, "-o", str(rec), "--pass", "map")
         cli("map", "build", str(rec), "-o", str(mp), "--config", "default", "--force")
     if not q.is_file():
         cli("sim", "record", world, "-o", str(q), "--pass", "query", "--seed", str(seed))
