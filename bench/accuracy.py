@@ -39,6 +39,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import numpy as np
+from numpy.typing import NDArray
 from _common import ROOT, print_table, require_7scenes, write_json
 
 from litevloc.config import load_config
@@ -47,7 +48,9 @@ from litevloc.models.types import Features
 from litevloc.pipelines.evaluation.reloc import inside_95_ellipsoids
 from litevloc.pipelines.geometry import relative_pose_error, so3_log
 from litevloc.pipelines.localization.refine import viewpoint_angle_rad
-from litevloc.pipelines.localization.vloc import VisualLocalizer
+from litevloc.pipelines.depth_lookup import depth_at
+from litevloc.pipelines.geometry import backproject_pixels
+from litevloc.pipelines.localization.vloc import MatchedPixels, VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map
 from litevloc.pipelines.topomap.types import NodeFeatures
 from litevloc.runtime.posed import posed_frames
@@ -179,6 +182,9 @@ def run_config(name: str, overrides: list[str], args: argparse.Namespace, data: 
                        keyframe_nodes=list(res.keyframes),
                        view_angle_deg=float(np.degrees(viewpoint_angle_rad(
                            res.T_map_camera, topomap.T_map_camera[list(res.keyframes or (res.ref_node,))]))))
+            if res.matches is not None:
+                row["gt_reproj_px"] = gt_reprojection_px(res.matches, frame.depth, frame.K, T_gt, topomap,
+                                                         cfg.localization.depth)
             if res.covariance is not None:
                 inside = inside_95_ellipsoids(res.T_map_camera, T_gt, res.covariance)
                 row["in_ellipsoid_t"], row["in_ellipsoid_r"] = inside
@@ -189,6 +195,29 @@ def run_config(name: str, overrides: list[str], args: argparse.Namespace, data: 
             print(f"  {name}: {len(rows)} frames, {time.perf_counter() - t_start:.0f} s", flush=True)
     cache.flush()
     return summarize(name, overrides, rows)
+
+
+def gt_reprojection_px(matches: MatchedPixels, depth: NDArray[np.float32] | None, K: NDArray[np.float64],
+                       T_gt: NDArray[np.float64], topomap: Any, depth_params: Any) -> float:
+    """Does the ground truth fit the images? Median reprojection error (px) into the reference
+    keyframe, under the GROUND-TRUTH pose, of the live points (live depth) that the accepted
+    pose explains within the PnP threshold (its inliers: <= 3 px under the estimate by
+    construction); NaN without inliers with depth."""
+    if depth is None or not np.any(matches.inlier):
+        return float("nan")
+    uv = np.asarray(matches.live_px, np.float64)[matches.inlier]
+    z = depth_at(depth, uv, depth_params).astype(np.float64)
+    ok = np.isfinite(z)
+    if not ok.any():
+        return float("nan")
+    pts = backproject_pixels(K, uv[ok], z[ok])
+    T = np.linalg.inv(topomap.T_map_camera[matches.keyframe]) @ T_gt
+    q = pts @ T[:3, :3].T + T[:3, 3]
+    Kk = topomap.K[matches.keyframe]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        proj = q[:, :2] / q[:, 2:3] * [Kk[0, 0], Kk[1, 1]] + [Kk[0, 2], Kk[1, 2]]
+    err = np.linalg.norm(proj - np.asarray(matches.keyframe_px, np.float64)[matches.inlier][ok], axis=1)
+    return float(np.median(err))
 
 
 def summarize(name: str, overrides: list[str], rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -202,6 +231,7 @@ def summarize(name: str, overrides: list[str], rows: list[dict[str, Any]]) -> di
 
     cal = [r for r in acc if "in_ellipsoid_t" in r]
     ll = [r["latency_ms"] for r in rows if r["mode"] == "local"]
+    gt = np.array([r.get("gt_reproj_px", np.nan) for r in acc], dtype=np.float64)
     return {
         "config": name, "overrides": overrides, "queries": n, "accepted_pct": 100.0 * len(acc) / max(n, 1),
         "within_2cm_2deg_pct": within(0.02, 2), "within_5cm_5deg_pct": within(0.05, 5),
@@ -215,6 +245,8 @@ def summarize(name: str, overrides: list[str], rows: list[dict[str, Any]]) -> di
         "calib_r_pct": 100.0 * float(np.mean([r["in_ellipsoid_r"] for r in cal])) if cal else float("nan"),
         "ll_latency_median_ms": float(np.median(ll)) if ll else float("nan"),
         "ll_latency_p90_ms": float(np.percentile(ll, 90)) if ll else float("nan"),
+        # the ground truth's own fit to the images, on the accepted poses' inliers (median px)
+        "gt_reproj_px_median": float(np.nanmedian(gt)) if np.isfinite(gt).any() else float("nan"),
         "frames": rows,
     }
 
@@ -253,11 +285,11 @@ def main() -> None:
         results.append(run_config(c, CONFIGS[c] + calibration, args, data, cache, topomap))
     cols = ["within_2cm_2deg_pct", "within_5cm_5deg_pct", "within_25cm_5deg_pct", "accepted_pct", "median_cm",
             "median_deg", "max_cm", "wrong_over_0.5m", "calib_t_pct", "calib_r_pct", "ll_latency_median_ms",
-            "ll_latency_p90_ms"]
+            "ll_latency_p90_ms", "gt_reproj_px_median"]
     print_table(f"{data.name}, frames {args.frames}, map {args.map.name} (percentages of ALL query "
                 "frames; median/max over accepted poses)",
                 ["config", "2cm2d%", "5cm5d%", "25cm5d%", "acc%", "med cm", "med deg", "max cm", ">0.5m",
-                 "cal t%", "cal r%", "LL med ms", "LL p90 ms"],
+                 "cal t%", "cal r%", "LL med ms", "LL p90 ms", "GT px"],
                 [[r["config"]] + [r[c] for c in cols] for r in results])
     print_table("published (reference)", ["method", "median cm", "median deg", "5cm5d%"],
                 [[p["method"], p["median_cm"], p["median_deg"], p["within_5cm_5deg_pct"]] for p in PUBLISHED])
