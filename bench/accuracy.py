@@ -39,17 +39,16 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import numpy as np
-from numpy.typing import NDArray
 from _common import ROOT, print_table, require_7scenes, write_json
+from numpy.typing import NDArray
 
 from litevloc.config import load_config
 from litevloc.hw.streams.base import parse_frames
 from litevloc.models.types import Features
-from litevloc.pipelines.evaluation.reloc import inside_95_ellipsoids
-from litevloc.pipelines.geometry import relative_pose_error, so3_log
-from litevloc.pipelines.localization.refine import viewpoint_angle_rad
 from litevloc.pipelines.depth_lookup import depth_at
-from litevloc.pipelines.geometry import backproject_pixels
+from litevloc.pipelines.evaluation.reloc import inside_95_ellipsoids
+from litevloc.pipelines.geometry import backproject_pixels, relative_pose_error, so3_log
+from litevloc.pipelines.localization.refine import viewpoint_angle_rad
 from litevloc.pipelines.localization.vloc import MatchedPixels, VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map
 from litevloc.pipelines.topomap.types import NodeFeatures
