@@ -1,6 +1,7 @@
 """Time to relocalize after tracking is lost, and what being LOST costs (issue #15 item 6).
 
-`python bench/relocalize.py [--worlds office bland floor] [--json PATH]`
+`python bench/relocalize.py [--worlds office bland floor] [--json PATH]`; it also writes PATH
+with .png: each VLoc call's wall time over sensor time, faults shaded.
 
 Per world: a mapping pass is recorded and a map built (`litevloc sim record WORLD --pass
 map`, `litevloc map build`, `--config default`; cached in out/reloc/), and a query pass
@@ -297,6 +298,48 @@ def report(results: list[dict[str, Any]], load0: tuple[float, ...], load1: tuple
                                                 for k, v in vars(args).items()},
                                      "worlds": results}, indent=1) + "\n")
     print(f"wrote {args.json}")
+    png = args.json.with_suffix(".png")
+    plot(results, png, args.blackout_s)
+    print(f"wrote {png}")
+
+
+def plot(results: list[dict[str, Any]], path: Path, blackout_s: float) -> None:
+    """Per world: each VLoc call's wall time against sensor time (LL / GL, accepted or not),
+    the faults shaded, and the bound on a recovering GL query (2x the LL median) as a line."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(len(results), 1, figsize=(12, 3.2 * len(results)), squeeze=False)
+    for ax, r in zip(axes[:, 0], results, strict=True):
+        qs = r["queries"]
+        t0 = qs[0]["t"]
+        for e in r["events"]:
+            t = e["t_fault_s"]
+            ax.axvspan(t, t + (blackout_s if e["kind"] == "blackout" else 1.0),
+                       color="0.8" if e["kind"] == "blackout" else "#f4c2c2", zorder=0)
+            ax.text(t, 1.0, e["kind"], transform=ax.get_xaxis_transform(), fontsize=7, va="top")
+        for mode, acc, style, label in (("local", True, "o", "LL accepted"), ("local", False, "x", "LL not"),
+                                        ("global", True, "^", "GL accepted"), ("global", False, "v", "GL not")):
+            pts = [(x["t"] - t0, x["wall_s"] * 1e3) for x in qs if x["mode"] == mode and x["accepted"] == acc]
+            if pts:
+                t, w = zip(*pts, strict=True)
+                ax.plot(t, w, style, ms=4, label=label,
+                        color={"local": "tab:green", "global": "tab:blue"}[mode] if acc else
+                        {"local": "tab:orange", "global": "tab:red"}[mode])
+        if r["ll_query_wall_ms_median"] is not None:
+            ax.axhline(2 * r["ll_query_wall_ms_median"], color="k", ls="--", lw=0.8, label="2x LL median")
+        ax.set_ylabel("VLoc call wall ms")
+        ratio, med = r["lost_vs_tracking_wall_ratio"], r["lost_to_tracking_median_s"]
+        ax.set_title(f"{r['world']}: LOST/tracking wall {'-' if ratio is None else f'{ratio:.2f}x'}, "
+                     f"relocalized {r['events_relocalized']}/{r['events_lost']} faults, "
+                     f"median {'-' if med is None else f'{med:.1f}'} s", fontsize=9)
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    axes[-1, 0].set_xlabel("sensor time s")
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
 
 
 if __name__ == "__main__":
