@@ -101,6 +101,7 @@ bench: $(VENV)/.dev-installed models $(BENCH_7S_MAP)/manifest.json
 	$(VENV)/bin/python bench/stereo.py
 	$(VENV)/bin/python bench/navigation.py --worlds office
 	$(VENV)/bin/python bench/density.py --world office
+	$(VENV)/bin/python bench/goal_placement.py
 	$(VENV)/bin/python bench/runtime_queues.py
 	$(VENV)/bin/python bench/global_loc.py $(BENCH_7S_MAP) --config 7scenes
 	$(VENV)/bin/python bench/merge.py

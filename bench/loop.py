@@ -136,17 +136,15 @@ def query(map_dir: Path, config: str, pass_name: str = "loop-lane", rate: float 
     }
 
 
-def navigate(map_dir: Path, config: str, n_goals: int) -> dict[str, Any]:
-    from litevloc.config import load_config
+def loop_goals(world: Any, cfg: Any, n_goals: int) -> tuple[list[Any], Any, list[float]]:
+    """(goals, the mapping route, each goal's arc length in metres): `n_goals` goal images
+    rendered at equal arc length along the loop's mapping route, facing along it (seeded)."""
     from litevloc.hw.sim.realism import sample_lighting
     from litevloc.hw.sim.render import Renderer
     from litevloc.hw.sim.simulator import camera_pose, render_frame
     from litevloc.hw.sim.source import SimSequenceSource
-    from litevloc.hw.sim.world import load_world
-    from litevloc.runtime.sim_navigation import Goal, NavParams, run_navigation
+    from litevloc.runtime.sim_navigation import Goal
 
-    cfg = load_config(config)
-    world = load_world("loop")
     route = SimSequenceSource(world, "loop", 0, params=cfg.sim).run
     xy = route.T_world_base[:, :2, 3]
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
@@ -162,10 +160,21 @@ def navigate(map_dir: Path, config: str, n_goals: int) -> dict[str, Any]:
         ok, buf = cv2.imencode(".jpg", f.color[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, 90])
         assert ok
         goals.append(Goal(f"loop_{k}", buf.tobytes(), T))
+    return goals, route, [round(lap * (k + 1) / (n_goals + 1), 1) for k in range(n_goals)]
+
+
+def navigate(map_dir: Path, config: str, n_goals: int) -> dict[str, Any]:
+    from litevloc.config import load_config
+    from litevloc.hw.sim.world import load_world
+    from litevloc.runtime.sim_navigation import NavParams, run_navigation
+
+    cfg = load_config(config)
+    world = load_world("loop")
+    goals, route, arc = loop_goals(world, cfg, n_goals)
     run = run_navigation(world, cfg, map_dir, goals, route.T_world_base[0], "litevloc", NavParams())
     out = run.summary()
     out.pop("trace", None)
-    out["goal_arc_m"] = [round(lap * (k + 1) / (n_goals + 1), 1) for k in range(n_goals)]
+    out["goal_arc_m"] = arc
     return out
 
 

@@ -11,7 +11,10 @@
   pose, and a goal that verifies as well (within `ambiguity_ratio`) at another place is
   refused as ambiguous: the same poster hangs in two rooms, and guessing sends the robot
   to the wrong one. Candidates whose goal poses agree, or whose keyframes are covisible in
-  the map, are one place.
+  the map, are one place. A candidate whose PnP inliers all lie on one plane (`plane_rms`
+  below `planar_rms_m`) matched a single flat patch -- a poster, a sign, one wall -- which
+  can hang at several places, so it needs `planar_factor` x `min_inliers` to verify a place;
+  otherwise the goal is refused and the reason says so.
 * `shortest_path`: Dijkstra on the connectivity graph (edge weights in metres) with
   `scipy.sparse.csgraph.dijkstra` on the map's CSR matrix (built once per map); ~1 ms at
   10,000 nodes where the former pure-Python heap took tens (`bench/scale.py`).
@@ -63,24 +66,50 @@ class GoalResult:
     pose_inliers: int = 0
 
 
+@dataclass(frozen=True)
+class GoalPose:
+    """PnP of a goal image against one keyframe's depth-lifted keypoints.
+
+    T_node_goal: 4x4 goal camera pose in the keyframe camera's frame (metres); None when
+    there is no depth, too few inliers or the pose is implausibly far.
+    inliers: PnP inliers (or, without a pose, the matches that had depth).
+    plane_rms_m: RMS distance (m) of the inliers' 3D points from their best-fitting plane;
+    NaN without a pose. Near zero: the whole support is one flat patch (a poster, a sign,
+    one wall), which can hang at several places.
+    """
+
+    T_node_goal: NDArray[np.float64] | None
+    inliers: int
+    plane_rms_m: float = float("nan")
+
+
+def plane_rms(points: NDArray[np.float64]) -> float:
+    """RMS distance (m) of (N, 3) points from their least-squares plane (the smallest
+    singular value of the centred points over sqrt(N)); NaN for fewer than 3 points."""
+    if len(points) < 3:
+        return float("nan")
+    c = points - points.mean(axis=0)
+    return float(np.linalg.svd(c, compute_uv=False)[-1] / np.sqrt(len(points)))
+
+
 def goal_pose(
     goal_feats: FeatureSet, K_goal: NDArray[np.float64], node_feats: FeatureSet,
     node_depth: NDArray[np.float32] | None, K_node: NDArray[np.float64], match: MatchFn, params: GoalParams,
     matches: tuple[NDArray[np.int64], NDArray[np.int64]] | None = None,
-) -> tuple[NDArray[np.float64] | None, int]:
-    """(T_node_goal, inliers): the goal camera's pose in the keyframe camera's frame (4x4,
-    metres) by PnP + RANSAC of the goal's keypoints against the keyframe's keypoints lifted
-    with their mapping depth (`node_depth` (N_node,) metres, NaN = none); (None, inliers)
-    when there is no depth, too few inliers (< `pose_min_inliers`) or the pose is farther
-    than `pose_max_m`. `matches` (goal indices, node indices): already computed, else `match`."""
+) -> GoalPose:
+    """The goal camera's pose in the keyframe camera's frame by PnP + RANSAC of the goal's
+    keypoints against the keyframe's keypoints lifted with their mapping depth (`node_depth`
+    (N_node,) metres, NaN = none); no pose when there is no depth, too few inliers
+    (< `pose_min_inliers`) or the pose is farther than `pose_max_m`. `matches` (goal indices,
+    node indices): already computed, else `match`."""
     if node_depth is None:
-        return None, 0
+        return GoalPose(None, 0)
     depth = node_depth
     i_goal, i_node = match(goal_feats, node_feats) if matches is None else matches
     z = np.asarray(depth, np.float64)[i_node]
     ok = np.isfinite(z) & (z > 0)
     if int(ok.sum()) < params.pose_min_inliers:
-        return None, int(ok.sum())
+        return GoalPose(None, int(ok.sum()))
     pts = backproject_pixels(K_node, np.asarray(node_feats.keypoints, np.float64)[i_node[ok]], z[ok])
     uv = np.asarray(goal_feats.keypoints, np.float64)[i_goal[ok]]
     cv2.setRNGSeed(params.seed)
@@ -89,7 +118,7 @@ def goal_pose(
                                                 confidence=0.999, flags=cv2.SOLVEPNP_EPNP)
     n = 0 if inl is None else len(inl)
     if not found or n < params.pose_min_inliers:
-        return None, n
+        return GoalPose(None, n)
     idx = inl.reshape(-1)
     ok2, rvec, tvec = cv2.solvePnP(pts[idx], uv[idx], np.asarray(K_goal, np.float64), None, rvec, tvec,
                                    useExtrinsicGuess=True, flags=cv2.SOLVEPNP_ITERATIVE)
@@ -98,8 +127,8 @@ def goal_pose(
     T_goal_node[:3, 3] = np.asarray(tvec, np.float64).reshape(3)
     T_node_goal = invert(T_goal_node)
     if not ok2 or not np.all(np.isfinite(T_node_goal)) or np.linalg.norm(T_node_goal[:3, 3]) > params.pose_max_m:
-        return None, n
-    return T_node_goal, n
+        return GoalPose(None, n)
+    return GoalPose(T_node_goal, n, plane_rms(pts[idx]))
 
 
 def essential_inliers(
@@ -127,6 +156,15 @@ class _Candidate:
     inliers: int  # essential-matrix inliers
     T_map_goal: NDArray[np.float64] | None
     pose_inliers: int
+    plane_rms_m: float = float("nan")
+
+    def planar(self, params: GoalParams) -> bool:
+        """True when the candidate's PnP support is one flat patch (see `GoalParams.planar_rms_m`)."""
+        return params.planar_rms_m > 0 and bool(self.plane_rms_m < params.planar_rms_m)
+
+    def needed(self, params: GoalParams) -> float:
+        """Essential-matrix inliers this candidate needs to verify a place."""
+        return params.min_inliers * (params.planar_factor if self.planar(params) else 1.0)
 
 
 def _places(cands: list[_Candidate], agree_m: float, agree_deg: float,
@@ -167,15 +205,22 @@ def localize_goal(
         feats, K_node = topomap.features[node], topomap.K[node]
         pairs = match(goal_feats, feats)
         n_e = essential_inliers(goal_feats, K_goal, feats, K_node, match, params, pairs)
-        T_node_goal, n_pose = goal_pose(goal_feats, K_goal, feats, topomap.keypoint_depth(node), K_node, match,
-                                        params, pairs)
-        T_map_goal = None if T_node_goal is None else topomap.T_map_camera[node] @ T_node_goal
-        cands.append(_Candidate(node, float(sims[node]), n_e, T_map_goal, n_pose))
+        gp = goal_pose(goal_feats, K_goal, feats, topomap.keypoint_depth(node), K_node, match, params, pairs)
+        T_map_goal = None if gp.T_node_goal is None else topomap.T_map_camera[node] @ gp.T_node_goal
+        cands.append(_Candidate(node, float(sims[node]), n_e, T_map_goal, gp.inliers, gp.plane_rms_m))
     table = tuple((c.node, c.similarity, c.inliers) for c in cands)
-    best = max(cands, key=lambda c: (c.inliers, c.similarity))
-    if best.inliers < params.min_inliers:
-        return GoalResult(None, best.inliers, f"goal image matches no map place (best {best.inliers} inliers < "
-                          f"{params.min_inliers})", table)
+    strongest = max(cands, key=lambda c: (c.inliers, c.similarity))
+    verified = [c for c in cands if c.inliers >= c.needed(params)]
+    if not verified:
+        if strongest.inliers >= params.min_inliers:  # only flat support reached the bar
+            return GoalResult(None, strongest.inliers,
+                              f"goal image matches only a flat patch (a poster, a sign, one wall) at node "
+                              f"{strongest.node}: {strongest.inliers} inliers within "
+                              f"{100 * strongest.plane_rms_m:.1f} cm of one plane < {strongest.needed(params):.0f} "
+                              "needed for flat support", table)
+        return GoalResult(None, strongest.inliers, f"goal image matches no map place (best {strongest.inliers} "
+                          f"inliers < {params.min_inliers})", table)
+    best = max(verified, key=lambda c: (c.inliers, c.similarity))
     if best.T_map_goal is not None and params.ambiguity_ratio > 0:
         covis = topomap.covisibility_lists
         places = _places(cands, params.agree_m, params.agree_deg, lambda a, b: b in covis[a])

@@ -227,3 +227,58 @@ def test_planner_keeps_to_the_maps_viewing_direction_unless_the_way_back_is_far_
     for bad in ({"against_view_cost": 0.5}, {"against_view_cost": float("inf")}, {"against_view_deg": 0.0}):
         with pytest.raises(ValueError, match="against_view"):
             TrackerParams(**bad)  # type: ignore[arg-type]
+
+
+def test_plane_rms_measures_how_flat_a_point_set_is() -> None:
+    from litevloc.pipelines.navigation.planner import plane_rms
+
+    rng = np.random.default_rng(3)
+    wall = np.column_stack([rng.uniform(-1, 1, 200), rng.uniform(0, 2, 200), np.full(200, 4.0)])
+    tilt = g.so3_exp(np.array([0.3, -0.5, 0.2]))
+    assert plane_rms(wall @ tilt.T + [1.0, 2.0, 3.0]) < 1e-9  # any plane, any pose
+    noisy = wall + [0.0, 0.0, 0.01] * rng.standard_normal((200, 3))
+    assert 0.008 < plane_rms(noisy) < 0.012  # the noise off the plane, in metres
+    box = rng.uniform(-0.5, 0.5, (200, 3))
+    assert plane_rms(box) > 0.2
+    assert np.isnan(plane_rms(box[:2]))
+
+
+def _sparse_map(n_keep: int):  # type: ignore[no-untyped-def]
+    """`_depth_map` with every node's features cut to its first `n_keep` keypoints."""
+    md = _depth_map()
+    feats = [dataclasses.replace(f, keypoints=f.keypoints[:n_keep], descriptors=f.descriptors[:n_keep],
+                                 scores=f.scores[:n_keep], depth=f.depth[:n_keep]) for f in md.features]
+    return dataclasses.replace(md, features=feats)
+
+
+def test_goal_supported_by_one_flat_patch_needs_more_inliers(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A goal image whose matches to the best keyframe all lie on one plane (a poster: the same
+    picture can hang in another room) verifies a place only with `planar_factor` x
+    `min_inliers`; between the two bars it is refused with a reason naming the flat patch.
+    The same number of matches spread in depth verifies as before; so do enough flat ones."""
+    import tests.pipelines.localization.test_vloc as tv
+
+    T_goal = pose(2.3, yaw_deg=10.0)
+    desc = np.zeros(4, np.float32)
+    desc[2] = 1.0
+    params = GoalParams(top_k=1, min_inliers=40, planar_rms_m=0.03, planar_factor=2.0)
+    # a scene spread in depth: 60 keypoints per keyframe verify (40 <= inliers < 80)
+    goal, _ = observe(T_goal)
+    res = localize_goal(goal, desc, K, _sparse_map(60), match_by_id, params)
+    assert res.node == 2 and res.reason == "ok" and 40 <= res.inliers < 80
+    # the same scene flattened onto one wall 6 m in front of the cameras
+    flat = tv.POINTS.copy()
+    flat[:, 2] = 6.0
+    monkeypatch.setattr(tv, "POINTS", flat)
+    goal, _ = observe(T_goal)
+    res = localize_goal(goal, desc, K, _sparse_map(60), match_by_id, params)
+    assert res.node is None and res.T_map_goal is None and 40 <= res.inliers < 80
+    assert "flat patch" in res.reason and "node 2" in res.reason and "< 80" in res.reason
+    off = localize_goal(goal, desc, K, _sparse_map(60), match_by_id, dataclasses.replace(params, planar_rms_m=0.0))
+    assert off.node == 2 and off.reason == "ok"
+    many = localize_goal(goal, desc, K, _sparse_map(200), match_by_id, params)
+    assert many.node == 2 and many.reason == "ok" and many.inliers >= 80
+    np.testing.assert_allclose(many.T_map_goal, T_goal, atol=1e-5)
+    for bad in ({"planar_rms_m": -0.01}, {"planar_factor": 0.5}, {"planar_factor": float("nan")}):
+        with pytest.raises(ValueError, match="planar"):
+            GoalParams(**bad)  # type: ignore[arg-type]
