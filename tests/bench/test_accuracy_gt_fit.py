@@ -2,31 +2,18 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-from types import ModuleType, SimpleNamespace
+from types import SimpleNamespace
 
 import numpy as np
 
 from litevloc.base.params.localization import LocalizationParams
 from litevloc.pipelines import geometry as g
 from litevloc.pipelines.localization.vloc import MatchedPixels
-
-ROOT = Path(__file__).resolve().parents[2]
-
-
-def _accuracy() -> ModuleType:
-    sys.path.insert(0, str(ROOT / "bench"))
-    spec = importlib.util.spec_from_file_location("bench_accuracy", ROOT / "bench" / "accuracy.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+from tests.bench import load_bench
 
 
 def test_ground_truth_that_fits_reprojects_to_zero_and_a_shifted_one_does_not() -> None:
-    acc = _accuracy()
+    acc = load_bench("accuracy")
     K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
     depth = np.full((480, 640), 2.0, np.float32)  # a wall 2 m in front of the live camera
     rng = np.random.default_rng(0)

@@ -2,27 +2,15 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-from types import ModuleType, SimpleNamespace
+from types import SimpleNamespace
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[2]
-
-
-def _bench() -> ModuleType:
-    sys.path.insert(0, str(ROOT / "bench"))
-    spec = importlib.util.spec_from_file_location("bench_goal_placement", ROOT / "bench" / "goal_placement.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+from tests.bench import load_bench
 
 
 def test_a_placement_is_right_wrong_or_refused_by_its_distance_from_the_truth() -> None:
-    b = _bench()
+    b = load_bench("goal_placement")
     T_true = np.eye(4)
     T_true[:3, 3] = [1.0, 2.0, 0.5]
     kf = np.stack([np.eye(4), np.eye(4)])
