@@ -16,8 +16,8 @@
   confirmation), and its covariance comes from that solve. GL tries VPR candidates in order
   (re-ordered by a cheap mutual-nearest-neighbour count, `gl_rerank`) and stops at the first
   that passes, or when the time budget would be overrun (`gl_time_budget_ms`; while recovering
-  after tracking was lost, `lost_cost_ratio` x the running mean LL query time); the result
-  says why in `stop_reason`. `refine.enabled: false` restores the single-keyframe pose with the
+  after tracking was lost, `lost_cost_ratio` x the median wall time of the last LL queries);
+  the result says why in `stop_reason`. `refine.enabled: false` restores the single-keyframe pose with the
   separate confirmation (the behaviour before issue #16).
 * Provisional poses: a GL candidate that PnP verifies strongly (`gl_vote_min_inliers`) but that
   no second keyframe confirms is returned, not accepted, as `LocalizationResult.provisional`.

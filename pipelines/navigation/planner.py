@@ -72,7 +72,7 @@ class GoalPose:
 
     T_node_goal: 4x4 goal camera pose in the keyframe camera's frame (metres); None when
     there is no depth, too few inliers or the pose is implausibly far.
-    inliers: PnP inliers (or, without a pose, the matches that had depth).
+    inliers: PnP inliers; where PnP did not run (too few matches with depth), those matches.
     plane_rms_m: RMS distance (m) of the inliers' 3D points from their best-fitting plane;
     NaN without a pose. Near zero: the whole support is one flat patch (a poster, a sign,
     one wall), which can hang at several places.
