@@ -255,7 +255,9 @@ def main() -> None:
     ap.add_argument("--frames", default="500:1000")
     ap.add_argument("--map", type=Path, default=ROOT / "out" / "maps" / "7s")
     ap.add_argument("--configs", nargs="+", default=list(CONFIGS), choices=list(CONFIGS))
-    ap.add_argument("--set", dest="overrides", action="append", default=[], help="applied to every config")
+    ap.add_argument("--set", dest="overrides", action="append", default=[],
+                    help="applied to every config and to a map this run builds (name a new --map when they "
+                         "change the calibration or mapping)")
     ap.add_argument("--name", default="accuracy")
     ap.add_argument("--src", type=Path, default=None, help="another posed recording (default: 7-Scenes)")
     ap.add_argument("--config", default="7scenes", help="preset of --src (default 7scenes)")
@@ -264,7 +266,8 @@ def main() -> None:
     maps = {c: map_of(c, args) for c in args.configs}
     for path, calibration in maps.values():
         if args.src is None:  # the starting point's map also keeps its int8 descriptors (map format 2)
-            ensure_map(path, data, calibration + (START_MAP_FORMAT if calibration == START_CALIBRATION else []))
+            ensure_map(path, data, calibration + (START_MAP_FORMAT if calibration == START_CALIBRATION else [])
+                       + args.overrides)
         elif not (path / "manifest.json").is_file():
             raise SystemExit(f"no map at {path} (build one for {args.src} first)")
     cfg = load_config(args.config, args.overrides)

@@ -15,6 +15,15 @@ its reprojection along the epipolar direction, more so at long range and wide ba
 Residuals r_i are whitened with C_i^{-1/2} (closed form for identity + rank one), so the
 Cauchy scale is in units of sigma.
 
+Where the map keeps depth at the matched keyframe keypoint (`RefineParams.map_depth`), the
+correspondence enters as a 3D residual instead, in the keyframe's camera frame:
+    e_i = T_kf_live p_i - P_i   (metres; P_i the keyframe keypoint lifted with the map's depth),
+    C_i = R S(p_i) R^T + S(P_i),  S(x) = sigma_z(z)^2 u u^T + sigma_lat(z)^2 (I - u u^T),
+with u the point's unit ray, sigma_lat(z) = z s_kp / f_kf and R the rotation of T_kf_live:
+each correspondence then measures depth twice, so the rotation-translation trade-off that
+reprojections into a few nearby keyframes leave loose is pinned by the map's geometry (which
+is the map's own: keyframe poses and depth agree by construction).
+
 Covariance (6x6, right perturbation of `T_map_camera`, order (t, rotvec), the convention
 of `pipelines.pnp`): the Gauss-Newton covariance of the whitened solve over the inliers,
     Sigma_pts = s2 (J^T J)^-1,  s2 = max(whitened residual variance, 1),
@@ -54,6 +63,8 @@ class KeyframeObservations:
     points_live: (N, 3) metres in the live camera frame (lifted with the live depth).
     pixels: (N, 2) matched keypoints in the keyframe image.
     K: 3x3 keyframe intrinsics; T_map_kf: 4x4 keyframe camera pose in the map.
+    depth_kf: (N,) the map's depth (metres, NaN = none) at each matched keyframe keypoint, or
+        None when the map keeps none.
     """
 
     node: int
@@ -61,6 +72,7 @@ class KeyframeObservations:
     pixels: F64
     K: F64
     T_map_kf: F64
+    depth_kf: F64 | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -134,6 +146,72 @@ def _whitener(g: F64, z_live: F64, p: RefineParams) -> F64:
     return np.asarray((eye - k[:, None, None] * u[:, :, None] * u[:, None, :]) / s, dtype=np.float64)
 
 
+def _point_whitener(T_kl: F64, pts: F64, P_kf: F64, K: F64, p: RefineParams) -> F64:
+    """(N, 3, 3) W with W C W^T = I, C the covariance of `T_kl pts - P_kf` (keyframe frame):
+    each point's depth noise sigma_z(z) along its own ray and `keypoint_sigma_px` (at the
+    keyframe's focal length) across it, the live point's rotated into the keyframe."""
+
+    def cov(rays: F64, z: F64) -> F64:
+        u = rays / np.maximum(np.linalg.norm(rays, axis=1, keepdims=True), 1e-12)
+        lat = z * p.keypoint_sigma_px / float(K[0, 0])
+        rad = p.depth_sigma_a * z**2 + p.depth_sigma_b
+        eye = np.broadcast_to(np.eye(3), (len(z), 3, 3))
+        return np.asarray((lat**2)[:, None, None] * eye
+                          + (rad**2 - lat**2)[:, None, None] * u[:, :, None] * u[:, None, :], dtype=np.float64)
+
+    C = cov(pts @ T_kl[:3, :3].T, pts[:, 2]) + cov(P_kf, P_kf[:, 2])
+    L = np.linalg.cholesky(C)
+    return np.asarray(np.linalg.inv(L), dtype=np.float64)
+
+
+class _Terms:
+    """One keyframe's correspondences in the solve: pixel residuals (whitened 2-vectors) where
+    the map has no depth at the keyframe keypoint, 3D residuals `T_kf_live p_live - P_kf`
+    (whitened 3-vectors) where it has (with `RefineParams.map_depth`)."""
+
+    def __init__(self, ob: KeyframeObservations, pts: F64, px: F64, z_kf: F64 | None, T0: F64,
+                 p: RefineParams) -> None:
+        self.ob, self.pts, self.px = ob, pts, px
+        _, _, g = _residuals_and_jacobian(T0, ob, pts, px)
+        self.W2 = _whitener(g, pts[:, 2], p)
+        use3 = (np.isfinite(z_kf) & (z_kf > 0)) if (p.map_depth and z_kf is not None) else np.zeros(len(pts), bool)
+        self.use3 = np.asarray(use3, dtype=bool)
+        self.P_kf = np.zeros((int(self.use3.sum()), 3))
+        self.W3 = np.zeros((0, 3, 3))
+        if self.use3.any():
+            zk = np.asarray(z_kf, np.float64)[self.use3]
+            Kinv = np.linalg.inv(ob.K)
+            rays = np.c_[px[self.use3], np.ones(len(zk))] @ Kinv.T
+            self.P_kf = rays * zk[:, None]
+            T_kl = np.linalg.inv(ob.T_map_kf) @ T0
+            self.W3 = _point_whitener(T_kl, pts[self.use3], self.P_kf, ob.K, p)
+
+    def whitened(self, T: F64, rows: NDArray[np.bool_] | None = None) -> tuple[F64, F64, F64]:
+        """(whitened residuals (M,), whitened Jacobian (M, 6), pixel errors (N,)) at pose T,
+        over the correspondences in `rows` (all by default)."""
+        rows = np.ones(len(self.pts), bool) if rows is None else rows
+        r, J, _ = _residuals_and_jacobian(T, self.ob, self.pts, self.px)
+        m2 = rows & ~self.use3
+        out_r = [np.einsum("nij,nj->ni", self.W2[m2], r[m2]).reshape(-1)]
+        out_J = [(self.W2[m2] @ J[m2]).reshape(-1, 6)]
+        if self.use3.any():
+            sel = rows[self.use3]
+            T_kl = np.linalg.inv(self.ob.T_map_kf) @ T
+            p3 = self.pts[self.use3][sel]
+            q = _camera_points(T_kl, p3)
+            e = q - self.P_kf[sel]
+            R = T_kl[:3, :3]
+            skew = np.zeros((len(p3), 3, 3))
+            skew[:, 0, 1], skew[:, 0, 2] = -p3[:, 2], p3[:, 1]
+            skew[:, 1, 0], skew[:, 1, 2] = p3[:, 2], -p3[:, 0]
+            skew[:, 2, 0], skew[:, 2, 1] = -p3[:, 1], p3[:, 0]
+            dq = np.concatenate([np.broadcast_to(R, (len(p3), 3, 3)), -R @ skew], axis=2)
+            W = self.W3[sel]
+            out_r.append(np.einsum("nij,nj->ni", W, e).reshape(-1))
+            out_J.append((W @ dq).reshape(-1, 6))
+        return np.concatenate(out_r), np.concatenate(out_J), np.linalg.norm(r, axis=1)
+
+
 def _perturb(T: F64, d: NDArray[np.floating]) -> F64:
     return T @ make_T(so3_exp(np.asarray(d[3:], dtype=np.float64)), np.asarray(d[:3], dtype=np.float64))
 
@@ -154,38 +232,42 @@ def refine_pose(
     """
     T0 = np.asarray(T_map_camera_init, dtype=np.float64)
     p = params
-    used: list[tuple[KeyframeObservations, F64, F64, F64]] = []  # obs, pts, px, whitener
+    used: list[_Terms] = []
     for ob in observations:
         pts = np.asarray(ob.points_live, dtype=np.float64).reshape(-1, 3)
         px = np.asarray(ob.pixels, dtype=np.float64).reshape(-1, 2)
         if len(pts) == 0:
             continue
-        r, _, g = _residuals_and_jacobian(T0, ob, pts, px)
+        r, _, _ = _residuals_and_jacobian(T0, ob, pts, px)
         keep = np.linalg.norm(r, axis=1) <= p.gate_px
         if keep.sum() < p.min_keyframe_inliers:
             continue
-        used.append((ob, pts[keep], px[keep], _whitener(g[keep], pts[keep, 2], p)))
+        z_kf = None if ob.depth_kf is None else np.asarray(ob.depth_kf, np.float64).reshape(-1)[keep]
+        used.append(_Terms(ob, pts[keep], px[keep], z_kf, T0, p))
     matches = {ob.node: len(ob.points_live) for ob in observations}
     if not used:  # (one consistent keyframe is still solved: its pose can be a provisional GL vote)
         return RefineResult(False, f"no keyframe consistent with the initial pose (< {p.min_keyframes})",
                             T0, None, {}, matches)
 
+    last: dict[bytes, tuple[F64, F64]] = {}
+
+    def evaluate(d: F64) -> tuple[F64, F64]:
+        """Stacked whitened residuals and Jacobian at T0 exp(d), once per step (the solver asks
+        for both at the same point)."""
+        key = np.asarray(d, np.float64).tobytes()
+        if key not in last:
+            T = _perturb(T0, d)
+            parts = [t.whitened(T) for t in used]
+            last.clear()
+            last[key] = (np.concatenate([r for r, _, _ in parts]), np.concatenate([J for _, J, _ in parts]))
+        return last[key]
+
     def fun(d: F64) -> F64:
-        T = _perturb(T0, d)
-        out = []
-        for ob, pts, px, W in used:
-            r, _, _ = _residuals_and_jacobian(T, ob, pts, px)
-            out.append(np.einsum("nij,nj->ni", W, r).reshape(-1))
-        return np.concatenate(out)
+        return evaluate(d)[0]
 
     def jac(d: F64) -> F64:
-        T = _perturb(T0, d)
-        out = []
-        for ob, pts, px, W in used:
-            _, J, _ = _residuals_and_jacobian(T, ob, pts, px)
-            out.append((W @ J).reshape(-1, 6))
         # d/dd of T0 exp(d) ~ right perturbation at T for small steps (exact at d = 0)
-        return np.concatenate(out)
+        return evaluate(d)[1]
 
     sol = least_squares(fun, np.zeros(6), jac=jac, loss=p.loss, f_scale=p.loss_scale, method="trf",
                         max_nfev=p.max_nfev, x_scale="jac")
@@ -197,20 +279,18 @@ def refine_pose(
     inl: dict[int, int] = {}
     errs: list[F64] = []
     info: list[F64] = []
-    for ob, pts, px, W in used:
-        r, J, _ = _residuals_and_jacobian(T, ob, pts, px)
-        e = np.linalg.norm(r, axis=1)
+    for t in used:
+        _, _, e = t.whitened(T)
         ok = e <= p.inlier_px
         if ok.sum() < p.min_keyframe_inliers:
             continue
-        inl[ob.node] = int(ok.sum())
+        inl[t.ob.node] = int(ok.sum())
         errs.append(e[ok])
-        rw = np.einsum("nij,nj->ni", W[ok], r[ok]).reshape(-1)
-        Jw = (W[ok] @ J[ok]).reshape(-1, 6)
+        rw, Jw, _ = t.whitened(T, ok)
         s2 = max(float(rw @ rw) / max(len(rw) - 6, 1), 1.0)
         info.append(Jw.T @ Jw / s2)
     med = float(np.median(np.concatenate(errs))) if errs else float("nan")
-    theta = viewpoint_angle_rad(T, np.stack([ob.T_map_kf for ob, *_ in used if ob.node in inl])) if inl else 0.0
+    theta = viewpoint_angle_rad(T, np.stack([t.ob.T_map_kf for t in used if t.ob.node in inl])) if inl else 0.0
     cov = joint_covariance(info, p, theta) if info else None
     if len(inl) < p.min_keyframes:
         reason = f"only {len(inl)} keyframe(s) consistent with the joint pose (< {p.min_keyframes})"

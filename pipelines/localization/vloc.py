@@ -242,7 +242,13 @@ class _Query:
         pts = self.points()[i_live]
         ok = np.all(np.isfinite(pts), axis=1)
         kp = np.asarray(self.loc.map.features[node].keypoints, dtype=np.float64)[i_ref[ok]]
-        return KeyframeObservations(node, pts[ok], kp, self.loc.map.K[node], self.loc.map.T_map_camera[node])
+        return KeyframeObservations(node, pts[ok], kp, self.loc.map.K[node], self.loc.map.T_map_camera[node],
+                                    self._map_depth(node, i_ref[ok]))
+
+    def _map_depth(self, node: int, i_kf: NDArray[np.int64]) -> NDArray[np.float64] | None:
+        """The map's depth (metres, NaN = none) at keyframe keypoints `i_kf`, None without."""
+        z = self.loc.map.keypoint_depth(node)
+        return None if z is None else np.asarray(z, np.float64)[i_kf]
 
     def try_guided(self, node: int, T_map_live: NDArray[np.float64], min_matches: int) -> bool:
         """Match `node` by projecting with `T_map_live` (a fresh prior) instead of the matcher;
@@ -274,7 +280,8 @@ class _Query:
         m = self.loc.map
         i_live, i_kf = self._guided(node, T_map_live)
         kp = np.asarray(m.features[node].keypoints, dtype=np.float64)[i_kf]
-        return KeyframeObservations(node, self.points()[i_live], kp, m.K[node], m.T_map_camera[node])
+        return KeyframeObservations(node, self.points()[i_live], kp, m.K[node], m.T_map_camera[node],
+                                    self._map_depth(node, i_kf))
 
 
 class VisualLocalizer:
