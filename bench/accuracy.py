@@ -4,7 +4,8 @@ Runs `VisualLocalizer.process` (the state machine of `litevloc localize`: GL at 
 when lost, LL from the last accepted pose) on every query frame (default 500:1000, all 500;
 a frame without an accepted pose is a failure) for each configuration:
 
-* `joint`    — the defaults: joint multi-keyframe refinement (`pipelines/localization/refine.py`).
+* `joint`    — the defaults: joint multi-keyframe refinement (`pipelines/localization/refine.py`),
+               with the map's keypoint depth as 3D residuals (`localization.refine.map_depth`).
 * `start`    — the starting point of issue #16: single-keyframe PnP pose + separate
                confirmation (`localization.refine.enabled=false`) with the localization block
                the 7scenes preset carried before (thresholds tuned on the query pass) and

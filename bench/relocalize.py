@@ -25,8 +25,9 @@ timed), the same for every LOST episode of the run (forced or not), the GL attem
 verified, wall ms) and the position error of the relocalized pose against ground truth.
 Wall time per simulated second is compared while LOST (GL queries) and while TRACKING
 (LL queries) in the same run. Prints tables, writes JSON (PATH, default
-out/bench/relocalize.json). The machine's load average is recorded: wall times on a
-loaded machine are ratios within the run, not absolute figures.
+out/bench/relocalize.json; every query keeps its reason and each candidate's). The machine's
+load average is recorded: wall times on a loaded machine are ratios within the run, not
+absolute figures.
 """
 
 from __future__ import annotations
@@ -136,7 +137,8 @@ def run_world(world: str, args: argparse.Namespace) -> dict[str, Any]:
             err = float(np.linalg.norm(res.T_map_camera[:3, 3] - T_gt[:3, 3]))
         queries.append({"t": t, "mode": res.mode, "accepted": res.accepted, "wall_s": wall, "err_m": err,
                         "state_before": str(state_before), "state_after": str(loc.state), "fault": kind,
-                        "attempts": len(res.attempts), "event": ev_i,
+                        "attempts": len(res.attempts), "event": ev_i, "reason": res.reason,
+                        "attempt_reasons": [f"{a.node}: {a.reason}" for a in res.attempts],
                         "transitions": [f"{x.from_state}->{x.to_state}" for x in new]})
         if active is not None and active[1] == "jump" and loc.state == TrackingState.TRACKING and res.mode == "global":
             jump_T = None  # GL relocalized: the fused pose follows VLoc again
