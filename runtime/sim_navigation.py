@@ -179,6 +179,7 @@ class _Driver:
         self.records = {g.name: GoalRecord(g.name) for g in goals}
         self.path: list[NDArray[np.float64]] = []
         self.collisions = 0
+        self.collision_xy: list[tuple[float, float]] = []  # true base position at each bump (metres)
         self.last_depth: NDArray[np.float32] | None = None
         self.last_collided = False
         self.trace: list[tuple[Any, ...]] = []
@@ -358,6 +359,9 @@ class _Driver:
 
     def _after(self, step: Any) -> None:
         self.collisions += int(step.collided)
+        if step.collided:
+            x, y = step.T_world_base[:2, 3]
+            self.collision_xy.append((round(float(x), 2), round(float(y), 2)))
         self.last_collided = bool(step.collided)
         if step.collided and self.T_odom_base is not None:
             self._bumper(step.T_world_base)
@@ -499,6 +503,7 @@ def run_navigation(
     path = np.array([p[1:] for p in driver.path])
     t_total = (driver.path[-1][0] - driver.path[0][0]) * 1e-9 if driver.path else 0.0
     extra["trace"] = driver.trace
+    extra["collision_xy"] = driver.collision_xy
     return NavRun(localization, list(driver.records.values()), path, np.array(driver.subgoals_xy).reshape(-1, 2),
                   float(t_total), driver.collisions, time.perf_counter() - t_wall, extra)
 
