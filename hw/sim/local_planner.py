@@ -203,9 +203,11 @@ class LocalPlanner:
         else:
             dmin = np.full(arcs.shape[:2], np.inf)
         # blocked where an arc comes within radius + margin of an obstacle; from a tight spot
-        # (a doorway) arcs that do not get closer than the robot already is are allowed
+        # (a doorway) arcs that get at most 2 cm closer than the robot already is are allowed,
+        # but never within the radius + 5 mm (obstacle points are thinned to voxels: a tighter
+        # arc clipped a door jamb on the floor world)
         here = float(np.sqrt(np.min((pts**2).sum(1)))) if len(pts) else np.inf
-        limit = min(p.robot_radius + p.margin_m, max(here - 0.02, p.robot_radius * 0.8))
+        limit = min(p.robot_radius + p.margin_m, max(here - 0.005, p.robot_radius + 0.005))
         hit = dmin <= limit
         first = np.where(hit.any(axis=1), hit.argmax(axis=1), n_need)  # first blocked sample
         free_len = np.where(first > 0, self.s[np.maximum(first - 1, 0)], 0.0)

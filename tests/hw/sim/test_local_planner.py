@@ -111,3 +111,20 @@ def test_stuck_without_a_drivable_arc_backs_up_then_tries_again() -> None:
     # arriving resets the count
     lp.command(np.array([0.01, 0.0]), None, K, T_BC)
     assert lp.command(np.array([4.0, 0.1]), wall, K, T_BC).reason == "blocked"
+
+
+
+def test_from_a_tight_spot_no_arc_comes_closer_than_the_robot_radius() -> None:
+    """A door jamb 0.32 m to the front-right (just outside the 0.3 m radius), the subgoal past
+    it: the planner may drive an arc that gets 2 cm closer than the robot already is, but never
+    one that passes within the robot's radius (the floor's one bump: a tight turn out of a
+    doorway that the former rule allowed down to 0.8x the radius)."""
+    lp = LocalPlanner()
+    T = np.eye(4)
+    empty = np.full((P.height, P.width), np.nan, np.float32)
+    jamb = np.array([[0.1, -0.3]])
+    lp.add_contacts(jamb, T)
+    c = lp.command(np.array([1.0, -1.0]), empty, K, T_BC, T_odom_base=T)
+    assert c.reason == "arc", c
+    path = arc_points(c.omega / c.v, np.linspace(0.0, 1.0, 400))
+    assert np.min(np.linalg.norm(path - jamb, axis=1)) > lp.params.robot_radius, c
