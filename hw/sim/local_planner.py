@@ -203,7 +203,7 @@ class LocalPlanner:
         else:
             dmin = np.full(arcs.shape[:2], np.inf)
         # blocked where an arc comes within radius + margin of an obstacle; from a tight spot
-        # (a doorway) arcs that get at most 2 cm closer than the robot already is are allowed,
+        # (a doorway) arcs that get at most 5 mm closer than the robot already is are allowed,
         # but never within the radius + 5 mm (obstacle points are thinned to voxels: a tighter
         # arc clipped a door jamb on the floor world)
         here = float(np.sqrt(np.min((pts**2).sum(1)))) if len(pts) else np.inf

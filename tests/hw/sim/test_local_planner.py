@@ -116,7 +116,7 @@ def test_stuck_without_a_drivable_arc_backs_up_then_tries_again() -> None:
 
 def test_from_a_tight_spot_no_arc_comes_closer_than_the_robot_radius() -> None:
     """A door jamb 0.32 m to the front-right (just outside the 0.3 m radius), the subgoal past
-    it: the planner may drive an arc that gets 2 cm closer than the robot already is, but never
+    it: the planner may drive an arc that gets 5 mm closer than the robot already is, but never
     one that passes within the robot's radius (the floor's one bump: a tight turn out of a
     doorway that the former rule allowed down to 0.8x the radius)."""
     lp = LocalPlanner()
