@@ -102,6 +102,17 @@ def _camera_points(T_kf_live: F64, pts: F64) -> F64:
     return pts @ T_kf_live[:3, :3].T + T_kf_live[:3, 3]
 
 
+def _point_jacobian(R: F64, pts: F64) -> F64:
+    """(N, 3, 6) derivative of q = R (exp(w) p + dt) + t, the live points `pts` (N, 3) moved into
+    a keyframe, w.r.t. a right perturbation (dt, w) of the live pose: dq/d(dt) = R,
+    dq/dw = -R [p]x."""
+    skew = np.zeros((len(pts), 3, 3))
+    skew[:, 0, 1], skew[:, 0, 2] = -pts[:, 2], pts[:, 1]
+    skew[:, 1, 0], skew[:, 1, 2] = pts[:, 2], -pts[:, 0]
+    skew[:, 2, 0], skew[:, 2, 1] = -pts[:, 1], pts[:, 0]
+    return np.concatenate([np.broadcast_to(R, (len(pts), 3, 3)), -R @ skew], axis=2)
+
+
 def _residuals_and_jacobian(
     T_map_live: F64, obs: KeyframeObservations, pts: F64, px: F64
 ) -> tuple[F64, F64, F64]:
@@ -120,13 +131,7 @@ def _residuals_and_jacobian(
     dp[:, 0, 2] = -fx * q[:, 0] / z**2
     dp[:, 1, 1] = fy / z
     dp[:, 1, 2] = -fy * q[:, 1] / z**2
-    # q = R (exp(w) p + dt) + t  ->  dq/d(dt) = R, dq/dw = -R [p]x
-    skew = np.zeros((len(pts), 3, 3))
-    skew[:, 0, 1], skew[:, 0, 2] = -pts[:, 2], pts[:, 1]
-    skew[:, 1, 0], skew[:, 1, 2] = pts[:, 2], -pts[:, 0]
-    skew[:, 2, 0], skew[:, 2, 1] = -pts[:, 1], pts[:, 0]
-    dq = np.concatenate([np.broadcast_to(R, (len(pts), 3, 3)), -R @ skew], axis=2)  # (N, 3, 6)
-    J = dp @ dq
+    J = dp @ _point_jacobian(R, pts)
     # live depth z_l scales the point along its ray: dp_live/dz_l = p / z_l
     ray = pts / np.where(np.abs(pts[:, 2:3]) < 1e-6, 1e-6, pts[:, 2:3])
     g = np.einsum("nij,nj->ni", dp, ray @ R.T)
@@ -200,12 +205,7 @@ class _Terms:
             p3 = self.pts[self.use3][sel]
             q = _camera_points(T_kl, p3)
             e = q - self.P_kf[sel]
-            R = T_kl[:3, :3]
-            skew = np.zeros((len(p3), 3, 3))
-            skew[:, 0, 1], skew[:, 0, 2] = -p3[:, 2], p3[:, 1]
-            skew[:, 1, 0], skew[:, 1, 2] = p3[:, 2], -p3[:, 0]
-            skew[:, 2, 0], skew[:, 2, 1] = -p3[:, 1], p3[:, 0]
-            dq = np.concatenate([np.broadcast_to(R, (len(p3), 3, 3)), -R @ skew], axis=2)
+            dq = _point_jacobian(T_kl[:3, :3], p3)
             W = self.W3[sel]
             out_r.append(np.einsum("nij,nj->ni", W, e).reshape(-1))
             out_J.append((W @ dq).reshape(-1, 6))
