@@ -48,7 +48,7 @@ from litevloc.hw.streams.base import parse_frames
 from litevloc.models.types import Features
 from litevloc.pipelines.depth_lookup import depth_at
 from litevloc.pipelines.evaluation.reloc import inside_95_ellipsoids
-from litevloc.pipelines.geometry import backproject_pixels, relative_pose_error, so3_log
+from litevloc.pipelines.geometry import backproject_pixels, project, relative_pose_error, so3_log
 from litevloc.pipelines.localization.refine import viewpoint_angle_rad
 from litevloc.pipelines.localization.vloc import MatchedPixels, VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map
@@ -212,10 +212,8 @@ def gt_reprojection_px(matches: MatchedPixels, depth: NDArray[np.float32] | None
         return float("nan")
     pts = backproject_pixels(K, uv[ok], z[ok])
     T = np.linalg.inv(topomap.T_map_camera[matches.keyframe]) @ T_gt
-    q = pts @ T[:3, :3].T + T[:3, 3]
-    Kk = topomap.K[matches.keyframe]
     with np.errstate(invalid="ignore", divide="ignore"):
-        proj = q[:, :2] / q[:, 2:3] * [Kk[0, 0], Kk[1, 1]] + [Kk[0, 2], Kk[1, 2]]
+        proj = project(topomap.K[matches.keyframe], pts @ T[:3, :3].T + T[:3, 3])
     err = np.linalg.norm(proj - np.asarray(matches.keyframe_px, np.float64)[matches.inlier][ok], axis=1)
     return float(np.median(err))
 

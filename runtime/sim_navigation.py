@@ -178,7 +178,6 @@ class _Driver:
         self.subgoals_xy: list[tuple[float, float]] = []
         self.records = {g.name: GoalRecord(g.name) for g in goals}
         self.path: list[NDArray[np.float64]] = []
-        self.collisions = 0
         self.collision_xy: list[tuple[float, float]] = []  # true base position at each bump (metres)
         self.last_depth: NDArray[np.float32] | None = None
         self.last_collided = False
@@ -358,7 +357,6 @@ class _Driver:
             self._after(step)
 
     def _after(self, step: Any) -> None:
-        self.collisions += int(step.collided)
         if step.collided:
             x, y = step.T_world_base[:2, 3]
             self.collision_xy.append((round(float(x), 2), round(float(y), 2)))
@@ -505,7 +503,7 @@ def run_navigation(
     extra["trace"] = driver.trace
     extra["collision_xy"] = driver.collision_xy
     return NavRun(localization, list(driver.records.values()), path, np.array(driver.subgoals_xy).reshape(-1, 2),
-                  float(t_total), driver.collisions, time.perf_counter() - t_wall, extra)
+                  float(t_total), len(driver.collision_xy), time.perf_counter() - t_wall, extra)
 
 
 def _fused_error(recorder: Any, sim: Simulator, driver: _Driver) -> dict[str, float]:
