@@ -40,6 +40,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
+from litevloc.base.geometry import undistort_normalized
 from litevloc.base.params.calibration import ColorDepthCalibration as ColorDepthCalibration
 from litevloc.pipelines.geometry import (
     invert,
@@ -78,6 +79,10 @@ class CalibrationParams:
     # focal length in this formulation; by default it stays at the initial guess (a prior,
     # e.g. the sensor's nominal baseline) and only intrinsics + rotation are estimated.
     estimate_translation: bool = False
+    # Radial distortion (k1, k2) of the colour lens: a pinhole model leaves a displacement that
+    # grows with the distance from the image centre, so the same point seen at different image
+    # positions from two views disagrees by an amount that grows with the angle between them.
+    estimate_distortion: bool = False
 
     def __post_init__(self) -> None:
         if not self.pair_gaps or min(self.pair_gaps) < 1:
@@ -176,7 +181,25 @@ def _unpack(x: F64) -> tuple[F64, F64]:
 
 def _pack(cal: ColorDepthCalibration) -> F64:
     T = cal.T_color_depth()
-    return np.array([cal.color_fx, cal.color_fy, cal.color_cx, cal.color_cy, *so3_log(T[:3, :3]), *T[:3, 3]])
+    return np.array([cal.color_fx, cal.color_fy, cal.color_cx, cal.color_cy, *so3_log(T[:3, :3]), *T[:3, 3],
+                     cal.color_k1, cal.color_k2])
+
+
+def _color_rays(x: F64, uv: F64) -> F64:
+    """(N, 3) rays (z = 1) of colour pixels `uv` (N, 2) under the parameters `x`
+    (pinhole + radial distortion k1, k2 undone by fixed-point iteration)."""
+    xd = np.stack([(uv[:, 0] - x[2]) / x[0], (uv[:, 1] - x[3]) / x[1]], axis=1)
+    xn = undistort_normalized(xd, float(x[10]), float(x[11]))
+    return np.concatenate([xn, np.ones((len(xn), 1))], axis=1)
+
+
+def _color_project(x: F64, X: F64) -> F64:
+    """(N, 2) colour pixels of colour-camera points X (N, 3) under the parameters `x`."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        xn = X[:, :2] / X[:, 2:3]
+    r2 = np.sum(xn * xn, axis=1, keepdims=True)
+    xd = xn * (1.0 + x[10] * r2 + x[11] * r2 * r2)
+    return np.asarray(xd * [x[0], x[1]] + [x[2], x[3]], dtype=np.float64)
 
 
 def _bilinear(depths: NDArray[np.float32], frame: NDArray[np.intp], uv: F64, edge_rel_tol: float) -> F64:
@@ -207,10 +230,9 @@ def lookup_color_depth(
     there; the raw depth at that pixel (bilinear; NaN on holes/edges) gives the 3D point,
     whose colour-camera z is the next guess (`iterations` times).
     """
-    K, T_cd = _unpack(x)
+    _, T_cd = _unpack(x)
     T_dc = invert(T_cd)
-    rays = np.stack([(corr.uv_a[:, 0] - K[0, 2]) / K[0, 0], (corr.uv_a[:, 1] - K[1, 2]) / K[1, 1],
-                     np.ones(len(corr.uv_a))], axis=1)
+    rays = _color_rays(x, corr.uv_a)
     z = np.asarray(z_guess, dtype=np.float64)
     for _ in range(iterations):
         Xd_guess = (rays * np.nan_to_num(z, nan=1.0)[:, None]) @ T_dc[:3, :3].T + T_dc[:3, 3]
@@ -229,16 +251,13 @@ def reprojection_residuals(x: F64, corr: Correspondences, z_color: F64) -> F64:
 
     Smooth in x (the depth association is held fixed; `lookup_color_depth` refreshes it).
     """
-    K, T_cd = _unpack(x)
+    _, T_cd = _unpack(x)
     T_dc = invert(T_cd)
-    Xc = np.stack([(corr.uv_a[:, 0] - K[0, 2]) / K[0, 0], (corr.uv_a[:, 1] - K[1, 2]) / K[1, 1],
-                   np.ones(len(corr.uv_a))], axis=1) * z_color[:, None]
+    Xc = _color_rays(x, corr.uv_a) * z_color[:, None]
     Xd = Xc @ T_dc[:3, :3].T + T_dc[:3, 3]
     Xdb = np.einsum("nij,nj->ni", corr.T_db_da[:, :3, :3], Xd) + corr.T_db_da[:, :3, 3]
     Xcb = Xdb @ T_cd[:3, :3].T + T_cd[:3, 3]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        proj = Xcb[:, :2] / Xcb[:, 2:3] * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]]
-    return np.asarray(proj - corr.uv_b, dtype=np.float64)
+    return np.asarray(_color_project(x, Xcb) - corr.uv_b, dtype=np.float64)
 
 
 def _rows(corr: Correspondences, rows: NDArray[np.intp]) -> Correspondences:
@@ -274,10 +293,11 @@ def calibrate_color_depth(
         corr, n_pairs = match_pairs(colors, T_world_depth, params)
     x0 = _pack(init)
     x = x0.copy()
-    scale = np.array([10.0, 10.0, 10.0, 10.0, 0.01, 0.01, 0.01, 0.01, 0.01, 0.01])
+    scale = np.array([10.0, 10.0, 10.0, 10.0, 0.01, 0.01, 0.01, 0.01, 0.01, 0.01, 0.01, 0.01])
     z = lookup_color_depth(x, corr, D, Kd, _bilinear(D, corr.frame_a, corr.uv_a, 1e9), params.edge_rel_tol)
     keep = np.isfinite(z)
-    free = np.arange(10) if params.estimate_translation else np.arange(7)
+    free = np.r_[np.arange(7), np.arange(7, 10) if params.estimate_translation else [],
+                 [10, 11] if params.estimate_distortion else []].astype(np.intp)
     sol = None
     for rnd in range(params.rounds):
         rows = np.flatnonzero(keep)
@@ -306,7 +326,8 @@ def calibrate_color_depth(
     r_before = reprojection_residuals(x0, sub, z0)
     e_after = np.linalg.norm(r_after, axis=1)
     e_before = np.linalg.norm(r_before, axis=1)
-    names = ["color_fx", "color_fy", "color_cx", "color_cy", "rot_x", "rot_y", "rot_z", "t_x", "t_y", "t_z"]
+    names = ["color_fx", "color_fy", "color_cx", "color_cy", "rot_x", "rot_y", "rot_z", "t_x", "t_y", "t_z",
+             "color_k1", "color_k2"]
     std: dict[str, float] = {}
     try:
         J = sol.jac
@@ -318,7 +339,7 @@ def calibrate_color_depth(
         pass
     K, T_cd = _unpack(x)
     return CalibrationResult(
-        ColorDepthCalibration.from_arrays(K, T_cd), n_pairs, len(rows),
+        ColorDepthCalibration.from_arrays(K, T_cd, (float(x[10]), float(x[11]))), n_pairs, len(rows),
         float(np.sqrt(np.nanmean(e_before ** 2))), float(np.sqrt(np.nanmean(e_after ** 2))),
         float(np.nanmedian(e_before)), float(np.nanmedian(e_after)), std,
     )

@@ -51,7 +51,8 @@ def open_source(
         if rgbd_calibration is not None:
             return SevenScenesSource(p, frames, strict=strict, K_color=rgbd_calibration.K_color(),
                                      T_color_depth=rgbd_calibration.T_color_depth(),
-                                     depth_dilation=rgbd_calibration.depth_dilation)
+                                     depth_dilation=rgbd_calibration.depth_dilation,
+                                     color_k1_k2=(rgbd_calibration.color_k1, rgbd_calibration.color_k2))
         return SevenScenesSource(p, frames, strict=strict)
     if is_tum_folder(p):
         return TumRgbdSource(p, frames, strict=strict)

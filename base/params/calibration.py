@@ -28,16 +28,23 @@ class ColorDepthCalibration:
     translation_color_depth: tuple[float, float, float] = (0.0, 0.0, 0.0)
     quat_xyzw_color_depth: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
     depth_dilation: bool = False  # cv2.registerDepth: splat each depth point to 2x2 pixels
+    # Radial distortion of the colour lens (OpenCV's k1, k2); frames are undistorted to the
+    # pinhole `K_color` before anything else sees them.
+    color_k1: float = 0.0
+    color_k2: float = 0.0
 
     def __post_init__(self) -> None:
         vals = (self.color_fx, self.color_fy, self.color_cx, self.color_cy,
-                *self.translation_color_depth, *self.quat_xyzw_color_depth)
+                *self.translation_color_depth, *self.quat_xyzw_color_depth, self.color_k1, self.color_k2)
         if not all(np.isfinite(v) for v in vals):
             raise ValueError("colour calibration values must be finite")
         if self.color_fx <= 0 or self.color_fy <= 0:
             raise ValueError(f"color_fx and color_fy must be > 0, got {self.color_fx}, {self.color_fy}")
         if np.linalg.norm(self.translation_color_depth) > 1.0:
             raise ValueError("translation_color_depth is over 1 m: not a colour/depth pair of one sensor")
+        if abs(self.color_k1) > 1.0 or abs(self.color_k2) > 2.0:
+            raise ValueError(f"color_k1 / color_k2 ({self.color_k1}, {self.color_k2}) are beyond a "
+                             "pinhole-like lens (|k1| <= 1, |k2| <= 2)")
         n = float(np.linalg.norm(self.quat_xyzw_color_depth))
         if abs(n - 1.0) > 1e-3:
             raise ValueError(f"quat_xyzw_color_depth must be a unit quaternion (x, y, z, w), norm is {n:.6f}")
@@ -52,10 +59,13 @@ class ColorDepthCalibration:
         return make_T(R, np.asarray(self.translation_color_depth))
 
     @staticmethod
-    def from_arrays(K_color: NDArray[np.floating], T_color_depth: NDArray[np.floating]) -> ColorDepthCalibration:
+    def from_arrays(
+        K_color: NDArray[np.floating], T_color_depth: NDArray[np.floating], k1_k2: tuple[float, float] = (0.0, 0.0),
+    ) -> ColorDepthCalibration:
         K = np.asarray(K_color, dtype=np.float64)
         T = np.asarray(T_color_depth, dtype=np.float64)
         q = matrix_to_quat_xyzw(T[:3, :3])
         return ColorDepthCalibration(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]),
                                      (float(T[0, 3]), float(T[1, 3]), float(T[2, 3])),
-                                     (float(q[0]), float(q[1]), float(q[2]), float(q[3])))
+                                     (float(q[0]), float(q[1]), float(q[2]), float(q[3])),
+                                     color_k1=float(k1_k2[0]), color_k2=float(k1_k2[1]))

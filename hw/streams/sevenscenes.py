@@ -63,6 +63,7 @@ class SevenScenesSource(PosedFolderSource):
     def __init__(
         self, folder: str | Path, frames: slice = slice(None), strict: bool = True,
         K_color: np.ndarray | None = None, T_color_depth: np.ndarray | None = None, depth_dilation: bool = False,
+        color_k1_k2: tuple[float, float] = (0.0, 0.0),
     ) -> None:
         root = Path(folder)
         if (K_color is None) != (T_color_depth is None):
@@ -106,6 +107,10 @@ class SevenScenesSource(PosedFolderSource):
         self.K_depth = K_depth
         self.T_color_depth = None if T_depth_color is None else invert(T_depth_color)
         self.depth_dilation = depth_dilation
+        if any(color_k1_k2) and K_color is None:
+            raise StreamError("7-Scenes colour distortion needs the colour intrinsics (K_color) too")
+        self.color_k1_k2 = (float(color_k1_k2[0]), float(color_k1_k2[1]))
+        self._undistort_maps: tuple[np.ndarray, np.ndarray] | None = None
         super().__init__(f"7scenes:{root.name}", records, K_depth if K_color is None else K_color, 1000.0, frames,
                          strict)
         for reason in pose_problems:
@@ -114,8 +119,23 @@ class SevenScenesSource(PosedFolderSource):
     def decode(self, rec: FrameRecord) -> RgbdFrame:
         """Decode one frame; with a calibration, depth is registered to the colour camera."""
         frame = super().decode(rec)
+        if any(self.color_k1_k2):
+            frame = dataclasses.replace(frame, color=self._undistort(frame.color))
         if self.T_color_depth is None or frame.depth is None:
             return frame
         depth = register_depth(frame.depth, self.K_depth, self.K, self.T_color_depth,
                                (frame.width, frame.height), self.depth_dilation)
         return dataclasses.replace(frame, depth=depth)
+
+    def _undistort(self, color: np.ndarray) -> np.ndarray:
+        """The colour image resampled to the pinhole camera `K_color` (radial k1, k2 removed)."""
+        import cv2
+
+        h, w = color.shape[:2]
+        if self._undistort_maps is None or self._undistort_maps[0].shape != (h, w):
+            K = np.asarray(self.K, dtype=np.float64)
+            dist = np.array([self.color_k1_k2[0], self.color_k1_k2[1], 0.0, 0.0, 0.0])
+            m1, m2 = cv2.initUndistortRectifyMap(K, dist, None, K, (w, h), cv2.CV_32FC1)
+            self._undistort_maps = (m1, m2)
+        m1, m2 = self._undistort_maps
+        return np.ascontiguousarray(cv2.remap(color, m1, m2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE))

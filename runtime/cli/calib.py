@@ -32,6 +32,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "(default: Kinect v1 nominal, colour camera 2.5 cm along +x of the depth camera)")
     p.add_argument("--estimate-translation", action="store_true",
                    help="also estimate the translation (weakly observable; see pipelines/calibration.py)")
+    p.add_argument("--estimate-distortion", action="store_true",
+                   help="also estimate the colour lens's radial distortion k1, k2")
     p.add_argument("--pair-gaps", type=int, nargs="+", default=None, metavar="N",
                    help="pair each frame with the one N positions later in the selected frames (default: "
                         f"{' '.join(map(str, CalibrationParams.pair_gaps))}: wide viewpoint changes, like a "
@@ -59,7 +61,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         gaps = CalibrationParams.pair_gaps if args.pair_gaps is None else tuple(args.pair_gaps)
         params = CalibrationParams(pair_gaps=gaps, min_parallax_m=0.02,
-                                   estimate_translation=args.estimate_translation)
+                                   estimate_translation=args.estimate_translation,
+                                   estimate_distortion=args.estimate_distortion)
     except ValueError as exc:
         raise UserError(str(exc)) from exc
     K = np.asarray(K_depth)
@@ -80,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
     args.output.write_text(header + yaml.safe_dump({"rgbd_calibration": block}, sort_keys=False))
     print(f"colour K: fx {cal.color_fx:.1f} fy {cal.color_fy:.1f} cx {cal.color_cx:.1f} cy {cal.color_cy:.1f}; "
           f"T_color_depth t {np.round(cal.translation_color_depth, 4).tolist()} "
-          f"q_xyzw {np.round(cal.quat_xyzw_color_depth, 5).tolist()}")
+          f"q_xyzw {np.round(cal.quat_xyzw_color_depth, 5).tolist()}; k1 {cal.color_k1:.4f} k2 {cal.color_k2:.4f}")
     print(f"median reprojection error {res.median_before_px:.2f} px -> {res.median_after_px:.2f} px "
           f"over {res.n_residuals} correspondences of {res.n_pairs} pairs -> {args.output}")
     write_json(args.json, {"calibration": dataclasses.asdict(cal), "n_pairs": res.n_pairs,

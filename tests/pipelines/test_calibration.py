@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from litevloc.base.geometry import undistort_normalized
 from litevloc.config import load_config
 from litevloc.pipelines import calibration as cal
 from litevloc.pipelines.calibration import (
@@ -40,13 +41,20 @@ def _plane_depth(T_world_depth: np.ndarray, n_w: np.ndarray, d_w: float) -> np.n
     return z.astype(np.float32)
 
 
-def test_recovers_known_calibration_from_synthetic_correspondences() -> None:
+def _distort(uv_n: np.ndarray, k1: float, k2: float) -> np.ndarray:
+    r2 = np.sum(uv_n * uv_n, axis=1, keepdims=True)
+    return uv_n * (1 + k1 * r2 + k2 * r2 * r2)
+
+
+@pytest.mark.parametrize("k1_k2", [(0.0, 0.0), (-0.07, 0.02)])
+def test_recovers_known_calibration_from_synthetic_correspondences(k1_k2: tuple[float, float]) -> None:
     rng = np.random.default_rng(0)
     truth = ColorDepthCalibration.from_arrays(
         np.array([[521.0, 0.0, 313.0], [0.0, 517.0, 231.0], [0.0, 0.0, 1.0]]),
-        make_T(so3_exp(np.array([-0.02, -0.015, 0.004])), np.array([-0.025, 0.002, 0.001])),
+        make_T(so3_exp(np.array([-0.02, -0.015, 0.004])), np.array([-0.025, 0.002, 0.001])), k1_k2,
     )
     Kc, T_cd = truth.K_color(), truth.T_color_depth()
+    k1, k2 = k1_k2
     n_w, d_w = np.array([0.1, -0.2, 1.0]) / np.linalg.norm([0.1, -0.2, 1.0]), 3.0  # a tilted wall ~3 m ahead
     poses = [make_T(so3_exp(rng.normal(0, 0.08, 3)), rng.normal(0, 0.15, 3)) for _ in range(6)]
     depths = [_plane_depth(T, n_w, d_w) for T in poses]
@@ -58,12 +66,13 @@ def test_recovers_known_calibration_from_synthetic_correspondences() -> None:
             # points on the plane seen by colour camera a
             uv = rng.uniform([40, 40], [W - 40, H - 40], (150, 2))
             T_w_ca = poses[a] @ invert(T_cd)
-            ray_w = (np.c_[(uv - Kc[:2, 2]) / [Kc[0, 0], Kc[1, 1]], np.ones(len(uv))]) @ T_w_ca[:3, :3].T
+            xn = undistort_normalized((uv - Kc[:2, 2]) / [Kc[0, 0], Kc[1, 1]], k1, k2)
+            ray_w = (np.c_[xn, np.ones(len(uv))]) @ T_w_ca[:3, :3].T
             s = (d_w - n_w @ T_w_ca[:3, 3]) / (ray_w @ n_w)
             X_w = T_w_ca[:3, 3] + ray_w * s[:, None]
             T_cb_w = T_cd @ invert(poses[b])
             Xb = X_w @ T_cb_w[:3, :3].T + T_cb_w[:3, 3]
-            uvb = Xb[:, :2] / Xb[:, 2:3] * [Kc[0, 0], Kc[1, 1]] + Kc[:2, 2]
+            uvb = _distort(Xb[:, :2] / Xb[:, 2:3], k1, k2) * [Kc[0, 0], Kc[1, 1]] + Kc[:2, 2]
             inside = np.all((uvb > 0) & (uvb < [W - 1, H - 1]), axis=1)
             fa.append(np.full(inside.sum(), a))
             ua.append(uv[inside])
@@ -72,11 +81,13 @@ def test_recovers_known_calibration_from_synthetic_correspondences() -> None:
     corr = Correspondences(np.concatenate(fa), np.concatenate(ua), np.concatenate(ub), np.concatenate(Ts))
     init = ColorDepthCalibration(585.0, 585.0, 320.0, 240.0, truth.translation_color_depth)
     colors = [np.zeros((H, W, 3), np.uint8)] * 6
-    res = calibrate_color_depth(colors, depths, np.stack(poses), K_DEPTH, init, CalibrationParams(rounds=4), corr)
+    params = CalibrationParams(rounds=4, estimate_distortion=any(k1_k2))
+    res = calibrate_color_depth(colors, depths, np.stack(poses), K_DEPTH, init, params, corr)
     got = res.calibration
     assert res.median_after_px < 0.05 < 5 < res.median_before_px
     np.testing.assert_allclose([got.color_fx, got.color_fy, got.color_cx, got.color_cy], [521, 517, 313, 231],
                                atol=0.5)
+    np.testing.assert_allclose([got.color_k1, got.color_k2], k1_k2, atol=0.01)
     dt, dr = relative_pose_error(got.T_color_depth(), T_cd)
     assert dr < 0.05 and dt < 1e-9  # degrees; the translation is the fixed (true) prior
 
@@ -143,3 +154,5 @@ def test_calibration_rejects_bad_values() -> None:
         ColorDepthCalibration(0.0, 500.0, 320.0, 240.0)
     with pytest.raises(ValueError, match="unit quaternion"):
         ColorDepthCalibration(500.0, 500.0, 320.0, 240.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 2.0))
+    with pytest.raises(ValueError, match="color_k1"):
+        ColorDepthCalibration(500.0, 500.0, 320.0, 240.0, color_k1=3.0)

@@ -120,3 +120,33 @@ def test_calibrated_reader_registers_depth_and_moves_ground_truth(seven_scenes_d
     np.testing.assert_allclose(same[0].depth, f_raw.depth, equal_nan=True)
     with pytest.raises(StreamError, match="both"):
         SevenScenesSource(seven_scenes_dir, parse_frames("20:21"), K_color=K_color)
+
+
+def test_colour_distortion_is_removed_to_the_pinhole_intrinsics(seven_scenes_dir: Path) -> None:
+    """With k1, k2 the colour image is resampled so that a pixel p of the output shows what
+    the lens put at distort(p): the centre stays, the corners move by the model's amount."""
+    import cv2
+
+    K = np.array([[520.0, 0.0, 315.0], [0.0, 520.0, 225.0], [0.0, 0.0, 1.0]])
+    k1, k2 = -0.07, 0.02
+    raw = list(SevenScenesSource(seven_scenes_dir, parse_frames("20:21"), K_color=K, T_color_depth=np.eye(4)))
+    und = list(SevenScenesSource(seven_scenes_dir, parse_frames("20:21"), K_color=K, T_color_depth=np.eye(4),
+                                 color_k1_k2=(k1, k2)))
+    f_raw, f_und = raw[0], und[0]
+    assert isinstance(f_raw, RgbdFrame) and isinstance(f_und, RgbdFrame)
+    assert f_und.color.shape == f_raw.color.shape and f_und.color.dtype == np.uint8
+    np.testing.assert_array_equal(f_und.K, K)
+    # a patch near a corner of the output equals the raw image around the distorted position
+    u, v = 80.0, 70.0
+    xn = np.array([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1]])
+    r2 = float(xn @ xn)
+    ud, vd = xn * (1 + k1 * r2 + k2 * r2 * r2) * K[0, 0] + K[:2, 2]
+    assert np.hypot(ud - u, vd - v) > 5  # the model moves this pixel by several pixels
+    g_raw = cv2.cvtColor(f_raw.color, cv2.COLOR_RGB2GRAY).astype(np.float32)
+    g_und = cv2.cvtColor(f_und.color, cv2.COLOR_RGB2GRAY).astype(np.float32)
+    patch = g_und[int(v) - 8:int(v) + 9, int(u) - 8:int(u) + 9]
+    moved = cv2.getRectSubPix(g_raw, (17, 17), (float(ud), float(vd)))
+    unmoved = g_raw[int(v) - 8:int(v) + 9, int(u) - 8:int(u) + 9]
+    assert np.abs(patch - moved).mean() < 0.5 * np.abs(patch - unmoved).mean()
+    with pytest.raises(StreamError, match="distortion"):
+        SevenScenesSource(seven_scenes_dir, parse_frames("20:21"), color_k1_k2=(k1, k2))
