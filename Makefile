@@ -107,6 +107,8 @@ bench: $(VENV)/.dev-installed models $(BENCH_7S_MAP)/manifest.json
 	$(VENV)/bin/python bench/merge.py
 	$(VENV)/bin/python bench/update.py
 	$(VENV)/bin/python bench/accuracy.py --map $(BENCH_7S_MAP)
+	@if [ -n "$(PGT)" ]; then $(VENV)/bin/python bench/pgt_agreement.py --pgt "$(PGT)"; \
+	else echo "bench/pgt_agreement.py skipped: needs PGT=<SfM pose file of redkitchen> (see its docstring)"; fi
 	$(VENV)/bin/python bench/scale.py
 	$(VENV)/bin/python bench/relocalize.py
 	$(VENV)/bin/python bench/loop.py
