@@ -6,9 +6,13 @@ ground plane (base frame), a fan of constant-(v, omega) arcs (motion primitives)
 rolled out over a short horizon, arcs that pass within the robot radius plus a margin
 of an obstacle point are discarded, and the remaining arc whose end lands closest to the
 subgoal (with penalties for low clearance and turning) is driven. A subgoal far to the
-side or behind is first faced by turning in place. The camera only sees ahead, so the
-obstacle points of the last few frames are kept in the odometry frame (short-term memory,
-drift over a few seconds is negligible) to remember door frames that left the view.
+side or behind is first faced by turning in place. The camera only sees ahead (and nothing
+closer than its minimum depth), so obstacle points are kept in the odometry frame as a rolling
+local map (one point per voxel, the newest sighting wins) while they are within
+`memory_radius_m` of the robot and were seen less than `memory_travel_m` of driving ago: a
+door jamb seen on the way in stays known while the robot turns in the doorway, however long
+it turns (a memory of the last N frames forgot it after a few back-and-forth turns), and
+odometry drift over a few metres of driving is negligible.
 Contacts (a bumper: where the robot touched something, `add_contacts`) are kept the same way
 and block arcs like seen obstacles: a door frame beside the robot, which the forward camera
 cannot see, is otherwise driven into again and again.
@@ -47,9 +51,8 @@ class LocalPlannerParams:
     clearance_m: float = 0.7  # clearance below this is penalised
     w_clearance: float = 3.0
     w_turn: float = 0.1
-    memory_frames: int = 12  # obstacle points of the last N frames taken >= memory_step apart (odometry)
-    memory_step_m: float = 0.1
-    memory_step_deg: float = 8.0
+    memory_radius_m: float = 3.0  # remembered obstacle points farther from the robot are dropped
+    memory_travel_m: float = 4.0  # ... and those seen more than this much driving ago (0: no memory)
     voxel_m: float = 0.05  # obstacle points are thinned to one per voxel
     contact_points: int = 64  # bumper contacts remembered (odometry frame), newest kept
     # Recovery: after this many consecutive commands without a drivable arc (blocked / turned
@@ -57,6 +60,11 @@ class LocalPlannerParams:
     # way the robot came (free: it just drove there) for `recover_commands` commands.
     recover_after: int = 15
     recover_commands: int = 8
+    # After a blocked command, arcs are tried for this many commands even when the subgoal is
+    # far to the side: an obstacle straight ahead of a subgoal (a box in front of a door) is
+    # then driven around instead of faced again and again (turn to the subgoal, blocked, turn
+    # away, turn back).
+    detour_commands: int = 10
 
     def __post_init__(self) -> None:
         if not 0 < self.min_speed <= self.max_speed:
@@ -67,6 +75,8 @@ class LocalPlannerParams:
             raise ValueError("need lookahead_m > 0, time_to_end_s > 0 and min_progress_m >= 0")
         if self.robot_radius <= 0 or self.margin_m < 0 or self.stride_px < 1:
             raise ValueError("need robot_radius > 0, margin_m >= 0 and stride_px >= 1")
+        if self.memory_radius_m <= 0 or self.memory_travel_m < 0:
+            raise ValueError("need memory_radius_m > 0 and memory_travel_m >= 0")
         if not self.height_band_m[0] < self.height_band_m[1]:
             raise ValueError("height_band_m must be (low, high) with low < high")
 
@@ -119,11 +129,14 @@ class LocalPlanner:
         self.kappas = np.linspace(-p.max_curvature, p.max_curvature, p.n_arcs)
         self.s = np.linspace(p.lookahead_m / p.samples, p.lookahead_m, p.samples)
         self.arcs = np.stack([arc_points(k, self.s) for k in self.kappas])  # (A, n, 2)
-        self.memory: list[NDArray[np.float64]] = []  # (M, 2) obstacle points, odometry frame
-        self._mem_pose: NDArray[np.float64] | None = None  # x, y, yaw of the last stored frame
+        self.memory = np.zeros((0, 2))  # (M, 2) obstacle points, odometry frame
+        self._mem_odometer = np.zeros(0)  # (M,) odometer reading (m driven) when each was last seen
+        self._odometer = 0.0  # metres driven so far (odometry)
+        self._last_xy: NDArray[np.float64] | None = None
         self._turn_sign = 0.0  # while blocked, keep turning the same way (no dithering)
         self.contacts = np.zeros((0, 2))  # (C, 2) bumper contact points, odometry frame
         self._stuck = 0  # consecutive commands without a drivable arc
+        self._detour = 0  # commands left in which arcs are tried whatever the subgoal's bearing
         self._reversing = 0  # recovery commands left
 
     def add_contacts(self, pts_base: NDArray[np.floating], T_odom_base: NDArray[np.floating]) -> None:
@@ -134,22 +147,27 @@ class LocalPlanner:
         self.contacts = np.concatenate([self.contacts, pts])[-self.params.contact_points:]
 
     def _remember(self, pts_base: NDArray[np.float64], T_odom_base: NDArray[np.floating]) -> NDArray[np.float64]:
-        """Store this frame's points (odom frame); all remembered points in the base frame."""
+        """Merge this frame's (N, 2) points (base frame) into the rolling local map (odometry
+        frame); returns every remembered point in the base frame."""
         T = np.asarray(T_odom_base, np.float64)
         c, s_ = T[0, 0], T[1, 0]
-        n = np.hypot(c, s_)
-        R = np.array([[c, -s_], [s_, c]]) / max(n, 1e-12)
+        R = np.array([[c, -s_], [s_, c]]) / max(float(np.hypot(c, s_)), 1e-12)
         p = self.params
-        cur = pts_base @ R.T + T[:2, 3]
-        last = self._mem_pose
-        moved = last is None or np.hypot(*(T[:2, 3] - last[:2])) >= p.memory_step_m or \
-            abs(np.angle(np.exp(1j * (np.arctan2(s_, c) - last[2])))) >= np.radians(p.memory_step_deg)
-        if moved:
-            self.memory.append(cur)
-            self.memory = self.memory[-p.memory_frames:]
-            self._mem_pose = np.array([T[0, 3], T[1, 3], np.arctan2(s_, c)])
-        allp = np.concatenate([*self.memory, cur]) if self.memory else cur
-        return (allp - T[:2, 3]) @ R
+        xy = T[:2, 3].copy()
+        if self._last_xy is not None:
+            self._odometer += float(np.hypot(*(xy - self._last_xy)))
+        self._last_xy = xy
+        cur = pts_base @ R.T + xy
+        pts = np.concatenate([cur, self.memory])
+        seen = np.concatenate([np.full(len(cur), self._odometer), self._mem_odometer])
+        keep = (np.hypot(*(pts - xy).T) <= p.memory_radius_m) & (self._odometer - seen <= p.memory_travel_m)
+        pts, seen = pts[keep], seen[keep]
+        if len(pts):  # one point per voxel; the current frame's come first, so they win
+            _, idx = np.unique(np.floor(pts / p.voxel_m).astype(np.int64), axis=0, return_index=True)
+            idx = np.sort(idx)
+            pts, seen = pts[idx], seen[idx]
+        self.memory, self._mem_odometer = pts, seen
+        return np.asarray((pts - xy) @ R, dtype=np.float64)
 
     def _thin(self, pts: NDArray[np.float64]) -> NDArray[np.float64]:
         if len(pts) == 0:
@@ -167,8 +185,8 @@ class LocalPlanner:
         p = self.params
         g = np.asarray(goal_xy, np.float64)[:2]
         pts = np.zeros((0, 2)) if depth is None else self._thin(obstacle_points(depth, K, T_base_camera, p))
-        if T_odom_base is not None and p.memory_frames > 0:
-            pts = self._thin(self._remember(pts, T_odom_base))
+        if T_odom_base is not None and p.memory_travel_m > 0:
+            pts = self._remember(pts, T_odom_base)
         if T_odom_base is not None and len(self.contacts):
             T = np.asarray(T_odom_base, np.float64)
             pts = np.concatenate([pts, (self.contacts - T[:2, 3]) @ T[:2, :2]])
@@ -191,8 +209,9 @@ class LocalPlanner:
         and the obstacle points `pts` (M, 2, base frame)."""
         p = self.params
         bearing = float(np.arctan2(g[1], g[0]))
-        if abs(bearing) > np.radians(p.turn_in_place_deg):
+        if abs(bearing) > np.radians(p.turn_in_place_deg) and self._detour == 0:
             return Command(0.0, float(np.clip(p.turn_gain * bearing, -p.max_omega, p.max_omega)), "turn")
+        self._detour = max(0, self._detour - 1)
         need = min(dist, p.lookahead_m)
         n_need = int(np.searchsorted(self.s, need - 1e-9)) + 1  # samples up to the subgoal
         arcs = self.arcs[:, :n_need]
@@ -221,6 +240,7 @@ class LocalPlanner:
                                "squeeze")
             if self._turn_sign == 0.0:
                 self._turn_sign = 1.0 if bearing >= 0 else -1.0
+            self._detour = p.detour_commands
             return Command(0.0, self._turn_sign * 0.6 * p.max_omega, "blocked")
         self._turn_sign = 0.0
         idx = np.arange(len(self.kappas))

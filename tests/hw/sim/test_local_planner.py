@@ -80,6 +80,32 @@ def test_memory_keeps_obstacles_that_left_the_view() -> None:
     assert len(pts) > 10 and np.median(pts[:, 1]) < -1.0  # to the right (-y) of the turned robot
 
 
+def _yawed(yaw_deg: float, x: float = 0.0) -> np.ndarray:
+    T = np.eye(4)
+    a = np.radians(yaw_deg)
+    T[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+    T[0, 3] = x
+    return T
+
+
+def test_memory_outlasts_turning_back_and_forth_in_place() -> None:
+    """Seen once on the way in, a wall stays known through any amount of turning in place
+    (a memory of the last N frames lost it after a few back-and-forth sweeps: the door jamb
+    hit on the floor world), and is forgotten once the robot has driven on."""
+    lp = LocalPlanner()
+    empty = np.full((P.height, P.width), np.nan, np.float32)
+    lp.command(np.array([4.0, 0.0]), wall_depth(1.0, x_from=0.0), K, T_BC, T_odom_base=np.eye(4))
+    n0 = len(lp._remember(np.zeros((0, 2)), np.eye(4)))
+    assert n0 > 10
+    for k in range(200):  # sweep +-60 deg in 8-deg steps, seeing nothing
+        lp.command(np.array([4.0, 0.0]), empty, K, T_BC, T_odom_base=_yawed(60 * np.sin(k * 0.14)))
+    pts = lp._remember(np.zeros((0, 2)), np.eye(4))
+    assert len(pts) == n0 and np.median(pts[:, 0]) > 0.5  # still ahead of the (unturned) robot
+    for x in np.arange(0.2, 6.0, 0.2):  # drive away (backwards, along -x): out of radius and travel
+        lp.command(np.array([4.0, 0.0]), empty, K, T_BC, T_odom_base=_yawed(0.0, -x))
+    assert len(lp._remember(np.zeros((0, 2)), _yawed(0.0, -6.0))) == 0
+
+
 def test_bumper_contacts_block_arcs_the_camera_cannot_see() -> None:
     """A door frame touched on the right, out of view: arcs into it are refused afterwards."""
     lp = LocalPlanner()
@@ -128,3 +154,21 @@ def test_from_a_tight_spot_no_arc_comes_closer_than_the_robot_radius() -> None:
     assert c.reason == "arc", c
     path = arc_points(c.omega / c.v, np.linspace(0.0, 1.0, 400))
     assert np.min(np.linalg.norm(path - jamb, axis=1)) > lp.params.robot_radius, c
+
+
+def test_after_being_blocked_arcs_are_tried_before_facing_the_subgoal_again() -> None:
+    """A box right in front and the subgoal behind it: once blocked, the planner drives an
+    arc around the box for a while instead of turning straight back to face it (the
+    floor world's ground-truth run dithered in front of a box for 30 s and gave up)."""
+    wall = np.stack([np.full(41, 0.45), np.linspace(-1.0, 1.0, 41)], 1)  # across the whole front
+    box = np.stack([np.full(21, 0.8), np.linspace(0.0, 1.0, 21)], 1)  # ahead-left; the right side is open
+    side_goal = np.array([0.5, 1.4])  # 70 deg to the left: normally faced by turning in place
+    fresh = LocalPlanner()
+    assert fresh._choose(side_goal, float(np.hypot(*side_goal)), box).reason == "turn"
+    lp = LocalPlanner()
+    assert lp._choose(np.array([2.0, 0.3]), 2.0, wall).reason == "blocked"
+    c = lp._choose(side_goal, float(np.hypot(*side_goal)), box)
+    assert c.reason == "arc" and c.v > 0
+    for _ in range(LocalPlannerParams().detour_commands):  # the detour ends: the subgoal is faced again
+        c = lp._choose(side_goal, float(np.hypot(*side_goal)), box)
+    assert c.reason == "turn"
