@@ -4,7 +4,8 @@ Problem: datasets like 7-Scenes publish one approximate intrinsics matrix (that 
 depth camera) and ground-truth poses of the *depth* camera (KinectFusion), while the
 colour camera has its own intrinsics and sits a few cm away. This module estimates
 
-* the colour intrinsics `K_color` (fx, fy, cx, cy; pinhole, no distortion), and
+* the colour intrinsics `K_color` (fx, fy, cx, cy; pinhole, with the lens's radial distortion
+  k1, k2 too when `estimate_distortion`), and
 * the rigid extrinsic `T_color_depth` (maps depth-camera points to the colour camera),
 
 given colour images, raw depth images (in the depth camera), depth-camera poses and the

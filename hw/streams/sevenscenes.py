@@ -17,6 +17,8 @@ depth-camera poses; the colour camera has other intrinsics and sits a few cm awa
   colour camera with OpenCV's `registerDepth` (`pipelines.geometry.register_depth`), frames
   carry `K_color`, and ground-truth poses become colour-camera poses
   `T_world_color = T_world_depth @ inv(T_color_depth)`.
+  With the lens's radial distortion (`color_k1_k2`), colour images are first resampled to the
+  pinhole `K_color` (OpenCV `initUndistortRectifyMap` + `remap`).
 
 The published pose matrices are not exactly orthonormal (rotation blocks deviate from
 SO(3) by up to ~1e-4). They are projected onto SO(3) (nearest rotation, SVD) on read, so
