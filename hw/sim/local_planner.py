@@ -9,10 +9,10 @@ subgoal (with penalties for low clearance and turning) is driven. A subgoal far 
 side or behind is first faced by turning in place. The camera only sees ahead (and nothing
 closer than its minimum depth), so obstacle points are kept in the odometry frame as a rolling
 local map (one point per voxel, the newest sighting wins) while they are within
-`memory_radius_m` of the robot and were seen less than `memory_travel_m` of driving ago: a
-door jamb seen on the way in stays known while the robot turns in the doorway, however long
-it turns (a memory of the last N frames forgot it after a few back-and-forth turns), and
-odometry drift over a few metres of driving is negligible.
+`memory_radius_m` of the robot and were seen less than `memory_travel_m` of odometry ago
+(metres driven plus `memory_m_per_rad` per radian turned, so that drift stays a few cm): a
+door jamb seen on the way in stays known while the robot turns in the doorway for a while (a
+memory of the last N frames forgot it after a few back-and-forth turns).
 Contacts (a bumper: where the robot touched something, `add_contacts`) are kept the same way
 and block arcs like seen obstacles: a door frame beside the robot, which the forward camera
 cannot see, is otherwise driven into again and again.
@@ -51,8 +51,14 @@ class LocalPlannerParams:
     clearance_m: float = 0.7  # clearance below this is penalised
     w_clearance: float = 3.0
     w_turn: float = 0.1
-    memory_radius_m: float = 3.0  # remembered obstacle points farther from the robot are dropped
-    memory_travel_m: float = 4.0  # ... and those seen more than this much driving ago (0: no memory)
+    # Remembered obstacle points farther from the robot than memory_radius_m are dropped, and so
+    # are those seen more than memory_travel_m of odometry ago, where a radian turned counts as
+    # memory_m_per_rad metres (0 travel: no memory). Odometry drifts ~1.5 deg per metre driven and
+    # ~0.6 deg per radian turned (the simulator's drift model), so a radian turned drifts like
+    # ~0.4 m driven; after 1.5 m a point 2 m away has moved by up to ~8 cm.
+    memory_radius_m: float = 2.5
+    memory_travel_m: float = 1.5
+    memory_m_per_rad: float = 0.4
     voxel_m: float = 0.05  # obstacle points are thinned to one per voxel
     contact_points: int = 64  # bumper contacts remembered (odometry frame), newest kept
     # Recovery: after this many consecutive commands without a drivable arc (blocked / turned
@@ -75,8 +81,8 @@ class LocalPlannerParams:
             raise ValueError("need lookahead_m > 0, time_to_end_s > 0 and min_progress_m >= 0")
         if self.robot_radius <= 0 or self.margin_m < 0 or self.stride_px < 1:
             raise ValueError("need robot_radius > 0, margin_m >= 0 and stride_px >= 1")
-        if self.memory_radius_m <= 0 or self.memory_travel_m < 0:
-            raise ValueError("need memory_radius_m > 0 and memory_travel_m >= 0")
+        if self.memory_radius_m <= 0 or self.memory_travel_m < 0 or self.memory_m_per_rad < 0:
+            raise ValueError("need memory_radius_m > 0, memory_travel_m >= 0 and memory_m_per_rad >= 0")
         if not self.height_band_m[0] < self.height_band_m[1]:
             raise ValueError("height_band_m must be (low, high) with low < high")
 
@@ -131,8 +137,8 @@ class LocalPlanner:
         self.arcs = np.stack([arc_points(k, self.s) for k in self.kappas])  # (A, n, 2)
         self.memory = np.zeros((0, 2))  # (M, 2) obstacle points, odometry frame
         self._mem_odometer = np.zeros(0)  # (M,) odometer reading (m driven) when each was last seen
-        self._odometer = 0.0  # metres driven so far (odometry)
-        self._last_xy: NDArray[np.float64] | None = None
+        self._odometer = 0.0  # odometry so far: metres driven + memory_m_per_rad x radians turned
+        self._last_pose: NDArray[np.float64] | None = None  # x, y, yaw (odometry)
         self._turn_sign = 0.0  # while blocked, keep turning the same way (no dithering)
         self.contacts = np.zeros((0, 2))  # (C, 2) bumper contact points, odometry frame
         self._stuck = 0  # consecutive commands without a drivable arc
@@ -154,9 +160,11 @@ class LocalPlanner:
         R = np.array([[c, -s_], [s_, c]]) / max(float(np.hypot(c, s_)), 1e-12)
         p = self.params
         xy = T[:2, 3].copy()
-        if self._last_xy is not None:
-            self._odometer += float(np.hypot(*(xy - self._last_xy)))
-        self._last_xy = xy
+        yaw = float(np.arctan2(s_, c))
+        if self._last_pose is not None:
+            turned = abs(float(np.angle(np.exp(1j * (yaw - self._last_pose[2])))))
+            self._odometer += float(np.hypot(*(xy - self._last_pose[:2]))) + p.memory_m_per_rad * turned
+        self._last_pose = np.array([xy[0], xy[1], yaw])
         cur = pts_base @ R.T + xy
         pts = np.concatenate([cur, self.memory])
         seen = np.concatenate([np.full(len(cur), self._odometer), self._mem_odometer])

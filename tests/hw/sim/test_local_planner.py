@@ -89,21 +89,27 @@ def _yawed(yaw_deg: float, x: float = 0.0) -> np.ndarray:
 
 
 def test_memory_outlasts_turning_back_and_forth_in_place() -> None:
-    """Seen once on the way in, a wall stays known through any amount of turning in place
-    (a memory of the last N frames lost it after a few back-and-forth sweeps: the door jamb
-    hit on the floor world), and is forgotten once the robot has driven on."""
+    """Seen once on the way in, a wall stays known through a back-and-forth sweep in place
+    (a memory of the last N frames lost it: the door jamb hit on the floor world), and is
+    forgotten once the robot has turned or driven on long enough for odometry to drift."""
     lp = LocalPlanner()
     empty = np.full((P.height, P.width), np.nan, np.float32)
     lp.command(np.array([4.0, 0.0]), wall_depth(1.0, x_from=0.0), K, T_BC, T_odom_base=np.eye(4))
     n0 = len(lp._remember(np.zeros((0, 2)), np.eye(4)))
     assert n0 > 10
-    for k in range(200):  # sweep +-60 deg in 8-deg steps, seeing nothing
-        lp.command(np.array([4.0, 0.0]), empty, K, T_BC, T_odom_base=_yawed(60 * np.sin(k * 0.14)))
+    sweep = [*range(0, 46, 5), *range(45, -46, -5), *range(-45, 1, 5)]  # 180 deg turned in 5-deg steps
+    for yaw in sweep:
+        lp.command(np.array([4.0, 0.0]), empty, K, T_BC, T_odom_base=_yawed(yaw))
     pts = lp._remember(np.zeros((0, 2)), np.eye(4))
     assert len(pts) == n0 and np.median(pts[:, 0]) > 0.5  # still ahead of the (unturned) robot
-    for x in np.arange(0.2, 6.0, 0.2):  # drive away (backwards, along -x): out of radius and travel
-        lp.command(np.array([4.0, 0.0]), empty, K, T_BC, T_odom_base=_yawed(0.0, -x))
-    assert len(lp._remember(np.zeros((0, 2)), _yawed(0.0, -6.0))) == 0
+    for yaw in sweep * 2:  # two more sweeps: 3 x pi x 0.4 m per rad > the 1.5 m budget
+        lp.command(np.array([4.0, 0.0]), empty, K, T_BC, T_odom_base=_yawed(yaw))
+    assert len(lp._remember(np.zeros((0, 2)), np.eye(4))) == 0
+    lp2 = LocalPlanner()
+    lp2.command(np.array([4.0, 0.0]), wall_depth(1.0, x_from=0.0), K, T_BC, T_odom_base=np.eye(4))
+    for x in np.arange(0.1, 1.7, 0.1):  # drive 1.6 m back: beyond the travel budget
+        lp2.command(np.array([4.0, 0.0]), empty, K, T_BC, T_odom_base=_yawed(0.0, -x))
+    assert len(lp2._remember(np.zeros((0, 2)), _yawed(0.0, -1.6))) == 0
 
 
 def test_bumper_contacts_block_arcs_the_camera_cannot_see() -> None:
