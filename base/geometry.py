@@ -283,21 +283,22 @@ def backproject_depth(
     return backproject_pixels(K, uv, z[valid]), uv
 
 
-def undistort_normalized(xd: NDArray[np.floating], k1: float, k2: float, iterations: int = 10) -> F64:
-    """Undo radial distortion on normalised image coordinates.
+def undistort_normalized(xd: NDArray[np.floating], k1: float, k2: float) -> F64:
+    """Undo radial distortion on normalised image coordinates (OpenCV `undistortPoints`).
 
     xd: (N, 2) distorted normalised coordinates ((u - cx) / fx, (v - cy) / fy). Returns the
-    (N, 2) undistorted ones x with xd = x (1 + k1 r^2 + k2 r^4), r = |x|, by fixed-point
-    iteration (converges for the mild distortion of ordinary lenses, |k1 r^2| << 1).
+    (N, 2) undistorted ones x with xd = x (1 + k1 r^2 + k2 r^4), r = |x|.
     """
-    xd64: F64 = np.asarray(xd, dtype=np.float64)
-    x: F64 = xd64.copy()
+    import cv2
+
+    xd64: F64 = np.asarray(xd, dtype=np.float64).reshape(-1, 2)
     if k1 == 0.0 and k2 == 0.0:
-        return x
-    for _ in range(iterations):
-        r2 = np.sum(x * x, axis=-1, keepdims=True)
-        x = np.asarray(xd64 / (1.0 + k1 * r2 + k2 * r2 * r2), dtype=np.float64)
-    return x
+        return xd64.copy()
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 1e-12)
+    eye = np.eye(3)
+    out = cv2.undistortPoints(xd64.reshape(-1, 1, 2), eye, np.array([k1, k2, 0.0, 0.0, 0.0]),
+                              R=eye, P=eye, criteria=criteria)
+    return np.asarray(out, dtype=np.float64).reshape(-1, 2)
 
 
 def register_depth(

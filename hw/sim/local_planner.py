@@ -136,7 +136,7 @@ class LocalPlanner:
         self.s = np.linspace(p.lookahead_m / p.samples, p.lookahead_m, p.samples)
         self.arcs = np.stack([arc_points(k, self.s) for k in self.kappas])  # (A, n, 2)
         self.memory = np.zeros((0, 2))  # (M, 2) obstacle points, odometry frame
-        self._mem_odometer = np.zeros(0)  # (M,) odometer reading (m driven) when each was last seen
+        self._mem_odometer = np.zeros(0)  # (M,) `_odometer` when each point was last seen
         self._odometer = 0.0  # odometry so far: metres driven + memory_m_per_rad x radians turned
         self._last_pose: NDArray[np.float64] | None = None  # x, y, yaw (odometry)
         self._turn_sign = 0.0  # while blocked, keep turning the same way (no dithering)
@@ -170,19 +170,20 @@ class LocalPlanner:
         seen = np.concatenate([np.full(len(cur), self._odometer), self._mem_odometer])
         keep = (np.hypot(*(pts - xy).T) <= p.memory_radius_m) & (self._odometer - seen <= p.memory_travel_m)
         pts, seen = pts[keep], seen[keep]
-        if len(pts):  # one point per voxel; the current frame's come first, so they win
-            _, idx = np.unique(np.floor(pts / p.voxel_m).astype(np.int64), axis=0, return_index=True)
-            idx = np.sort(idx)
-            pts, seen = pts[idx], seen[idx]
+        idx = self._voxel_firsts(pts)  # the current frame's points come first, so they win
+        pts, seen = pts[idx], seen[idx]
         self.memory, self._mem_odometer = pts, seen
         return np.asarray((pts - xy) @ R, dtype=np.float64)
 
-    def _thin(self, pts: NDArray[np.float64]) -> NDArray[np.float64]:
+    def _voxel_firsts(self, pts: NDArray[np.float64]) -> NDArray[np.intp]:
+        """Indices (ascending) of the first of the (M, 2) points in each voxel_m cell."""
         if len(pts) == 0:
-            return pts
-        keys = np.floor(pts / self.params.voxel_m).astype(np.int64)
-        _, idx = np.unique(keys, axis=0, return_index=True)
-        return pts[np.sort(idx)]
+            return np.zeros(0, np.intp)
+        _, idx = np.unique(np.floor(pts / self.params.voxel_m).astype(np.int64), axis=0, return_index=True)
+        return np.sort(idx)
+
+    def _thin(self, pts: NDArray[np.float64]) -> NDArray[np.float64]:
+        return pts[self._voxel_firsts(pts)]
 
     def command(
         self, goal_xy: NDArray[np.floating], depth: NDArray[np.floating] | None, K: NDArray[np.floating],
