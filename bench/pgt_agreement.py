@@ -24,8 +24,8 @@ writes out/bench/pgt_agreement.json and a PNG of the errors along the query pass
     python bench/pgt_agreement.py --pgt redkitchen_train.txt [--sequence seq-01]
         [--accuracy out/bench/accuracy.json]
 
-The shared data is the first 1000 frames of redkitchen `seq-01` (its poses equal the D-SLAM
-file's seq-01 entries after the colour calibration).
+The shared data is the first 1000 frames of redkitchen `seq-01`: that repository's D-SLAM pose
+file, passed as `--pgt`, matches our colour-camera ground truth to a median under 1 mm after the alignment.
 """
 
 from __future__ import annotations
@@ -43,6 +43,7 @@ from evo.core.geometry import umeyama_alignment
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from litevloc.base.geometry import relative_pose_error
 from litevloc.config import load_config
 from litevloc.runtime.sources import open_source
 
@@ -71,12 +72,6 @@ def read_pgt(path: Path, sequence: str) -> dict[int, F64]:
     return out
 
 
-def pose_error(T_a: F64, T_b: F64) -> tuple[float, float]:
-    """(metres, degrees) between two camera-to-world poses."""
-    dr = Rotation.from_matrix(T_a[:3, :3].T @ T_b[:3, :3]).magnitude()
-    return float(np.linalg.norm(T_a[:3, 3] - T_b[:3, 3])), float(np.degrees(dr))
-
-
 def within(errors: F64, n: int, metres: float, degrees: float) -> float:
     """Share (%) of `n` frames whose (metres, degrees) row in `errors` is within both bounds."""
     return 100.0 * float(np.sum((errors[:, 0] <= metres) & (errors[:, 1] <= degrees))) / n
@@ -90,6 +85,14 @@ def fit_alignment(ours: dict[int, F64], other: dict[int, F64], frames: list[int]
     R, t, s = umeyama_alignment(X, Y, with_scale=True)
     Rc = Rotation.from_matrix([(R @ ours[i][:3, :3]).T @ other[i][:3, :3] for i in frames]).mean().as_matrix()
     return float(s), np.asarray(R), np.asarray(t), np.asarray(Rc)
+
+
+def apply_alignment(s: float, R: F64, t: F64, Rc: F64, T: F64) -> F64:
+    """Our camera-to-world pose T (4x4) in the other reference's frame: (s R, t) T Rc."""
+    out = np.eye(4)
+    out[:3, :3] = R @ T[:3, :3] @ Rc
+    out[:3, 3] = s * R @ T[:3, 3] + t
+    return out
 
 
 def main() -> None:
@@ -113,13 +116,10 @@ def main() -> None:
     s, R, t, Rc = fit_alignment(ours, other, fit)
 
     def to_other(T: F64) -> F64:
-        out = np.eye(4)
-        out[:3, :3] = R @ T[:3, :3] @ Rc
-        out[:3, 3] = s * R @ T[:3, 3] + t
-        return out
+        return apply_alignment(s, R, t, Rc, T)
 
     def disagreement(frames: list[int]) -> F64:
-        return np.array([pose_error(to_other(ours[i]), other[i]) for i in frames])
+        return np.array([relative_pose_error(to_other(ours[i]), other[i]) for i in frames])
 
     d_map, d_query = disagreement(fit), disagreement(query)
     print(f"alignment on the mapping pass ({len(fit)} frames): scale {s:.4f}, camera rotation "
@@ -146,8 +146,8 @@ def main() -> None:
             E[:3, :3] = Rotation.from_rotvec(f["err_cam_rotvec"]).as_matrix()
             E[:3, 3] = f["err_cam_m"]
             T_est = ours[i] @ np.linalg.inv(E)  # bench/accuracy.py: T_gt = T_est @ E
-            e_gt.append(pose_error(T_est, ours[i]))
-            e_other.append(pose_error(to_other(T_est), other[i]))
+            e_gt.append(relative_pose_error(T_est, ours[i]))
+            e_other.append(relative_pose_error(to_other(T_est), other[i]))
             frames.append(i)
         n = len(res["frames"])
         for ref, e in (("7-Scenes (D-SLAM)", np.array(e_gt)), ("second reference", np.array(e_other))):

@@ -48,5 +48,8 @@ def test_alignment_fitted_on_the_first_half_recovers_a_similarity_and_camera_rot
     np.testing.assert_allclose(R_fit, R, atol=1e-9)
     np.testing.assert_allclose(t_fit, t, atol=1e-9)
     np.testing.assert_allclose(Rc_fit, Rc, atol=1e-9)
-    dt, dr = pa.pose_error(other[45], other[44])
-    assert dt > 0 and dr > 0
+    # after the alignment our frames land on the other reference's, except the one moved by 10 cm
+    dt, dr = g.relative_pose_error(pa.apply_alignment(s_fit, R_fit, t_fit, Rc_fit, ours[10]), other[10])
+    assert dt < 1e-9 and dr < 1e-6
+    dt, dr = g.relative_pose_error(pa.apply_alignment(s_fit, R_fit, t_fit, Rc_fit, ours[45]), other[45])
+    assert abs(dt - 0.1) < 1e-9 and dr < 1e-6
