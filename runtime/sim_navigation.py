@@ -50,6 +50,7 @@ from litevloc.hw.messages import Message, Odometry
 from litevloc.hw.sim.local_planner import LocalPlanner, LocalPlannerParams
 from litevloc.hw.sim.realism import sample_lighting
 from litevloc.hw.sim.render import Renderer
+from litevloc.hw.sim.search import LocalizationSearch, SearchParams
 from litevloc.hw.sim.simulator import Simulator, camera_pose, render_frame
 from litevloc.hw.sim.world import World
 from litevloc.runtime.bus import Bus, LiteVLocPublisher
@@ -66,12 +67,13 @@ class NavParams:
     vloc_hz: float = 1.0  # frames handed to the runtime per simulated second
     goal_timeout_s: float = 120.0  # simulated seconds per goal before it is cancelled
     success_radius_m: float = 2.0  # goals are localized to a map keyframe, often 1-2 m from the goal spot
-    search_after_s: float = 3.0  # no pose yet for this long: turn in place to find a place
+    search_after_s: float = 3.0  # no pose yet for this long: look for a place (turn, then move; see hw/sim/search.py)
     answer_timeout_s: float = 20.0  # wall time to wait for the planner's answer to a pose
     seed: int = 0
     odometry_hz: float | None = 50.0  # simulated odometry rate (None: the config's); every fused pose
     # goes over Zenoh and is answered by the planner, so this sets the message load of the loop
     local: LocalPlannerParams = field(default_factory=LocalPlannerParams)
+    search: SearchParams = field(default_factory=SearchParams)
 
     def __post_init__(self) -> None:
         if not (0 < self.control_hz <= 50 and 0 < self.vloc_hz <= self.control_hz):
@@ -169,6 +171,8 @@ class _Driver:
         self.T_base_camera = T_base_camera
         self.on_step = on_step  # after a step's messages were handled: -> stamp of the last published pose
         self.local = LocalPlanner(params.local)
+        self.search = LocalizationSearch(self.local, params.search)
+        self.first_pose_s: float | None = None  # sensor time from the start to the first fused pose
         self.cond = threading.Condition()
         self.sub_t = -1
         self.sub_T: NDArray[np.float64] | None = None
@@ -282,7 +286,12 @@ class _Driver:
             T = self.sub_T if busy else None
         if T is None:
             if not self.pose_seen and (t_ns - t0_ns) * 1e-9 > self.params.search_after_s:
-                return 0.0, 0.5  # no fix yet: look around
+                if self.T_odom_base is None:
+                    return 0.0, self.params.search.omega  # no odometry yet: look around
+                c = self.search.command(t_ns * 1e-9, self.T_odom_base, self.last_depth, self.K, self.T_base_camera)
+                self.trace.append((t_ns * 1e-9, *self.sim.T_world_base[:2, 3].round(2), None, None,
+                                   round(c.v, 2), round(c.omega, 2), c.reason))
+                return c.v, c.omega
             return 0.0, 0.0
         if self.last_collided:  # bumped (a door frame out of view): back off, turning toward the subgoal
             return -0.15, 0.5 * float(np.sign(T[1, 3]) or 1.0)
@@ -341,7 +350,8 @@ class _Driver:
                 # planned, and a run that waits for one would never end
                 for r in self._pending():
                     r.outcome = "failed"
-                    r.reason = f"never localized: no pose within {p.goal_timeout_s:g} s of turning in place"
+                    r.reason = (f"never localized: no pose within {p.goal_timeout_s:g} s of looking around "
+                                f"({self.search.legs} moves to open space)")
                 return
             v, w = self._command(self.sim._t_ns, t0)
             k += 1
@@ -369,6 +379,8 @@ class _Driver:
         pose_t = self.on_step(step)
         if pose_t is None:
             return
+        if not self.pose_seen and self.path:
+            self.first_pose_s = (step.t_ns - self.path[0][0]) * 1e-9
         self.pose_seen = True
 
         n_sent = len(self.goals)
@@ -501,6 +513,8 @@ def run_navigation(
     path = np.array([p[1:] for p in driver.path])
     t_total = (driver.path[-1][0] - driver.path[0][0]) * 1e-9 if driver.path else 0.0
     extra["trace"] = driver.trace
+    extra["first_pose_s"] = None if driver.first_pose_s is None else round(driver.first_pose_s, 2)
+    extra["search_legs"] = driver.search.legs
     extra["collision_xy"] = driver.collision_xy
     return NavRun(localization, list(driver.records.values()), path, np.array(driver.subgoals_xy).reshape(-1, 2),
                   float(t_total), len(driver.collision_xy), time.perf_counter() - t_wall, extra)

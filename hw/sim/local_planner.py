@@ -185,6 +185,23 @@ class LocalPlanner:
     def _thin(self, pts: NDArray[np.float64]) -> NDArray[np.float64]:
         return pts[self._voxel_firsts(pts)]
 
+    def observe(
+        self, depth: NDArray[np.floating] | None, K: NDArray[np.floating], T_base_camera: NDArray[np.floating],
+        T_odom_base: NDArray[np.floating] | None = None,
+    ) -> NDArray[np.float64]:
+        """Take in one depth image (HxW metres, None = nothing seen) and return every obstacle
+        point the planner knows, (M, 2) in the base frame: this frame's, the rolling memory's
+        (with `T_odom_base`) and the bumper contacts. `command` calls it; call it directly to
+        keep the memory current while something else steers."""
+        p = self.params
+        pts = np.zeros((0, 2)) if depth is None else self._thin(obstacle_points(depth, K, T_base_camera, p))
+        if T_odom_base is not None and p.memory_travel_m > 0:
+            pts = self._remember(pts, T_odom_base)
+        if T_odom_base is not None and len(self.contacts):
+            T = np.asarray(T_odom_base, np.float64)
+            pts = np.concatenate([pts, (self.contacts - T[:2, 3]) @ T[:2, :2]])
+        return pts
+
     def command(
         self, goal_xy: NDArray[np.floating], depth: NDArray[np.floating] | None, K: NDArray[np.floating],
         T_base_camera: NDArray[np.floating], T_odom_base: NDArray[np.floating] | None = None,
@@ -193,12 +210,7 @@ class LocalPlanner:
         T_odom_base (4x4, odometry) enables the short-term obstacle memory."""
         p = self.params
         g = np.asarray(goal_xy, np.float64)[:2]
-        pts = np.zeros((0, 2)) if depth is None else self._thin(obstacle_points(depth, K, T_base_camera, p))
-        if T_odom_base is not None and p.memory_travel_m > 0:
-            pts = self._remember(pts, T_odom_base)
-        if T_odom_base is not None and len(self.contacts):
-            T = np.asarray(T_odom_base, np.float64)
-            pts = np.concatenate([pts, (self.contacts - T[:2, 3]) @ T[:2, :2]])
+        pts = self.observe(depth, K, T_base_camera, T_odom_base)
         dist = float(np.hypot(*g))
         if dist < p.arrive_m:
             self._stuck = self._reversing = 0

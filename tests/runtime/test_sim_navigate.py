@@ -53,7 +53,7 @@ def test_closed_loop_reaches_a_goal_with_litevloc(small_map: Path, tmp_path: Pat
 
 
 def test_a_run_that_never_localizes_ends_with_the_reason(small_map: Path) -> None:
-    """Started where the map (the start room only) sees nothing, the robot turns in place; after
+    """Started where the map (the start room only) sees nothing, the robot looks around; after
     a goal's time without any pose the run ends and every goal fails as never localized."""
     from litevloc.config import load_config
     from litevloc.hw.sim.world import load_world
