@@ -69,6 +69,8 @@ def main(argv: list[str] | None = None) -> int:
         rows.append([name, "TOTAL", f"{res['goals_reached']}/{res['goals_total']}", res["time_s"],
                      res["path_length_m"], f"{b['goals_reached']}/{b['goals_total']}", b["time_s"],
                      b["path_length_m"]])
+        rows.append([name, "first pose s (moves to find it)", "n/a" if res.get("first_pose_s") is None else
+                     f"{res['first_pose_s']} ({res.get('search_legs', 0)})", "", "", "", "", ""])
         r = res["ratios"]
         rows.append([name, f"ratio LiteVLoc/GT ({r['goals_compared']} both reached)", "",
                      "n/a" if r["time"] is None else r["time"], "n/a" if r["path_length"] is None else r["path_length"],

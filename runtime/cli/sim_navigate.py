@@ -137,8 +137,10 @@ def navigate(world_name: str, cfg: Any, map_path: Path, goal_args: list[str] | N
         runs[mode] = run_navigation(world, cfg, map_path, goals, world.goal_places[start], localization, params,
                                     bundle, view_spawn=view_spawn and view, view_save=view_save if view else None)
         s = runs[mode].summary()
+        first = "no pose" if s.get("first_pose_s") is None else f"first pose after {s['first_pose_s']:.0f} s"
+        moves = f", {s['search_legs']} moves to find it" if s.get("search_legs") else ""
         print(f"   {s['goals_reached']}/{s['goals_total']} reached, {s['time_s']:.0f} s simulated, "
-              f"{s['path_length_m']:.1f} m driven ({s['wall_s']:.0f} s wall)", flush=True)
+              f"{s['path_length_m']:.1f} m driven ({s['wall_s']:.0f} s wall); {first}{moves}", flush=True)
     main_mode = modes[0]
     out: dict[str, Any] = {"world": world_name, "start": start, "goals": [g.name for g in goals],
                            "map": str(map_path)}
