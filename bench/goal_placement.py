@@ -18,7 +18,11 @@ out/bench/loop/map for the loop), built when absent. Prints a table per world an
 and writes out/bench/goal_placement.json with every image's outcome and reason.
 
     python bench/goal_placement.py [--worlds office bland floor] [--extra 120]
-        [--alt-set planner.goal.planar_rms_m=0 ...]
+        [--alt-set planner.goal.planar_rms_m=0 ...] [--maps-dir DIR --map-set KEY=VALUE ...]
+
+`--maps-dir DIR` places the same images in the maps under DIR/WORLD/map (built there from the
+same mapping pass with the `--map-set` overrides where absent): a mapping parameter against the
+default maps, one run each.
 
 Parameters are chosen on `office` and `bland` (the default worlds here); `floor` and `loop`
 are reported on.
@@ -42,10 +46,14 @@ from numpy.typing import NDArray
 OUTCOMES = ("right", "wrong", "refused")
 
 
-def world_map(world: str, config: str) -> Path:
-    """The cached map `sim navigate` (or `bench/loop.py`) uses for the world; built when absent."""
+def world_map(world: str, config: str, maps_dir: Path | None = None, map_set: tuple[str, ...] = ()) -> Path:
+    """The cached map `sim navigate` (or `bench/loop.py`) uses for the world; built when absent.
+    With `maps_dir`: the map under maps_dir/WORLD, built there with the `map_set` overrides."""
     from litevloc.runtime.cli.sim_navigate import ensure_map
 
+    if maps_dir is not None:
+        return ensure_map(world, maps_dir / world, config, map_pass="loop" if world == "loop" else "map",
+                          overrides=map_set)
     if world == "loop":
         return ensure_map("loop", ROOT / "out" / "bench" / "loop", config, map_pass="loop")
     return ensure_map(world, ROOT / "out" / "navigate" / world, config)
@@ -111,7 +119,13 @@ def main() -> int:
                     help="a variant compared with the defaults (one override each; repeat for more variants)")
     ap.add_argument("--right-m", type=float, default=1.5, help="a placement within this of the truth is right")
     ap.add_argument("--name", default="goal_placement")
+    ap.add_argument("--maps-dir", type=Path, default=None,
+                    help="use (and build where absent) the maps under DIR/WORLD instead of sim navigate's")
+    ap.add_argument("--map-set", action="append", default=[], metavar="KEY=VALUE",
+                    help="config override for the maps built under --maps-dir (e.g. mapping.keyframes.coverage=0.98)")
     args = ap.parse_args()
+    if args.map_set and args.maps_dir is None:
+        ap.error("--map-set needs --maps-dir (the default maps are sim navigate's)")
 
     alt = args.alt_set or ["planner.goal.planar_rms_m=0"]
     variants = {"defaults": load_config(args.config)}
@@ -122,7 +136,7 @@ def main() -> int:
     out: dict[str, Any] = {"variants": list(variants), "right_m": args.right_m, "worlds": {}}
     rows = []
     for world in args.worlds:
-        topomap = check_map_models(load_map(world_map(world, args.config)), bundle)
+        topomap = check_map_models(load_map(world_map(world, args.config, args.maps_dir, tuple(args.map_set))), bundle)
         K = np.asarray(topomap.K[0], np.float64)
         t0 = time.perf_counter()
         items = goal_images(world, cfg, args.extra)
