@@ -89,7 +89,23 @@ $(BENCH_7S_MAP)/manifest.json: | $(VENV)/.dev-installed
 	$(VENV)/bin/litevloc map build $(SHARED) --frames 0:500 -o $(BENCH_7S_MAP).partial --config 7scenes
 	rm -rf $(BENCH_7S_MAP) && mv $(BENCH_7S_MAP).partial $(BENCH_7S_MAP)
 
-bench: $(VENV)/.dev-installed models $(BENCH_7S_MAP)/manifest.json
+# the covariance's tuning splits inside the mapping pass (bench/fit_covariance.py): A maps frames
+# 250-499 and is queried with 0:250:2, B the other way round
+BENCH_7S_SPLIT_A := out/bench/inputs/7scenes/split-a
+BENCH_7S_SPLIT_B := out/bench/inputs/7scenes/split-b
+
+$(BENCH_7S_SPLIT_A)/manifest.json: | $(VENV)/.dev-installed
+	rm -rf $(BENCH_7S_SPLIT_A).partial
+	$(VENV)/bin/litevloc map build $(SHARED) --frames 250:500 -o $(BENCH_7S_SPLIT_A).partial --config 7scenes
+	rm -rf $(BENCH_7S_SPLIT_A) && mv $(BENCH_7S_SPLIT_A).partial $(BENCH_7S_SPLIT_A)
+
+$(BENCH_7S_SPLIT_B)/manifest.json: | $(VENV)/.dev-installed
+	rm -rf $(BENCH_7S_SPLIT_B).partial
+	$(VENV)/bin/litevloc map build $(SHARED) --frames 0:250 -o $(BENCH_7S_SPLIT_B).partial --config 7scenes
+	rm -rf $(BENCH_7S_SPLIT_B) && mv $(BENCH_7S_SPLIT_B).partial $(BENCH_7S_SPLIT_B)
+
+bench: $(VENV)/.dev-installed models $(BENCH_7S_MAP)/manifest.json $(BENCH_7S_SPLIT_A)/manifest.json \
+		$(BENCH_7S_SPLIT_B)/manifest.json
 	$(VENV)/bin/python bench/_common.py office-inputs
 	$(VENV)/bin/python bench/streams.py
 	$(VENV)/bin/python bench/models.py
@@ -107,6 +123,9 @@ bench: $(VENV)/.dev-installed models $(BENCH_7S_MAP)/manifest.json
 	$(VENV)/bin/python bench/merge.py
 	$(VENV)/bin/python bench/update.py
 	$(VENV)/bin/python bench/accuracy.py --map $(BENCH_7S_MAP)
+	$(VENV)/bin/python bench/accuracy.py --configs joint --map $(BENCH_7S_SPLIT_A) --frames 0:250:2 --name dist_A
+	$(VENV)/bin/python bench/accuracy.py --configs joint --map $(BENCH_7S_SPLIT_B) --frames 250:500:2 --name dist_B
+	$(VENV)/bin/python bench/fit_covariance.py --held-out out/bench/accuracy.json
 	@if [ -n "$(PGT)" ]; then $(VENV)/bin/python bench/pgt_agreement.py --pgt "$(PGT)"; \
 	else echo "bench/pgt_agreement.py skipped: needs PGT=<SfM pose file of redkitchen> (see its docstring)"; fi
 	$(VENV)/bin/python bench/scale.py

@@ -49,7 +49,7 @@ from litevloc.models.types import Features
 from litevloc.pipelines.depth_lookup import depth_at
 from litevloc.pipelines.evaluation.reloc import inside_95_ellipsoids
 from litevloc.pipelines.geometry import backproject_pixels, project, relative_pose_error, so3_log
-from litevloc.pipelines.localization.refine import viewpoint_angle_rad
+from litevloc.pipelines.localization.refine import keyframe_distance_m, viewpoint_angle_rad
 from litevloc.pipelines.localization.vloc import MatchedPixels, VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map
 from litevloc.pipelines.topomap.types import NodeFeatures
@@ -181,7 +181,9 @@ def run_config(name: str, overrides: list[str], args: argparse.Namespace, data: 
                        err_map_m=(T_gt[:3, 3] - res.T_map_camera[:3, 3]).tolist(), ref_node=res.ref_node,
                        keyframe_nodes=list(res.keyframes),
                        view_angle_deg=float(np.degrees(viewpoint_angle_rad(
-                           res.T_map_camera, topomap.T_map_camera[list(res.keyframes or (res.ref_node,))]))))
+                           res.T_map_camera, topomap.T_map_camera[list(res.keyframes or (res.ref_node,))]))),
+                       keyframe_distance_m=keyframe_distance_m(
+                           res.T_map_camera, topomap.T_map_camera[list(res.keyframes or (res.ref_node,))]))
             if res.matches is not None:
                 row["gt_reproj_px"] = gt_reprojection_px(res.matches, frame.depth, frame.K, T_gt, topomap,
                                                          cfg.localization.depth)

@@ -82,18 +82,25 @@ class RefineParams:
     max_shift_m: float = 0.25  # the joint pose may move at most this far from the initial pose
     max_shift_deg: float = 5.0
     # Systematic error that points and keyframes do not average out, and its growth with the
-    # angle between the live view and its keyframes (metres per radian, radians per radian; see
-    # pipelines.localization.refine). Fitted by maximum likelihood (x1.1 on translation for 95 %
-    # coverage) on two tuning splits inside the 7-Scenes mapping pass (map 250-499 / queries
-    # 0:250:2 and map 0-249 / queries 250:500:2, 109 accepted poses with `map_depth`): 94.5 % /
-    # 94.5 % of their errors inside the 95 % ellipsoids. Refitted 2026-11-25 when the map's depth
-    # entered the solve (before: 0.019 m, 0.6 deg, 0.17 m/rad, 0.048 rad/rad). Held-out query pass
-    # (frames 500-999): 100 % / 100 %: wider than needed there, whose viewpoint angles (median
-    # 19 deg) exceed the splits' (5 deg), so the linear growth is extrapolated.
-    sigma_sys_t_m: float = 0.008
-    sigma_sys_r_deg: float = 0.41
-    sigma_sys_t_per_rad: float = 0.115
-    sigma_sys_r_per_rad: float = 0.046
+    # angle between the live view and its keyframes (metres per radian, radians per radian) and
+    # with their distance from it (metres per metre, degrees per metre; see
+    # pipelines.localization.refine). Fitted by maximum likelihood (`python bench/fit_covariance.py`,
+    # x1.1 on translation for 95 % coverage) on two tuning splits inside the 7-Scenes mapping
+    # pass (map 250-499 / queries 0:250:2 and map 0-249 / queries 250:500:2, 109 accepted poses):
+    # 95.4 % / 98.2 % of their errors inside the 95 % ellipsoids. The distance terms entered
+    # 2026-11-26: on the splits the error grows with the distance to the keyframes (median 0.8 cm
+    # below 0.3 m, 2-3.5 cm at 0.3-1 m, 5-9 cm beyond) at view angles of ~5 deg, which the
+    # angle-only model had to put into its constant and slope; with them the log-likelihood of
+    # the fit is higher by 33 (translation) and 32 (rotation) for one parameter each, and the
+    # constant terms fit to zero. Before: 0.008 m, 0.41 deg, 0.115 m/rad, 0.046 rad/rad, no
+    # distance terms. Held-out query pass (frames 500-999, view angles median 19 deg): 100 % /
+    # 95.0 % inside (was 100 / 100 %).
+    sigma_sys_t_m: float = 0.0
+    sigma_sys_r_deg: float = 0.0
+    sigma_sys_t_per_rad: float = 0.083
+    sigma_sys_r_per_rad: float = 0.0334
+    sigma_sys_t_per_m: float = 0.022
+    sigma_sys_r_deg_per_m: float = 0.92
     min_sigma_t_m: float = 0.002
     min_sigma_r_deg: float = 0.05
     max_nfev: int = 30
@@ -124,7 +131,7 @@ class RefineParams:
             if getattr(self, name) <= 0:
                 raise ValueError(f"{name} must be > 0")
         for name in ("depth_sigma_a", "depth_sigma_b", "sigma_sys_t_m", "sigma_sys_r_deg", "sigma_sys_t_per_rad",
-                     "sigma_sys_r_per_rad",
+                     "sigma_sys_r_per_rad", "sigma_sys_t_per_m", "sigma_sys_r_deg_per_m",
                      "min_sigma_t_m", "min_sigma_r_deg"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0")

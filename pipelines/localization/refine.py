@@ -32,12 +32,15 @@ sensor's calibration (intrinsics, depth-to-colour extrinsic, depth distortion) a
 poses against the live frame. Calibration errors do not cancel in the relative pose between
 the live frame and a keyframe: their effect grows with how far the view is turned from the
 keyframes (the commutator of a calibration error with the relative rotation; on 7-Scenes the
-rotation error correlates with that angle at r = 0.8, about 3-5 % of it):
-    sigma_t(theta)^2 = sigma_sys_t^2 + (sigma_sys_t_per_rad theta)^2   (same for rotation),
-    Sigma = Sigma_pts + diag(sigma_t(theta)^2 I3, sigma_r(theta)^2 I3),
-with theta = `viewpoint_angle_rad` of the joint pose and its consistent keyframes; then the
-diagonal is clamped below by `min_sigma_*`. The four `sigma_sys_*` are fitted by maximum
-likelihood on a tuning split inside the mapping pass (bench/accuracy.py, see RefineParams).
+rotation error correlates with that angle at r = 0.8, about 3-5 % of it), and with how far the
+live camera stands from them (depth error and scale grow with range; the map's poses and the
+live frame's disagree more between places seen from afar):
+    sigma_t(theta, d)^2 = sigma_sys_t^2 + (sigma_sys_t_per_rad theta)^2 + (sigma_sys_t_per_m d)^2
+    (same for rotation), Sigma = Sigma_pts + diag(sigma_t^2 I3, sigma_r^2 I3),
+with theta = `viewpoint_angle_rad` and d = `keyframe_distance_m` of the joint pose and its
+consistent keyframes; then the diagonal is clamped below by `min_sigma_*`. The six
+`sigma_sys_*` are fitted by maximum likelihood on a tuning split inside the mapping pass
+(bench/accuracy.py, see RefineParams).
 """
 
 from __future__ import annotations
@@ -290,8 +293,8 @@ def refine_pose(
         s2 = max(float(rw @ rw) / max(len(rw) - 6, 1), 1.0)
         info.append(Jw.T @ Jw / s2)
     med = float(np.median(np.concatenate(errs))) if errs else float("nan")
-    theta = viewpoint_angle_rad(T, np.stack([t.ob.T_map_kf for t in used if t.ob.node in inl])) if inl else 0.0
-    cov = joint_covariance(info, p, theta) if info else None
+    kfs = np.stack([t.ob.T_map_kf for t in used if t.ob.node in inl]) if inl else np.zeros((0, 4, 4))
+    cov = joint_covariance(info, p, viewpoint_angle_rad(T, kfs), keyframe_distance_m(T, kfs)) if info else None
     if len(inl) < p.min_keyframes:
         reason = f"only {len(inl)} keyframe(s) consistent with the joint pose (< {p.min_keyframes})"
     elif shift_m > p.max_shift_m or shift_deg > p.max_shift_deg:
@@ -309,17 +312,29 @@ def viewpoint_angle_rad(T_map_camera: NDArray[np.floating], T_map_keyframes: NDA
     return float(np.mean([rotation_angle(r.T @ R) for r in Rk])) if len(Rk) else 0.0
 
 
-def joint_covariance(information: list[F64], params: RefineParams, view_angle_rad: float = 0.0) -> F64:
+def keyframe_distance_m(T_map_camera: NDArray[np.floating], T_map_keyframes: NDArray[np.floating]) -> float:
+    """Mean distance (metres) between a camera's position (4x4 pose) and the keyframes' (K, 4, 4);
+    0 without keyframes."""
+    c = np.asarray(T_map_camera, dtype=np.float64)[:3, 3]
+    k = np.asarray(T_map_keyframes, dtype=np.float64).reshape(-1, 4, 4)[:, :3, 3]
+    return float(np.mean(np.linalg.norm(k - c, axis=1))) if len(k) else 0.0
+
+
+def joint_covariance(information: list[F64], params: RefineParams, view_angle_rad: float = 0.0,
+                     distance_m: float = 0.0) -> F64:
     """6x6 covariance from per-keyframe information matrices (see the module docstring);
-    `view_angle_rad`: `viewpoint_angle_rad` of the pose and its consistent keyframes."""
+    `view_angle_rad` / `distance_m`: `viewpoint_angle_rad` / `keyframe_distance_m` of the pose
+    and its consistent keyframes."""
     total = np.sum(information, axis=0) if information else np.zeros((6, 6))
     try:
         cov = np.linalg.inv(total)
     except np.linalg.LinAlgError:
         cov = np.diag([1e2] * 6)
     cov = 0.5 * (cov + cov.T)
-    var_t = params.sigma_sys_t_m**2 + (params.sigma_sys_t_per_rad * view_angle_rad) ** 2
-    var_r = np.radians(params.sigma_sys_r_deg) ** 2 + (params.sigma_sys_r_per_rad * view_angle_rad) ** 2
+    var_t = (params.sigma_sys_t_m**2 + (params.sigma_sys_t_per_rad * view_angle_rad) ** 2
+             + (params.sigma_sys_t_per_m * distance_m) ** 2)
+    var_r = (np.radians(params.sigma_sys_r_deg) ** 2 + (params.sigma_sys_r_per_rad * view_angle_rad) ** 2
+             + np.radians(params.sigma_sys_r_deg_per_m * distance_m) ** 2)
     cov += np.diag([var_t] * 3 + [var_r] * 3)
     floor = np.array([params.min_sigma_t_m] * 3 + [np.radians(params.min_sigma_r_deg)] * 3) ** 2
     cov[np.diag_indices(6)] = np.maximum(np.diag(cov), floor)

@@ -14,6 +14,7 @@ from litevloc.pipelines.localization.refine import (
     RefineParams,
     RefineResult,
     joint_covariance,
+    keyframe_distance_m,
     refine_pose,
     viewpoint_angle_rad,
 )
@@ -99,6 +100,7 @@ def test_covariance_is_calibrated_without_keyframe_error() -> None:
     95 % ellipsoid holds ~95 % of the errors (the keyframe term and floors switched off)."""
     p = RefineParams(sigma_sys_t_m=0.0, sigma_sys_r_deg=0.0, min_sigma_t_m=0.0, min_sigma_r_deg=0.0,
                      sigma_sys_t_per_rad=0.0, sigma_sys_r_per_rad=0.0,
+                     sigma_sys_t_per_m=0.0, sigma_sys_r_deg_per_m=0.0,
                      depth_sigma_a=0.0, depth_sigma_b=0.0, keypoint_sigma_px=1.0)
     rng = np.random.default_rng(3)
     inside = [_inside_95(refine_pose(T_MAP_LIVE, _observations(rng, 40, 1.0), p)) for _ in range(60)]
@@ -126,23 +128,40 @@ def test_viewpoint_angle_is_the_mean_rotation_to_the_keyframes() -> None:
     assert viewpoint_angle_rad(T, kfs[:0]) == 0.0
 
 
-def test_systematic_term_grows_with_the_viewpoint_angle() -> None:
-    """sigma_sys(theta)^2 = sigma0^2 + (k theta)^2, theta the angle to the consistent keyframes."""
+@pytest.mark.parametrize("measure", ["angle", "distance"])
+def test_systematic_term_grows_with_the_viewpoint_angle_and_the_distance(measure: str) -> None:
+    """sigma_sys^2 = sigma0^2 + (k_rad theta)^2 + (k_m d)^2, theta / d the angle to / mean distance
+    from the consistent keyframes; here each growth term alone."""
     rng = np.random.default_rng(6)
     obs = _observations(rng, 200, 0.5)
     base = RefineParams(sigma_sys_t_m=0.0, sigma_sys_r_deg=0.0, min_sigma_t_m=0.0, min_sigma_r_deg=0.0,
-                        sigma_sys_t_per_rad=0.0, sigma_sys_r_per_rad=0.0)
+                        sigma_sys_t_per_rad=0.0, sigma_sys_r_per_rad=0.0, sigma_sys_t_per_m=0.0,
+                        sigma_sys_r_deg_per_m=0.0)
+    if measure == "angle":
+        k_t, k_r, grow = 0.1, 0.05, {"sigma_sys_t_per_rad": 0.1, "sigma_sys_r_per_rad": 0.05}
+        of = viewpoint_angle_rad
+    else:  # rotation per metre is given in degrees
+        k_t, k_r, grow = 0.02, np.radians(1.0), {"sigma_sys_t_per_m": 0.02, "sigma_sys_r_deg_per_m": 1.0}
+        of = keyframe_distance_m
     flat = refine_pose(T_MAP_LIVE, obs, base)
-    grown = refine_pose(T_MAP_LIVE, obs, replace(base, sigma_sys_t_per_rad=0.1, sigma_sys_r_per_rad=0.05))
+    grown = refine_pose(T_MAP_LIVE, obs, replace(base, **grow))
     assert flat.covariance is not None and grown.covariance is not None
-    theta = viewpoint_angle_rad(grown.T_map_camera, np.stack([kf for kf in KF_POSES]))
-    assert theta > 0.05
+    x = of(grown.T_map_camera, np.stack([kf for kf in KF_POSES]))
+    assert x > 0.05
     added = np.diag(grown.covariance) - np.diag(flat.covariance)
-    assert np.allclose(added[:3], (0.1 * theta) ** 2, rtol=1e-6)
-    assert np.allclose(added[3:], (0.05 * theta) ** 2, rtol=1e-6)
-    # the same pose, keyframes looking the same way: nothing is added
-    assert np.allclose(joint_covariance([np.eye(6)], replace(base, sigma_sys_t_per_rad=0.1), 0.0),
-                       joint_covariance([np.eye(6)], base, 0.0))
+    assert np.allclose(added[:3], (k_t * x) ** 2, rtol=1e-6)
+    assert np.allclose(added[3:], (k_r * x) ** 2, rtol=1e-6)
+    # the keyframes looking the same way from the same place: nothing is added
+    assert np.allclose(joint_covariance([np.eye(6)], replace(base, **grow), 0.0, 0.0),
+                       joint_covariance([np.eye(6)], base, 0.0, 0.0))
+
+
+def test_keyframe_distance_is_the_mean_distance_to_the_keyframes() -> None:
+    T = make_T(so3_exp(np.array([0.0, 0.4, 0.0])), np.array([1.0, 2.0, 0.0]))
+    kfs = np.stack([make_T(np.eye(3), np.array([1.0, 2.0, 0.5])), make_T(so3_exp(np.array([0.0, 0.0, 1.0])),
+                                                                       np.array([1.0, 0.5, 0.0]))])
+    assert keyframe_distance_m(T, kfs) == pytest.approx(1.0, abs=1e-12)
+    assert keyframe_distance_m(T, kfs[:0]) == 0.0
 
 
 def test_depth_noise_down_weights_far_points() -> None:
@@ -158,7 +177,7 @@ def test_depth_noise_down_weights_far_points() -> None:
 
 @pytest.mark.parametrize("kw", [{"max_keyframes": 0}, {"min_keyframes": 4}, {"loss": "l2"}, {"inlier_px": 0},
                                 {"gate_px": 1.0}, {"sigma_sys_t_m": -1.0}, {"loss_scale": 0},
-                                {"sigma_sys_r_per_rad": -0.1}])
+                                {"sigma_sys_r_per_rad": -0.1}, {"sigma_sys_t_per_m": -0.01}])
 def test_bad_params_are_errors(kw: dict) -> None:
     with pytest.raises(ValueError):
         RefineParams(**kw)
@@ -210,7 +229,8 @@ def test_map_depth_terms_are_whitened_by_both_depths_noise() -> None:
     """Monte Carlo with live depth, map depth and pixels noisy exactly as the model says: the
     3D terms' covariance holds ~95 % of the errors in its 95 % ellipsoid (systematic terms off)."""
     p = RefineParams(min_keyframes=1, sigma_sys_t_m=0.0, sigma_sys_r_deg=0.0, min_sigma_t_m=0.0,
-                     min_sigma_r_deg=0.0, sigma_sys_t_per_rad=0.0, sigma_sys_r_per_rad=0.0)
+                     min_sigma_r_deg=0.0, sigma_sys_t_per_rad=0.0, sigma_sys_r_per_rad=0.0,
+                     sigma_sys_t_per_m=0.0, sigma_sys_r_deg_per_m=0.0)
     rng = np.random.default_rng(4)
     inside = [_inside_95(refine_pose(T_MAP_LIVE, _depth_noisy_observations(rng, 60), p)) for _ in range(60)]
     assert np.all(np.mean(inside, axis=0) >= 0.85), np.mean(inside, axis=0)  # position, rotation
