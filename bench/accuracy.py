@@ -302,7 +302,8 @@ def main() -> None:
         for r in results:
             ratios[r["config"]] = {"ll_latency_median_x": r["ll_latency_median_ms"] / base["ll_latency_median_ms"],
                                    "median_cm_x": r["median_cm"] / base["median_cm"]}
-    write_json(args.name, {"frames": args.frames, "map": str(args.map), "overrides": args.overrides,
+    write_json(args.name, {"frames": args.frames, "map": str(args.map), "preset": args.config,
+                           "overrides": args.overrides,
                            "results": results, "ratios_vs_start": ratios, "published": PUBLISHED,
                            "note": "latency on a shared 2-core machine; cached model calls count their recorded time"})
 

@@ -53,7 +53,9 @@ def load_rows(path: Path) -> tuple[list[Row], int]:
 
     data = json.loads(path.read_text())
     res = data["results"][0]
-    p = load_config("7scenes", list(res.get("overrides", []))).localization.refine
+    # the parameters the run had: its preset, the configuration's overrides, then the run's --set
+    p = load_config(data.get("preset", "7scenes"),
+                    list(res.get("overrides", [])) + list(data.get("overrides", []))).localization.refine
     rows: list[Row] = []
     floored = 0
     for f in res["frames"]:

@@ -117,7 +117,8 @@ class LocalizationSearch:
                 return Command(cmd.v, cmd.omega, "search-" + cmd.reason, cmd.clearance_m)
             self.phase, self._turned, self._last_yaw, self._headings = "look", 0.0, None, []
         if self._last_yaw is None:
-            self.visited.append(xy)
+            if not self.visited or np.hypot(*(xy - self.visited[-1])) > p.min_leg_m / 2:
+                self.visited.append(xy)  # a new spot to look from (not the same after a look found no way)
         else:
             self._turned += abs(float(np.angle(np.exp(1j * (yaw - self._last_yaw)))))
         self._last_yaw = yaw

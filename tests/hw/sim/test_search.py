@@ -91,6 +91,7 @@ def test_no_way_out_keeps_looking() -> None:
     # a box barely larger than the robot: no heading is free for min_leg_m, so it only turns
     search, steps = run((0.6, 0.6, 0.0), 40.0, room=(0.0, 0.0, 1.2, 1.2))
     assert search.legs == 0 and all(c.v == 0.0 for *_, c in steps)
+    assert len(search.visited) == 1  # the same spot is not counted again after each fruitless look
 
 
 def test_params_are_validated() -> None:
