@@ -50,6 +50,7 @@ def load_rows(path: Path) -> tuple[list[Row], int]:
     """(solve covariance t 3x3, r 3x3, theta rad, distance m, error t, error rotvec) per accepted
     pose, and how many had a floor binding."""
     from litevloc.config import load_config
+    from litevloc.pipelines.localization.refine import systematic_variances
 
     data = json.loads(path.read_text())
     res = data["results"][0]
@@ -63,9 +64,7 @@ def load_rows(path: Path) -> tuple[list[Row], int]:
             continue
         C = np.asarray(f["covariance"], np.float64)
         th, d = np.radians(f["view_angle_deg"]), float(f["keyframe_distance_m"])
-        vt = p.sigma_sys_t_m**2 + (p.sigma_sys_t_per_rad * th) ** 2 + (p.sigma_sys_t_per_m * d) ** 2
-        vr = (np.radians(p.sigma_sys_r_deg) ** 2 + (p.sigma_sys_r_per_rad * th) ** 2
-              + np.radians(p.sigma_sys_r_deg_per_m * d) ** 2)
+        vt, vr = systematic_variances(p, th, d)
         floor = np.array([p.min_sigma_t_m] * 3 + [np.radians(p.min_sigma_r_deg)] * 3) ** 2
         floored += int(np.any(np.isclose(np.diag(C), floor, rtol=1e-9)))
         Cp = C.copy()

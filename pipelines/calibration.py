@@ -188,19 +188,22 @@ def _pack(cal: ColorDepthCalibration) -> F64:
 
 def _color_rays(x: F64, uv: F64) -> F64:
     """(N, 3) rays (z = 1) of colour pixels `uv` (N, 2) under the parameters `x`
-    (pinhole + radial distortion k1, k2 undone by fixed-point iteration)."""
+    (pinhole + radial distortion k1, k2, undone by `base.geometry.undistort_normalized`)."""
     xd = np.stack([(uv[:, 0] - x[2]) / x[0], (uv[:, 1] - x[3]) / x[1]], axis=1)
     xn = undistort_normalized(xd, float(x[10]), float(x[11]))
     return np.concatenate([xn, np.ones((len(xn), 1))], axis=1)
 
 
 def _color_project(x: F64, X: F64) -> F64:
-    """(N, 2) colour pixels of colour-camera points X (N, 3) under the parameters `x`."""
-    with np.errstate(invalid="ignore", divide="ignore"):
-        xn = X[:, :2] / X[:, 2:3]
-    r2 = np.sum(xn * xn, axis=1, keepdims=True)
-    xd = xn * (1.0 + x[10] * r2 + x[11] * r2 * r2)
-    return np.asarray(xd * [x[0], x[1]] + [x[2], x[3]], dtype=np.float64)
+    """(N, 2) colour pixels of colour-camera points X (N, 3) under the parameters `x`
+    (OpenCV `projectPoints` with the pinhole and radial k1, k2)."""
+    K = np.array([[x[0], 0.0, x[2]], [0.0, x[1], x[3]], [0.0, 0.0, 1.0]])
+    dist = np.array([x[10], x[11], 0.0, 0.0, 0.0])
+    X64 = np.asarray(X, np.float64).reshape(-1, 3)
+    uv, _ = cv2.projectPoints(X64.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, dist)
+    out = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    out[X64[:, 2] == 0.0] = np.nan  # OpenCV projects z = 0 to a finite pixel; there is none
+    return out
 
 
 def _bilinear(depths: NDArray[np.float32], frame: NDArray[np.intp], uv: F64, edge_rel_tol: float) -> F64:

@@ -320,6 +320,16 @@ def keyframe_distance_m(T_map_camera: NDArray[np.floating], T_map_keyframes: NDA
     return float(np.mean(np.linalg.norm(k - c, axis=1))) if len(k) else 0.0
 
 
+def systematic_variances(params: RefineParams, view_angle_rad: float, distance_m: float) -> tuple[float, float]:
+    """Per-axis variance of the systematic terms (see the module docstring): position (m^2) and
+    rotation (rad^2) at a view angle (radians) and distance to the keyframes (metres)."""
+    var_t = (params.sigma_sys_t_m**2 + (params.sigma_sys_t_per_rad * view_angle_rad) ** 2
+             + (params.sigma_sys_t_per_m * distance_m) ** 2)
+    var_r = (np.radians(params.sigma_sys_r_deg) ** 2 + (params.sigma_sys_r_per_rad * view_angle_rad) ** 2
+             + np.radians(params.sigma_sys_r_deg_per_m * distance_m) ** 2)
+    return float(var_t), float(var_r)
+
+
 def joint_covariance(information: list[F64], params: RefineParams, view_angle_rad: float = 0.0,
                      distance_m: float = 0.0) -> F64:
     """6x6 covariance from per-keyframe information matrices (see the module docstring);
@@ -331,10 +341,7 @@ def joint_covariance(information: list[F64], params: RefineParams, view_angle_ra
     except np.linalg.LinAlgError:
         cov = np.diag([1e2] * 6)
     cov = 0.5 * (cov + cov.T)
-    var_t = (params.sigma_sys_t_m**2 + (params.sigma_sys_t_per_rad * view_angle_rad) ** 2
-             + (params.sigma_sys_t_per_m * distance_m) ** 2)
-    var_r = (np.radians(params.sigma_sys_r_deg) ** 2 + (params.sigma_sys_r_per_rad * view_angle_rad) ** 2
-             + np.radians(params.sigma_sys_r_deg_per_m * distance_m) ** 2)
+    var_t, var_r = systematic_variances(params, view_angle_rad, distance_m)
     cov += np.diag([var_t] * 3 + [var_r] * 3)
     floor = np.array([params.min_sigma_t_m] * 3 + [np.radians(params.min_sigma_r_deg)] * 3) ** 2
     cov[np.diag_indices(6)] = np.maximum(np.diag(cov), floor)
