@@ -477,6 +477,12 @@ def test_gl_pose_outside_the_prior_gate_is_held_until_a_later_frame_repeats_it()
     r = stale.process(1 * sec, IMG, s.look(pose(1.0), 1), K, pose(1.2), prior_age_s=10.0)
     assert not r.accepted and "the prior is 10.0 s past its last fix, too old to confirm it" in r.reason
     assert stale.process(2 * sec, IMG, s.look(pose(1.2), 1), K, pose(1.4), prior_age_s=11.0).accepted
+    # at the window's end, up to the clock's jitter (5 frames of a 1 Hz clock that runs 5 ns
+    # long per frame): still a repeat
+    edge = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)
+    assert not edge.process(0, IMG, s.look(pose(1.0), 1), K, pose(3.0)).accepted
+    r = edge.process(5 * sec + 25, IMG, s.look(pose(1.0), 1), K, pose(3.0))
+    assert r.accepted and "repeats the pose held 5.00 s" in r.stop_reason
     # too late for a repeat: held again instead
     late = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)
     assert not late.process(0, IMG, s.look(pose(1.0), 1), K, pose(3.0)).accepted
