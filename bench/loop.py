@@ -22,7 +22,8 @@ another lane through the full runtime, then navigate to goal images along it.
    * `localized_fraction`: accepted VLoc poses / frames VLoc processed (and of all frames).
 3. Navigation: `--goals` goal images rendered at equal arc length along the mapping route
    (facing along it), driven to in order from the route's start with LiteVLoc localization
-   (`runtime.sim_navigation.run_navigation`, as `sim navigate`).
+   (`runtime.sim_navigation.run_navigation`, as `sim navigate`), and again with ground-truth
+   localization as the baseline (`--no-baseline`: LiteVLoc only).
 
 Prints a table and writes JSON (all numbers measured in this run; nothing here was tuned on
 the loop world).
@@ -163,9 +164,15 @@ def loop_goals(world: Any, cfg: Any, n_goals: int) -> tuple[list[Any], Any, list
     return goals, route, [round(lap * (k + 1) / (n_goals + 1), 1) for k in range(n_goals)]
 
 
-def navigate(map_dir: Path, config: str, n_goals: int) -> dict[str, Any]:
+def navigate(map_dir: Path, config: str, n_goals: int, baseline: bool) -> dict[str, Any]:
+    """LiteVLoc's navigation run (summary dict, as `sim navigate`'s JSON) and, with `baseline`,
+    the same goals driven with ground-truth localization (`baseline`) and the time and path
+    ratios over the goals both reached (`ratios`): the goal images are placed on the map in
+    the same way in both runs, so a goal the baseline misses too is lost to its image or the
+    map, not to the localization."""
     from litevloc.config import load_config
     from litevloc.hw.sim.world import load_world
+    from litevloc.runtime.cli.sim_navigate import goal_ratios
     from litevloc.runtime.sim_navigation import NavParams, run_navigation
 
     cfg = load_config(config)
@@ -175,6 +182,11 @@ def navigate(map_dir: Path, config: str, n_goals: int) -> dict[str, Any]:
     out = run.summary()
     out.pop("trace", None)
     out["goal_arc_m"] = arc
+    if baseline:
+        base = run_navigation(world, cfg, map_dir, goals, route.T_world_base[0], "ground-truth", NavParams()).summary()
+        base.pop("trace", None)
+        out["baseline"] = base
+        out["ratios"] = goal_ratios(out["goals"], base["goals"])
     return out
 
 
@@ -185,6 +197,8 @@ def main() -> int:
     ap.add_argument("--config", default="default")
     ap.add_argument("--goals", type=int, default=5)
     ap.add_argument("--skip-nav", action="store_true", help="map and query pass only")
+    ap.add_argument("--no-baseline", action="store_true",
+                    help="navigation with LiteVLoc only (no ground-truth localization run to compare)")
     ap.add_argument("--reuse-map", action="store_true", help="use OUT_DIR/map if it exists")
     ap.add_argument("--query-pass", default="loop-lane", choices=("loop-lane", "loop-back"))
     ap.add_argument("--rate", type=float, default=1.0, help="query replay speed (1 = real time, as on the robot; "
@@ -230,11 +244,20 @@ def main() -> int:
           f"{100 * q['vloc_ate_m']:.1f} cm, fused {100 * q['fused_ate_m']:.1f} cm, odometry alone "
           f"{q['odometry_ate_m']:.2f} m (final {q['odometry_final_error_m']:.2f} m)", flush=True)
     if not args.skip_nav:
-        nav = navigate(map_dir, args.config, args.goals)
+        nav = navigate(map_dir, args.config, args.goals, not args.no_baseline)
         res["navigation"] = nav
         res["goals_reached"], res["goals_total"] = nav["goals_reached"], nav["goals_total"]
         print(f"navigation: {nav['goals_reached']}/{nav['goals_total']} goals, {nav['time_s']:.0f} s simulated, "
               f"{nav['path_length_m']:.0f} m, {nav['collisions']} collisions ({nav['wall_s']:.0f} s wall)")
+        if "baseline" in nav:
+            b, r = nav["baseline"], nav["ratios"]
+            res["baseline_goals_reached"] = b["goals_reached"]
+            print(f"  ground-truth localization: {b['goals_reached']}/{b['goals_total']} goals, {b['time_s']:.0f} s, "
+                  f"{b['path_length_m']:.0f} m, {b['collisions']} collisions; over the {r['goals_compared']} goals "
+                  f"both reached: path x{r['path_length']}, time x{r['time']}")
+        for g in nav["goals"]:
+            if g["outcome"] != "reached":
+                print(f"  {g['name']}: {g['outcome']}: {g['reason']}")
     else:
         res["goals_reached"] = res["goals_total"] = None
     args.json.parent.mkdir(parents=True, exist_ok=True)

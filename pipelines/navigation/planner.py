@@ -30,7 +30,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import cv2
@@ -76,11 +76,14 @@ class GoalPose:
     plane_rms_m: RMS distance (m) of the inliers' 3D points from their best-fitting plane;
     NaN without a pose. Near zero: the whole support is one flat patch (a poster, a sign,
     one wall), which can hang at several places.
+    support_points: (M, 3) the PnP inliers' 3D points in the keyframe camera frame (metres);
+    empty without a pose.
     """
 
     T_node_goal: NDArray[np.float64] | None
     inliers: int
     plane_rms_m: float = float("nan")
+    support_points: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3)))
 
 
 def plane_rms(points: NDArray[np.float64]) -> float:
@@ -128,7 +131,18 @@ def goal_pose(
     T_node_goal = invert(T_goal_node)
     if not ok2 or not np.all(np.isfinite(T_node_goal)) or np.linalg.norm(T_node_goal[:3, 3]) > params.pose_max_m:
         return GoalPose(None, n)
-    return GoalPose(T_node_goal, n, plane_rms(pts[idx]))
+    return GoalPose(T_node_goal, n, plane_rms(pts[idx]), pts[idx])
+
+
+def horizontal_share(points_map: NDArray[np.float64], up: NDArray[np.float64], band_m: float = 0.04) -> float:
+    """Largest share (0-1) of (N, 3) map points whose heights along `up` (unit 3-vector)
+    lie within one band of `band_m` metres: the part of a support that rests on one
+    horizontal surface (floor or ceiling tiles, which repeat everywhere). NaN for no points."""
+    if len(points_map) == 0:
+        return float("nan")
+    h = np.sort(np.asarray(points_map, np.float64) @ np.asarray(up, np.float64))
+    in_band = np.searchsorted(h, h + band_m, side="right") - np.arange(len(h))
+    return float(in_band.max() / len(h))
 
 
 def essential_inliers(
@@ -157,6 +171,7 @@ class _Candidate:
     T_map_goal: NDArray[np.float64] | None
     pose_inliers: int
     plane_rms_m: float = float("nan")
+    horizontal_share: float = float("nan")  # see `horizontal_share`
 
     def planar(self, params: GoalParams) -> bool:
         """True when the candidate's PnP support is one flat patch (see `GoalParams.planar_rms_m`)."""
@@ -207,7 +222,11 @@ def localize_goal(
         n_e = essential_inliers(goal_feats, K_goal, feats, K_node, match, params, pairs)
         gp = goal_pose(goal_feats, K_goal, feats, topomap.keypoint_depth(node), K_node, match, params, pairs)
         T_map_goal = None if gp.T_node_goal is None else topomap.T_map_camera[node] @ gp.T_node_goal
-        cands.append(_Candidate(node, float(sims[node]), n_e, T_map_goal, gp.inliers, gp.plane_rms_m))
+        flat = float("nan")
+        if T_map_goal is not None:
+            T_mn = topomap.T_map_camera[node]
+            flat = horizontal_share(gp.support_points @ T_mn[:3, :3].T + T_mn[:3, 3], topomap.grid.up)
+        cands.append(_Candidate(node, float(sims[node]), n_e, T_map_goal, gp.inliers, gp.plane_rms_m, flat))
     table = tuple((c.node, c.similarity, c.inliers) for c in cands)
     strongest = max(cands, key=lambda c: (c.inliers, c.similarity))
     verified = [c for c in cands if c.inliers >= c.needed(params)]
@@ -232,10 +251,15 @@ def localize_goal(
             if s_rival * params.ambiguity_ratio > support[mine]:
                 assert rival.T_map_goal is not None
                 apart = float(np.linalg.norm(rival.T_map_goal[:3, 3] - best.T_map_goal[:3, 3]))
+                why = ""
+                if best.horizontal_share >= 0.5:  # say what the image lacks, so the user can retake it
+                    why = (f"; {100 * best.horizontal_share:.0f} % of node {best.node}'s support lies on one "
+                           "horizontal surface (floor or ceiling tiles repeat): an image with more of the "
+                           "place in view would tell them apart")
                 return GoalResult(None, best.inliers,
                                   f"goal image is ambiguous: it verifies at nodes {best.node} and {rival.node}, "
                                   f"{apart:.1f} m apart (PnP support {support[mine]} vs {s_rival}, need "
-                                  f"x{params.ambiguity_ratio:g})", table, None, best.pose_inliers)
+                                  f"x{params.ambiguity_ratio:g}){why}", table, None, best.pose_inliers)
     return GoalResult(best.node, best.inliers, "ok", table, best.T_map_goal, best.pose_inliers)
 
 

@@ -151,7 +151,7 @@ def navigate(world_name: str, cfg: Any, map_path: Path, goal_args: list[str] | N
         base = runs["ground-truth"].summary()
         base.pop("trace", None)
         out["baseline"] = base
-        out["ratios"] = _ratios(res["goals"], base["goals"])
+        out["ratios"] = goal_ratios(res["goals"], base["goals"])
     if png is not None:
         out["png"] = str(plot_navigation(world, load_map(map_path), list(runs.values()), goals, png,
                                          f"LiteVLoc image-goal navigation: {world_name}"))
@@ -159,7 +159,7 @@ def navigate(world_name: str, cfg: Any, map_path: Path, goal_args: list[str] | N
     return out
 
 
-def _ratios(goals: list[dict[str, Any]], base_goals: list[dict[str, Any]]) -> dict[str, Any]:
+def goal_ratios(goals: list[dict[str, Any]], base_goals: list[dict[str, Any]]) -> dict[str, Any]:
     """LiteVLoc / ground-truth time and path over the goals both reached (None when there is
     none: a run that reached nothing has no meaningful ratio), and how many goals that is."""
     base = {g["name"]: g for g in base_goals}

@@ -156,13 +156,13 @@ def test_ensure_map_passes_build_overrides_and_reuses_a_built_map(tmp_path: Path
 
 
 def test_ratios_compare_only_goals_both_modes_reached() -> None:
-    from litevloc.runtime.cli.sim_navigate import _ratios
+    from litevloc.runtime.cli.sim_navigate import goal_ratios
 
     def g(name: str, outcome: str, t: float, p: float) -> dict:
         return {"name": name, "outcome": outcome, "time_s": t, "path_length_m": p}
 
     lv = [g("a", "reached", 20.0, 10.0), g("b", "failed", 0.0, 0.0), g("c", "timeout", 120.0, 3.0)]
     gt = [g("a", "reached", 10.0, 8.0), g("b", "reached", 30.0, 9.0), g("c", "reached", 5.0, 2.0)]
-    assert _ratios(lv, gt) == {"goals_compared": 1, "path_length": 1.25, "time": 2.0}
-    none = _ratios([g("a", "failed", 0.0, 0.0)], gt)
+    assert goal_ratios(lv, gt) == {"goals_compared": 1, "path_length": 1.25, "time": 2.0}
+    none = goal_ratios([g("a", "failed", 0.0, 0.0)], gt)
     assert none == {"goals_compared": 0, "path_length": None, "time": None}

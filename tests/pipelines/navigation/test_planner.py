@@ -282,3 +282,19 @@ def test_goal_supported_by_one_flat_patch_needs_more_inliers(monkeypatch: pytest
     for bad in ({"planar_rms_m": -0.01}, {"planar_factor": 0.5}, {"planar_factor": float("nan")}):
         with pytest.raises(ValueError, match="planar"):
             GoalParams(**bad)  # type: ignore[arg-type]
+
+
+def test_horizontal_share_is_the_part_of_a_support_on_one_horizontal_surface() -> None:
+    """A corridor view's support: 80 points on the floor (heights within 1 cm), 20 on a wall
+    (heights spread over 2 m) -> 0.8 along the map's up; the same points with up along x
+    (a wall's normal) share no horizontal band -> small; no points -> NaN."""
+    from litevloc.pipelines.navigation.planner import horizontal_share
+
+    rng = np.random.default_rng(0)
+    floor = np.c_[rng.uniform(0, 10, 80), rng.uniform(-1, 1, 80), rng.uniform(-0.005, 0.005, 80)]
+    wall = np.c_[rng.uniform(0, 10, 20), np.full(20, 1.0), rng.uniform(0.5, 2.5, 20)]
+    # any place and heading in the map
+    pts = np.vstack([floor, wall]) @ g.so3_exp(np.array([0.0, 0.0, 0.3])).T + [3.0, -2.0, 0.0]
+    assert horizontal_share(pts, np.array([0.0, 0.0, 1.0])) == pytest.approx(0.8, abs=0.02)
+    assert horizontal_share(np.vstack([floor, wall]), np.array([1.0, 0.0, 0.0])) < 0.1
+    assert np.isnan(horizontal_share(np.zeros((0, 3)), np.array([0.0, 0.0, 1.0])))
