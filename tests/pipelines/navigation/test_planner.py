@@ -151,6 +151,7 @@ def test_goal_that_verifies_at_two_places_is_refused_as_ambiguous() -> None:
     res = localize_goal(goal, desc, K, twin, match_by_id, GoalParams(top_k=2))
     assert res.node is None and res.T_map_goal is None
     assert "ambiguous" in res.reason and "0" in res.reason and "2" in res.reason and "2.0 m apart" in res.reason
+    assert "horizontal surface" not in res.reason  # the support spans heights: no floor-tile hint
     # the veto off: a node is chosen as before
     res_off = localize_goal(goal, desc, K, twin, match_by_id, GoalParams(top_k=2, ambiguity_ratio=0))
     assert res_off.node in (0, 2) and res_off.reason == "ok"
