@@ -171,7 +171,7 @@ class _Candidate:
     T_map_goal: NDArray[np.float64] | None
     pose_inliers: int
     plane_rms_m: float = float("nan")
-    horizontal_share: float = float("nan")  # see `horizontal_share`
+    support_points: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3)))  # GoalPose's, node frame
 
     def planar(self, params: GoalParams) -> bool:
         """True when the candidate's PnP support is one flat patch (see `GoalParams.planar_rms_m`)."""
@@ -222,11 +222,8 @@ def localize_goal(
         n_e = essential_inliers(goal_feats, K_goal, feats, K_node, match, params, pairs)
         gp = goal_pose(goal_feats, K_goal, feats, topomap.keypoint_depth(node), K_node, match, params, pairs)
         T_map_goal = None if gp.T_node_goal is None else topomap.T_map_camera[node] @ gp.T_node_goal
-        flat = float("nan")
-        if T_map_goal is not None:
-            T_mn = topomap.T_map_camera[node]
-            flat = horizontal_share(gp.support_points @ T_mn[:3, :3].T + T_mn[:3, 3], topomap.grid.up)
-        cands.append(_Candidate(node, float(sims[node]), n_e, T_map_goal, gp.inliers, gp.plane_rms_m, flat))
+        cands.append(_Candidate(node, float(sims[node]), n_e, T_map_goal, gp.inliers, gp.plane_rms_m,
+                                gp.support_points))
     table = tuple((c.node, c.similarity, c.inliers) for c in cands)
     strongest = max(cands, key=lambda c: (c.inliers, c.similarity))
     verified = [c for c in cands if c.inliers >= c.needed(params)]
@@ -252,8 +249,10 @@ def localize_goal(
                 assert rival.T_map_goal is not None
                 apart = float(np.linalg.norm(rival.T_map_goal[:3, 3] - best.T_map_goal[:3, 3]))
                 why = ""
-                if best.horizontal_share >= 0.5:  # say what the image lacks, so the user can retake it
-                    why = (f"; {100 * best.horizontal_share:.0f} % of node {best.node}'s support lies on one "
+                T_mn = topomap.T_map_camera[best.node]
+                flat = horizontal_share(best.support_points @ T_mn[:3, :3].T + T_mn[:3, 3], topomap.grid.up)
+                if flat >= 0.5:  # say what the image lacks, so the user can retake it
+                    why = (f"; {100 * flat:.0f} % of node {best.node}'s support lies on one "
                            "horizontal surface (floor or ceiling tiles repeat): an image with more of the "
                            "place in view would tell them apart")
                 return GoalResult(None, best.inliers,
