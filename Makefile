@@ -63,18 +63,18 @@ MYPY_STRICT := -p litevloc.base -p litevloc.models -p litevloc.pipelines -m lite
 
 mypy-namespace:
 	rm -rf $(MYPY_NS) && mkdir -p $(MYPY_NS)/litevloc
-	for d in runtime pipelines hw models config base; do ln -s $(CURDIR)/$$d $(MYPY_NS)/litevloc/$$d; done
+	for d in runtime experiments pipelines hw sim models config base; do ln -s $(CURDIR)/$$d $(MYPY_NS)/litevloc/$$d; done
 
 lint: $(VENV)/.dev-installed mypy-namespace
 	$(VENV)/bin/ruff check .
-	$(VENV)/bin/mypy runtime pipelines hw models config base
+	$(VENV)/bin/mypy runtime experiments pipelines hw sim models config base
 	$(MYPY_NS_RUN) --strict $(MYPY_STRICT)
 	$(MYPY_NS_RUN) $(MYPY_CROSS)
 
 # Every package across packages: part of `lint` (its last step; the 21 errors listed in issue 19's
 # closing note are fixed). `make lint-cross` runs this check alone.
-MYPY_CROSS := -p litevloc.base -p litevloc.config -p litevloc.hw -p litevloc.models -p litevloc.pipelines \
-	-p litevloc.runtime
+MYPY_CROSS := -p litevloc.base -p litevloc.config -p litevloc.hw -p litevloc.sim -p litevloc.models -p litevloc.pipelines \
+	-p litevloc.runtime -p litevloc.experiments
 
 lint-cross: $(VENV)/.dev-installed mypy-namespace
 	$(MYPY_NS_RUN) $(MYPY_CROSS)

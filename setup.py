@@ -9,7 +9,7 @@ Works for normal and editable (`pip install -e .`) installs.
 
 from setuptools import find_packages, setup
 
-FOLDERS = ("runtime", "pipelines", "hw", "models", "config", "base")
+FOLDERS = ("runtime", "experiments", "pipelines", "hw", "sim", "models", "config", "base")
 
 packages: list[str] = []
 package_dir: dict[str, str] = {}

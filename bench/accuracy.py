@@ -43,12 +43,12 @@ import numpy as np
 from _common import ROOT, print_table, require_7scenes, write_json
 from numpy.typing import NDArray
 
+from litevloc.base.frames import parse_frames
+from litevloc.base.geometry import backproject_pixels, project, relative_pose_error, so3_log
 from litevloc.config import load_config
-from litevloc.hw.streams.base import parse_frames
 from litevloc.models.types import Features
 from litevloc.pipelines.depth_lookup import depth_at
 from litevloc.pipelines.evaluation.reloc import inside_95_ellipsoids
-from litevloc.pipelines.geometry import backproject_pixels, project, relative_pose_error, so3_log
 from litevloc.pipelines.localization.refine import keyframe_distance_m, viewpoint_angle_rad
 from litevloc.pipelines.localization.vloc import MatchedPixels, VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map

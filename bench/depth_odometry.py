@@ -18,12 +18,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from litevloc.base.frames import parse_frames
+from litevloc.base.geometry import invert, rotation_angle
 from litevloc.hw.messages import RgbdFrame
-from litevloc.hw.streams.base import parse_frames
 from litevloc.hw.streams.sevenscenes import SevenScenesSource
 from litevloc.pipelines.depth_odometry import DepthOdometry, DepthOdometryParams
 from litevloc.pipelines.evaluation.trajectory import ate, rpe_per_metre
-from litevloc.pipelines.geometry import invert, rotation_angle
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -21,9 +21,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import numpy as np
 from _common import print_table, require_7scenes, write_json
 
+from litevloc.base.frames import parse_frames
+from litevloc.base.geometry import relative_pose_error
 from litevloc.config import load_config
-from litevloc.hw.streams.base import parse_frames
-from litevloc.pipelines.geometry import relative_pose_error
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map
 from litevloc.runtime.posed import posed_frames

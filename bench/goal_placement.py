@@ -62,13 +62,13 @@ def world_map(world: str, config: str, maps_dir: Path | None = None, map_set: tu
 def goal_images(world_name: str, cfg: Any, extra: int) -> list[tuple[str, NDArray[np.uint8], NDArray[np.float64]]]:
     """(name, RGB image, true T_world_camera) of the world's goal images and `extra` frames of
     its second pass."""
-    from litevloc.hw.sim.realism import sample_lighting
-    from litevloc.hw.sim.render import Renderer
-    from litevloc.hw.sim.simulator import camera_pose, render_frame
-    from litevloc.hw.sim.source import SimSequenceSource
-    from litevloc.hw.sim.world import load_world
     from litevloc.runtime.planner_service import decode_goal_image
     from litevloc.runtime.sim_navigation import render_goals
+    from litevloc.sim.realism import sample_lighting
+    from litevloc.sim.render import Renderer
+    from litevloc.sim.simulator import camera_pose, render_frame
+    from litevloc.sim.source import SimSequenceSource
+    from litevloc.sim.world import load_world
 
     world = load_world(world_name)
     if world_name == "loop":

@@ -69,11 +69,11 @@ def build_map(out: Path, config: str) -> dict[str, Any]:
 
 def query(map_dir: Path, config: str, pass_name: str = "loop-lane", rate: float = 1.0) -> dict[str, Any]:
     """The query lap through the threaded runtime (as `litevloc replay --map`)."""
+    from litevloc.base.geometry import invert
     from litevloc.config import load_config
-    from litevloc.hw.sim.source import SimSequenceSource
-    from litevloc.hw.sim.world import load_world
-    from litevloc.pipelines.geometry import invert
     from litevloc.runtime.app import build_app, with_endpoints
+    from litevloc.sim.source import SimSequenceSource
+    from litevloc.sim.world import load_world
 
     cfg = with_endpoints(load_config(config), [f"tcp/127.0.0.1:{_free_port()}"], [], None)
     src = SimSequenceSource(load_world("loop"), pass_name, 1, params=cfg.sim)
@@ -140,11 +140,11 @@ def query(map_dir: Path, config: str, pass_name: str = "loop-lane", rate: float 
 def loop_goals(world: Any, cfg: Any, n_goals: int) -> tuple[list[Any], Any, list[float]]:
     """(goals, the mapping route, each goal's arc length in metres): `n_goals` goal images
     rendered at equal arc length along the loop's mapping route, facing along it (seeded)."""
-    from litevloc.hw.sim.realism import sample_lighting
-    from litevloc.hw.sim.render import Renderer
-    from litevloc.hw.sim.simulator import camera_pose, render_frame
-    from litevloc.hw.sim.source import SimSequenceSource
     from litevloc.runtime.sim_navigation import Goal
+    from litevloc.sim.realism import sample_lighting
+    from litevloc.sim.render import Renderer
+    from litevloc.sim.simulator import camera_pose, render_frame
+    from litevloc.sim.source import SimSequenceSource
 
     route = SimSequenceSource(world, "loop", 0, params=cfg.sim).run
     xy = route.T_world_base[:, :2, 3]
@@ -171,9 +171,9 @@ def navigate(map_dir: Path, config: str, n_goals: int, baseline: bool) -> dict[s
     the same way in both runs, so a goal the baseline misses too is lost to its image or the
     map, not to the localization."""
     from litevloc.config import load_config
-    from litevloc.hw.sim.world import load_world
     from litevloc.runtime.cli.sim_navigate import goal_ratios
     from litevloc.runtime.sim_navigation import NavParams, run_navigation
+    from litevloc.sim.world import load_world
 
     cfg = load_config(config)
     world = load_world("loop")
@@ -204,9 +204,9 @@ def main() -> int:
     ap.add_argument("--rate", type=float, default=1.0, help="query replay speed (1 = real time, as on the robot; "
                     "0 = as fast as possible: VLoc then sees fewer frames per second of sensor time)")
     args = ap.parse_args()
-    from litevloc.hw.sim.source import SimSequenceSource
-    from litevloc.hw.sim.world import load_world
     from litevloc.pipelines.topomap.io import load_map, storage_summary
+    from litevloc.sim.source import SimSequenceSource
+    from litevloc.sim.world import load_world
 
     args.out_dir.mkdir(parents=True, exist_ok=True)
     map_dir = args.out_dir / "map"

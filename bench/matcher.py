@@ -29,7 +29,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from litevloc.models.config import ModelsConfig
+from litevloc.base.params.models import ModelsConfig
 from litevloc.models.registry import default_cache_dir, load_extractor
 from litevloc.runtime.vloc_models import ModelBundle, load_bundle
 

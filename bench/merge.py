@@ -45,11 +45,10 @@ import numpy as np
 from _common import OUT, ROOT, litevloc, print_table, require_7scenes, write_json
 from numpy.typing import NDArray
 
+from litevloc.base.frames import parse_frames
+from litevloc.base.geometry import invert, make_T, relative_pose_error, so3_exp
 from litevloc.config import load_config
-from litevloc.hw.sim.world import World, load_world
-from litevloc.hw.streams.base import parse_frames
 from litevloc.hw.streams.mcap_io import TOPIC_COLOR, McapSource
-from litevloc.pipelines.geometry import invert, make_T, relative_pose_error, so3_exp
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map, save_map
 from litevloc.pipelines.topomap.merge import Link, MergeParams, align, find_links, join_maps, transform_map
@@ -57,6 +56,7 @@ from litevloc.pipelines.topomap.types import TopoMap
 from litevloc.runtime.posed import posed_frames
 from litevloc.runtime.sources import open_source
 from litevloc.runtime.vloc_models import ModelBundle, check_map_models, load_bundle
+from litevloc.sim.world import World, load_world
 
 MAPS = ROOT / "out" / "maps"
 SIM = ROOT / "out" / "merge_sim"

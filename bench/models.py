@@ -30,8 +30,8 @@ import cv2
 import numpy as np
 import torch
 
+from litevloc.base.params.models import ModelsConfig
 from litevloc.models.catalog import VPR_NORMALIZATION, spec_for
-from litevloc.models.config import ModelsConfig
 from litevloc.models.export.exporter import (
     build_torch,
     export_models,

@@ -32,9 +32,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import print_table, write_json
 
+from litevloc.base.geometry import make_T, so3_exp
 from litevloc.config.schema import ZenohConfig
 from litevloc.hw import ros_msgs
-from litevloc.pipelines.geometry import make_T, so3_exp
 from litevloc.runtime.bus import Bus, LiteVLocPublisher
 from litevloc.runtime.metrics import now_ns, percentiles_ms
 from litevloc.runtime.queues import BoundedFifo, LatestMailbox
@@ -134,8 +134,8 @@ def service_e2e(switch_interval_s: float, vloc_ms: float, seconds: float = 6.0) 
     real ORT/OpenCV calls release it), fake fusion, no-op publisher. Returns the service's own
     odometry-enqueued -> pose-handed-to-publisher latency."""
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from litevloc.base.params.drift import T_BASE_CAMERA_OPTICAL
     from litevloc.config.schema import RuntimeConfig
-    from litevloc.pipelines.odometry_drift import T_BASE_CAMERA_OPTICAL
     from litevloc.runtime.service import Service
     from tests.runtime.fakes import T_MAP_ODOM_TRUE, FakeFusion, FakePublisher, Result, SyntheticSource, T_odom_base_at
 
@@ -176,9 +176,9 @@ def service_wire_e2e(switch_interval_s: float, vloc_ms: float, seconds: float = 
     GIL-holding `vloc_ms` VLoc stand-in, fake fusion, the real Zenoh publisher), and the probe
     measuring pose receive time - odometry stamp: odometry-in -> pose-out on the wire."""
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from litevloc.base.params.drift import T_BASE_CAMERA_OPTICAL
     from litevloc.config.schema import RuntimeConfig
     from litevloc.hw.odometry import OdometryReceiver
-    from litevloc.pipelines.odometry_drift import T_BASE_CAMERA_OPTICAL
     from litevloc.runtime.service import Service
     from tests.runtime.fakes import T_MAP_ODOM_TRUE, FakeFusion, Result, SyntheticSource, T_odom_base_at
 

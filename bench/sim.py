@@ -33,11 +33,11 @@ from typing import Any
 import cv2
 import numpy as np
 
-from litevloc.hw.sim.params import SimParams
-from litevloc.hw.sim.render import Renderer
-from litevloc.hw.sim.source import SimSequenceSource
-from litevloc.hw.sim.world import load_world
-from litevloc.pipelines.geometry import backproject_pixels, invert, relative_pose_error
+from litevloc.base.geometry import backproject_pixels, invert, relative_pose_error
+from litevloc.base.params.sim import SimParams
+from litevloc.sim.render import Renderer
+from litevloc.sim.source import SimSequenceSource
+from litevloc.sim.world import load_world
 
 
 def _pct(x: Sequence[float] | np.ndarray) -> dict[str, float]:
@@ -87,7 +87,7 @@ def bench_render(world_name: str, n: int) -> dict[str, dict[str, float]]:
 
 def bench_steps(world_name: str, sim_seconds: float) -> dict[str, float]:
     """Wall time per simulated second of `Simulator.step` at 5 Hz, three render patterns."""
-    from litevloc.hw.sim.simulator import Simulator
+    from litevloc.sim.simulator import Simulator
 
     world = load_world(world_name)
     start = world.goal_places[sorted(world.goal_places)[0]]

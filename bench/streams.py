@@ -19,10 +19,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import numpy as np
 from _common import print_table, require_7scenes, write_json
 
+from litevloc.base.frames import parse_frames
+from litevloc.base.params.drift import DriftParams
 from litevloc.hw.messages import RgbdFrame
-from litevloc.hw.streams.base import parse_frames
 from litevloc.hw.streams.mcap_io import McapRecorder, McapSource
-from litevloc.pipelines.odometry_drift import DriftParams
 from litevloc.runtime.sources import open_source, with_simulated_odometry
 
 

@@ -45,8 +45,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.base.params.camera import CameraConfig as CameraConfig
-from litevloc.base.params.camera import StereoPreset as StereoPreset
+from litevloc.base.params.camera import CameraConfig
 from litevloc.hw.messages import Message, RgbdFrame, StreamError, StreamStats, depth_from_millimetres
 
 log = logging.getLogger(__name__)

@@ -51,10 +51,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.base.params.odometry import OdometryCheckParams as OdometryCheckParams
+from litevloc.base.geometry import make_T, quat_xyzw_to_matrix
+from litevloc.base.params.odometry import OdometryCheckParams
 from litevloc.hw import ros_msgs
 from litevloc.hw.messages import Odometry, StreamStats
-from litevloc.pipelines.geometry import make_T, quat_xyzw_to_matrix
 
 log = logging.getLogger(__name__)
 

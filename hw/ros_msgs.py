@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 from rosbags.typesys import Stores, get_typestore
 
 from litevloc.base.errors import LiteVLocError
-from litevloc.pipelines.geometry import make_T, matrix_to_quat_xyzw, quat_xyzw_to_matrix
+from litevloc.base.geometry import make_T, matrix_to_quat_xyzw, quat_xyzw_to_matrix
 
 COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
 IMAGE = "sensor_msgs/msg/Image"

@@ -6,7 +6,7 @@ sub-package that imports it, and only `litevloc models export` loads it.
 Public interface::
 
     from litevloc.models.types import Features, Matches, FeatureExtractor, Matcher, PlaceRecognizer
-    from litevloc.models.config import ModelsConfig
+    from litevloc.base.params.models import ModelsConfig
     from litevloc.models.registry import (ModelError, default_cache_dir, load_extractor,
                                           load_matcher, load_place_recognizer)
 """

@@ -20,8 +20,8 @@ from pathlib import Path
 from typing import Any
 
 from litevloc.base.errors import LiteVLocError
+from litevloc.base.params.models import ModelsConfig
 from litevloc.models.catalog import EXPORT_VERSION, OPSET, ModelSpec, aliked_id, spec_for, vpr_id
-from litevloc.models.config import ModelsConfig
 from litevloc.models.types import FeatureExtractor, Matcher, PlaceRecognizer
 
 MANIFEST = "manifest.json"

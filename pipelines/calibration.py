@@ -41,14 +41,14 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
-from litevloc.base.geometry import undistort_normalized
-from litevloc.base.params.calibration import ColorDepthCalibration as ColorDepthCalibration
-from litevloc.pipelines.geometry import (
+from litevloc.base.geometry import (
     invert,
     make_T,
     so3_exp,
     so3_log,
+    undistort_normalized,
 )
+from litevloc.base.params.calibration import ColorDepthCalibration
 
 F64 = NDArray[np.float64]
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.base.params.localization import DepthLookupParams as DepthLookupParams
+from litevloc.base.params.localization import DepthLookupParams
 
 
 def depth_at(

@@ -38,7 +38,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.pipelines.geometry import invert
+from litevloc.base.geometry import invert
 
 F64 = NDArray[np.float64]
 

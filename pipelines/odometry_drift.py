@@ -23,10 +23,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.base.params.drift import R_BASE_OPTICAL as R_BASE_OPTICAL
-from litevloc.base.params.drift import T_BASE_CAMERA_OPTICAL as T_BASE_CAMERA_OPTICAL
-from litevloc.base.params.drift import DriftParams as DriftParams
-from litevloc.pipelines.geometry import (
+from litevloc.base.geometry import (
     GeometryError,
     interpolate_pose_at,
     invert,
@@ -34,6 +31,7 @@ from litevloc.pipelines.geometry import (
     rotation_angle,
     so3_exp,
 )
+from litevloc.base.params.drift import DriftParams
 
 
 def resample_times(t_start_ns: int, t_end_ns: int, rate_hz: float) -> NDArray[np.int64]:

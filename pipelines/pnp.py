@@ -23,9 +23,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.base.params.localization import PnpMethod as PnpMethod
-from litevloc.base.params.localization import PnpParams as PnpParams
-from litevloc.pipelines.geometry import make_T, project, so3_exp
+from litevloc.base.geometry import make_T, project, so3_exp
+from litevloc.base.params.localization import PnpParams
 
 _FLAGS = {"p3p": cv2.SOLVEPNP_P3P, "ap3p": cv2.SOLVEPNP_AP3P, "sqpnp": cv2.SOLVEPNP_SQPNP, "epnp": cv2.SOLVEPNP_EPNP}
 

@@ -48,9 +48,9 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.base.geometry import invert
 from litevloc.config.schema import PlannerConfig
 from litevloc.hw import ros_msgs
-from litevloc.pipelines.geometry import invert
 from litevloc.pipelines.navigation.planner import GoalResult, NavStatus, SubgoalTracker, localize_goal, segment_clear
 from litevloc.pipelines.topomap.types import TopoMap
 from litevloc.runtime.metrics import jsonable

@@ -36,7 +36,7 @@ import numpy as np
 
 
 def _pose_row(t_ns: int, T: np.ndarray) -> list[float]:
-    from litevloc.pipelines.geometry import matrix_to_quat_xyzw
+    from litevloc.base.geometry import matrix_to_quat_xyzw
 
     q = matrix_to_quat_xyzw(T[:3, :3])
     return [float(t_ns), *map(float, T[:3, 3]), *map(float, q)]
@@ -159,10 +159,10 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _send(args: argparse.Namespace) -> int:
+    from litevloc.base.geometry import make_T, so3_exp
     from litevloc.config.schema import ZenohConfig
     from litevloc.hw.messages import Odometry
     from litevloc.hw.odometry import OdometrySender
-    from litevloc.pipelines.geometry import make_T, so3_exp
     from litevloc.runtime.bus import Bus, warm_codecs
 
     warm_codecs()

@@ -21,12 +21,12 @@ from typing import Any
 import cv2
 import numpy as np
 
+from litevloc.base.geometry import backproject_depth, invert, relative_pose_error
 from litevloc.config import LiteVLocConfig
 from litevloc.hw.streams.base import StreamSource
 from litevloc.models.registry import load_extractor, load_matcher
 from litevloc.models.types import Features
 from litevloc.pipelines.evaluation.reloc import reloc_metrics
-from litevloc.pipelines.geometry import backproject_depth, invert, relative_pose_error
 from litevloc.pipelines.localization.vloc import relative_pose
 from litevloc.pipelines.topomap.types import TopoMap
 from litevloc.runtime.mapfree_submission import MapFreeQuery, score_submission, write_dataset, write_submission

@@ -63,9 +63,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litevloc.base.errors import LiteVLocError
+from litevloc.base.params.drift import T_BASE_CAMERA_OPTICAL
 from litevloc.config.schema import RuntimeConfig
 from litevloc.hw.messages import EncodedRgbdFrame, GroundTruthPose, Odometry, RgbdFrame, SourceMessage, StreamError
-from litevloc.pipelines.odometry_drift import T_BASE_CAMERA_OPTICAL
 from litevloc.runtime.frame_guard import RejectedFrame
 from litevloc.runtime.localization_core import (
     CoreOutput,

@@ -3,7 +3,7 @@
 ```
 Simulator --odometry, frames--> onboard runtime (runtime.app: VLoc + GTSAM fusion)
     --litevloc/pose (Zenoh)--> planner service (runtime.planner_service)
-    --litevloc/subgoal_base (Zenoh)--> local planner (hw.sim.local_planner, depth) --(v, omega)--> Simulator
+    --litevloc/subgoal_base (Zenoh)--> local planner (sim.local_planner, depth) --(v, omega)--> Simulator
 ```
 
 Three Zenoh sessions on loopback (free ports): the runtime listens; the planner listens and
@@ -47,14 +47,14 @@ from litevloc.base.errors import LiteVLocError
 from litevloc.config import LiteVLocConfig
 from litevloc.hw import ros_msgs
 from litevloc.hw.messages import Message, Odometry
-from litevloc.hw.sim.local_planner import LocalPlanner, LocalPlannerParams
-from litevloc.hw.sim.realism import sample_lighting
-from litevloc.hw.sim.render import Renderer
-from litevloc.hw.sim.search import LocalizationSearch, SearchParams
-from litevloc.hw.sim.simulator import Simulator, camera_pose, render_frame
-from litevloc.hw.sim.world import World
 from litevloc.runtime.bus import Bus, LiteVLocPublisher
 from litevloc.runtime.planner_service import KEYS, PlannerService, build_planner
+from litevloc.sim.local_planner import LocalPlanner, LocalPlannerParams
+from litevloc.sim.realism import sample_lighting
+from litevloc.sim.render import Renderer
+from litevloc.sim.search import LocalizationSearch, SearchParams
+from litevloc.sim.simulator import Simulator, camera_pose, render_frame
+from litevloc.sim.world import World
 
 
 class NavigationRunError(LiteVLocError, RuntimeError):
@@ -67,7 +67,7 @@ class NavParams:
     vloc_hz: float = 1.0  # frames handed to the runtime per simulated second
     goal_timeout_s: float = 120.0  # simulated seconds per goal before it is cancelled
     success_radius_m: float = 2.0  # goals are localized to a map keyframe, often 1-2 m from the goal spot
-    search_after_s: float = 3.0  # no pose yet for this long: look for a place (turn, then move; see hw/sim/search.py)
+    search_after_s: float = 3.0  # no pose yet for this long: look for a place (turn, then move; see sim/search.py)
     answer_timeout_s: float = 20.0  # wall time to wait for the planner's answer to a pose
     seed: int = 0
     odometry_hz: float | None = 50.0  # simulated odometry rate (None: the config's); every fused pose

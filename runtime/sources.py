@@ -14,15 +14,16 @@ from pathlib import Path
 
 import numpy as np
 
+from litevloc.base.geometry import invert
+from litevloc.base.params.calibration import ColorDepthCalibration
+from litevloc.base.params.drift import T_BASE_CAMERA_OPTICAL, DriftParams
 from litevloc.hw.messages import Message, Odometry, SourceMessage, StreamError, StreamStats
 from litevloc.hw.streams.base import StreamSource
 from litevloc.hw.streams.mcap_io import McapSource
 from litevloc.hw.streams.posed_folder import PosedFolderSource
 from litevloc.hw.streams.sevenscenes import SevenScenesSource, is_sevenscenes_folder
 from litevloc.hw.streams.tum import TumRgbdSource, is_tum_folder
-from litevloc.pipelines.calibration import ColorDepthCalibration
-from litevloc.pipelines.geometry import invert
-from litevloc.pipelines.odometry_drift import T_BASE_CAMERA_OPTICAL, DriftParams, simulate_odometry
+from litevloc.pipelines.odometry_drift import simulate_odometry
 
 
 def open_source(
@@ -34,7 +35,7 @@ def open_source(
     `rgbd_calibration` (config `rgbd_calibration`) registers 7-Scenes depth to the colour
     camera (see hw/streams/sevenscenes.py); other inputs are already registered and ignore it."""
     if str(path).startswith("sim:"):
-        from litevloc.hw.sim.source import open_sim_source
+        from litevloc.sim.source import open_sim_source
 
         try:
             return open_sim_source(str(path))

@@ -97,7 +97,7 @@ class DropQueue:
 
 
 def _quat_xyzw(R: NDArray[np.float64]) -> NDArray[np.float64]:
-    from litevloc.pipelines.geometry import matrix_to_quat_xyzw
+    from litevloc.base.geometry import matrix_to_quat_xyzw
 
     return np.asarray(matrix_to_quat_xyzw(np.asarray(R, dtype=np.float64)), dtype=np.float64)
 

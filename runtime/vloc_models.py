@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.models.config import ModelsConfig
+from litevloc.base.params.models import ModelsConfig
 from litevloc.models.registry import ModelError, load_extractor, load_matcher, load_place_recognizer
 from litevloc.models.types import FeatureExtractor, Features, Matcher, PlaceRecognizer
 from litevloc.pipelines.topomap.types import FeatureSet, FeatureStore, TopoMap

@@ -1,5 +1,5 @@
 """Simulator parameters (robot, head camera, sensor rates, drift and imaging effects): the
-config section `sim`, used by `litevloc.hw.sim`."""
+config section `sim`, used by `litevloc.sim`."""
 
 from __future__ import annotations
 

@@ -11,7 +11,6 @@ from __future__ import annotations
 from collections.abc import Iterator
 from typing import Protocol, runtime_checkable
 
-from litevloc.base.frames import parse_frames as parse_frames
 from litevloc.hw.messages import Message, StreamError, StreamStats
 
 

@@ -33,9 +33,9 @@ from pathlib import Path
 
 import numpy as np
 
+from litevloc.base.geometry import check_rigid, invert, project_to_so3, register_depth
 from litevloc.hw.messages import RgbdFrame, StreamError
 from litevloc.hw.streams.posed_folder import FrameRecord, PosedFolderSource, read_matrix_4x4
-from litevloc.pipelines.geometry import check_rigid, invert, project_to_so3, register_depth
 
 FPS = 30.0
 DEFAULT_K = np.array([[585.0, 0.0, 320.0], [0.0, 585.0, 240.0], [0.0, 0.0, 1.0]])

@@ -19,14 +19,14 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.hw.messages import StreamError
-from litevloc.hw.streams.posed_folder import FrameRecord, PosedFolderSource
-from litevloc.pipelines.geometry import (
+from litevloc.base.geometry import (
     GeometryError,
     interpolate_pose_at,
     make_T,
     quat_xyzw_to_matrix,
 )
+from litevloc.hw.messages import StreamError
+from litevloc.hw.streams.posed_folder import FrameRecord, PosedFolderSource
 
 # Published TUM intrinsics (fx, fy, cx, cy) per Kinect.
 TUM_INTRINSICS = {

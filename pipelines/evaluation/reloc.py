@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.pipelines.geometry import invert, so3_log
+from litevloc.base.geometry import invert, so3_log
 
 CHI2_95_3DOF = 7.814727903251178  # scipy.stats.chi2.ppf(0.95, 3)
 

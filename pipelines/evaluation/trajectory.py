@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litevloc.base.errors import LiteVLocError
-from litevloc.pipelines.geometry import (
+from litevloc.base.geometry import (
     GeometryError,
     invert,
     make_T,

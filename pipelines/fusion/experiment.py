@@ -27,12 +27,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.base.geometry import interpolate_pose_at, invert
+from litevloc.base.params.drift import DriftParams
 from litevloc.pipelines.evaluation.trajectory import ate, write_tum
 from litevloc.pipelines.fusion.batch import refine_session
 from litevloc.pipelines.fusion.online import FusionParams
 from litevloc.pipelines.fusion.simulate import run_online, simulate_vloc, synthetic_trajectory
-from litevloc.pipelines.geometry import interpolate_pose_at, invert
-from litevloc.pipelines.odometry_drift import DriftParams, simulate_odometry
+from litevloc.pipelines.odometry_drift import simulate_odometry
 
 F64 = NDArray[np.float64]
 
@@ -189,7 +190,7 @@ def long_run_experiment(
     `add_vloc` call times, states in the graph; RSS (MiB) at the start and the end.
     """
     p = params or FusionParams()
-    from litevloc.pipelines.odometry_drift import T_BASE_CAMERA_OPTICAL
+    from litevloc.base.params.drift import T_BASE_CAMERA_OPTICAL
 
     gt_t, T_wb = synthetic_trajectory(minutes * 60.0, 30.0, seed=seed)
     ot, oT = simulate_odometry(gt_t, T_wb, 100.0, DriftParams(), seed=seed)

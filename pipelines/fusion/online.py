@@ -63,8 +63,8 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.pipelines.fusion.params import FusionParams
-from litevloc.pipelines.geometry import interpolate_pose, invert, rotation_angle
+from litevloc.base.geometry import interpolate_pose, invert, rotation_angle
+from litevloc.base.params.fusion import FusionParams
 
 F64 = NDArray[np.float64]
 

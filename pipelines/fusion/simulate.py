@@ -20,8 +20,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.base.geometry import interpolate_pose_at, make_T, so3_exp
 from litevloc.pipelines.fusion.online import FusionParams, OnlineFusion
-from litevloc.pipelines.geometry import interpolate_pose_at, make_T, so3_exp
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]

@@ -52,8 +52,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
-from litevloc.base.params.localization import RefineParams as RefineParams
-from litevloc.pipelines.geometry import make_T, rotation_angle, so3_exp
+from litevloc.base.geometry import make_T, rotation_angle, so3_exp
+from litevloc.base.params.localization import RefineParams
 from litevloc.pipelines.guided_matching import match_by_projection
 
 F64 = NDArray[np.float64]

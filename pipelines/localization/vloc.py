@@ -43,9 +43,9 @@ from enum import StrEnum
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.base.params.localization import LocalizationParams as LocalizationParams
+from litevloc.base.geometry import backproject_pixels, check_rigid, relative_pose_error
+from litevloc.base.params.localization import LocalizationParams
 from litevloc.pipelines.depth_lookup import depth_at
-from litevloc.pipelines.geometry import backproject_pixels, check_rigid, relative_pose_error
 from litevloc.pipelines.guided_matching import mutual_nn_count
 from litevloc.pipelines.localization.refine import (
     KeyframeObservations,

@@ -41,8 +41,7 @@ from scipy.sparse.csgraph import dijkstra
 
 from litevloc.base.errors import LiteVLocError
 from litevloc.base.geometry import backproject_pixels, invert
-from litevloc.base.params.navigation import GoalParams as GoalParams
-from litevloc.base.params.navigation import TrackerParams as TrackerParams
+from litevloc.base.params.navigation import GoalParams, TrackerParams
 from litevloc.pipelines.topomap.node_index import ZERO_EDGE_M, NodeIndex
 from litevloc.pipelines.topomap.types import FeatureSet, TopoMap
 

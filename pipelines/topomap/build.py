@@ -28,9 +28,9 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.base.params.mapping import MappingParams as MappingParams
+from litevloc.base.geometry import backproject_depth, check_rigid, rotation_angle, transform_points
+from litevloc.base.params.mapping import MappingParams
 from litevloc.pipelines.depth_lookup import depth_at
-from litevloc.pipelines.geometry import backproject_depth, check_rigid, rotation_angle, transform_points
 from litevloc.pipelines.topomap.graphs import (
     MatchFn,
     build_connectivity,

@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from litevloc.base.errors import LiteVLocError
-from litevloc.pipelines.geometry import relative_pose_error
+from litevloc.base.geometry import relative_pose_error
 from litevloc.pipelines.topomap.types import OccupancyGrid, TopoMap
 
 

@@ -25,9 +25,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from litevloc.base.params.mapping import ConnectivityParams as ConnectivityParams
-from litevloc.base.params.mapping import CovisibilityParams as CovisibilityParams
-from litevloc.pipelines.geometry import backproject_pixels
+from litevloc.base.geometry import backproject_pixels
+from litevloc.base.params.mapping import ConnectivityParams, CovisibilityParams
 from litevloc.pipelines.guided_matching import match_by_projection
 from litevloc.pipelines.pnp import solve_pnp
 from litevloc.pipelines.topomap.occupancy import segment_is_free

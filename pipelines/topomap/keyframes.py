@@ -35,8 +35,8 @@ import heapq
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.base.params.mapping import KeyframeParams as KeyframeParams
-from litevloc.pipelines.geometry import rotation_angle
+from litevloc.base.geometry import rotation_angle
+from litevloc.base.params.mapping import KeyframeParams
 
 _OFF = 1 << 20
 HEIGHT_QUANTUM_M = 0.1  # height slice of `coverage_keys_sliced` (m)

@@ -36,8 +36,9 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from litevloc.base.errors import LiteVLocError
-from litevloc.pipelines.geometry import invert, relative_pose_error
-from litevloc.pipelines.pnp import PnpParams, solve_pnp
+from litevloc.base.geometry import invert, relative_pose_error
+from litevloc.base.params.localization import PnpParams
+from litevloc.pipelines.pnp import solve_pnp
 from litevloc.pipelines.topomap.graphs import MatchFn
 from litevloc.pipelines.topomap.occupancy import segment_is_free
 from litevloc.pipelines.topomap.types import OccupancyGrid, TopoMap

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.base.params.mapping import OccupancyParams as OccupancyParams
+from litevloc.base.params.mapping import OccupancyParams
 from litevloc.pipelines.topomap.keyframes import plane_axes
 from litevloc.pipelines.topomap.types import OccupancyGrid
 

@@ -57,16 +57,11 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from litevloc.pipelines.geometry import backproject_pixels, invert, rotation_angle
+from litevloc.base.geometry import backproject_pixels, invert, rotation_angle
+from litevloc.base.params.mapping import ConnectivityParams, CovisibilityParams, OccupancyParams
 from litevloc.pipelines.guided_matching import match_by_projection
-from litevloc.pipelines.topomap.graphs import (
-    ConnectivityParams,
-    CovisibilityParams,
-    MatchFn,
-    lift_keypoints,
-    pair_inliers,
-)
-from litevloc.pipelines.topomap.occupancy import OccupancyParams, build_occupancy, segment_is_free
+from litevloc.pipelines.topomap.graphs import MatchFn, lift_keypoints, pair_inliers
+from litevloc.pipelines.topomap.occupancy import build_occupancy, segment_is_free
 from litevloc.pipelines.topomap.types import FeatureSet, NodeFeatures, OccupancyGrid, TopoMap
 
 

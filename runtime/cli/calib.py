@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from litevloc.pipelines.calibration import CalibrationParams, ColorDepthCalibration, calibrate_color_depth
+from litevloc.base.params.calibration import ColorDepthCalibration
+from litevloc.pipelines.calibration import CalibrationParams, calibrate_color_depth
 from litevloc.runtime.cli.common import add_frames_arg, add_json_arg, frames_of, progress, write_json
 from litevloc.runtime.cli.main import UserError
 from litevloc.runtime.posed import posed_frames

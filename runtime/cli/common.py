@@ -10,8 +10,9 @@ from typing import Any
 
 from tqdm import tqdm
 
+from litevloc.base.frames import parse_frames
 from litevloc.config import LiteVLocConfig, load_config
-from litevloc.hw.streams.base import StreamSource, parse_frames
+from litevloc.hw.streams.base import StreamSource
 
 
 def add_frames_arg(p: argparse.ArgumentParser) -> None:

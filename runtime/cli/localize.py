@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from litevloc.pipelines.geometry import relative_pose_error
+from litevloc.base.geometry import relative_pose_error
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map
 from litevloc.runtime.cli.common import (

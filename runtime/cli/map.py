@@ -147,7 +147,7 @@ def _build_passes_sim(args: argparse.Namespace, cfg: Any, builder: MapBuilder) -
     """Both passes straight from a simulated pass (`sim:WORLD?pass=map...`, the config's `sim`
     camera): pass 1 renders depth only, pass 2 renders colour for the keyframes only; no
     recording, no JPEG round trip. Returns the time pass 1 ended."""
-    from litevloc.hw.sim.source import open_sim_source
+    from litevloc.sim.source import open_sim_source
 
     if args.frames:
         raise UserError("--frames does not apply to a simulator source (use sim:WORLD?duration=S)")

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from litevloc.pipelines.geometry import rotation_angle
+from litevloc.base.geometry import rotation_angle
 from litevloc.pipelines.topomap.io import load_map, save_map, storage_summary
 from litevloc.pipelines.topomap.merge import MapMergeError, MergeParams, merge_sessions
 from litevloc.runtime.cli.common import add_config_args, add_json_arg, config_of, progress, write_json

@@ -19,9 +19,9 @@ from typing import Generic, TypeVar
 import cv2
 import numpy as np
 
+from litevloc.base.geometry import backproject_depth, invert, relative_pose_error
 from litevloc.hw.messages import RgbdFrame
 from litevloc.pipelines.depth_lookup import depth_at
-from litevloc.pipelines.geometry import backproject_depth, invert, relative_pose_error
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map, save_map
 from litevloc.pipelines.topomap.keyframes import moved

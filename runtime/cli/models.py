@@ -12,8 +12,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from litevloc.base.params.models import ModelsConfig
 from litevloc.models.catalog import DEFAULT_EXPORTS, EXTRA_EXPORTS, aliked_id, spec_for, vpr_id
-from litevloc.models.config import ModelsConfig
 from litevloc.models.registry import ModelError, cache_dir_of, locate, read_manifest
 from litevloc.runtime.cli.common import add_config_args, add_json_arg, config_of, write_json
 

@@ -57,7 +57,7 @@ def make_view(args: argparse.Namespace, topomap: Any = None, T_base_camera: Any 
 
 def open_configured_source(cfg: Any, path: Path | None) -> Any:
     """--source, else the config's source (recording, dataset, sim URI, or the OAK-D)."""
-    from litevloc.hw.streams.base import parse_frames
+    from litevloc.base.frames import parse_frames
     from litevloc.runtime.sources import open_source
 
     if path is not None:

@@ -93,14 +93,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _world(args: argparse.Namespace):
-    from litevloc.hw.sim.world import load_world
+    from litevloc.sim.world import load_world
 
     return load_world(args.world, seed=args.world_seed)
 
 
 def run_record(args: argparse.Namespace) -> int:
-    from litevloc.hw.sim.source import SimSequenceSource
     from litevloc.hw.streams.mcap_io import record_messages
+    from litevloc.sim.source import SimSequenceSource
 
     if args.output.suffix.lower() != ".mcap":
         raise UserError(f"output must be a .mcap file, got {args.output}")
@@ -124,7 +124,7 @@ def run_record(args: argparse.Namespace) -> int:
         counts.update(record_messages(src, args.output, meta, on_frame=lambda: bar.update(1)))
     dt = time.perf_counter() - t1
     if args.plot is not None:
-        from litevloc.hw.sim.plot import plot_world
+        from litevloc.sim.plot import plot_world
 
         plot_world(world, args.plot, [(args.pass_name, src.run.T_world_base[:, :2, 3])])
     size = args.output.stat().st_size
@@ -153,8 +153,8 @@ def run_record(args: argparse.Namespace) -> int:
 
 
 def run_plot(args: argparse.Namespace) -> int:
-    from litevloc.hw.sim.plot import contact_sheet, depth_to_rgb, plot_world
-    from litevloc.hw.sim.source import SimSequenceSource
+    from litevloc.sim.plot import contact_sheet, depth_to_rgb, plot_world
+    from litevloc.sim.source import SimSequenceSource
 
     world = _world(args)
     params = config_of(args).sim
@@ -180,9 +180,9 @@ def run_plot(args: argparse.Namespace) -> int:
 
 
 def run_goals(args: argparse.Namespace) -> int:
-    from litevloc.hw.sim.realism import sample_lighting
-    from litevloc.hw.sim.render import Renderer
-    from litevloc.hw.sim.simulator import camera_pose, render_frame
+    from litevloc.sim.realism import sample_lighting
+    from litevloc.sim.render import Renderer
+    from litevloc.sim.simulator import camera_pose, render_frame
 
     world = _world(args)
     params = config_of(args).sim

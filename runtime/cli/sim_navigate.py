@@ -101,10 +101,10 @@ def navigate(world_name: str, cfg: Any, map_path: Path, goal_args: list[str] | N
              modes: list[str], params: Any, world_seed: int | None = None, png: Path | None = None,
              view_spawn: bool = False, view_save: Path | None = None) -> dict[str, Any]:
     """Run the loop for each localization mode; returns the results dict (and writes the PNG)."""
-    from litevloc.hw.sim.world import load_world
     from litevloc.pipelines.topomap.io import load_map
     from litevloc.runtime.sim_navigation import Goal, plot_navigation, render_goals, run_navigation
     from litevloc.runtime.vloc_models import load_bundle
+    from litevloc.sim.world import load_world
 
     world = load_world(world_name, seed=world_seed)
     places = sorted(world.goal_places)

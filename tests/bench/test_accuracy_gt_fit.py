@@ -6,8 +6,8 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from litevloc.base import geometry as g
 from litevloc.base.params.localization import LocalizationParams
-from litevloc.pipelines import geometry as g
 from litevloc.pipelines.localization.vloc import MatchedPixels
 from tests.bench import load_bench
 

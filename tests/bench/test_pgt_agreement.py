@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from litevloc.pipelines import geometry as g
+from litevloc.base import geometry as g
 from tests.bench import load_bench
 
 

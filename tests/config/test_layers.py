@@ -1,7 +1,10 @@
-"""Layers that point one way (issue 19): `base` <- `hw`, `models`, `pipelines`, `config` <- `runtime`.
+"""Layers that point one way: `base` <- `hw`, `models`, `config`; `pipelines` -> `models`, `base`;
+`sim` -> `pipelines`, `hw`, `base`; `runtime` above them; `experiments` (the benchmarks' logic)
+above `runtime`, imported only by the command line (`runtime.cli`) and `bench/`.
 
-`config` imports no algorithm or hardware module, `hw` and `config` do not import each other,
-and `base` imports no other LiteVLoc package. The static checks read the sources; the
+`config` imports no algorithm or hardware module, `hw` (drivers and file formats) imports only
+`base`, the simulator imports neither the configuration nor the runtime, and `base` imports no
+other LiteVLoc package. The static checks read the sources; the
 dynamic ones import `litevloc.config` in a fresh interpreter and look at `sys.modules`.
 """
 
@@ -16,7 +19,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 # Heavy or hardware modules the configuration must not load.
 HEAVY = ("cv2", "scipy", "rosbags", "gtsam", "onnxruntime", "zenoh", "matplotlib", "skimage", "depthai", "mcap",
-         "litevloc.hw", "litevloc.models", "litevloc.runtime", "litevloc.hw.sim")
+         "litevloc.hw", "litevloc.models", "litevloc.runtime", "litevloc.sim")
 def _imports(path: Path) -> set[str]:
     mods: set[str] = set()
     for node in ast.walk(ast.parse(path.read_text())):
@@ -41,16 +44,22 @@ def _offending(pkg: str, forbidden: tuple[str, ...]) -> dict[str, list[str]]:
 
 
 def test_base_imports_no_other_litevloc_package() -> None:
-    assert _offending("base", ("litevloc.config", "litevloc.hw", "litevloc.models", "litevloc.pipelines",
-                               "litevloc.runtime")) == {}
+    assert _offending("base", ("litevloc.config", "litevloc.hw", "litevloc.sim", "litevloc.models",
+                               "litevloc.pipelines", "litevloc.runtime")) == {}
 
 
-def test_hw_does_not_import_config() -> None:
-    assert _offending("hw", ("litevloc.config", "litevloc.runtime")) == {}
+def test_hw_imports_only_base() -> None:
+    assert _offending("hw", ("litevloc.config", "litevloc.runtime", "litevloc.pipelines", "litevloc.models",
+                             "litevloc.sim")) == {}
+
+
+def test_sim_imports_no_config_or_runtime() -> None:
+    assert _offending("sim", ("litevloc.config", "litevloc.runtime")) == {}
 
 
 def test_config_imports_only_base() -> None:
-    assert _offending("config", ("litevloc.hw", "litevloc.models", "litevloc.pipelines", "litevloc.runtime")) == {}
+    assert _offending("config", ("litevloc.hw", "litevloc.sim", "litevloc.models", "litevloc.pipelines",
+                                 "litevloc.runtime")) == {}
 
 
 def _modules_loaded_by_config(preload: tuple[str, ...]) -> list[str]:
@@ -74,3 +83,15 @@ def test_import_config_loads_no_heavy_module() -> None:
     loaded = _modules_loaded_by_config(())
     assert "litevloc.config.schema" in loaded
     assert _heavy(loaded) == []
+
+
+def test_only_the_command_line_imports_experiments() -> None:
+    for pkg in ("base", "config", "hw", "sim", "models", "pipelines"):
+        assert _offending(pkg, ("litevloc.experiments",)) == {}, pkg
+    outside_cli = {p: m for p, m in _offending("runtime", ("litevloc.experiments",)).items()
+                   if not p.startswith("runtime/cli/")}
+    assert outside_cli == {}
+
+
+def test_experiments_do_not_import_the_command_line() -> None:
+    assert _offending("experiments", ("litevloc.runtime.cli",)) == {}

@@ -6,8 +6,8 @@ from typing import Literal
 
 import pytest
 
+from litevloc.base.loader import apply_override, from_mapping
 from litevloc.config import ConfigError, LiteVLocConfig, load_config, preset_names
-from litevloc.config.loader import apply_override, from_mapping
 
 
 @dataclass(frozen=True)

@@ -64,8 +64,8 @@ def test_guard_never_raises_and_only_passes_valid_frames(count_case: Any, frame:
 
 @pytest.fixture(scope="module")
 def bundle() -> Any:
+    from litevloc.base.params.models import ModelsConfig
     from litevloc.models.catalog import DEFAULT_EXPORTS
-    from litevloc.models.config import ModelsConfig
     from litevloc.models.registry import default_cache_dir, read_manifest
     from litevloc.runtime.vloc_models import load_bundle
 

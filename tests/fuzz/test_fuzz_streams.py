@@ -13,11 +13,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from litevloc.base.geometry import make_T, so3_exp
 from litevloc.hw import ros_msgs
 from litevloc.hw.messages import GroundTruthPose, Odometry, RgbdFrame, StreamError
 from litevloc.hw.odometry import OdometryChecker, encode_odometry
 from litevloc.hw.streams.mcap_io import _FRAME_TOPICS, TOPIC_GT, TOPIC_ODOM, TOPIC_TYPES, McapRecorder, McapSource
-from litevloc.pipelines.geometry import make_T, so3_exp
 
 K = np.array([[30.0, 0, 16], [0, 30.0, 12], [0, 0, 1]])
 

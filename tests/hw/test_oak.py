@@ -10,11 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from litevloc.base.loader import from_mapping
+from litevloc.base.params.camera import CameraConfig
 from litevloc.config import ConfigError, load_config
-from litevloc.config.loader import from_mapping
 from litevloc.hw.messages import StreamError, StreamStats
 from litevloc.hw.oak import (
-    CameraConfig,
     HostClock,
     OakNotFoundError,
     OakSource,

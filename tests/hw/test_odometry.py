@@ -5,17 +5,12 @@ import time
 import numpy as np
 import pytest
 
+from litevloc.base.geometry import make_T, so3_exp
+from litevloc.base.params.odometry import OdometryCheckParams
 from litevloc.config.schema import ZenohConfig
 from litevloc.hw import ros_msgs
 from litevloc.hw.messages import Odometry
-from litevloc.hw.odometry import (
-    OdometryChecker,
-    OdometryCheckParams,
-    OdometryReceiver,
-    OdometrySender,
-    encode_odometry,
-)
-from litevloc.pipelines.geometry import make_T, so3_exp
+from litevloc.hw.odometry import OdometryChecker, OdometryReceiver, OdometrySender, encode_odometry
 from litevloc.runtime.bus import Bus
 from litevloc.runtime.queues import BoundedFifo
 from tests.runtime.zenoh_helpers import free_port

@@ -8,8 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
+from litevloc.base.params.models import ModelsConfig
 from litevloc.models.catalog import DEFAULT_EXPORTS
-from litevloc.models.config import ModelsConfig
 from litevloc.models.registry import default_cache_dir
 
 

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
+from litevloc.base.params.models import ModelsConfig
 from litevloc.models.catalog import EXPORT_VERSION, spec_for
-from litevloc.models.config import ModelsConfig
 from litevloc.models.registry import (
     ModelError,
     default_cache_dir,
@@ -121,7 +121,7 @@ def test_cli_export_is_idempotent_and_list(
 def test_runtime_never_imports_torch(model_cache: Path) -> None:
     code = (
         "import sys\n"
-        "from litevloc.models.config import ModelsConfig\n"
+        "from litevloc.base.params.models import ModelsConfig\n"
         "from litevloc.models.registry import load_extractor, load_matcher, load_place_recognizer\n"
         "import litevloc.runtime.cli.main as m\n"
         "m.build_parser()\n"

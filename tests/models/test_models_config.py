@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
+from litevloc.base.params.models import ModelsConfig
 from litevloc.config import ConfigError, load_config
-from litevloc.models.config import ModelsConfig
 from litevloc.models.ort import make_session, resolve_providers
 from litevloc.models.registry import locate
 

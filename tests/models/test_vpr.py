@@ -13,8 +13,8 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
+from litevloc.base.params.models import ModelsConfig  # noqa: E402
 from litevloc.models.catalog import VPR_NORMALIZATION, spec_for  # noqa: E402
-from litevloc.models.config import ModelsConfig  # noqa: E402
 from litevloc.models.export.exporter import export_models, package_file  # noqa: E402
 from litevloc.models.export.vpr import CosPlaceR18, load_cosplace, load_effnet_gem  # noqa: E402
 from litevloc.models.preprocess import IMAGENET_MEAN, IMAGENET_STD, prepare_image  # noqa: E402

@@ -8,16 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from litevloc.base.geometry import undistort_normalized
-from litevloc.config import load_config
-from litevloc.pipelines import calibration as cal
-from litevloc.pipelines.calibration import (
-    CalibrationParams,
-    ColorDepthCalibration,
-    Correspondences,
-    calibrate_color_depth,
-)
-from litevloc.pipelines.geometry import (
+from litevloc.base.geometry import (
     backproject_pixels,
     invert,
     make_T,
@@ -26,7 +17,12 @@ from litevloc.pipelines.geometry import (
     relative_pose_error,
     so3_exp,
     transform_points,
+    undistort_normalized,
 )
+from litevloc.base.params.calibration import ColorDepthCalibration
+from litevloc.config import load_config
+from litevloc.pipelines import calibration as cal
+from litevloc.pipelines.calibration import CalibrationParams, Correspondences, calibrate_color_depth
 
 K_DEPTH = np.array([[585.0, 0.0, 320.0], [0.0, 585.0, 240.0], [0.0, 0.0, 1.0]])
 H, W = 480, 640
@@ -102,7 +98,7 @@ def test_register_depth_identity_leaves_depth_unchanged() -> None:
 
 
 def test_calibration_lowers_reprojection_error_on_7scenes(seven_scenes_dir: Path) -> None:
-    from litevloc.hw.streams.base import parse_frames
+    from litevloc.base.frames import parse_frames
     from litevloc.hw.streams.sevenscenes import SevenScenesSource
     from litevloc.runtime.posed import posed_frames
 

@@ -3,7 +3,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from litevloc.pipelines.depth_lookup import DepthLookupParams, depth_at
+from litevloc.base.params.localization import DepthLookupParams
+from litevloc.pipelines.depth_lookup import depth_at
 
 
 def test_bilinear_on_smooth_surface() -> None:

@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from litevloc.base.geometry import invert
 from litevloc.hw.messages import RgbdFrame
 from litevloc.hw.streams.sevenscenes import SevenScenesSource
 from litevloc.pipelines.depth_odometry import DepthOdometry, DepthOdometryParams
-from litevloc.pipelines.geometry import invert
 
 
 @pytest.mark.shared_data

@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from litevloc.pipelines import geometry as g
+from litevloc.base import geometry as g
 
 finite = st.floats(-10, 10, allow_nan=False, allow_infinity=False)
 quats = arrays(np.float64, 4, elements=st.floats(-1, 1, allow_nan=False)).filter(lambda q: np.linalg.norm(q) > 0.1)

@@ -3,8 +3,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from litevloc.pipelines import geometry as g
-from litevloc.pipelines.odometry_drift import DriftParams, simulate_odometry
+from litevloc.base import geometry as g
+from litevloc.base.params.drift import DriftParams
+from litevloc.pipelines.odometry_drift import simulate_odometry
 
 
 def circle(n: int = 50) -> tuple[np.ndarray, np.ndarray]:

@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from litevloc.pipelines import geometry as g
-from litevloc.pipelines.pnp import PnpParams, solve_pnp
+from litevloc.base import geometry as g
+from litevloc.base.params.localization import PnpParams
+from litevloc.pipelines.pnp import solve_pnp
 
 K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
 

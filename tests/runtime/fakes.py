@@ -8,9 +8,9 @@ from typing import Any
 
 import numpy as np
 
+from litevloc.base.geometry import invert, make_T, so3_exp
+from litevloc.base.params.drift import T_BASE_CAMERA_OPTICAL
 from litevloc.hw.messages import Message, Odometry, RgbdFrame, StreamStats
-from litevloc.pipelines.geometry import invert, make_T, so3_exp
-from litevloc.pipelines.odometry_drift import T_BASE_CAMERA_OPTICAL
 
 MS = 1_000_000
 T_MAP_ODOM_TRUE = make_T(so3_exp(np.array([0.0, 0.0, 0.7])), np.array([2.0, -1.0, 0.1]))

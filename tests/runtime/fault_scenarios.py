@@ -1,6 +1,6 @@
 """Fault scenarios on the real service + GTSAM fusion, cheap enough for unit tests.
 
-The robot drives a simulated office pass (`hw.sim` trajectory: ground truth and drift
+The robot drives a simulated office pass (`sim` trajectory: ground truth and drift
 odometry at 200 Hz; nothing is rendered). Frames are tiny placeholders at `frame_hz`;
 VLoc is an *oracle* that returns the true camera pose with a little noise (the real
 localizer is exercised elsewhere; here the question is what the runtime and fusion do
@@ -18,10 +18,10 @@ from typing import Any
 
 import numpy as np
 
+from litevloc.base.geometry import make_T, so3_exp
 from litevloc.config import load_config
 from litevloc.hw.messages import GroundTruthPose, Message, Odometry, RgbdFrame
 from litevloc.pipelines.fusion.online import OnlineFusion
-from litevloc.pipelines.geometry import make_T, so3_exp
 from litevloc.runtime.faults import FaultInjector
 from litevloc.runtime.service import Service, fusion_callables
 
@@ -41,8 +41,8 @@ class OracleResult:
 @lru_cache(maxsize=4)
 def sim_pass(seconds: float, seed: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray, Any]:
     """(t_ns, T_odom_base, T_world_camera at t_ns, sim) of the office map pass, no rendering."""
-    from litevloc.hw.sim.source import SimSequenceSource
-    from litevloc.hw.sim.world import load_world
+    from litevloc.sim.source import SimSequenceSource
+    from litevloc.sim.world import load_world
 
     src = SimSequenceSource(load_world("office"), "map", seed, duration=seconds)
     t = src.run.t_ns

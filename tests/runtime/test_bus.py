@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from litevloc.base.geometry import make_T, so3_exp
 from litevloc.config.schema import ZenohConfig
-from litevloc.pipelines.geometry import make_T, so3_exp
 from litevloc.runtime.bus import (
     Bus,
     BusError,

@@ -8,9 +8,9 @@ import dataclasses
 import numpy as np
 import pytest
 
+from litevloc.base.params.drift import T_BASE_CAMERA_OPTICAL
 from litevloc.config.schema import RuntimeConfig
 from litevloc.hw.messages import Odometry
-from litevloc.pipelines.odometry_drift import T_BASE_CAMERA_OPTICAL
 from litevloc.runtime.localization_core import LocalizationCore, PoseOut, VlocOut
 from litevloc.runtime.service import Service
 from tests.runtime.fakes import (

@@ -10,9 +10,10 @@ import time
 import numpy as np
 import pytest
 
+from litevloc.base.params.navigation import TrackerParams
 from litevloc.config.schema import PlannerConfig, ZenohConfig
 from litevloc.hw import ros_msgs
-from litevloc.pipelines.navigation.planner import GoalResult, TrackerParams
+from litevloc.pipelines.navigation.planner import GoalResult
 from litevloc.runtime.planner_service import KEYS, GoalPlanner, PlannerService
 from tests.pipelines.navigation.test_planner import grid_map
 from tests.runtime.zenoh_helpers import free_port

@@ -30,13 +30,13 @@ from typing import Any
 import numpy as np
 import pytest
 
+from litevloc.base.geometry import interpolate_pose_at, invert, relative_pose_error
 from litevloc.config import load_config
 from litevloc.config.schema import ZenohConfig
 from litevloc.hw import ros_msgs
 from litevloc.hw.messages import GroundTruthPose, Odometry
 from litevloc.hw.odometry import OdometrySender
 from litevloc.hw.streams.mcap_io import McapSource
-from litevloc.pipelines.geometry import interpolate_pose_at, invert, relative_pose_error
 from litevloc.runtime.bus import TOPICS, Bus, topic_key, warm_codecs
 
 from .zenoh_helpers import free_port

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from litevloc.pipelines.geometry import make_T, quat_xyzw_to_matrix
+from litevloc.base.geometry import make_T, quat_xyzw_to_matrix
 from litevloc.runtime.cli.main import main
 from litevloc.runtime.posed import posed_frames
 from litevloc.runtime.sources import open_source

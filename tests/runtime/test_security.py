@@ -117,7 +117,7 @@ def test_model_file_is_checksummed_before_use(tmp_path: Path) -> None:
     """A model file that differs from the manifest's sha256 is refused (maps: tests/pipelines/topomap/test_io.py)."""
     import hashlib
 
-    from litevloc.models.config import ModelsConfig
+    from litevloc.base.params.models import ModelsConfig
     from litevloc.models.registry import (
         EXPORT_VERSION,
         OPSET,
@@ -152,7 +152,7 @@ def test_no_code_path_executes_or_unpickles_user_data() -> None:
     """Static check over the shipped packages: no eval/exec, no pickle/marshal/unsafe YAML,
     numpy loads with allow_pickle=False, torch.load only with weights_only=True."""
     problems: list[str] = []
-    for pkg in ("runtime", "pipelines", "hw", "models", "config"):
+    for pkg in ("runtime", "pipelines", "hw", "sim", "models", "config", "base"):
         for f in sorted((ROOT / pkg).rglob("*.py")):
             tree = ast.parse(f.read_text(), str(f))
             for node in ast.walk(tree):

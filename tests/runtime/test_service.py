@@ -165,7 +165,7 @@ def test_service_over_zenoh_to_another_process(tmp_path: Path) -> None:
         got = finish_probe(proc, out)
     topics = got["topics"]
     assert got["completed"] and topics["pose"]["count"] == n_pose and topics["pose"]["decode_errors"] == 0
-    from litevloc.pipelines.geometry import make_T, quat_xyzw_to_matrix
+    from litevloc.base.geometry import make_T, quat_xyzw_to_matrix
 
     for row in topics["pose"]["data"]:
         T = make_T(quat_xyzw_to_matrix(np.array(row[4:8])), np.array(row[1:4]))

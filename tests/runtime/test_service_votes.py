@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from litevloc.base.params.drift import T_BASE_CAMERA_OPTICAL
 from litevloc.base.params.fusion import FusionParams
 from litevloc.config.schema import RuntimeConfig
 from litevloc.hw.messages import RgbdFrame
 from litevloc.pipelines.fusion.online import OnlineFusion
 from litevloc.pipelines.localization.vloc import LocalizationResult, ProvisionalPose
-from litevloc.pipelines.odometry_drift import T_BASE_CAMERA_OPTICAL
 from litevloc.runtime.service import Service, fusion_callables
 from tests.runtime.fakes import T_MAP_ODOM_TRUE, FakePublisher, SyntheticSource, T_odom_base_at
 

@@ -21,8 +21,8 @@ def small_map(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def test_closed_loop_reaches_a_goal_with_litevloc(small_map: Path, tmp_path: Path) -> None:
     from litevloc.config import load_config
-    from litevloc.hw.sim.world import load_world
     from litevloc.runtime.sim_navigation import NavParams, render_goals, run_navigation
+    from litevloc.sim.world import load_world
 
     cfg = load_config("default")
     world = load_world("office")
@@ -54,11 +54,11 @@ def test_closed_loop_reaches_a_goal_with_litevloc(small_map: Path, tmp_path: Pat
 
 def test_a_run_that_never_localizes_ends_with_the_reason(small_map: Path) -> None:
     """Started where the map (the start room only) sees nothing, the robot looks around (a full
-    turn, then a move to open space, `hw/sim/search.py`); after a goal's time without any pose
+    turn, then a move to open space, `sim/search.py`); after a goal's time without any pose
     the run ends and every goal fails as never localized, the reason counting the moves."""
     from litevloc.config import load_config
-    from litevloc.hw.sim.world import load_world
     from litevloc.runtime.sim_navigation import NavParams, render_goals, run_navigation
+    from litevloc.sim.world import load_world
 
     cfg = load_config("default")
     world = load_world("office")

@@ -15,8 +15,8 @@ import cv2
 import numpy as np
 import pytest
 
+from litevloc.base.geometry import make_T, so3_exp
 from litevloc.hw.messages import RgbdFrame
-from litevloc.pipelines.geometry import make_T, so3_exp
 from litevloc.pipelines.localization.vloc import MatchedPixels
 from litevloc.pipelines.topomap.types import NodeFeatures, OccupancyGrid, TopoMap
 from litevloc.runtime.view import DropQueue, covariance_ellipsoid, occupied_points

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from litevloc.base.geometry import make_T
 from litevloc.hw.messages import RgbdFrame
-from litevloc.pipelines.geometry import make_T
 from tests.runtime.browser import find_chromium, image_stats, screenshot_rrd
 from tests.runtime.test_view import Fused, K, Res, synthetic_map
 from tests.runtime.zenoh_helpers import free_port

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from litevloc.base.geometry import relative_pose_error
+from litevloc.base.params.drift import T_BASE_CAMERA_OPTICAL
 from litevloc.config.schema import RuntimeConfig
 from litevloc.hw.messages import Odometry, RgbdFrame
-from litevloc.pipelines.geometry import relative_pose_error
-from litevloc.pipelines.odometry_drift import T_BASE_CAMERA_OPTICAL
 from litevloc.runtime.service import Service
 from litevloc.runtime.vloc_prior import OdometryHistory, prior_at
 from tests.runtime.fakes import MS, T_MAP_ODOM_TRUE, FakeFusion, FakePublisher, Result, T_odom_base_at

@@ -5,6 +5,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from litevloc.base import geometry as g
+from litevloc.base.frames import parse_frames
 from litevloc.hw import ros_msgs
 from litevloc.hw.messages import (
     GroundTruthPose,
@@ -13,10 +15,8 @@ from litevloc.hw.messages import (
     StreamError,
     depth_to_millimetres,
 )
-from litevloc.hw.streams.base import parse_frames
 from litevloc.hw.streams.mcap_io import TOPIC_ODOM, McapRecorder, McapSource
 from litevloc.hw.streams.sevenscenes import SevenScenesSource
-from litevloc.pipelines import geometry as g
 
 
 def synthetic_messages(n: int = 6) -> list:

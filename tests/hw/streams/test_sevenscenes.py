@@ -6,8 +6,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from litevloc.base.frames import parse_frames
 from litevloc.hw.messages import GroundTruthPose, RgbdFrame, StreamError
-from litevloc.hw.streams.base import parse_frames
 from litevloc.hw.streams.sevenscenes import SevenScenesSource
 
 
@@ -36,7 +36,7 @@ def test_reads_frames_and_poses(seven_scenes_dir: Path) -> None:
     expected = np.loadtxt(seven_scenes_dir / "frame-000010.pose.txt")
     assert np.allclose(poses[0].T_world_camera, expected, atol=1e-3)
     assert np.array_equal(poses[0].T_world_camera[:3, 3], expected[:3, 3])
-    from litevloc.pipelines.geometry import is_rigid
+    from litevloc.base.geometry import is_rigid
 
     assert is_rigid(poses[0].T_world_camera, atol=1e-9)
 
@@ -97,7 +97,7 @@ def test_frames_spec_parsing() -> None:
 
 
 def test_calibrated_reader_registers_depth_and_moves_ground_truth(seven_scenes_dir: Path) -> None:
-    from litevloc.pipelines.geometry import make_T, so3_exp
+    from litevloc.base.geometry import make_T, so3_exp
 
     K_color = np.array([[515.0, 0.0, 318.0], [0.0, 518.0, 226.0], [0.0, 0.0, 1.0]])
     T_cd = make_T(so3_exp(np.array([-0.019, -0.027, 0.0])), np.array([-0.025, 0.0, 0.0]))

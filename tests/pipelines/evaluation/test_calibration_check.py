@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from litevloc.base.geometry import make_T, so3_exp
 from litevloc.pipelines.evaluation.reloc import inside_95_ellipsoids
-from litevloc.pipelines.geometry import make_T, so3_exp
 
 
 def test_monte_carlo_share_is_95_percent() -> None:

@@ -7,12 +7,13 @@ import dataclasses
 import numpy as np
 import pytest
 
+from litevloc.base.geometry import interpolate_pose_at
+from litevloc.base.params.drift import T_BASE_CAMERA_OPTICAL, DriftParams
 from litevloc.pipelines.evaluation.trajectory import ate
 from litevloc.pipelines.fusion.batch import batch_refine, refine_session
 from litevloc.pipelines.fusion.online import FusionParams
 from litevloc.pipelines.fusion.simulate import simulate_vloc, synthetic_trajectory
-from litevloc.pipelines.geometry import interpolate_pose_at
-from litevloc.pipelines.odometry_drift import T_BASE_CAMERA_OPTICAL, DriftParams, simulate_odometry
+from litevloc.pipelines.odometry_drift import simulate_odometry
 
 T_BC = T_BASE_CAMERA_OPTICAL
 

@@ -7,6 +7,8 @@ import dataclasses
 import numpy as np
 import pytest
 
+from litevloc.base.geometry import interpolate_pose_at, make_T, so3_exp
+from litevloc.base.params.drift import T_BASE_CAMERA_OPTICAL, DriftParams
 from litevloc.pipelines.evaluation.trajectory import ate
 from litevloc.pipelines.fusion.online import (
     FusionParams,
@@ -15,8 +17,7 @@ from litevloc.pipelines.fusion.online import (
     ros_to_gtsam_cov,
 )
 from litevloc.pipelines.fusion.simulate import run_online, simulate_vloc, synthetic_trajectory
-from litevloc.pipelines.geometry import interpolate_pose_at, make_T, so3_exp
-from litevloc.pipelines.odometry_drift import T_BASE_CAMERA_OPTICAL, DriftParams, simulate_odometry
+from litevloc.pipelines.odometry_drift import simulate_odometry
 
 T_BC = T_BASE_CAMERA_OPTICAL
 

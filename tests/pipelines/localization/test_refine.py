@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from litevloc.pipelines.geometry import make_T, so3_exp, so3_log
+from litevloc.base.geometry import make_T, so3_exp, so3_log
+from litevloc.base.params.localization import RefineParams
 from litevloc.pipelines.localization.refine import (
     KeyframeObservations,
-    RefineParams,
     RefineResult,
     joint_covariance,
     keyframe_distance_m,

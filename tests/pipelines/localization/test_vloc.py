@@ -12,15 +12,9 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from litevloc.pipelines import geometry as g
-from litevloc.pipelines.localization.vloc import (
-    LocalizationParams,
-    StageTimer,
-    TrackingState,
-    VisualLocalizer,
-    _Query,
-)
-from litevloc.pipelines.pnp import PnpParams
+from litevloc.base import geometry as g
+from litevloc.base.params.localization import LocalizationParams, PnpParams
+from litevloc.pipelines.localization.vloc import StageTimer, TrackingState, VisualLocalizer, _Query
 from litevloc.pipelines.topomap.types import NodeFeatures, OccupancyGrid, TopoMap
 
 W, H = 320, 240
@@ -297,7 +291,7 @@ def test_recovering_gl_is_bounded_by_the_ll_cost() -> None:
 def test_single_keyframe_behaviour_behind_a_parameter() -> None:
     from dataclasses import replace
 
-    from litevloc.pipelines.localization.refine import RefineParams
+    from litevloc.base.params.localization import RefineParams
 
     m = make_map([0.0, 1.0, 2.0, 3.0])
     s = Scene(m)

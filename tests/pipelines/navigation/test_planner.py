@@ -5,15 +5,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from litevloc.pipelines import geometry as g
-from litevloc.pipelines.navigation.planner import (
-    GoalParams,
-    NavigationError,
-    SubgoalTracker,
-    TrackerParams,
-    localize_goal,
-    shortest_path,
-)
+from litevloc.base import geometry as g
+from litevloc.base.params.navigation import GoalParams, TrackerParams
+from litevloc.pipelines.navigation.planner import NavigationError, SubgoalTracker, localize_goal, shortest_path
 from tests.pipelines.localization.test_vloc import K, match_by_id, observe, pose
 from tests.pipelines.localization.test_vloc import make_map as make_vloc_map
 

@@ -10,10 +10,11 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.base.frames import parse_frames
+from litevloc.base.params.mapping import MappingParams
 from litevloc.hw.messages import GroundTruthPose, RgbdFrame
-from litevloc.hw.streams.base import parse_frames
 from litevloc.hw.streams.sevenscenes import SevenScenesSource
-from litevloc.pipelines.topomap.build import MapBuilder, MappingParams, PosedFrame, build_two_pass
+from litevloc.pipelines.topomap.build import MapBuilder, PosedFrame, build_two_pass
 from litevloc.pipelines.topomap.types import TopoMap
 
 

@@ -7,9 +7,9 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from litevloc.pipelines import geometry as g
-from litevloc.pipelines.topomap.build import MapBuilder, MappingParams, PosedFrame, build_two_pass
-from litevloc.pipelines.topomap.keyframes import KeyframeParams
+from litevloc.base import geometry as g
+from litevloc.base.params.mapping import KeyframeParams, MappingParams
+from litevloc.pipelines.topomap.build import MapBuilder, PosedFrame, build_two_pass
 
 from .helpers import orb_extract as _orb
 from .helpers import orb_match, thumb_describe

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from litevloc.pipelines import geometry as g
+from litevloc.base import geometry as g
 from litevloc.pipelines.topomap.diff import DiffParams, MapDiffError, coverage_diff, diff_maps
 from litevloc.pipelines.topomap.types import NodeFeatures, OccupancyGrid, TopoMap
 

@@ -8,10 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from litevloc.pipelines import geometry as g
-from litevloc.pipelines.topomap.build import MappingParams
-from litevloc.pipelines.topomap.graphs import CovisibilityParams, covisibility_candidates
-from litevloc.pipelines.topomap.keyframes import KeyframeParams
+from litevloc.base import geometry as g
+from litevloc.base.params.mapping import CovisibilityParams, KeyframeParams, MappingParams
+from litevloc.pipelines.topomap.graphs import covisibility_candidates
 
 from .helpers import SEVEN_SCENES_UP, build_7scenes
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from litevloc.pipelines.topomap.build import MappingParams
+from litevloc.base.params.mapping import MappingParams
 from litevloc.pipelines.topomap.io import MapFormatError, load_map, save_map, storage_summary
 from litevloc.pipelines.topomap.types import TopoMap
 

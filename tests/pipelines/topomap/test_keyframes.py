@@ -3,9 +3,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from litevloc.pipelines import geometry as g
+from litevloc.base import geometry as g
+from litevloc.base.params.mapping import KeyframeParams
 from litevloc.pipelines.topomap.keyframes import (
-    KeyframeParams,
     band_keys,
     budget_binds,
     coverage_keys,
@@ -66,7 +66,8 @@ def test_params_validation() -> None:
 
 
 def test_connectivity_keeps_nearest_line_of_sight_partners() -> None:
-    from litevloc.pipelines.topomap.graphs import ConnectivityParams, build_connectivity
+    from litevloc.base.params.mapping import ConnectivityParams
+    from litevloc.pipelines.topomap.graphs import build_connectivity
     from litevloc.pipelines.topomap.types import OccupancyGrid
 
     # 10 keyframes on a line 0.1 m apart, all in free space: consecutive ones are always

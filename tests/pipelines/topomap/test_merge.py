@@ -8,10 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from litevloc.pipelines import geometry as g
-from litevloc.pipelines.topomap.build import MappingParams
+from litevloc.base import geometry as g
+from litevloc.base.params.mapping import KeyframeParams, MappingParams
 from litevloc.pipelines.topomap.io import load_map, save_map
-from litevloc.pipelines.topomap.keyframes import KeyframeParams
 from litevloc.pipelines.topomap.merge import (
     Link,
     MapMergeError,

@@ -129,7 +129,8 @@ def test_connectivity_matrix_keeps_shortest_duplicate_and_zero_edges() -> None:
 
 def test_local_candidates_equal_the_localizer_on_a_topomap() -> None:
     """Against `VisualLocalizer.local_candidates` itself (the code the index replaces)."""
-    from litevloc.pipelines.localization.vloc import LocalizationParams, VisualLocalizer
+    from litevloc.base.params.localization import LocalizationParams
+    from litevloc.pipelines.localization.vloc import VisualLocalizer
     from litevloc.pipelines.topomap.types import NodeFeatures, OccupancyGrid, TopoMap
 
     rng = np.random.default_rng(6)

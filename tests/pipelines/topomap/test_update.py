@@ -12,14 +12,14 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from litevloc.base.frames import parse_frames
+from litevloc.base.geometry import backproject_depth
+from litevloc.base.params.localization import DepthLookupParams
+from litevloc.base.params.mapping import KeyframeParams, MappingParams
 from litevloc.hw.messages import GroundTruthPose, RgbdFrame
-from litevloc.hw.streams.base import parse_frames
 from litevloc.hw.streams.sevenscenes import SevenScenesSource
-from litevloc.pipelines.depth_lookup import DepthLookupParams, depth_at
-from litevloc.pipelines.geometry import backproject_depth
-from litevloc.pipelines.topomap.build import MappingParams
+from litevloc.pipelines.depth_lookup import depth_at
 from litevloc.pipelines.topomap.io import load_map, save_map
-from litevloc.pipelines.topomap.keyframes import KeyframeParams
 from litevloc.pipelines.topomap.types import NodeFeatures, TopoMap
 from litevloc.pipelines.topomap.update import (
     MapUpdate,

@@ -7,12 +7,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from litevloc.config.loader import ConfigError
-from litevloc.hw.sim.render import Renderer, RenderError
-from litevloc.hw.sim.simulator import SimParams, camera_pose
-from litevloc.hw.sim.trajectory import plan_path
-from litevloc.hw.sim.world import WorldSpec, load_world, pose2d, world_names
-from litevloc.pipelines.geometry import PinholeIntrinsics
+from litevloc.base.geometry import PinholeIntrinsics
+from litevloc.base.loader import ConfigError
+from litevloc.sim.render import Renderer, RenderError
+from litevloc.sim.simulator import SimParams, camera_pose
+from litevloc.sim.trajectory import plan_path
+from litevloc.sim.world import WorldSpec, load_world, pose2d, world_names
 
 
 @pytest.fixture(scope="module")
@@ -140,7 +140,7 @@ def test_shipped_worlds_connected_through_doors(name: str) -> None:
 
 
 def test_loop_pass_laps_the_ring_corridor(office) -> None:
-    from litevloc.hw.sim.trajectory import PlanningError, pass_tasks
+    from litevloc.sim.trajectory import PlanningError, pass_tasks
 
     loop = load_world("loop")
     start, tasks = pass_tasks(loop, "loop", 0, SimParams())

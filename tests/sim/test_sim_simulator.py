@@ -7,19 +7,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from litevloc.base.geometry import GeometryError, interpolate_pose_at, invert
+from litevloc.base.params.drift import DriftParams
 from litevloc.hw.messages import GroundTruthPose, Odometry, RgbdFrame
-from litevloc.hw.sim.simulator import SimParams, Simulator
-from litevloc.hw.sim.source import SimSequenceSource
-from litevloc.hw.sim.world import load_world, pose2d
 from litevloc.hw.streams.mcap_io import McapSource
-from litevloc.pipelines.geometry import GeometryError, interpolate_pose_at, invert
-from litevloc.pipelines.odometry_drift import (
-    DriftParams,
-    IncrementalDrift,
-    resample_times,
-    simulate_odometry,
-)
+from litevloc.pipelines.odometry_drift import IncrementalDrift, resample_times, simulate_odometry
 from litevloc.runtime.cli.main import main
+from litevloc.sim.simulator import SimParams, Simulator
+from litevloc.sim.source import SimSequenceSource
+from litevloc.sim.world import load_world, pose2d
 
 TINY = SimParams(width=48, height=36)
 
@@ -175,7 +171,7 @@ def test_cli_record_and_plot(tmp_path: Path) -> None:
 
 
 def test_open_sim_source_uri() -> None:
-    from litevloc.hw.sim.source import open_sim_source
+    from litevloc.sim.source import open_sim_source
 
     src = open_sim_source("sim:office?pass=query&seed=2&duration=0.5", TINY)
     assert src.pass_name == "query" and src.seed == 2 and src.frame_count() == 8
@@ -207,8 +203,8 @@ def test_depth_only_steps_render_no_colour_and_keep_the_frame_clock(office) -> N
 
 
 def test_map_rooms_pass_also_turns_near_each_end_of_every_room(office) -> None:
-    from litevloc.hw.sim.simulator import SimParams
-    from litevloc.hw.sim.trajectory import pass_tasks
+    from litevloc.sim.simulator import SimParams
+    from litevloc.sim.trajectory import pass_tasks
 
     params = SimParams()
     _, plain = pass_tasks(office, "map", 0, params)

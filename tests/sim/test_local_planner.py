@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from litevloc.hw.sim.local_planner import LocalPlanner, LocalPlannerParams, arc_points, obstacle_points
-from litevloc.hw.sim.params import SimParams
+from litevloc.base.params.sim import SimParams
+from litevloc.sim.local_planner import LocalPlanner, LocalPlannerParams, arc_points, obstacle_points
 
 P = SimParams()
 K = P.intrinsics.K

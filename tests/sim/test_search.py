@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from litevloc.hw.sim.local_planner import Command, LocalPlanner
-from litevloc.hw.sim.params import SimParams
-from litevloc.hw.sim.search import LocalizationSearch, SearchParams, free_length
+from litevloc.base.params.sim import SimParams
+from litevloc.sim.local_planner import Command, LocalPlanner
+from litevloc.sim.search import LocalizationSearch, SearchParams, free_length
 
 P = SimParams()
 K = P.intrinsics.K

@@ -29,7 +29,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.hw.sim.local_planner import Command, LocalPlanner, obstacle_points
+from litevloc.sim.local_planner import Command, LocalPlanner, obstacle_points
 
 
 @dataclass(frozen=True)

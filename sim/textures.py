@@ -36,7 +36,7 @@ from numpy.typing import NDArray
 from litevloc.base.errors import LiteVLocError
 
 if TYPE_CHECKING:
-    from litevloc.hw.sim.world import Face, World
+    from litevloc.sim.world import Face, World
 
 POSTER_IMAGES = (
     "astronaut.png",
@@ -423,6 +423,6 @@ def _bake_ceiling(world: World, rng: np.random.Generator) -> tuple[NDArray[np.ui
 
 
 def face_s_sign(f: Face) -> bool:
-    from litevloc.hw.sim.world import _s_increasing
+    from litevloc.sim.world import _s_increasing
 
     return _s_increasing(f)

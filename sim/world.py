@@ -16,7 +16,7 @@ Geometry handed to the renderer:
   the extent [lo, hi] along the other axis, an outward normal sign and a height.
 * `boxes`: (N, 5) x0, y0, x1, y1, height.
 
-Textures (see `litevloc.hw.sim.textures`) are baked once per world into an atlas.
+Textures (see `litevloc.sim.textures`) are baked once per world into an atlas.
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ from numpy.typing import NDArray
 from litevloc.base.loader import ConfigError, from_mapping, load_yaml
 
 if TYPE_CHECKING:
-    from litevloc.hw.sim.textures import BakedTextures
+    from litevloc.sim.textures import BakedTextures
 
 
 def _worlds_dir() -> Path:
@@ -213,7 +213,7 @@ class World:
         if spec.change_seed >= 0:
             self._apply_changes(np.random.default_rng(spec.change_seed), spec.change_fraction)
         self.goal_places: dict[str, NDArray[np.float64]] = self._make_goals()
-        # textures baked on first render (`litevloc.hw.sim.render.baked_textures`), cached here
+        # textures baked on first render (`litevloc.sim.render.baked_textures`), cached here
         self._baked: BakedTextures | None = None
 
     # ------------------------------------------------------------------ layout
@@ -496,7 +496,7 @@ class World:
 
     def _apply_changes(self, rng: np.random.Generator, fraction: float) -> None:
         """Re-texture posters and slide furniture along its wall (see `WorldSpec.change_seed`)."""
-        from litevloc.hw.sim.textures import POSTER_IMAGES
+        from litevloc.sim.textures import POSTER_IMAGES
 
         for i, p in enumerate(self.posters):
             if rng.random() < fraction:
@@ -559,7 +559,7 @@ class World:
             if r.kind == "corridor":
                 r.material = "painted"
         # posters: on wall faces of rooms (not texture-poor ones: at most one there)
-        from litevloc.hw.sim.textures import POSTER_IMAGES
+        from litevloc.sim.textures import POSTER_IMAGES
 
         faces_by_region: dict[int, list[int]] = {}
         for i, f in enumerate(self.faces):

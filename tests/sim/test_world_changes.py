@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from litevloc.hw.sim.world import World, load_world, load_world_spec
+from litevloc.sim.world import World, load_world, load_world_spec
 
 
 @pytest.mark.parametrize("world", ["office", "floor"])

@@ -23,8 +23,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litevloc.base.errors import LiteVLocError
-from litevloc.hw.sim.simulator import SimParams, Simulator, base_pose
-from litevloc.hw.sim.world import World
+from litevloc.sim.simulator import SimParams, Simulator, base_pose
+from litevloc.sim.world import World
 
 PassName = Literal["map", "query", "loop", "loop-lane", "loop-back", "map-rooms"]
 PASS_NAMES: tuple[str, ...] = ("map", "query", "loop", "loop-lane", "loop-back", "map-rooms")

@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.base.params.sim import RealismParams as RealismParams
+from litevloc.base.params.sim import RealismParams
 
 
 @dataclass(frozen=True)

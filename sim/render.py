@@ -23,9 +23,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litevloc.base.errors import LiteVLocError
-from litevloc.hw.sim.textures import MIP_LEVELS, BakedTextures, bake
-from litevloc.hw.sim.world import World, _s_increasing
-from litevloc.pipelines.geometry import PinholeIntrinsics, check_rigid
+from litevloc.base.geometry import PinholeIntrinsics, check_rigid
+from litevloc.sim.textures import MIP_LEVELS, BakedTextures, bake
+from litevloc.sim.world import World, _s_increasing
 
 KIND_VOID, KIND_WALL, KIND_FLOOR, KIND_CEIL, KIND_SIDE, KIND_TOP = 0, 1, 2, 3, 4, 5
 

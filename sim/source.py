@@ -14,11 +14,12 @@ from collections.abc import Iterator
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.base.geometry import interpolate_pose_at
 from litevloc.hw.messages import GroundTruthPose, Message, Odometry, StreamStats
-from litevloc.hw.sim.realism import Lighting, sample_lighting
-from litevloc.hw.sim.render import Renderer
-from litevloc.hw.sim.simulator import SimParams, camera_pose, render_frame
-from litevloc.hw.sim.trajectory import (
+from litevloc.sim.realism import Lighting, sample_lighting
+from litevloc.sim.render import Renderer
+from litevloc.sim.simulator import SimParams, camera_pose, render_frame
+from litevloc.sim.trajectory import (
     PASS_NAMES,
     FollowResult,
     PassName,
@@ -26,8 +27,7 @@ from litevloc.hw.sim.trajectory import (
     is_pass_name,
     pass_tasks,
 )
-from litevloc.hw.sim.world import World
-from litevloc.pipelines.geometry import interpolate_pose_at
+from litevloc.sim.world import World
 
 
 class SimSequenceSource:
@@ -109,7 +109,7 @@ class SimSequenceSource:
         """Degraded depth of frame `index` alone (no texturing, shading or colour noise):
         for consumers that need geometry only, e.g. pass 1 of a map build. Deterministic;
         the noise realisation differs from `frame(index).depth` (colour noise draws first)."""
-        from litevloc.hw.sim.realism import apply_depth
+        from litevloc.sim.realism import apply_depth
 
         if self._renderer is None:
             self._renderer = Renderer(self.world)
@@ -149,7 +149,7 @@ def open_sim_source(uri: str, params: SimParams | None = None) -> SimSequenceSou
     """
     from urllib.parse import parse_qs, urlsplit
 
-    from litevloc.hw.sim.world import load_world
+    from litevloc.sim.world import load_world
 
     if not uri.startswith("sim:"):
         raise ValueError(f"simulator source must look like sim:WORLD?pass=map&seed=0, got {uri!r}")

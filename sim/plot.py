@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.hw.sim.world import World
+from litevloc.sim.world import World
 
 
 def plot_world(
@@ -51,7 +51,7 @@ def plot_world(
         )
     for p in world.posters:
         f = world.faces[p.face]
-        from litevloc.hw.sim.world import _s_increasing
+        from litevloc.sim.world import _s_increasing
 
         a = f.lo + p.s0 if _s_increasing(f) else f.hi - p.s0 - p.width
         xs, ys = ((f.c, f.c), (a, a + p.width)) if f.axis == 0 else ((a, a + p.width), (f.c, f.c))

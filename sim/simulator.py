@@ -28,19 +28,13 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.base.geometry import GeometryError, PinholeIntrinsics, invert, make_T, so3_exp
+from litevloc.base.params.sim import RealismParams, SimParams
 from litevloc.hw.messages import GroundTruthPose, Odometry, RgbdFrame
-from litevloc.hw.sim.params import SimParams
-from litevloc.hw.sim.realism import (
-    Lighting,
-    RealismParams,
-    apply_color,
-    apply_depth,
-    sample_lighting,
-)
-from litevloc.hw.sim.render import Renderer
-from litevloc.hw.sim.world import World
-from litevloc.pipelines.geometry import GeometryError, PinholeIntrinsics, invert, make_T, so3_exp
 from litevloc.pipelines.odometry_drift import IncrementalDrift
+from litevloc.sim.realism import Lighting, apply_color, apply_depth, sample_lighting
+from litevloc.sim.render import Renderer
+from litevloc.sim.world import World
 
 
 def bob_transform(t_s: float, speed_frac: float, params: SimParams) -> NDArray[np.float64]:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from litevloc.hw.sim.world import load_world, world_names
+from litevloc.sim.world import load_world, world_names
 
 
 def _materials(name: str) -> dict[str, int]:
