@@ -61,6 +61,7 @@ LL_COST_WINDOW = 50  # LL queries whose median wall time sets the bound on a rec
 ExtractFn = Callable[[NDArray[np.uint8]], FeatureSet]
 DescribeFn = Callable[[NDArray[np.uint8]], NDArray[np.float32]]
 MatchFn = Callable[[FeatureSet, FeatureSet], tuple[NDArray[np.int64], NDArray[np.int64]]]
+Clock = Callable[[], float]  # monotonic seconds
 
 _CLOCK_JITTER_S = 1e-3  # timestamps that differ by less than this are the same instant for time windows
 
@@ -157,13 +158,16 @@ class Transition:
 
 
 class StageTimer:
-    """Accumulated milliseconds per named stage of one query (extract, vpr, match, lift, pnp, ...)."""
+    """Accumulated milliseconds per named stage of one query (extract, vpr, match, lift, pnp, ...),
+    read from `clock` (seconds; a benchmark that replays cached model calls passes a clock that
+    also counts their recorded time, so time budgets see what a live run would)."""
 
-    def __init__(self) -> None:
+    def __init__(self, clock: Clock = time.perf_counter) -> None:
         self.ms: dict[str, float] = {}
+        self.now = clock
 
     def add(self, key: str, t0: float) -> None:
-        self.ms[key] = self.ms.get(key, 0.0) + (time.perf_counter() - t0) * 1e3
+        self.ms[key] = self.ms.get(key, 0.0) + (self.now() - t0) * 1e3
 
 
 def relative_pose(
@@ -178,20 +182,21 @@ def relative_pose(
     acceptance gates plus the distance gate. Returns (PnpResult or None if too few matches,
     number of matches, reason).
     """
-    add = (timer if timer is not None else StageTimer()).add
-    t0 = time.perf_counter()
+    timer = timer if timer is not None else StageTimer()
+    add = timer.add
+    t0 = timer.now()
     i_live, i_ref = match(live_feats, ref_feats)
     add("match", t0)
     if len(i_live) < max(params.min_matches, params.pnp.min_inliers):  # cheap rejection: PnP cannot pass
         return None, len(i_live), f"too few matches ({len(i_live)})"
-    t0 = time.perf_counter()
+    t0 = timer.now()
     uv = np.asarray(live_feats.keypoints, dtype=np.float64)[i_live]
     z = depth_at(live_depth, uv, params.depth)
     ok = np.isfinite(z)
     add("lift", t0)
     if ok.sum() < params.min_matches:
         return None, len(i_live), f"too few matches with depth ({ok.sum()})"
-    t0 = time.perf_counter()
+    t0 = timer.now()
     pts = backproject_pixels(K_live, uv[ok], z[ok].astype(np.float64))
     res = solve_pnp(pts, np.asarray(ref_feats.keypoints)[i_ref[ok]], K_ref, params.pnp)
     add("pnp", t0)
@@ -219,7 +224,7 @@ class _Query:
     def matches(self, node: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
         """(live indices, keyframe indices) of the matches with `node`."""
         if node not in self._matches:
-            t0 = time.perf_counter()
+            t0 = self.timer.now()
             i_live, i_ref = self.loc.match(self.feats, self.loc.map.features[node])
             self._matches[node] = (np.asarray(i_live, dtype=np.int64), np.asarray(i_ref, dtype=np.int64))
             self.timer.add("match", t0)
@@ -228,7 +233,7 @@ class _Query:
     def points(self) -> NDArray[np.float64]:
         """(N, 3) live keypoints lifted with the live depth (NaN rows where no depth)."""
         if self._points is None:
-            t0 = time.perf_counter()
+            t0 = self.timer.now()
             uv = np.asarray(self.feats.keypoints, dtype=np.float64).reshape(-1, 2)
             z = depth_at(self.depth, uv, self.loc.params.depth).astype(np.float64)
             pts = np.full((len(uv), 3), np.nan)
@@ -257,7 +262,7 @@ class _Query:
         the matches are kept (and returned by `matches`) only when at least `min_matches`."""
         if node in self._matches:
             return False
-        t0 = time.perf_counter()
+        t0 = self.timer.now()
         i_live, i_kf = self._guided(node, T_map_live)
         self.timer.add("guided_match", t0)
         if len(i_live) < min_matches:
@@ -290,9 +295,11 @@ class VisualLocalizer:
     """GL + LL against one map with injected model callables (no I/O, no threads)."""
 
     def __init__(
-        self, topomap: TopoMap, params: LocalizationParams, extract: ExtractFn, describe: DescribeFn, match: MatchFn
+        self, topomap: TopoMap, params: LocalizationParams, extract: ExtractFn, describe: DescribeFn, match: MatchFn,
+        clock: Clock = time.perf_counter,
     ) -> None:
         self.map = topomap
+        self.clock = clock  # wall time of stages and time budgets (see `StageTimer`)
         self.params = params
         self.extract, self.describe, self.match = extract, describe, match
         self.state = TrackingState.INIT
@@ -444,10 +451,10 @@ class VisualLocalizer:
         """Live features and VPR descriptor; the depth image, checked."""
         if depth is None or depth.shape != color.shape[:2]:
             raise ValueError("localization needs a depth image registered to the colour image")
-        t0 = time.perf_counter()
+        t0 = self.clock()
         feats = self.extract(color)
         timer.add("extract", t0)
-        t0 = time.perf_counter()
+        t0 = self.clock()
         desc = np.asarray(self.describe(color), dtype=np.float32)
         timer.add("vpr", t0)
         return feats, desc, depth
@@ -464,10 +471,10 @@ class VisualLocalizer:
         if rp.extra_matching == "model":
             obs += [q.observations(o) for o in extra]
         else:
-            t0 = time.perf_counter()
+            t0 = self.clock()
             obs += [q.guided_observations(o, T_init) for o in extra]
             q.timer.add("guided_match", t0)
-        t0 = time.perf_counter()
+        t0 = self.clock()
         res = refine_pose(T_init, obs, replace(rp, min_keyframes=min(min_keyframes, rp.max_keyframes)))
         q.timer.add("refine", t0)
         return res
@@ -489,10 +496,10 @@ class VisualLocalizer:
         see `_fresh`) within the prior gate."""
         prior = None if prior_T_map_camera is None else check_rigid(prior_T_map_camera, "prior T_map_camera",
                                                                       atol=1e-4)
-        timer = StageTimer()
-        t_all = time.perf_counter()
+        timer = StageTimer(self.clock)
+        t_all = self.clock()
         q, desc = self._query(color, depth, K, timer)
-        front_ms = (time.perf_counter() - t_all) * 1e3  # feature extraction and VPR, as in an LL query
+        front_ms = (self.clock() - t_all) * 1e3  # feature extraction and VPR, as in an LL query
         sims = self.map.vpr @ desc
         order = self._rerank(np.argsort(-sims, kind="stable")[: self.params.gl_top_k], q)
         attempts: list[CandidateAttempt] = []
@@ -507,7 +514,7 @@ class VisualLocalizer:
             budget = self.params.gl_time_budget_ms
             candidates_ms = 0.0  # verification time (match, PnP, joint refinement) of the candidates so far
             for k, node in enumerate(int(n) for n in order):
-                spent = (time.perf_counter() - t_all) * 1e3
+                spent = (self.clock() - t_all) * 1e3
                 ahead = candidates_ms / max(k, 1)  # this query's mean cost per candidate so far
                 if k == 1 and recovering:
                     budget = self.gl_budget_ms(nominal_ll_ms=front_ms + candidates_ms)
@@ -515,16 +522,16 @@ class VisualLocalizer:
                     stop = (f"time budget ({budget:.0f} ms) would be overrun: {spent:.0f} ms spent + "
                             f"{ahead:.0f} ms per candidate, after {k} of {len(order)} candidates")
                     break
-                t_cand = time.perf_counter()
+                t_cand = self.clock()
                 res, att = self._verify_global(node, q, float(sims[node]))
                 if res is None or not res.accepted or res.T_target_source is None:
                     attempts.append(att)
-                    candidates_ms += (time.perf_counter() - t_cand) * 1e3
+                    candidates_ms += (self.clock() - t_cand) * 1e3
                     continue
                 T = self.map.T_map_camera[node] @ res.T_target_source
                 joint = self._joint(node, T, q, [int(n) for n in order],
                                     self.params.refine.min_keyframes if self.params.gl_confirm else 1)
-                candidates_ms += (time.perf_counter() - t_cand) * 1e3
+                candidates_ms += (self.clock() - t_cand) * 1e3
                 if joint.accepted:
                     attempts.append(att)
                     best = (node, res, joint)
@@ -575,7 +582,7 @@ class VisualLocalizer:
         count with the live descriptors (`gl_rerank`), VPR order breaking ties."""
         if not self.params.gl_rerank or len(order) < 2:
             return order
-        t0 = time.perf_counter()
+        t0 = self.clock()
         live = np.asarray(q.feats.descriptors)
         counts = [mutual_nn_count(live, self.map.features[int(n)].descriptors, self.params.gl_rerank_min_similarity)
                   for n in order]
@@ -600,7 +607,7 @@ class VisualLocalizer:
         The old, single-keyframe behaviour (`refine.enabled: false`)."""
         others = list(self._neighbours[node])
         others += [n for n in fallback if n != node and n not in others]
-        t0 = time.perf_counter()
+        t0 = self.clock()
         best = 0
         for other in others[: self.params.confirm_max_nodes]:
             best = max(best, self._consistent(T_map_live, q, other))
@@ -614,7 +621,7 @@ class VisualLocalizer:
         K: NDArray[np.float64], node: int,
     ) -> int:
         """Matches with `node` that the pose `T_map_live` explains (reprojection within the PnP threshold)."""
-        return self._consistent(T_map_live, _Query(self, live_feats, depth, K, StageTimer()), node)
+        return self._consistent(T_map_live, _Query(self, live_feats, depth, K, StageTimer(self.clock)), node)
 
     def _consistent(self, T_map_live: NDArray[np.float64], q: _Query, node: int) -> int:
         ob = q.observations(node)
@@ -650,8 +657,8 @@ class VisualLocalizer:
         with `prior_age_s` at the fused-prior rate (`fused_prior`: odometry since the last fix)
         or at the robot's top speed (the last VLoc pose)."""
         prior = check_rigid(prior_T_map_camera, "prior T_map_camera", atol=1e-4)
-        timer = StageTimer()
-        t_all = time.perf_counter()
+        timer = StageTimer(self.clock)
+        t_all = self.clock()
         q, desc = self._query(color, depth, K, timer)
         attempts: list[CandidateAttempt] = []
         best: tuple[int, PnpResult, RefineResult | None] | None = None
