@@ -22,18 +22,22 @@ def reason_key(reason: str) -> str:
     return re.sub(r"\s+", " ", key).strip(" :;")
 
 
-def failure_of(res: LocalizationResult, covering: set[int], top_k: Sequence[int]) -> str:
+def failure_of(res: LocalizationResult, covering: set[int], shortlist: Sequence[int]) -> str:
     """Why a refused query of a covered frame failed.
 
-    LL queries: `LL: <reason>`. GL queries: `VPR: no covering keyframe in the top-k` when place
-    recognition did not retrieve one; `stopped before a covering candidate` when the search
-    ended (time budget) before trying one; else the reason the best covering candidate
+    LL queries: `LL: <reason>`. GL queries: `retrieval: no covering keyframe in the shortlist`
+    when place recognition did not retrieve one among the nodes GL ranks (`shortlist`);
+    `re-ranking: no covering keyframe among the verified` when it did but the candidates GL
+    would verify (`res.candidates`) hold none; `stopped before a covering candidate` when the
+    search ended (time budget) before trying one; else the reason the best covering candidate
     (most inliers) was rejected, `covering candidate: <reason>`.
     """
     if res.mode != "global":
         return f"LL: {reason_key(res.reason)}"
-    if not covering.intersection(int(n) for n in top_k):
-        return "VPR: no covering keyframe in the top-k"
+    if not covering.intersection(int(n) for n in shortlist):
+        return "retrieval: no covering keyframe in the shortlist"
+    if res.candidates and not covering.intersection(res.candidates):
+        return "re-ranking: no covering keyframe among the verified"
     tried = [a for a in res.attempts if a.node in covering]
     if not tried:
         return "stopped before a covering candidate"

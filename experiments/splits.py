@@ -107,8 +107,9 @@ def coverage(topomap: TopoMap, T_gt: NDArray[np.float64]) -> tuple[NDArray[np.fl
 
 
 def frame_record(index: int, res: LocalizationResult, T_gt: NDArray[np.float64], topomap: TopoMap,
-                 vpr: NDArray[np.float32], top_k: int, latency_ms: float) -> dict[str, Any]:
-    """What one query frame tells the benchmark (plain data for the JSON)."""
+                 vpr: NDArray[np.float32], shortlist: int, latency_ms: float) -> dict[str, Any]:
+    """What one query frame tells the benchmark (plain data for the JSON); `shortlist`: how
+    many nodes, by place-descriptor similarity, GL ranks."""
     d, a = coverage(topomap, T_gt)
     covering = (d <= COVER[0][0]) & (a <= COVER[0][1])
     order = np.argsort(-(topomap.vpr @ vpr), kind="stable")
@@ -122,7 +123,7 @@ def frame_record(index: int, res: LocalizationResult, T_gt: NDArray[np.float64],
     if res.accepted and res.T_map_camera is not None:
         rec["error_m"], rec["error_deg"] = relative_pose_error(res.T_map_camera, T_gt)
     elif rec["covered"]:
-        rec["failure"] = failure_of(res, set(np.flatnonzero(covering).tolist()), order[:top_k].tolist())
+        rec["failure"] = failure_of(res, set(np.flatnonzero(covering).tolist()), order[:shortlist].tolist())
     return rec
 
 
@@ -136,6 +137,8 @@ def run_split(split: Split, map_dir: Path, data: Path, config: str, overrides: S
     models = ReplayedModels(cache_dir, bundle, topomap, map_dir)
     loc = VisualLocalizer(topomap, cfg.localization, models.extract, models.describe, models.match,
                           clock=models.clock)
+    lp = cfg.localization
+    shortlist = max(lp.gl_top_k, lp.gl_rerank_depth if lp.gl_rerank else 0)
     a, b = split.query_frames
     src = open_source(data, slice(a, b, step), strict=True, rgbd_calibration=cfg.rgbd_calibration)
     records: list[dict[str, Any]] = []
@@ -146,7 +149,7 @@ def run_split(split: Split, map_dir: Path, data: Path, config: str, overrides: S
             raise RuntimeError(f"frame {frame.index} of {data} has no ground-truth pose")
         models.start(frame.index)
         res = loc.process(frame.t_ns, frame.color, frame.depth, frame.K)
-        records.append(frame_record(frame.index, res, T_gt, topomap, models.descriptor(), cfg.localization.gl_top_k,
+        records.append(frame_record(frame.index, res, T_gt, topomap, models.descriptor(), shortlist,
                                     res.timings_ms.get("total", float("nan"))))
         if on_frame is not None:
             on_frame(len(records), total)

@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.base.geometry import make_T, project, so3_exp
+from litevloc.base.geometry import invert, make_T, project, so3_exp
 from litevloc.base.params.localization import PnpParams
 
 _FLAGS = {"p3p": cv2.SOLVEPNP_P3P, "ap3p": cv2.SOLVEPNP_AP3P, "sqpnp": cv2.SOLVEPNP_SQPNP, "epnp": cv2.SOLVEPNP_EPNP}
@@ -157,3 +157,20 @@ def solve_pnp(
     else:
         reason = "ok"
     return PnpResult(reason == "ok", reason, T, inliers, n, med, cov)
+
+
+def inverse_result(res: PnpResult) -> PnpResult:
+    """The same PnP result for the inverse pose: `T_source_target`, its covariance that of a
+    right perturbation of the inverse ((A exp(d))^-1 = A^-1 exp(-Ad_A d), so Sigma' =
+    Ad_A Sigma Ad_A^T with Ad_A = [[R, [t]x R], [0, R]] in (t, rotvec) order). Gates, inliers
+    and errors are unchanged."""
+    if res.T_target_source is None:
+        return res
+    A = np.asarray(res.T_target_source, np.float64)
+    cov = None
+    if res.covariance is not None:
+        R, t = A[:3, :3], A[:3, 3]
+        tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
+        ad = np.block([[R, tx @ R], [np.zeros((3, 3)), R]])
+        cov = ad @ res.covariance @ ad.T
+    return PnpResult(res.accepted, res.reason, invert(A), res.inliers, res.n_matches, res.median_reprojection_px, cov)

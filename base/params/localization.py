@@ -156,6 +156,9 @@ class LocalizationParams:
     # not (every pair has 59+ mutual neighbours).
     gl_rerank: bool = True
     gl_rerank_min_similarity: float = 0.7
+    # Place-descriptor shortlist that the re-ordering ranks (count), of which the first
+    # gl_top_k are verified: the re-ordering reaches places the descriptor ranks lower.
+    gl_rerank_depth: int = 20
     # Bounded cost while recovering: once the localizer has tracked, one GL query may spend at
     # most lost_cost_ratio x the running mean wall time of its LL queries; the next candidate
     # is tried only while the time spent plus one more candidate's expected cost fits (at least
@@ -237,6 +240,10 @@ class LocalizationParams:
     gl_trigger_distance_m: float = 7.5  # prior farther than this from every node -> GL
     max_distance_to_node_m: float = 5.0  # an accepted pose must lie this close to its node
     min_matches: int = 20
+    # Candidate verification also solves PnP from the keyframe's points (the map's depth at its
+    # keypoints) into the live pixels and keeps the direction with more inliers: live depth
+    # misses many matched keypoints (depth holes, edges, registration) that the map has.
+    verify_map_depth: bool = True
     pnp: PnpParams = field(default_factory=PnpParams)
     depth: DepthLookupParams = field(default_factory=DepthLookupParams)
     # Joint multi-keyframe refinement (`refine.py`); when enabled it replaces the separate
@@ -259,6 +266,8 @@ class LocalizationParams:
             raise ValueError("gl_time_budget_ms must be >= 0 (0 = no budget)")
         if self.lost_cost_ratio < 0:
             raise ValueError("lost_cost_ratio must be >= 0 (0 = no bound)")
+        if self.gl_rerank_depth < 0:
+            raise ValueError("gl_rerank_depth must be >= 0")
         if not -1 <= self.gl_rerank_min_similarity <= 1:
             raise ValueError("gl_rerank_min_similarity must be in [-1, 1]")
         if self.repeat_within_s < 0 or not 0 < self.repeat_deg <= 180:

@@ -68,6 +68,10 @@ class KeyframeObservations:
     K: 3x3 keyframe intrinsics; T_map_kf: 4x4 keyframe camera pose in the map.
     depth_kf: (N,) the map's depth (metres, NaN = none) at each matched keyframe keypoint, or
         None when the map keeps none.
+    points_kf: (M, 3) metres in the keyframe camera frame: matched keyframe keypoints lifted
+        with the map's depth whose live keypoint has no live depth (they enter the solve as
+        reprojections into the live image); pixels_live: (M, 2) those live keypoints;
+        K_live: 3x3 live intrinsics (needed when M > 0).
     """
 
     node: int
@@ -76,6 +80,14 @@ class KeyframeObservations:
     K: F64
     T_map_kf: F64
     depth_kf: F64 | None = None
+    points_kf: F64 | None = None
+    pixels_live: F64 | None = None
+    K_live: F64 | None = None
+
+    @property
+    def n_matches(self) -> int:
+        """Correspondences of both kinds."""
+        return len(self.points_live) + (0 if self.points_kf is None else len(self.points_kf))
 
 
 @dataclass(frozen=True, eq=False)
@@ -172,14 +184,64 @@ def _point_whitener(T_kl: F64, pts: F64, P_kf: F64, K: F64, p: RefineParams) -> 
     return np.asarray(np.linalg.inv(L), dtype=np.float64)
 
 
+class _LiveReprojections:
+    """Keyframe points (map depth, keyframe frame) matched to live pixels without live depth:
+    residual = projection into the live image - live pixel, whitened like a forward
+    reprojection (keypoint noise + the map depth's noise along its ray, `_whitener`)."""
+
+    def __init__(self, ob: KeyframeObservations, P_kf: F64, px_live: F64, T0: F64, p: RefineParams) -> None:
+        assert ob.K_live is not None
+        self.P_kf, self.px, self.K, self.T_map_kf = P_kf, px_live, ob.K_live, ob.T_map_kf
+        _, _, g = self.residuals(T0)
+        self.W = _whitener(g, P_kf[:, 2], p)
+
+    def residuals(self, T_map_live: F64) -> tuple[F64, F64, F64]:
+        """Pixel residuals (M, 2), Jacobian (M, 2, 6) w.r.t. a right perturbation (t, rotvec) of
+        T_map_live and the projection's derivative w.r.t. the map depth (M, 2).
+        y = (T exp(d))^-1 X ~ y0 - dt + [y0]x w, so dy/d(dt) = -I, dy/dw = [y0]x."""
+        T_lk = np.linalg.inv(T_map_live) @ self.T_map_kf
+        y = _camera_points(T_lk, self.P_kf)
+        z = np.where(np.abs(y[:, 2]) < 1e-6, 1e-6, y[:, 2])
+        fx, fy, cx, cy = self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2]
+        r = np.stack([fx * y[:, 0] / z + cx, fy * y[:, 1] / z + cy], axis=1) - self.px
+        dp = np.zeros((len(y), 2, 3))
+        dp[:, 0, 0], dp[:, 0, 2] = fx / z, -fx * y[:, 0] / z**2
+        dp[:, 1, 1], dp[:, 1, 2] = fy / z, -fy * y[:, 1] / z**2
+        dy = np.zeros((len(y), 3, 6))
+        dy[:, :, :3] = -np.eye(3)
+        dy[:, 0, 4], dy[:, 0, 5] = -y[:, 2], y[:, 1]
+        dy[:, 1, 3], dy[:, 1, 5] = y[:, 2], -y[:, 0]
+        dy[:, 2, 3], dy[:, 2, 4] = -y[:, 1], y[:, 0]
+        ray = self.P_kf / np.where(np.abs(self.P_kf[:, 2:3]) < 1e-6, 1e-6, self.P_kf[:, 2:3])
+        g = np.einsum("nij,nj->ni", dp, ray @ T_lk[:3, :3].T)
+        return r, dp @ dy, g
+
+    def whitened(self, T: F64, rows: NDArray[np.bool_]) -> tuple[F64, F64, F64]:
+        r, J, _ = self.residuals(T)
+        return (np.einsum("nij,nj->ni", self.W[rows], r[rows]).reshape(-1), (self.W[rows] @ J[rows]).reshape(-1, 6),
+                np.linalg.norm(r, axis=1))
+
+
+def _live_reprojections(ob: KeyframeObservations, T0: F64, p: RefineParams) -> _LiveReprojections | None:
+    """`ob`'s keyframe points without live depth that lie within `gate_px` of their live pixel
+    under the initial pose `T0`, as solve terms; None when there are none."""
+    if ob.points_kf is None or ob.pixels_live is None or len(ob.points_kf) == 0:
+        return None
+    P = np.asarray(ob.points_kf, np.float64).reshape(-1, 3)
+    px = np.asarray(ob.pixels_live, np.float64).reshape(-1, 2)
+    rev = _LiveReprojections(ob, P, px, T0, p)
+    keep = np.linalg.norm(rev.residuals(T0)[0], axis=1) <= p.gate_px
+    return _LiveReprojections(ob, P[keep], px[keep], T0, p) if keep.any() else None
+
+
 class _Terms:
     """One keyframe's correspondences in the solve: pixel residuals (whitened 2-vectors) where
     the map has no depth at the keyframe keypoint, 3D residuals `T_kf_live p_live - P_kf`
     (whitened 3-vectors) where it has (with `RefineParams.map_depth`)."""
 
     def __init__(self, ob: KeyframeObservations, pts: F64, px: F64, z_kf: F64 | None, T0: F64,
-                 p: RefineParams) -> None:
-        self.ob, self.pts, self.px = ob, pts, px
+                 p: RefineParams, rev: _LiveReprojections | None = None) -> None:
+        self.ob, self.pts, self.px, self.rev = ob, pts, px, rev
         _, _, g = _residuals_and_jacobian(T0, ob, pts, px)
         self.W2 = _whitener(g, pts[:, 2], p)
         use3 = (np.isfinite(z_kf) & (z_kf > 0)) if (p.map_depth and z_kf is not None) else np.zeros(len(pts), bool)
@@ -196,12 +258,16 @@ class _Terms:
 
     def whitened(self, T: F64, rows: NDArray[np.bool_] | None = None) -> tuple[F64, F64, F64]:
         """(whitened residuals (M,), whitened Jacobian (M, 6), pixel errors (N,)) at pose T,
-        over the correspondences in `rows` (all by default)."""
-        rows = np.ones(len(self.pts), bool) if rows is None else rows
+        over the correspondences in `rows` (all by default; live points first, then the
+        keyframe points reprojected into the live image)."""
+        n_rev = 0 if self.rev is None else len(self.rev.P_kf)
+        rows = np.ones(len(self.pts) + n_rev, bool) if rows is None else rows
+        rows, rows_rev = rows[: len(self.pts)], rows[len(self.pts):]
         r, J, _ = _residuals_and_jacobian(T, self.ob, self.pts, self.px)
         m2 = rows & ~self.use3
         out_r = [np.einsum("nij,nj->ni", self.W2[m2], r[m2]).reshape(-1)]
         out_J = [(self.W2[m2] @ J[m2]).reshape(-1, 6)]
+        errors = [np.linalg.norm(r, axis=1)]
         if self.use3.any():
             sel = rows[self.use3]
             T_kl = np.linalg.inv(self.ob.T_map_kf) @ T
@@ -212,7 +278,12 @@ class _Terms:
             W = self.W3[sel]
             out_r.append(np.einsum("nij,nj->ni", W, e).reshape(-1))
             out_J.append((W @ dq).reshape(-1, 6))
-        return np.concatenate(out_r), np.concatenate(out_J), np.linalg.norm(r, axis=1)
+        if self.rev is not None:
+            rr, rJ, re = self.rev.whitened(T, rows_rev)
+            out_r.append(rr)
+            out_J.append(rJ)
+            errors.append(re)
+        return np.concatenate(out_r), np.concatenate(out_J), np.concatenate(errors)
 
 
 def _perturb(T: F64, d: NDArray[np.floating]) -> F64:
@@ -239,15 +310,16 @@ def refine_pose(
     for ob in observations:
         pts = np.asarray(ob.points_live, dtype=np.float64).reshape(-1, 3)
         px = np.asarray(ob.pixels, dtype=np.float64).reshape(-1, 2)
-        if len(pts) == 0:
-            continue
-        r, _, _ = _residuals_and_jacobian(T0, ob, pts, px)
-        keep = np.linalg.norm(r, axis=1) <= p.gate_px
-        if keep.sum() < p.min_keyframe_inliers:
+        rev = _live_reprojections(ob, T0, p)
+        keep = np.zeros(0, bool)
+        if len(pts):
+            r, _, _ = _residuals_and_jacobian(T0, ob, pts, px)
+            keep = np.linalg.norm(r, axis=1) <= p.gate_px
+        if keep.sum() + (0 if rev is None else len(rev.P_kf)) < p.min_keyframe_inliers:
             continue
         z_kf = None if ob.depth_kf is None else np.asarray(ob.depth_kf, np.float64).reshape(-1)[keep]
-        used.append(_Terms(ob, pts[keep], px[keep], z_kf, T0, p))
-    matches = {ob.node: len(ob.points_live) for ob in observations}
+        used.append(_Terms(ob, pts[keep], px[keep], z_kf, T0, p, rev))
+    matches = {ob.node: ob.n_matches for ob in observations}
     if not used:  # (one consistent keyframe is still solved: its pose can be a provisional GL vote)
         return RefineResult(False, f"no keyframe consistent with the initial pose (< {p.min_keyframes})",
                             T0, None, {}, matches)

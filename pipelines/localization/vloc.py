@@ -53,7 +53,7 @@ from litevloc.pipelines.localization.refine import (
     guided_matches,
     refine_pose,
 )
-from litevloc.pipelines.pnp import PnpResult, solve_pnp
+from litevloc.pipelines.pnp import PnpResult, inverse_result, solve_pnp
 from litevloc.pipelines.topomap.types import FeatureSet, TopoMap
 
 LL_COST_WINDOW = 50  # LL queries whose median wall time sets the bound on a recovering GL query
@@ -135,6 +135,7 @@ class LocalizationResult:
     stop_reason: str = ""  # GL: why the candidate search stopped (passed, all tried, time budget)
     matches: MatchedPixels | None = None  # accepted results: matches with `ref_node`, inliers marked
     provisional: ProvisionalPose | None = None  # rejected GL results only (see ProvisionalPose)
+    candidates: tuple[int, ...] = ()  # GL: the nodes it would verify, in order (`global_candidates`)
     tracking_state: str = ""  # the localizer's state after this query, when the caller reports it
 
 
@@ -173,14 +174,17 @@ class StageTimer:
 def relative_pose(
     live_feats: FeatureSet, live_depth: NDArray[np.float32], K_live: NDArray[np.float64],
     ref_feats: FeatureSet, K_ref: NDArray[np.float64], match: MatchFn, params: LocalizationParams,
-    timer: StageTimer | None = None,
+    timer: StageTimer | None = None, ref_depth: NDArray[np.float32] | None = None,
 ) -> tuple[PnpResult | None, int, str]:
     """Pose of the live camera relative to a reference image: `T_ref_live` in the result.
 
     Matches live vs reference features, lifts the matched live keypoints with the live
     depth (`pipelines.depth_lookup`), solves PnP into the reference image and applies the
-    acceptance gates plus the distance gate. Returns (PnpResult or None if too few matches,
-    number of matches, reason).
+    acceptance gates plus the distance gate. With `ref_depth` ((N_ref,) metres at each
+    reference keypoint, NaN = none: the map's depth) and `params.verify_map_depth`, it also
+    solves PnP from the reference points into the live pixels and keeps the direction with
+    more inliers (see `LocalizationParams.verify_map_depth`). Returns (PnpResult or None if
+    too few matches, number of matches, reason).
     """
     timer = timer if timer is not None else StageTimer()
     add = timer.add
@@ -191,15 +195,27 @@ def relative_pose(
         return None, len(i_live), f"too few matches ({len(i_live)})"
     t0 = timer.now()
     uv = np.asarray(live_feats.keypoints, dtype=np.float64)[i_live]
+    kp_ref = np.asarray(ref_feats.keypoints, dtype=np.float64)[i_ref]
     z = depth_at(live_depth, uv, params.depth)
     ok = np.isfinite(z)
+    z_ref = (np.asarray(ref_depth, np.float64)[i_ref] if ref_depth is not None and params.verify_map_depth
+             else np.full(len(i_ref), np.nan))
+    ok_ref = np.isfinite(z_ref) & (z_ref > 0)
     add("lift", t0)
-    if ok.sum() < params.min_matches:
-        return None, len(i_live), f"too few matches with depth ({ok.sum()})"
+    if max(ok.sum(), ok_ref.sum()) < params.min_matches:
+        return None, len(i_live), f"too few matches with depth ({max(ok.sum(), ok_ref.sum())})"
     t0 = timer.now()
-    pts = backproject_pixels(K_live, uv[ok], z[ok].astype(np.float64))
-    res = solve_pnp(pts, np.asarray(ref_feats.keypoints)[i_ref[ok]], K_ref, params.pnp)
+    res: PnpResult | None = None
+    if ok.sum() >= params.min_matches:
+        pts = backproject_pixels(K_live, uv[ok], z[ok].astype(np.float64))
+        res = solve_pnp(pts, kp_ref[ok], K_ref, params.pnp)
+    if ok_ref.sum() >= params.min_matches:
+        rev = inverse_result(solve_pnp(backproject_pixels(K_ref, kp_ref[ok_ref], z_ref[ok_ref]), uv[ok_ref],
+                                       K_live, params.pnp))
+        if res is None or (rev.accepted, rev.n_inliers) > (res.accepted, res.n_inliers):
+            res = rev
     add("pnp", t0)
+    assert res is not None
     if res.accepted and res.T_target_source is not None:
         # The translation of T_ref_live is the live camera centre in the reference frame.
         dist = float(np.linalg.norm(res.T_target_source[:3, 3]))
@@ -208,6 +224,16 @@ def relative_pose(
             res = PnpResult(False, reason, res.T_target_source, res.inliers, res.n_matches,
                             res.median_reprojection_px, res.covariance)
     return res, len(i_live), res.reason
+
+
+def _reprojects(pts: NDArray[np.float64], T_target_source: NDArray[np.float64], K: NDArray[np.float64],
+                px: NDArray[np.float64], threshold_px: float) -> NDArray[np.bool_]:
+    """(N,) True where source-frame points `pts` (N, 3; NaN rows = no depth), moved into the
+    target camera, lie in front of it and project within `threshold_px` of `px` (N, 2)."""
+    p = pts @ T_target_source[:3, :3].T + T_target_source[:3, 3]
+    uvw = p @ np.asarray(K, dtype=np.float64).T
+    err = np.linalg.norm(uvw[:, :2] / uvw[:, 2:3] - px, axis=1)
+    return np.asarray(np.isfinite(err) & (p[:, 2] > 0) & (err <= threshold_px), dtype=bool)
 
 
 class _Query:
@@ -244,13 +270,25 @@ class _Query:
         return self._points
 
     def observations(self, node: int) -> KeyframeObservations:
-        """The matches with `node` that have live depth, as refinement input."""
-        i_live, i_ref = self.matches(node)
+        """The matches with `node` as refinement input (see `_observations`)."""
+        return self._observations(node, *self.matches(node))
+
+    def _observations(self, node: int, i_live: NDArray[np.int64], i_kf: NDArray[np.int64]) -> KeyframeObservations:
+        """Matches (live indices, keyframe indices) with `node` as refinement input: those with
+        live depth as live points; those without, where the map has depth at the keyframe
+        keypoint (and `verify_map_depth`), as keyframe points reprojected into the live image."""
+        m = self.loc.map
         pts = self.points()[i_live]
         ok = np.all(np.isfinite(pts), axis=1)
-        kp = np.asarray(self.loc.map.features[node].keypoints, dtype=np.float64)[i_ref[ok]]
-        return KeyframeObservations(node, pts[ok], kp, self.loc.map.K[node], self.loc.map.T_map_camera[node],
-                                    self._map_depth(node, i_ref[ok]))
+        kp = np.asarray(m.features[node].keypoints, dtype=np.float64)[i_kf]
+        z_kf = self._map_depth(node, i_kf)
+        if z_kf is None or not self.loc.params.verify_map_depth:
+            return KeyframeObservations(node, pts[ok], kp[ok], m.K[node], m.T_map_camera[node],
+                                        None if z_kf is None else z_kf[ok])
+        rev = ~ok & np.isfinite(z_kf) & (z_kf > 0)
+        live_px = np.asarray(self.feats.keypoints, dtype=np.float64).reshape(-1, 2)[i_live[rev]]
+        return KeyframeObservations(node, pts[ok], kp[ok], m.K[node], m.T_map_camera[node], z_kf[ok],
+                                    backproject_pixels(m.K[node], kp[rev], z_kf[rev]), live_px, self.K)
 
     def _map_depth(self, node: int, i_kf: NDArray[np.int64]) -> NDArray[np.float64] | None:
         """The map's depth (metres, NaN = none) at keyframe keypoints `i_kf`, None without."""
@@ -283,12 +321,20 @@ class _Query:
                               m.K[node], m.T_map_camera[node], self.loc.params.refine)
 
     def guided_observations(self, node: int, T_map_live: NDArray[np.float64]) -> KeyframeObservations:
-        """Matches with `node` found by projecting the live points with `T_map_live` (no model)."""
-        m = self.loc.map
+        """Matches with `node` found by projecting with `T_map_live` (no model): the live points
+        into the keyframe, and (`verify_map_depth`) the keyframe's points (map depth) into the
+        live image for live keypoints without live depth."""
         i_live, i_kf = self._guided(node, T_map_live)
-        kp = np.asarray(m.features[node].keypoints, dtype=np.float64)[i_kf]
-        return KeyframeObservations(node, self.points()[i_live], kp, m.K[node], m.T_map_camera[node],
-                                    self._map_depth(node, i_kf))
+        z_kf = self._map_depth(node, np.arange(len(self.loc.map.features[node].keypoints)))
+        if z_kf is not None and self.loc.params.verify_map_depth:
+            m, f = self.loc.map, self.loc.map.features[node]
+            kf_pts = backproject_pixels(m.K[node], np.asarray(f.keypoints, np.float64).reshape(-1, 2), z_kf)
+            kf_pts[~(z_kf > 0)] = np.nan
+            j_kf, j_live = guided_matches(kf_pts, f.descriptors, m.T_map_camera[node], self.feats.keypoints,
+                                          self.feats.descriptors, self.K, T_map_live, self.loc.params.refine)
+            new = ~np.all(np.isfinite(self.points()[j_live]), axis=1) & ~np.isin(j_live, i_live)
+            i_live, i_kf = np.concatenate([i_live, j_live[new]]), np.concatenate([i_kf, j_kf[new]])
+        return self._observations(node, i_live, i_kf)
 
 
 class VisualLocalizer:
@@ -325,7 +371,7 @@ class VisualLocalizer:
         q.matches(node)  # timed as "match" once; relative_pose then reads the cached matches
         res, n_matches, reason = relative_pose(
             q.feats, q.depth, q.K, self.map.features[node], self.map.K[node], lambda a, b: q.matches(node),
-            self.params, q.timer,
+            self.params, q.timer, self.map.keypoint_depth(node),
         )
         return res, CandidateAttempt(node, similarity, n_matches, res.n_inliers if res else 0, reason)
 
@@ -349,19 +395,42 @@ class VisualLocalizer:
         return (None, replace(att, reason=flat)) if flat else (res, att)
 
     def support_height_spread(self, node: int, res: PnpResult, q: _Query) -> float:
-        """Extent (m) along the map's up vector of the live points that support a verified pose
-        (10th to 90th percentile of the PnP inliers' heights in the map frame); inf when the
-        pose or the inliers are missing. Near 0: every inlier lies on one horizontal plane (the
-        floor or the ceiling), whose tiles repeat in every room and under 90-degree turns."""
+        """Extent (m) along the map's up vector of the points that support a verified pose
+        (10th to 90th percentile of the heights of the matches it explains, `_support_points`);
+        inf when the pose or the support is missing. Near 0: every supporting point lies on one
+        horizontal plane (the floor or the ceiling), whose tiles repeat in every room and under
+        90-degree turns."""
         if res.T_target_source is None or res.n_inliers == 0:
             return float("inf")
-        i_live, _ = q.matches(node)
-        pts = q.points()[i_live]
-        pts = pts[np.all(np.isfinite(pts), axis=1)][res.inliers]  # the rows relative_pose solved on
-        T = self.map.T_map_camera[node] @ res.T_target_source
-        h = (pts @ T[:3, :3].T + T[:3, 3]) @ np.asarray(self.map.grid.up, dtype=np.float64)
+        explained, pts = self._explained_matches(node, self.map.T_map_camera[node] @ res.T_target_source, q)
+        pts = pts[explained]
+        if len(pts) == 0:
+            return float("inf")
+        h = pts @ np.asarray(self.map.grid.up, dtype=np.float64)
         lo, hi = np.percentile(h, [10.0, 90.0])
         return float(hi - lo)
+
+    def _explained_matches(self, node: int, T_map_live: NDArray[np.float64],
+                           q: _Query) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:
+        """Which matches with `node` (`q.matches` order) the pose `T_map_live` explains within
+        the PnP reprojection threshold, either way: a live point (live depth) reprojected into
+        the keyframe, or a keyframe point (map depth) projected into the live image; and each
+        match's map-frame point (N, 3), the map's where it explains the match, NaN where none."""
+        i_live, i_ref = q.matches(node)
+        thr = self.params.pnp.reprojection_px
+        T_map_kf = self.map.T_map_camera[node]
+        live_pts = q.points()[i_live]  # live camera frame, NaN without depth
+        kf_px = np.asarray(self.map.features[node].keypoints, dtype=np.float64).reshape(-1, 2)[i_ref]
+        live_px = np.asarray(q.feats.keypoints, dtype=np.float64).reshape(-1, 2)[i_live]
+        z_kf = self.map.keypoint_depth(node) if self.params.verify_map_depth else None
+        kf_pts = (backproject_pixels(self.map.K[node], kf_px, np.asarray(z_kf, np.float64)[i_ref])
+                  if z_kf is not None else np.full((len(i_ref), 3), np.nan))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ok_live = _reprojects(live_pts, np.linalg.inv(T_map_kf) @ T_map_live, self.map.K[node], kf_px, thr)
+            ok_kf = _reprojects(kf_pts, np.linalg.inv(T_map_live) @ T_map_kf, q.K, live_px, thr)
+        out = np.where(ok_kf[:, None], kf_pts @ T_map_kf[:3, :3].T + T_map_kf[:3, 3],
+                       live_pts @ T_map_live[:3, :3].T + T_map_live[:3, 3])
+        return ok_live | ok_kf, np.asarray(out, dtype=np.float64)
 
     def _flat_support(self, node: int, res: PnpResult, q: _Query) -> str:
         """A rejection reason when a GL pose rests on one horizontal plane only (see
@@ -435,14 +504,7 @@ class VisualLocalizer:
         i_live, i_ref = q.matches(node)
         live_px = np.asarray(q.feats.keypoints, dtype=np.float64).reshape(-1, 2)[i_live]
         kf_px = np.asarray(self.map.features[node].keypoints, dtype=np.float64).reshape(-1, 2)[i_ref]
-        pts = q.points()[i_live]  # live camera frame, NaN without depth
-        T_kf_live = np.linalg.inv(self.map.T_map_camera[node]) @ T_map_live
-        p = pts @ T_kf_live[:3, :3].T + T_kf_live[:3, 3]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            uvw = p @ np.asarray(self.map.K[node], dtype=np.float64).T
-            proj = uvw[:, :2] / uvw[:, 2:3]
-            err = np.linalg.norm(proj - kf_px, axis=1)
-            inlier = np.isfinite(err) & (p[:, 2] > 0) & (err <= self.params.pnp.reprojection_px)
+        inlier, _ = self._explained_matches(node, T_map_live, q)
         return MatchedPixels(node, live_px.astype(np.float32), kf_px.astype(np.float32), inlier)
 
     def _prepare(
@@ -501,7 +563,7 @@ class VisualLocalizer:
         q, desc = self._query(color, depth, K, timer)
         front_ms = (self.clock() - t_all) * 1e3  # feature extraction and VPR, as in an LL query
         sims = self.map.vpr @ desc
-        order = self._rerank(np.argsort(-sims, kind="stable")[: self.params.gl_top_k], q)
+        order = self.global_candidates(sims, q)
         attempts: list[CandidateAttempt] = []
         best: tuple[int, PnpResult, RefineResult | None] | None = None
         reason = "not localized: no VPR candidate verified"
@@ -551,7 +613,8 @@ class VisualLocalizer:
                                                  f"joint refinement rejected: {joint.reason}"))
                 reason = f"not localized: no verified pose was confirmed by a second keyframe (last: node {node})"
             timer.add("total", t_all)
-            out = replace(self._result(t_ns, "global", best, attempts, timer, reason, q), stop_reason=stop)
+            out = replace(self._result(t_ns, "global", best, attempts, timer, reason, q), stop_reason=stop,
+                          candidates=tuple(int(n) for n in order))
             return out if out.accepted or provisional is None else replace(out, provisional=provisional)
         verified: list[tuple[int, PnpResult]] = []
         for node in order:
@@ -576,6 +639,15 @@ class VisualLocalizer:
             attempts.append(CandidateAttempt(node, float(sims[node]), res.n_matches, res.n_inliers, why))
         timer.add("total", t_all)
         return self._result(t_ns, "global", best, attempts, timer, reason, q)
+
+    def global_candidates(self, sims: NDArray[np.float32], q: _Query) -> NDArray[np.int64]:
+        """The map nodes GL verifies, in order (node ids, at most `gl_top_k`): the
+        `gl_rerank_depth` most similar by place descriptor (`sims`, (N,) per node), re-ordered
+        by local matches (`_rerank`), the first `gl_top_k` of them. The one place where GL's
+        candidate list is made: a filter on the candidates belongs here."""
+        p = self.params
+        shortlist = np.argsort(-sims, kind="stable")[: max(p.gl_top_k, p.gl_rerank_depth if p.gl_rerank else 0)]
+        return self._rerank(shortlist, q)[: p.gl_top_k]
 
     def _rerank(self, order: NDArray[np.int64], q: _Query) -> NDArray[np.int64]:
         """The VPR candidates `order` (best first) re-ordered by their mutual-nearest-neighbour
