@@ -117,7 +117,7 @@ def plot(results: Sequence[dict[str, Any]], path: Path, before: Sequence[dict[st
 
     names = [r["split"] + ("*" if r["role"] == "choose" else "") for r in results]
     x = np.arange(len(results))
-    fig, ax = plt.subplots(figsize=(max(6.0, 1.1 * len(results)), 4.0))
+    fig, ax = plt.subplots(figsize=(max(6.0, 1.1 * len(results)), 4.4))
     cols = [("covered_pct", "covered (0.5 m, 30°)", "#bbbbbb"), ("accepted_pct", "accepted", "#2b7bba"),
             ("within_5cm_5deg_pct", "within 5 cm, 5°", "#6cbf6c")]
     w = 0.8 / (len(cols) + bool(before))
@@ -131,7 +131,7 @@ def plot(results: Sequence[dict[str, Any]], path: Path, before: Sequence[dict[st
     ax.set_ylabel("% of query frames")
     ax.set_ylim(0, 105)
     ax.set_title("7-Scenes redkitchen splits (* = parameters chosen here)")
-    ax.legend(loc="lower left", fontsize=8, ncol=2)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.08), fontsize=8, ncol=4, frameon=False)
     ax.grid(axis="y", alpha=0.3)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -141,48 +141,32 @@ class RefineParams:
 class LocalizationParams:
     """Parameters of GL, LL and the state machine (metres, degrees)."""
 
-    gl_top_k: int = 10  # chosen on the 7-Scenes mapping pass (map 250-499, queries 0-249) and the office
-    gl_early_accept_inliers: int = 0  # > 0: stop GL at the first candidate with this many inliers (refine off)
-    # GL with joint refinement stops at the first candidate that passes the joint check;
-    # > 0: also a budget (ms, whole query): the next candidate is tried only while the time
-    # spent plus one more candidate's expected cost fits (at least one is always verified).
+    # Place candidates GL verifies (geometric check), best first.
+    gl_top_k: int = 10
+    # > 0: stop GL at the first candidate with this many inliers (refine off).
+    gl_early_accept_inliers: int = 0
+    # > 0: a wall-time budget (ms, whole GL query); the next candidate is tried only while the
+    # time spent plus one more candidate's expected cost fits (one is always verified).
     gl_time_budget_ms: float = 0.0
-    # GL candidates (the VPR top-k) are tried in the order of their count of mutual nearest
-    # neighbours with the live frame's descriptors at similarity >= gl_rerank_min_similarity
-    # (no model run, ~1 ms per candidate), VPR order breaking ties. Chosen on the mapping passes
-    # (each keyframe of the office, bland and floor maps against its VPR top-10 other keyframes,
-    # 1810 pairs): a candidate with >= 40 LightGlue matches comes first in 93 % of keyframes, in
-    # VPR order in 83 %; the count at a floor of 0.7 tracks LightGlue's (r = 0.79), at 0 it does
-    # not (every pair has 59+ mutual neighbours).
+    # Re-order GL candidates by their count of mutual nearest neighbours with the live frame's
+    # descriptors (no model run), place-descriptor order breaking ties.
     gl_rerank: bool = True
+    # Descriptor similarity (cosine) a mutual nearest neighbour needs to count in the re-ordering.
     gl_rerank_min_similarity: float = 0.7
-    # Place-descriptor shortlist that the re-ordering ranks (count), of which the first
-    # gl_top_k are verified: the re-ordering reaches places the descriptor ranks lower.
+    # Place-descriptor shortlist (nodes) that the re-ordering ranks; its first gl_top_k are verified.
     gl_rerank_depth: int = 20
-    # Bounded cost while recovering: once the localizer has tracked, one GL query may spend at
-    # most lost_cost_ratio x the running mean wall time of its LL queries; the next candidate
-    # is tried only while the time spent plus one more candidate's expected cost fits (at least
-    # one candidate is always verified). 0 = no bound. The issue's bound (#15: LOST <= 2x the
-    # wall time per second of tracking).
+    # Once tracked, a GL query may spend at most this x the median wall time of the recent LL
+    # queries (the next candidate only while it fits; one is always verified). 0 = no bound.
     lost_cost_ratio: float = 2.0
-    # GL confirmation: a GL pose must also explain matches with a second keyframe (a covisible
-    # neighbour of its node, else the next VPR candidate): repetitive textures can make one
-    # image pair agree on a wrong, shifted pose; two viewpoints rarely agree on the same wrong one.
+    # A GL pose must also explain matches with a second keyframe (repetitive textures fool one view).
     gl_confirm: bool = True
+    # An LL pose must too, unless it lies close to a fresh prior (confirm_skip_*).
     ll_confirm: bool = True
-    # A GL pose that PnP verified with at least this many inliers but that no second keyframe
-    # sees (a place the map views from one keyframe only) is not accepted; it is returned as a
-    # provisional pose: fusion counts it as an initialisation vote (it needs `init_votes` votes
-    # whose T_map_odom agree over the odometry between them), and in GLOBAL state it is
-    # accepted when it agrees with the prior (the fused pose) within the LL prior gate.
-    # 0 disables both. 60 = 1.5 x the PnP minimum (simulator worlds; issue #15).
+    # PnP inliers of a GL pose that only its own keyframe confirms for it to be returned as a
+    # provisional pose (a fusion vote; accepted in GLOBAL state when it agrees with the prior). 0 = off.
     gl_vote_min_inliers: int = 60
-    # A GL candidate whose PnP inliers span less than this (m) along the map's up vector (10th
-    # to 90th percentile of their heights) rests on the floor or the ceiling alone: tiles repeat
-    # in every room and under 90-degree turns, so PnP finds a shifted, turned pose that a second
-    # keyframe on the same tiles confirms (bland world: 1.1 m / 99 deg off, 42-47 inliers, from
-    # a start facing a wall the map never saw). Rejected in GL only: LL's prior gate bounds that
-    # aliasing. 0 disables. Chosen on the simulator (issue #15 item 6).
+    # A GL pose whose supporting points span less than this (m, 10th-90th percentile along the
+    # map's up) rests on the floor or ceiling alone, whose tiles repeat: rejected. 0 = off.
     gl_min_support_height_m: float = 0.15
     confirm_min_inliers: int = 20
     confirm_max_nodes: int = 2  # second keyframes tried for the confirmation
@@ -240,9 +224,9 @@ class LocalizationParams:
     gl_trigger_distance_m: float = 7.5  # prior farther than this from every node -> GL
     max_distance_to_node_m: float = 5.0  # an accepted pose must lie this close to its node
     min_matches: int = 20
-    # Candidate verification also solves PnP from the keyframe's points (the map's depth at its
-    # keypoints) into the live pixels and keeps the direction with more inliers: live depth
-    # misses many matched keypoints (depth holes, edges, registration) that the map has.
+    # Verification and refinement also use the map's depth at keyframe keypoints: PnP both ways
+    # (the direction with more inliers wins), keyframe points reprojected into the live image
+    # where the live keypoint has no depth.
     verify_map_depth: bool = True
     pnp: PnpParams = field(default_factory=PnpParams)
     depth: DepthLookupParams = field(default_factory=DepthLookupParams)
