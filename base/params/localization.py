@@ -153,8 +153,9 @@ class LocalizationParams:
     gl_rerank: bool = True
     # Descriptor similarity (cosine) a mutual nearest neighbour needs to count in the re-ordering.
     gl_rerank_min_similarity: float = 0.7
-    # Place-descriptor shortlist (nodes) that the re-ordering ranks; its first gl_top_k are verified.
-    gl_rerank_depth: int = 20
+    # Place-descriptor shortlist (nodes) that the re-ordering ranks, its first gl_top_k verified;
+    # 0 = gl_top_k (the re-ordering only orders the verified candidates).
+    gl_rerank_depth: int = 0
     # Once tracked, a GL query may spend at most this x the median wall time of the recent LL
     # queries (the next candidate only while it fits; one is always verified). 0 = no bound.
     lost_cost_ratio: float = 2.0
@@ -226,8 +227,8 @@ class LocalizationParams:
     min_matches: int = 20
     # Verification and refinement also use the map's depth at keyframe keypoints: PnP both ways
     # (the direction with more inliers wins), keyframe points reprojected into the live image
-    # where the live keypoint has no depth.
-    verify_map_depth: bool = True
+    # where the live keypoint has no depth. Off: it also verifies aliased places (docs/localization.md).
+    verify_map_depth: bool = False
     pnp: PnpParams = field(default_factory=PnpParams)
     depth: DepthLookupParams = field(default_factory=DepthLookupParams)
     # Joint multi-keyframe refinement (`refine.py`); when enabled it replaces the separate

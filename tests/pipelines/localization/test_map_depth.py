@@ -42,7 +42,8 @@ def test_gl_verifies_and_confirms_with_map_depth_where_live_depth_is_missing() -
     T_true = pose(0.7, 4.0)
     depth = _holes(s.look(T_true, vpr_best=1), 8)
     assert np.isfinite(depth).mean() < 0.1
-    on = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match).localize_global(0, IMG, depth, K)
+    on_params = replace(PARAMS, verify_map_depth=True)
+    on = VisualLocalizer(m, on_params, s.extract, s.describe, s.match).localize_global(0, IMG, depth, K)
     assert on.accepted, on.reason
     assert len(on.keyframes) >= 2  # the second keyframe confirmed it through map-depth terms
     dt, dr = g.relative_pose_error(on.T_map_camera, T_true)
