@@ -53,6 +53,7 @@ from litevloc.pipelines.localization.refine import (
     guided_matches,
     refine_pose,
 )
+from litevloc.pipelines.localization.search_region import SearchRegion, nodes_within
 from litevloc.pipelines.pnp import PnpResult, solve_pnp
 from litevloc.pipelines.topomap.types import FeatureSet, TopoMap
 
@@ -476,7 +477,7 @@ class VisualLocalizer:
     def localize_global(
         self, t_ns: int, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64],
         prior_T_map_camera: NDArray[np.float64] | None = None, prior_age_s: float = 0.0,
-        recovering: bool = False,
+        recovering: bool = False, region: SearchRegion | None = None,
     ) -> LocalizationResult:
         """VPR top-k + geometric verification; the best accepted candidate wins (after the
         joint refinement / confirmation by a second keyframe, see `LocalizationParams`).
@@ -486,7 +487,8 @@ class VisualLocalizer:
         With joint refinement on, a candidate that only its own keyframe confirms becomes the
         result's `provisional` pose (most inliers first), or is accepted when it agrees with the
         fused prior `prior_T_map_camera` (`prior_age_s` s since its last fix; only while fresh,
-        see `_fresh`) within the prior gate."""
+        see `_fresh`) within the prior gate. `region` (an initial pose) restricts the candidates to
+        keyframes within it before the top-k cut."""
         prior = None if prior_T_map_camera is None else check_rigid(prior_T_map_camera, "prior T_map_camera",
                                                                       atol=1e-4)
         timer = StageTimer()
@@ -494,7 +496,10 @@ class VisualLocalizer:
         q, desc = self._query(color, depth, K, timer)
         front_ms = (time.perf_counter() - t_all) * 1e3  # feature extraction and VPR, as in an LL query
         sims = self.map.vpr @ desc
-        order = self._rerank(np.argsort(-sims, kind="stable")[: self.params.gl_top_k], q)
+        ranked = np.argsort(-sims, kind="stable")
+        if region is not None:
+            ranked = nodes_within(ranked, self.map.positions, region)
+        order = self._rerank(ranked[: self.params.gl_top_k], q)
         attempts: list[CandidateAttempt] = []
         best: tuple[int, PnpResult, RefineResult | None] | None = None
         reason = "not localized: no VPR candidate verified"
@@ -743,10 +748,15 @@ class VisualLocalizer:
     def process(
         self, t_ns: int, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64],
         prior_T_map_camera: NDArray[np.float64] | None = None, prior_age_s: float = 0.0,
+        region: SearchRegion | None = None,
     ) -> LocalizationResult:
         """One frame through the state machine. The prior (e.g. the fused pose at `t_ns`,
         `prior_age_s` old) is used in TRACKING; without one, the last accepted VLoc pose is the
-        prior. In GLOBAL state it can accept a single-keyframe GL pose that agrees with it."""
+        prior. In GLOBAL state it can accept a single-keyframe GL pose that agrees with it.
+        `region` (an initial pose given by the user): GL within it, whatever the state, the prior ignored."""
+        if region is not None:
+            self._go(t_ns, TrackingState.GLOBAL, "initial pose given")
+            prior_T_map_camera = None
         if self.state in (TrackingState.INIT, TrackingState.LOST):
             why = "start-up" if self.state == TrackingState.INIT else "recover from LOST"
             self._go(t_ns, TrackingState.GLOBAL, why)
@@ -775,7 +785,7 @@ class VisualLocalizer:
                     self.failures = 0
                 return res
         res = self.localize_global(t_ns, color, depth, K, prior_T_map_camera, prior_age_s,
-                                   recovering=self.last_pose is not None)  # it has tracked before
+                                   recovering=self.last_pose is not None, region=region)  # it has tracked before
         if res.accepted and prior_T_map_camera is not None:
             res = self._hold_unless_repeated(res, prior_T_map_camera, prior_age_s)
         if res.accepted:
