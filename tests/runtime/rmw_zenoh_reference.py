@@ -30,7 +30,8 @@ REFERENCE_HASHES = {
 }
 
 # design document examples (verbatim), used to check this reader itself
-DOC_TOPIC_KEY = "0/robot1/chatter/std_msgs::msg::dds_::String_/RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18"
+DOC_TOPIC_KEY = ("0/robot1/chatter/std_msgs::msg::dds_::String_/"
+                 "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18")
 DOC_NODE_TOKEN = "@ros2_lv/2/aac3178e146ba6f1fc6e6a4085e77f21/0/0/NN/%/%/listener"
 DOC_PUB_TOKEN = ("@ros2_lv/2/8b20917502ee955ac4476e0266340d5c/0/10/MP/%/%/talker/%chatter/std_msgs::msg::dds_::String_/"
                  "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18/::,7:,:,:,,")
