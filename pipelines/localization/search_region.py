@@ -30,4 +30,5 @@ def nodes_within(order: NDArray[np.int64], positions: NDArray[np.floating], regi
         return order
     xy = np.asarray(positions, np.float64)[order, :2]
     d = np.linalg.norm(xy - np.asarray(region.center_xy, np.float64), axis=1)
-    return order[d <= region.radius_m]
+    kept: NDArray[np.int64] = order[d <= region.radius_m]
+    return kept
