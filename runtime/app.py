@@ -187,7 +187,6 @@ def build_app(
             on_ground_truth=recorder.on_ground_truth, on_fused=fused_hook,
             after_odometry=fusion.flush if defer else None,
         )
-        service.core.initial_pose_hold_s = cfg.zenoh.initial_pose.hold_s
         if cfg.zenoh.initial_pose.enabled:
             service.inputs["initial_pose"] = InitialPoseInput(bus, service.core, cfg.zenoh)
     except Exception:

@@ -184,10 +184,9 @@ class LocalizationCore:
         self._m2o_due = False
         # an initial pose (set by the shell's /initialpose subscriber, read by the VLoc thread):
         # [pose, sensor time it arrived at, stamp of the first frame queried with it] until a fix from
-        # such a query is accepted or `hold_s` passes
+        # such a query is accepted or its `hold_s` passes
         self._initial: list[Any] | None = None
         self._initial_lock = threading.Lock()
-        self.initial_pose_hold_s = 30.0
 
     # ------------------------------------------------------------------ steps
     def odometry(self, odom: Odometry, t_in_ns: int) -> list[CoreOutput]:
@@ -234,7 +233,7 @@ class LocalizationCore:
             if self._initial is None:
                 return None
             pose, since, first = self._initial
-            if since is not None and (t_frame_ns - since) * 1e-9 > self.initial_pose_hold_s:
+            if since is not None and (t_frame_ns - since) * 1e-9 > pose.hold_s:
                 self._initial = None
                 self.counters["initial_poses_expired"] += 1
                 return None

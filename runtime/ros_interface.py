@@ -35,11 +35,13 @@ class InitialPoseRefused(LiteVLocError, ValueError):
 
 @dataclass(frozen=True, eq=False)
 class InitialPose:
-    """An accepted initial pose: `T_map_base` (4x4) and the radius (metres) of the search around it."""
+    """An accepted initial pose: `T_map_base` (4x4), the radius (metres) of the search around it and
+    how long (seconds of sensor time) it bounds the search unless a fix from such a search comes first."""
 
     t_ns: int
     T_map_base: NDArray[np.float64]
     radius_m: float
+    hold_s: float
 
     def region(self, T_base_camera: NDArray[np.floating]) -> SearchRegion:
         """The search region around the camera position at this pose (map keyframes are camera poses)."""
@@ -75,7 +77,7 @@ def parse_initial_pose(msg: object, map_frame: str, params: InitialPoseConfig) -
         raise InitialPoseRefused(f"initial pose standard deviation {sigma:.1f} m > zenoh.initial_pose.max_sigma_m "
                                  f"({params.max_sigma_m:g} m): it bounds nothing")
     radius = max(params.min_radius_m, params.sigmas * sigma)
-    return InitialPose(ros_msgs.stamp_ns(msg.header), T, radius)  # type: ignore[attr-defined]
+    return InitialPose(ros_msgs.stamp_ns(msg.header), T, radius, params.hold_s)  # type: ignore[attr-defined]
 
 
 _CHANNELS = {"rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4, "mono8": 1}
