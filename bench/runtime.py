@@ -220,8 +220,10 @@ def main() -> None:
             for mode in args.modes:
                 ep = f"tcp/127.0.0.1:{free_port()}"
                 probe_out, run_out = Path(tmp) / f"probe_{mode}_{rep}.json", Path(tmp) / f"run_{mode}_{rep}.json"
+                sets = args.overrides + (args.alt_overrides if mode == "realtime+alt" else [])
+                ros2 = next((o.split("=", 1)[1] for o in reversed(sets) if o.startswith("zenoh.ros2=")), "bridge")
                 proc = start_probe(ep, probe_out, "pose", {}, timeout=args.seconds * 20 + 120, idle=15.0,
-                                   listen=True)
+                                   listen=True, ros2=ros2)
                 subprocess.run([sys.executable, __file__, "--rec", str(args.rec), "--map", str(args.map),
                                 "--seconds", str(args.seconds), *[a for o in args.overrides for a in ("--set", o)],
                                 *[a for o in args.alt_overrides for a in ("--alt-set", o)],

@@ -139,6 +139,60 @@ def _check_endpoint(ep: str, where: str) -> None:
 
 
 @dataclass(frozen=True)
+class TfConfig:
+    """ROS frames and the `/tf` / `/tf_static` output (REP-105: `map -> odom` is the localizer's)."""
+
+    # frame_id of every map-frame message (poses, VLoc fixes, subgoals, the parent of map -> odom)
+    map_frame: str = "map"
+    # the robot's odometry frame: child of map -> odom on /tf, parent of its nav_msgs/Odometry input
+    odom_frame: str = "odom"
+    # the robot body frame the camera extrinsics (fusion.base_camera_*) refer to
+    base_frame: str = "base_link"
+    # true: map -> odom on /tf as tf2_msgs/TFMessage, sent with every litevloc/map_to_odom (every
+    # runtime.map_to_odom_period_s of sensor time and after each accepted VLoc fix)
+    publish_tf: bool = True
+    # seconds added to the map -> odom stamp (as AMCL's transform_tolerance: lookups at "now" succeed);
+    # 0 = stamped with the odometry stamp the transform was computed from
+    post_date_s: float = 0.0
+    # camera optical frame: "" = no /tf_static; else base -> camera (fusion.base_camera_*) on /tf_static
+    camera_frame: str = ""
+
+    def __post_init__(self) -> None:
+        for name in ("map_frame", "odom_frame", "base_frame"):
+            v = getattr(self, name)
+            if not v or v.startswith("/") or any(c.isspace() for c in v):
+                raise ValueError(f"zenoh.tf.{name} {v!r} must be a non-empty frame id without '/' prefix or spaces")
+        frames = [self.map_frame, self.odom_frame, self.base_frame] + ([self.camera_frame] if self.camera_frame else [])
+        if len(set(frames)) != len(frames):
+            raise ValueError(f"zenoh.tf frame ids must differ from each other, got {frames}")
+        if not (0.0 <= self.post_date_s <= 10.0):
+            raise ValueError(f"zenoh.tf.post_date_s must be in [0, 10] s, got {self.post_date_s}")
+
+
+@dataclass(frozen=True)
+class InitialPoseConfig:
+    """`/initialpose` (geometry_msgs/PoseWithCovarianceStamped, RViz's "2D Pose Estimate"): a prior
+    that bounds the next global localization to map keyframes near it."""
+
+    # true: subscribe to `initialpose` (in the node's namespace)
+    enabled: bool = True
+    # search radius = max(min_radius_m, sigmas x the larger x/y standard deviation of the covariance), metres
+    sigmas: float = 3.0
+    # smallest search radius (metres): RViz sends a 0.5 m standard deviation; a zero covariance gets this
+    min_radius_m: float = 2.0
+    # an x or y standard deviation above this (metres) is refused: it would bound nothing
+    max_sigma_m: float = 50.0
+    # seconds of sensor time the bound holds while no VLoc fix is accepted near it; then GL searches the whole map
+    hold_s: float = 30.0
+
+    def __post_init__(self) -> None:
+        if not (0 < self.sigmas <= 10 and 0 < self.min_radius_m <= 1000 and 0 < self.max_sigma_m <= 1e4
+                and 0 < self.hold_s <= 3600):
+            raise ValueError("zenoh.initial_pose: need 0 < sigmas <= 10, 0 < min_radius_m <= 1000, "
+                             "0 < max_sigma_m <= 1e4, 0 < hold_s <= 3600")
+
+
+@dataclass(frozen=True)
 class ZenohConfig:
     """The Zenoh session: always explicit (Zenoh's own default listens on every interface
     and multicasts; ours listens on loopback only and does not scout).
@@ -156,6 +210,21 @@ class ZenohConfig:
     connect_timeout_s: float = 3.0  # per attempt at start-up
     require_connect: bool = True  # start fails if no `connect` endpoint is reachable
     namespace: str = ""  # key prefix, e.g. "robot1" -> robot1/litevloc/pose
+    # key naming: "bridge" (`<namespace>/litevloc/pose`, for zenoh-bridge-ros2dds) or "rmw_zenoh" (ROS 2's
+    # own Zenoh middleware: `<domain_id>/<namespace>/litevloc/pose/<dds type>/<RIHS01 hash>`, liveliness
+    # tokens, per-sample attachment); the namespace is then the ROS namespace of every node and topic
+    ros2: Literal["bridge", "rmw_zenoh"] = "bridge"
+    # ROS_DOMAIN_ID of the robot (rmw_zenoh only; 0-232 as in ROS 2)
+    domain_id: int = 0
+    # ROS node name of the runtime (rmw_zenoh liveliness); the planner is `<node_name>_planner`
+    node_name: str = "litevloc"
+    # frames, /tf and /tf_static
+    tf: TfConfig = field(default_factory=TfConfig)
+    # the /initialpose input
+    initial_pose: InitialPoseConfig = field(default_factory=InitialPoseConfig)
+    # the planner's goals for Nav2 as geometry_msgs/PoseStamped on `goal_pose` (frame map): "subgoal" each
+    # subgoal as it is published, "goal" the goal image's place (or its node) once per goal, "off" none
+    goal_pose: Literal["off", "subgoal", "goal"] = "off"
     attach_send_time: bool = True  # 8-byte little-endian monotonic send time (ns) as the Zenoh attachment
     tls: Any = None
     access_control: Any = None
@@ -179,6 +248,14 @@ class ZenohConfig:
                 raise ValueError(f"zenoh.{name} must be a mapping or JSON5 text, got {type(v).__name__}")
         if self.extra is not None and not isinstance(self.extra, dict):
             raise ValueError("zenoh.extra must be a mapping {config key path: value}")
+        if not 0 <= self.domain_id <= 232:
+            raise ValueError(f"zenoh.domain_id must be in [0, 232] (ROS_DOMAIN_ID), got {self.domain_id}")
+        if not self.node_name or not all(c.isalnum() or c == "_" for c in self.node_name) or \
+                self.node_name[0].isdigit():
+            raise ValueError(f"zenoh.node_name {self.node_name!r} is not a ROS node name (letters, digits, '_', "
+                             "not starting with a digit)")
+        if self.ros2 == "rmw_zenoh" and ns and not all(c.isalnum() or c in "_/" for c in ns):
+            raise ValueError(f"zenoh.namespace {ns!r} is not a ROS namespace (letters, digits, '_', '/')")
 
 
 @dataclass(frozen=True)

@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litevloc.config import LiteVLocConfig
+from litevloc.hw import ros_msgs
 from litevloc.hw.messages import GroundTruthPose, SourceMessage
 from litevloc.pipelines.fusion.online import OnlineFusion
 from litevloc.pipelines.localization.vloc import VisualLocalizer
@@ -26,6 +27,7 @@ from litevloc.pipelines.topomap.types import TopoMap
 from litevloc.runtime.bus import Bus, LiteVLocPublisher
 from litevloc.runtime.diagnostics import DiagnosticsPublisher
 from litevloc.runtime.frame_guard import FrameGuard
+from litevloc.runtime.ros_inputs import InitialPoseInput
 from litevloc.runtime.service import Service, VlocFn, fusion_callables, localizer_callable
 from litevloc.runtime.stages import call_in_low_priority_thread
 from litevloc.runtime.vloc_models import check_map_models, load_bundle
@@ -146,8 +148,8 @@ def build_app(
         # (with the VLoc process, the child validated the whole map; the node count is the manifest's)
         n_nodes = topomap.n_nodes if topomap is not None else int(read_manifest(Path(map_path))["nodes"])
         diagnostics = DiagnosticsPublisher(cfg.diagnostics, map_id(map_path), n_nodes)
-        publisher = LiteVLocPublisher(bus, cfg.runtime.lost_policy, cfg.runtime.lost_variance,
-                                      diagnostics=diagnostics)
+        publisher = LiteVLocPublisher(bus, cfg.runtime.lost_policy, cfg.runtime.lost_variance, cfg.zenoh.tf,
+                                      diagnostics=diagnostics, T_base_camera=T_base_camera)
         # The smoother update a fusion keyframe needs (~1-3 ms, every fusion.keyframe_period_s) runs
         # after the pose is handed on, not before (runtime.defer_fusion_updates).
         defer = cfg.runtime.defer_fusion_updates
@@ -156,8 +158,14 @@ def build_app(
         if cfg.runtime.odometry_input == "zenoh":
             from litevloc.hw.odometry import OdometryReceiver
 
+            # bridge: the literal key; rmw_zenoh: the ROS topic `odometry_key` in the node's namespace
+            odom_key = cfg.runtime.odometry_key if not bus.rmw_zenoh else bus.key(cfg.runtime.odometry_key,
+                                                                                  ros_msgs.ODOMETRY)
+
             def zenoh_odometry(sink: Callable[[Any], None]) -> Any:
-                return OdometryReceiver(bus.session, cfg.runtime.odometry_key, sink, cfg.runtime.odometry_checks)
+                if bus.rmw_zenoh:  # announce the subscription to the ROS graph
+                    bus.announce_subscription(cfg.runtime.odometry_key, ros_msgs.ODOMETRY)
+                return OdometryReceiver(bus.session, odom_key, sink, cfg.runtime.odometry_checks)
 
             receiver = zenoh_odometry
 
@@ -179,6 +187,8 @@ def build_app(
             on_ground_truth=recorder.on_ground_truth, on_fused=fused_hook,
             after_odometry=fusion.flush if defer else None,
         )
+        if cfg.zenoh.initial_pose.enabled:
+            service.inputs["initial_pose"] = InitialPoseInput(bus, service.core, cfg.zenoh)
     except Exception:
         bus.close()
         if vloc_proc is not None:

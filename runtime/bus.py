@@ -56,9 +56,22 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litevloc.base.errors import LiteVLocError
-from litevloc.config.schema import ZenohConfig
+from litevloc.config.schema import TfConfig, ZenohConfig
 from litevloc.hw import ros_msgs
 from litevloc.runtime.metrics import LatencyWindow, jsonable, now_ns
+from litevloc.runtime.rmw_zenoh import (
+    Durability,
+    History,
+    NodeIdentity,
+    Qos,
+    attachment,
+    attachment_fields,
+    entity_gid,
+    fully_qualified,
+    ros_namespace,
+    topic_keyexpr,
+)
+from litevloc.runtime.ros_interface import TF_MESSAGE, tf_message
 
 log = logging.getLogger(__name__)
 
@@ -68,7 +81,13 @@ TOPICS: dict[str, tuple[str, str]] = {
     "map_to_odom": ("litevloc/map_to_odom", ros_msgs.TRANSFORM_STAMPED),
     "status": ("litevloc/status", ros_msgs.STRING),
     "diagnostics": ("litevloc/diagnostics", ros_msgs.DIAGNOSTIC_ARRAY),
+    "tf": ("tf", TF_MESSAGE),
 }
+# ROS 2 QoS of the topics whose QoS is not the default stream profile (`STREAM_QOS`): tf2's
+# (tf2_ros DynamicBroadcasterQoS / StaticBroadcasterQoS)
+STREAM_QOS = Qos(depth=10)
+EVENT_QOS = Qos(history=History.KEEP_ALL)  # `reliable` publishers: every message is an event, none dropped
+TOPIC_QOS: dict[str, Qos] = {"tf": Qos(depth=100), "tf_static": Qos(durability=Durability.TRANSIENT_LOCAL, depth=1)}
 
 
 def warm_codecs() -> None:
@@ -84,6 +103,7 @@ def warm_codecs() -> None:
         ros_msgs.TRANSFORM_STAMPED: ros_msgs.transform_stamped_msg(0, eye, "map", "odom"),
         ros_msgs.STRING: ros_msgs.typestore().types[ros_msgs.STRING](data="{}"),
         ros_msgs.DIAGNOSTIC_ARRAY: ros_msgs.diagnostic_array_msg(0, [(0, "warm", "", "", [("k", "v")])]),
+        TF_MESSAGE: tf_message([(0, eye, "map", "odom")]),
     }
     for typename, msg in msgs.items():
         ros_msgs.deserialize(ros_msgs.serialize(msg, typename), typename)
@@ -94,8 +114,8 @@ class BusError(LiteVLocError, RuntimeError):
 
 
 def topic_key(namespace: str, topic: str) -> str:
-    """`("robot1", "pose")` -> `robot1/litevloc/pose`; topic may also be a literal key."""
-    base = TOPICS[topic][0] if topic in TOPICS else topic
+    """Bridge naming: `("robot1", "pose")` -> `robot1/litevloc/pose`; topic may also be a ROS topic name."""
+    base = TOPICS[topic][0] if topic in TOPICS else topic.lstrip("/")
     return f"{namespace.strip('/')}/{base}" if namespace.strip("/") else base
 
 
@@ -147,18 +167,34 @@ def open_session(cfg: ZenohConfig) -> Any:
 
 
 class TopicPublisher:
-    """A declared Zenoh publisher for one ROS type; counts puts and times them."""
+    """A declared Zenoh publisher for one ROS type; counts puts and times them.
+
+    `gid`: the publisher's rmw_zenoh GID; with one, every put carries rmw_zenoh's attachment
+    (sequence number, source timestamp, GID) instead of the 8-byte send time. `cache`: an
+    advanced publisher that keeps the last `cache` samples for late-joining subscribers (a
+    TRANSIENT_LOCAL topic, as rmw_zenoh declares it)."""
 
     def __init__(self, session: Any, key_expr: str, typename: str, attach_send_time: bool = True,
-                 reliable: bool = False) -> None:
+                 reliable: bool = False, gid: bytes | None = None, cache: int = 0) -> None:
         import zenoh
 
         self.key_expr, self.typename = key_expr, typename
         self.attach_send_time = attach_send_time
-        self._pub = session.declare_publisher(
-            key_expr, encoding=zenoh.Encoding.APPLICATION_CDR.with_schema(typename),
-            congestion_control=zenoh.CongestionControl.BLOCK if reliable else zenoh.CongestionControl.DROP,
-        )
+        self.gid = gid
+        self.seq = 0
+        cc = zenoh.CongestionControl.BLOCK if reliable else zenoh.CongestionControl.DROP
+        enc = zenoh.Encoding.APPLICATION_CDR.with_schema(typename)
+        if cache > 0:
+            import zenoh.ext
+
+            # rmw_zenoh: a TRANSIENT_LOCAL publisher caches `depth` samples, is detectable by late
+            # subscribers and (RELIABLE) sends sporadic heartbeats for sample-miss detection
+            self._pub = zenoh.ext.declare_advanced_publisher(
+                session, key_expr, encoding=enc, congestion_control=cc,
+                cache=zenoh.ext.CacheConfig(cache), publisher_detection=True,
+                sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=None, sporadic_heartbeat=0.5))
+        else:
+            self._pub = session.declare_publisher(key_expr, encoding=enc, congestion_control=cc)
         self.sent = 0
         self.errors = 0
         self.last_error: str | None = None
@@ -172,7 +208,10 @@ class TopicPublisher:
         asynchronously: a put before that is silently dropped). True if one matched in time."""
         deadline = time.monotonic() + timeout_s
         while True:
-            if self._pub.matching_status.matching:
+            status = getattr(self._pub, "matching_status", None)
+            if status is None:  # an advanced publisher: cannot tell
+                return False
+            if status.matching:
                 return True
             if time.monotonic() >= deadline:
                 return False
@@ -181,7 +220,10 @@ class TopicPublisher:
     def put_bytes(self, payload: bytes) -> None:
         t0 = now_ns()
         try:
-            if self.attach_send_time:
+            if self.gid is not None:
+                self.seq += 1
+                self._pub.put(payload, attachment=attachment(self.seq, time.time_ns(), self.gid))
+            elif self.attach_send_time:
                 self._pub.put(payload, attachment=struct.pack("<Q", now_ns()))
             else:
                 self._pub.put(payload)
@@ -202,7 +244,7 @@ class TopicPublisher:
 
 
 def send_time_ns(sample: Any) -> int | None:
-    """The publisher's monotonic send time from a sample's attachment, if it has one."""
+    """The publisher's monotonic send time from a sample's 8-byte attachment, if it has one."""
     att = sample.attachment
     if att is None:
         return None
@@ -210,23 +252,107 @@ def send_time_ns(sample: Any) -> int | None:
     return struct.unpack("<Q", b)[0] if len(b) == 8 else None
 
 
-class Bus:
-    """One Zenoh session plus LiteVLoc's key naming."""
+def wire_latency_ns(sample: Any) -> int | None:
+    """Send -> now (ns) of a sample: from the 8-byte monotonic send time, or from an rmw_zenoh
+    attachment's source timestamp (system clock); None without either."""
+    sent = send_time_ns(sample)
+    if sent is not None:
+        return now_ns() - sent
+    att = sample.attachment
+    fields = None if att is None else attachment_fields(att.to_bytes())
+    return None if fields is None else time.time_ns() - fields[1]
 
-    def __init__(self, cfg: ZenohConfig) -> None:
+
+class Subscription:
+    """A Zenoh subscriber and, under rmw_zenoh, its liveliness token (both undeclared together)."""
+
+    def __init__(self, sub: Any, token: Any = None) -> None:
+        self._sub, self._token = sub, token
+
+    def undeclare(self) -> None:
+        for h in (self._token, self._sub):
+            if h is not None:
+                with contextlib.suppress(Exception):  # session already closed
+                    h.undeclare()
+
+
+class Bus:
+    """One Zenoh session plus LiteVLoc's key naming: `zenoh.ros2` "bridge" (`<ns>/<topic>`) or
+    "rmw_zenoh" (the session is one ROS 2 node `node_name`; see `runtime.rmw_zenoh`).
+
+    Topics are named as ROS topics relative to the namespace (`litevloc/pose`, `tf`), or by
+    their short name in `TOPICS` (`pose`)."""
+
+    def __init__(self, cfg: ZenohConfig, node_name: str | None = None) -> None:
         self.cfg = cfg
         self.session = open_session(cfg)
         self._closed = False
+        self.node: NodeIdentity | None = None
+        self._tokens: list[Any] = []
+        self._next_entity = 1
+        if cfg.ros2 == "rmw_zenoh":
+            self.node = NodeIdentity(cfg.domain_id, str(self.session.info.zid()), 0, ros_namespace(cfg.namespace),
+                                     node_name or cfg.node_name)
+            self._tokens.append(self._declare_token(self.node.node_token()))
 
-    def key(self, topic: str) -> str:
-        return topic_key(self.cfg.namespace, topic)
+    @property
+    def rmw_zenoh(self) -> bool:
+        return self.node is not None
 
-    def publisher(self, topic: str, typename: str | None = None, reliable: bool = False) -> TopicPublisher:
+    def _declare_token(self, key: str) -> Any:
+        try:
+            return self.session.liveliness().declare_token(key)
+        except Exception as exc:
+            raise BusError(f"cannot declare the liveliness token {key!r}: {exc}") from exc
+
+    def key(self, topic: str, typename: str | None = None) -> str:
+        """The Zenoh key of a topic (its type is needed under rmw_zenoh: it is part of the key)."""
+        name = TOPICS[topic][0] if topic in TOPICS else topic
+        if self.node is None:
+            return topic_key(self.cfg.namespace, name)
+        tn = typename or TOPICS[topic][1]
+        return topic_keyexpr(self.cfg.domain_id, fully_qualified(self.cfg.namespace, name), tn)
+
+    def _endpoint(self, kind: str, topic: str, typename: str, qos: Qos) -> tuple[Any, bytes]:
+        """rmw_zenoh: declare the MP/MS liveliness token of a new endpoint; (token, GID)."""
+        assert self.node is not None
+        name = TOPICS[topic][0] if topic in TOPICS else topic
+        key = self.node.endpoint_token(self._next_entity, kind, fully_qualified(self.cfg.namespace, name),
+                                       typename, qos)
+        self._next_entity += 1
+        token = self._declare_token(key)
+        self._tokens.append(token)
+        return token, entity_gid(key)
+
+    def publisher(self, topic: str, typename: str | None = None, reliable: bool = False,
+                  qos: Qos | None = None) -> TopicPublisher:
         """A publisher on a namespaced topic. Streams (poses, subgoals) drop a message when the
         transport is congested (the next one supersedes it); `reliable` publishers (goals,
-        cancels, planner status: each message is an event) block until it is queued instead."""
+        cancels, planner status: each message is an event) block until it is queued instead
+        (ROS 2 QoS KEEP_ALL, as rmw_zenoh maps it). `qos` overrides the topic's ROS 2 QoS."""
         tn = typename or TOPICS[topic][1]
-        return TopicPublisher(self.session, self.key(topic), tn, self.cfg.attach_send_time, reliable)
+        short = topic.rsplit("/", 1)[-1]
+        q = qos or TOPIC_QOS.get(short) or (EVENT_QOS if reliable else STREAM_QOS)
+        cache = q.depth if q.durability == Durability.TRANSIENT_LOCAL else 0
+        if self.node is None:
+            return TopicPublisher(self.session, self.key(topic, tn), tn, self.cfg.attach_send_time, reliable)
+        _, gid = self._endpoint("MP", topic, tn, q)
+        return TopicPublisher(self.session, self.key(topic, tn), tn, True, reliable or q.history == History.KEEP_ALL,
+                              gid=gid, cache=cache)
+
+    def subscribe_topic(self, topic: str, typename: str, callback: Callable[[Any], None],
+                        qos: Qos = STREAM_QOS) -> Subscription:
+        """Subscribe to a namespaced ROS topic of type `typename` (under rmw_zenoh with its MS token)."""
+        sub = self.session.declare_subscriber(self.key(topic, typename), callback)
+        if self.node is None:
+            return Subscription(sub)
+        token, _ = self._endpoint("MS", topic, typename, qos)
+        return Subscription(sub, token)
+
+    def announce_subscription(self, topic: str, typename: str, qos: Qos = STREAM_QOS) -> None:
+        """rmw_zenoh: declare the MS token of a subscription made elsewhere on `key(topic, typename)`."""
+        if self.node is not None:
+            self._endpoint("MS", topic, typename, qos)
 
     def subscribe(self, key_expr: str, callback: Callable[[Any], None]) -> Any:
         """Declare a callback subscriber on a literal key expression (not namespaced)."""
@@ -245,6 +371,9 @@ class Bus:
     def close(self) -> None:
         if not self._closed:
             self._closed = True
+            for tok in reversed(self._tokens):
+                with contextlib.suppress(Exception):  # session already closed
+                    tok.undeclare()
             try:
                 self.session.close()
             except Exception as exc:  # already closed
@@ -275,21 +404,32 @@ def flag_covariance(cov: NDArray[np.floating] | None, variance: float) -> NDArra
 class LiteVLocPublisher:
     """Publishes LiteVLoc's topics on a `Bus`, applying the tracking-loss policy.
 
-    Frame names: `map`, `odom`, `base_link` (REP-105). Called from one thread (the
-    service's publisher stage).
+    Frame names from `tf` (`zenoh.tf`, REP-105 defaults `map`, `odom`, `base_link`). With
+    `tf.publish_tf`, every map->odom also goes out on `/tf` (tf2_msgs/TFMessage, stamped with the
+    odometry stamp it was computed from plus `tf.post_date_s`); with `tf.camera_frame`, the camera
+    mount `T_base_camera` on `/tf_static` once (cached for late subscribers under rmw_zenoh; with
+    the bridge repeated with every status). Called from one thread (the service's publisher stage).
     """
 
     def __init__(
         self, bus: Bus, lost_policy: str = "flag", lost_variance: float = 1.0e4,
-        map_frame: str = "map", odom_frame: str = "odom", base_frame: str = "base_link",
-        diagnostics: Any = None,
+        tf: TfConfig | None = None, diagnostics: Any = None, T_base_camera: NDArray[np.floating] | None = None,
     ) -> None:
         if lost_policy not in ("flag", "withhold"):
             raise ValueError(f"lost_policy must be 'flag' or 'withhold', got {lost_policy!r}")
         self.bus = bus
         self.lost_policy, self.lost_variance = lost_policy, lost_variance
-        self.map_frame, self.odom_frame, self.base_frame = map_frame, odom_frame, base_frame
-        self.pubs = {name: bus.publisher(name) for name in TOPICS}
+        self.tf = tf = tf or TfConfig()
+        self.map_frame, self.odom_frame, self.base_frame = tf.map_frame, tf.odom_frame, tf.base_frame
+        self.pubs = {name: bus.publisher(name) for name in TOPICS if name != "tf" or tf.publish_tf}
+        self._static: Any = None
+        if tf.camera_frame:
+            if T_base_camera is None:
+                raise ValueError("zenoh.tf.camera_frame is set but no T_base_camera was given")
+            self._static = tf_message([(time.time_ns(), np.asarray(T_base_camera, np.float64), tf.base_frame,
+                                        tf.camera_frame)])
+            self.pubs["tf_static"] = bus.publisher("tf_static", TF_MESSAGE)
+            self.pubs["tf_static"].put(self._static)
         warm_codecs()
         self.withheld = 0
         self.flagged = 0
@@ -317,10 +457,14 @@ class LiteVLocPublisher:
         return True
 
     def publish_map_to_odom(self, t_ns: int, T_map_odom: NDArray[np.floating], lost: bool = False) -> bool:
+        """`map_to_odom` (TransformStamped) and, with `tf.publish_tf`, the same on `/tf`."""
         if lost and self.lost_policy == "withhold":
             return False
         self.pubs["map_to_odom"].put(ros_msgs.transform_stamped_msg(t_ns, T_map_odom, self.map_frame,
                                                                     self.odom_frame))
+        if "tf" in self.pubs:
+            t_tf = t_ns + round(self.tf.post_date_s * 1e9)
+            self.pubs["tf"].put(tf_message([(t_tf, np.asarray(T_map_odom), self.map_frame, self.odom_frame)]))
         return True
 
     def publish_vloc(self, t_ns: int, T_map_camera: NDArray[np.floating],
@@ -330,6 +474,8 @@ class LiteVLocPublisher:
     def publish_status(self, status: dict[str, Any]) -> None:
         text = json.dumps(jsonable(status), sort_keys=True)
         self.pubs["status"].put(ros_msgs.typestore().types[ros_msgs.STRING](data=text))
+        if self._static is not None and not self.bus.rmw_zenoh:  # no cache for late subscribers: repeat it
+            self.pubs["tf_static"].put(self._static)
         if self.diagnostics is not None:
             msg = self.diagnostics.maybe_message(status, time.time_ns())
             if msg is not None:

@@ -22,6 +22,7 @@ across threads).
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -32,13 +33,15 @@ from numpy.typing import NDArray
 from litevloc.config.schema import RuntimeConfig
 from litevloc.hw.messages import Odometry
 from litevloc.runtime.diagnostics import VlocStageTimes
+from litevloc.runtime.ros_interface import InitialPose
 from litevloc.runtime.vloc_prior import OdometryHistory, VlocPrior, prior_at
 
 F64 = NDArray[np.float64]
 
 #: counters the core owns (the shell owns the source, VLoc-call and publishing counters)
 CORE_COUNTERS = ("vloc_accepted", "vloc_rejected", "fusion_accepted", "fusion_rejected", "odometry_fused",
-                 "odometry_rejected", "odometry_gaps", "vloc_votes", "fusion_initialised_by_votes")
+                 "odometry_rejected", "odometry_gaps", "vloc_votes", "fusion_initialised_by_votes",
+                 "initial_poses_applied", "initial_poses_expired")
 
 
 class ProvisionalLike(Protocol):
@@ -179,6 +182,11 @@ class LocalizationCore:
         self.vloc_times = VlocStageTimes(window)  # per-query extract/vpr/match/pnp ms
         self._last_m2o_ns: int | None = None
         self._m2o_due = False
+        # an initial pose (set by the shell's /initialpose subscriber, read by the VLoc thread):
+        # [pose, sensor time it arrived at, stamp of the first frame queried with it] until a fix from
+        # such a query is accepted or its `hold_s` passes
+        self._initial: list[Any] | None = None
+        self._initial_lock = threading.Lock()
 
     # ------------------------------------------------------------------ steps
     def odometry(self, odom: Odometry, t_in_ns: int) -> list[CoreOutput]:
@@ -213,8 +221,33 @@ class LocalizationCore:
             outs.append(MapToOdomOut(t, fused.T_map_odom, lost))
         return outs
 
+    def set_initial_pose(self, pose: InitialPose) -> None:
+        """An accepted initial pose: the next VLoc queries are GL bounded by it (thread-safe)."""
+        with self._initial_lock:
+            self._initial = [pose, self.sensor_now_ns, None]
+            self.counters["initial_poses_applied"] += 1
+
+    def _initial_region_at(self, t_frame_ns: int) -> VlocPrior | None:
+        """The pending initial pose as a prior with a search region; None when there is none or it expired."""
+        with self._initial_lock:
+            if self._initial is None:
+                return None
+            pose, since, first = self._initial
+            if since is not None and (t_frame_ns - since) * 1e-9 > pose.hold_s:
+                self._initial = None
+                self.counters["initial_poses_expired"] += 1
+                return None
+            if first is None:
+                self._initial[2] = t_frame_ns
+        T_map_camera = pose.T_map_base @ self.T_base_camera
+        return VlocPrior(T_map_camera, 0.0, False, region=pose.region(self.T_base_camera))
+
     def vloc_result(self, res: VlocOutcome) -> list[CoreOutput]:
         """One VLoc result: accepted fixes go to fusion; a provisional GL pose goes in as a vote."""
+        if res.accepted:
+            with self._initial_lock:  # a fix from a query bounded by the initial pose: tracking takes over
+                if self._initial is not None and self._initial[2] is not None and res.t_ns >= self._initial[2]:
+                    self._initial = None
         self.vloc_times.add(res.timings_ms)
         self.last_vloc_reason = str(res.reason)
         if res.tracking_state:
@@ -252,8 +285,12 @@ class LocalizationCore:
         """The VLoc prior at `t_frame_ns`: the latest `T_map_odom` applied to the odometry
         interpolated at the frame's stamp, times `T_base_camera`, with its age (seconds since
         the last fix fusion accepted); at the newest odometry when None. None before fusion
-        is initialised."""
+        is initialised. While an initial pose is pending, that pose with its search region."""
         f = self.last_fused
+        t_now = (int(f.t_ns) if f is not None else self.sensor_now_ns or 0) if t_frame_ns is None else int(t_frame_ns)
+        initial = self._initial_region_at(t_now)
+        if initial is not None:
+            return initial
         if f is None or not f.initialised:
             return None
         t = int(f.t_ns) if t_frame_ns is None else int(t_frame_ns)

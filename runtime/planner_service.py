@@ -11,12 +11,16 @@ Topics (namespaced like the runtime's, `<ns>/litevloc/...`; CDR ROS 2 payloads):
   queued and visited in order (a sequence). `header.frame_id` names the goal (reported in
   the status). The goal camera is assumed to be the robot's (the map keyframes'
   intrinsics, scaled to the goal image size).
+* in  `litevloc/goal_image_raw` sensor_msgs/Image (rgb8, bgr8, rgba8, bgra8, mono8): a goal, as above.
 * in  `litevloc/goal_cancel` std_msgs/String: `"current"` skips the active goal (failed,
   reason "cancelled"), `"all"` also empties the queue.
 * out `litevloc/subgoal` geometry_msgs/PoseStamped (frame `map`): the base pose at the next
   node of the path (the node keyframe's camera pose moved back to the base, kept level).
 * out `litevloc/subgoal_base` geometry_msgs/PoseStamped (frame `base_link`): the same pose
   in the robot frame (`inv(T_map_base) @ T_map_subgoal`), for a local planner.
+* out `goal_pose` geometry_msgs/PoseStamped (frame `map`), for Nav2's navigator (`zenoh.goal_pose`):
+  "subgoal": each new subgoal (a new path node, or the goal image's place on the final approach);
+  "goal": once per goal, the goal image's place (its node's base pose where the map gives no place).
 * out `litevloc/planner_status` std_msgs/String, JSON: `state` idle | planned | reached |
   failed, `reason`, `goal` (name), `goal_node`, `subgoal_node`, `path`, `remaining_m`,
   `queued`, `busy` (a goal active or queued), `goals_received`, `seq` (incremented on
@@ -49,17 +53,20 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litevloc.base.geometry import invert
-from litevloc.config.schema import PlannerConfig
+from litevloc.config.schema import PlannerConfig, TfConfig
 from litevloc.hw import ros_msgs
 from litevloc.pipelines.navigation.planner import GoalResult, NavStatus, SubgoalTracker, localize_goal, segment_clear
 from litevloc.pipelines.topomap.types import TopoMap
 from litevloc.runtime.metrics import jsonable
+from litevloc.runtime.ros_interface import image_to_rgb
 
 log = logging.getLogger(__name__)
 
 KEYS = {
     "pose": "litevloc/pose",
     "goal_image": "litevloc/goal_image",
+    "goal_image_raw": "litevloc/goal_image_raw",
+    "goal_pose": "goal_pose",
     "goal_cancel": "litevloc/goal_cancel",
     "subgoal": "litevloc/subgoal",
     "subgoal_base": "litevloc/subgoal_base",
@@ -181,6 +188,15 @@ class GoalPlanner:
         T = level_pose(np.asarray(res.T_map_goal, np.float64) @ self.T_camera_base)
         T[2, 3] = self.node_base[res.node, 2, 3]
         return T
+
+    def active_goal_place(self) -> Subgoal | None:
+        """Where the active goal is: the goal image's place (level base pose), or its node's base
+        pose where the map gave no place; None without an active goal or a pose."""
+        node = self.tracker.goal
+        if self.active is None or node is None or self.pose is None:
+            return None
+        T_goal = (self._goal_base if self._goal_base is not None else self.node_base[node]).copy()
+        return Subgoal(self.pose[0], node, T_goal, invert(self.pose[1]) @ T_goal)
 
     @property
     def busy(self) -> bool:
@@ -346,25 +362,34 @@ class PlannerService:
     """`GoalPlanner` on a Zenoh `Bus`: subscriptions feed one worker thread, which publishes.
 
     Args:
-        bus: an open `runtime.bus.Bus` (its namespace prefixes every key).
+        bus: an open `runtime.bus.Bus` (its namespace prefixes every key; under rmw_zenoh, a ROS node).
         planner: the message logic.
+        goal_pose: `zenoh.goal_pose` ("off" | "subgoal" | "goal"): what goes to Nav2 on `goal_pose`.
+        tf: the frame ids (`zenoh.tf`).
     """
 
-    def __init__(self, bus: Any, planner: GoalPlanner) -> None:
+    def __init__(self, bus: Any, planner: GoalPlanner, goal_pose: str = "off", tf: TfConfig | None = None) -> None:
         self.bus, self.planner = bus, planner
+        self.goal_pose = goal_pose
+        self.tf = tf or TfConfig()
         self.inbox: queue.Queue[tuple[str, Any]] = queue.Queue()
         self.counters = {"poses_in": 0, "goals_in": 0, "bad_messages": 0, "subgoals_published": 0,
-                         "status_published": 0}
+                         "status_published": 0, "goal_poses_published": 0}
         self._stop = threading.Event()
+        self._last_goal_pose: tuple[str | None, int, bool] | None = None  # (goal, subgoal node, final) sent to Nav2
+        self._last_goal: str | None = None  # the goal whose place went to Nav2 (goal_pose "goal")
         self.pubs = {
             "subgoal": bus.publisher(KEYS["subgoal"], ros_msgs.POSE_STAMPED),
             "subgoal_base": bus.publisher(KEYS["subgoal_base"], ros_msgs.POSE_STAMPED),
             "status": bus.publisher(KEYS["status"], ros_msgs.STRING, reliable=True),
         }
+        if goal_pose != "off":
+            self.pubs["goal_pose"] = bus.publisher(KEYS["goal_pose"], ros_msgs.POSE_STAMPED, reliable=True)
         self.subs = [
-            bus.session.declare_subscriber(bus.key(KEYS["pose"]), self._on_pose_sample),
-            bus.session.declare_subscriber(bus.key(KEYS["goal_image"]), self._on_goal_sample),
-            bus.session.declare_subscriber(bus.key(KEYS["goal_cancel"]), self._on_cancel_sample),
+            bus.subscribe_topic(KEYS["pose"], ros_msgs.ODOMETRY, self._on_pose_sample),
+            bus.subscribe_topic(KEYS["goal_image"], ros_msgs.COMPRESSED_IMAGE, self._on_goal_sample),
+            bus.subscribe_topic(KEYS["goal_image_raw"], ros_msgs.IMAGE, self._on_raw_goal_sample),
+            bus.subscribe_topic(KEYS["goal_cancel"], ros_msgs.STRING, self._on_cancel_sample),
         ]
         self._thread = threading.Thread(target=self._work, name="planner", daemon=True)
 
@@ -384,6 +409,16 @@ class PlannerService:
         try:
             msg = ros_msgs.deserialize(sample.payload.to_bytes(), ros_msgs.COMPRESSED_IMAGE)
             item = (str(msg.header.frame_id) or f"goal_{self.counters['goals_in']}", bytes(msg.data))
+        except Exception as exc:
+            item = (f"goal_{self.counters['goals_in']}", exc)
+        self.counters["goals_in"] += 1
+        self.inbox.put(("goal", item))
+
+    def _on_raw_goal_sample(self, sample: Any) -> None:
+        item: tuple[str, NDArray[np.uint8] | Exception]
+        try:
+            msg = ros_msgs.deserialize(sample.payload.to_bytes(), ros_msgs.IMAGE)
+            item = (str(msg.header.frame_id) or f"goal_{self.counters['goals_in']}", image_to_rgb(msg))
         except Exception as exc:
             item = (f"goal_{self.counters['goals_in']}", exc)
         self.counters["goals_in"] += 1
@@ -445,11 +480,25 @@ class PlannerService:
                 self._publish_status(payload)
             else:
                 self._publish_subgoal(payload)
+        if self.goal_pose == "goal" and p.active is not None and p.active != self._last_goal:
+            place = p.active_goal_place()
+            if place is not None:
+                self._last_goal = p.active
+                self._publish_goal_pose(place)
 
     def _publish_subgoal(self, s: Subgoal) -> None:
-        self.pubs["subgoal"].put(ros_msgs.pose_stamped_msg(s.t_ns, s.T_map_subgoal, "map"))
-        self.pubs["subgoal_base"].put(ros_msgs.pose_stamped_msg(s.t_ns, s.T_base_subgoal, "base_link"))
+        self.pubs["subgoal"].put(ros_msgs.pose_stamped_msg(s.t_ns, s.T_map_subgoal, self.tf.map_frame))
+        self.pubs["subgoal_base"].put(ros_msgs.pose_stamped_msg(s.t_ns, s.T_base_subgoal, self.tf.base_frame))
         self.counters["subgoals_published"] += 1
+        if self.goal_pose == "subgoal":  # Nav2 replans on every goal: only a new subgoal is sent
+            which = (self.planner.active, s.node, self.planner._final)
+            if which != self._last_goal_pose:
+                self._last_goal_pose = which
+                self._publish_goal_pose(s)
+
+    def _publish_goal_pose(self, s: Subgoal) -> None:
+        self.pubs["goal_pose"].put(ros_msgs.pose_stamped_msg(s.t_ns, s.T_map_subgoal, self.tf.map_frame))
+        self.counters["goal_poses_published"] += 1
 
     def _publish_status(self, status: dict[str, Any]) -> None:
         text = json.dumps(jsonable(status), sort_keys=True)

@@ -47,6 +47,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--connect", action="append", default=[], help="endpoint, e.g. tcp/127.0.0.1:7447")
     ap.add_argument("--listen", action="append", default=[], help="listen here instead (the service connects)")
     ap.add_argument("--namespace", default="")
+    ap.add_argument("--ros2", choices=("bridge", "rmw_zenoh"), default="bridge", help="key naming (zenoh.ros2)")
     ap.add_argument("--topics", default="pose,vloc,map_to_odom,status")
     ap.add_argument("--count", action="append", default=[], metavar="TOPIC=N", help="stop after N messages")
     ap.add_argument("--timeout", type=float, default=30.0)
@@ -66,7 +67,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from litevloc.config.schema import ZenohConfig
     from litevloc.hw import ros_msgs
-    from litevloc.runtime.bus import TOPICS, Bus, send_time_ns, topic_key, warm_codecs
+    from litevloc.runtime.bus import TOPICS, Bus, warm_codecs, wire_latency_ns
     from litevloc.runtime.metrics import now_ns, percentiles_ms
 
     topics = [t.strip() for t in args.topics.split(",") if t.strip()]
@@ -75,7 +76,7 @@ def main(argv: list[str] | None = None) -> int:
             ap.error(f"unknown topic {t!r}; known: {sorted(TOPICS)}")
     want = {k: int(v) for k, v in (c.split("=", 1) for c in args.count)}
     cfg = ZenohConfig(mode="peer", listen=tuple(args.listen), connect=tuple(args.connect), namespace=args.namespace,
-                      connect_timeout_s=min(args.timeout, 10.0))
+                      connect_timeout_s=min(args.timeout, 10.0), ros2=args.ros2, node_name="litevloc_probe")
     warm_codecs()
     bus = Bus(cfg)
     res: dict[str, dict[str, Any]] = {t: {"count": 0, "decode_errors": 0, "lat_ms": [], "data": [], "stamp_ms": []}
@@ -89,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
 
         def cb(sample: Any) -> None:
             t_rx = now_ns()
-            sent = send_time_ns(sample)
+            wire_ns = wire_latency_ns(sample)
             r = res[topic]
             try:
                 msg = ros_msgs.deserialize(sample.payload.to_bytes(), typename)
@@ -114,8 +115,8 @@ def main(argv: list[str] | None = None) -> int:
                 r["stamp_ms"].append((t_rx - ros_msgs.stamp_ns(msg.header)) * 1e-6)
             with lock:
                 r["count"] += 1
-                if sent is not None:
-                    r["lat_ms"].append((t_rx - sent) * 1e-6)
+                if wire_ns is not None:
+                    r["lat_ms"].append(wire_ns * 1e-6)
                 if item is not None:
                     r["data"].append(item)
                 last_rx[0] = time.monotonic()
@@ -124,7 +125,7 @@ def main(argv: list[str] | None = None) -> int:
 
         return cb
 
-    subs = [bus.subscribe(topic_key(args.namespace, t), make_cb(t)) for t in topics]
+    subs = [bus.subscribe_topic(t, TOPICS[t][1], make_cb(t)) for t in topics]
     t_end = time.monotonic() + args.timeout
     if args.listen:  # listening: ready as soon as the subscribers exist; the service connects to us
         print("READY", flush=True)

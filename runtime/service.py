@@ -168,6 +168,7 @@ class Service:
                                      covariance_to_ros, on_fused, window=p.latency_window)
         self._odometry_receiver_factory = odometry_receiver
         self.odometry_receiver: Any = None
+        self.inputs: dict[str, Any] = {}  # other live inputs with a `report()` (e.g. the /initialpose subscriber)
         if configure_thread_counts:
             self.threads = configure_threads(p.cv_threads, p.ort_intra_op_threads, p.ort_inter_op_threads,
                                              p.gil_switch_interval_s)
@@ -571,6 +572,8 @@ class Service:
                     reasons.append(problem)
             except Exception as exc:
                 out["bus"] = {"error": str(exc)}
+        if self.inputs:
+            out["inputs"] = {name: inp.report() for name, inp in self.inputs.items()}
         return dict(jsonable(out))
 
 
@@ -584,6 +587,8 @@ def localizer_callable(localizer: VisualLocalizer) -> VlocFn:
     def vloc(frame: RgbdFrame, prior: VlocPrior | None) -> VlocOutcome:
         if prior is None:
             res = localizer.process(frame.t_ns, frame.color, frame.depth, frame.K, None)
+        elif prior.region is not None:  # an initial pose: GL near it, the fused prior ignored
+            res = localizer.process(frame.t_ns, frame.color, frame.depth, frame.K, None, region=prior.region)
         else:
             res = localizer.process(frame.t_ns, frame.color, frame.depth, frame.K, prior.T_map_camera,
                                     prior_age_s=prior.age_s)

@@ -191,9 +191,9 @@ class _Driver:
         self.pose_seen = False
         self.goals_sent = False
         self.subs = [
-            bus.session.declare_subscriber(bus.key(KEYS["subgoal_base"]), self._on_sub),
-            bus.session.declare_subscriber(bus.key(KEYS["subgoal"]), self._on_sub_map),
-            bus.session.declare_subscriber(bus.key(KEYS["status"]), self._on_status),
+            bus.subscribe_topic(KEYS["subgoal_base"], ros_msgs.POSE_STAMPED, self._on_sub),
+            bus.subscribe_topic(KEYS["subgoal"], ros_msgs.POSE_STAMPED, self._on_sub_map),
+            bus.subscribe_topic(KEYS["status"], ros_msgs.STRING, self._on_status),
         ]
         self.goal_pub = bus.publisher(KEYS["goal_image"], ros_msgs.COMPRESSED_IMAGE, reliable=True)
         self.cancel_pub = bus.publisher(KEYS["goal_cancel"], ros_msgs.STRING, reliable=True)
@@ -480,11 +480,11 @@ def run_navigation(
 
             on_step = on_step_gt
 
-        pl_bus = Bus(z_pl)
+        pl_bus = Bus(z_pl, node_name=f"{z_pl.node_name}_planner")
         closers.append(pl_bus.close)
         planner = PlannerService(pl_bus, build_planner(cfg, load_map(map_path), bundle)).start()
         closers.append(planner.close)
-        dr_bus = Bus(z_dr)
+        dr_bus = Bus(z_dr, node_name=f"{z_dr.node_name}_sim_driver")
         closers.append(dr_bus.close)
         driver = _Driver(dr_bus, sim, goals, params, T_bc, on_step, color_for_vloc=localization == "litevloc")
         if localization == "litevloc" and app.view is not None:

@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litevloc.base.geometry import interpolate_pose_at
+from litevloc.pipelines.localization.search_region import SearchRegion
 
 F64 = NDArray[np.float64]
 
@@ -27,11 +28,13 @@ class VlocPrior:
     """`T_map_camera` (4x4, metres) at the frame's stamp; `age_s`: seconds from the last VLoc
     fix fusion accepted to the frame's stamp (0 if the frame is older than that fix);
     `interpolated`: False where the stamp lay outside the odometry history and the nearest
-    odometry pose was used (the age then includes the gap)."""
+    odometry pose was used (the age then includes the gap); `region`: an initial pose's bound on
+    the next global localization (then `T_map_camera` is the initial pose's camera pose, not a fix)."""
 
     T_map_camera: F64
     age_s: float
     interpolated: bool = True
+    region: SearchRegion | None = None
 
 
 class OdometryHistory:

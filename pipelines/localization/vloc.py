@@ -53,6 +53,7 @@ from litevloc.pipelines.localization.refine import (
     guided_matches,
     refine_pose,
 )
+from litevloc.pipelines.localization.search_region import SearchRegion, nodes_within
 from litevloc.pipelines.pnp import PnpResult, inverse_result, solve_pnp
 from litevloc.pipelines.topomap.types import FeatureSet, TopoMap
 
@@ -545,7 +546,7 @@ class VisualLocalizer:
     def localize_global(
         self, t_ns: int, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64],
         prior_T_map_camera: NDArray[np.float64] | None = None, prior_age_s: float = 0.0,
-        recovering: bool = False,
+        recovering: bool = False, region: SearchRegion | None = None,
     ) -> LocalizationResult:
         """VPR top-k + geometric verification; the best accepted candidate wins (after the
         joint refinement / confirmation by a second keyframe, see `LocalizationParams`).
@@ -555,7 +556,8 @@ class VisualLocalizer:
         With joint refinement on, a candidate that only its own keyframe confirms becomes the
         result's `provisional` pose (most inliers first), or is accepted when it agrees with the
         fused prior `prior_T_map_camera` (`prior_age_s` s since its last fix; only while fresh,
-        see `_fresh`) within the prior gate."""
+        see `_fresh`) within the prior gate. `region` (an initial pose) restricts the candidates to
+        keyframes within it before the top-k cut."""
         prior = None if prior_T_map_camera is None else check_rigid(prior_T_map_camera, "prior T_map_camera",
                                                                       atol=1e-4)
         timer = StageTimer(self.clock)
@@ -563,7 +565,7 @@ class VisualLocalizer:
         q, desc = self._query(color, depth, K, timer)
         front_ms = (self.clock() - t_all) * 1e3  # feature extraction and VPR, as in an LL query
         sims = self.map.vpr @ desc
-        order = self.global_candidates(sims, q)
+        order = self.global_candidates(sims, q, region)
         attempts: list[CandidateAttempt] = []
         best: tuple[int, PnpResult, RefineResult | None] | None = None
         reason = "not localized: no VPR candidate verified"
@@ -640,13 +642,18 @@ class VisualLocalizer:
         timer.add("total", t_all)
         return self._result(t_ns, "global", best, attempts, timer, reason, q)
 
-    def global_candidates(self, sims: NDArray[np.float32], q: _Query) -> NDArray[np.int64]:
+    def global_candidates(self, sims: NDArray[np.float32], q: _Query,
+                          region: SearchRegion | None = None) -> NDArray[np.int64]:
         """The map nodes GL verifies, in order (node ids, at most `gl_top_k`): the
-        `gl_rerank_depth` most similar by place descriptor (`sims`, (N,) per node), re-ordered
-        by local matches (`_rerank`), the first `gl_top_k` of them. The one place where GL's
-        candidate list is made: a filter on the candidates belongs here."""
+        `gl_rerank_depth` most similar by place descriptor (`sims`, (N,) per node) among the
+        keyframes within `region` (an initial pose) where one is given, re-ordered by local
+        matches (`_rerank`), the first `gl_top_k` of them. The one place where GL's candidate
+        list is made: a filter on the candidates belongs here."""
         p = self.params
-        shortlist = np.argsort(-sims, kind="stable")[: max(p.gl_top_k, p.gl_rerank_depth if p.gl_rerank else 0)]
+        ranked = np.argsort(-sims, kind="stable")
+        if region is not None:
+            ranked = nodes_within(ranked, self.map.positions, region)
+        shortlist = ranked[: max(p.gl_top_k, p.gl_rerank_depth if p.gl_rerank else 0)]
         return self._rerank(shortlist, q)[: p.gl_top_k]
 
     def _rerank(self, order: NDArray[np.int64], q: _Query) -> NDArray[np.int64]:
@@ -822,10 +829,15 @@ class VisualLocalizer:
     def process(
         self, t_ns: int, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64],
         prior_T_map_camera: NDArray[np.float64] | None = None, prior_age_s: float = 0.0,
+        region: SearchRegion | None = None,
     ) -> LocalizationResult:
         """One frame through the state machine. The prior (e.g. the fused pose at `t_ns`,
         `prior_age_s` old) is used in TRACKING; without one, the last accepted VLoc pose is the
-        prior. In GLOBAL state it can accept a single-keyframe GL pose that agrees with it."""
+        prior. In GLOBAL state it can accept a single-keyframe GL pose that agrees with it.
+        `region` (an initial pose given by the user): GL within it, whatever the state, the prior ignored."""
+        if region is not None:
+            self._go(t_ns, TrackingState.GLOBAL, "initial pose given")
+            prior_T_map_camera = None
         if self.state in (TrackingState.INIT, TrackingState.LOST):
             why = "start-up" if self.state == TrackingState.INIT else "recover from LOST"
             self._go(t_ns, TrackingState.GLOBAL, why)
@@ -854,7 +866,7 @@ class VisualLocalizer:
                     self.failures = 0
                 return res
         res = self.localize_global(t_ns, color, depth, K, prior_T_map_camera, prior_age_s,
-                                   recovering=self.last_pose is not None)  # it has tracked before
+                                   recovering=self.last_pose is not None, region=region)  # it has tracked before
         if res.accepted and prior_T_map_camera is not None:
             res = self._hold_unless_repeated(res, prior_T_map_camera, prior_age_s)
         if res.accepted:

@@ -50,7 +50,7 @@ def send_goals(bus: Any, images: list[tuple[str, bytes]], cancel: str | None = N
             got.append(st)
             ev.notify_all()
 
-    sub = bus.session.declare_subscriber(bus.key(KEYS["status"]), on_status)
+    sub = bus.subscribe_topic(KEYS["status"], ros_msgs.STRING, on_status)
     gpub = bus.publisher(KEYS["goal_image"], ros_msgs.COMPRESSED_IMAGE, reliable=True)
     cpub = bus.publisher(KEYS["goal_cancel"], ros_msgs.STRING, reliable=True)
     try:
@@ -95,7 +95,7 @@ def run_send(args: argparse.Namespace) -> int:
     z = dataclasses.replace(cfg.zenoh, listen=(), connect=tuple(args.connect) or cfg.zenoh.connect or
                             cfg.zenoh.listen, namespace=cfg.zenoh.namespace if args.namespace is None
                             else args.namespace)
-    with Bus(z) as bus:
+    with Bus(z, node_name=f"{z.node_name}_goal") as bus:
         st = send_goals(bus, images, args.cancel, args.wait)
     print(f"sent {len(images)} goal image(s)" + (f", cancel {args.cancel}" if args.cancel else ""))
     if st is not None:

@@ -42,14 +42,14 @@ def run(args: argparse.Namespace) -> int:
     if map_path is None:
         raise UserError("no map: give --map or set `map` in the config")
     planner = build_planner(cfg, load_map(map_path))
-    bus = Bus(cfg.zenoh)
+    bus = Bus(cfg.zenoh, node_name=f"{cfg.zenoh.node_name}_planner")
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    svc = PlannerService(bus, planner).start()
+    svc = PlannerService(bus, planner, cfg.zenoh.goal_pose, cfg.zenoh.tf).start()
     print(f"planner: map {map_path} ({planner.map.n_nodes} nodes), listen {list(cfg.zenoh.listen)}, "
           f"connect {list(cfg.zenoh.connect)}; waiting for goals on "
-          f"{bus.key('litevloc/goal_image')}", flush=True)
+          f"{bus.key('litevloc/goal_image', 'sensor_msgs/msg/CompressedImage')}", flush=True)
     try:
         stop.wait(args.duration)
     finally:

@@ -17,13 +17,14 @@ def free_port() -> int:
 
 
 def start_probe(endpoint: str, out: Path, topics: str, counts: dict[str, int], timeout: float = 20.0,
-                namespace: str = "", idle: float = 0.0, listen: bool = False) -> subprocess.Popen[str]:
+                namespace: str = "", idle: float = 0.0, listen: bool = False,
+                ros2: str = "bridge") -> subprocess.Popen[str]:
     """Start `python -m litevloc.runtime.probe` and wait (bounded) for its READY line.
 
     The probe connects to `endpoint`, or with `listen=True` listens there (the service connects)."""
     cmd = [sys.executable, "-m", "litevloc.runtime.probe", "--listen" if listen else "--connect", endpoint,
            "--topics", topics,
-           "--timeout", str(timeout), "--json", str(out), "--keep", "--namespace", namespace]
+           "--timeout", str(timeout), "--json", str(out), "--keep", "--namespace", namespace, "--ros2", ros2]
     if idle:
         cmd += ["--idle", str(idle)]
     for k, n in counts.items():
