@@ -7,10 +7,10 @@ from pathlib import Path
 
 import numpy as np
 
-from litevloc.pipelines.topomap.diff import DiffParams, MapDiff, MapDiffError, coverage_raster, diff_maps
+from litevloc.pipelines.topomap.diff import MapDiff, MapDiffError, coverage_raster, diff_maps
 from litevloc.pipelines.topomap.io import load_map
 from litevloc.pipelines.topomap.types import TopoMap
-from litevloc.runtime.cli.common import add_json_arg, write_json
+from litevloc.runtime.cli.common import add_config_args, add_json_arg, config_of, write_json
 from litevloc.runtime.cli.main import UserError
 
 
@@ -19,19 +19,13 @@ def add_diff_parser(msub: argparse._SubParsersAction) -> None:
     d.add_argument("old", type=Path, help="the earlier map folder")
     d.add_argument("new", type=Path, help="the later map folder")
     d.add_argument("-o", "--output", type=Path, help="PNG to write (top-down view of the changes)")
-    d.add_argument("--moved-m", type=float, default=DiffParams.moved_m,
-                   help="a kept node moved more than this (metres) counts as moved (default %(default)s)")
-    d.add_argument("--moved-deg", type=float, default=DiffParams.moved_deg,
-                   help="... or turned more than this (degrees) (default %(default)s)")
+    add_config_args(d)
     add_json_arg(d)
     d.set_defaults(func=diff)
 
 
 def diff(args: argparse.Namespace) -> int:
-    try:
-        params = DiffParams(moved_m=args.moved_m, moved_deg=args.moved_deg)
-    except ValueError as exc:
-        raise UserError(f"map diff: {exc}") from exc
+    params = config_of(args).mapping.diff
     old, new = load_map(args.old), load_map(args.new)
     try:
         d = diff_maps(old, new, params)

@@ -15,7 +15,6 @@ from scipy.spatial import cKDTree
 from litevloc.base.frames import parse_frames
 from litevloc.base.geometry import backproject_depth
 from litevloc.base.params.localization import DepthLookupParams
-from litevloc.base.params.mapping import KeyframeParams, MappingParams
 from litevloc.hw.messages import GroundTruthPose, RgbdFrame
 from litevloc.hw.streams.sevenscenes import SevenScenesSource
 from litevloc.pipelines.depth_lookup import depth_at
@@ -29,9 +28,9 @@ from litevloc.pipelines.topomap.update import (
     guided_consistent_matches,
 )
 
-from .helpers import SEVEN_SCENES_UP, build_7scenes, orb_extract, orb_match, thumb_describe
+from .helpers import build_7scenes, orb_extract, orb_match, seven_scenes_mapping, thumb_describe
 
-PARAMS = MappingParams(up=SEVEN_SCENES_UP, keyframes=KeyframeParams(cell_m=0.1, heading_bins=16, coverage=0.99))
+PARAMS = seven_scenes_mapping(budget=None)
 
 
 def observations(folder: Path, frames: str, quality_map: TopoMap | None = None) -> Iterator[Observation]:
