@@ -70,9 +70,13 @@ def send_goals(bus: Any, images: list[tuple[str, bytes]], cancel: str | None = N
         if wait_s <= 0 or not images:
             return None
         last = images[-1][0]
+
+        def about_last(s: dict[str, Any]) -> bool:  # the planner's reasons quote a goal as goal 'NAME'
+            return bool(s.get("goal") == last or repr(last) in s.get("reason", ""))
+
         with ev:
-            ev.wait_for(lambda: any(s.get("goal") == last or last in s.get("reason", "") for s in got), wait_s)
-            return next((s for s in reversed(got) if s.get("goal") == last or last in s.get("reason", "")), None)
+            ev.wait_for(lambda: any(about_last(s) for s in got), wait_s)
+            return next((s for s in reversed(got) if about_last(s)), None)
     finally:
         sub.undeclare()
         gpub.undeclare()
