@@ -12,8 +12,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "out" / "bench"
 SEVEN_SCENES = ROOT.parent / "shared" / "data" / "7scenes-redkitchen"
@@ -59,11 +57,6 @@ def require_7scenes() -> Path:
     if not (SEVEN_SCENES / "frame-000000.color.jpg").is_file():
         raise SystemExit(f"benchmark needs the 7-Scenes data at {SEVEN_SCENES}")
     return SEVEN_SCENES
-
-
-def stats_ms(samples_s: list[float]) -> dict[str, float]:
-    a = np.asarray(samples_s) * 1e3
-    return {"median_ms": float(np.median(a)), "p90_ms": float(np.percentile(a, 90)), "n": len(a)}
 
 
 def print_table(title: str, header: list[str], rows: list[list[Any]]) -> None:

@@ -15,7 +15,7 @@ from typing import Any
 import pytest
 
 from litevloc.base.loader import load_yaml
-from litevloc.config import PRESETS_DIR, LiteVLocConfig, preset_names
+from litevloc.config import PRESETS_DIR, preset_names
 from litevloc.config.describe import (
     DEFAULT,
     OVERRIDE,
@@ -25,6 +25,7 @@ from litevloc.config.describe import (
     settings,
     settings_classes,
 )
+from litevloc.config.schema import LiteVLocConfig
 
 ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("base", "config", "hw", "sim", "models", "pipelines", "runtime", "experiments")

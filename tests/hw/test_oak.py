@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from litevloc.base.loader import from_mapping
+from litevloc.base.loader import ConfigError, from_mapping
 from litevloc.base.params.camera import CameraConfig
-from litevloc.config import ConfigError, load_config
+from litevloc.config import load_config
 from litevloc.hw.messages import StreamError, StreamStats, decode_color
 from litevloc.hw.oak import (
     HostClock,

@@ -6,8 +6,9 @@ from pathlib import Path
 
 import pytest
 
+from litevloc.base.loader import ConfigError
 from litevloc.base.params.models import ModelsConfig
-from litevloc.config import ConfigError, load_config
+from litevloc.config import load_config
 from litevloc.models.ort import make_session, resolve_providers
 from litevloc.models.registry import locate
 
