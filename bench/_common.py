@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import platform
 import shutil
 import subprocess
@@ -10,8 +11,6 @@ import sys
 import time
 from pathlib import Path
 from typing import Any
-
-import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "out" / "bench"
@@ -60,11 +59,6 @@ def require_7scenes() -> Path:
     return SEVEN_SCENES
 
 
-def stats_ms(samples_s: list[float]) -> dict[str, float]:
-    a = np.asarray(samples_s) * 1e3
-    return {"median_ms": float(np.median(a)), "p90_ms": float(np.percentile(a, 90)), "n": len(a)}
-
-
 def print_table(title: str, header: list[str], rows: list[list[Any]]) -> None:
     cells = [[str(c) if not isinstance(c, float) else f"{c:.3g}" for c in r] for r in rows]
     widths = [max(len(h), *(len(r[i]) for r in cells)) for i, h in enumerate(header)]
@@ -75,10 +69,21 @@ def print_table(title: str, header: list[str], rows: list[list[Any]]) -> None:
         print("  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)))
 
 
+def _cpu_model() -> str:
+    try:
+        lines = Path("/proc/cpuinfo").read_text().splitlines()
+    except OSError:
+        return platform.processor() or platform.machine()
+    return next((ln.split(":", 1)[1].strip() for ln in lines if ln.startswith("model name")), platform.machine())
+
+
 def write_json(name: str, data: dict[str, Any]) -> Path:
     OUT.mkdir(parents=True, exist_ok=True)
     path = OUT / f"{name}.json"
-    meta = {"machine": platform.machine(), "python": platform.python_version(), "time": time.strftime("%FT%T%z")}
+    # the machine and how busy it was (a shared machine's timings say so), the command, when
+    meta = {"machine": platform.machine(), "python": platform.python_version(), "time": time.strftime("%FT%T%z"),
+            "cpu": _cpu_model(), "cpus": os.cpu_count(), "load_avg": os.getloadavg()[0],
+            "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]])}
     path.write_text(json.dumps({"meta": meta, **data}, indent=2, default=float) + "\n")
     print(f"\nwrote {path}")
     return path

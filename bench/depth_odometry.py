@@ -20,9 +20,10 @@ import numpy as np
 
 from litevloc.base.frames import parse_frames
 from litevloc.base.geometry import invert, rotation_angle
+from litevloc.base.params.depth import DepthOdometryParams
 from litevloc.hw.messages import RgbdFrame
 from litevloc.hw.streams.sevenscenes import SevenScenesSource
-from litevloc.pipelines.depth_odometry import DepthOdometry, DepthOdometryParams
+from litevloc.pipelines.depth_odometry import DepthOdometry
 from litevloc.pipelines.evaluation.trajectory import ate, rpe_per_metre
 
 ROOT = Path(__file__).resolve().parents[1]

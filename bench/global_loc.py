@@ -24,10 +24,10 @@ from _common import print_table, require_7scenes, write_json
 from litevloc.base.frames import parse_frames
 from litevloc.base.geometry import relative_pose_error
 from litevloc.config import load_config
+from litevloc.experiments.reloc import reference_node
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map
 from litevloc.runtime.posed import posed_frames
-from litevloc.runtime.reloc_bench import reference_node
 from litevloc.runtime.sources import open_source
 from litevloc.runtime.vloc_models import check_map_models, load_bundle
 

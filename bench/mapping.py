@@ -20,14 +20,12 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-import numpy as np
-from _common import print_table, require_7scenes, write_json
+from _common import litevloc, print_table, require_7scenes, write_json
 
 from litevloc.base.frames import parse_frames
-from litevloc.base.geometry import rotation_angle
 from litevloc.config import load_config
+from litevloc.experiments.mapping import vpr_recall
 from litevloc.pipelines.topomap.io import load_map
-from litevloc.runtime.cli.main import main as cli
 from litevloc.runtime.posed import posed_frames
 from litevloc.runtime.sources import open_source
 from litevloc.runtime.vloc_models import load_bundle
@@ -44,27 +42,16 @@ def main() -> None:
         js = Path(tmp) / "build.json"
         sets = [a for o in args.overrides for a in ("--set", o)]
         t0 = time.perf_counter()
-        rc = cli(["map", "build", str(data), "--frames", "0:500", "-o", str(mp), "--config", "7scenes",
-                  "--json", str(js), *sets])
-        if rc != 0:
-            raise SystemExit(f"map build failed ({rc})")
+        litevloc("map", "build", str(data), "--frames", "0:500", "-o", str(mp), "--config", "7scenes",
+                 "--json", str(js), *sets)
         build_s = time.perf_counter() - t0
         build = json.loads(js.read_text())
         m = load_map(mp)
     cfg = load_config("7scenes", args.overrides)
     vpr = load_bundle(cfg.models).vpr
-    hits1 = hits5 = oracle = n = 0
-    for frame, T in posed_frames(open_source(data, parse_frames(f"500:1000:{args.step}"))):
-        if T is None:
-            continue
-        n += 1
-        d = np.linalg.norm(m.positions - T[:3, 3], axis=1)
-        ang = np.array([np.degrees(rotation_angle(Tn[:3, :3].T @ T[:3, :3])) for Tn in m.T_map_camera])
-        good = (d <= 0.5) & (ang <= 30)
-        order = np.argsort(-(m.vpr @ vpr.describe(frame.color)))
-        hits1 += bool(good[order[0]])
-        hits5 += bool(good[order[:5]].any())
-        oracle += bool(good.any())
+    queries = ((f.color, T) for f, T in posed_frames(open_source(data, parse_frames(f"500:1000:{args.step}")))
+               if T is not None)
+    r = vpr_recall(m, vpr.describe, queries)
     rows = [
         ["keyframes", build["nodes"]], ["candidates (motion pre-filter)", build["candidates"]],
         ["coverage", f"{100 * build['coverage']:.1f} %"],
@@ -73,13 +60,13 @@ def main() -> None:
         ["cached features", f"{build['feature_bytes'] / 1e6:.2f} MB"],
         ["images", f"{build['image_bytes'] / 1e6:.2f} MB"],
         ["build time per keyframe", f"{build['seconds_per_keyframe']:.2f} s"],
-        [f"VPR recall@1 ({vpr.name}, {n} queries)", f"{100 * hits1 / n:.1f} %"],
-        ["VPR recall@5", f"{100 * hits5 / n:.1f} %"],
-        ["oracle (a node within 0.5 m / 30 deg)", f"{100 * oracle / n:.1f} %"],
+        [f"VPR recall@1 ({vpr.name}, {r.queries} queries)", f"{100 * r.recall_at_1:.1f} %"],
+        ["VPR recall@5", f"{100 * r.recall_at_5:.1f} %"],
+        ["oracle (a node within 0.5 m / 30 deg)", f"{100 * r.oracle:.1f} %"],
     ]
     print_table("Map building, 7-Scenes redkitchen frames 0-499; queries 500-999", ["quantity", "value"], rows)
-    write_json("mapping", {"build": build, "build_seconds_total": build_s, "queries": n,
-                           "recall_at_1": hits1 / n, "recall_at_5": hits5 / n, "oracle": oracle / n,
+    write_json("mapping", {"build": build, "build_seconds_total": build_s, "queries": r.queries,
+                           "recall_at_1": r.recall_at_1, "recall_at_5": r.recall_at_5, "oracle": r.oracle,
                            "vpr": vpr.name, "overrides": args.overrides})
 
 

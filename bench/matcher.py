@@ -92,7 +92,8 @@ def main() -> int:
     args = ap.parse_args()
     if not DATA.is_dir():
         raise SystemExit(f"7-Scenes data not found at {DATA}")
-    base = ModelsConfig(cache_dir=str(default_cache_dir()), intra_op_threads=1)
+    # the variants without "@N" match all keypoints (the default caps at 384)
+    base = ModelsConfig(cache_dir=str(default_cache_dir()), intra_op_threads=1, match_max_keypoints=0)
     from dataclasses import replace
 
     bundles: dict[str, ModelBundle] = {

@@ -47,11 +47,12 @@ from numpy.typing import NDArray
 
 from litevloc.base.frames import parse_frames
 from litevloc.base.geometry import invert, make_T, relative_pose_error, so3_exp
+from litevloc.base.params.map_maintenance import MergeParams
 from litevloc.config import load_config
 from litevloc.hw.streams.mcap_io import TOPIC_COLOR, McapSource
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map, save_map
-from litevloc.pipelines.topomap.merge import Link, MergeParams, align, find_links, join_maps, transform_map
+from litevloc.pipelines.topomap.merge import Link, align, find_links, join_maps, transform_map
 from litevloc.pipelines.topomap.types import TopoMap
 from litevloc.runtime.posed import posed_frames
 from litevloc.runtime.sources import open_source

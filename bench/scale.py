@@ -58,20 +58,11 @@ from _common import ROOT, print_table, require_7scenes
 
 from litevloc.pipelines.topomap.io import load_map, save_map
 from litevloc.pipelines.topomap.types import FeatureStore, OccupancyGrid, TopoMap
+from litevloc.runtime.metrics import memory_mb
 
 SCALE_VERSION = "2"  # bump when `replicate` or the map format changes (cached maps are rebuilt); 2: format 3
 NOISE = 0.1  # norm of the VPR descriptor perturbation (per component sd = NOISE / sqrt(D))
 GAP_M = 1.0  # unknown margin around each tile
-
-
-def rss_mb() -> tuple[float, float]:
-    """(VmRSS, VmHWM) of this process in MB."""
-    vals = {}
-    for line in Path("/proc/self/status").read_text().splitlines():
-        if line.startswith(("VmRSS:", "VmHWM:")):
-            k, v = line.split(":")
-            vals[k] = int(v.split()[0]) / 1024
-    return vals["VmRSS"], vals["VmHWM"]
 
 
 def base_map(path: Path) -> Path:
@@ -244,7 +235,7 @@ def measure(path: Path, verify: bool) -> dict[str, Any]:
     from litevloc.config import load_config
     from litevloc.pipelines.navigation.planner import shortest_path
 
-    rss0, _ = rss_mb()
+    rss0 = memory_mb()["rss"]
     loads, cpus = [], []
     m = None
     for _ in range(3):
@@ -256,7 +247,8 @@ def measure(path: Path, verify: bool) -> dict[str, Any]:
         cpus.append(time.process_time() - c0)
     assert m is not None
     gc.collect()
-    rss, hwm = rss_mb()
+    mem = memory_mb()
+    rss, hwm = mem["rss"], mem["peak"]
     man = json.loads((path / "manifest.json").read_text())
     disk = sum(int(e["bytes"]) for e in man["files"].values()) + (path / "manifest.json").stat().st_size
     t0, c0 = time.perf_counter(), time.process_time()
@@ -343,7 +335,8 @@ def measure(path: Path, verify: bool) -> dict[str, Any]:
             relative_pose(live, frame.depth, frame.K, as_features(m.features[cand]), m.K[cand], bundle.match, lp)
             verify_ms.append((time.perf_counter() - t0) * 1e3)
         verify_ms = verify_ms[1:]  # the first call warms the ONNX sessions
-    rss_end, hwm_end = rss_mb()
+    mem = memory_mb()
+    rss_end, hwm_end = mem["rss"], mem["peak"]
     return {
         "nodes": n, "load_s": float(np.median(loads)), "load_s_all": loads, "load_cpu_s": float(np.median(cpus)),
         "rss_mb": rss, "rss_interpreter_mb": rss0, "rss_peak_mb": hwm,

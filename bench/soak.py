@@ -47,19 +47,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from _common import OUT, ROOT, office_inputs, print_table, write_json
 
+from litevloc.runtime.metrics import memory_mb
+
 # At 2x real time a VLoc result arrives twice as late in sensor time: a 1-3 s VLoc step on a
 # shared 2-core machine is 2-6 s of sensor time, beyond fusion's default 3 s smoother window
 # (results are then refused as too old and fusion never initialises). The soak widens it.
 SOAK_OVERRIDES = ["fusion.params.lag_s=12", "fusion.params.odom_buffer_s=14"]
-
-
-def rss_mb() -> float:
-    """Resident set size of this process (MB) from /proc/self/status."""
-    with open("/proc/self/status") as fh:
-        for line in fh:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024.0
-    return float("nan")
 
 
 def make_pingpong(rec: Path, dst: Path) -> Path:
@@ -184,7 +177,7 @@ def one_run(rec: Path, map_dir: Path, minutes: float, rate: float, endpoint: str
             lat_last.append(lat)
             samples.append({
                 "wall_s": time.monotonic() - t0, "sensor_s": (st.get("sensor_time_ns") or 0) * 1e-9,
-                "rss_mb": rss_mb(), "counters": st["counters"],
+                "rss_mb": memory_mb()["rss"], "counters": st["counters"],
                 "queue_depth": {k: v["depth"] for k, v in q.items()},
                 "queue_age_oldest_ms": {k: v["age_oldest_ms"] for k, v in q.items()},
                 "queue_overflows": {k: v["overflows"] for k, v in q.items()},

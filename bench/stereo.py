@@ -24,7 +24,8 @@ import cv2
 import numpy as np
 from _common import print_table, write_json
 
-from litevloc.pipelines.stereo_depth import SgbmParams, compute_disparity, score_disparity
+from litevloc.base.params.depth import SgbmParams
+from litevloc.pipelines.stereo_depth import compute_disparity, score_disparity
 
 F_PX, B_M, DOFFS_PX = 994.978, 0.193001, 31.086
 

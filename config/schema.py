@@ -1,10 +1,12 @@
 """The LiteVLoc configuration tree: typed, frozen dataclasses with their defaults.
 
-This is the one place where defaults live. YAML presets in `config/presets/` override
-them; `load_config` rejects unknown keys and wrong types, naming the key and file.
+With the parameter classes of `litevloc.base.params` it is the one place where defaults
+live. YAML presets in `config/presets/` override them; `load_config` rejects unknown keys and
+wrong types, naming the key and file.
 Sections own the parameters of one subsystem; their parameter classes live in the bottom
-layer `litevloc.base.params` (re-exported next to their algorithm or driver), so importing
-the configuration imports no algorithm or hardware module.
+layer `litevloc.base.params`, so importing the configuration imports no algorithm or hardware
+module. Each field carries its description as the one `#` line above it
+(`litevloc config show`, `docs/parameters.md`).
 """
 
 from __future__ import annotations
@@ -17,14 +19,11 @@ from numpy.typing import NDArray
 
 from litevloc.base.frames import parse_frames
 from litevloc.base.geometry import make_T, quat_xyzw_to_matrix
-from litevloc.base.params.calibration import ColorDepthCalibration
+from litevloc.base.params.calibration import CalibrationParams, ColorDepthCalibration
 from litevloc.base.params.camera import CameraConfig
+from litevloc.base.params.depth import DepthOdometryParams, SgbmParams
 from litevloc.base.params.drift import DriftParams
 from litevloc.base.params.fusion import FusionParams
-
-# PENDING (issue 19): these two still live next to their algorithms, which other branches are
-# editing; they move to litevloc.base.params after the merge. Until then importing the config
-# pulls cv2 and scipy through them (tests/config/test_layers.py names them).
 from litevloc.base.params.localization import LocalizationParams
 from litevloc.base.params.mapping import MappingParams
 from litevloc.base.params.models import ModelsConfig
@@ -37,10 +36,14 @@ from litevloc.base.params.sim import SimParams
 class SourceConfig:
     """Where sensor data come from when no `--source` is given on the command line."""
 
+    # what the sensor data come from
     kind: Literal["recording", "dataset", "oak-d", "sim"] = "recording"
+    # the recording or dataset folder ("" = none)
     path: str = ""
-    frames: str = ""  # Python slice over frame indices, as --frames
-    strict: bool = False  # live/replay: count and skip bad messages instead of failing
+    # part of a recording or dataset: a Python slice over frame indices, as --frames
+    frames: str = ""
+    # true: fail on a bad message; false: count and skip it (live use)
+    strict: bool = False
 
     def __post_init__(self) -> None:
         if self.kind in ("recording", "dataset") and self.frames:
@@ -51,8 +54,11 @@ class SourceConfig:
 class OdometrySimConfig:
     """Simulated proprioceptive odometry for posed datasets that have none."""
 
-    rate_hz: float = 100.0  # 0 = write no odometry
+    # odometry rate written by `litevloc convert` (Hz; 0 = no odometry)
+    rate_hz: float = 100.0
+    # seed of the drift model
     seed: int = 0
+    # the drift model's noise
     drift: DriftParams = field(default_factory=DriftParams)
 
     def __post_init__(self) -> None:
@@ -64,7 +70,8 @@ class OdometrySimConfig:
 class ReplayConfig:
     """Playback of recordings."""
 
-    rate: float = 1.0  # real-time factor; 0 = as fast as possible
+    # real-time factor of a replay (0 = as fast as possible)
+    rate: float = 1.0
 
     def __post_init__(self) -> None:
         if not (self.rate >= 0):
@@ -80,8 +87,11 @@ class FusionConfig:
     as used for datasets where base_link is the camera.
     """
 
+    # the pose-graph fusion
     params: FusionParams = field(default_factory=FusionParams)
+    # camera optical frame in base_link: translation (m)
     base_camera_translation: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # camera optical frame in base_link: rotation (x, y, z, w); the default looks along base x
     base_camera_quat_xyzw: tuple[float, float, float, float] = (-0.5, 0.5, -0.5, 0.5)
 
     def __post_init__(self) -> None:
@@ -106,27 +116,48 @@ class FusionConfig:
 class LiteVLocConfig:
     """Root of the configuration tree."""
 
+    # name of this configuration (shown in logs and status)
     name: str = "default"
-    map: str = ""  # map folder the service localizes in (`litevloc run` / `replay --config`; --map overrides)
+    # map folder the service localizes in (`litevloc run` / `replay`; --map overrides)
+    map: str = ""
+    # where sensor data come from when no --source is given
     source: SourceConfig = field(default_factory=SourceConfig)
+    # simulated odometry for posed datasets without any (`litevloc convert`)
     odometry_sim: OdometrySimConfig = field(default_factory=OdometrySimConfig)
+    # playback of recordings
     replay: ReplayConfig = field(default_factory=ReplayConfig)
-    camera: CameraConfig = field(default_factory=CameraConfig)  # live OAK-D (source.kind: oak-d)
+    # the live OAK-D camera (source.kind: oak-d)
+    camera: CameraConfig = field(default_factory=CameraConfig)
+    # the models and how onnxruntime runs them
     models: ModelsConfig = field(default_factory=ModelsConfig)
+    # map building, merging, updating and comparing
     mapping: MappingParams = field(default_factory=MappingParams)
+    # GL/LL localization against the map
     localization: LocalizationParams = field(default_factory=LocalizationParams)
+    # pose-graph fusion of VLoc and odometry, and the camera mount
     fusion: FusionConfig = field(default_factory=FusionConfig)
+    # the simulated robot and camera
     sim: SimParams = field(default_factory=SimParams)
+    # the Zenoh session
     zenoh: ZenohConfig = field(default_factory=lambda: ZenohConfig())
+    # threads, queues, status and tracking-loss policy of the onboard service
     runtime: RuntimeConfig = field(default_factory=lambda: RuntimeConfig())
-    # Colour camera of an RGB-D dataset whose depth is not registered (7-Scenes); None = as published.
+    # colour camera of an RGB-D dataset whose depth is not registered (7-Scenes); null = as published
     rgbd_calibration: ColorDepthCalibration | None = None
+    # the planner service (goal images -> subgoals)
     planner: PlannerConfig = field(default_factory=lambda: PlannerConfig())
+    # levels of the `litevloc/diagnostics` messages
     diagnostics: DiagnosticsConfig = field(default_factory=lambda: DiagnosticsConfig())
+    # `litevloc calib`: colour camera of an RGB-D dataset from posed frames
+    calibration: CalibrationParams = field(default_factory=CalibrationParams)
+    # depth from a stereo pair (`pipelines.stereo_depth`, `bench/stereo.py`)
+    stereo: SgbmParams = field(default_factory=SgbmParams)
+    # frame-to-frame RGB-D odometry (`pipelines.depth_odometry`, `bench/depth_odometry.py`)
+    depth_odometry: DepthOdometryParams = field(default_factory=DepthOdometryParams)
 
 
 # --------------------------------------------------------------------- runtime / Zenoh
-# (appended for the runtime issue; the classes are used by litevloc.runtime.bus/service)
+# (used by litevloc.runtime.bus / service)
 _ENDPOINT_PROTOCOLS = ("tcp", "udp", "tls", "quic", "unixsock-stream", "ws", "serial")
 
 
@@ -203,16 +234,21 @@ class ZenohConfig:
     last (e.g. {"transport/shared_memory/enabled": false}). See the Zenoh config reference.
     """
 
+    # Zenoh mode: peer (listens) or client (connects to a router)
     mode: Literal["peer", "client"] = "peer"
-    listen: tuple[str, ...] = ("tcp/127.0.0.1:7447",)  # ignored in client mode
+    # endpoints to listen on (ignored in client mode)
+    listen: tuple[str, ...] = ("tcp/127.0.0.1:7447",)
+    # endpoints to connect to
     connect: tuple[str, ...] = ()
+    # multicast scouting (off: peers are found through listen/connect only)
     multicast_scouting: bool = False
-    connect_timeout_s: float = 3.0  # per attempt at start-up
-    require_connect: bool = True  # start fails if no `connect` endpoint is reachable
-    namespace: str = ""  # key prefix, e.g. "robot1" -> robot1/litevloc/pose
-    # key naming: "bridge" (`<namespace>/litevloc/pose`, for zenoh-bridge-ros2dds) or "rmw_zenoh" (ROS 2's
-    # own Zenoh middleware: `<domain_id>/<namespace>/litevloc/pose/<dds type>/<RIHS01 hash>`, liveliness
-    # tokens, per-sample attachment); the namespace is then the ROS namespace of every node and topic
+    # wait per connect attempt at start-up (s)
+    connect_timeout_s: float = 3.0
+    # start fails if no connect endpoint is reachable
+    require_connect: bool = True
+    # key prefix, e.g. "robot1" -> robot1/litevloc/pose; with rmw_zenoh the ROS namespace of every node and topic
+    namespace: str = ""
+    # key naming: "bridge" (zenoh-bridge-ros2dds keys) or "rmw_zenoh" (ROS 2's own Zenoh middleware, docs/ros2.md)
     ros2: Literal["bridge", "rmw_zenoh"] = "bridge"
     # ROS_DOMAIN_ID of the robot (rmw_zenoh only; 0-232 as in ROS 2)
     domain_id: int = 0
@@ -222,12 +258,15 @@ class ZenohConfig:
     tf: TfConfig = field(default_factory=TfConfig)
     # the /initialpose input
     initial_pose: InitialPoseConfig = field(default_factory=InitialPoseConfig)
-    # the planner's goals for Nav2 as geometry_msgs/PoseStamped on `goal_pose` (frame map): "subgoal" each
-    # subgoal as it is published, "goal" the goal image's place (or its node) once per goal, "off" none
+    # planner goals for Nav2 on goal_pose (frame map): each "subgoal", the "goal" image's place once, or "off"
     goal_pose: Literal["off", "subgoal", "goal"] = "off"
-    attach_send_time: bool = True  # 8-byte little-endian monotonic send time (ns) as the Zenoh attachment
+    # 8-byte little-endian monotonic send time (ns) as the Zenoh attachment of every message
+    attach_send_time: bool = True
+    # Zenoh's transport/link/tls block (a mapping or JSON5 text)
     tls: Any = None
+    # Zenoh's access_control block (a mapping or JSON5 text)
     access_control: Any = None
+    # {Zenoh config key path: value} inserted last, e.g. {"transport/shared_memory/enabled": false}
     extra: Any = None
 
     def __post_init__(self) -> None:
@@ -262,71 +301,64 @@ class ZenohConfig:
 class RuntimeConfig:
     """Threads, queues, status and tracking-loss policy of the onboard service."""
 
-    # realtime: threads, latest-frame mailbox (stale frames dropped);
-    # deterministic: threads in lockstep, every frame processed in order (tests, replay checks);
-    # sequential: everything in the calling thread, in source order (the baseline).
+    # realtime: threads, latest frame only; deterministic: lockstep, every frame; sequential: one thread
     mode: Literal["realtime", "deterministic", "sequential"] = "realtime"
+    # odometry FIFO capacity (messages; never drops, overflow is counted)
     odometry_queue_capacity: int = 4096
+    # VLoc result FIFO capacity (results)
     result_queue_capacity: int = 64
+    # outbox FIFO capacity (messages)
     publish_queue_capacity: int = 4096
-    # true: the fusion thread serialises and puts on Zenoh itself (one thread hand-off less per pose;
-    # a Zenoh put does not wait for the network); false: through the outbox FIFO to a publisher thread
+    # the fusion thread serialises and puts on Zenoh itself (false: through the outbox to a publisher thread)
     publish_inline: bool = True
-    # true: odometry that makes a fusion keyframe due is answered from the current estimate and the
-    # smoother update (~1-3 ms, every fusion.keyframe_period_s = 5 % of 200 Hz odometry) runs after
-    # the pose is handed on (published, with publish_inline); false: before, as the pose's own cost.
+    # the smoother update that a fusion keyframe makes due runs after the pose is handed on
     defer_fusion_updates: bool = True
+    # wall time between status messages (s)
     status_period_s: float = 1.0
-    map_to_odom_period_s: float = 0.1  # sensor time between map_to_odom messages (and after each VLoc fix)
-    stage_join_timeout_s: float = 5.0  # shutdown: a stage not ending by then is reported
+    # sensor time between map_to_odom messages, and after each VLoc fix (s)
+    map_to_odom_period_s: float = 0.1
+    # shutdown: a stage not ending within this is reported (s)
+    stage_join_timeout_s: float = 5.0
+    # what a failing stage does: stop the service, or restart the stage
     stage_on_error: Literal["fail", "restart"] = "fail"
+    # restarts of one stage at most
     stage_max_restarts: int = 3
+    # samples per stage in the latency window (status percentiles)
     latency_window: int = 1024
+    # OpenCV threads
     cv_threads: int = 2
-    # ONNX Runtime intra-op threads of the service's models (overrides models.intra_op_threads
-    # in `litevloc run/replay`). bench/runtime.py, simulated office, 2 CPUs, VLoc niced:
-    # 1 thread: VLoc 2.2-2.4 Hz, fused-pose p99 3.0-4.9 ms in the service, 0.5-0.7 ms on the wire;
-    # 2 threads: VLoc 3.0-3.3 Hz, p99 3.5-5.0 ms in the service but 2.4-3.1 ms on the wire (a
-    # subscriber on the same 2 CPUs); without the nice, 2 threads gave p99 7.6 ms.
+    # onnxruntime intra-op threads of the service's models (run/replay/plan; models.intra_op_threads elsewhere)
     ort_intra_op_threads: int = 1
+    # onnxruntime inter-op threads of the service's models
     ort_inter_op_threads: int = 1
-    # Linux nice value of the VLoc thread and of the onnxruntime threads its models start
-    # (0 = normal priority): VLoc is throughput work, fusion and publishing are latency work.
-    # With VLoc niced, the fusion thread gets a core the moment an odometry message arrives.
+    # Linux nice value of the VLoc thread and its onnxruntime threads (0 = normal priority)
     vloc_nice: int = 10
-    # 1-99: the fusion and publisher threads run SCHED_FIFO at this priority, so a fused pose never
-    # waits for a core behind VLoc or I/O threads (bench/runtime.py, office, 2 CPUs: in-service p99
-    # 6.1 -> 1.3 ms with publish_inline, defer_fusion_updates and recording_process); 0: normal. Needs
-    # CAP_SYS_NICE or an rtprio limit (systemd LimitRTPRIO=); without, the threads keep normal
-    # priority and the log and status (stages.fusion.scheduling) say why.
+    # SCHED_FIFO priority of the fusion and publisher threads (1-99; 0 = normal; needs CAP_SYS_NICE or rtprio)
     fusion_rt_priority: int = 10
-    # true: in realtime and deterministic mode the localizer (models, map) runs in a child process
-    # at `vloc_nice` and the VLoc thread only waits on a pipe (runtime/vloc_process.py): VLoc's
-    # Python glue never holds the service's GIL and a crash in it cannot take fusion down. Costs
-    # ~80 MB RSS (a second interpreter); with fusion_rt_priority the p99 gain is small (2.7 -> 2.2
-    # ms, one run), so off by default. The sequential baseline always runs VLoc inline.
+    # run the localizer (models, map) in a child process at vloc_nice (realtime/deterministic mode)
     vloc_process: bool = False
-    # true: a recording the service replays (`litevloc replay/run --source REC`, realtime and
-    # deterministic mode) is read and decoded in a child process (runtime/recording_process.py):
-    # the MCAP reader and CDR decoding of 200 Hz odometry otherwise hold the service's GIL.
+    # read and decode a replayed recording in a child process (realtime/deterministic mode)
     recording_process: bool = True
-    # sys.setswitchinterval: how long a thread may hold the GIL while another waits. Python's
-    # 5 ms default lets a GIL-holding VLoc step delay fused poses by 5-25 ms (measured, see
-    # bench/runtime_queues.py); 0.5 ms keeps the fusion->publish p99 near 1-2 ms.
+    # sys.setswitchinterval: how long a thread may hold the GIL while another waits (s)
     gil_switch_interval_s: float = 0.0005
-    # Tracking loss: LOST when no VLoc update was accepted for `lost_after_s` of sensor time
-    # (after the first one). "flag": keep publishing, covariance diagonal raised to at least
-    # `lost_variance` and status.state = LOST; "withhold": publish no pose/map_to_odom while LOST.
+    # while LOST: "flag" publishes with the covariance raised, "withhold" publishes no pose
     lost_policy: Literal["flag", "withhold"] = "flag"
+    # LOST when no VLoc update was accepted for this much sensor time after the first (s)
     lost_after_s: float = 10.0
+    # "flag": the covariance diagonal is raised to at least this while LOST (m^2, rad^2)
     lost_variance: float = 1.0e4
-    # Odometry input: from the sensor source (recordings, simulator) or received over Zenoh.
+    # odometry from the sensor source (recordings, simulator) or received over Zenoh
     odometry_input: Literal["source", "zenoh"] = "source"
-    odometry_key: str = "odom"  # Zenoh key expression of the robot's nav_msgs/Odometry (not namespaced)
-    odometry_stale_s: float = 0.5  # no odometry for this long (wall time) -> status reason
-    frame_stale_s: float = 2.0  # no camera frame for this long (wall time, realtime mode) -> status reason
+    # Zenoh key expression of the robot's nav_msgs/Odometry (not namespaced)
+    odometry_key: str = "odom"
+    # no odometry for this long (wall time) is a status reason (s)
+    odometry_stale_s: float = 0.5
+    # no camera frame for this long (wall time, realtime mode) is a status reason (s)
+    frame_stale_s: float = 2.0
+    # checks and frame handling of received odometry
     odometry_checks: OdometryCheckParams = field(default_factory=OdometryCheckParams)
-    deterministic_timeout_s: float = 120.0  # lockstep wait per frame before failing
+    # deterministic mode: lockstep wait per frame before failing (s)
+    deterministic_timeout_s: float = 120.0
 
     def __post_init__(self) -> None:
         for name in ("odometry_queue_capacity", "result_queue_capacity", "publish_queue_capacity",
@@ -352,7 +384,7 @@ class RuntimeConfig:
 
 
 # --------------------------------------------------------------------- planner (image-goal navigation)
-# (appended for the navigation issue; used by litevloc.runtime.planner_service / `litevloc plan`)
+# (used by litevloc.runtime.planner_service / `litevloc plan`)
 
 
 @dataclass(frozen=True)
@@ -364,12 +396,18 @@ class PlannerConfig:
     `litevloc/planner_status`.
     """
 
+    # placing a goal image in the map
     goal: GoalParams = field(default_factory=GoalParams)
+    # following the planned path
     tracker: TrackerParams = field(default_factory=TrackerParams)
-    publish_period_s: float = 0.0  # sensor time between subgoal messages; 0 = on every fused pose
-    status_period_s: float = 1.0  # wall time between repeated status messages
+    # sensor time between subgoal messages (s; 0 = on every fused pose)
+    publish_period_s: float = 0.0
+    # wall time between repeated status messages (s)
+    status_period_s: float = 1.0
+    # goal images queued at most
     max_queued_goals: int = 32
-    max_goal_bytes: int = 8_000_000  # larger goal images are rejected (status failed)
+    # larger goal images are rejected (bytes)
+    max_goal_bytes: int = 8_000_000
 
     def __post_init__(self) -> None:
         if not (0 <= self.publish_period_s < float("inf")):
@@ -380,14 +418,16 @@ class PlannerConfig:
             raise ValueError("planner.max_queued_goals must be >= 1 and planner.max_goal_bytes >= 1024")
 
 
-# --------------------------------------------------------------------- diagnostics (issue 17)
+# --------------------------------------------------------------------- diagnostics
 # (used by litevloc.runtime.diagnostics: `litevloc/diagnostics`, diagnostic_msgs/DiagnosticArray)
 @dataclass(frozen=True)
 class LevelThresholds:
     """WARN at or above `warn`, ERROR at or above `error` (for "lower is worse" figures the
     diagnostics compare the other way: WARN at or below `warn`, ERROR at or below `error`)."""
 
+    # WARN at or beyond this
     warn: float
+    # ERROR at or beyond this
     error: float
 
 
@@ -403,18 +443,31 @@ class DiagnosticsConfig:
     and are "lower is worse"; they are only judged once `min_vloc_calls` calls were made.
     """
 
+    # publish `litevloc/diagnostics`
     enabled: bool = True
-    period_s: float = 1.0  # wall time between DiagnosticArray messages (sent with the status tick)
+    # wall time between DiagnosticArray messages, sent with the status tick (s)
+    period_s: float = 1.0
+    # hardware_id of every DiagnosticStatus
     hardware_id: str = "litevloc"
+    # p99 of feature extraction per VLoc query (ms)
     extract_ms: LevelThresholds = field(default_factory=lambda: LevelThresholds(500.0, 2000.0))
+    # p99 of place recognition per VLoc query (ms)
     vpr_ms: LevelThresholds = field(default_factory=lambda: LevelThresholds(300.0, 1000.0))
+    # p99 of matching per VLoc query, candidates summed (ms)
     match_ms: LevelThresholds = field(default_factory=lambda: LevelThresholds(1500.0, 5000.0))
+    # p99 of PnP per VLoc query, candidates summed (ms)
     pnp_ms: LevelThresholds = field(default_factory=lambda: LevelThresholds(50.0, 200.0))
+    # p99 of fusion per odometry message (ms)
     fusion_ms: LevelThresholds = field(default_factory=lambda: LevelThresholds(10.0, 50.0))
+    # p99 of publishing per message (ms)
     publish_ms: LevelThresholds = field(default_factory=lambda: LevelThresholds(10.0, 50.0))
+    # queue depth as a fraction of its capacity
     queue_fill: LevelThresholds = field(default_factory=lambda: LevelThresholds(0.5, 0.9))
+    # VLoc rate over the last period (Hz; lower is worse)
     vloc_rate_hz: LevelThresholds = field(default_factory=lambda: LevelThresholds(0.5, 0.1))
+    # accepted / calls over the last period (lower is worse)
     vloc_acceptance: LevelThresholds = field(default_factory=lambda: LevelThresholds(0.5, 0.1))
+    # VLoc rate and acceptance are judged only after this many calls
     min_vloc_calls: int = 3
 
     def __post_init__(self) -> None:

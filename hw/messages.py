@@ -72,21 +72,41 @@ class EncodedRgbdFrame:
     is_jpeg: bool = True  # keep the bytes as `RgbdFrame.color_jpeg` (recorders store them as is)
     where: str = ""
 
-    def decode(self, decode_color: Callable[[bytes, str], NDArray[np.uint8]] | None = None) -> RgbdFrame:
+    def decode(self, decoder: Callable[[bytes, str], NDArray[np.uint8]] | None = None) -> RgbdFrame:
         """The decoded `RgbdFrame`; StreamError naming the frame when the colour does not decode
-        or the depth's size differs from the colour's. `decode_color(bytes, where) -> HxWx3 RGB`
-        defaults to `hw.streams.posed_folder.decode_color` (OpenCV, imported here, not at load)."""
-        if decode_color is None:
-            from litevloc.hw.streams.posed_folder import decode_color as opencv_decode
-
-            decode_color = opencv_decode
+        or the depth's size differs from the colour's. `decoder(bytes, where) -> HxWx3 RGB`
+        defaults to this module's `decode_color` (OpenCV)."""
+        decoder = decode_color if decoder is None else decoder
         where = self.where or f"frame {self.index} at {self.t_ns} ns"
-        color = decode_color(self.color_data, where)
+        color = decoder(self.color_data, where)
         if self.depth is not None and self.depth.shape != color.shape[:2]:
             raise StreamError(f"depth {self.depth.shape[1]}x{self.depth.shape[0]} does not match colour "
                               f"{color.shape[1]}x{color.shape[0]}: {where}")
         return RgbdFrame(t_ns=self.t_ns, color=color, depth=self.depth, K=self.K, index=self.index,
                          frame_id=self.frame_id, color_jpeg=self.color_data if self.is_jpeg else None)
+
+
+def decode_color(data: bytes | NDArray[np.uint8], where: str) -> NDArray[np.uint8]:
+    """Decode JPEG/PNG bytes to HxWx3 uint8 RGB; StreamError naming `where` if corrupt.
+
+    A JPEG cut short decodes (libjpeg pads it grey) but is refused here: a JPEG must end
+    with its EOI marker.
+    """
+    buf = np.frombuffer(data, dtype=np.uint8) if isinstance(data, bytes | bytearray | memoryview) else data
+    if buf.size >= 2 and buf[0] == 0xFF and buf[1] == 0xD8 and not _jpeg_complete(buf):
+        raise StreamError(f"colour JPEG is truncated (no end-of-image marker): {where}")
+    import cv2  # here: importing the messages loads no OpenCV
+
+    img = cv2.imdecode(buf, cv2.IMREAD_COLOR) if buf.size else None
+    if img is None:
+        raise StreamError(f"colour image is corrupt or not an image: {where}")
+    return np.ascontiguousarray(img[:, :, ::-1])
+
+
+def _jpeg_complete(buf: NDArray[np.uint8]) -> bool:
+    tail = buf[-16:].tobytes()
+    return b"\xff\xd9" in tail
+
 
 
 @dataclass(frozen=True, eq=False)

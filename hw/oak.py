@@ -46,7 +46,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litevloc.base.params.camera import CameraConfig
-from litevloc.hw.messages import Message, RgbdFrame, StreamError, StreamStats, depth_from_millimetres
+from litevloc.hw.messages import (
+    Message,
+    RgbdFrame,
+    StreamError,
+    StreamStats,
+    decode_color,
+    depth_from_millimetres,
+)
 
 log = logging.getLogger(__name__)
 
@@ -280,8 +287,6 @@ def rgbd_from_dai(
         depth_m = depth_from_millimetres(mm)
     jpeg = None
     if jpeg_quality > 0:
-        from litevloc.hw.streams.posed_folder import decode_color
-
         ok, enc = cv2.imencode(".jpg", rgb[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)])
         if not ok:
             raise StreamError(f"JPEG encoding failed for frame {index}")

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 EXPORT_VERSION = 3  # 2: ALIKED deformable convs as DeformConv; 3: ALIKED descriptor sampling by gathers
 OPSET = 19
@@ -125,3 +125,17 @@ def spec_for(model_id: str) -> ModelSpec:
         f"lightglue-aliked[-int8|-adaptive], effnet-gem-HxW or cosplace-r18-HxW "
         f"(e.g. {', '.join(DEFAULT_EXPORTS)})"
     )
+
+
+def manifest_fields(spec: ModelSpec) -> dict[str, Any]:
+    """What the model cache's manifest records for an export of `spec`; an entry whose fields
+    differ is stale (the exporter re-exports it, the registry refuses it)."""
+    return {
+        "export_version": EXPORT_VERSION,
+        "opset": OPSET,
+        "kind": spec.kind,
+        "arch": spec.arch,
+        "input_hw": list(spec.input_hw) if spec.input_hw else None,
+        "top_k": spec.top_k,
+        "quantization": spec.quantization,
+    }

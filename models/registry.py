@@ -21,7 +21,7 @@ from typing import Any
 
 from litevloc.base.errors import LiteVLocError
 from litevloc.base.params.models import ModelsConfig
-from litevloc.models.catalog import EXPORT_VERSION, OPSET, ModelSpec, aliked_id, spec_for, vpr_id
+from litevloc.models.catalog import ModelSpec, aliked_id, manifest_fields, spec_for, vpr_id
 from litevloc.models.types import FeatureExtractor, Matcher, PlaceRecognizer
 
 MANIFEST = "manifest.json"
@@ -107,16 +107,7 @@ def locate(
     hint = _export_hint(model_id, cache)
     if entry is None or not path.is_file():
         raise ModelError(f"model {model_id} is not in the model cache {cache}; {hint}")
-    expected = {
-        "export_version": EXPORT_VERSION,
-        "opset": OPSET,
-        "kind": spec.kind,
-        "arch": spec.arch,
-        "input_hw": list(spec.input_hw) if spec.input_hw else None,
-        "top_k": spec.top_k,
-        "quantization": spec.quantization,
-    }
-    for key, want in expected.items():
+    for key, want in manifest_fields(spec).items():
         if entry.get(key) != want:
             raise ModelError(
                 f"model {model_id} in {cache} was exported with {key}={entry.get(key)!r}, "

@@ -48,50 +48,9 @@ from litevloc.base.geometry import (
     so3_log,
     undistort_normalized,
 )
-from litevloc.base.params.calibration import ColorDepthCalibration
+from litevloc.base.params.calibration import CalibrationParams, ColorDepthCalibration
 
 F64 = NDArray[np.float64]
-
-
-@dataclass(frozen=True)
-class CalibrationParams:
-    """Knobs of `calibrate_color_depth` (frame gaps are positions in the given frame list)."""
-
-    # Wide gaps: the intrinsics and the extrinsic rotation act on the pose between two views in
-    # proportion to how far one is turned from the other, so pairs far apart observe them best.
-    # 7-Scenes mapping pass, both tuning splits (calibrated on one half, map of that half, queries
-    # of the other): gaps (5, 10, 20, 40) at every 2nd frame vs (1, 2, 3) at every 3rd frame:
-    # map 0-249 / queries 250-499 median 5.7 vs 10.1 cm, 62 vs 45 % accepted; map 250-499 /
-    # queries 0-249 2.2 vs 2.3 cm, 33 vs 38 % accepted.
-    pair_gaps: tuple[int, ...] = (5, 10, 20, 40)
-    max_pairs: int = 150
-    sift_features: int = 1500
-    ratio: float = 0.75
-    fundamental_px: float = 1.0  # RANSAC threshold of the calibration-free outlier filter
-    min_matches: int = 30
-    huber_px: float = 1.0
-    outlier_px: float = 8.0  # residuals above this after a round leave the next round
-    rounds: int = 4
-    min_depth_m: float = 0.3
-    max_depth_m: float = 4.0
-    edge_rel_tol: float = 0.02  # 2x2 depth neighbourhood spread allowed (relative)
-    min_parallax_m: float = 0.05  # pairs whose camera centres are closer are skipped
-    # The extrinsic translation (a few cm) is nearly degenerate with the principal point and
-    # focal length in this formulation; by default it stays at the initial guess (a prior,
-    # e.g. the sensor's nominal baseline) and only intrinsics + rotation are estimated.
-    estimate_translation: bool = False
-    # Radial distortion (k1, k2) of the colour lens: a pinhole model leaves a displacement that
-    # grows with the distance from the image centre, so the same point seen at different image
-    # positions from two views disagrees by an amount that grows with the angle between them.
-    estimate_distortion: bool = False
-
-    def __post_init__(self) -> None:
-        if not self.pair_gaps or min(self.pair_gaps) < 1:
-            raise ValueError("pair_gaps must be non-empty positive integers")
-        if self.max_pairs < 1 or self.rounds < 1 or self.min_matches < 8:
-            raise ValueError("max_pairs >= 1, rounds >= 1 and min_matches >= 8 required")
-        if not (0 < self.min_depth_m < self.max_depth_m) or self.huber_px <= 0 or self.outlier_px <= 0:
-            raise ValueError("need 0 < min_depth_m < max_depth_m and positive huber_px / outlier_px")
 
 
 @dataclass(frozen=True)

@@ -30,15 +30,14 @@ the chained `T_odom_camera` with `T_odom_camera = I` at the first frame.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
-from typing import Literal
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
 from litevloc.base.geometry import invert
+from litevloc.base.params.depth import DepthOdometryParams
 
 F64 = NDArray[np.float64]
 
@@ -47,30 +46,6 @@ _TYPES = {
     "rgb": cv2.OdometryType_RGB,
     "rgbd": cv2.OdometryType_RGB_DEPTH,
 }
-
-
-@dataclass(frozen=True)
-class DepthOdometryParams:
-    """Settings passed to `cv2.OdometrySettings` (metres, degrees)."""
-
-    method: Literal["depth", "rgb", "rgbd"] = "depth"
-    min_depth: float = 0.0
-    max_depth: float = 4.0
-    max_depth_diff: float = 0.07  # ICP correspondence gate between frames
-    max_translation: float = 0.15  # per step; larger estimates are reported as failures
-    max_rotation_deg: float = 15.0
-
-    def __post_init__(self) -> None:
-        if self.method not in _TYPES:
-            raise ValueError(f"method must be one of {sorted(_TYPES)}, got {self.method!r}")
-        for name in ("max_depth", "max_depth_diff", "max_translation", "max_rotation_deg"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be a finite number > 0, got {v}")
-        if not (math.isfinite(self.min_depth) and self.min_depth >= 0):
-            raise ValueError(f"min_depth must be a finite number >= 0, got {self.min_depth}")
-        if self.min_depth >= self.max_depth:
-            raise ValueError(f"min_depth ({self.min_depth}) must be < max_depth ({self.max_depth})")
 
 
 @dataclass(frozen=True)

@@ -22,7 +22,8 @@ def _similarity(a: NDArray[Any], b: NDArray[Any]) -> F64:
     if a.dtype == np.uint8:
         bits = np.unpackbits(a, axis=1).astype(np.float32)
         bbits = np.unpackbits(b, axis=1).astype(np.float32)
-        ham = bits @ (1 - bbits).T + (1 - bits) @ bbits.T
+        # |x xor y| = |x| + |y| - 2 x.y: one product of the bit matrices (exact in float32)
+        ham = bits.sum(axis=1)[:, None] + bbits.sum(axis=1)[None, :] - 2.0 * (bits @ bbits.T)
         return np.asarray(1.0 - 2.0 * ham / bits.shape[1], dtype=np.float64)
     an = a / np.maximum(np.linalg.norm(a, axis=1, keepdims=True), 1e-12)
     bn = b / np.maximum(np.linalg.norm(b, axis=1, keepdims=True), 1e-12)

@@ -17,11 +17,12 @@ opencv-python-headless): the right disparity is SGBM run on the mirrored pair.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+
+from litevloc.base.params.depth import SgbmParams
 
 _MODES = {
     "sgbm": cv2.STEREO_SGBM_MODE_SGBM,
@@ -29,45 +30,6 @@ _MODES = {
     "sgbm_3way": cv2.STEREO_SGBM_MODE_SGBM_3WAY,
     "hh4": cv2.STEREO_SGBM_MODE_HH4,
 }
-
-
-@dataclass(frozen=True)
-class SgbmParams:
-    """Semi-global matching parameters (see `cv2.StereoSGBM_create`).
-
-    `p1`/`p2` are the smoothness penalties per channel and per block pixel: OpenCV gets
-    `P1 = p1 * channels * block_size**2` (same for P2), the scaling its docs recommend.
-    `lr_max_diff_px` < 0 disables the left-right consistency check.
-    """
-
-    min_disparity: int = 0
-    num_disparities: int = 64  # search range, multiple of 16
-    block_size: int = 5  # odd, 1..11
-    p1: int = 8
-    p2: int = 32
-    disp12_max_diff: int = 1  # OpenCV's internal left-right check (px), -1 = off
-    uniqueness_ratio: int = 10  # percent
-    speckle_window_size: int = 100  # 0 = no speckle filter
-    speckle_range: int = 2
-    pre_filter_cap: int = 63
-    mode: Literal["sgbm", "hh", "sgbm_3way", "hh4"] = "sgbm_3way"
-    lr_max_diff_px: float = 1.0  # explicit left-right check against the mirrored match; <0 = off
-
-    def __post_init__(self) -> None:
-        if self.num_disparities <= 0 or self.num_disparities % 16:
-            raise ValueError(f"num_disparities must be a positive multiple of 16, got {self.num_disparities}")
-        if not (1 <= self.block_size <= 11) or self.block_size % 2 == 0:
-            raise ValueError(f"block_size must be odd in [1, 11], got {self.block_size}")
-        if not (0 <= self.p1 < self.p2):
-            raise ValueError(f"need 0 <= p1 < p2, got p1={self.p1}, p2={self.p2}")
-        if not (0 <= self.uniqueness_ratio <= 100):
-            raise ValueError(f"uniqueness_ratio must be in [0, 100], got {self.uniqueness_ratio}")
-        if self.speckle_window_size < 0 or self.speckle_range < 0:
-            raise ValueError("speckle_window_size and speckle_range must be >= 0")
-        if not (1 <= self.pre_filter_cap <= 63):
-            raise ValueError(f"pre_filter_cap must be in [1, 63], got {self.pre_filter_cap}")
-        if self.mode not in _MODES:
-            raise ValueError(f"mode must be one of {sorted(_MODES)}, got {self.mode!r}")
 
 
 def _matcher(params: SgbmParams, channels: int) -> cv2.StereoSGBM:

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.config import LiteVLocConfig
+from litevloc.config.schema import LiteVLocConfig
 from litevloc.hw import ros_msgs
 from litevloc.hw.messages import GroundTruthPose, SourceMessage
 from litevloc.pipelines.fusion.online import OnlineFusion

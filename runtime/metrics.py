@@ -21,6 +21,20 @@ def now_ns() -> int:
     return time.monotonic_ns()
 
 
+def memory_mb() -> dict[str, float]:
+    """{"rss": resident set size now, "peak": its peak (VmHWM)} of this process in MB, from
+    /proc/self/status; NaN where the system has no such file (not Linux)."""
+    out = {"rss": float("nan"), "peak": float("nan")}
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith(("VmRSS:", "VmHWM:")):
+                    out["rss" if line.startswith("VmRSS") else "peak"] = int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return out
+
+
 def percentiles_ms(samples: list[float] | np.ndarray) -> dict[str, float]:
     """{count, median_ms, p90_ms, p99_ms, max_ms, mean_ms} of samples in milliseconds (NaN when empty)."""
     a = np.asarray(samples, dtype=np.float64)

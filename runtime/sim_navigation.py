@@ -44,7 +44,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litevloc.base.errors import LiteVLocError
-from litevloc.config import LiteVLocConfig
+from litevloc.config.schema import LiteVLocConfig
 from litevloc.hw import ros_msgs
 from litevloc.hw.messages import Message, Odometry
 from litevloc.runtime.bus import Bus, LiteVLocPublisher

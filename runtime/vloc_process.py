@@ -49,7 +49,7 @@ from litevloc.runtime.child_processes import end_child, start_child
 if TYPE_CHECKING:
     from multiprocessing.connection import Connection
 
-    from litevloc.config import LiteVLocConfig
+    from litevloc.config.schema import LiteVLocConfig
     from litevloc.hw.messages import RgbdFrame
     from litevloc.runtime.localization_core import VlocOutcome
     from litevloc.runtime.vloc_prior import VlocPrior

@@ -1,5 +1,7 @@
 """Parameter dataclasses of the subsystems (frozen, validated in `__post_init__`).
 
-Each module holds the parameters of one subsystem; the subsystem's own module re-exports
-them under their old names. Only the standard library and numpy are imported here.
+Each module holds the parameters of one subsystem; the configuration tree
+(`config/schema.py`) reaches every one of them. Each field has its typed default and, on the
+line directly above it, a one-line `#` description that `litevloc config show` prints.
+Only the standard library and numpy are imported here.
 """

@@ -21,16 +21,23 @@ class ColorDepthCalibration:
     which maps points from the depth camera's optical frame to the colour camera's.
     """
 
+    # colour focal length along x (pixels)
     color_fx: float
+    # colour focal length along y (pixels)
     color_fy: float
+    # colour principal point x (pixels)
     color_cx: float
+    # colour principal point y (pixels)
     color_cy: float
+    # translation of T_color_depth (m)
     translation_color_depth: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # rotation of T_color_depth as a unit quaternion (x, y, z, w)
     quat_xyzw_color_depth: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
-    depth_dilation: bool = False  # cv2.registerDepth: splat each depth point to 2x2 pixels
-    # Radial distortion of the colour lens (OpenCV's k1, k2); frames are undistorted to the
-    # pinhole `K_color` before anything else sees them.
+    # cv2.registerDepth: splat each depth point to 2x2 pixels
+    depth_dilation: bool = False
+    # radial distortion k1 of the colour lens (frames are undistorted to the pinhole K_color)
     color_k1: float = 0.0
+    # radial distortion k2 of the colour lens
     color_k2: float = 0.0
 
     def __post_init__(self) -> None:
@@ -69,3 +76,50 @@ class ColorDepthCalibration:
                                      (float(T[0, 3]), float(T[1, 3]), float(T[2, 3])),
                                      (float(q[0]), float(q[1]), float(q[2]), float(q[3])),
                                      color_k1=float(k1_k2[0]), color_k2=float(k1_k2[1]))
+
+
+@dataclass(frozen=True)
+class CalibrationParams:
+    """Settings of `litevloc calib` (`pipelines.calibration.calibrate_color_depth`; config
+    `calibration`). Frame gaps count positions in the selected frames."""
+
+    # pair each frame with the ones this many positions later (wide gaps observe intrinsics best)
+    pair_gaps: tuple[int, ...] = (5, 10, 20, 40)
+    # frame pairs used at most (evenly spread)
+    max_pairs: int = 150
+    # SIFT features per image
+    sift_features: int = 1500
+    # Lowe ratio of the SIFT matches
+    ratio: float = 0.75
+    # RANSAC threshold of the calibration-free (fundamental matrix) outlier filter (pixels)
+    fundamental_px: float = 1.0
+    # pairs with fewer matches are skipped
+    min_matches: int = 30
+    # Huber loss scale of the reprojection residuals (pixels)
+    huber_px: float = 1.0
+    # residuals above this after a round leave the next round (pixels)
+    outlier_px: float = 8.0
+    # robust least-squares rounds
+    rounds: int = 4
+    # depth nearer than this is not lifted (m)
+    min_depth_m: float = 0.3
+    # depth farther than this is not lifted (m)
+    max_depth_m: float = 4.0
+    # largest relative spread of the 2x2 depth neighbourhood of a lifted pixel (depth edges)
+    edge_rel_tol: float = 0.02
+    # pairs whose camera centres are closer than this are skipped (m)
+    min_parallax_m: float = 0.02
+    # translation of T_color_depth the solve starts from, kept unless estimate_translation (m; Kinect v1)
+    translation_prior: tuple[float, float, float] = (-0.025, 0.0, 0.0)
+    # also estimate the depth->colour translation (nearly degenerate with the principal point)
+    estimate_translation: bool = False
+    # also estimate the colour lens's radial distortion k1, k2
+    estimate_distortion: bool = False
+
+    def __post_init__(self) -> None:
+        if not self.pair_gaps or min(self.pair_gaps) < 1:
+            raise ValueError("pair_gaps must be non-empty positive integers")
+        if self.max_pairs < 1 or self.rounds < 1 or self.min_matches < 8:
+            raise ValueError("max_pairs >= 1, rounds >= 1 and min_matches >= 8 required")
+        if not (0 < self.min_depth_m < self.max_depth_m) or self.huber_px <= 0 or self.outlier_px <= 0:
+            raise ValueError("need 0 < min_depth_m < max_depth_m and positive huber_px / outlier_px")

@@ -15,29 +15,49 @@ class CameraConfig:
     Colour is CAM_A, the stereo pair CAM_B/CAM_C (OAK-D, OAK-D Lite, OAK-D Pro, S2).
     """
 
-    device_id: str = ""  # device id (MxID), name or IP; "" = the first device found
-    width: int = 640  # colour (and aligned depth) output size, pixels
+    # device id (MxID), name or IP of the OAK; "" = the first device found
+    device_id: str = ""
+    # colour (and aligned depth) output width (pixels)
+    width: int = 640
+    # colour (and aligned depth) output height (pixels)
     height: int = 480
+    # frame rate (Hz)
     fps: float = 15.0
-    depth: Literal["aligned", "off"] = "aligned"  # stereo depth registered to colour, or no depth
-    stereo_width: int = 640  # mono pair resolution fed to the stereo engine
+    # "aligned": on-device stereo depth registered to colour; "off": no depth
+    depth: Literal["aligned", "off"] = "aligned"
+    # mono pair width fed to the stereo engine (pixels; OV9282: 1280x800 or 640x400)
+    stereo_width: int = 640
+    # mono pair height fed to the stereo engine (pixels)
     stereo_height: int = 400
+    # depthai's stereo preset
     stereo_preset: StereoPreset = "default"
+    # on-device left-right consistency check of the stereo depth
     left_right_check: bool = True
+    # sub-pixel disparity (finer depth far away)
     subpixel: bool = True
-    extended_disparity: bool = False  # closer minimum depth, at a cost in rate
-    undistort: bool = True  # undistort colour on device, so K is a pinhole model
-    timestamp_at: Literal["start", "middle", "end"] = "middle"  # which instant of the exposure
+    # extended disparity: closer minimum depth, at a cost in rate
+    extended_disparity: bool = False
+    # undistort colour on the device, so K is a pinhole model
+    undistort: bool = True
+    # which instant of the exposure a frame is stamped with
+    timestamp_at: Literal["start", "middle", "end"] = "middle"
+    # stamp clock: host wall clock (lines up with ROS odometry) or monotonic
     clock: Literal["realtime", "monotonic"] = "realtime"
-    # 0 = pass raw colour; >0 = JPEG round trip on host when recording (`litevloc record`: the
-    # recording then holds the live pixels); `litevloc run` records nothing and skips it
+    # > 0: JPEG round trip on the host when recording, so a recording holds the live pixels; 0 = raw
     jpeg_quality: int = 95
+    # also stream the IMU
     imu: bool = False
+    # IMU rate (Hz)
     imu_rate_hz: int = 200
+    # depthai output queue size (messages)
     queue_size: int = 4
-    discovery_timeout_s: float = 2.0  # how long to look for the device before failing
-    first_frame_timeout_s: float = 15.0  # device boot + first frame
-    frame_timeout_s: float = 2.0  # then: longest gap between frames before failing
+    # how long to look for the device before failing (s)
+    discovery_timeout_s: float = 2.0
+    # device boot + first frame, longest wait (s)
+    first_frame_timeout_s: float = 15.0
+    # then the longest gap between frames before failing (s)
+    frame_timeout_s: float = 2.0
+    # frame_id of the colour frames
     frame_id: str = "camera"
 
     def __post_init__(self) -> None:

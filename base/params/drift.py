@@ -14,10 +14,15 @@ from litevloc.base.geometry import make_T
 class DriftParams:
     """Noise parameters of the odometry drift model (see module docstring)."""
 
+    # translation noise per axis, per metre travelled (1 sigma, fraction of the distance)
     sigma_trans_per_m: float = 0.02
+    # translation noise per axis that grows with time, not distance (m per sqrt(s), 1 sigma)
     sigma_trans_floor: float = 0.0005
+    # rotation noise per metre travelled (rad/m, 1 sigma)
     sigma_rot_per_m: float = float(np.radians(1.0))
+    # rotation noise per radian turned (rad/rad, 1 sigma)
     sigma_rot_per_rad: float = 0.01
+    # constant yaw bias per metre travelled (rad/m)
     yaw_bias_per_m: float = float(np.radians(0.5))
 
     def __post_init__(self) -> None:

@@ -25,33 +25,50 @@ class FusionParams:
     VLoc sigmas are used when `add_vloc` gets no covariance.
     """
 
+    # an odometry message becomes a smoother state when this much time passed since the last (s)
     keyframe_period_s: float = 0.1
+    # ... or the robot moved this far (m)
     keyframe_dist_m: float = 0.25
+    # ... or turned this far (degrees)
     keyframe_angle_deg: float = 10.0
-    lag_s: float = 3.0  # smoother window; must exceed the worst VLoc latency
+    # fixed-lag smoother window (s); must exceed the worst VLoc latency
+    lag_s: float = 3.0
+    # odometry increment translation noise, constant part (m, 1 sigma per axis)
     odom_sigma_trans_floor: float = 0.002
+    # odometry increment translation noise per metre of the increment (m/m)
     odom_sigma_trans_per_m: float = 0.04
+    # odometry increment rotation noise, constant part (degrees, 1 sigma per axis)
     odom_sigma_rot_floor_deg: float = 0.05
+    # odometry increment rotation noise per metre of the increment (deg/m)
     odom_sigma_rot_per_m_deg: float = 1.5
+    # odometry increment rotation noise per radian turned (rad/rad)
     odom_sigma_rot_per_rad: float = 0.02
+    # VLoc translation sigma when a VLoc pose comes without a covariance (m)
     vloc_sigma_trans: float = 0.05
+    # VLoc rotation sigma when a VLoc pose comes without a covariance (degrees)
     vloc_sigma_rot_deg: float = 2.0
+    # robust kernel on accepted VLoc priors
     robust_kernel: Literal["huber", "cauchy", "none"] = "cauchy"
-    robust_k: float = 2.5  # kernel width in whitened units (sigmas)
-    gate_chi2: float = 22.46  # 6-dof chi-square, p = 0.999; 0 disables gating
+    # robust kernel width (whitened units, sigmas)
+    robust_k: float = 2.5
+    # chi-square gate of a VLoc pose against the prediction (6 dof, p = 0.999); 0 = no gate
+    gate_chi2: float = 22.46
+    # agreeing VLoc poses needed to initialise (1 = the first one)
     init_votes: int = 2
+    # initialisation votes agree when their T_map_odom lie within this (m) ...
     init_max_trans_m: float = 0.5
+    # ... and this (degrees)
     init_max_rot_deg: float = 10.0
-    # initialisation votes must fall within this many seconds (capture stamps) of the newest:
-    # a true match persists over consecutive frames, a coincidental alias recurs only at one
-    # heading (bland: the same wrong view voted twice, 113 s and several turns apart)
+    # initialisation votes must be captured within this of the newest (s)
     init_window_s: float = 5.0
+    # consecutive agreeing gated rejections that re-initialise the filter (0 = never)
     reinit_after_rejects: int = 5
-    covariance_period_s: float = 1.0  # at most one marginal covariance per this time
-    odom_buffer_s: float = 5.0  # odometry kept for late VLoc (>= lag_s)
-    max_future_s: float = (
-        0.05  # a VLoc up to this much newer than the newest odometry: extrapolated
-    )
+    # at most one marginal covariance per this much sensor time (s)
+    covariance_period_s: float = 1.0
+    # odometry kept for late VLoc poses (s, >= lag_s)
+    odom_buffer_s: float = 5.0
+    # a VLoc pose up to this much newer than the newest odometry is extrapolated (s)
+    max_future_s: float = 0.05
 
     def __post_init__(self) -> None:
         positive = (

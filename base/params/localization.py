@@ -1,7 +1,6 @@
-"""Parameters of localization: depth lookup, PnP, joint refinement, GL/LL and the state machine.
-
-Re-exported by `pipelines.depth_lookup`, `pipelines.pnp`, `pipelines.localization.refine` and
-`pipelines.localization.vloc` under their old names (the algorithms live there).
+"""Parameters of localization: depth lookup, PnP, joint refinement, GL/LL and the state machine
+(config `localization`; the algorithms are `pipelines.depth_lookup`, `pipelines.pnp`,
+`pipelines.localization.refine` and `pipelines.localization.vloc`).
 """
 
 from __future__ import annotations
@@ -18,9 +17,13 @@ PnpMethod = Literal["p3p", "ap3p", "sqpnp", "epnp", "usac_magsac"]
 class DepthLookupParams:
     """Validity gates for depth at keypoints (metres)."""
 
+    # nearer depth is invalid (m)
     min_depth: float = 0.1
+    # farther depth is invalid (m)
     max_depth: float = 10.0
+    # a keypoint's depth must agree with its neighbours' within abs_tol + rel_tol x depth (m)
     abs_tol: float = 0.03
+    # relative part of that tolerance (fraction of the depth)
     rel_tol: float = 0.03
 
     def __post_init__(self) -> None:
@@ -34,19 +37,27 @@ class DepthLookupParams:
 class PnpParams:
     """RANSAC settings and acceptance gates (defaults follow the published system)."""
 
+    # OpenCV minimal solver inside RANSAC
     method: PnpMethod = "ap3p"
+    # RANSAC inlier threshold (pixels)
     reprojection_px: float = 3.0
+    # RANSAC iterations at most
     iterations: int = 1000
+    # RANSAC confidence
     confidence: float = 0.9999
+    # Levenberg-Marquardt refinement on the inliers
     refine_lm: bool = True
-    # 50 -> 40 (the office preset had 40): 38 vs 26 % of 7-Scenes mapping-pass queries (map 250-499)
-    # accepted; 30 accepts 43 % there but, with guided matching, poses 0.6-1.2 m off along the
-    # optical axis on the office's repetitive corridor walls (40 accepts none of them)
+    # a pose needs at least this many inliers
     min_inliers: int = 40
+    # ... and at least this share of the matches as inliers
     min_inlier_ratio: float = 0.2
+    # ... and a median inlier reprojection error of at most this (pixels)
     max_median_reprojection_px: float = 2.0
+    # RANSAC seed (results are reproducible)
     seed: int = 0
+    # smallest translation sigma of a PnP covariance (m)
     min_sigma_trans_m: float = 0.01
+    # smallest rotation sigma of a PnP covariance (rad)
     min_sigma_rot_rad: float = float(np.radians(0.5))
 
     def __post_init__(self) -> None:
@@ -62,59 +73,60 @@ class PnpParams:
 class RefineParams:
     """Joint multi-keyframe refinement and its acceptance (pixels, metres, degrees)."""
 
-    enabled: bool = True  # False: the single-keyframe PnP pose + separate confirmation (old behaviour)
-    max_keyframes: int = 3  # keyframes in the joint solve, the PnP keyframe included
-    min_keyframes: int = 2  # keyframes that must each be consistent with the joint pose
-    min_keyframe_inliers: int = 15  # inliers under the joint pose for a keyframe to count as consistent
-    inlier_px: float = 3.0  # reprojection threshold of an inlier (raw pixels)
-    gate_px: float = 8.0  # a correspondence enters the solve if within this of the initial pose
+    # joint multi-keyframe refinement; false: the single-keyframe PnP pose + a separate confirmation
+    enabled: bool = True
+    # keyframes in the joint solve, the PnP keyframe included
+    max_keyframes: int = 3
+    # keyframes that must each be consistent with the joint pose
+    min_keyframes: int = 2
+    # inliers under the joint pose for a keyframe to count as consistent
+    min_keyframe_inliers: int = 15
+    # reprojection threshold of an inlier (raw pixels)
+    inlier_px: float = 3.0
+    # a correspondence enters the solve if within this of the initial pose (pixels)
+    gate_px: float = 8.0
+    # robust loss of the joint solve
     loss: Literal["cauchy", "huber", "soft_l1"] = "cauchy"
-    loss_scale: float = 2.0  # in whitened units (sigma)
+    # robust loss scale (whitened units, sigmas)
+    loss_scale: float = 2.0
+    # keypoint position noise (pixels, 1 sigma)
     keypoint_sigma_px: float = 1.0
-    depth_sigma_a: float = 0.0015  # sigma_z = a z^2 + b (m), structured-light / stereo depth noise
+    # depth noise sigma_z = a z^2 + b: the quadratic coefficient a (1/m)
+    depth_sigma_a: float = 0.0015
+    # depth noise constant b (m)
     depth_sigma_b: float = 0.002
-    # Where the map keeps depth at a matched keyframe keypoint, the correspondence enters the
-    # solve as a 3D residual (live point moved into the keyframe minus the keyframe's point,
-    # whitened by both depths' noise and the keypoint noise) instead of a reprojection. Chosen on
-    # the 7-Scenes mapping-pass splits (below): [5 cm, 5 deg] 25.6 / 47.2 % vs 24.8 / 35.2 %,
-    # median 1.88 / 2.65 cm vs 2.13 / 3.33 cm, max 10.2 / 10.5 vs 10.4 / 23 cm.
+    # use the map's depth at keyframe keypoints: 3D residuals instead of reprojections where it has depth
     map_depth: bool = True
-    max_shift_m: float = 0.25  # the joint pose may move at most this far from the initial pose
+    # the joint pose may move at most this far from the initial pose (m)
+    max_shift_m: float = 0.25
+    # ... and turn at most this far (degrees)
     max_shift_deg: float = 5.0
-    # Systematic error that points and keyframes do not average out, and its growth with the
-    # angle between the live view and its keyframes (metres per radian, radians per radian) and
-    # with their distance from it (metres per metre, degrees per metre; see
-    # pipelines.localization.refine). Fitted by maximum likelihood (`python bench/fit_covariance.py`,
-    # x1.1 on translation for 95 % coverage) on two tuning splits inside the 7-Scenes mapping
-    # pass (map 250-499 / queries 0:250:2 and map 0-249 / queries 250:500:2, 109 accepted poses):
-    # 95.4 % / 98.2 % of their errors inside the 95 % ellipsoids. The distance terms entered
-    # 2026-11-26: on the splits the error grows with the distance to the keyframes (median 0.8 cm
-    # below 0.3 m, 2-3.5 cm at 0.3-1 m, 5-9 cm beyond) at view angles of ~5 deg, which the
-    # angle-only model had to put into its constant and slope; with them the log-likelihood of
-    # the fit is higher by 33 (translation) and 32 (rotation) for one parameter each, and the
-    # constant terms fit to zero. Before: 0.008 m, 0.41 deg, 0.115 m/rad, 0.046 rad/rad, no
-    # distance terms. Held-out query pass (frames 500-999, view angles median 19 deg): 100 % /
-    # 95.0 % inside (was 100 / 100 %).
+    # covariance: systematic translation error, constant part (m)
     sigma_sys_t_m: float = 0.0
+    # covariance: systematic rotation error, constant part (degrees)
     sigma_sys_r_deg: float = 0.0
+    # covariance: systematic translation error per radian between live view and keyframes (m/rad)
     sigma_sys_t_per_rad: float = 0.083
+    # covariance: systematic rotation error per radian between live view and keyframes (rad/rad)
     sigma_sys_r_per_rad: float = 0.0334
+    # covariance: systematic translation error per metre from the keyframes (m/m)
     sigma_sys_t_per_m: float = 0.022
+    # covariance: systematic rotation error per metre from the keyframes (deg/m)
     sigma_sys_r_deg_per_m: float = 0.92
+    # smallest translation sigma of the covariance (m)
     min_sigma_t_m: float = 0.002
+    # smallest rotation sigma of the covariance (degrees)
     min_sigma_r_deg: float = 0.05
+    # function evaluations of the least-squares solve at most
     max_nfev: int = 30
-    # How the live frame is matched to the extra keyframes: "guided" projects the live points
-    # with the initial pose and pairs each with the most similar keyframe keypoint within
-    # guided_radius_px (mutual best, similarity >= guided_min_similarity; ~1 ms per keyframe);
-    # "model" runs the configured matcher (LightGlue, ~100 ms per keyframe on 2 CPUs).
+    # matching the extra keyframes: "guided" by projecting with the initial pose (~1 ms), "model" (~100 ms)
     extra_matching: Literal["guided", "model"] = "guided"
+    # guided matching: search radius around the projected point (pixels)
     guided_radius_px: float = 8.0
-    # Also require each guided pair to be the mutual nearest neighbour over ALL keypoints of
-    # both images (not just within the radius): the pose then only filters matches it did not
-    # choose, so a wrong pose on a repetitive texture cannot confirm itself (office, frame 810).
+    # guided matching: each pair must also be mutual nearest neighbours over all keypoints
     guided_global_mutual: bool = True
-    guided_min_similarity: float = 0.6  # 0.75 -> 0.6: 43 -> 50 % accepted on the 7-Scenes mapping pass (0.5: no better)
+    # guided matching: smallest descriptor similarity of a pair (cosine)
+    guided_min_similarity: float = 0.6
 
     def __post_init__(self) -> None:
         if self.max_keyframes < 1 or not (1 <= self.min_keyframes <= self.max_keyframes):
@@ -141,99 +153,75 @@ class RefineParams:
 class LocalizationParams:
     """Parameters of GL, LL and the state machine (metres, degrees)."""
 
-    # Place candidates GL verifies (geometric check), best first.
+    # GL: keyframes retrieved by VPR and verified, best first
     gl_top_k: int = 10
-    # > 0: stop GL at the first candidate with this many inliers (refine off).
+    # > 0: GL stops at the first candidate with this many PnP inliers (joint refinement off)
     gl_early_accept_inliers: int = 0
-    # > 0: a wall-time budget (ms, whole GL query); the next candidate is tried only while the
-    # time spent plus one more candidate's expected cost fits (one is always verified).
+    # > 0: GL's time budget per query (ms); a next candidate is tried only while it fits
     gl_time_budget_ms: float = 0.0
-    # Re-order GL candidates by their count of mutual nearest neighbours with the live frame's
-    # descriptors (no model run), place-descriptor order breaking ties.
+    # GL tries its candidates in the order of their mutual-nearest-neighbour count with the live frame
     gl_rerank: bool = True
-    # Descriptor similarity (cosine) a mutual nearest neighbour needs to count in the re-ordering.
+    # smallest descriptor similarity of a mutual nearest neighbour counted by the re-ranking (cosine)
     gl_rerank_min_similarity: float = 0.7
-    # Place-descriptor shortlist (nodes) that the re-ordering ranks, its first gl_top_k verified;
-    # 0 = gl_top_k (the re-ordering only orders the verified candidates).
+    # VPR shortlist the re-ranking orders, its first gl_top_k verified (0 = gl_top_k)
     gl_rerank_depth: int = 0
-    # Once tracked, a GL query may spend at most this x the median wall time of the recent LL
-    # queries (the next candidate only while it fits; one is always verified). 0 = no bound.
+    # once tracked, a GL query may cost this many times the mean LL query (0 = no bound)
     lost_cost_ratio: float = 2.0
-    # A GL pose must also explain matches with a second keyframe (repetitive textures fool one view).
+    # a GL pose must also explain matches with a second keyframe
     gl_confirm: bool = True
-    # An LL pose must too, unless it lies close to a fresh prior (confirm_skip_*).
+    # an LL pose must also explain matches with a second keyframe (unless confirm_skip_* applies)
     ll_confirm: bool = True
-    # PnP inliers of a GL pose that only its own keyframe confirms for it to be returned as a
-    # provisional pose (a fusion vote; accepted in GLOBAL state when it agrees with the prior). 0 = off.
+    # a GL pose with this many inliers that no second keyframe sees is a provisional vote (0 = off)
     gl_vote_min_inliers: int = 60
-    # A GL pose whose supporting points span less than this (m, 10th-90th percentile along the
-    # map's up) rests on the floor or ceiling alone, whose tiles repeat: rejected. 0 = off.
+    # a GL candidate whose inliers span less height than this rests on floor or ceiling: refused (m; 0 = off)
     gl_min_support_height_m: float = 0.15
+    # inliers a second keyframe needs to confirm a pose
     confirm_min_inliers: int = 20
-    confirm_max_nodes: int = 2  # second keyframes tried for the confirmation
-    # An LL pose this close to a fresh prior (age <= confirm_skip_max_age_s) needs no second
-    # keyframe: whatever it could be wrong by is bounded by this distance plus the prior's error.
+    # second keyframes tried for the confirmation
+    confirm_max_nodes: int = 2
+    # an LL pose this close to a fresh prior needs no second keyframe (m)
     confirm_skip_within_m: float = 0.2
+    # ... and this close in rotation (degrees)
     confirm_skip_within_deg: float = 5.0
+    # a prior is fresh up to this age (s)
     confirm_skip_max_age_s: float = 0.5
-    # LL prior gate: an LL pose must lie within prior_gate_m + prior_gate_rate_mps * (age of the
-    # prior in s) and prior_gate_deg of the prior; otherwise that candidate is rejected.
+    # LL prior gate: an LL pose must lie this close to a last-VLoc-pose prior (m) ...
     prior_gate_m: float = 0.75
+    # ... plus this much per second of the prior's age (m/s)
     prior_gate_rate_mps: float = 1.5
+    # ... and within this rotation of it (degrees)
     prior_gate_deg: float = 30.0
-    # A fused prior (the runtime's: odometry since the last fix, at the frame's stamp) grows
-    # with the odometry's drift, not with the robot's speed: its gate grows at this rate per
-    # second since the last fix (the simulator's seeded drift: 26 m over the 405 s loop lap,
-    # 0.064 m/s). It may skip the second keyframe (confirm_skip_*) while its growth is at most
-    # what a last-VLoc-pose prior is allowed (prior_gate_rate_mps * confirm_skip_max_age_s).
+    # a fused prior's gate grows at this rate per second since the last fix (m/s: odometry drift)
     prior_gate_rate_fused_mps: float = 0.1
-    # ... and starts from this radius instead of prior_gate_m: while tracking, the fused prior is
-    # centimetre-accurate, so its gate only has to hold the VLoc error and the prior's error at
-    # the last fix. With 0.75 m the loop world's repetitive corridor let 99 of 679 LL poses
-    # through at 0.5-0.76 m (the texture's period), one lap, simulator.
+    # a fused prior's gate starts from this radius (m)
     prior_gate_fused_m: float = 0.25
-    # A GL pose outside the fused prior's gate (prior_gate_fused_m + its growth, prior_gate_deg),
-    # or with a prior too old to stand in for a second view (growth beyond what confirm_skip_*
-    # allows: 7.5 s at the fused rate), is held, not accepted, until the GL pose of a later
-    # frame, at most repeat_within_s after it, repeats it: carried over by the prior's own
-    # motion between the two frames (the odometry), the two must agree within
-    # prior_gate_fused_m + prior_gate_rate_fused_mps x the time between them and repeat_deg.
-    # A stale prior cannot veto a wrong place (loop world: a GL pose 1.79 m off, confirmed by
-    # two neighbouring keyframes, 1.68 m from a 10.7 s old prior whose gate had grown to 1.32 m;
-    # two more 0.57-0.59 m off, the corridor texture's period, inside the gates of 7.5 and 13 s
-    # old priors); a wrong place rarely repeats from a second viewpoint, a right one does, and a
-    # prior that is itself wrong (a kidnapped robot) costs one more GL query. An LL pose with a
-    # fused prior that stale is held the same way (loop: an LL pose 0.6 m off at a 12.3-12.6 s
-    # old prior in 2 of 3 laps without this, in neither of 2 laps with it). Chosen on the loop
-    # query laps it is reported on (labelled as tuned there). 0 = off (accepted at once).
+    # a pose outside a fused prior's gate (or with a stale prior) waits this long for a repeat (s; 0 = off)
     repeat_within_s: float = 5.0
+    # a held pose is repeated when the two agree within this rotation (degrees)
     repeat_deg: float = 5.0
+    # LL candidates: keyframes within this distance of the prior (m)
     candidate_radius_m: float = 3.0
+    # LL candidates: keyframes looking within this angle of the prior (degrees)
     max_view_angle_deg: float = 90.0
+    # LL candidates verified per query at most
     ll_max_candidates: int = 3
-    # LL with a fresh prior (see confirm_skip_max_age_s) first matches each candidate by
-    # projecting the live points with the prior (refine.guided_*: radius, similarity, mutual
-    # nearest neighbours over all keypoints; ~5 ms); with at least this many matches they stand
-    # in for the matcher's (a PnP that fails on them falls back to the matcher). 0 = off.
-    # Chosen on the simulated office query pass (ground-truth prior, 158 LL queries, 1 thread):
-    # LightGlue calls per LL query 1.40 -> 0.59 with 60, median error 0.81 -> 1.08 cm, max
-    # 10.6 -> 19.1 cm; in the service (bench/runtime.py, same session) VLoc 2.07 -> 3.07 Hz.
-    # 7-Scenes (bench/accuracy.py, held-out): within [5 cm, 5 deg] 56.6 -> 55.8 %, median
-    # 3.78 -> 3.85 cm, LL latency median 310 -> 179 ms.
+    # LL with a fresh prior: guided matches stand in for the matcher's when at least this many (0 = off)
     ll_guided_min_matches: int = 60
+    # consecutive LL failures that make the state LOST (the next query runs GL)
     ll_failures_before_lost: int = 3
-    gl_trigger_distance_m: float = 7.5  # prior farther than this from every node -> GL
-    max_distance_to_node_m: float = 5.0  # an accepted pose must lie this close to its node
+    # a prior farther than this from every keyframe sends the query to GL (m)
+    gl_trigger_distance_m: float = 7.5
+    # an accepted pose must lie this close to its keyframe (m)
+    max_distance_to_node_m: float = 5.0
+    # matches a candidate needs before PnP
     min_matches: int = 20
-    # Verification and refinement also use the map's depth at keyframe keypoints: PnP both ways
-    # (the direction with more inliers wins), keyframe points reprojected into the live image
-    # where the live keypoint has no depth. Off: it also verifies aliased places (docs/localization.md).
+    # verification and refinement also use the map's depth at keyframe keypoints (off: it verifies aliased places too)
     verify_map_depth: bool = False
+    # PnP + RANSAC of live keypoints (with live depth) against a keyframe
     pnp: PnpParams = field(default_factory=PnpParams)
+    # validity gates of the live depth at keypoints
     depth: DepthLookupParams = field(default_factory=DepthLookupParams)
-    # Joint multi-keyframe refinement (`refine.py`); when enabled it replaces the separate
-    # confirmation (gl_confirm / ll_confirm / confirm_* then only decide whether it must
-    # find a second consistent keyframe).
+    # joint multi-keyframe refinement (replaces the separate confirmation when enabled)
     refine: RefineParams = field(default_factory=RefineParams)
 
     def __post_init__(self) -> None:

@@ -1,8 +1,6 @@
 """Parameters of map building: keyframe selection, occupancy grid, covisibility and
-connectivity graphs, and the whole mapping section.
-
-Re-exported by `pipelines.topomap.keyframes`, `.occupancy`, `.graphs` and `.build` under
-their old names (the algorithms live there).
+connectivity graphs, and the whole mapping section (config `mapping`; the algorithms are
+`pipelines.topomap.keyframes`, `.occupancy`, `.graphs` and `.build`).
 """
 
 from __future__ import annotations
@@ -13,21 +11,32 @@ from typing import Literal
 import numpy as np
 
 from litevloc.base.params.localization import DepthLookupParams, PnpParams
+from litevloc.base.params.map_maintenance import DiffParams, MergeParams, UpdateParams
 
 
 @dataclass(frozen=True)
 class KeyframeParams:
     """Keyframe selection parameters (metres, degrees)."""
 
-    min_translation_m: float = 0.1
-    min_rotation_deg: float = 3.0
-    budget: int | None = None  # explicit cap on the keyframe count (None: coverage decides)
+    # pre-filter: a frame is a candidate when it moved this far since the last candidate (m) ...
+    min_translation_m: float = 0.3
+    # ... or turned this far (degrees)
+    min_rotation_deg: float = 12.0
+    # explicit cap on the keyframe count (null: the coverage target decides)
+    budget: int | None = None
+    # keyframes are added until they cover this share of what the candidates cover
     coverage: float = 0.95
-    cell_m: float = 0.25
+    # ground-plane cell of the coverage count (m)
+    cell_m: float = 0.5
+    # viewing-direction sectors per cell (1 = plain 2D coverage)
     heading_bins: int = 8
-    height_band_m: tuple[float, float] = (-2.0, 1.0)  # relative to the median camera height, along `up`
-    max_depth_m: float = 5.0
+    # depth points counted for coverage lie in this band around the median camera height, along `up` (m)
+    height_band_m: tuple[float, float] = (-0.4, 2.5)
+    # depth points farther than this (along the optical axis) are not counted for coverage (m)
+    max_depth_m: float = 6.0
+    # every this many pixels of the depth image are counted (pixels)
     pixel_stride: int = 8
+    # the greedy selection stops when the best candidate adds fewer (cell, direction) pairs
     min_gain: int = 1
 
     def __post_init__(self) -> None:
@@ -47,9 +56,13 @@ class KeyframeParams:
 class OccupancyParams:
     """Occupancy grid parameters (metres)."""
 
+    # grid cell size (m)
     resolution_m: float = 0.1
-    obstacle_band_m: tuple[float, float] = (-1.0, 0.5)  # relative to the median camera height
+    # depth points in this band around the median camera height are obstacles (m, along `up`)
+    obstacle_band_m: tuple[float, float] = (-0.35, 1.5)
+    # obstacle points that make a cell occupied
     min_points: int = 3
+    # free border around the observed area (m)
     margin_m: float = 0.5
 
     def __post_init__(self) -> None:
@@ -63,28 +76,23 @@ class OccupancyParams:
 class CovisibilityParams:
     """Covisibility verification parameters."""
 
-    max_distance_m: float = 3.5
+    # keyframe pairs farther apart are not verified (m)
+    max_distance_m: float = 5.0
+    # keyframe pairs whose optical axes differ more are not verified (degrees)
     max_angle_deg: float = 90.0
+    # PnP inliers that make an edge
     min_inliers: int = 30
+    # edge weight = min(inliers / this, 1)
     weight_saturation: int = 200
-    # How a candidate pair is matched before PnP: "guided" projects node i's depth-lifted
-    # keypoints into node j with the two mapping poses and pairs each with the most similar
-    # keypoint within guided_radius_px (mutual nearest neighbours over all keypoints too, so
-    # the poses only filter matches they did not choose; ~1 ms per pair); "model" runs the
-    # configured matcher (LightGlue: ~250 ms per pair on 2 CPUs, 661 of the 960 s that the
-    # 268-keyframe floor map took to build).
-    # The radius absorbs the mapping poses' error: on the 7-Scenes mapping pass the ground-truth
-    # relative poses of keyframe pairs are off by up to ~2.5 deg (25 px at f = 585) and colour and
-    # depth are not registered; 8 px kept 11 of the 31 edges the matcher found (frames 0:200:4,
-    # ORB), 40 px 27 of 31 (70 of 84 on frames 200:500:6), with no edge the matcher did not find.
+    # pair matching: "guided" by projecting with the mapping poses (~1 ms), "model" runs the matcher (~250 ms)
     matching: Literal["guided", "model"] = "guided"
+    # guided matching: search radius around the projected point (pixels; absorbs the mapping poses' error)
     guided_radius_px: float = 40.0
+    # guided matching: smallest descriptor similarity of a pair (cosine)
     guided_min_similarity: float = 0.6
-    # Also require each pair to be the mutual nearest neighbour over all keypoints of both
-    # images. Off: the mapping poses are trusted (no wrong pose to confirm itself), and on
-    # repetitive walls the global test drops most true matches (loop world: 407 edges with it
-    # against 2432 from LightGlue).
+    # guided matching: each pair must also be mutual nearest neighbours over all keypoints
     guided_global_mutual: bool = False
+    # PnP of one keyframe's depth-lifted keypoints into the other
     pnp: PnpParams = field(
         default_factory=lambda: PnpParams(min_inliers=10, min_inlier_ratio=0.0, max_median_reprojection_px=3.0)
     )
@@ -104,7 +112,9 @@ class CovisibilityParams:
 class ConnectivityParams:
     """Connectivity (reachability) parameters."""
 
-    max_line_of_sight_m: float = 2.0
+    # keyframes this close on the ground plane are connected when the straight way is free (m)
+    max_line_of_sight_m: float = 3.0
+    # line-of-sight edges kept per keyframe, nearest first
     max_line_of_sight_neighbours: int = 6
 
     def __post_init__(self) -> None:
@@ -116,33 +126,34 @@ class ConnectivityParams:
 
 @dataclass(frozen=True)
 class MappingParams:
-    """All map-building parameters. `up` is the unit up vector of the map frame.
+    """All map-building parameters (config `mapping`)."""
 
-    `covisibility_matcher` names the matcher the caller should inject for covisibility
-    verification (mutual-NN by default: PnP-RANSAC verification makes the cheap matcher
-    good enough, and it is ~100x faster than LightGlue over all keyframe pairs).
-    """
-
+    # unit up vector of the map frame (against gravity)
     up: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    # matcher of covisibility.matching: model (mnn = mutual nearest neighbours, ~100x faster than LightGlue)
     covisibility_matcher: str = "mnn"
+    # which frames become keyframes
     keyframes: KeyframeParams = field(default_factory=KeyframeParams)
+    # the occupancy grid (for planning)
     occupancy: OccupancyParams = field(default_factory=OccupancyParams)
+    # the covisibility graph (for localization)
     covisibility: CovisibilityParams = field(default_factory=CovisibilityParams)
+    # the connectivity graph (for planning)
     connectivity: ConnectivityParams = field(default_factory=ConnectivityParams)
+    # validity gates of the mapping depth at keypoints
     depth: DepthLookupParams = field(default_factory=DepthLookupParams)
-    # JPEG quality of keyframe images encoded from raw colour (a source's own JPEG bytes, e.g. a
-    # recording's, are stored as they are). They are for people (live view, map diff) and
-    # `bench reloc`, not localization: 75 stores them in 55 % of the bytes of 90 (`loop`: 2.26
-    # vs 4.14 MB for 311 keyframes)
+    # JPEG quality of keyframe images encoded from raw colour (a source's own JPEGs are kept as they are)
     jpeg_quality: int = 75
-    # keep only the strongest N keypoints of each keyframe in the map (0 = all the extractor
-    # gives): local features are most of a map's bytes (#15); queries still use all theirs
+    # keep only the strongest N keypoints of each keyframe in the map (0 = all)
     stored_keypoints: int = 0
-    # bytes per stored float local descriptor: a product quantiser with this many 8-bit
-    # sub-codes and a codebook trained on the map (`pipelines/topomap/descriptor_codec.py`;
-    # must divide the descriptor dimension; 32 for 128-d ALIKED: 4x smaller than int8), or
-    # 0 (or >= D) = int8 codes + one float32 scale per descriptor (map format 2, D + 4 bytes)
+    # bytes per stored local descriptor: product-quantiser sub-codes (must divide D), or 0 = int8 codes
     descriptor_bytes: int = 32
+    # `litevloc map merge`: joining sessions mapped in different frames
+    merge: MergeParams = field(default_factory=MergeParams)
+    # `litevloc map update`: refreshing a map from a new session
+    update: UpdateParams = field(default_factory=UpdateParams)
+    # `litevloc map diff`: comparing two versions of a map
+    diff: DiffParams = field(default_factory=DiffParams)
 
     def __post_init__(self) -> None:
         if not 0 <= self.descriptor_bytes <= 4096:

@@ -13,41 +13,41 @@ DEFAULT_PLACE_RECOGNIZER = "effnet-gem"
 
 @dataclass(frozen=True)
 class ModelsConfig:
-    """Which models the runtime uses and how onnxruntime runs them.
+    """Which models the runtime uses and how onnxruntime runs them (config `models`).
 
-    cache_dir: folder of exported ONNX files + manifest.json; "" = `default_cache_dir()`
-        ($LITEVLOC_MODEL_CACHE, else $XDG_CACHE_HOME/litevloc/models, else ~/.cache/...).
-    providers: onnxruntime execution providers in order of preference; unavailable ones are
-        skipped with a log line, CPU is always the last resort.
-    intra_op_threads: onnxruntime intra-op threads per session (and OpenCV for SIFT/ORB).
-    extractor / extractor_size (h, w) / max_keypoints: local features; ALIKED is exported
-        for a fixed (size, top-k); SIFT/ORB also resize to extractor_size.
-    matcher ("lightglue-int8": dynamically int8-quantised weights, ~1.5x faster on CPU, same
-        epipolar accuracy on the 7-Scenes test pair; "lightglue-adaptive": the reference's
-        early stopping + point pruning, `depth_confidence` / `width_confidence`, <= 0 = off),
-        match_threshold (LightGlue score), ratio (Lowe ratio for nn-ratio).
-    place_recognizer, vpr_size (h, w); cosplace_checkpoint: official CosPlace ResNet-18 / 256
-        .pth, only for exporting "cosplace".
+    ALIKED is exported for a fixed (extractor_size, max_keypoints); SIFT/ORB also resize to
+    extractor_size. Sizes are (height, width) in pixels.
     """
 
+    # folder of exported ONNX files + manifest.json; "" = $LITEVLOC_MODEL_CACHE, else ~/.cache/litevloc/models
     cache_dir: str = ""
+    # onnxruntime execution providers in order of preference (unavailable ones are skipped; CPU is last)
     providers: tuple[Literal["cpu", "cuda", "tensorrt"], ...] = ("cpu",)
+    # onnxruntime intra-op threads per session (and OpenCV's for SIFT/ORB) in offline commands
     intra_op_threads: int = 2
+    # local feature extractor
     extractor: Literal["aliked-t16", "aliked-n16", "sift", "orb"] = "aliked-n16"
+    # extractor input size (h, w pixels)
     extractor_size: tuple[int, int] = (240, 320)
+    # keypoints extracted per image
     max_keypoints: int = 512
-    # The reference LightGlue's default inference (early stopping + pruning): 1.6x less CPU per
-    # LL pair than all 9 layers at the same accuracy on 7-Scenes (bench/matcher.py).
+    # matcher; lightglue-adaptive: the reference's early stopping + point pruning
     matcher: Literal["lightglue", "lightglue-int8", "lightglue-adaptive", "mnn", "nn-ratio"] = "lightglue-adaptive"
+    # LightGlue match score threshold
     match_threshold: float = 0.1
+    # lightglue-adaptive: early-stopping confidence (<= 0 = off)
     depth_confidence: float = 0.95
+    # lightglue-adaptive: point-pruning confidence (<= 0 = off)
     width_confidence: float = 0.99
-    # Match only the strongest N keypoints of each image (0 = all). Extractors return keypoints
-    # sorted by score, so this keeps the best; LightGlue's cost grows ~quadratically with N.
-    match_max_keypoints: int = 0
+    # match only the strongest N keypoints of each image (0 = all)
+    match_max_keypoints: int = 384
+    # Lowe ratio of the nn-ratio matcher
     ratio: float = 0.8
+    # place recognition (VPR) model
     place_recognizer: Literal["effnet-gem", "cosplace"] = "effnet-gem"
+    # VPR input size (h, w pixels)
     vpr_size: tuple[int, int] = (240, 320)
+    # official CosPlace ResNet-18/256 .pth, only for exporting "cosplace"
     cosplace_checkpoint: str = ""
 
     def __post_init__(self) -> None:

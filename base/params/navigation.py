@@ -10,31 +10,29 @@ from dataclasses import dataclass
 class GoalParams:
     """Goal localization parameters."""
 
+    # keyframes retrieved by VPR for a goal image and verified
     top_k: int = 5
+    # essential-matrix inliers that verify a goal image's place
     min_inliers: int = 40
+    # essential-matrix RANSAC threshold (pixels)
     ransac_px: float = 2.0
+    # RANSAC seed
     seed: int = 0
-    # metric goal pose (maps with keypoint depth): PnP of the goal image against the chosen
-    # keyframe's depth-lifted keypoints; the place is already verified (min_inliers), so a
-    # pose needs fewer inliers, and it must lie within pose_max_m of the keyframe
+    # metric goal pose (PnP against the keyframe's depth-lifted keypoints) needs this many inliers
     pose_min_inliers: int = 20
+    # metric goal pose: PnP RANSAC threshold (pixels)
     pose_px: float = 4.0
+    # metric goal pose: must lie within this of its keyframe (m)
     pose_max_m: float = 5.0
-    # ambiguity veto (maps with keypoint depth): the top_k candidates' metric goal poses are
-    # grouped into places (within agree_m and agree_deg of each other); a goal is refused as
-    # ambiguous when another place's support (sum of PnP inliers) is more than
-    # 1/ambiguity_ratio of the chosen place's: the same poster in two rooms. 0 = off.
-    # Chosen on the office and `bland` worlds (the floor is reported on, not tuned on).
+    # refuse a goal as ambiguous when another place has more than 1/this of the chosen place's support (0 = off)
     ambiguity_ratio: float = 2.0
+    # candidates' goal poses within this of each other are one place (m)
     agree_m: float = 0.5
+    # ... and within this rotation (degrees)
     agree_deg: float = 20.0
-    # flat support: a candidate whose PnP inliers lie within planar_rms_m (RMS) of one plane
-    # matched a single flat patch (a poster, a sign, one wall), which can hang at several
-    # places; it verifies a place only with planar_factor x min_inliers. 0 = off. Chosen on the
-    # office and bland worlds (their goals + 120 query-pass frames each as goal images): wrong
-    # placements 20 -> 10 of 252, right ones 157 -> 152; 2 / 3 / 5 cm gave the same; the floor
-    # and the loop are reported on, not tuned on.
+    # a candidate whose inliers lie within this RMS of one plane matched a flat patch (m; 0 = off)
     planar_rms_m: float = 0.03
+    # a flat-patch candidate verifies a place only with this many times min_inliers
     planar_factor: float = 2.0
 
     def __post_init__(self) -> None:
@@ -52,26 +50,23 @@ class GoalParams:
 
 @dataclass(frozen=True)
 class TrackerParams:
+    """Subgoal tracking along the planned node path (metres, seconds, degrees)."""
+
+    # a node is reached within this distance (m)
     reach_m: float = 0.5
+    # farther than this from the path replans (m)
     stray_m: float = 2.0
-    # after the goal node, drive on to the goal image's own place (when the map gave it a
-    # metric pose and the straight way there is clear for clearance_m); False = stop at the node
+    # after the goal node, drive on to the goal image's own place when the way there is clear
     final_approach: bool = True
-    # advance past a reached node only once the straight way on to the next one is clear for
-    # a robot of this radius in the map's occupancy grid (else keep approaching the node,
-    # down to reach_m / 3); 0 = off
+    # advance past a reached node only when the way on is clear for a robot of this radius (m; 0 = off)
     clearance_m: float = 0.45
-    # a goal fails ("no progress") when the robot has not come stall_progress_m closer to it
-    # in stall_s seconds of sensor time (blocked by a door frame, or a goal on the other side
-    # of a wall): it is reported with its reason instead of being pushed at forever; 0 = off
+    # a goal fails ("no progress") when not stall_progress_m closer within this (s of sensor time; 0 = off)
     stall_s: float = 30.0
+    # progress that resets the stall clock (m)
     stall_progress_m: float = 0.25
-    # an edge driven more than against_view_deg away from both of its keyframes' optical axes
-    # costs against_view_cost times its length: a forward-looking camera driven that way faces
-    # away from all the map saw there (the loop world's ring, mapped one way round: 2 of
-    # 154-242 VLoc queries accepted driving it backwards): such a way is taken only where it is
-    # less than 1/against_view_cost of the way along the map's views; 1 = plan by length alone
+    # an edge driven against the map's views costs this many times its length (1 = plan by length alone)
     against_view_cost: float = 10.0
+    # an edge is driven against the map's views beyond this angle from both keyframes' axes (degrees)
     against_view_deg: float = 120.0
 
     def __post_init__(self) -> None:

@@ -15,11 +15,16 @@ from litevloc.base.geometry import check_rigid
 class OdometryCheckParams:
     """Checks and frame handling of received odometry (seconds; see module docstring)."""
 
-    max_gap_s: float = 0.1  # forward jump between consecutive stamps that is counted and flagged
+    # a forward jump between consecutive stamps beyond this is counted and flagged (s)
+    max_gap_s: float = 0.1
+    # largest deviation of a quaternion's norm from 1
     quat_norm_tolerance: float = 1e-3
-    frame_id: str = ""  # expected header.frame_id; "" = lock in the first one seen
-    child_frame_id: str = ""  # expected child_frame_id; "" = accept any
-    T_child_base: tuple[float, ...] = ()  # 16 floats, row-major; () = identity
+    # expected header.frame_id; "" = lock in the first one seen
+    frame_id: str = ""
+    # expected child_frame_id; "" = accept any
+    child_frame_id: str = ""
+    # T_child_base as 16 floats, row-major; [] = identity
+    T_child_base: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         if not (self.max_gap_s > 0 and np.isfinite(self.max_gap_s)):

@@ -16,17 +16,28 @@ from litevloc.base.params.drift import R_BASE_OPTICAL, DriftParams
 class RealismParams:
     """Ranges of the imaging effects (all seeded). `enabled: false` gives ideal images."""
 
+    # false: ideal images and depth
     enabled: bool = True
-    brightness: tuple[float, float] = (0.75, 1.2)  # per-sequence gain
-    gamma: tuple[float, float] = (0.85, 1.2)  # per-sequence gamma
-    color_cast: float = 0.08  # max relative per-channel gain deviation
-    blur_sigma: tuple[float, float] = (0.0, 0.7)  # per-sequence Gaussian blur (pixels)
-    noise_sigma: float = 2.5  # per-pixel Gaussian noise (grey levels)
-    depth_noise_per_m2: float = 0.002  # depth sigma = k * z^2 metres
-    depth_min: float = 0.2  # closer is invalid (NaN)
-    depth_max: float = 10.0  # farther is invalid (NaN)
-    edge_hole_prob: float = 0.6  # chance that a pixel at a depth edge is a hole
-    dropout: float = 0.005  # random invalid depth pixels
+    # range of the per-sequence brightness gain
+    brightness: tuple[float, float] = (0.75, 1.2)
+    # range of the per-sequence gamma
+    gamma: tuple[float, float] = (0.85, 1.2)
+    # largest relative per-channel gain deviation (colour cast)
+    color_cast: float = 0.08
+    # range of the per-sequence Gaussian blur (pixels)
+    blur_sigma: tuple[float, float] = (0.0, 0.7)
+    # per-pixel Gaussian noise (grey levels)
+    noise_sigma: float = 2.5
+    # depth noise sigma = this x z^2 (1/m)
+    depth_noise_per_m2: float = 0.002
+    # nearer depth is invalid (m)
+    depth_min: float = 0.2
+    # farther depth is invalid (m)
+    depth_max: float = 10.0
+    # chance that a pixel at a depth edge is a hole
+    edge_hole_prob: float = 0.6
+    # share of depth pixels randomly invalid
+    dropout: float = 0.005
 
     def __post_init__(self) -> None:
         for name in ("brightness", "gamma", "blur_sigma"):
@@ -57,23 +68,41 @@ class RealismParams:
 class SimParams:
     """Robot, camera and sensor-rate parameters of the simulator."""
 
+    # image width (pixels)
     width: int = 320
+    # image height (pixels)
     height: int = 240
+    # horizontal field of view (degrees)
     hfov_deg: float = 72.0
+    # camera height above the floor (m)
     camera_height: float = 0.5
+    # camera ahead of the robot's centre (m)
     camera_forward: float = 0.25
-    camera_tilt_deg: float = 5.0  # pitch down
+    # camera pitch down (degrees)
+    camera_tilt_deg: float = 5.0
+    # camera frame rate (Hz)
     camera_rate_hz: float = 15.0
+    # wheel odometry rate (Hz)
     odometry_rate_hz: float = 200.0
+    # robot radius (m)
     robot_radius: float = 0.3
-    max_speed: float = 1.0  # m/s, commands are clipped
-    max_omega: float = 1.5  # rad/s
-    cruise_speed: float = 0.5  # waypoint follower
+    # commanded speeds are clipped to this (m/s)
+    max_speed: float = 1.0
+    # commanded turn rates are clipped to this (rad/s)
+    max_omega: float = 1.5
+    # the scripted passes' waypoint follower drives at this speed (m/s)
+    cruise_speed: float = 0.5
+    # ... and turns at this rate (rad/s)
     cruise_omega: float = 0.6
-    bob_deg: float = 0.6  # roll/pitch amplitude at max_speed
-    bob_height: float = 0.01  # m
+    # camera roll/pitch bobbing amplitude at max_speed (degrees)
+    bob_deg: float = 0.6
+    # camera height bobbing amplitude at max_speed (m)
+    bob_height: float = 0.01
+    # bobbing frequency (Hz)
     gait_hz: float = 2.0
+    # the wheel odometry's drift
     drift: DriftParams = field(default_factory=DriftParams)
+    # the imaging effects
     realism: RealismParams = field(default_factory=RealismParams)
 
     def __post_init__(self) -> None:

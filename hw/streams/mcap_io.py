@@ -39,11 +39,11 @@ from litevloc.hw.messages import (
     SourceMessage,
     StreamError,
     StreamStats,
+    decode_color,
     depth_from_millimetres,
     depth_to_millimetres,
 )
 from litevloc.hw.streams.base import select_indices
-from litevloc.hw.streams.posed_folder import decode_color
 
 TOPIC_COLOR = "/camera/color/image/compressed"
 TOPIC_DEPTH = "/camera/depth/image"

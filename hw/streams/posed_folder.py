@@ -23,6 +23,7 @@ from litevloc.hw.messages import (
     RgbdFrame,
     StreamError,
     StreamStats,
+    decode_color,
     depth_from_units,
 )
 from litevloc.hw.streams.base import check_monotonic, select_indices
@@ -37,26 +38,6 @@ class FrameRecord:
     color_path: Path
     depth_path: Path | None
     T_world_camera: NDArray[np.float64] | None
-
-
-def decode_color(data: bytes | NDArray[np.uint8], where: str) -> NDArray[np.uint8]:
-    """Decode JPEG/PNG bytes to HxWx3 uint8 RGB; StreamError naming `where` if corrupt.
-
-    A JPEG cut short decodes (libjpeg pads it grey) but is refused here: a JPEG must end
-    with its EOI marker.
-    """
-    buf = np.frombuffer(data, dtype=np.uint8) if isinstance(data, bytes | bytearray | memoryview) else data
-    if buf.size >= 2 and buf[0] == 0xFF and buf[1] == 0xD8 and not _jpeg_complete(buf):
-        raise StreamError(f"colour JPEG is truncated (no end-of-image marker): {where}")
-    img = cv2.imdecode(buf, cv2.IMREAD_COLOR) if buf.size else None
-    if img is None:
-        raise StreamError(f"colour image is corrupt or not an image: {where}")
-    return np.ascontiguousarray(img[:, :, ::-1])
-
-
-def _jpeg_complete(buf: NDArray[np.uint8]) -> bool:
-    tail = buf[-16:].tobytes()
-    return b"\xff\xd9" in tail
 
 
 def read_color(path: Path) -> tuple[NDArray[np.uint8], bytes]:

@@ -19,7 +19,7 @@ from typing import Any
 import onnx
 import torch
 
-from litevloc.models.catalog import EXPORT_VERSION, OPSET, SOURCES, ModelSpec, spec_for
+from litevloc.models.catalog import EXPORT_VERSION, OPSET, SOURCES, ModelSpec, manifest_fields, spec_for
 from litevloc.models.registry import ModelError, read_manifest, sha256_file, write_manifest
 
 log = logging.getLogger(__name__)
@@ -219,16 +219,7 @@ def is_up_to_date(
 ) -> bool:
     if entry is None or not path.is_file():
         return False
-    want = {
-        "export_version": EXPORT_VERSION,
-        "opset": OPSET,
-        "kind": spec.kind,
-        "arch": spec.arch,
-        "input_hw": list(spec.input_hw) if spec.input_hw else None,
-        "top_k": spec.top_k,
-        "quantization": spec.quantization,
-    }
-    if any(entry.get(k) != v for k, v in want.items()):
+    if any(entry.get(k) != v for k, v in manifest_fields(spec).items()):
         return False
     if entry.get("source", {}).get("sha256") != source_sha:
         return False

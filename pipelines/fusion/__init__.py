@@ -1,2 +1,2 @@
-"""Pose SLAM: fixed-lag online fusion (online.py), batch PS-Opt (batch.py), parameters
-(its parameters: `litevloc.base.params.fusion`), seeded simulation (simulate.py) and the benchmark (experiment.py)."""
+"""Pose SLAM: fixed-lag online fusion (online.py) and batch PS-Opt (batch.py); parameters in
+`litevloc.base.params.fusion`, the seeded simulation and the benchmark in `litevloc.experiments`."""

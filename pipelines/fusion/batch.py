@@ -23,7 +23,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litevloc.base.geometry import interpolate_pose_at, invert, rotation_angle
-from litevloc.pipelines.fusion.online import FusionParams, _valid_pose, ros_to_gtsam_cov
+from litevloc.base.params.fusion import FusionParams
+from litevloc.pipelines.fusion.online import _valid_pose, ros_to_gtsam_cov
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]

@@ -28,27 +28,12 @@ from scipy.spatial import cKDTree
 
 from litevloc.base.errors import LiteVLocError
 from litevloc.base.geometry import relative_pose_error
+from litevloc.base.params.map_maintenance import DiffParams
 from litevloc.pipelines.topomap.types import OccupancyGrid, TopoMap
 
 
 class MapDiffError(LiteVLocError, ValueError):
     """Two maps cannot be compared (e.g. different ground planes)."""
-
-
-@dataclass(frozen=True)
-class DiffParams:
-    """Tolerances of the diff (metres, degrees)."""
-
-    moved_m: float = 0.01
-    moved_deg: float = 0.5
-    place_radius_m: float = 0.5
-    place_angle_deg: float = 45.0
-
-    def __post_init__(self) -> None:
-        for name in ("moved_m", "moved_deg", "place_radius_m", "place_angle_deg"):
-            v = getattr(self, name)
-            if not (v > 0 and np.isfinite(v)):
-                raise ValueError(f"{name} must be a finite number > 0, got {v}")
 
 
 @dataclass(frozen=True)

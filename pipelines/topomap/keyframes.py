@@ -91,14 +91,23 @@ def coverage_keys(
     p = points_map[(h >= lo) & (h <= hi)]
     if len(p) == 0:
         return np.zeros(0, dtype=np.int64)
-    xy = p @ axes.T
+    return np.unique(_cell_heading_keys(p, camera_map, axes, params))
+
+
+def _cell_heading_keys(
+    points_map: NDArray[np.float64], camera_map: NDArray[np.float64], axes: NDArray[np.float64],
+    params: KeyframeParams,
+) -> NDArray[np.int64]:
+    """(N,) int64 key per point: its ground-plane cell and the heading bin of the direction from
+    the camera to that cell's centre (`axes`: the (2, 3) plane axes)."""
+    xy = points_map @ axes.T
     cxy = camera_map @ axes.T
     ij = np.floor(xy / params.cell_m).astype(np.int64)
     centres = (ij + 0.5) * params.cell_m
     ang = np.arctan2(centres[:, 1] - cxy[1], centres[:, 0] - cxy[0])
     b = np.floor((ang + np.pi) / (2 * np.pi) * params.heading_bins).astype(np.int64) % params.heading_bins
-    keys = ((ij[:, 0] + _OFF) * (2 * _OFF) + (ij[:, 1] + _OFF)) * 64 + b
-    return np.unique(keys)
+    keys: NDArray[np.int64] = ((ij[:, 0] + _OFF) * (2 * _OFF) + (ij[:, 1] + _OFF)) * 64 + b
+    return keys
 
 
 def coverage_keys_sliced(
@@ -115,14 +124,7 @@ def coverage_keys_sliced(
         return np.zeros(0, dtype=np.int64)
     axes = plane_axes(up)
     hs = np.clip(np.floor(points_map @ up / HEIGHT_QUANTUM_M).astype(np.int64) + _SLICES // 2, 0, _SLICES - 1)
-    xy = points_map @ axes.T
-    cxy = camera_map @ axes.T
-    ij = np.floor(xy / params.cell_m).astype(np.int64)
-    centres = (ij + 0.5) * params.cell_m
-    ang = np.arctan2(centres[:, 1] - cxy[1], centres[:, 0] - cxy[0])
-    b = np.floor((ang + np.pi) / (2 * np.pi) * params.heading_bins).astype(np.int64) % params.heading_bins
-    keys = (((ij[:, 0] + _OFF) * (2 * _OFF) + (ij[:, 1] + _OFF)) * 64 + b) * _SLICES + hs
-    return np.unique(keys)
+    return np.unique(_cell_heading_keys(points_map, camera_map, axes, params) * _SLICES + hs)
 
 
 def band_keys(sliced: NDArray[np.int64], ref_height: float, params: KeyframeParams) -> NDArray[np.int64]:

@@ -27,7 +27,7 @@ from __future__ import annotations
 import dataclasses
 import json
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import cv2
 import gtsam
@@ -37,7 +37,7 @@ from scipy.spatial import cKDTree
 
 from litevloc.base.errors import LiteVLocError
 from litevloc.base.geometry import invert, relative_pose_error
-from litevloc.base.params.localization import PnpParams
+from litevloc.base.params.map_maintenance import MergeParams
 from litevloc.pipelines.pnp import solve_pnp
 from litevloc.pipelines.topomap.graphs import MatchFn
 from litevloc.pipelines.topomap.occupancy import segment_is_free
@@ -46,42 +46,6 @@ from litevloc.pipelines.topomap.types import OccupancyGrid, TopoMap
 
 class MapMergeError(LiteVLocError, ValueError):
     """Two sessions cannot be merged (too little overlap, other models, other ground planes)."""
-
-
-@dataclass(frozen=True)
-class MergeParams:
-    """Cross-session linking, robust alignment and de-duplication (metres, degrees, pixels)."""
-
-    vpr_top_k: int = 3  # A keyframes tried per B keyframe
-    landmark_neighbours: int = 2  # covisible B keyframes used to triangulate a B keyframe's keypoints
-    min_parallax_deg: float = 1.0  # triangulated rays must differ by at least this
-    max_triangulation_px: float = 2.0  # reprojection error of a landmark in both B views
-    min_landmarks: int = 30  # B keyframes with fewer landmarks are not linked
-    min_link_inliers: int = 30
-    min_links: int = 3  # consistent links needed to align two sessions
-    link_sigma_m: float = 0.05  # per-link prior noise (before GNC weighting)
-    link_sigma_deg: float = 1.0
-    consistent_m: float = 0.2  # a link within this of the estimate counts as consistent
-    consistent_deg: float = 3.0
-    max_up_disagreement_deg: float = 3.0  # the sessions' ground planes after alignment
-    duplicate_radius_m: float = 0.3  # a B keyframe this close to an A keyframe ...
-    duplicate_angle_deg: float = 20.0  # ... looking this similarly is dropped
-    connect_m: float = 2.0  # cross-session connectivity: free straight segments up to this length
-    connect_neighbours: int = 6
-    pnp: PnpParams = field(default_factory=lambda: PnpParams(
-        min_inliers=30, min_inlier_ratio=0.0, max_median_reprojection_px=3.0))
-
-    def __post_init__(self) -> None:
-        for name in ("vpr_top_k", "landmark_neighbours", "min_landmarks", "min_link_inliers", "min_links",
-                     "connect_neighbours"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be >= 1")
-        for name in ("min_parallax_deg", "max_triangulation_px", "link_sigma_m", "link_sigma_deg", "consistent_m",
-                     "consistent_deg", "max_up_disagreement_deg", "duplicate_radius_m", "duplicate_angle_deg",
-                     "connect_m"):
-            v = getattr(self, name)
-            if not (v > 0 and np.isfinite(v)):
-                raise ValueError(f"{name} must be a finite number > 0, got {v}")
 
 
 @dataclass(frozen=True, eq=False)

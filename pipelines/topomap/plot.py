@@ -1,4 +1,5 @@
-"""Top-down PNG of a map: occupancy grid, nodes with headings, both edge sets."""
+"""Top-down PNGs: a map (occupancy grid, nodes with headings, both edge sets) and the diff of two
+versions of a map."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.pipelines.topomap.diff import MapDiff, coverage_raster
 from litevloc.pipelines.topomap.types import OccupancyGrid, TopoMap
 
 
@@ -54,3 +56,50 @@ def plot_map(
     fig.savefig(out)
     plt.close(fig)
     return out
+
+
+def plot_diff(old: TopoMap, new: TopoMap, d: MapDiff, out_png: Path) -> Path:
+    """Top-down view: both occupancy grids (observed only in OLD / NEW / both), kept nodes,
+    retired (red crosses), added (green), moved (arrows from the old to the new position)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 8), dpi=110)
+    labels, origin, res = coverage_raster(old.grid, new.grid)
+    if labels.size:
+        rgb = np.ones((*labels.shape, 3))
+        rgb[labels == 1] = (0.96, 0.70, 0.70)  # observed only in OLD
+        rgb[labels == 2] = (0.70, 0.90, 0.70)  # observed only in NEW
+        rgb[labels == 3] = (0.82, 0.82, 0.82)  # both
+        H, W = labels.shape
+        ax.imshow(rgb, origin="lower", interpolation="nearest",
+                  extent=(origin[0], origin[0] + W * res, origin[1], origin[1] + H * res))
+    for colour, name in (((0.96, 0.70, 0.70), "floor seen only in OLD"), ((0.70, 0.90, 0.70), "only in NEW"),
+                         ((0.82, 0.82, 0.82), "in both")):
+        ax.fill_between([], [], color=colour, label=name)
+    po, pn = old.grid.to_plane(old.positions), new.grid.to_plane(new.positions)
+    kept_new = d.kept[:, 1] if len(d.kept) else np.zeros(0, np.int64)
+    ax.scatter(pn[kept_new, 0], pn[kept_new, 1], s=14, color="tab:blue", label=f"kept ({len(d.kept)})", zorder=3)
+    if len(d.retired):
+        ax.scatter(po[d.retired, 0], po[d.retired, 1], s=30, marker="x", color="tab:red",
+                   label=f"retired ({len(d.retired)})", zorder=4)
+    if len(d.added):
+        ax.scatter(pn[d.added, 0], pn[d.added, 1], s=22, color="tab:green", label=f"added ({len(d.added)})",
+                   zorder=4)
+    for k in d.moved:
+        i, j = d.kept[k]
+        ax.annotate("", xy=tuple(pn[j]), xytext=tuple(po[i]),
+                    arrowprops={"arrowstyle": "->", "color": "tab:orange", "lw": 1.2})
+    ax.plot([], [], color="tab:orange", label=f"moved ({len(d.moved)})")
+    ax.set_aspect("equal")
+    ax.set_xlabel("plane axis a (m)")
+    ax.set_ylabel("plane axis b (m)")
+    ax.set_title(f"map diff: {d.n_old} -> {d.n_new} keyframes")
+    ax.legend(loc="upper right", fontsize=8)
+    out_png.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(out_png)
+    plt.close(fig)
+    return out_png

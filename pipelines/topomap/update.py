@@ -51,64 +51,18 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from litevloc.base.geometry import backproject_pixels, invert, rotation_angle
+from litevloc.base.params.map_maintenance import MergeParams, UpdateParams
 from litevloc.base.params.mapping import ConnectivityParams, CovisibilityParams, OccupancyParams
 from litevloc.pipelines.guided_matching import match_by_projection
 from litevloc.pipelines.topomap.graphs import MatchFn, lift_keypoints, pair_inliers
 from litevloc.pipelines.topomap.occupancy import build_occupancy, segment_is_free
 from litevloc.pipelines.topomap.types import FeatureSet, NodeFeatures, OccupancyGrid, TopoMap
-
-
-@dataclass(frozen=True)
-class UpdateParams:
-    """Change detection and keyframe addition/retirement (metres, degrees, pixels, counts)."""
-
-    place_radius_m: float = 0.5
-    place_angle_deg: float = 30.0
-    # keyframes this close (and within place_angle_deg) may show a frame's place as known by
-    # their matches; the localizer's own LL candidates reach this far (pipelines/localization)
-    match_radius_m: float = 1.5
-    nodes_checked: int = 3  # covering keyframes matched per frame (nearest first)
-    reprojection_px: float = 4.0
-    # How a frame is matched with a keyframe before counting the matches its pose explains:
-    # "model" runs the configured matcher (LightGlue: ~156 ms per pair on 2 CPUs, most of an
-    # update's time), "guided" pairs keypoints by projecting with the pose (a few ms; see
-    # `guided_consistent_matches`). Chosen on the simulator (office update session, 316
-    # frame-keyframe pairs, ALIKED): at the same changed_max_consistent = 40 guided and
-    # LightGlue counts agree on 98.4 % of the pairs (1 pair above only with LightGlue, 4 only
-    # guided; without the global mutual test 95.6 %, 14 only guided).
-    matching: Literal["guided", "model"] = "guided"
-    guided_min_similarity: float = 0.6
-    changed_max_consistent: int = 40
-    retire_max_consistent: int = 15
-    retire_min_visits: int = 2
-    # = place_radius_m / place_angle_deg: a candidate covers its place like a keyframe
-    # (was 0.3 m / 15 deg: office update +43 keyframes, 61 %, for 135 new-place frames)
-    min_spacing_m: float = 0.5
-    min_spacing_deg: float = 30.0
-
-    def __post_init__(self) -> None:
-        for name in ("place_radius_m", "place_angle_deg", "match_radius_m", "reprojection_px", "min_spacing_m",
-                     "min_spacing_deg"):
-            v = getattr(self, name)
-            if not (v > 0 and np.isfinite(v)):
-                raise ValueError(f"{name} must be a finite number > 0, got {v}")
-        if self.match_radius_m < self.place_radius_m:
-            raise ValueError("match_radius_m must be >= place_radius_m")
-        if self.matching not in ("guided", "model"):
-            raise ValueError(f"matching must be 'guided' or 'model', got {self.matching!r}")
-        if not (-1.0 <= self.guided_min_similarity <= 1.0):
-            raise ValueError(f"guided_min_similarity must be in [-1, 1], got {self.guided_min_similarity}")
-        if self.nodes_checked < 1 or self.retire_min_visits < 1:
-            raise ValueError("nodes_checked and retire_min_visits must be >= 1")
-        if not (0 <= self.retire_max_consistent < self.changed_max_consistent):
-            raise ValueError("0 <= retire_max_consistent < changed_max_consistent required")
 
 
 @dataclass(frozen=True, eq=False)
@@ -415,6 +369,6 @@ class MapUpdate:
         fresh = build_occupancy(pts, np.concatenate([cams, self.map.positions]), old.up,
                                 OccupancyParams(old.resolution, occupancy.obstacle_band_m, occupancy.min_points,
                                                 occupancy.margin_m))
-        from litevloc.pipelines.topomap.merge import MergeParams, fuse_grids
+        from litevloc.pipelines.topomap.merge import fuse_grids
 
-        return fuse_grids(old, fresh, MergeParams())
+        return fuse_grids(old, fresh, MergeParams())  # one ground plane (`old.up`): the up check cannot fire

@@ -19,7 +19,7 @@ from litevloc.runtime.cli.main import UserError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from litevloc.runtime.reloc_bench import DEFAULT_METHODS
+    from litevloc.experiments.reloc import DEFAULT_METHODS
 
     p = sub.add_parser("reloc", help="relocalization benchmark: per-method pose errors vs a map's keyframes")
     p.add_argument("map", type=Path)
@@ -35,7 +35,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from litevloc.runtime.reloc_bench import parse_method, run_reloc
+    from litevloc.experiments.reloc import parse_method, run_reloc
 
     try:
         methods = [parse_method(m) for m in args.methods]

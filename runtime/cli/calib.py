@@ -1,4 +1,4 @@
-"""`litevloc calib SRC --frames 0:500:3 -o CALIB.yaml`: colour-camera calibration of an
+"""`litevloc calib SRC --frames 0:500:2 -o CALIB.yaml`: colour-camera calibration of an
 RGB-D dataset whose depth is not registered to colour (7-Scenes), from posed frames.
 
 Reads the raw frames (depth in the depth camera, depth-camera ground-truth poses, the
@@ -17,8 +17,16 @@ import numpy as np
 import yaml
 
 from litevloc.base.params.calibration import ColorDepthCalibration
-from litevloc.pipelines.calibration import CalibrationParams, calibrate_color_depth
-from litevloc.runtime.cli.common import add_frames_arg, add_json_arg, frames_of, progress, write_json
+from litevloc.pipelines.calibration import calibrate_color_depth
+from litevloc.runtime.cli.common import (
+    add_config_args,
+    add_frames_arg,
+    add_json_arg,
+    config_of,
+    frames_of,
+    progress,
+    write_json,
+)
 from litevloc.runtime.cli.main import UserError
 from litevloc.runtime.posed import posed_frames
 from litevloc.runtime.sources import open_source
@@ -28,18 +36,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("calib", help="estimate colour intrinsics + depth->colour extrinsic of an RGB-D dataset")
     p.add_argument("src", type=Path, help="dataset folder with unregistered depth and ground-truth poses")
     p.add_argument("-o", "--output", type=Path, required=True, help="YAML file with an rgbd_calibration block")
-    p.add_argument("--translation-prior", type=float, nargs=3, default=(-0.025, 0.0, 0.0), metavar=("X", "Y", "Z"),
-                   help="T_color_depth translation in metres, kept fixed unless --estimate-translation "
-                        "(default: Kinect v1 nominal, colour camera 2.5 cm along +x of the depth camera)")
-    p.add_argument("--estimate-translation", action="store_true",
-                   help="also estimate the translation (weakly observable; see pipelines/calibration.py)")
-    p.add_argument("--estimate-distortion", action="store_true",
-                   help="also estimate the colour lens's radial distortion k1, k2")
-    p.add_argument("--pair-gaps", type=int, nargs="+", default=None, metavar="N",
-                   help="pair each frame with the one N positions later in the selected frames (default: "
-                        f"{' '.join(map(str, CalibrationParams.pair_gaps))}: wide viewpoint changes, like a "
-                        "live frame's to its keyframe)")
     add_frames_arg(p)
+    add_config_args(p)
     add_json_arg(p)
     p.set_defaults(func=run)
 
@@ -59,16 +57,10 @@ def run(args: argparse.Namespace) -> int:
             K_depth = frame.K
     if len(colors) < 2 or K_depth is None:
         raise UserError(f"{args.src}: need >= 2 frames with depth and ground truth, got {len(colors)}")
-    try:
-        gaps = CalibrationParams.pair_gaps if args.pair_gaps is None else tuple(args.pair_gaps)
-        params = CalibrationParams(pair_gaps=gaps, min_parallax_m=0.02,
-                                   estimate_translation=args.estimate_translation,
-                                   estimate_distortion=args.estimate_distortion)
-    except ValueError as exc:
-        raise UserError(str(exc)) from exc
+    params = config_of(args).calibration
     K = np.asarray(K_depth)
-    tx, ty, tz = (float(v) for v in args.translation_prior)  # argparse nargs=3: exactly three
-    init = ColorDepthCalibration(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), (tx, ty, tz))
+    init = ColorDepthCalibration(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]),
+                                 params.translation_prior)
     try:
         res = calibrate_color_depth(colors, depths, np.stack(poses), K, init, params)
     except ValueError as exc:

@@ -11,7 +11,8 @@ from typing import Any
 from tqdm import tqdm
 
 from litevloc.base.frames import parse_frames
-from litevloc.config import LiteVLocConfig, load_config
+from litevloc.config import load_config
+from litevloc.config.schema import LiteVLocConfig
 from litevloc.hw.streams.base import StreamSource
 
 

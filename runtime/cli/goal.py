@@ -8,14 +8,11 @@ for the planner's status answering the last image and prints it.
 from __future__ import annotations
 
 import argparse
-import json
-import threading
-import time
 from pathlib import Path
-from typing import Any
 
 from litevloc.runtime.cli.common import add_config_args, config_of
 from litevloc.runtime.cli.main import UserError
+from litevloc.runtime.goal_client import GoalSendError, send_goals
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -32,51 +29,6 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="wait up to S s for the planner's answer (0: do not wait)")
     add_config_args(s)
     s.set_defaults(func=run_send)
-
-
-def send_goals(bus: Any, images: list[tuple[str, bytes]], cancel: str | None = None,
-               wait_s: float = 0.0) -> dict[str, Any] | None:
-    """Publish (optional cancel, then) goal images; return the planner status that
-    acknowledges the last one (None if not waiting or none came)."""
-    from litevloc.hw import ros_msgs
-    from litevloc.runtime.planner_service import KEYS
-
-    got: list[dict[str, Any]] = []
-    ev = threading.Condition()
-
-    def on_status(sample: Any) -> None:
-        st = json.loads(ros_msgs.deserialize(sample.payload.to_bytes(), ros_msgs.STRING).data)
-        with ev:
-            got.append(st)
-            ev.notify_all()
-
-    sub = bus.subscribe_topic(KEYS["status"], ros_msgs.STRING, on_status)
-    gpub = bus.publisher(KEYS["goal_image"], ros_msgs.COMPRESSED_IMAGE, reliable=True)
-    cpub = bus.publisher(KEYS["goal_cancel"], ros_msgs.STRING, reliable=True)
-    try:
-        # a put before the planner's subscription has reached us would be dropped silently
-        if images and not gpub.wait_for_subscribers(max(wait_s, 2.0)):
-            raise UserError(f"no planner subscribes to goal images on {gpub.key_expr!r}: is `litevloc plan` "
-                            "running and reachable (--connect)?")
-        if cancel and not cpub.wait_for_subscribers(max(wait_s, 2.0)):
-            raise UserError(f"no planner subscribes to {cpub.key_expr!r}: is `litevloc plan` running?")
-        time.sleep(0.3)  # and let our status subscription reach the planner as well
-        if cancel:
-            cpub.put(ros_msgs.typestore().types[ros_msgs.STRING](data=cancel))
-        t_ns = time.time_ns()
-        for name, data in images:
-            fmt = "png" if data[:4] == b"\x89PNG" else "jpeg"
-            gpub.put(ros_msgs.compressed_image_msg(t_ns, data, fmt, name))
-        if wait_s <= 0 or not images:
-            return None
-        last = images[-1][0]
-        with ev:
-            ev.wait_for(lambda: any(s.get("goal") == last or last in s.get("reason", "") for s in got), wait_s)
-            return next((s for s in reversed(got) if s.get("goal") == last or last in s.get("reason", "")), None)
-    finally:
-        sub.undeclare()
-        gpub.undeclare()
-        cpub.undeclare()
 
 
 def run_send(args: argparse.Namespace) -> int:
@@ -96,7 +48,10 @@ def run_send(args: argparse.Namespace) -> int:
                             cfg.zenoh.listen, namespace=cfg.zenoh.namespace if args.namespace is None
                             else args.namespace)
     with Bus(z, node_name=f"{z.node_name}_goal") as bus:
-        st = send_goals(bus, images, args.cancel, args.wait)
+        try:
+            st = send_goals(bus, images, args.cancel, args.wait)
+        except GoalSendError as exc:
+            raise UserError(str(exc)) from exc
     print(f"sent {len(images)} goal image(s)" + (f", cancel {args.cancel}" if args.cancel else ""))
     if st is not None:
         print(f"planner: {st['state']}: {st['reason']}")

@@ -19,7 +19,7 @@ from litevloc.base.errors import LiteVLocError
 
 # Subcommand modules (litevloc.runtime.cli.<name>), in help order.
 COMMANDS = ("info", "demo", "run", "convert", "replay", "record", "sim", "models", "map", "localize", "bench",
-            "calib", "plan", "goal")
+            "calib", "plan", "goal", "config")
 
 
 class UserError(LiteVLocError):

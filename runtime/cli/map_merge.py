@@ -16,7 +16,7 @@ import numpy as np
 
 from litevloc.base.geometry import rotation_angle
 from litevloc.pipelines.topomap.io import load_map, save_map, storage_summary
-from litevloc.pipelines.topomap.merge import MapMergeError, MergeParams, merge_sessions
+from litevloc.pipelines.topomap.merge import MapMergeError, merge_sessions
 from litevloc.runtime.cli.common import add_config_args, add_json_arg, config_of, progress, write_json
 from litevloc.runtime.cli.main import UserError
 
@@ -26,8 +26,6 @@ def add_merge_parser(msub: argparse._SubParsersAction) -> None:
     p.add_argument("maps", type=Path, nargs="+", help="map folders; the first one's frame is kept")
     p.add_argument("-o", "--output", type=Path, required=True, help="merged map folder to write")
     p.add_argument("--force", action="store_true", help="replace an existing output folder")
-    p.add_argument("--min-links", type=int, default=MergeParams.min_links,
-                   help="consistent cross-session links needed to align two sessions (default %(default)s)")
     add_config_args(p)
     add_json_arg(p)
     p.set_defaults(func=merge)
@@ -42,11 +40,8 @@ def merge(args: argparse.Namespace) -> int:
         raise UserError(f"{args.output} exists; pass --force to replace it")
     if args.output.resolve() in {m.resolve() for m in args.maps}:
         raise UserError(f"{args.output}: the output must not be one of the inputs (inputs are never modified)")
-    try:
-        params = MergeParams(min_links=args.min_links)
-    except ValueError as exc:
-        raise UserError(f"map merge: {exc}") from exc
     cfg = config_of(args)
+    params = cfg.mapping.merge
     bundle = load_bundle(cfg.models)
     merged = check_map_models(load_map(args.maps[0]), bundle)
     merged.meta.setdefault("source", str(args.maps[0]))

@@ -21,7 +21,8 @@ from litevloc.runtime.sources import open_source
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("replay", help="play a recording (or dataset folder) with its recorded timing")
+    p = sub.add_parser("replay", help="play a recording (or dataset folder) with its recorded timing; with a map, "
+                                      "through the onboard service")
     p.add_argument("rec", type=Path, help=".mcap recording (or dataset folder)")
     p.add_argument("-o", "--output", type=Path, default=None,
                    help="with a map: write the published fused trajectory (TUM, T_map_base) here")
@@ -82,10 +83,6 @@ def run_runtime(args: argparse.Namespace) -> int:
     from litevloc.pipelines.evaluation.trajectory import associate, ate, write_tum
     from litevloc.runtime.cli.run import run_service
 
-    if args.frames:
-        from litevloc.runtime.cli.main import UserError
-
-        raise UserError("--frames is not supported with the runtime replay; cut the recording with `convert`")
     res = run_service(args, args.rec, args.rate)
     rec = res["recorder"]
     status = res["status"]

@@ -8,7 +8,7 @@ import logging
 from pathlib import Path
 from typing import Any
 
-from litevloc.runtime.cli.common import add_config_args, add_json_arg, config_of, write_json
+from litevloc.runtime.cli.common import add_config_args, add_json_arg, config_of, frames_of, write_json
 from litevloc.runtime.cli.main import UserError
 
 log = logging.getLogger(__name__)
@@ -55,13 +55,14 @@ def make_view(args: argparse.Namespace, topomap: Any = None, T_base_camera: Any 
         raise UserError(str(exc)) from exc
 
 
-def open_configured_source(cfg: Any, path: Path | None) -> Any:
-    """--source, else the config's source (recording, dataset, sim URI, or the OAK-D)."""
+def open_configured_source(cfg: Any, path: Path | None, frames: slice = slice(None)) -> Any:
+    """--source (limited to `frames`), else the config's source (recording, dataset, sim URI, or
+    the OAK-D)."""
     from litevloc.base.frames import parse_frames
     from litevloc.runtime.sources import open_source
 
     if path is not None:
-        return open_source(path, strict=cfg.source.strict, rgbd_calibration=cfg.rgbd_calibration)
+        return open_source(path, frames, strict=cfg.source.strict, rgbd_calibration=cfg.rgbd_calibration)
     kind = cfg.source.kind
     if kind == "oak-d":
         import dataclasses
@@ -82,7 +83,7 @@ def run_service(args: argparse.Namespace, source_path: Path | None, rate: float 
     from litevloc.runtime.app import build_app, with_endpoints
 
     cfg = with_endpoints(config_of(args), args.listen, args.connect, args.namespace)
-    src = open_configured_source(cfg, source_path)  # first: a missing camera is the first thing to know
+    src = open_configured_source(cfg, source_path, frames_of(args))  # first: a missing camera is the first error
     map_path = args.map or (Path(cfg.map) if cfg.map else None)
     if map_path is None:
         raise UserError("no map: give --map MAP or set `map:` in the config")

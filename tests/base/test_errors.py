@@ -62,7 +62,7 @@ def test_every_domain_error_derives_from_the_base(module: str, name: str, builti
 
 
 def test_builtin_bases_kept_for_callers() -> None:
-    from litevloc.config import ConfigError
+    from litevloc.base.loader import ConfigError
     from litevloc.hw.messages import StreamError
     from litevloc.pipelines.topomap.io import MapFormatError
 

@@ -6,8 +6,9 @@ from typing import Literal
 
 import pytest
 
-from litevloc.base.loader import apply_override, from_mapping
-from litevloc.config import ConfigError, LiteVLocConfig, load_config, preset_names
+from litevloc.base.loader import ConfigError, apply_override, from_mapping
+from litevloc.config import load_config, preset_names
+from litevloc.config.schema import LiteVLocConfig
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,9 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from litevloc.config import ConfigError, LiteVLocConfig, load_config
+from litevloc.base.loader import ConfigError
+from litevloc.config import load_config
+from litevloc.config.schema import LiteVLocConfig
 
 
 def _leaves(obj: Any, prefix: tuple[str, ...] = ()) -> list[tuple[tuple[str, ...], Any]]:

@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from litevloc.base.loader import from_mapping
+from litevloc.base.loader import ConfigError, from_mapping
 from litevloc.base.params.camera import CameraConfig
-from litevloc.config import ConfigError, load_config
-from litevloc.hw.messages import StreamError, StreamStats
+from litevloc.config import load_config
+from litevloc.hw.messages import StreamError, StreamStats, decode_color
 from litevloc.hw.oak import (
     HostClock,
     OakNotFoundError,
@@ -26,7 +26,6 @@ from litevloc.hw.oak import (
     rgbd_from_dai,
     timedelta_to_ns,
 )
-from litevloc.hw.streams.posed_folder import decode_color
 
 dai = pytest.importorskip("depthai")
 

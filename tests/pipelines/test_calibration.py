@@ -19,10 +19,10 @@ from litevloc.base.geometry import (
     transform_points,
     undistort_normalized,
 )
-from litevloc.base.params.calibration import ColorDepthCalibration
+from litevloc.base.params.calibration import CalibrationParams, ColorDepthCalibration
 from litevloc.config import load_config
 from litevloc.pipelines import calibration as cal
-from litevloc.pipelines.calibration import CalibrationParams, Correspondences, calibrate_color_depth
+from litevloc.pipelines.calibration import Correspondences, calibrate_color_depth
 
 K_DEPTH = np.array([[585.0, 0.0, 320.0], [0.0, 585.0, 240.0], [0.0, 0.0, 1.0]])
 H, W = 480, 640

@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 from litevloc.base.geometry import invert
+from litevloc.base.params.depth import DepthOdometryParams
 from litevloc.hw.messages import RgbdFrame
 from litevloc.hw.streams.sevenscenes import SevenScenesSource
-from litevloc.pipelines.depth_odometry import DepthOdometry, DepthOdometryParams
+from litevloc.pipelines.depth_odometry import DepthOdometry
 
 
 @pytest.mark.shared_data

@@ -4,7 +4,8 @@ from pathlib import Path
 
 import pytest
 
-from litevloc.config import ConfigError, load_config
+from litevloc.base.loader import ConfigError
+from litevloc.config import load_config
 
 
 @pytest.mark.parametrize("preset", ["default", "7scenes"])

@@ -11,8 +11,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from litevloc.base.loader import from_mapping
-from litevloc.config import ConfigError
+from litevloc.base.loader import ConfigError, from_mapping
 from litevloc.config.schema import DiagnosticsConfig, LevelThresholds, LiteVLocConfig, RuntimeConfig, ZenohConfig
 from litevloc.hw.messages import RgbdFrame
 from litevloc.runtime.bus import Bus, LiteVLocPublisher

@@ -176,7 +176,7 @@ def test_over_zenoh_goal_status_and_subgoals() -> None:
     import cv2
 
     from litevloc.runtime.bus import Bus
-    from litevloc.runtime.cli.goal import send_goals
+    from litevloc.runtime.goal_client import send_goals
 
     ep = f"tcp/127.0.0.1:{free_port()}"
     z = ZenohConfig(listen=(ep,))
@@ -222,7 +222,8 @@ def test_planner_config_validation() -> None:
 
 
 def test_planner_section_loads_from_config() -> None:
-    from litevloc.config import ConfigError, load_config
+    from litevloc.base.loader import ConfigError
+    from litevloc.config import load_config
 
     c = load_config("default", ["planner.tracker.reach_m=0.7", "planner.goal.top_k=3"])
     assert c.planner.tracker.reach_m == 0.7 and c.planner.goal.top_k == 3

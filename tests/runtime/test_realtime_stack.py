@@ -5,8 +5,9 @@ The deployment path end to end, nothing faked: the service is a `litevloc run` p
 matcher (ALIKED + LightGlue), real GTSAM fusion, and odometry that arrives over Zenoh from
 this (second) process, which also receives the fused poses and the status over Zenoh.
 Queries are held-out 7-Scenes frames (500:1000:10, 50 frames, 16.3 s of sensor time) in a map
-built from the mapping pass only (frames 0:500:5); both are cached under `out/test_cache/`
-(building them takes ~2-3 min once; the test itself ~1 min: the recording plays at RATE).
+built from the mapping pass only (frames 0:500:5); both are the suite's shared, cached inputs
+(`seven_scenes_held_out` in tests/conftest.py; ~2-3 min once; the test itself ~1 min: the
+recording plays at RATE).
 
 Checked: the fused base pose against ground truth; LOST driven by the real localizer (camera
 frames withheld for 4 s: no fix is accepted, the state goes LOST and poses are withheld), then
@@ -38,12 +39,10 @@ from litevloc.hw.messages import GroundTruthPose, Odometry
 from litevloc.hw.odometry import OdometrySender
 from litevloc.hw.streams.mcap_io import McapSource
 from litevloc.runtime.bus import TOPICS, Bus, topic_key, warm_codecs
+from tests.conftest import HeldOut
 
 from .zenoh_helpers import free_port
 
-ROOT = Path(__file__).resolve().parents[2]
-CACHE = ROOT / "out" / "test_cache" / "realtime_stack"
-MAP_FRAMES, QUERY_FRAMES = "0:500:5", "500:1000:10"
 # Sensor seconds from the first message: no camera frame in [3.5, 7.5) s; LOST after 2.5 s without a fix.
 FAULT_START_S, FAULT_END_S = 3.5, 7.5
 FAULT = f"camera_dropout@{FAULT_START_S:g}:{FAULT_END_S - FAULT_START_S:g}"
@@ -64,30 +63,10 @@ VLOC_NICE = 0
 pytestmark = [pytest.mark.shared_data, pytest.mark.slow]
 
 
-def _cli(*args: str, timeout: float = 900) -> None:
-    r = subprocess.run([sys.executable, "-m", "litevloc.runtime.cli.main", *args], capture_output=True, text=True,
-                       timeout=timeout)
-    assert r.returncode == 0, r.stderr[-3000:]
-
-
 @pytest.fixture(scope="module")
-def inputs(seven_scenes_dir: Path) -> tuple[Path, Path]:
-    """(map folder, query recording), each built once and cached; rebuilt when its recipe changes."""
-    src = str(seven_scenes_dir)
-    map_dir, rec = CACHE / "map", CACHE / "query.mcap"
-    for out, args, done in (
-        (map_dir, ["map", "build", src, "-o", str(map_dir), "--frames", MAP_FRAMES, "--config", "7scenes"],
-         map_dir / "manifest.json"),
-        (rec, ["convert", src, str(rec), "--frames", QUERY_FRAMES, "--config", "7scenes"], rec),
-    ):
-        stamp = out.parent / f"{out.name}.recipe.json"
-        recipe = [seven_scenes_dir.name if a == src else a for a in args]
-        if not (stamp.is_file() and json.loads(stamp.read_text()) == recipe and done.is_file()):
-            CACHE.mkdir(parents=True, exist_ok=True)
-            stamp.unlink(missing_ok=True)
-            _cli(*args)
-            stamp.write_text(json.dumps(recipe))
-    return map_dir, rec
+def inputs(seven_scenes_held_out: HeldOut) -> tuple[Path, Path]:
+    """(map folder, query recording): the held-out inputs the suite shares (tests/conftest.py)."""
+    return seven_scenes_held_out.map_dir, seven_scenes_held_out.queries
 
 
 class Robot:

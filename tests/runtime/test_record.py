@@ -14,7 +14,7 @@ import pytest
 
 from litevloc.hw.messages import Message, Odometry, RgbdFrame, StreamStats, depth_from_millimetres
 from litevloc.hw.streams.mcap_io import McapRecorder, McapSource
-from litevloc.runtime.cli import record
+from litevloc.runtime import recording
 from litevloc.runtime.cli.main import main
 from litevloc.runtime.sources import open_source
 
@@ -87,7 +87,7 @@ def test_record_without_device_fails_fast(tmp_path: Path, capsys: pytest.Capture
 def test_recording_of_simulated_source_replays_identically(tmp_path: Path) -> None:
     path = tmp_path / "sim.mcap"
     with McapRecorder(path) as rec:
-        counts, why = record.record_stream(TinySource(), rec)
+        counts, why = recording.record_stream(TinySource(), rec)
     assert counts == {"frames": 6, "odometry": 30, "ground_truth": 0} and why == "end of source"
     _assert_same(list(TinySource()), list(McapSource(path)))
 
@@ -106,10 +106,10 @@ def test_record_stops_at_max_frames_and_pulls_pluggable_odometry(tmp_path: Path)
     frames_only = [m for m in TinySource() if isinstance(m, RgbdFrame)]
     path = tmp_path / "live.mcap"
     feed = Feed()
-    pump = record._OdometryPump(feed)
+    pump = recording.OdometryPump(feed)
     pump._thread.join(timeout=2)  # the feed is finite: let it deliver everything
     with McapRecorder(path) as rec:
-        counts, why = record.record_stream(frames_only, rec, odometry=pump, max_frames=4)
+        counts, why = recording.record_stream(frames_only, rec, odometry=pump, max_frames=4)
     pump.close()
     assert (counts["frames"], counts["odometry"], why) == (4, 3, "4 frames")
     assert Feed.closed
@@ -122,7 +122,7 @@ def test_missing_odometry_module_is_skipped(monkeypatch: pytest.MonkeyPatch) -> 
     from litevloc.config import load_config
 
     monkeypatch.setitem(sys.modules, "litevloc.hw.odometry", None)  # import -> ImportError
-    assert record._zenoh_odometry(load_config(None)) is None
+    assert recording._zenoh_odometry(load_config(None)) is None
 
 
 def test_failing_odometry_keeps_the_recording(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
@@ -131,7 +131,7 @@ def test_failing_odometry_keeps_the_recording(tmp_path: Path, monkeypatch: pytes
         raise ConnectionError("zenoh session lost")
         yield  # pragma: no cover
 
-    monkeypatch.setitem(record.ODOMETRY_PROVIDERS, "broken", broken)
+    monkeypatch.setitem(recording.ODOMETRY_PROVIDERS, "broken", broken)
     out = tmp_path / "run.mcap"
     rc = main(["record", "--source", str(seven_scenes_dir), "--frames", "0:3", "--odometry", "broken",
                "--set", "odometry_sim.rate_hz=0", "-o", str(out)])
@@ -162,7 +162,7 @@ def test_cli_record_from_dataset_replays_identically(tmp_path: Path, seven_scene
     _assert_same(replayed, list(McapSource(out)))
     again = tmp_path / "again.mcap"
     with McapRecorder(again) as rec:
-        record.record_stream(replayed, rec)
+        recording.record_stream(replayed, rec)
     _assert_same(replayed, list(McapSource(again)), odom_atol=1e-15)
 
 

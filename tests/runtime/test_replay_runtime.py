@@ -1,5 +1,6 @@
-"""Hardware-in-the-loop replay: the real service (map, ONNX models, GTSAM fusion, Zenoh) on a
-7-Scenes recording, with a subscriber in another process decoding the CDR poses."""
+"""Hardware-in-the-loop replay: the real service (map, ONNX models, GTSAM fusion, Zenoh) on held-out
+7-Scenes query frames in the map of the mapping pass, with a subscriber in another process
+decoding the CDR poses."""
 
 from __future__ import annotations
 
@@ -13,21 +14,20 @@ from litevloc.base.geometry import make_T, quat_xyzw_to_matrix
 from litevloc.runtime.cli.main import main
 from litevloc.runtime.posed import posed_frames
 from litevloc.runtime.sources import open_source
+from tests.conftest import HeldOut
 
 from .zenoh_helpers import finish_probe, free_port, start_probe
 
 
 @pytest.mark.timeout(240)
-def test_replay_through_runtime_matches_ground_truth(seven_scenes_dir: Path, tmp_path: Path) -> None:
-    rec = tmp_path / "s.mcap"
-    assert main(["convert", str(seven_scenes_dir), str(rec), "--frames", "0:120:4", "--odometry-rate", "100"]) == 0
-    mp = tmp_path / "map"
-    assert main(["map", "build", str(rec), "-o", str(mp), "--config", "7scenes"]) == 0
+def test_replay_through_runtime_matches_ground_truth(seven_scenes_held_out: HeldOut, tmp_path: Path) -> None:
+    rec, mp = seven_scenes_held_out.queries, seven_scenes_held_out.map_dir
+    frames = ["--frames", "0:24"]  # 24 held-out frames, 7.6 s of sensor time
     ep = f"tcp/127.0.0.1:{free_port()}"
     out = tmp_path / "probe.json"
     proc = start_probe(ep, out, "pose,vloc,status", {}, timeout=150.0, idle=20.0, listen=True)
     traj, js = tmp_path / "fused.txt", tmp_path / "r.json"
-    rc = main(["replay", str(rec), "--config", "7scenes", "--map", str(mp), "--connect", ep,
+    rc = main(["replay", str(rec), *frames, "--config", "7scenes", "--map", str(mp), "--connect", ep,
                "--listen", f"tcp/127.0.0.1:{free_port()}", "-o", str(traj),
                "--json", str(js), "--set", "runtime.mode=deterministic", "--set", "models.matcher=mnn"])
     got = finish_probe(proc, out, timeout=60)
@@ -37,7 +37,7 @@ def test_replay_through_runtime_matches_ground_truth(seven_scenes_dir: Path, tmp
     # The other process decoded nav_msgs/Odometry CDR; its poses match ground truth.
     poses = got["topics"]["pose"]
     assert poses["decode_errors"] == 0 and poses["count"] == summary["fused_poses"]
-    gt = {f.t_ns: T for f, T in posed_frames(open_source(rec)) if T is not None}
+    gt = {f.t_ns: T for f, T in posed_frames(open_source(rec, slice(0, 24))) if T is not None}
     T_bc = make_T(quat_xyzw_to_matrix(np.array([-0.5, 0.5, -0.5, 0.5])), np.zeros(3))
     errs = []
     for row in poses["data"]:
@@ -48,9 +48,9 @@ def test_replay_through_runtime_matches_ground_truth(seven_scenes_dir: Path, tmp
     assert got["topics"]["vloc"]["count"] >= 10
     # Hardware-in-the-loop: a recording re-made by the recorder replays with identical results.
     rec2 = tmp_path / "rerecorded.mcap"
-    assert main(["record", "--config", "7scenes", "--source", str(rec), "-o", str(rec2)]) == 0
+    assert main(["record", "--config", "7scenes", "--source", str(rec), "--max-frames", "24", "-o", str(rec2)]) == 0
     traj2 = tmp_path / "fused2.txt"
-    assert main(["replay", str(rec2), "--config", "7scenes", "--map", str(mp), "--listen",
+    assert main(["replay", str(rec2), *frames, "--config", "7scenes", "--map", str(mp), "--listen",
                  f"tcp/127.0.0.1:{free_port()}", "-o", str(traj2), "--set", "runtime.mode=deterministic",
                  "--set", "models.matcher=mnn"]) == 0
     assert traj2.read_text() == traj.read_text()

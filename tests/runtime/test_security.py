@@ -118,13 +118,11 @@ def test_model_file_is_checksummed_before_use(tmp_path: Path) -> None:
     import hashlib
 
     from litevloc.base.params.models import ModelsConfig
+    from litevloc.models.catalog import EXPORT_VERSION, OPSET, spec_for
     from litevloc.models.registry import (
-        EXPORT_VERSION,
-        OPSET,
         ModelError,
         locate,
         sha256_file,
-        spec_for,
         write_manifest,
     )
 

@@ -20,6 +20,7 @@ from litevloc.hw.messages import RgbdFrame
 from litevloc.pipelines.localization.vloc import MatchedPixels
 from litevloc.pipelines.topomap.types import NodeFeatures, OccupancyGrid, TopoMap
 from litevloc.runtime.view import DropQueue, covariance_ellipsoid, occupied_points
+from tests.conftest import HeldOut
 from tests.runtime.zenoh_helpers import free_port
 
 K = np.array([[100.0, 0, 80], [0, 100.0, 60], [0, 0, 1]])
@@ -172,17 +173,15 @@ def _entity_rows(rrd: Path) -> dict[str, int]:
 
 
 @pytest.mark.timeout(300)
-def test_replay_and_localize_save_the_view(seven_scenes_dir: Path, tmp_path: Path) -> None:
-    """`litevloc replay REC --map MAP --view-save` and `litevloc localize ... --view-save` on a
-    short 7-Scenes recording: the files hold the map, fused poses, VLoc results and status."""
+def test_replay_and_localize_save_the_view(seven_scenes_held_out: HeldOut, tmp_path: Path) -> None:
+    """`litevloc replay REC --map MAP --view-save` and `litevloc localize ... --view-save` on 16
+    held-out 7-Scenes frames: the files hold the map, fused poses, VLoc results and status."""
     from litevloc.runtime.cli.main import main
 
-    rec, mp = tmp_path / "s.mcap", tmp_path / "map"
-    assert main(["convert", str(seven_scenes_dir), str(rec), "--frames", "0:80:4", "--odometry-rate", "100"]) == 0
-    assert main(["map", "build", str(rec), "-o", str(mp), "--config", "7scenes"]) == 0
+    rec, mp = seven_scenes_held_out.queries, seven_scenes_held_out.map_dir
     fast = ["--set", "models.matcher=mnn"]
     replay_rrd, loc_rrd = tmp_path / "replay.rrd", tmp_path / "localize.rrd"
-    assert main(["replay", str(rec), "--config", "7scenes", "--map", str(mp), "--listen",
+    assert main(["replay", str(rec), "--frames", "0:16", "--config", "7scenes", "--map", str(mp), "--listen",
                  f"tcp/127.0.0.1:{free_port()}", "--set", "runtime.mode=deterministic", *fast,
                  "--view-save", str(replay_rrd)]) == 0
     rows = _entity_rows(replay_rrd)
@@ -190,8 +189,8 @@ def test_replay_and_localize_save_the_view(seven_scenes_dir: Path, tmp_path: Pat
                  "/images/matches", "/images/matches/lines", "/status/tracking", "/plots/vloc_ms/extract",
                  "/plots/runtime_ms/fusion_p99"):
         assert rows.get(path, 0) > 0, (path, sorted(rows))
-    assert rows["/images/matches"] == 20  # deterministic mode: every frame reached the view
-    assert main(["localize", str(mp), str(rec), "--config", "7scenes", "-o", str(tmp_path / "t.txt"), *fast,
-                 "--view-save", str(loc_rrd)]) == 0
+    assert rows["/images/matches"] == 16  # deterministic mode: every frame reached the view
+    assert main(["localize", str(mp), str(rec), "--frames", "0:16:4", "--config", "7scenes", "-o",
+                 str(tmp_path / "t.txt"), *fast, "--view-save", str(loc_rrd)]) == 0
     rows = _entity_rows(loc_rrd)
     assert rows.get("/world/vloc/camera", 0) > 0 and rows.get("/status/tracking", 0) > 0

@@ -16,6 +16,7 @@ from litevloc.hw.messages import RgbdFrame
 from litevloc.hw.streams.mcap_io import McapSource
 from litevloc.runtime.cli.main import main
 from litevloc.runtime.vloc_process import VlocProcess, VlocProcessError, VlocWorkerSpec
+from tests.conftest import HeldOut
 
 from .zenoh_helpers import free_port
 
@@ -23,13 +24,9 @@ pytestmark = pytest.mark.shared_data
 
 
 @pytest.fixture(scope="module")
-def small_map(seven_scenes_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
-    """(recording of 7-Scenes frames 0:60:4 with 100 Hz odometry, map built from it)."""
-    d = tmp_path_factory.mktemp("vloc_process")
-    rec, mp = d / "s.mcap", d / "map"
-    assert main(["convert", str(seven_scenes_dir), str(rec), "--frames", "0:60:4", "--odometry-rate", "100"]) == 0
-    assert main(["map", "build", str(rec), "-o", str(mp), "--config", "7scenes"]) == 0
-    return rec, mp
+def small_map(seven_scenes_held_out: HeldOut) -> tuple[Path, Path]:
+    """(recording of held-out 7-Scenes query frames, the map of the mapping pass)."""
+    return seven_scenes_held_out.queries, seven_scenes_held_out.map_dir
 
 
 def _first_frame(rec: Path) -> RgbdFrame:
@@ -48,11 +45,11 @@ def test_deterministic_replay_gives_the_same_trajectory_with_vloc_in_a_process(
     trajs = {}
     for placement in ("false", "true"):
         traj = tmp_path / f"fused_{placement}.txt"
-        assert main(["replay", str(rec), "--config", "7scenes", "--map", str(mp), "-o", str(traj),
+        assert main(["replay", str(rec), "--frames", "0:12", "--config", "7scenes", "--map", str(mp), "-o", str(traj),
                      "--listen", f"tcp/127.0.0.1:{free_port()}", "--set", "runtime.mode=deterministic",
                      "--set", f"runtime.vloc_process={placement}"]) == 0
         trajs[placement] = traj.read_text()
-    assert len(trajs["false"].splitlines()) > 100
+    assert len(trajs["false"].splitlines()) > 100  # 12 frames 0.33 s apart, 100 Hz odometry
     assert trajs["true"] == trajs["false"]
 
 
@@ -64,7 +61,7 @@ def test_the_child_answers_queries_and_a_dead_child_is_a_clear_error(small_map: 
     try:
         assert proc.pid is not None and proc.pid != os.getpid()
         res = proc(_first_frame(rec), None)
-        assert res.accepted and res.T_map_camera is not None  # a mapping frame, global localization
+        assert res.accepted and res.T_map_camera is not None  # a held-out frame, global localization
         assert res.tracking_state  # the child's localizer state travels with the result
         assert proc.calls == 1
         os.kill(proc.pid, signal.SIGKILL)

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from litevloc.base.geometry import make_T, so3_exp
+from litevloc.experiments.fusion_sim import synthetic_trajectory
 from litevloc.pipelines.evaluation.trajectory import (
     TrajectoryError,
     associate,
@@ -17,7 +18,6 @@ from litevloc.pipelines.evaluation.trajectory import (
     umeyama_se3,
     write_tum,
 )
-from litevloc.pipelines.fusion.simulate import synthetic_trajectory
 
 
 def _random_T(rng: np.random.Generator, t_scale: float = 2.0) -> np.ndarray:

@@ -9,10 +9,10 @@ import pytest
 
 from litevloc.base.geometry import interpolate_pose_at
 from litevloc.base.params.drift import T_BASE_CAMERA_OPTICAL, DriftParams
+from litevloc.base.params.fusion import FusionParams
+from litevloc.experiments.fusion_sim import simulate_vloc, synthetic_trajectory
 from litevloc.pipelines.evaluation.trajectory import ate
 from litevloc.pipelines.fusion.batch import batch_refine, refine_session
-from litevloc.pipelines.fusion.online import FusionParams
-from litevloc.pipelines.fusion.simulate import simulate_vloc, synthetic_trajectory
 from litevloc.pipelines.odometry_drift import simulate_odometry
 
 T_BC = T_BASE_CAMERA_OPTICAL

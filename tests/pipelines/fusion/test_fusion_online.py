@@ -9,14 +9,14 @@ import pytest
 
 from litevloc.base.geometry import interpolate_pose_at, make_T, so3_exp
 from litevloc.base.params.drift import T_BASE_CAMERA_OPTICAL, DriftParams
+from litevloc.base.params.fusion import FusionParams
+from litevloc.experiments.fusion_sim import run_online, simulate_vloc, synthetic_trajectory
 from litevloc.pipelines.evaluation.trajectory import ate
 from litevloc.pipelines.fusion.online import (
-    FusionParams,
     OnlineFusion,
     gtsam_to_ros_cov,
     ros_to_gtsam_cov,
 )
-from litevloc.pipelines.fusion.simulate import run_online, simulate_vloc, synthetic_trajectory
 from litevloc.pipelines.odometry_drift import simulate_odometry
 
 T_BC = T_BASE_CAMERA_OPTICAL

@@ -49,12 +49,26 @@ def _err(T: np.ndarray, T_gt: np.ndarray = T_MAP_LIVE) -> tuple[np.ndarray, np.n
     return E[:3, 3], so3_log(E[:3, :3])
 
 
-def _inside_95(res: RefineResult) -> tuple[bool, bool]:
-    """Whether an accepted solve's position and rotation errors lie inside its own 95 % ellipsoids."""
+def _nees(res: RefineResult) -> tuple[float, float]:
+    """Squared Mahalanobis distances (NEES) of an accepted solve's position and rotation errors
+    under its own covariance blocks: chi-square with 3 dof when the covariance is right."""
     assert res.accepted and res.covariance is not None, res.reason
     dt, dr = _err(res.T_map_camera)
-    return (bool(dt @ np.linalg.solve(res.covariance[:3, :3], dt) <= chi2.ppf(0.95, 3)),
-            bool(dr @ np.linalg.solve(res.covariance[3:, 3:], dr) <= chi2.ppf(0.95, 3)))
+    return (float(dt @ np.linalg.solve(res.covariance[:3, :3], dt)),
+            float(dr @ np.linalg.solve(res.covariance[3:, 3:], dr)))
+
+
+def _assert_calibrated(nees: list[tuple[float, float]]) -> None:
+    """The errors fit their covariance: ~95 % inside the 95 % ellipsoid (binomial, 3 sigma) AND
+    the mean NEES ~3 (3 dof; 3 sigma of the mean of n chi-square(3) draws is 3 * sqrt(6 / n)): a
+    covariance too wide (all inside, NEES far below 3) fails as surely as one too narrow."""
+    e = np.asarray(nees)
+    n = len(e)
+    inside = np.mean(e <= chi2.ppf(0.95, 3), axis=0)
+    tol = 3 * np.sqrt(0.95 * 0.05 / n)
+    assert np.all(inside >= 0.95 - tol), inside  # position, rotation
+    band = 3 * np.sqrt(6 / n)
+    assert np.all(np.abs(e.mean(axis=0) - 3) <= band), (e.mean(axis=0), band)
 
 
 def test_refines_a_perturbed_pose_through_outliers() -> None:
@@ -97,14 +111,14 @@ def test_wrong_initial_pose_is_not_confirmed() -> None:
 
 def test_covariance_is_calibrated_without_keyframe_error() -> None:
     """Monte Carlo with pixel noise = the model's sigma and no keyframe or depth error: the
-    95 % ellipsoid holds ~95 % of the errors (the keyframe term and floors switched off)."""
+    95 % ellipsoid holds ~95 % of the errors and the mean NEES is ~3 (the keyframe term and floors
+    switched off)."""
     p = RefineParams(sigma_sys_t_m=0.0, sigma_sys_r_deg=0.0, min_sigma_t_m=0.0, min_sigma_r_deg=0.0,
                      sigma_sys_t_per_rad=0.0, sigma_sys_r_per_rad=0.0,
                      sigma_sys_t_per_m=0.0, sigma_sys_r_deg_per_m=0.0,
                      depth_sigma_a=0.0, depth_sigma_b=0.0, keypoint_sigma_px=1.0)
     rng = np.random.default_rng(3)
-    inside = [_inside_95(refine_pose(T_MAP_LIVE, _observations(rng, 40, 1.0), p)) for _ in range(60)]
-    assert np.all(np.mean(inside, axis=0) >= 0.85), np.mean(inside, axis=0)  # position, rotation
+    _assert_calibrated([_nees(refine_pose(T_MAP_LIVE, _observations(rng, 40, 1.0), p)) for _ in range(60)])
 
 
 def test_systematic_term_widens_the_covariance() -> None:
@@ -210,8 +224,9 @@ def test_guided_matches_recover_true_pairs() -> None:
 
 
 def _depth_noisy_observations(rng: np.random.Generator, n: int) -> list[KeyframeObservations]:
-    """One keyframe; live and keyframe depths with the default depth noise model, keyframe
-    pixels with 1 px noise; the observations carry the map's (noisy) keyframe depth."""
+    """One keyframe; live and keyframe depths with the default depth noise model, live and
+    keyframe pixels with 1 px noise (the model's `keypoint_sigma_px` on both sides); the
+    observations carry the map's (noisy) keyframe depth."""
     p = RefineParams()
     T_map_kf = KF_POSES[1]
     uv = rng.uniform([20, 20], [620, 460], size=(n, 2))
@@ -220,7 +235,9 @@ def _depth_noisy_observations(rng: np.random.Generator, n: int) -> list[Keyframe
     T_kl = np.linalg.inv(T_map_kf) @ T_MAP_LIVE
     q = pts @ T_kl[:3, :3].T + T_kl[:3, 3]
     px = q[:, :2] / q[:, 2:3] * 500 + [320, 240] + rng.normal(0, 1.0, size=(n, 2))
-    live = pts * (1 + rng.normal(0, 1, n) * (p.depth_sigma_a * z**2 + p.depth_sigma_b) / z)[:, None]
+    z_live = z + rng.normal(0, 1, n) * (p.depth_sigma_a * z**2 + p.depth_sigma_b)
+    uv_live = uv + rng.normal(0, 1.0, size=(n, 2))
+    live = np.column_stack([(uv_live[:, 0] - 320) / 500 * z_live, (uv_live[:, 1] - 240) / 500 * z_live, z_live])
     z_kf = q[:, 2] + rng.normal(0, 1, n) * (p.depth_sigma_a * q[:, 2] ** 2 + p.depth_sigma_b)
     return [KeyframeObservations(0, live, px, K, T_map_kf, z_kf)]
 
@@ -232,8 +249,7 @@ def test_map_depth_terms_are_whitened_by_both_depths_noise() -> None:
                      min_sigma_r_deg=0.0, sigma_sys_t_per_rad=0.0, sigma_sys_r_per_rad=0.0,
                      sigma_sys_t_per_m=0.0, sigma_sys_r_deg_per_m=0.0)
     rng = np.random.default_rng(4)
-    inside = [_inside_95(refine_pose(T_MAP_LIVE, _depth_noisy_observations(rng, 60), p)) for _ in range(60)]
-    assert np.all(np.mean(inside, axis=0) >= 0.85), np.mean(inside, axis=0)  # position, rotation
+    _assert_calibrated([_nees(refine_pose(T_MAP_LIVE, _depth_noisy_observations(rng, 60), p)) for _ in range(60)])
 
 
 def test_map_depth_pulls_the_pose_where_the_map_has_it() -> None:

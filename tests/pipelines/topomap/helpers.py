@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -12,6 +13,7 @@ from numpy.typing import NDArray
 
 from litevloc.base.frames import parse_frames
 from litevloc.base.params.mapping import MappingParams
+from litevloc.config import load_config
 from litevloc.hw.messages import GroundTruthPose, RgbdFrame
 from litevloc.hw.streams.sevenscenes import SevenScenesSource
 from litevloc.pipelines.topomap.build import MapBuilder, PosedFrame, build_two_pass
@@ -46,7 +48,14 @@ def thumb_describe(img: NDArray[np.uint8]) -> NDArray[np.float32]:
     return (g / (np.linalg.norm(g) + 1e-9)).astype(np.float32)
 
 
-SEVEN_SCENES_UP = (0.008874603550000000, -0.904425621, -0.426539183)
+# the 7scenes preset's mapping: the hand-held Kinect's keyframe motion, height band and range
+SEVEN_SCENES_MAPPING = load_config("7scenes").mapping
+
+
+def seven_scenes_mapping(**keyframes: object) -> MappingParams:
+    """The 7scenes preset's mapping with some keyframe settings changed."""
+    kf = dataclasses.replace(SEVEN_SCENES_MAPPING.keyframes, **keyframes)  # type: ignore[arg-type]
+    return dataclasses.replace(SEVEN_SCENES_MAPPING, keyframes=kf)
 
 
 class _Built:

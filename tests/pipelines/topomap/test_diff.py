@@ -9,7 +9,8 @@ import pytest
 from numpy.typing import NDArray
 
 from litevloc.base import geometry as g
-from litevloc.pipelines.topomap.diff import DiffParams, MapDiffError, coverage_diff, diff_maps
+from litevloc.base.params.map_maintenance import DiffParams
+from litevloc.pipelines.topomap.diff import MapDiffError, coverage_diff, diff_maps
 from litevloc.pipelines.topomap.types import NodeFeatures, OccupancyGrid, TopoMap
 
 UP = np.array([0.0, 0.0, 1.0])

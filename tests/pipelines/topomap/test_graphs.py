@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from litevloc.base import geometry as g
-from litevloc.base.params.mapping import CovisibilityParams, KeyframeParams, MappingParams
+from litevloc.base.params.mapping import CovisibilityParams
 from litevloc.pipelines.topomap.graphs import covisibility_candidates
 
-from .helpers import SEVEN_SCENES_UP, build_7scenes
+from .helpers import build_7scenes, seven_scenes_mapping
 
 
 def test_candidates_match_the_brute_force_gates() -> None:
@@ -35,7 +35,7 @@ def test_guided_covisibility_finds_the_model_matchers_edges(seven_scenes_dir: Pa
     """Same keyframes, covisibility by the matcher (ORB cross-check here) vs guided by the
     mapping poses (real ground truth, off by up to ~2.5 deg between keyframes): the guided
     graph keeps most edges (27 of 31 when written) and invents almost none."""
-    base = MappingParams(up=SEVEN_SCENES_UP, keyframes=KeyframeParams(cell_m=0.1, heading_bins=16, coverage=0.99))
+    base = seven_scenes_mapping(budget=None)
     model = replace(base, covisibility=replace(base.covisibility, matching="model"))
     guided = replace(base, covisibility=replace(base.covisibility, matching="guided"))
     a = build_7scenes(seven_scenes_dir, "0:200:4", model).finish()

@@ -10,13 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from litevloc.base.params.mapping import MappingParams
 from litevloc.pipelines.topomap.io import MapFormatError, load_map, save_map, storage_summary
 from litevloc.pipelines.topomap.types import TopoMap
 
-from .helpers import SEVEN_SCENES_UP, build_7scenes
+from .helpers import build_7scenes, seven_scenes_mapping
 
-PARAMS = MappingParams(up=SEVEN_SCENES_UP)
+PARAMS = seven_scenes_mapping(budget=None, coverage=0.95, cell_m=0.25, heading_bins=8)
 
 
 @pytest.fixture(scope="module")

@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 from litevloc.base import geometry as g
-from litevloc.base.params.mapping import KeyframeParams, MappingParams
 from litevloc.pipelines.topomap.io import load_map, save_map
 from litevloc.pipelines.topomap.merge import (
     Link,
@@ -21,10 +20,10 @@ from litevloc.pipelines.topomap.merge import (
 )
 from litevloc.pipelines.topomap.types import FeatureStore, TopoMap
 
-from .helpers import SEVEN_SCENES_UP, build_7scenes, orb_match
+from .helpers import build_7scenes, orb_match, seven_scenes_mapping
 
 # the 7scenes preset's keyframe density (a small kitchen): ~22 keyframes per session
-PARAMS = MappingParams(up=SEVEN_SCENES_UP, keyframes=KeyframeParams(cell_m=0.1, heading_bins=16, coverage=0.99))
+PARAMS = seven_scenes_mapping(budget=None)
 T_B_A = g.make_T(g.so3_exp(np.array([0.1, -0.3, 0.7])), [3.0, -1.0, 0.5])  # session B's frame from A's
 
 

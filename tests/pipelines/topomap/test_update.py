@@ -15,7 +15,6 @@ from scipy.spatial import cKDTree
 from litevloc.base.frames import parse_frames
 from litevloc.base.geometry import backproject_depth
 from litevloc.base.params.localization import DepthLookupParams
-from litevloc.base.params.mapping import KeyframeParams, MappingParams
 from litevloc.hw.messages import GroundTruthPose, RgbdFrame
 from litevloc.hw.streams.sevenscenes import SevenScenesSource
 from litevloc.pipelines.depth_lookup import depth_at
@@ -29,9 +28,9 @@ from litevloc.pipelines.topomap.update import (
     guided_consistent_matches,
 )
 
-from .helpers import SEVEN_SCENES_UP, build_7scenes, orb_extract, orb_match, thumb_describe
+from .helpers import build_7scenes, orb_extract, orb_match, seven_scenes_mapping, thumb_describe
 
-PARAMS = MappingParams(up=SEVEN_SCENES_UP, keyframes=KeyframeParams(cell_m=0.1, heading_bins=16, coverage=0.99))
+PARAMS = seven_scenes_mapping(budget=None)
 
 
 def observations(folder: Path, frames: str, quality_map: TopoMap | None = None) -> Iterator[Observation]:
@@ -67,10 +66,13 @@ def base_map(seven_scenes_dir: Path) -> TopoMap:
 
 
 def run_update(m: TopoMap, folder: Path, frames: str, quality_map: TopoMap | None = None,
-               params: UpdateParams | None = None) -> tuple[TopoMap, MapUpdate]:
+               params: UpdateParams | None = None, finish: bool = True) -> tuple[TopoMap | None, MapUpdate]:
+    """The updated map (None without `finish`: the report and candidates only) and the update."""
     upd = MapUpdate(m, orb_match, params or UpdateParams())
     for obs in observations(folder, frames, quality_map):
         upd.observe(obs)
+    if not finish:
+        return None, upd
     new, _ = upd.finish(PARAMS.covisibility, PARAMS.connectivity, PARAMS.occupancy)
     return new, upd
 
@@ -88,9 +90,9 @@ def test_frames_between_keyframes_that_match_are_known_places(base_map: TopoMap,
     # nearby keyframes can tell that the map already knows these views (#18: corridor frames
     # between keyframes more than place_radius_m apart counted as new places)
     tight = UpdateParams(place_radius_m=1e-3, match_radius_m=1e-3, min_spacing_m=0.01)
-    _, radius_only = run_update(base_map, seven_scenes_dir, "1:250:12", params=tight)
+    _, radius_only = run_update(base_map, seven_scenes_dir, "1:250:12", params=tight, finish=False)
     _, by_matches = run_update(base_map, seven_scenes_dir, "1:250:12",
-                               params=dataclasses.replace(tight, match_radius_m=1.5))
+                               params=dataclasses.replace(tight, match_radius_m=1.5), finish=False)
     a, b = radius_only.report, by_matches.report
     assert a.frames == b.frames > 10
     assert a.new_place >= 0.9 * a.frames, a

@@ -1,11 +1,11 @@
-"""`litevloc map update` shell: the per-image memo that stops a frame's features and VPR
+"""Updating a map from a session: the per-image memo that stops a frame's features and VPR
 descriptor from being computed twice (once to localize it, once to observe it)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from litevloc.runtime.cli.map_update import _OncePerImage
+from litevloc.pipelines.topomap.session import OncePerImage
 
 
 def test_once_per_image_calls_the_model_once_per_frame() -> None:
@@ -15,7 +15,7 @@ def test_once_per_image_calls_the_model_once_per_frame() -> None:
         calls.append(1)
         return float(image.sum())
 
-    memo = _OncePerImage(model)
+    memo = OncePerImage(model)
     a = np.ones((4, 4), np.uint8)
     assert memo(a) == 16.0 and memo(a) == 16.0
     assert len(calls) == 1

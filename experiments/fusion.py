@@ -1,4 +1,5 @@
-"""The fusion benchmark as pure functions on arrays (used by `litevloc bench fusion`).
+"""The fusion benchmark (`litevloc bench fusion`, `bench/fusion.py`): pure functions on arrays, and
+`run_benchmark` that feeds them a posed dataset.
 
 `posed_sequence_experiment` reproduces the shape of the LiteVLoc paper's Tables II/III on
 a posed sequence (ground-truth camera poses + times): ATE (m, after SE(3) alignment
@@ -29,11 +30,13 @@ from numpy.typing import NDArray
 
 from litevloc.base.geometry import interpolate_pose_at, invert
 from litevloc.base.params.drift import DriftParams
+from litevloc.base.params.fusion import FusionParams
+from litevloc.config.schema import LiteVLocConfig
+from litevloc.experiments.fusion_sim import run_online, simulate_vloc, synthetic_trajectory
 from litevloc.pipelines.evaluation.trajectory import ate, write_tum
 from litevloc.pipelines.fusion.batch import refine_session
-from litevloc.pipelines.fusion.online import FusionParams
-from litevloc.pipelines.fusion.simulate import run_online, simulate_vloc, synthetic_trajectory
 from litevloc.pipelines.odometry_drift import simulate_odometry
+from litevloc.runtime.metrics import memory_mb
 
 F64 = NDArray[np.float64]
 
@@ -165,24 +168,12 @@ def posed_sequence_experiment(
     }
 
 
-def _rss_mib() -> float:
-    try:
-        for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    import resource
-
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-
-
 def long_run_experiment(
     minutes: float = 30.0,
     params: FusionParams | None = None,
     seed: int = 0,
     blocks: int = 6,
-    progress: Callable[[int], None] | None = None,
+    progress: Callable[[int], object] | None = None,
 ) -> dict[str, Any]:
     """Synthetic endurance run: 100 Hz odometry + 1 Hz VLoc (10 % outliers) for `minutes`.
 
@@ -211,7 +202,7 @@ def long_run_experiment(
 
     def probe(i: int, fusion: object) -> None:
         if i == 1000:  # after warm-up (first allocations, GTSAM caches)
-            rss["start"] = _rss_mib()
+            rss["start"] = memory_mb()["rss"]
         if i % 100 == 0:
             states[i] = fusion.states_in_graph()  # type: ignore[attr-defined]
         if progress is not None and i % step == 0:
@@ -219,7 +210,7 @@ def long_run_experiment(
 
     load = os.getloadavg()
     run = run_online(p, T_BASE_CAMERA_OPTICAL, ot, oT, vl, on_sample=probe)
-    rss["end"] = _rss_mib()
+    rss["end"] = memory_mb()["rss"]
     varr = vl.t_arrival_ns[np.argsort(vl.t_arrival_ns, kind="stable")]
     vblock = np.searchsorted(ot, varr[: len(run.vloc_call_ms)])
     out_blocks = []
@@ -272,3 +263,96 @@ def long_run_experiment(
         "odometry_ate_m": ate(oT[m][::10], gt_o).rmse,
         "stats": run.stats,
     }
+
+
+def table(res: dict[str, Any]) -> str:
+    """ATE and rate per method, as printed by `litevloc bench fusion`."""
+    a = res["ate_m_all"]
+    r = res["rate_hz"]
+    lines = [
+        f"{'method':<34}{'ATE RMSE [m]':>14}{'rate [Hz]':>11}",
+        f"{'odometry alone':<34}{a['odometry']:>14.3f}{r['odometry']:>11.1f}",
+        f"{'VLoc alone (10% outliers)':<34}{a['vloc_robust']:>14.3f}{r['vloc']:>11.2f}",
+        f"{'VLoc alone (no outliers)':<34}{a['vloc_outlier_free']:>14.3f}{r['vloc']:>11.2f}",
+    ]
+    labels = {
+        "robust": "kernel+gate, 10% outliers",
+        "no_robust": "no kernel/gate, 10% outliers",
+        "kernel_only": "kernel only, 10% outliers",
+        "gate_only": "gate only, 10% outliers",
+        "outlier_free": "kernel+gate, no outliers",
+    }
+    for kind, rate in (("fused", r["fused"]), ("batch", r["batch"])):
+        for v, lab in labels.items():
+            lines.append(f"{(kind + ' ' + lab):<34}{a[f'{kind}_{v}']:>14.3f}{rate:>11.1f}")
+    return "\n".join(lines)
+
+
+def long_table(lr: dict[str, Any]) -> str:
+    """The synthetic endurance run's call times per block."""
+    nan = float("nan")
+    lines = [
+        f"synthetic {lr['minutes']:g} min: {lr['odometry_messages']} odometry"
+        f" -> {lr['fused_outputs']} fused, {lr['vloc_results']} VLoc;"
+        f" ATE fused {lr['fused_ate_m']:.3f} m, odometry alone {lr['odometry_ate_m']:.3f} m",
+        "call times in ms (wall; cpu = thread CPU time, immune to preemption by other processes)",
+        f"{'minutes':<12}{'odo p50':>9}{'odo p99':>9}{'odo max':>9}{'odo cpu p99':>12}"
+        f"{'vloc p99':>10}{'vloc cpu p99':>13}{'states':>8}",
+    ]
+    for b in lr["blocks"]:
+        vp = b["vloc_call_ms_p99"]
+        vc = b["vloc_cpu_ms_p99"]
+        lines.append(
+            f"{b['minutes'][0]:>4.1f}-{b['minutes'][1]:<7.1f}{b['odometry_call_ms_p50']:>9.3f}"
+            f"{b['odometry_call_ms_p99']:>9.3f}{b['odometry_call_ms_max']:>9.2f}"
+            f"{b['odometry_cpu_ms_p99']:>12.3f}{(vp if vp is not None else nan):>10.3f}"
+            f"{(vc if vc is not None else nan):>13.3f}{b['states_max']:>8d}"
+        )
+    la = lr["load_average_1min"]
+    lines.append(
+        f"all calls p99 {lr['all_calls_ms_p99']:.3f} ms wall,"
+        f" {lr['all_calls_cpu_ms_p99']:.3f} ms cpu;"
+        f" states max {lr['states_in_graph_max']}; RSS {lr['rss_mib_start']:.1f} ->"
+        f" {lr['rss_mib_end']:.1f} MiB; load average {la[0]:.1f} -> {la[1]:.1f}"
+    )
+    return "\n".join(lines)
+
+
+def run_benchmark(
+    src_path: Path, frames: slice, cfg: LiteVLocConfig, seeds: int, synthetic_minutes: float = 0.0,
+    tum_dir: Path | None = None, on_run: Callable[[], None] | None = None,
+    on_message: Callable[[int], object] | None = None,
+) -> dict[str, Any]:
+    """`litevloc bench fusion` / `bench/fusion.py`: `posed_sequence_experiment` on a posed dataset
+    (its ground truth, the config's camera mount, fusion and drift settings) and, with
+    `synthetic_minutes`, `long_run_experiment`. ValueError when the input has too few poses."""
+    from litevloc.runtime.sources import open_source
+
+    src = open_source(src_path, frames, rgbd_calibration=cfg.rgbd_calibration)
+    ground_truth = getattr(src, "ground_truth", None)
+    if ground_truth is None:
+        raise ValueError(f"{src_path}: needs ground-truth poses (a posed dataset folder)")
+    gt_t, T_wc = ground_truth()
+    if len(gt_t) < 10:
+        raise ValueError(f"{src_path}: only {len(gt_t)} ground-truth poses in the frames given (need >= 10)")
+    params = cfg.fusion.params
+    res = posed_sequence_experiment(gt_t, T_wc, cfg.fusion.T_base_camera(), params, seeds=seeds,
+                                    drift=cfg.odometry_sim.drift, progress=on_run, tum_dir=tum_dir)
+    res["source"] = src.name
+    if synthetic_minutes > 0:
+        res["synthetic"] = long_run_experiment(synthetic_minutes, params, progress=on_message)
+    res["fusion_params"] = dataclasses.asdict(params)
+    return res
+
+
+def report(res: dict[str, Any], seeds: int) -> str:
+    """The printed summary of `run_benchmark`."""
+    t = res["timing"]
+    lines = [f"fusion on {res['source']} frames {res.get('frames', '')} ({res['duration_s']:.1f} s), median of "
+             f"{seeds} seeds", table(res),
+             f"online add_odometry p50/p99: {t['fused_robust_odometry_call_ms_p50']:.3f}/"
+             f"{t['fused_robust_odometry_call_ms_p99']:.3f} ms "
+             f"(cpu p99 {t['fused_robust_odometry_cpu_ms_p99']:.3f} ms); batch solve {t['batch_robust_seconds']:.2f} s"]
+    if "synthetic" in res:
+        lines.append(long_table(res["synthetic"]))
+    return "\n".join(lines)

@@ -9,14 +9,14 @@ import numpy as np
 import pytest
 
 from litevloc.base.geometry import invert, make_T, so3_exp
-from litevloc.pipelines.evaluation.mapfree import mapfree_metrics, score_query
-from litevloc.runtime.mapfree_submission import (
+from litevloc.experiments.mapfree_submission import (
     MapFreeQuery,
     SubmissionError,
     score_submission,
     write_dataset,
     write_submission,
 )
+from litevloc.pipelines.evaluation.mapfree import mapfree_metrics, score_query
 
 K = np.array([[520.0, 0, 320], [0, 520.0, 240], [0, 0, 1]])
 

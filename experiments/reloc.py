@@ -22,14 +22,14 @@ import cv2
 import numpy as np
 
 from litevloc.base.geometry import backproject_depth, invert, relative_pose_error
-from litevloc.config import LiteVLocConfig
+from litevloc.config.schema import LiteVLocConfig
+from litevloc.experiments.mapfree_submission import MapFreeQuery, score_submission, write_dataset, write_submission
 from litevloc.hw.streams.base import StreamSource
 from litevloc.models.registry import load_extractor, load_matcher
 from litevloc.models.types import Features
 from litevloc.pipelines.evaluation.reloc import reloc_metrics
 from litevloc.pipelines.localization.vloc import relative_pose
 from litevloc.pipelines.topomap.types import TopoMap
-from litevloc.runtime.mapfree_submission import MapFreeQuery, score_submission, write_dataset, write_submission
 from litevloc.runtime.posed import posed_frames
 
 # The shipped LightGlue weights are for 128-d ALIKED descriptors (n16); t16 (64-d) pairs with mutual-NN.

@@ -21,7 +21,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litevloc.base.geometry import interpolate_pose_at, make_T, so3_exp
-from litevloc.pipelines.fusion.online import FusionParams, OnlineFusion
+from litevloc.base.params.fusion import FusionParams
+from litevloc.pipelines.fusion.online import OnlineFusion
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
