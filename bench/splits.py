@@ -26,11 +26,16 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import INPUTS, OUT, ROOT, print_table, require_7scenes, write_json
+from _common import INPUTS, OUT, ROOT, litevloc, print_table, require_7scenes, write_json
 
 from litevloc.experiments.split_report import MAIN_COLUMNS, failure_rows, main_row, plot
 from litevloc.experiments.splits import ensure_map, run_split, splits_named
-from litevloc.runtime.cli.main import main as litevloc_main
+
+
+def _build(argv: list[str]) -> int:
+    """`map build` in a child process, as a user runs it (fails loudly)."""
+    litevloc(*argv)
+    return 0
 
 
 def main() -> None:
@@ -45,7 +50,7 @@ def main() -> None:
     data = require_7scenes()
     results = []
     for split in splits_named(args.splits):
-        map_dir = ensure_map(data, split, INPUTS / "splits", args.config, litevloc_main)
+        map_dir = ensure_map(data, split, INPUTS / "splits", args.config, _build)
         print(f"[{split.name}] map {map_dir.name}, queries {split.query_frames} step {args.step} ...", flush=True)
         r = run_split(split, map_dir, data, args.config, args.overrides, ROOT / "out" / "cache" / "splits",
                       args.step, on_frame=_progress(split.name))

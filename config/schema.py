@@ -179,11 +179,9 @@ class TfConfig:
     odom_frame: str = "odom"
     # the robot body frame the camera extrinsics (fusion.base_camera_*) refer to
     base_frame: str = "base_link"
-    # true: map -> odom on /tf as tf2_msgs/TFMessage, sent with every litevloc/map_to_odom (every
-    # runtime.map_to_odom_period_s of sensor time and after each accepted VLoc fix)
+    # map -> odom on /tf (tf2_msgs/TFMessage) with every litevloc/map_to_odom message
     publish_tf: bool = True
-    # seconds added to the map -> odom stamp (as AMCL's transform_tolerance: lookups at "now" succeed);
-    # 0 = stamped with the odometry stamp the transform was computed from
+    # seconds added to the map -> odom stamp, as AMCL's transform_tolerance (0 = the odometry's stamp)
     post_date_s: float = 0.0
     # camera optical frame: "" = no /tf_static; else base -> camera (fusion.base_camera_*) on /tf_static
     camera_frame: str = ""
