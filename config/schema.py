@@ -31,6 +31,7 @@ from litevloc.base.params.models import ModelsConfig
 from litevloc.base.params.navigation import GoalParams, TrackerParams
 from litevloc.base.params.odometry import OdometryCheckParams
 from litevloc.base.params.sim import SimParams
+from litevloc.base.params.slam import SlamParams
 
 
 @dataclass(frozen=True)
@@ -114,6 +115,8 @@ class LiteVLocConfig:
     camera: CameraConfig = field(default_factory=CameraConfig)  # live OAK-D (source.kind: oak-d)
     models: ModelsConfig = field(default_factory=ModelsConfig)
     mapping: MappingParams = field(default_factory=MappingParams)
+    # the mapping pass's own SLAM (`litevloc map build --poses slam`)
+    slam: SlamParams = field(default_factory=SlamParams)
     localization: LocalizationParams = field(default_factory=LocalizationParams)
     fusion: FusionConfig = field(default_factory=FusionConfig)
     sim: SimParams = field(default_factory=SimParams)
