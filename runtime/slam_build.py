@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -19,7 +20,7 @@ from litevloc.config import LiteVLocConfig
 from litevloc.hw.messages import GroundTruthPose, Message, Odometry, RgbdFrame
 from litevloc.pipelines.slam.evaluate import evaluate
 from litevloc.pipelines.slam.session import SlamResult, SlamSession
-from litevloc.pipelines.slam.types import F64, FrameImages, FrameRef, SlamModels
+from litevloc.pipelines.slam.types import F64, Edge, EdgeKind, FrameImages, FrameRef, SlamModels
 from litevloc.pipelines.topomap.build import MapBuilder
 from litevloc.runtime.vloc_models import ModelBundle
 
@@ -122,3 +123,61 @@ def evaluate_against(session: SlamSession, res: SlamResult, gt_by_stamp: dict[in
                    session.odometry_poses(res), session.no_loop_poses(res))
     out["reference"] = "the source's ground truth, read after the build"
     return out
+
+
+_KINDS: tuple[EdgeKind, ...] = ("odometry", "visual", "loop")
+
+
+@dataclass(frozen=True, eq=False)
+class SavedKeyframe:
+    """A keyframe as `save_graph` keeps it (what the optimiser and an evaluation need)."""
+
+    id: int
+    chain: int
+    T_init: F64
+    index: int
+    t_ns: int
+
+
+@dataclass
+class SavedGraph:
+    """A SLAM pose graph read back by `load_graph`; `poses` (N, 4, 4) optimised T_map_camera,
+    NaN for keyframes left out of the map."""
+
+    keyframes: list[SavedKeyframe]
+    edges: list[Edge]
+    loop_weights: list[float]
+    poses: F64
+    T_map_first: F64
+
+
+def save_graph(path: Path, res: SlamResult) -> None:
+    """The SLAM's keyframes and edges as a .npz (no pickle), for analyses that re-optimise it."""
+    n = len(res.keyframes)
+    poses = np.full((n, 4, 4), np.nan)
+    for k, T in res.graph.poses.items():
+        poses[k] = T
+    E = res.edges
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez(path, kf_id=np.array([k.id for k in res.keyframes], np.int64),
+             kf_chain=np.array([k.chain for k in res.keyframes], np.int64),
+             kf_T_init=np.stack([k.T_init for k in res.keyframes]), kf_index=np.array([k.index for k in res.keyframes]),
+             kf_t_ns=np.array([k.t_ns for k in res.keyframes], np.int64), kf_pose=poses,
+             edge_a=np.array([e.a for e in E], np.int64), edge_b=np.array([e.b for e in E], np.int64),
+             edge_kind=np.array([_KINDS.index(e.kind) for e in E], np.int64),
+             edge_T=np.stack([e.T_a_b for e in E]).reshape(-1, 4, 4), edge_cov=np.stack([e.covariance for e in E]
+                                                                                         ).reshape(-1, 6, 6),
+             edge_inliers=np.array([e.inliers for e in E], np.int64),
+             loop_weights=np.array(res.graph.loop_weights, np.float64), T_map_first=res.T_map_first)
+
+
+def load_graph(path: Path) -> SavedGraph:
+    """Read `save_graph`'s file."""
+    with np.load(path, allow_pickle=False) as z:
+        kfs = [SavedKeyframe(int(i), int(c), T, int(x), int(t)) for i, c, T, x, t in
+               zip(z["kf_id"], z["kf_chain"], z["kf_T_init"], z["kf_index"], z["kf_t_ns"], strict=True)]
+        edges = [Edge(int(a), int(b), T, C, _KINDS[int(k)], int(n)) for a, b, k, T, C, n in
+                 zip(z["edge_a"], z["edge_b"], z["edge_kind"], z["edge_T"], z["edge_cov"], z["edge_inliers"],
+                     strict=True)]
+        return SavedGraph(kfs, edges, [float(w) for w in z["loop_weights"]], np.asarray(z["kf_pose"]),
+                          np.asarray(z["T_map_first"]))

@@ -15,7 +15,9 @@ map are all rejected (or that has none) is left out of the map (`GraphResult.dro
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import gtsam
 import numpy as np
@@ -23,7 +25,21 @@ from numpy.typing import NDArray
 
 from litevloc.base.geometry import invert
 from litevloc.base.params.slam import SlamGraphParams
-from litevloc.pipelines.slam.types import F64, Edge, Keyframe
+from litevloc.pipelines.slam.types import F64, Edge
+
+
+class GraphNode(Protocol):
+    """What the optimiser needs of a keyframe (`pipelines.slam.types.Keyframe` has it)."""
+
+    @property
+    def id(self) -> int: ...
+
+    @property
+    def chain(self) -> int: ...
+
+    @property
+    def T_init(self) -> F64: ...
+
 
 _WEAK_PRIOR_SIGMA = 1e3  # metres and radians: a placeholder prior that any real edge overrides
 
@@ -47,7 +63,7 @@ def _pose3(T: F64) -> gtsam.Pose3:
     return gtsam.Pose3(gtsam.Rot3(np.asarray(T[:3, :3], float)), np.asarray(T[:3, 3], float))
 
 
-def _chain_order(keyframes: list[Keyframe], loops: list[Edge]) -> tuple[list[int], dict[int, F64]]:
+def _chain_order(keyframes: Sequence[GraphNode], loops: list[Edge]) -> tuple[list[int], dict[int, F64]]:
     """Chains reachable from the first keyframe's through loops (breadth first), and for each
     the transform that places its initial estimates in the first chain's frame (from the
     first loop that reaches it)."""
@@ -80,7 +96,7 @@ def _chain_order(keyframes: list[Keyframe], loops: list[Edge]) -> tuple[list[int
     return order, align
 
 
-def _initial(keyframes: list[Keyframe], align: dict[int, F64], T0: F64) -> gtsam.Values:
+def _initial(keyframes: Sequence[GraphNode], align: dict[int, F64], T0: F64) -> gtsam.Values:
     init = gtsam.Values()
     for kf in keyframes:
         if kf.chain in align:
@@ -88,12 +104,13 @@ def _initial(keyframes: list[Keyframe], align: dict[int, F64], T0: F64) -> gtsam
     return init
 
 
-def _priors(keyframes: list[Keyframe], chains: list[int], init: gtsam.Values, T0: F64) -> gtsam.NonlinearFactorGraph:
+def _priors(keyframes: Sequence[GraphNode], chains: list[int], init: gtsam.Values,
+            T0: F64) -> gtsam.NonlinearFactorGraph:
     """The first keyframe fixed; a weak prior on the first keyframe of every other chain."""
     graph = gtsam.NonlinearFactorGraph()
     graph.add(gtsam.PriorFactorPose3(_key(keyframes[0].id), _pose3(T0 @ keyframes[0].T_init),
                                      gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)))
-    firsts: dict[int, Keyframe] = {}
+    firsts: dict[int, GraphNode] = {}
     for kf in keyframes:
         firsts.setdefault(kf.chain, kf)
     for c in chains[1:]:
@@ -122,7 +139,8 @@ def _gnc_weights(graph: gtsam.NonlinearFactorGraph, init: gtsam.Values, robust: 
     return np.asarray(opt.getWeights(), np.float64)
 
 
-def optimise(keyframes: list[Keyframe], edges: list[Edge], T_map_first: F64, params: SlamGraphParams) -> GraphResult:
+def optimise(keyframes: Sequence[GraphNode], edges: list[Edge], T_map_first: F64,
+             params: SlamGraphParams) -> GraphResult:
     """Optimise the keyframe poses (see the module docstring). `edges` of all kinds; loop
     weights come back in the order of the loop edges in `edges`. The poses are the
     least-squares solution over the odometry and visual edges and the loops GNC kept."""
@@ -158,7 +176,7 @@ def optimise(keyframes: list[Keyframe], edges: list[Edge], T_map_first: F64, par
     return GraphResult(poses, loop_weights, dropped)
 
 
-def _joined(main: int, candidates: set[int], loops: list[Edge], weights: list[float], keyframes: list[Keyframe],
+def _joined(main: int, candidates: set[int], loops: list[Edge], weights: list[float], keyframes: Sequence[GraphNode],
             params: SlamGraphParams) -> set[int]:
     """Chains joined to `main` through kept loops (a chain kept only by a loop to another
     dropped chain is not joined)."""

@@ -47,6 +47,8 @@ def add_pose_args(b: argparse.ArgumentParser) -> None:
     b.add_argument("--poses", default="auto", metavar="auto|ground-truth|odometry|slam|FILE",
                    help="keyframe poses: the source's ground truth, its /odom alone, the mapping pass's own SLAM, "
                         "or a TUM trajectory file from another SLAM (auto: ground truth where there is one, else slam)")
+    b.add_argument("--slam-graph", type=Path, default=None, metavar="NPZ",
+                   help="--poses slam: also write the pose graph (keyframes, edges, loop weights) for analysis")
     b.add_argument("--poses-frame", choices=("camera", "base_link"), default="camera",
                    help="--poses FILE: the poses are of the camera optical frame, or of base_link (moved to the "
                         "camera with fusion.base_camera_*)")
@@ -274,7 +276,7 @@ def _build(args: argparse.Namespace) -> int:
     t3 = time.perf_counter()
     summary = _summary(args, cfg, builder, topomap, missing, kind, (t0, t1, t2, t3), _cpu_s() - cpu0)
     if slam is not None:
-        summary["slam"] = _slam_report(slam, src, t3 - t1)
+        summary["slam"] = _slam_report(args, slam, src, t3 - t1)
     _print_summary(args, builder, topomap, summary)
     write_json(args.json, summary)
     return 0
@@ -312,13 +314,19 @@ def _summary(args: argparse.Namespace, cfg: Any, builder: MapBuilder, topomap: A
     }
 
 
-def _slam_report(slam: tuple[Any, Any, int], src: Any, map_seconds: float) -> dict[str, Any]:
+def _slam_report(args: argparse.Namespace, slam: tuple[Any, Any, int], src: Any, map_seconds: float
+                 ) -> dict[str, Any]:
     """The SLAM's report, its map time, and (only now, after the build) its errors against the
     source's ground truth where it has one."""
     from litevloc.runtime.slam_build import evaluate_against
 
     session, sp, _ = slam
     rep = dict(sp.result.report)
+    if args.slam_graph is not None:
+        from litevloc.runtime.slam_build import save_graph
+
+        save_graph(args.slam_graph, sp.result)
+        rep["graph_file"] = str(args.slam_graph)
     rep["seconds"] = {**rep["seconds"], "map": round(map_seconds, 2)}
     rep["skipped"] = sp.skipped
     gt = sp.ground_truth
