@@ -9,6 +9,7 @@ aside (`SlamPass.ground_truth`) and read only by `evaluate_against`, after the m
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -62,9 +63,8 @@ def run_on_messages(session: SlamSession, messages: Iterable[Message],
             if m.depth is None:
                 skipped["frame without depth"] = skipped.get("frame without depth", 0) + 1
                 continue
-            depth = m.depth
-            session.add_frame(FrameRef(m.t_ns, m.index, m.K,
-                                       lambda m=m, depth=depth: FrameImages(m.color, depth, m.color_jpeg)))
+            session.add_frame(FrameRef(m.t_ns, m.index, m.K, functools.partial(FrameImages, m.color, m.depth,
+                                                                                m.color_jpeg)))
         elif isinstance(m, GroundTruthPose):
             gt[m.t_ns] = m.T_world_camera
     return SlamPass(session.finish(), skipped, gt)
@@ -85,7 +85,7 @@ def run_on_sim(session: SlamSession, src: Any, on_frame: Callable[[], None] | No
         while k < len(odo_t) and odo_t[k] <= t:
             session.add_odometry(int(odo_t[k]), odo_T[k])
             k += 1
-        session.add_frame(FrameRef(int(t), i, K, lambda i=i: images(i)))
+        session.add_frame(FrameRef(int(t), i, K, functools.partial(images, i)))
         if on_frame is not None:
             on_frame()
     for j in range(k, len(odo_t)):
