@@ -64,7 +64,7 @@ def test_slam_never_reads_the_ground_truth(recording: Path, tmp_path: Path) -> N
     assert jb["slam"]["evaluation"]["reference"].startswith("none")
     for key in ("odometry_source", "loops", "seconds", "faults", "warnings", "up"):
         assert key in jb["slam"]
-    assert set(jb["slam"]["seconds"]) == {"front_end", "loop_search", "optimisation", "map"}
+    assert set(jb["slam"]["seconds"]) == {"front_end", "loop_search", "optimisation", "map_write"}
 
 
 def test_pose_sources(recording: Path, tmp_path: Path) -> None:
