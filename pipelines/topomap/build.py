@@ -15,6 +15,10 @@ So model inference runs once per keyframe rather than once per candidate, and pe
 memory holds the keyframes' data plus the bounded accumulators. `build_two_pass` runs
 both passes over a re-iterable source. `finish()` builds the grid and both graphs.
 
+A source that already lifted a frame's depth and ran the models (the mapping pass's SLAM,
+`pipelines.slam`) feeds `add_points` and `attach_features` instead of `add` and `attach`: the
+same map, without decoding or running anything twice.
+
 Nothing here reads files or knows models: feature extraction, matching and place
 description are injected callables, frames come from an injected iterable.
 """
