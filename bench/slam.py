@@ -140,7 +140,8 @@ def moved_map(src: Path, dst: Path, T: list[list[float]]) -> Path:
 def queries(name: str, T: list[list[float]]) -> dict[str, Any]:
     """7-Scenes query pass against the SLAM map (moved into the ground truth's frame) and the
     ground-truth-posed map (bench/accuracy.py, `joint`)."""
-    slam_map = moved_map(HERE / name / "map", HERE / name / "map-in-gt-frame", T)
+    # the folder's name keys bench/accuracy.py's model cache: one name per map
+    slam_map = moved_map(HERE / name / "map", HERE / name / f"{name}-map-in-gt-frame", T)
     out = {}
     for tag, m in (("slam_map", slam_map), ("gt_map", HERE / "7s-gt-map")):
         r = subprocess.run([sys.executable, str(ROOT / "bench" / "accuracy.py"), "--map", str(m), "--configs", "joint",
