@@ -30,6 +30,7 @@ from litevloc.base.params.models import ModelsConfig
 from litevloc.base.params.navigation import GoalParams, TrackerParams
 from litevloc.base.params.odometry import OdometryCheckParams
 from litevloc.base.params.sim import SimParams
+from litevloc.base.params.slam import SlamParams
 
 
 @dataclass(frozen=True)
@@ -132,6 +133,8 @@ class LiteVLocConfig:
     models: ModelsConfig = field(default_factory=ModelsConfig)
     # map building, merging, updating and comparing
     mapping: MappingParams = field(default_factory=MappingParams)
+    # the mapping pass's own SLAM (`litevloc map build --poses slam`)
+    slam: SlamParams = field(default_factory=SlamParams)
     # GL/LL localization against the map
     localization: LocalizationParams = field(default_factory=LocalizationParams)
     # pose-graph fusion of VLoc and odometry, and the camera mount

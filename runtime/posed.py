@@ -1,13 +1,17 @@
-"""Pair RGB-D frames with their ground-truth poses from a message stream."""
+"""Pair RGB-D frames with poses from a message stream: the ground truth, the odometry, or a
+trajectory (`litevloc map build --poses`)."""
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Iterable, Iterator
 
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.hw.messages import GroundTruthPose, Message, RgbdFrame
+from litevloc.base.geometry import interpolate_pose
+from litevloc.hw.messages import GroundTruthPose, Message, Odometry, RgbdFrame
+from litevloc.pipelines.slam.frames import interpolate_trajectory
 
 
 def posed_frames(
@@ -36,3 +40,44 @@ def posed_frames(
                 pending = None
     if pending is not None:
         yield pending, None
+
+
+def odometry_posed_frames(
+    messages: Iterable[Message], T_base_camera: NDArray[np.float64],
+) -> Iterator[tuple[RgbdFrame, NDArray[np.float64] | None]]:
+    """Yield (frame, T_odom_camera or None) in time order: the recording's odometry of base_link
+    interpolated at each frame stamp and moved to the camera (`T_base_camera`), as the odometry
+    says (gaps and jumps included: the honest no-loop baseline). A frame waits for the first
+    odometry sample at or after its stamp; frames before the first sample or after the last
+    get None. Ground truth is ignored."""
+    pending: deque[RgbdFrame] = deque()
+    last: Odometry | None = None
+    for m in messages:
+        if isinstance(m, Odometry):
+            while pending and pending[0].t_ns <= m.t_ns:
+                f = pending.popleft()
+                yield f, None if last is None else _between(last, m, f.t_ns) @ T_base_camera
+            last = m
+        elif isinstance(m, RgbdFrame):
+            if last is not None and m.t_ns == last.t_ns:
+                yield m, last.T_odom_base @ T_base_camera
+            else:
+                pending.append(m)
+    for f in pending:
+        yield f, None
+
+
+def _between(a: Odometry, b: Odometry, t_ns: int) -> NDArray[np.float64]:
+    s = 0.0 if b.t_ns == a.t_ns else (t_ns - a.t_ns) / (b.t_ns - a.t_ns)
+    return interpolate_pose(a.T_odom_base, b.T_odom_base, float(np.clip(s, 0.0, 1.0)))
+
+
+def trajectory_posed_frames(
+    messages: Iterable[Message], times_ns: NDArray[np.int64], poses: NDArray[np.float64], max_gap_ns: int,
+) -> Iterator[tuple[RgbdFrame, NDArray[np.float64] | None]]:
+    """Yield (frame, T_world_camera or None): a trajectory (sorted (N,) ns stamps, (N, 4, 4) camera
+    poses, e.g. from an external SLAM's TUM file) interpolated at each frame stamp; None outside
+    it or between two of its poses more than `max_gap_ns` apart. Other messages are ignored."""
+    for m in messages:
+        if isinstance(m, RgbdFrame):
+            yield m, interpolate_trajectory(times_ns, poses, [m.t_ns], max_gap_ns)[0]

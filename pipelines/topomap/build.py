@@ -15,6 +15,10 @@ So model inference runs once per keyframe rather than once per candidate, and pe
 memory holds the keyframes' data plus the bounded accumulators. `build_two_pass` runs
 both passes over a re-iterable source. `finish()` builds the grid and both graphs.
 
+A source that already lifted a frame's depth and ran the models (the mapping pass's SLAM,
+`pipelines.slam`) feeds `add_points` and `attach_features` instead of `add` and `attach`: the
+same map, without decoding or running anything twice.
+
 Nothing here reads files or knows models: feature extraction, matching and place
 description are injected callables, frames come from an injected iterable.
 """
@@ -29,7 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litevloc.base.geometry import backproject_depth, check_rigid, rotation_angle, transform_points
-from litevloc.base.params.mapping import MappingParams
+from litevloc.base.params.mapping import KeyframeParams, MappingParams
 from litevloc.pipelines.depth_lookup import depth_at
 from litevloc.pipelines.topomap.graphs import (
     MatchFn,
@@ -125,15 +129,27 @@ class BuildReport:
     voxel_bytes: int = 0  # occupancy accumulator
 
 
-def strongest(feats: FeatureSet, n: int) -> NodeFeatures | FeatureSet:
-    """The `n` highest-scoring keypoints of `feats` in their original order (n = 0: all)."""
-    k = len(feats.keypoints)
-    if n <= 0 or k <= n:
-        return feats
-    keep = np.sort(np.argsort(-np.asarray(feats.scores), kind="stable")[:n])
-    size = getattr(feats, "image_size", (0, 0))
-    return NodeFeatures(np.asarray(feats.keypoints)[keep], np.asarray(feats.descriptors)[keep],
-                        np.asarray(feats.scores)[keep], size)
+def strongest_index(scores: NDArray[np.floating], n: int) -> NDArray[np.intp] | None:
+    """Indices of the `n` highest scores in their original order; None when all are kept (n = 0
+    or no more than n)."""
+    if n <= 0 or len(scores) <= n:
+        return None
+    return np.sort(np.argsort(-np.asarray(scores), kind="stable")[:n])
+
+
+def candidate_points(depth: NDArray[np.float32], K: NDArray[np.float64], kp: KeyframeParams) -> NDArray[np.float64]:
+    """(N, 3) camera-frame points of a depth image that pass 1 keeps for a candidate (every
+    `kp.pixel_stride`-th pixel, up to `kp.max_depth_m`)."""
+    pts_cam, _ = backproject_depth(depth, K, stride=kp.pixel_stride)
+    return pts_cam[pts_cam[:, 2] <= kp.max_depth_m]
+
+
+def encode_jpeg(color: NDArray[np.uint8], quality: int, what: str) -> bytes:
+    """JPEG bytes of an RGB image (OpenCV); RuntimeError naming `what` if encoding fails."""
+    ok, enc = cv2.imencode(".jpg", color[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, quality])
+    if not ok:
+        raise RuntimeError(f"JPEG encoding of {what} failed")
+    return bytes(enc.tobytes())
 
 
 class MapBuilder:
@@ -212,27 +228,36 @@ class MapBuilder:
         `color` gives the image size when present; otherwise it is taken from the depth.
         Returns True if the frame became a keyframe candidate.
         """
-        self.report.frames += 1
-        T = check_rigid(T_map_camera, f"pose of frame {index}", atol=1e-4)
         if depth is None:
+            self.report.frames += 1
+            check_rigid(T_map_camera, f"pose of frame {index}", atol=1e-4)
             self._skip("no depth")
             return False
+        h, w = (color if color is not None else depth).shape[:2]
+        return self.add_points(t_ns, candidate_points(depth, K, self.params.keyframes), (w, h), K, T_map_camera,
+                               index)
+
+    def add_points(
+        self, t_ns: int, pts_cam: NDArray[np.float64], size: tuple[int, int], K: NDArray[np.float64],
+        T_map_camera: NDArray[np.float64], index: int,
+    ) -> bool:
+        """Pass 1 for a frame whose depth is already lifted (`candidate_points`, camera frame):
+        `add` without the depth image (`size` = (width, height) of the image). A source that
+        kept only these points (the SLAM front end) feeds its keyframes here."""
+        self.report.frames += 1
+        T = check_rigid(T_map_camera, f"pose of frame {index}", atol=1e-4)
         self.trajectory.append(T[:3, 3].copy())
         if not self._is_candidate(T):
             return False
-        kp = self.params.keyframes
-        pts_cam, _ = backproject_depth(depth, K, stride=kp.pixel_stride)
-        pts_cam = pts_cam[pts_cam[:, 2] <= kp.max_depth_m]
         if len(pts_cam) < 50:
             self._skip("too little valid depth")
             return False
         pts = transform_points(T, pts_cam)
         self._voxels.add(pts)
-        keys = coverage_keys_sliced(pts, T[:3, 3], self.up, kp)
-        h, w = (color if color is not None else depth).shape[:2]
+        keys = coverage_keys_sliced(pts, T[:3, 3], self.up, self.params.keyframes)
         self.candidates.append(_Candidate(
-            frame_pos=len(self.trajectory) - 1, index=index, t_ns=t_ns, T=T, K=np.asarray(K, np.float64), size=(w, h),
-            keys=keys,
+            frame_pos=len(self.trajectory) - 1, index=index, t_ns=t_ns, T=T, K=np.asarray(K, np.float64),
+            size=(int(size[0]), int(size[1])), keys=keys,
         ))
         self._index_candidate(len(self.candidates) - 1)
         self.report.candidates += 1
@@ -268,20 +293,30 @@ class MapBuilder:
                jpeg: bytes | None = None) -> None:
         """Pass 2: image data of selected candidate `pos` (features, keypoint depth, VPR, JPEG)."""
         c = self.candidates[pos]
-        feats = strongest(self.extract(color), self.params.stored_keypoints)
-        c.kp_depth = depth_at(depth, feats.keypoints, self.params.depth)
+        feats = self.extract(color)
+        kp_depth = depth_at(depth, np.asarray(feats.keypoints), self.params.depth)
         if jpeg is None:
-            ok, enc = cv2.imencode(".jpg", color[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, self.params.jpeg_quality])
-            if not ok:
-                raise RuntimeError(f"JPEG encoding of frame {c.index} failed")
-            jpeg = enc.tobytes()
+            jpeg = encode_jpeg(color, self.params.jpeg_quality, f"frame {c.index}")
         h, w = color.shape[:2]
-        if (w, h) != c.size:
-            raise ValueError(f"frame {c.index}: pass 2 image is {w}x{h}, pass 1 saw {c.size[0]}x{c.size[1]}")
+        self.attach_features(pos, feats, kp_depth, np.asarray(self.describe(color), np.float32), jpeg, (w, h))
+
+    def attach_features(self, pos: int, feats: FeatureSet, kp_depth: NDArray[np.float32], vpr: NDArray[np.float32],
+                        jpeg: bytes, size: tuple[int, int]) -> None:
+        """Pass 2 with the models already run (`attach` without the images): local features of
+        the candidate's image (size = (width, height)), the depth at each keypoint (mapping.depth),
+        its VPR descriptor and JPEG bytes. The strongest `stored_keypoints` are kept."""
+        c = self.candidates[pos]
+        if tuple(size) != c.size:
+            raise ValueError(f"frame {c.index}: pass 2 image is {size[0]}x{size[1]}, "
+                             f"pass 1 saw {c.size[0]}x{c.size[1]}")
+        keep = strongest_index(np.asarray(feats.scores), self.params.stored_keypoints)
+        rows = slice(None) if keep is None else keep
+        z = np.asarray(kp_depth, np.float32)[rows]
+        c.kp_depth = z
         c.jpeg = jpeg
-        c.features = NodeFeatures(np.asarray(feats.keypoints, np.float32), np.asarray(feats.descriptors),
-                                  np.asarray(feats.scores, np.float32), (w, h), np.asarray(c.kp_depth, np.float32))
-        c.vpr = np.asarray(self.describe(color), np.float32)
+        c.features = NodeFeatures(np.asarray(feats.keypoints, np.float32)[rows], np.asarray(feats.descriptors)[rows],
+                                  np.asarray(feats.scores, np.float32)[rows], c.size, z)
+        c.vpr = np.asarray(vpr, np.float32)
 
     def finish(self, on_pair: Callable[[], None] | None = None, selected: list[int] | None = None) -> TopoMap:
         """Build the grid and both graphs over the selected keyframes (all must be attached)."""

@@ -1,0 +1,151 @@
+"""Parameters of the mapping pass's pose-graph SLAM (config section `slam`, used by
+`litevloc.pipelines.slam` when `litevloc map build --poses slam` poses a recording itself).
+
+Keyframes are spaced by the mapping pre-filter's motion thresholds (`mapping.keyframes`), so
+every map keyframe is a SLAM keyframe; loop verification uses the localizer's own geometry
+(`localization.pnp`, `localization.refine`, `localization.depth`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from litevloc.base.params.localization import PnpParams
+
+
+@dataclass(frozen=True)
+class SlamOdometryParams:
+    """The robot's odometry as pose-graph edges: noise model and fault checks (metres, degrees, seconds)."""
+
+    # translation noise of an odometry edge per metre travelled, per axis (fraction of the distance)
+    sigma_m_per_m: float = 0.02
+    # translation noise of an odometry edge however short it is, per axis (metres)
+    sigma_floor_m: float = 0.002
+    # rotation noise of an odometry edge per metre travelled, per axis (degrees per metre)
+    sigma_deg_per_m: float = 1.5
+    # rotation noise of an odometry edge per degree turned, per axis (fraction of the angle)
+    sigma_deg_per_deg: float = 0.01
+    # rotation noise of an odometry edge however short it is, per axis (degrees)
+    sigma_floor_deg: float = 0.1
+    # a silence between odometry samples longer than this splits the odometry: no edge spans it (seconds)
+    max_gap_s: float = 0.5
+    # an odometry step faster than this is a jump (a reset or a fault) and splits the odometry (m/s)
+    max_speed_mps: float = 5.0
+    # an odometry step turning faster than this is a jump too (degrees per second)
+    max_turn_dps: float = 720.0
+
+    def __post_init__(self) -> None:
+        for name in ("sigma_m_per_m", "sigma_floor_m", "sigma_deg_per_m", "sigma_deg_per_deg", "sigma_floor_deg"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0):
+                raise ValueError(f"slam.odometry.{name} must be a finite number >= 0, got {v}")
+        if self.sigma_floor_m <= 0 or self.sigma_floor_deg <= 0:
+            raise ValueError("slam.odometry.sigma_floor_m and sigma_floor_deg must be > 0")
+        for name in ("max_gap_s", "max_speed_mps", "max_turn_dps"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"slam.odometry.{name} must be a finite number > 0, got {v}")
+
+
+@dataclass(frozen=True)
+class SlamVisualParams:
+    """Visual edges between nearby keyframes, and visual odometry where the odometry is missing."""
+
+    # visual edges from each keyframe to this many previous keyframes (matched with models.vo_matcher)
+    neighbours: int = 2
+    # PnP gates of a visual edge (the keyframe's keypoints lifted with its depth, into the other
+    # image); its min_sigma_* are the floor of the edge's noise
+    pnp: PnpParams = field(default_factory=lambda: PnpParams(
+        min_inliers=25, min_inlier_ratio=0.0, max_median_reprojection_px=2.0, min_sigma_trans_m=0.003,
+        min_sigma_rot_rad=float(np.radians(0.15))))
+    # where the odometry (or tracking) predicts the motion, a visual edge's matches are found by
+    # projecting the keyframe's points with the prediction: each pairs with the most similar keypoint
+    # within this radius that is also its mutual nearest neighbour over all keypoints (pixels); the
+    # matcher runs only where these are too few
+    guided_radius_px: float = 20.0
+    # cosine similarity a guided match needs
+    guided_min_similarity: float = 0.6
+    # two edges into a new keyframe (odometry, visual) agree when their estimates of its pose differ by
+    # at most this many sigmas of the two edges (translation and rotation); the largest agreeing set
+    # is kept and the other edges dropped (an odometry edge dropped so is reported as a fault)
+    max_disagreement_sigma: float = 8.0
+    # without odometry, every Nth camera frame is tracked against the last keyframe (1 = every frame)
+    track_every: int = 2
+    # without odometry, a tracked frame with fewer PnP inliers than this becomes a keyframe
+    # (the view is leaving the last keyframe's)
+    track_min_inliers: int = 60
+
+    def __post_init__(self) -> None:
+        if self.neighbours < 1 or self.track_every < 1:
+            raise ValueError("slam.visual.neighbours and slam.visual.track_every must be >= 1")
+        if not (self.guided_radius_px > 0 and -1 <= self.guided_min_similarity <= 1):
+            raise ValueError("slam.visual.guided_radius_px must be > 0, guided_min_similarity in [-1, 1]")
+        if not (np.isfinite(self.max_disagreement_sigma) and self.max_disagreement_sigma > 0):
+            raise ValueError("slam.visual.max_disagreement_sigma must be a finite number > 0")
+        if self.track_min_inliers < self.pnp.min_inliers:
+            raise ValueError("slam.visual.track_min_inliers must be >= slam.visual.pnp.min_inliers")
+
+
+@dataclass(frozen=True)
+class SlamLoopParams:
+    """Loop closures: place-recognition candidates, bounded verification, robust factors."""
+
+    # candidates are older than this many keyframes (the recent ones are linked by visual edges)
+    exclude_recent: int = 8
+    # place-recognition candidates considered per keyframe (most similar first)
+    top_k: int = 3
+    # candidates less similar than this (cosine of the VPR descriptors) are not tried
+    min_similarity: float = 0.5
+    # at most this many candidates are verified per keyframe (the cost bound: one matcher run each)
+    max_verifications: int = 2
+    # a candidate within this many keyframes of a loop partner already verified for this keyframe is skipped
+    partner_spacing: int = 3
+    # a loop factor's translation noise is at least this, per axis (metres)
+    sigma_floor_m: float = 0.003
+    # a loop factor's rotation noise is at least this, per axis (degrees)
+    sigma_floor_deg: float = 0.15
+
+    def __post_init__(self) -> None:
+        if self.exclude_recent < 1 or self.top_k < 1 or self.max_verifications < 0 or self.partner_spacing < 0:
+            raise ValueError("slam.loops: exclude_recent, top_k >= 1; max_verifications, partner_spacing >= 0")
+        if not (-1 <= self.min_similarity <= 1):
+            raise ValueError(f"slam.loops.min_similarity must be in [-1, 1], got {self.min_similarity}")
+        if not (self.sigma_floor_m > 0 and self.sigma_floor_deg > 0):
+            raise ValueError("slam.loops.sigma_floor_m and sigma_floor_deg must be > 0")
+
+
+@dataclass(frozen=True)
+class SlamGraphParams:
+    """Robust optimisation of the pose graph (GTSAM graduated non-convexity over the loop factors)."""
+
+    # a loop factor is an inlier while its whitened error is below the chi-square quantile at this probability
+    inlier_probability: float = 0.99
+    # a loop factor whose final GNC weight is above this counts as kept (else rejected by the optimiser)
+    kept_weight: float = 0.5
+
+    def __post_init__(self) -> None:
+        if not (0 < self.inlier_probability < 1) or not (0 < self.kept_weight < 1):
+            raise ValueError("slam.graph.inlier_probability and kept_weight must be in (0, 1)")
+
+
+@dataclass(frozen=True)
+class SlamParams:
+    """The mapping pass's SLAM (see the module docstring), and external trajectories (`--poses FILE`)."""
+
+    odometry: SlamOdometryParams = field(default_factory=SlamOdometryParams)
+    visual: SlamVisualParams = field(default_factory=SlamVisualParams)
+    loops: SlamLoopParams = field(default_factory=SlamLoopParams)
+    graph: SlamGraphParams = field(default_factory=SlamGraphParams)
+    # matcher of the visual edges and of tracking ("mnn": mutual nearest neighbours, ~100x cheaper than
+    # LightGlue; PnP with depth verifies); loops use the localizer's matcher (models.matcher)
+    vo_matcher: Literal["lightglue", "lightglue-int8", "lightglue-adaptive", "mnn", "nn-ratio"] = "mnn"
+    # --poses FILE: frames between two poses of the trajectory further apart than this get no pose
+    # (seconds; an external SLAM that lost tracking leaves such gaps)
+    file_max_gap_s: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.file_max_gap_s) and self.file_max_gap_s > 0):
+            raise ValueError(f"slam.file_max_gap_s must be a finite number > 0, got {self.file_max_gap_s}")

@@ -1,0 +1,238 @@
+"""Maps from the robot's own sensors (issue 41): `map build --poses slam`, measured.
+
+    .venv/bin/python bench/slam.py [--json out/bench/slam.json] [--cases office floor loop bland 7s 7s-camera]
+        [--inject] [--queries] [--navigation] [--loop-query] [--config default]
+
+Cases (each `map build` runs in its own process: its peak RSS and seconds are its own):
+
+* simulator mapping passes with their drifting odometry, seed 0: `sim:office|floor|bland?pass=map`,
+  `sim:loop?pass=loop` (the passes `sim navigate` and `bench/loop.py` map with); the build's own
+  report gives the errors against the simulator's ground truth (read after the build);
+* `7s`: 7-Scenes redkitchen frames 0-499, `litevloc convert` drift odometry (seed 0), the
+  ground-truth channel removed before the build; errors against the dataset's ground truth
+  and against the SfM pseudo ground truth (similarity alignment: its own scale);
+* `7s-camera`: the same with `--odometry-rate 0` (camera only);
+* `--inject`: 10 % wrong loop factors (places more than 3 m apart) added to the office and loop
+  graphs, re-optimised: how far the keyframes move (experiments/slam.py);
+* `--queries`: 7-Scenes frames 500-999 localized (bench/accuracy.py, `joint`) against each 7-Scenes
+  SLAM map moved into the ground truth's frame (SE(3) over its keyframes) and against the
+  ground-truth-posed map;
+* `--navigation`: `litevloc sim navigate WORLD --map-poses slam|ground-truth` for office, floor and
+  loop (long: 10-30 min each);
+* `--loop-query`: the loop world's query lap through the runtime (bench/loop.py --skip-nav) on the
+  SLAM map moved into the world frame.
+
+Writes one object per case with `keyframe_ate_m`, `odometry_ate_m`, `rpe_per_m`, `loops_kept`,
+`wrong_loops_kept`, `s_per_keyframe`, `peak_rss_mb` (and for the worlds with --navigation
+`goals_reached_slam_map`, `goals_reached_gt_map`, `goals_total`). Timings come from a shared
+2-core machine unless stated.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import numpy as np
+from _common import OUT, ROOT, SEVEN_SCENES, litevloc, print_table, require_7scenes, write_json
+
+from litevloc.config import load_config
+from litevloc.experiments.slam import case_figures, graph_errors, inject_wrong_loops, sim_reference
+
+PASSES = {"office": "map", "floor": "map", "bland": "map", "loop": "loop"}
+HERE = OUT / "slam"
+
+
+def sim_case(world: str, config: str) -> dict[str, Any]:
+    d = HERE / world
+    js, npz = d / "build.json", d / "graph.npz"
+    litevloc("map", "build", f"sim:{world}?pass={PASSES[world]}&seed=0", "-o", str(d / "map"), "--force",
+             "--poses", "slam", "--json", str(js), "--slam-graph", str(npz), "--config", config)
+    return case_figures(json.loads(js.read_text()), world)
+
+
+def inject(world: str, config: str) -> dict[str, Any]:
+    cfg = load_config(config)
+    ref = sim_reference(f"sim:{world}?pass={PASSES[world]}&seed=0", cfg.sim)
+    return inject_wrong_loops(HERE / world / "graph.npz", ref, cfg.slam.graph, 0.1, 3.0, seed=0)
+
+
+def _without_ground_truth(src: Path, dst: Path) -> None:
+    """Copy a recording without its /ground_truth/camera_pose channel (what a robot records)."""
+    from litevloc.hw.messages import GroundTruthPose
+    from litevloc.hw.streams.mcap_io import McapSource, record_messages
+
+    record_messages((m for m in McapSource(src) if not isinstance(m, GroundTruthPose)), dst,
+                    {"source": str(src), "note": "ground truth removed"})
+
+
+def _reference(rec: Path) -> dict[int, np.ndarray]:
+    from litevloc.hw.streams.mcap_io import McapSource
+    from litevloc.runtime.posed import posed_frames
+
+    return {f.index: T for f, T in posed_frames(McapSource(rec)) if T is not None}
+
+
+def sevenscenes_case(name: str, rate: float, pgt: Path | None) -> dict[str, Any]:
+    data = require_7scenes()
+    d = HERE / name
+    d.mkdir(parents=True, exist_ok=True)
+    full, rec = d / "with-gt.mcap", d / "robot.mcap"
+    if not full.is_file():
+        litevloc("convert", str(data), str(full), "--frames", "0:500", "--odometry-rate", str(rate), "--seed", "0",
+                 "--config", "7scenes")
+    if not rec.is_file():
+        _without_ground_truth(full, rec)
+    js, npz = d / "build.json", d / "graph.npz"
+    litevloc("map", "build", str(rec), "-o", str(d / "map"), "--force", "--poses", "slam", "--json", str(js),
+             "--slam-graph", str(npz), "--config", "7scenes")
+    build = json.loads(js.read_text())
+    out = case_figures(build)
+    cfg = load_config("7scenes")
+    ev = graph_errors(npz, _reference(full), cfg.slam.graph)
+    out.update({k: ev[k] for k in ("keyframe_ate_m", "rpe_per_m", "wrong_loops_kept")})
+    out["T_reference_map"] = ev["T_reference_map"]
+    out["reference"] = "7-Scenes ground truth (colour camera, preset 7scenes), read from the dataset after the build"
+    if pgt is not None:
+        from pgt_agreement import read_pgt
+
+        out["keyframe_ate_vs_sfm_pgt_m"] = graph_errors(npz, read_pgt(pgt, "seq-01"), cfg.slam.graph,
+                                                        similarity=True)["keyframe_ate_m"]
+    out["odometry_ate_m"] = _odometry_ate(full, npz) if rate > 0 else None
+    return out
+
+
+def _odometry_ate(rec: Path, npz: Path) -> float:
+    """ATE of the recording's odometry alone at the SLAM keyframes (camera = base_link, 7scenes)."""
+    from litevloc.base.geometry import interpolate_pose_at
+    from litevloc.hw.messages import Odometry
+    from litevloc.hw.streams.mcap_io import McapSource
+    from litevloc.pipelines.evaluation.trajectory import ate
+    from litevloc.runtime.slam_build import load_graph
+
+    odo = [(m.t_ns, m.T_odom_base) for m in McapSource(rec) if isinstance(m, Odometry)]
+    t = np.array([o[0] for o in odo], np.int64)
+    P = np.stack([o[1] for o in odo])
+    g = load_graph(npz)
+    ref = _reference(rec)
+    T_bc = load_config("7scenes").fusion.T_base_camera()
+    kfs = [k for k in g.keyframes if k.index in ref and t[0] <= k.t_ns <= t[-1]]
+    est = np.stack([interpolate_pose_at(k.t_ns, t, P) @ T_bc for k in kfs])
+    return float(ate(est, np.stack([ref[k.index] for k in kfs])).rmse)
+
+
+def moved_map(src: Path, dst: Path, T: list[list[float]]) -> Path:
+    """A copy of a map moved into the reference frame (rigidly, SE(3) over its keyframes)."""
+    from litevloc.pipelines.topomap.io import load_map, save_map
+    from litevloc.pipelines.topomap.merge import transform_map
+
+    save_map(transform_map(load_map(src), np.asarray(T, np.float64)), dst, overwrite=True)
+    return dst
+
+
+def queries(name: str, T: list[list[float]]) -> dict[str, Any]:
+    """7-Scenes query pass against the SLAM map (moved into the ground truth's frame) and the
+    ground-truth-posed map (bench/accuracy.py, `joint`)."""
+    # the folder's name keys bench/accuracy.py's model cache: one name per map
+    slam_map = moved_map(HERE / name / "map", HERE / name / f"{name}-map-in-gt-frame", T)
+    out = {}
+    for tag, m in (("slam_map", slam_map), ("gt_map", HERE / "7s-gt-map")):
+        r = subprocess.run([sys.executable, str(ROOT / "bench" / "accuracy.py"), "--map", str(m), "--configs", "joint",
+                            "--name", f"slam_{name}_{tag}"])
+        if r.returncode != 0:
+            raise SystemExit(f"bench/accuracy.py failed on {m}")
+        res = json.loads((OUT / f"slam_{name}_{tag}.json").read_text())["results"][0]
+        out[tag] = {k: res[k] for k in ("within_5cm_5deg_pct", "within_2cm_2deg_pct", "accepted_pct", "median_cm",
+                                        "wrong_over_0.5m")}
+    return out
+
+
+def navigation(world: str, config: str) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for poses in ("slam", "ground-truth"):
+        js = HERE / f"nav-{world}-{poses}.json"
+        subprocess.run([sys.executable, "-m", "litevloc.runtime.cli.main", "sim", "navigate", world, "--map-poses",
+                        poses, "--localization", "litevloc", "--json", str(js), "--config", config])
+        out[poses] = json.loads(js.read_text())
+    s, g = out["slam"], out["ground-truth"]
+    from litevloc.runtime.cli.sim_navigate import goal_ratios
+
+    return {"goals_reached_slam_map": s["goals_reached"], "goals_reached_gt_map": g["goals_reached"],
+            "goals_total": s["goals_total"], "path_ratio_slam_vs_gt_map": goal_ratios(s["goals"], g["goals"]),
+            "runs": {k: {kk: v[kk] for kk in ("goals_reached", "goals_total", "time_s", "path_length_m",
+                                               "collisions")} for k, v in out.items()}}
+
+
+def loop_query(T: list[list[float]]) -> dict[str, Any]:
+    d = HERE / "loop-query"
+    d.mkdir(parents=True, exist_ok=True)
+    shutil.rmtree(d / "map", ignore_errors=True)
+    moved_map(HERE / "loop" / "map", d / "map", T)
+    js = d / "loop.json"
+    r = subprocess.run([sys.executable, str(ROOT / "bench" / "loop.py"), "--out-dir", str(d), "--reuse-map",
+                        "--skip-nav", "--json", str(js)])
+    if r.returncode != 0:
+        raise SystemExit("bench/loop.py failed")
+    q = json.loads(js.read_text())
+    return {k: q[k] for k in ("vloc_ate_m", "fused_ate_m", "odometry_ate_m", "localized_fraction")}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--cases", nargs="+", default=["office", "floor", "loop", "bland", "7s", "7s-camera"])
+    ap.add_argument("--config", default="default")
+    ap.add_argument("--inject", action="store_true")
+    ap.add_argument("--queries", action="store_true")
+    ap.add_argument("--navigation", action="store_true")
+    ap.add_argument("--loop-query", action="store_true")
+    ap.add_argument("--pgt", type=Path, default=SEVEN_SCENES / "pgt-sfm-seq-01.txt")
+    ap.add_argument("--json", default="slam", help="name of the JSON under out/bench/")
+    args = ap.parse_args()
+    prev = OUT / f"{args.json}.json"
+    res: dict[str, Any] = json.loads(prev.read_text()) if prev.is_file() else {}  # cases not rerun are kept
+    for c in args.cases:
+        if c in PASSES:
+            res[c] = sim_case(c, args.config)
+        elif c in ("7s", "7s-camera"):
+            res[c] = sevenscenes_case(c, 100.0 if c == "7s" else 0.0, args.pgt if args.pgt.is_file() else None)
+        else:
+            raise SystemExit(f"unknown case {c}")
+        write_json(args.json, res)
+    if args.inject:
+        for w in ("office", "loop"):
+            res[w]["wrong_loop_injection"] = inject(w, args.config)
+            write_json(args.json, res)
+    if args.queries:
+        if not (HERE / "7s-gt-map" / "manifest.json").is_file():
+            litevloc("map", "build", str(require_7scenes()), "--frames", "0:500", "-o", str(HERE / "7s-gt-map"),
+                     "--force", "--config", "7scenes", "--poses", "ground-truth")
+        for c in ("7s", "7s-camera"):
+            if c in res:
+                res[c]["queries"] = queries(c, res[c]["T_reference_map"])
+                write_json(args.json, res)
+    if args.navigation:
+        for w in ("office", "floor", "loop"):
+            res.setdefault(w, {}).update(navigation(w, args.config))
+            write_json(args.json, res)
+    if args.loop_query and "loop" in res:
+        ev = json.loads((HERE / "loop" / "build.json").read_text())["slam"]["evaluation"]
+        res["loop"]["query_lap"] = loop_query(ev["T_reference_map"])
+        write_json(args.json, res)
+    rows = [[c, r.get("keyframe_ate_m"), r.get("odometry_ate_m"), r.get("rpe_per_m"), r.get("loops_kept"),
+             r.get("wrong_loops_kept"), r.get("s_per_keyframe"), r.get("peak_rss_mb"),
+             (r.get("wrong_loop_injection") or {}).get("moved_max_m")] for c, r in res.items() if c != "meta"]
+    print_table("map build --poses slam (shared 2-core machine)",
+                ["case", "kf ATE m", "odom ATE m", "RPE m/m", "loops kept", "wrong kept", "s/kf", "RSS MB",
+                 "10% wrong: moved m"], rows)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,276 @@
+"""The SLAM front end: keyframes and the edges between nearby ones, one frame at a time.
+
+* Keyframes are spaced by the mapping pre-filter's motion thresholds (`mapping.keyframes`:
+  translation or rotation since the last keyframe), measured with the odometry where the frame
+  and the last keyframe lie in one odometry segment; no image is touched for other frames.
+* Where the odometry cannot say (no odometry in the recording, a gap, a jump), every
+  `visual.track_every`-th frame is tracked against the last keyframe (features, the cheap
+  matcher, PnP with the frame's depth); it becomes a keyframe when it moved enough, when its
+  inliers run low, or when tracking fails (then it starts a new chain unless the odometry links it).
+* A new keyframe gets an odometry edge from the previous one (same odometry segment) and
+  visual edges (PnP with its depth) from up to `visual.neighbours` previous ones. Where the
+  odometry or tracking predicts the motion, matches come from projecting the keyframe's points
+  with that prediction (mutual nearest neighbours over all keypoints, within a radius: ~1 ms,
+  and repeated textures cannot pair with the wrong repetition); the cheap matcher runs only
+  where too few are found. Of these edges the largest set whose estimates of the new
+  keyframe's pose agree (within `visual.max_disagreement_sigma` of their noise) is kept, with
+  the odometry first in line; a dropped odometry edge is recorded as a `Fault`.
+
+Camera motion from odometry: `T_odom_camera = T_odom_base @ T_base_camera`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+from dataclasses import dataclass
+
+import numpy as np
+
+from litevloc.base.geometry import backproject_pixels, invert, rotation_angle
+from litevloc.base.params.localization import LocalizationParams, RefineParams
+from litevloc.base.params.mapping import MappingParams
+from litevloc.base.params.slam import SlamParams
+from litevloc.pipelines.depth_lookup import depth_at
+from litevloc.pipelines.guided_matching import match_by_projection
+from litevloc.pipelines.localization.refine import KeyframeObservations, refine_pose
+from litevloc.pipelines.pnp import solve_pnp
+from litevloc.pipelines.slam.odometry import odometry_edge
+from litevloc.pipelines.slam.types import F64, Edge, Fault, FrameImages, FrameRecord, FrameRef, Keyframe, SlamModels
+from litevloc.pipelines.topomap.build import candidate_points, encode_jpeg
+from litevloc.pipelines.topomap.keyframes import moved
+from litevloc.pipelines.topomap.types import NodeFeatures
+
+_RT = [3, 4, 5, 0, 1, 2]  # (t, rotvec) -> GTSAM's (rotvec, t)
+
+
+@dataclass(frozen=True, eq=False)
+class Relative:
+    """A frame's pose relative to a keyframe: T_keyframe_frame (4x4), its 6x6 covariance in
+    GTSAM's order (see `pipelines.slam.types`) and the inliers supporting it."""
+
+    T: F64
+    covariance: F64
+    inliers: int
+
+
+def edge_refine_params(loc: RefineParams, floor_m: float, floor_deg: float, keyframes: int | None = None
+                       ) -> RefineParams:
+    """The localizer's joint refinement as the SLAM's edges use it: its noise model and gates,
+    without its systematic terms (fitted for live queries against a map, they make an edge
+    between two keyframes of one pass 20x less certain than its error: measured on a simulated
+    pass), with the edge's noise floor; `keyframes`: how many keyframes must agree (None: as
+    the localizer)."""
+    r = dataclasses.replace(loc, sigma_sys_t_m=0.0, sigma_sys_r_deg=0.0, sigma_sys_t_per_rad=0.0,
+                            sigma_sys_r_per_rad=0.0, sigma_sys_t_per_m=0.0, sigma_sys_r_deg_per_m=0.0,
+                            min_sigma_t_m=floor_m, min_sigma_r_deg=floor_deg)
+    return r if keyframes is None else dataclasses.replace(r, min_keyframes=keyframes, max_keyframes=keyframes)
+
+
+def edge_error(T_a_b: F64, T_a_b_other: F64) -> tuple[float, float]:
+    """Translation (m) and rotation (rad) of inv(T_a_b) @ T_a_b_other: how far two measurements
+    of the same motion disagree."""
+    E = invert(T_a_b) @ T_a_b_other
+    return float(np.linalg.norm(E[:3, 3])), rotation_angle(E[:3, :3])
+
+
+class FrontEnd:
+    """Keyframes and their odometry and visual edges (see the module docstring)."""
+
+    def __init__(self, params: SlamParams, mapping: MappingParams, localization: LocalizationParams,
+                 models: SlamModels, T_base_camera: F64) -> None:
+        self.params, self.mapping, self.models = params, mapping, models
+        vp = params.visual.pnp
+        self._refine = edge_refine_params(localization.refine, vp.min_sigma_trans_m,
+                                          float(np.degrees(vp.min_sigma_rot_rad)), keyframes=1)
+        self.T_base_camera = np.asarray(T_base_camera, np.float64)
+        self.keyframes: list[Keyframe] = []
+        self.edges: list[Edge] = []
+        self.frames: list[FrameRecord] = []
+        self.faults: list[Fault] = []
+        self.counts = {"frames": 0, "frames_tracked": 0, "tracking_failures": 0, "odometry_edges": 0,
+                       "odometry_edges_dropped": 0, "visual_edges": 0, "visual_edges_dropped": 0,
+                       "visual_edge_failures": 0, "chains": 0, "keyframes_with_odometry": 0}
+        self._since_track = 0
+        self._dropped_run = (-1, -1, 0)  # first and last keyframe, count of the current run of dropped odometry
+
+    # ---------------------------------------------------------------- per frame
+    def add(self, ref: FrameRef, odom: tuple[int, F64] | None) -> Keyframe | None:
+        """Process one frame (time order) with its odometry pose (segment, T_odom_base) or None;
+        returns the keyframe it became, if it did."""
+        self.counts["frames"] += 1
+        rec = FrameRecord(ref.index, ref.t_ns)
+        self.frames.append(rec)
+        if not self.keyframes:
+            return self._keyframe(ref, rec, ref.load(), odom, None)
+        last = self.keyframes[-1]
+        if odom is not None and last.odom is not None and odom[0] == last.odom[0]:
+            T_rel = invert(last.odom[1] @ self.T_base_camera) @ odom[1] @ self.T_base_camera
+            rec.anchor, rec.T_anchor_frame, rec.how = last.id, T_rel, "odometry"
+            self._since_track = self.params.visual.track_every - 1  # the first frame without odometry is tracked
+            if not moved(np.eye(4), T_rel, self.mapping.keyframes):
+                return None
+            return self._keyframe(ref, rec, ref.load(), odom, None)
+        self._since_track += 1
+        if self._since_track < self.params.visual.track_every:
+            return None
+        self._since_track = 0
+        images = ref.load()
+        feats, points = self._features(images, ref.K)
+        self.counts["frames_tracked"] += 1
+        res = self._relative(points, feats, last)
+        if res is None:
+            self.counts["tracking_failures"] += 1
+            return self._keyframe(ref, rec, images, odom, (feats, points))
+        rec.anchor, rec.T_anchor_frame, rec.how = last.id, res.T, "visual"
+        if moved(np.eye(4), res.T, self.mapping.keyframes) or res.inliers < self.params.visual.track_min_inliers:
+            return self._keyframe(ref, rec, images, odom, (feats, points), tracked=res)
+        return None
+
+    # ---------------------------------------------------------------- building blocks
+    def _features(self, images: FrameImages, K: F64) -> tuple[NodeFeatures, F64]:
+        """Local features with the depth at each keypoint, and the keypoints lifted (NaN rows
+        without depth), camera frame."""
+        f = self.models.extract(images.color)
+        kp = np.asarray(f.keypoints, np.float32)
+        z = depth_at(images.depth, kp, self.mapping.depth)
+        h, w = images.color.shape[:2]
+        feats = NodeFeatures(kp, np.asarray(f.descriptors), np.asarray(f.scores, np.float32), (w, h), z)
+        pts = np.full((len(kp), 3), np.nan)
+        ok = np.isfinite(z)
+        pts[ok] = backproject_pixels(K, kp[ok].astype(np.float64), z[ok].astype(np.float64))
+        return feats, pts
+
+    def _relative(self, points: F64, feats: NodeFeatures, target: Keyframe,
+                  prior: F64 | None = None) -> Relative | None:
+        """Pose of a frame relative to `target` (T_target_frame, see `Relative`) from its lifted
+        points: matches (by projection with a predicted `prior`, else the cheap matcher), PnP into
+        the target's image, then the joint refinement with both images' depth (3D residuals pin
+        the motion along the optical axis that reprojections leave loose). None when a gate fails."""
+        vp = self.params.visual
+        i_s = i_t = np.zeros(0, np.int64)
+        if prior is not None:
+            i_s, i_t = match_by_projection(points, feats.descriptors, prior, target.features.keypoints,
+                                           target.features.descriptors, target.K, np.eye(4), vp.guided_radius_px,
+                                           vp.guided_min_similarity, True)
+        if len(i_s) < vp.pnp.min_inliers:
+            i_s, i_t = self.models.match_vo(feats, target.features)
+        pts = points[i_s]
+        ok = np.all(np.isfinite(pts), axis=1)
+        if ok.sum() < vp.pnp.min_inliers:
+            return None
+        kps = np.asarray(target.features.keypoints, np.float64)[i_t[ok]]
+        res = solve_pnp(pts[ok], kps, target.K, vp.pnp)
+        if not res.accepted or res.T_target_source is None:
+            return None
+        z = target.features.depth
+        obs = KeyframeObservations(target.id, pts[ok], kps, target.K, np.eye(4),
+                                   None if z is None else np.asarray(z, np.float64)[i_t[ok]])
+        joint = refine_pose(res.T_target_source, [obs], self._refine)
+        if not joint.accepted or joint.covariance is None:
+            return None
+        return Relative(joint.T_map_camera, joint.covariance[np.ix_(_RT, _RT)], joint.n_inliers)
+
+    def _keyframe(self, ref: FrameRef, rec: FrameRecord, images: FrameImages, odom: tuple[int, F64] | None,
+                  computed: tuple[NodeFeatures, F64] | None, tracked: Relative | None = None) -> Keyframe:
+        feats, points = computed if computed is not None else self._features(images, ref.K)
+        h, w = images.color.shape[:2]
+        kf = Keyframe(
+            id=len(self.keyframes), index=ref.index, t_ns=ref.t_ns, K=np.asarray(ref.K, np.float64), size=(w, h),
+            features=feats, points=points, vpr=np.asarray(self.models.describe(images.color), np.float32),
+            jpeg=images.jpeg or encode_jpeg(images.color, self.mapping.jpeg_quality, f"frame {ref.index}"),
+            cloud=candidate_points(images.depth, ref.K, self.mapping.keyframes).astype(np.float32),
+            odom=odom, T_init=np.eye(4), chain=0)
+        if odom is not None:
+            self.counts["keyframes_with_odometry"] += 1
+        rec.keyframe = kf.id
+        new_edges = self._edges_to_previous(kf, tracked)
+        self._place(kf, new_edges)
+        self.keyframes.append(kf)
+        self.edges.extend(new_edges)
+        return kf
+
+    def _edges_to_previous(self, kf: Keyframe, tracked: Relative | None) -> list[Edge]:
+        """Odometry and visual edges from the previous keyframes to `kf`, the largest agreeing set."""
+        if not self.keyframes:
+            return []
+        prev = self.keyframes[-1]
+        odo: Edge | None = None
+        if kf.odom is not None and prev.odom is not None and kf.odom[0] == prev.odom[0]:
+            T, cov = odometry_edge(prev.odom[1], kf.odom[1], self.T_base_camera, self.params.odometry)
+            odo = Edge(prev.id, kf.id, T, cov, "odometry")
+        predicted = odo.T_a_b if odo is not None else (None if tracked is None else tracked.T)
+        visual: list[Edge] = []
+        for other in reversed(self.keyframes[-self.params.visual.neighbours:]):
+            prior = None if predicted is None else invert(other.T_init) @ prev.T_init @ predicted
+            res = tracked if (other is prev and tracked is not None) else \
+                self._relative(kf.points, kf.features, other, prior)
+            if res is None:
+                self.counts["visual_edge_failures"] += 1
+                continue
+            visual.append(Edge(other.id, kf.id, res.T, res.covariance, "visual", inliers=res.inliers))
+        kept = self._consensus(([odo] if odo is not None else []) + visual)
+        if odo is not None and odo not in kept:
+            self.counts["odometry_edges_dropped"] += 1
+            self._odometry_dropped(kf, len(kept))
+        self.counts["visual_edges_dropped"] += sum(e not in kept for e in visual)
+        self.counts["odometry_edges"] += int(odo is not None and odo in kept)
+        self.counts["visual_edges"] += sum(e in kept for e in visual)
+        return kept
+
+    def _odometry_dropped(self, kf: Keyframe, n_visual: int) -> None:
+        """Record a dropped odometry edge: one fault per run of keyframes whose odometry the
+        visual edges contradict (a slipping wheel contradicts many in a row)."""
+        last = self.faults[-1] if self.faults else None
+        if last is not None and last.kind == "odometry disagrees with vision" and self._dropped_run[1] == kf.id - 1:
+            self._dropped_run = (self._dropped_run[0], kf.id, self._dropped_run[2] + 1)
+        else:
+            self._dropped_run = (kf.id, kf.id, 1)
+            last = Fault("odometry disagrees with vision", kf.t_ns * 1e-9, "", "odometry edges dropped")
+            self.faults.append(last)
+        a, b, n = self._dropped_run
+        last.detail = (f"keyframes {a}-{b}: the odometry contradicts the agreeing visual edges at {n} keyframe(s) "
+                       f"(last at {kf.t_ns * 1e-9:.1f} s, {n_visual} visual edge(s))")
+
+    def _consensus(self, edges: list[Edge]) -> list[Edge]:
+        """The largest set of edges (in priority order: odometry, then visual from the nearest
+        keyframe back) whose estimates of the new keyframe's pose agree pairwise."""
+        est = [self.keyframes[e.a].T_init @ e.T_a_b for e in edges]
+        k = self.params.visual.max_disagreement_sigma
+        n = len(edges)
+        ok = np.ones((n, n), bool)
+        for i in range(n):
+            for j in range(i + 1, n):
+                et, er = edge_error(est[i], est[j])
+                var = np.diag(edges[i].covariance) + np.diag(edges[j].covariance)
+                ok[i, j] = ok[j, i] = et <= k * np.sqrt(var[3:].max()) and er <= k * np.sqrt(var[:3].max())
+        best: tuple[int, ...] = ()
+        for size in range(n, 0, -1):
+            for subset in itertools.combinations(range(n), size):
+                if all(ok[i, j] for i, j in itertools.combinations(subset, 2)):
+                    best = subset
+                    break
+            if best:
+                break
+        return [edges[i] for i in best]
+
+    def _place(self, kf: Keyframe, edges: list[Edge]) -> None:
+        """Initial pose and chain of a new keyframe from its edges (the visual edge to the
+        nearest previous keyframe first, then odometry); a keyframe no edge reaches starts a
+        new chain where the previous keyframe was."""
+        if not self.keyframes:
+            self.counts["chains"] = 1
+            return
+        by_kind = sorted(edges, key=lambda e: (e.kind != "visual", -e.a))
+        if by_kind:
+            e = by_kind[0]
+            kf.T_init = self.keyframes[e.a].T_init @ e.T_a_b
+            kf.chain = self.keyframes[e.a].chain
+            return
+        prev = self.keyframes[-1]
+        kf.T_init = prev.T_init.copy()
+        kf.chain = self.counts["chains"]
+        self.counts["chains"] += 1
+        self.faults.append(Fault("keyframe not linked", kf.t_ns * 1e-9,
+                                 f"keyframe {kf.id} (frame {kf.index}): no odometry and no visual edge reaches the "
+                                 "previous keyframes", "starts a new chain; kept only if a loop joins it to the map"))

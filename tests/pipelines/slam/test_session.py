@@ -1,0 +1,141 @@
+"""The SLAM core on a synthetic robot (tests/pipelines/slam/synthetic.py): loops close, drift
+goes, and each fault of a mapping recording is bridged or reported, never a bent map."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from litevloc.base.geometry import invert, make_T
+from litevloc.config import load_config
+from litevloc.pipelines.slam.graph import optimise
+from litevloc.pipelines.slam.types import Edge
+from tests.pipelines.slam.synthetic import Scene, keyframe_ate, make_scene, run_session
+
+
+@pytest.fixture(scope="module")
+def scene() -> Scene:
+    return make_scene(240, 1.2)
+
+
+@pytest.fixture(scope="module")
+def base(scene: Scene):  # type: ignore[no-untyped-def]
+    return run_session(scene)
+
+
+def test_loops_remove_the_odometry_drift(scene: Scene, base) -> None:  # type: ignore[no-untyped-def]
+    session, res = base
+    rep = res.report
+    assert rep["loops"]["verified"] >= 3 and rep["loops"]["kept"] == rep["loops"]["verified"]
+    assert rep["faults"] == [] and rep["chains"] == 1 and rep["keyframes_in_map"] == rep["keyframes"]
+    odo = session.odometry_poses(res)
+    assert odo is not None
+    ids = sorted(odo)
+    from litevloc.pipelines.evaluation.trajectory import ate
+
+    odo_ate = ate(np.stack([odo[i] for i in ids]), np.stack([scene.T_world_camera(res.keyframes[i].index)
+                                                              for i in ids])).rmse
+    assert odo_ate > 0.1  # the odometry really drifts (2 deg/m yaw bias)
+    assert keyframe_ate(scene, res) < 0.005
+    # every frame is posed, and the keyframes' frames carry their keyframe pose
+    assert all(T is not None for T in res.frame_poses)
+    for rec, T in zip(res.frames, res.frame_poses, strict=True):
+        if rec.keyframe is not None:
+            assert np.allclose(T, res.graph.poses[rec.keyframe])
+
+
+def test_map_frame_is_the_first_keyframe_levelled(base) -> None:  # type: ignore[no-untyped-def]
+    _, res = base
+    from tests.pipelines.slam.synthetic import T_BASE_CAMERA
+
+    T0 = res.graph.poses[0] @ invert(T_BASE_CAMERA)  # base_link of the first keyframe in the map
+    assert np.allclose(T0[:3, 3], 0.0, atol=1e-6)
+    assert abs(T0[2, 2] - 1.0) < 1e-3  # odometry z is up
+
+
+def test_wrong_loops_cannot_bend_the_map(scene: Scene, base) -> None:  # type: ignore[no-untyped-def]
+    _, res = base
+    cfg = load_config("default")
+    kfs = res.keyframes
+    P = res.graph.poses
+    rng = np.random.default_rng(1)
+    wrong: list[Edge] = []
+    while len(wrong) < max(2, round(0.3 * len(res.loops))):  # 30 % of the loops again, all wrong
+        a, b = sorted(rng.choice(len(kfs), 2, replace=False).tolist())
+        if np.linalg.norm(P[a][:3, 3] - P[b][:3, 3]) > 2.5:  # claim they are 10 cm apart
+            wrong.append(Edge(a, b, make_T(np.eye(3), np.array([0.1, 0.0, 0.0])), res.loops[0].covariance, "loop"))
+    g = optimise(kfs, res.edges + wrong, res.T_map_first, cfg.slam.graph)
+    moved = max(np.linalg.norm(g.poses[i][:3, 3] - P[i][:3, 3]) for i in P)
+    assert moved < 1e-4  # the kept loops are the same: the same least-squares solution
+    n = len(res.loops)
+    assert all(w < 0.5 for w in g.loop_weights[n:]) and all(w > 0.5 for w in g.loop_weights[:n])
+    # without the robust loss the same loops do bend it: the test can fail
+    plain = optimise(kfs, [e if e.kind != "loop" else Edge(e.a, e.b, e.T_a_b, e.covariance, "visual")
+                           for e in res.edges + wrong], res.T_map_first, cfg.slam.graph)
+    assert max(np.linalg.norm(plain.poses[i][:3, 3] - P[i][:3, 3]) for i in P) > 0.1
+
+
+def test_odometry_gap_is_bridged_by_visual_odometry(scene: Scene) -> None:
+    _, res = run_session(scene, drop_odometry_s=(5.0, 10.0))
+    rep = res.report
+    assert [f["kind"] for f in rep["faults"]] == ["odometry gap"]
+    assert rep["frames_tracked"] > 20 and rep["chains"] == 1 and rep["keyframes_left_out"] == 0
+    assert keyframe_ate(scene, res) < 0.005
+
+
+def test_camera_blackout_is_bridged_by_odometry(scene: Scene) -> None:
+    _, res = run_session(scene, drop_frames_s=(5.0, 10.0))
+    rep = res.report
+    assert rep["chains"] == 1 and rep["keyframes_left_out"] == 0 and rep["loops"]["kept"] > 0
+    t = [kf.t_ns * 1e-9 for kf in res.keyframes]
+    assert not any(5.0 <= x < 10.0 for x in t)
+    assert keyframe_ate(scene, res) < 0.005
+
+
+def test_odometry_jump_is_cut_out(scene: Scene) -> None:
+    _, res = run_session(scene, odometry_shift=lambda t: 2.0 if t > 7.0 else 0.0)
+    rep = res.report
+    assert [f["kind"] for f in rep["faults"]] == ["odometry jump"]
+    assert "2.0" in rep["faults"][0]["detail"] or "1.9" in rep["faults"][0]["detail"]
+    assert rep["keyframes_left_out"] == 0 and keyframe_ate(scene, res) < 0.005
+
+
+def test_slow_odometry_slip_is_caught_by_vision(scene: Scene) -> None:
+    # 0.5 m of extra motion over one second: slower than the jump check, caught by the visual edges
+    _, res = run_session(scene, odometry_shift=lambda t: 0.5 * min(max(t - 7.0, 0.0), 1.0))
+    rep = res.report
+    assert rep["edges"]["odometry_dropped"] >= 1
+    assert [f["kind"] for f in rep["faults"]] == ["odometry disagrees with vision"]
+    assert keyframe_ate(scene, res) < 0.005
+
+
+def test_jump_in_a_blackout_splits_the_chain_and_a_loop_joins_it(scene: Scene) -> None:
+    # neither odometry nor vision links across: a new chain, which the second lap's loops join
+    _, res = run_session(scene, odometry_shift=lambda t: 2.0 if t > 7.0 else 0.0, drop_frames_s=(6.0, 9.0))
+    rep = res.report
+    assert rep["chains"] == 2
+    kinds = [f["kind"] for f in rep["faults"]]
+    assert "odometry jump" in kinds and "keyframe not linked" in kinds
+    assert rep["keyframes_left_out"] == 0 and keyframe_ate(scene, res) < 0.01
+
+
+def test_a_chain_no_loop_joins_is_left_out(scene: Scene) -> None:
+    # the same split on a shorter drive: no revisit after the split, so the second chain is dropped
+    short = make_scene(150, 0.75)
+    _, res = run_session(short, odometry_shift=lambda t: 2.0 if t > 5.0 else 0.0, drop_frames_s=(4.0, 7.0))
+    rep = res.report
+    assert rep["chains"] == 2 and rep["keyframes_left_out"] > 0
+    assert any("left out" in w for w in rep["warnings"])
+    left = set(res.graph.dropped)
+    assert all(res.keyframes[i].t_ns * 1e-9 >= 7.0 for i in left)
+    posed = [r for r, T in zip(res.frames, res.frame_poses, strict=True) if T is not None]
+    assert posed and all(r.t_ns * 1e-9 < 7.0 for r in posed)
+
+
+def test_camera_only_is_visual_odometry(scene: Scene) -> None:
+    _, res = run_session(scene, odometry=False)
+    rep = res.report
+    assert rep["odometry_source"].startswith("none") and rep["edges"]["odometry"] == 0
+    assert any("no odometry" in w for w in rep["warnings"])
+    assert "camera mount" in rep["up"]
+    assert keyframe_ate(scene, res) < 0.005
