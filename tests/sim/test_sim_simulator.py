@@ -13,9 +13,10 @@ from litevloc.hw.messages import GroundTruthPose, Odometry, RgbdFrame
 from litevloc.hw.streams.mcap_io import McapSource
 from litevloc.pipelines.odometry_drift import IncrementalDrift, resample_times, simulate_odometry
 from litevloc.runtime.cli.main import main
+from litevloc.sim.elements import pose2d
 from litevloc.sim.simulator import SimParams, Simulator
 from litevloc.sim.source import SimSequenceSource
-from litevloc.sim.world import load_world, pose2d
+from litevloc.sim.world import load_world
 
 TINY = SimParams(width=48, height=36)
 
