@@ -114,43 +114,13 @@ def material(
         base[:] = colour
         base += rng.normal(0, 1.5, (h, w, 1)).astype(np.float32)
         return base
-    if kind == "brick":
-        # brick.png spans about 1.6 m of wall
-        return tint(
-            tile(
-                load_image("brick.png"),
-                h,
-                w,
-                512 / (1.6 * scale * ppm),
-                rng.uniform(0, 512),
-                rng.uniform(0, 512),
-            ),
-            colour,
-            0.8,
-        )
-    if kind == "plaster":
-        p = tile(
-            load_image("gravel.png"),
-            h,
-            w,
-            512 / (2.0 * scale * ppm),
-            rng.uniform(0, 512),
-            rng.uniform(0, 512),
-        )
-        return tint(blur(p, (0, 0), 2.5), colour, 0.35)
-    if kind == "wallpaper":
-        return tint(
-            tile(
-                load_image("grass.png"),
-                h,
-                w,
-                512 / (1.2 * scale * ppm),
-                rng.uniform(0, 512),
-                rng.uniform(0, 512),
-            ),
-            colour,
-            0.8,
-        )
+    # image, metres of wall its 512 pixels span, blur (texels), contrast
+    tiled = {"brick": ("brick.png", 1.6, 0.0, 0.8), "plaster": ("gravel.png", 2.0, 2.5, 0.35),
+             "wallpaper": ("grass.png", 1.2, 0.0, 0.8)}
+    if kind in tiled:
+        name, span_m, sigma, contrast = tiled[kind]
+        p = tile(load_image(name), h, w, 512 / (span_m * scale * ppm), rng.uniform(0, 512), rng.uniform(0, 512))
+        return tint(blur(p, (0, 0), sigma) if sigma else p, colour, contrast)
     if kind == "panel":
         grain = tile(load_image("gravel.png"), h, w, 0.5, rng.uniform(0, 512), rng.uniform(0, 512))
         wood = tint(blur(grain, (0, 0), sigmaX=0.5, sigmaY=6), (150, 105, 70), 0.8)

@@ -81,3 +81,22 @@ class TrackerParams:
             raise ValueError("need a finite against_view_cost >= 1 (1 = off) and 0 < against_view_deg <= 180")
         if not (0 <= self.stall_s < float("inf")) or self.stall_progress_m <= 0:
             raise ValueError("need a finite stall_s >= 0 (0 = off) and stall_progress_m > 0")
+
+
+@dataclass(frozen=True)
+class OpeningParams:
+    """Unmapped openings of a map's occupancy grid (`pipelines.topomap.openings`: listed by
+    `map build` and `map info`, where a mapping team should go back)."""
+
+    # narrowest opening listed (m): the frontier cells' longest extent; below a robot's width
+    min_width_m: float = 0.6
+    # least unknown area (m^2) an opening must lead to within look_m (a shadow behind furniture is smaller)
+    min_unknown_m2: float = 1.0
+    # how far beyond the frontier (m) the unknown area is counted
+    look_m: float = 1.5
+    # free space is closed over unknown gaps up to this size (m): a floor or wall seen from afar is speckled
+    close_m: float = 0.2
+
+    def __post_init__(self) -> None:
+        if self.min_width_m <= 0 or self.min_unknown_m2 < 0 or self.look_m <= 0 or self.close_m < 0:
+            raise ValueError("need min_width_m > 0, min_unknown_m2 >= 0, look_m > 0 and close_m >= 0")

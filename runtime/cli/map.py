@@ -35,8 +35,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_config_args(b)
     add_json_arg(b)
     b.set_defaults(func=build)
-    i = msub.add_parser("info", help="nodes, edges and storage of a map")
+    i = msub.add_parser("info", help="nodes, edges, storage and unmapped openings of a map")
     i.add_argument("map", type=Path)
+    add_config_args(i)  # planner.openings: what counts as an unmapped opening
     add_json_arg(i)
     i.set_defaults(func=info)
     pl = msub.add_parser("plot", help="top-down PNG of nodes and both edge sets over the occupancy grid")
@@ -130,8 +131,22 @@ def build(args: argparse.Namespace) -> int:
           f"{summary['cpu_seconds_per_keyframe']:.2f} s/keyframe CPU, peak RSS {summary['peak_rss_mb']:.0f} MB)"
           + (f"; budget {r.budget} BINDS" if r.budget_bound else ""))
     _print_storage(storage)
+    summary["unmapped_openings"] = _print_openings(topomap, cfg.planner.openings)
     write_json(args.json, summary)
     return 0
+
+
+def _print_openings(m: Any, params: Any) -> list[dict[str, object]]:
+    """List the unmapped openings of the map's occupancy grid (where to go back); their rows."""
+    from litevloc.pipelines.topomap.openings import find_openings, openings_summary
+
+    rows = openings_summary(find_openings(m.grid, params))
+    print(f"unmapped openings: {len(rows)}" + ("" if rows else " (every opening of the grid was entered)"))
+    for r in rows:
+        print(f"  at ({r['x']:.1f}, {r['y']:.1f}) m, {r['width_m']:.1f} m wide, leading "
+              f"({r['direction'][0]:+.2f}, {r['direction'][1]:+.2f}, {r['direction'][2]:+.2f}) into "
+              f"{r['unknown_m2']:.1f} m^2 never seen")
+    return rows
 
 
 def _select(builder: MapBuilder, cfg: Any) -> dict[int, int]:
@@ -214,6 +229,7 @@ def info(args: argparse.Namespace) -> int:
         print(f"keyframes: coverage {b.get('keyframe_coverage')} (target {b.get('keyframe_coverage_target')}), "
               f"budget {b.get('keyframe_budget')}{' (BOUND)' if b.get('keyframe_budget_bound') == 'True' else ''}, "
               f"built in {b.get('build_seconds')} s from {b.get('build_frames')} frames")
+    data["unmapped_openings"] = _print_openings(m, config_of(args).planner.openings)
     write_json(args.json, data)
     return 0
 

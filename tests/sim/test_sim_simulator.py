@@ -203,20 +203,26 @@ def test_depth_only_steps_render_no_colour_and_keep_the_frame_clock(office) -> N
             np.testing.assert_array_equal(sb.frame.color, sa.frame.color)
 
 
-def test_map_rooms_pass_also_turns_near_each_end_of_every_room(office) -> None:
+def test_map_pass_enters_every_room_and_corridor_and_looks_around() -> None:
+    """The operator-like mapping pass: a full turn in every room and along the corridor, driven
+    without touching anything. In this building the first follower cut a door's corner, pushed
+    against the jamb and never entered three of the six rooms."""
     from litevloc.sim.simulator import SimParams
-    from litevloc.sim.trajectory import pass_tasks
+    from litevloc.sim.trajectory import follow, pass_tasks
 
+    world = load_world("office-aliased", seed=2)
     params = SimParams()
-    _, plain = pass_tasks(office, "map", 0, params)
-    start, rooms = pass_tasks(office, "map-rooms", 0, params)
-    n_rooms = sum(r.kind == "room" for r in office.regions.values())
-    turns = [t for t in rooms if t.kind == "turn"]
-    assert sum(t.kind == "turn" for t in plain) == n_rooms
-    assert len(turns) == 3 * n_rooms  # the centre and two side spots of every room (office: all free)
+    start, tasks = pass_tasks(world, "map", 0, params)
+    turns = [t for t in tasks if t.kind == "turn"]
     assert all(abs(abs(t.angle) - 2 * np.pi) < 1e-9 for t in turns)
-    ends = [start[:2, 3]] + [t.path[-1] for t in rooms if t.kind == "goto"]
-    assert len(ends) == len(turns)
-    for p in ends:  # every spot is free for the robot and inside a room
-        assert office.is_free(p, params.robot_radius + 0.3)
-        assert office.regions[office.region_at(p)].kind == "room"
+    spots = [start[:2, 3]] + [t.path[-1] for t in tasks if t.kind == "goto"]
+    assert len(spots) == len(turns)
+    looked = {world.region_at(p) for p in spots}
+    assert looked == set(world.regions)  # every room and the corridor
+    run = follow(world, params, 0, start, tasks)
+    assert run.collisions == 0
+    assert {world.region_at(p) for p in run.T_world_base[::20, :2, 3]} == set(world.regions)
+    corridor = next(k for k, r in world.regions.items() if r.kind == "corridor")
+    assert sum(world.region_at(p) == corridor for p in spots) >= 2  # its ends, 8 m apart at most
+    _, rooms = pass_tasks(world, "map-rooms", 0, params)  # three spots in every room, no corridor turns
+    assert sum(t.kind == "turn" for t in rooms) == 3 * sum(r.kind == "room" for r in world.regions.values())
