@@ -16,6 +16,7 @@ Maps are kept under out/bench/buildings/BUILDING/map and reused by a later run u
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
@@ -24,8 +25,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _common import OUT, print_table, write_json
 
-from litevloc.experiments.buildings import GENERATORS, BenchSettings, BuildingRun, run_buildings
-from litevloc.experiments.buildings_report import building_figures, plot, table_rows, totals
+from litevloc.config import load_config
+from litevloc.experiments.buildings import GENERATORS, BenchSettings, BuildingRun, render_cost, run_buildings
+from litevloc.experiments.buildings_report import building_figures, placement_totals, plot, table_rows, totals
 
 HEADER = ["building", "keyframes", "free %", "openings", "LiteVLoc", "GT", "refused", "wrong", "collisions LV/GT",
           "first fix s", "lost max s", "path ratio", "wall s"]
@@ -48,11 +50,27 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--goal-timeout", type=float, default=120.0)
     ap.add_argument("--fresh-maps", action="store_true", help="rebuild every map")
-    ap.add_argument("--name", default="buildings")
+    ap.add_argument("--name", default="buildings", help="results in out/bench/NAME.json and NAME.png")
+    ap.add_argument("--json", type=Path, default=None, help="write the results here instead")
     ap.add_argument("--out-dir", type=Path, default=OUT / "buildings")
+    ap.add_argument("--placement-only", action="store_true",
+                    help="place every room's robot and hand-held goal image (no driving), under the defaults and "
+                         "each --alt-set variant")
+    ap.add_argument("--alt-set", action="append", default=[], metavar="KEY=VALUE[,KEY=VALUE]",
+                    help="a configuration variant for --placement-only (repeat for more)")
+    ap.add_argument("--render-frames", type=int, default=40,
+                    help="frames per building of the rendering-cost comparison (first simulator's buildings vs these, "
+                         "the first seed of each generator; 0: skip)")
     args = ap.parse_args(argv)
     runs = [BuildingRun(g, s, args.appearance) for s in args.seeds for g in args.generators]
-    settings = BenchSettings(goal_timeout_s=args.goal_timeout, out_dir=args.out_dir, keep_maps=not args.fresh_maps)
+    variants = (("defaults", ()), *((v, tuple(v.split(","))) for v in args.alt_set)) if args.placement_only else ()
+    settings = BenchSettings(goal_timeout_s=args.goal_timeout, out_dir=args.out_dir, keep_maps=not args.fresh_maps,
+                             placement_variants=variants)
+    render = render_cost([BuildingRun(g, args.seeds.start) for g in args.generators], load_config("default"),
+                         args.render_frames) if args.render_frames else []
+    if render:
+        print_table("Rendering cost per frame (the same seeds; frames in turn)", list(render[0]),
+                    [list(r.values()) for r in render])
     t0 = time.perf_counter()
     print(f"{len(runs)} buildings, {args.workers} workers", flush=True)
 
@@ -63,6 +81,8 @@ def main(argv: list[str] | None = None) -> int:
               + (f": ERROR {rec['error']}" if "error" in rec else ""), flush=True)
 
     buildings = run_buildings(runs, settings, args.workers, progress)
+    if args.placement_only:
+        return _placement_report(buildings, args)
     for b in buildings:
         if "error" not in b:
             b["figures"] = building_figures(b)
@@ -71,9 +91,31 @@ def main(argv: list[str] | None = None) -> int:
     print_table("Image-goal navigation per building (LiteVLoc; GT = ground-truth localization)", HEADER,
                 table_rows(buildings))
     _print_totals(t)
-    write_json(args.name, {"seeds": [args.seeds.start, args.seeds.stop], "generators": args.generators,
-                           "appearance": args.appearance, "workers": args.workers, "buildings": buildings, "totals": t})
-    print(f"plot: {plot(buildings, OUT / f'{args.name}.png', f'{args.name}: {len(runs)} buildings')}")
+    result = {"seeds": [args.seeds.start, args.seeds.stop], "generators": args.generators,
+              "appearance": args.appearance, "workers": args.workers, "render_cost": render,
+              "buildings": buildings, "totals": t}
+    if args.json is None:
+        write_json(args.name, result)
+    else:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(result, indent=2, default=float) + "\n")
+    png = (OUT / args.name if args.json is None else args.json).with_suffix(".png")
+    print(f"plot: {plot(buildings, png, f'{args.name}: {len(runs)} buildings')}")
+    return 0
+
+
+def _placement_report(results: list[dict], args: argparse.Namespace) -> int:
+    pt = placement_totals(results)
+    rows = [[v, cam, x["images"], x["right"], x["wrong"], x["refused"], x["refusals"]]
+            for v, cams in pt.items() for cam, x in cams.items()]
+    print_table(f"Goal placement only, {len(results)} buildings (wrong: placed > 2 m from where the image was taken)",
+                ["variant", "camera", "images", "right", "wrong", "refused", "refusals"], rows)
+    result = {"seeds": [args.seeds.start, args.seeds.stop], "generators": args.generators, "placement": pt,
+              "buildings": results}
+    if args.json is None:
+        write_json(args.name, result)
+    else:
+        args.json.write_text(json.dumps(result, indent=2, default=float) + "\n")
     return 0
 
 

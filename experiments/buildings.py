@@ -64,7 +64,7 @@ class BuildingRun:
 
     @property
     def name(self) -> str:
-        return f"{self.generator}-{self.seed}" + (f"-{self.appearance}" if self.appearance else "")
+        return f"{Path(self.generator).stem}-{self.seed}" + (f"-{self.appearance}" if self.appearance else "")
 
 
 @dataclass(frozen=True)
@@ -76,6 +76,9 @@ class BenchSettings:
     vloc_hz: float = 1.0
     out_dir: Path = Path("out/bench/buildings")
     keep_maps: bool = True  # reuse a building's map when its folder holds one (same code, same seed)
+    # placement only (no driving): variant name -> `--set` overrides of the configuration, each
+    # placing every room's robot and hand-held image; empty: map, place and drive
+    placement_variants: tuple[tuple[str, tuple[str, ...]], ...] = ()
 
 
 def load_building(run: BuildingRun) -> World:
@@ -119,6 +122,21 @@ def map_report(world: World, map_dir: Path, radius: float) -> dict[str, Any]:
             "unmapped_openings": len(openings)}
 
 
+def ensure_map(run: BuildingRun, world: World, settings: BenchSettings, cfg: LiteVLocConfig,
+               bundle: ModelBundle) -> tuple[Path, dict[str, Any]]:
+    """The building's map folder (built, or kept from an earlier run when `keep_maps`) and its
+    record: build figures, coverage of the free space, unmapped openings."""
+    out = settings.out_dir / run.name
+    map_dir = out / "map"
+    if settings.keep_maps and (map_dir / "manifest.json").is_file() and (out / "map_build.json").is_file():
+        rec = {**json.loads((out / "map_build.json").read_text()), "reused": True}
+    else:
+        rec = build_map(world, cfg, bundle, map_dir)
+        (out / "map_build.json").write_text(json.dumps(rec))
+    rec.update(map_report(world, map_dir, cfg.sim.robot_radius))
+    return map_dir, rec
+
+
 # ------------------------------------------------------------------ goals
 def building_goals(world: World, cfg: LiteVLocConfig, seed: int) -> tuple[str, list[Goal], list[Goal]]:
     """(start room, the driven goals, the other camera's images of the same rooms)."""
@@ -151,10 +169,13 @@ def failure_class(g: dict[str, Any]) -> str:
     return "other"
 
 
-def place_other(goals: list[Goal], map_dir: Path, cfg: LiteVLocConfig, bundle: ModelBundle) -> list[dict[str, Any]]:
-    """Where the planner puts each of `goals` (placement only, no driving)."""
+def place_other(goals: list[Goal], map_dir: Path, cfg: LiteVLocConfig, bundle: ModelBundle,
+                extract: Callable[[Any], Any] | None = None,
+                match: Callable[[Any, Any], Any] | None = None) -> list[dict[str, Any]]:
+    """Where the planner puts each of `goals` (placement only, no driving); `extract`, `match`:
+    the bundle's, or caching wrappers of them."""
     topomap = load_map(map_dir)
-    locate = goal_locator(topomap, bundle.extract, bundle.describe, bundle.match, cfg.planner)
+    locate = goal_locator(topomap, extract or bundle.extract, bundle.describe, match or bundle.match, cfg.planner)
     out = []
     for g in goals:
         res = locate(decode_goal_image(g.jpeg))
@@ -180,17 +201,9 @@ def run_building(run: BuildingRun, settings: BenchSettings, cfg: LiteVLocConfig,
     """Map, place and drive one building (module docstring); its JSON record."""
     t0, cpu0 = time.perf_counter(), _cpu_s()
     world = load_building(run)
-    out = settings.out_dir / run.name
-    map_dir = out / "map"
+    map_dir, map_rec = ensure_map(run, world, settings, cfg, bundles["build"])
     rec: dict[str, Any] = {"building": run.name, "generator": run.generator, "seed": run.seed,
-                           "appearance": world.spec.appearance, "world": world.summary()}
-    if settings.keep_maps and (map_dir / "manifest.json").is_file():
-        rec["map"] = {**json.loads((out / "map_build.json").read_text()), "reused": True}
-    else:
-        rec["map"] = build_map(world, cfg, bundles["build"], map_dir)
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "map_build.json").write_text(json.dumps(rec["map"]))
-    rec["map"].update(map_report(world, map_dir, cfg.sim.robot_radius))
+                           "appearance": world.spec.appearance, "world": world.summary(), "map": map_rec}
     m = rec["map"]
     log(f"  {run.name}: map {m['keyframes']} keyframes, free space {100 * m['free_space_coverage']:.0f} %, "
         f"{m['unmapped_openings']} unmapped openings")
@@ -205,6 +218,39 @@ def run_building(run: BuildingRun, settings: BenchSettings, cfg: LiteVLocConfig,
     rec["other_set"] = place_other(other, map_dir, cfg, bundles["nav"])
     rec["wall_s"], rec["cpu_s"] = round(time.perf_counter() - t0, 1), round(_cpu_s() - cpu0, 1)
     return rec
+
+
+def placement_run(run: BuildingRun, settings: BenchSettings, cfgs: dict[str, LiteVLocConfig],
+                  bundles: dict[str, ModelBundle], log: Callable[[str], None] = print) -> dict[str, Any]:
+    """Placement only (no driving): the robot's and the hand-held image of every room placed under
+    each configuration of `cfgs` (one match per image and keyframe, shared by the variants)."""
+    t0 = time.perf_counter()
+    world = load_building(run)
+    cfg = next(iter(cfgs.values()))
+    map_dir, map_rec = ensure_map(run, world, settings, cfg, bundles["build"])
+    rooms = sorted(world.goal_places)
+    goals = render_goals(world, cfg, rooms, camera="robot") + render_goals(world, cfg, rooms, camera="hand")
+    cache: dict[tuple[int, int], Any] = {}
+
+    def match(a: Any, b: Any) -> Any:
+        key = (id(a), hash(np.asarray(b.keypoints).tobytes()))
+        if key not in cache:
+            cache[key] = bundles["nav"].match(a, b)
+        return cache[key]
+
+    feats: dict[int, Any] = {}
+    extract = bundles["nav"].extract
+
+    def extract_once(rgb: Any) -> Any:  # the same image: the same features object, so the cache hits
+        key = hash(np.asarray(rgb).tobytes())
+        if key not in feats:
+            feats[key] = extract(rgb)
+        return feats[key]
+
+    variants = {name: place_other(goals, map_dir, c, bundles["nav"], extract_once, match) for name, c in cfgs.items()}
+    log(f"  {run.name}: placed {len(goals)} images x {len(cfgs)} variants ({time.perf_counter() - t0:.0f} s)")
+    return {"building": run.name, "generator": run.generator, "seed": run.seed, "map": map_rec,
+            "variants": variants, "wall_s": round(time.perf_counter() - t0, 1)}
 
 
 # ------------------------------------------------------------------ many buildings
@@ -222,7 +268,13 @@ def _init_worker(config: str) -> None:
 def _work(run: BuildingRun, settings: BenchSettings) -> dict[str, Any]:
     lines: list[str] = []
     try:
-        rec = run_building(run, settings, _WORKER["cfg"], _WORKER["bundles"], lines.append)
+        if settings.placement_variants:
+            models = _WORKER["cfg"].models
+            cfgs = {name: dataclasses.replace(load_config(settings.config, list(sets)), models=models)
+                    for name, sets in settings.placement_variants}
+            rec = placement_run(run, settings, cfgs, _WORKER["bundles"], lines.append)
+        else:
+            rec = run_building(run, settings, _WORKER["cfg"], _WORKER["bundles"], lines.append)
     except Exception as exc:  # one building's failure is reported, the others go on
         rec = {"building": run.name, "generator": run.generator, "seed": run.seed,
                "error": f"{type(exc).__name__}: {exc}"}
@@ -251,3 +303,40 @@ def run_buildings(runs: Iterable[BuildingRun], settings: BenchSettings, workers:
 def _cpu_s() -> float:
     r = resource.getrusage(resource.RUSAGE_SELF)
     return r.ru_utime + r.ru_stime
+
+
+def render_cost(runs: Iterable[BuildingRun], cfg: LiteVLocConfig, frames: int = 60) -> list[dict[str, Any]]:
+    """Rendering cost per frame, the first simulator's buildings (`aliased`: its pictures, no
+    clutter, no room-size jitter, goals in front of posters) against this generator's, the same
+    seeds, in this process, frame by frame in turn (a busy machine slows both alike): median and
+    p90 ms of colour + depth (`Renderer.render`) and median of depth alone (`render_depth`) over
+    `frames` frames spread evenly along each building's mapping pass, and the seconds to
+    generate and bake each building."""
+    from litevloc.sim.render import Renderer
+
+    legacy = {"appearance": "aliased", "goal_rule": "poster", "room_size_jitter": 0.0, "clutter_per_room": (0, 0)}
+    out = []
+    for run in runs:
+        worlds: dict[str, Any] = {}
+        for label, overrides in (("first simulator", legacy), ("varied", {})):
+            t0 = time.perf_counter()
+            world = load_world(run.generator, seed=run.seed, **overrides)
+            ren = Renderer(world)
+            src = SimSequenceSource(world, "map", 0, params=cfg.sim)
+            poses = src.camera_poses()[np.linspace(0, src.frame_count() - 1, frames).astype(int)]
+            worlds[label] = (world, ren, poses, time.perf_counter() - t0, [], [])
+        for k in range(frames):
+            for _world, ren, poses, _t, colour, depth in worlds.values():
+                t1 = time.perf_counter()
+                ren.render(poses[k], cfg.sim.intrinsics)
+                t2 = time.perf_counter()
+                ren.render_depth(poses[k], cfg.sim.intrinsics)
+                colour.append(t2 - t1)
+                depth.append(time.perf_counter() - t2)
+        for label, (world, _ren, _poses, t_make, colour, depth) in worlds.items():
+            out.append({"building": run.name, "world": label, "boxes": len(world.boxes),
+                        "pictures": len(world.posters), "make_s": round(t_make, 2),
+                        "render_ms_median": round(1e3 * float(np.median(colour)), 2),
+                        "render_ms_p90": round(1e3 * float(np.percentile(colour, 90)), 2),
+                        "depth_ms_median": round(1e3 * float(np.median(depth)), 2)})
+    return out

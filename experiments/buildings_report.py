@@ -171,3 +171,19 @@ def plot(buildings: list[dict[str, Any]], png: Path, title: str) -> Path:
     fig.savefig(png)
     plt.close(fig)
     return png
+
+
+def placement_totals(results: list[dict[str, Any]]) -> dict[str, Any]:
+    """Placement-only runs: per variant and goal camera, images placed right / wrong / refused
+    (with the refusal classes), summed over the buildings."""
+    ok = [r for r in results if "error" not in r]
+    out: dict[str, Any] = {}
+    for variant in (ok[0]["variants"] if ok else {}):
+        out[variant] = {}
+        for cam in CAMERAS:
+            recs = [g for r in ok for g in r["variants"][variant] if g["camera"] == cam]
+            out[variant][cam] = {
+                "images": len(recs), "right": sum(g["placed_node"] is not None and not _wrong(g) for g in recs),
+                "wrong": sum(_wrong(g) for g in recs), "refused": sum(g["placed_node"] is None for g in recs),
+                "refusals": dict(Counter(failure_class(g) for g in recs if g["placed_node"] is None))}
+    return out

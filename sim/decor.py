@@ -11,10 +11,11 @@ corridors. Nothing here draws pixels (`litevloc.sim.pictures` does).
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 
 import numpy as np
 
-from litevloc.sim.elements import Face, Poster, Region, s_increasing
+from litevloc.sim.elements import Face, PictureKind, Poster, Region, s_increasing
 from litevloc.sim.layout import Door
 from litevloc.sim.spec import WorldSpec
 
@@ -91,20 +92,29 @@ def hang_posters(spec: WorldSpec, regions: dict[int, Region], faces: list[Face],
 
 
 class _Designs:
-    """Design numbers handed out once each; `repeated` of them (a share) reuse an earlier one."""
+    """Designs handed out once each; a `repeated` share of the requests for copyable pictures
+    get an earlier one again: its kind, design and size (m), a copy of the same print."""
 
     def __init__(self, rng: np.random.Generator, repeated: float) -> None:
         self.rng, self.repeated = rng, repeated
-        self.given: list[int] = []
+        self.given: list[tuple[PictureKind, int, float, float]] = []
+        self._used: set[int] = set()
 
-    def next(self, may_repeat: bool = True) -> int:
-        if may_repeat and self.given and self.rng.random() < self.repeated:
-            return int(self.given[int(self.rng.integers(len(self.given)))])
+    def next(self, kind: PictureKind, width: float, height: float, copyable: bool = True,
+             copy_fits: Callable[[float, float], bool] = lambda w, h: True) -> tuple[PictureKind, int, float, float]:
+        """(kind, design, width, height) for a picture of `kind` and size (m): a copy of an
+        earlier copyable one (where `copy_fits` its size), else a new design."""
+        if copyable and self.given and self.rng.random() < self.repeated:
+            copy = self.given[int(self.rng.integers(len(self.given)))]
+            if copy_fits(copy[2], copy[3]):
+                return copy
         d = int(self.rng.integers(1, 2**31 - 1))
-        while d in self.given:
+        while d in self._used:
             d = int(self.rng.integers(1, 2**31 - 1))
-        self.given.append(d)
-        return d
+        self._used.add(d)
+        if copyable:
+            self.given.append((kind, d, width, height))
+        return kind, d, width, height
 
 
 def number_rooms(regions: dict[int, Region], rng: np.random.Generator) -> None:
@@ -126,11 +136,18 @@ def vary_posters(posters: list[Poster], regions: dict[int, Region], faces: list[
                  rng: np.random.Generator) -> list[Poster]:
     """Each photograph poster becomes a generated picture of its own: a poster (title and
     text) or, in rooms, sometimes a framed print (no text)."""
-    out = []
+    out: list[Poster] = []
     for p in posters:
         reg = regions.get(faces[p.face].region)
-        kind = "print" if reg is not None and reg.kind == "room" and rng.random() < 0.4 else "poster"
-        out.append(dataclasses.replace(p, image="", kind=kind, design=designs.next()))
+        want: PictureKind = "print" if reg is not None and reg.kind == "room" and rng.random() < 0.4 else "poster"
+        f = faces[p.face]
+
+        def fits(w: float, h: float, p: Poster = p, f: Face = f) -> bool:
+            return p.s0 + w <= f.hi - f.lo - 0.1 and p.z0 + h <= f.height - 0.1 and _free_on_face(
+                [q for q in out if q.face == p.face], p.face, p.s0, w, p.z0, h)
+
+        kind, design, w, h = designs.next(want, p.width, p.height, copy_fits=fits)
+        out.append(dataclasses.replace(p, image="", kind=kind, design=design, width=w, height=h))
     return out
 
 
@@ -157,8 +174,18 @@ def door_faces(door: Door, region: int, faces: list[Face]) -> list[tuple[int, fl
 
 def add_plates(doors: list[Door], regions: dict[int, Region], faces: list[Face], posters: list[Poster],
                designs: _Designs, rng: np.random.Generator) -> None:
-    """A number plate beside each door, on both sides, showing the room it leads into."""
+    """A number plate beside each door, on both sides, showing the room it leads into; a room
+    with several doors has them lettered ("1.04" -> "1.04a", "1.04b"), so no two plates match."""
     w, h = PLATE_SIZE_M
+    doors_of: dict[int, list[int]] = {}
+    for a, b, *_ in doors:
+        doors_of.setdefault(a, []).append(b)
+        doors_of.setdefault(b, []).append(a)
+
+    def door_letter(here: int, there: int) -> str:
+        others = doors_of[there]
+        return "" if len(others) == 1 else "abcdefghij"[others.index(here) % 10]
+
     for door in doors:
         a, b = door[0], door[1]
         for here, there in ((a, b), (b, a)):
@@ -172,8 +199,9 @@ def add_plates(doors: list[Door], regions: dict[int, Region], faces: list[Face],
                     continue
                 s0 = s_end - PLATE_FROM_DOOR_M - w if s_end > length / 2 else s_end + PLATE_FROM_DOOR_M
                 if _free_on_face(posters, fi, s0, w, PLATE_Z_M, h):
-                    posters.append(Poster(fi, s0, PLATE_Z_M, w, h, "", "plate", designs.next(False),
-                                          (regions[there].number,)))
+                    design = designs.next("plate", w, h, copyable=False)[1]
+                    posters.append(Poster(fi, s0, PLATE_Z_M, w, h, "", "plate", design,
+                                          (regions[there].number + door_letter(here, there),)))
                     break
 
 
@@ -219,7 +247,13 @@ def add_boards_and_signs(regions: dict[int, Region], faces: list[Face], posters:
                     continue
                 s0 = rng.uniform(0.2, length - width - 0.2)
                 if _free_on_face(posters, fi, s0, width, z0, height):
-                    posters.append(Poster(fi, s0, z0, width, height, "", kind, designs.next(kind != "sign"), text))
+                    def fits(w: float, h: float, fi: int = fi, s0: float = s0, z0: float = z0,
+                             length: float = length) -> bool:
+                        return s0 + w <= length - 0.1 and z0 + h <= wall_height - 0.1 and _free_on_face(
+                            posters, fi, s0, w, z0, h)
+
+                    got, design, w, h = designs.next(kind, width, height, kind != "sign", fits)
+                    posters.append(Poster(fi, s0, z0, w, h, "", got, design, text))
                     n -= 1
 
 

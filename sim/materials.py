@@ -207,8 +207,10 @@ def _wrap_blur(img: NDArray[np.float32], sigma_x: float, sigma_y: float | None =
 
 def room_material(kind: str, ppm: float, rng: np.random.Generator,
                   colour: tuple[float, float, float]) -> NDArray[np.float32] | None:
-    """A seamless tile (float32 RGB) of a room's own plaster, wallpaper or panelling, drawn
-    from the room's stream; None for the materials every room shares (painted, brick)."""
+    """A seamless tile (float32 RGB) of a room's own brick, plaster, wallpaper or panelling,
+    drawn from the room's stream; None for plain paint."""
+    if kind == "brick":
+        return _bricks(ppm, rng, colour)
     if kind == "plaster":
         n = 256
         noise = _wrap_blur(rng.normal(0, 1, (n, n)).astype(np.float32), rng.uniform(1.5, 5.0))
@@ -226,6 +228,63 @@ def room_material(kind: str, ppm: float, rng: np.random.Generator,
         wood[:, (np.arange(n) % plank) == 0] *= 0.55
         return np.asarray(np.clip(wood[:, : n - n % plank] if n % plank else wood, 0, 255), np.float32)
     return None
+
+
+def _bricks(ppm: float, rng: np.random.Generator, colour: tuple[float, float, float]) -> NDArray[np.float32]:
+    """Running-bond brickwork (bricks ~0.215 x 0.065 m, 1 cm joints), every brick its own shade:
+    a regular, repetitive pattern, but no two rooms' walls alike. Drawn 4x and shrunk."""
+    up = 4
+    course, length = max(3, int(0.075 * ppm * up)), max(6, int(0.225 * ppm * up))
+    rows, per_row = 24, 12  # one tile: 24 courses x 12 bricks (~1.8 m x 2.7 m)
+    joint = max(1, int(0.01 * ppm * up))
+    t = np.empty((rows * course, per_row * length, 3), np.float32)
+    t[:] = np.array(colour, np.float32) * 0.35 + 150
+    base = np.array(colour, np.float32)
+    for r in range(rows):
+        shift = (length // 2) * (r % 2)
+        for b in range(per_row + 1):
+            x0 = b * length - shift
+            shade = base * rng.uniform(0.78, 1.15) + rng.normal(0, 6, 3)
+            xs = np.arange(max(x0, 0), min(x0 + length - joint, t.shape[1]))
+            if len(xs):
+                t[r * course : (r + 1) * course - joint, xs] = shade
+        if shift:  # the brick cut by the tile's edge continues on the other side
+            t[r * course : (r + 1) * course - joint, t.shape[1] - shift : t.shape[1] - joint] = \
+                t[r * course, max(0, (per_row - 1) * length - shift + 1)]
+    t += rng.normal(0, 5, t.shape[:2])[..., None].astype(np.float32)
+    return np.asarray(cv2.resize(t, (t.shape[1] // up, t.shape[0] // up), interpolation=cv2.INTER_AREA),
+                      np.float32)
+
+
+def floor_patch(kind: str, h: int, w: int, fppm: float, rng: np.random.Generator) -> NDArray[np.float32]:
+    """A room's own floor (varied appearance): "carpet" (noise of its own grain and colour),
+    "wood" (planks of their own shades) or "tiles" (its own tile size and colour)."""
+    if kind == "carpet":
+        grain = blur(rng.normal(0, 1, (h, w)).astype(np.float32), (0, 0), rng.uniform(0.8, 2.5))
+        fleck = blur(rng.normal(0, 1, (h, w)).astype(np.float32), (0, 0), rng.uniform(4.0, 10.0))
+        g = grain / max(float(grain.std()), 1e-6) * 10 + fleck / max(float(fleck.std()), 1e-6) * 8
+        return np.clip(np.array(pastel(rng, (0.15, 0.6), (0.25, 0.6)), np.float32) + g[..., None], 0, 255)
+    if kind == "wood":
+        out = np.empty((h, w, 3), np.float32)
+        base = np.array(pastel(rng, (0.35, 0.6), (0.4, 0.75)), np.float32)
+        plank, length = max(3, int(rng.uniform(0.12, 0.22) * fppm)), max(8, int(rng.uniform(0.8, 1.6) * fppm))
+        grain = blur(rng.normal(0, 1, (h, w)).astype(np.float32), (0, 0), sigmaX=6, sigmaY=0.5)
+        for r0 in range(0, h, plank):
+            off = int(rng.integers(length))
+            for c0 in range(-off, w, length):
+                out[r0 : r0 + plank, max(c0, 0) : c0 + length] = base * rng.uniform(0.8, 1.15)
+        out += grain[..., None] / max(float(grain.std()), 1e-6) * 6
+        out[(np.arange(h) % plank) == 0] *= 0.6
+        return out
+    size = max(4, int(rng.uniform(0.3, 0.6) * fppm))
+    out = np.empty((h, w, 3), np.float32)
+    out[:] = pastel(rng, (0.0, 0.2), (0.55, 0.85))
+    shades = rng.uniform(0.93, 1.07, (h // size + 1, w // size + 1))
+    out *= np.kron(shades, np.ones((size, size)))[:h, :w, None].astype(np.float32)
+    out += rng.normal(0, 3, (h, w, 1)).astype(np.float32)
+    out[(np.arange(h) % size) == 0] *= 0.7
+    out[:, (np.arange(w) % size) == 0] *= 0.7
+    return out
 
 
 def _wallpaper(ppm: float, rng: np.random.Generator, colour: tuple[float, float, float]) -> NDArray[np.float32]:

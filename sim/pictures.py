@@ -131,19 +131,20 @@ def _print(rng: np.random.Generator, h: int, w: int) -> NDArray[np.uint8]:
             ys = base - rng.uniform(0, 0.25, 9) * h
             pts = np.concatenate([np.stack([xs, ys], 1), [[w, h], [0, h]]]).astype(np.int32)
             cv2.fillPoly(img, [pts], _colour(rng, (0.2, 0.8), (0.2, 0.8 - 0.1 * k)), cv2.LINE_AA)
-    else:  # fields: a grid of coloured rectangles with black lines
-        img[:] = 245
+    else:  # fields: a grid of coloured rectangles with dark lines
+        img[:] = _colour(rng, (0.0, 0.35), (0.75, 1.0))
         xs = np.sort(np.concatenate([[0, w], rng.uniform(0, w, int(rng.integers(2, 5)))])).astype(int)
         ys = np.sort(np.concatenate([[0, h], rng.uniform(0, h, int(rng.integers(2, 5)))])).astype(int)
         for i in range(len(ys) - 1):
             for j in range(len(xs) - 1):
                 if rng.random() < 0.45:
                     img[ys[i] : ys[i + 1], xs[j] : xs[j + 1]] = _colour(rng, (0.6, 1.0), (0.6, 1.0))
-        lw = max(2, int(0.015 * min(h, w)))
+        lw = max(2, int(rng.uniform(0.008, 0.025) * min(h, w)))
+        line = _colour(rng, (0.0, 0.8), (0.0, 0.3))
         for x in xs:
-            img[:, max(x - lw, 0) : x + lw] = 15
+            img[:, max(x - lw, 0) : x + lw] = line
         for y in ys:
-            img[max(y - lw, 0) : y + lw] = 15
+            img[max(y - lw, 0) : y + lw] = line
     return _frame(img, rng)
 
 
@@ -163,8 +164,9 @@ def _frame(img: NDArray[np.uint8], rng: np.random.Generator) -> NDArray[np.uint8
 
 def _notice(rng: np.random.Generator, h: int, w: int) -> NDArray[np.uint8]:
     """A cork board with pinned sheets of text."""
+    grain = np.random.default_rng(int(rng.integers(2**31)))  # size-dependent draws: their own stream
     cork = np.array([176, 132, 88], np.float32) + cv2.GaussianBlur(
-        rng.normal(0, 18, (h, w)).astype(np.float32), (0, 0), 1.2)[..., None]
+        grain.normal(0, 18, (h, w)).astype(np.float32), (0, 0), 1.2)[..., None]
     img = np.ascontiguousarray(np.clip(cork, 0, 255).astype(np.uint8))
     frame = max(3, int(0.03 * min(h, w)))
     for _ in range(int(rng.integers(4, 10))):

@@ -30,6 +30,7 @@ from litevloc.sim.materials import (
     books,
     cabinet,
     clutter_front,
+    floor_patch,
     load_image,
     material,
     pastel,
@@ -225,7 +226,9 @@ def _bake_floor(world: World, rng: np.random.Generator) -> tuple[NDArray[np.uint
             if r.kind == "corridor"
             else str(rng.choice(["carpet", "wood", "tiles", "carpet"]))
         )
-        if kind == "carpet":
+        if world.spec.appearance == "varied":
+            p = floor_patch(kind, h, w, fppm, np.random.default_rng([world.spec.seed, 11, r.label]))
+        elif kind == "carpet":
             p = tint(
                 tile(load_image("gravel.png"), h, w, 512 / (1.5 * fppm), rng.uniform(0, 512)),
                 pastel(rng, (0.15, 0.5), (0.3, 0.6)),

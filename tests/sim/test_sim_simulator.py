@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -166,9 +167,10 @@ def test_cli_record_and_plot(tmp_path: Path) -> None:
     )
     import cv2
 
-    img = cv2.imread(str(next((tmp_path / "goals").glob("room_*.png"))))
+    img = cv2.imread(str(next((tmp_path / "goals").glob("room_*-hand.jpg"))))
     assert img is not None and img.shape == (60, 80, 3)
-    assert (tmp_path / "goals" / "goals.json").is_file()
+    goals = json.loads((tmp_path / "goals" / "goals.json").read_text())["goals"]
+    assert {g["camera"] for g in goals.values()} == {"robot", "hand"} and len(goals) % 2 == 0
 
 
 def test_open_sim_source_uri() -> None:
