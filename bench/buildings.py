@@ -49,6 +49,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--appearance", choices=["varied", "aliased"], default=None)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--goal-timeout", type=float, default=120.0)
+    ap.add_argument("--max-goals", type=int, default=6, help="goal rooms per building at most (drawn with the seed)")
     ap.add_argument("--fresh-maps", action="store_true", help="rebuild every map")
     ap.add_argument("--name", default="buildings", help="results in out/bench/NAME.json and NAME.png")
     ap.add_argument("--json", type=Path, default=None, help="write the results here instead")
@@ -65,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
     runs = [BuildingRun(g, s, args.appearance) for s in args.seeds for g in args.generators]
     variants = (("defaults", ()), *((v, tuple(v.split(","))) for v in args.alt_set)) if args.placement_only else ()
     settings = BenchSettings(goal_timeout_s=args.goal_timeout, out_dir=args.out_dir, keep_maps=not args.fresh_maps,
-                             placement_variants=variants)
+                             max_goals=args.max_goals, placement_variants=variants)
     render = render_cost([BuildingRun(g, args.seeds.start) for g in args.generators], load_config("default"),
                          args.render_frames) if args.render_frames else []
     if render:

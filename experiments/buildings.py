@@ -9,10 +9,12 @@ buildings with the first simulator's pictures):
    the map's own coverage figure, its coverage of the building's free space
    (`litevloc.sim.coverage`), rooms entered, and the unmapped openings of its occupancy grid
    (`pipelines.topomap.openings`).
-2. **Goals**: one goal per room but the start room (the first room), photographed by the goal
-   rule (`litevloc.sim.goals`); whether a room's goal image is the robot camera's or the
-   hand-held one is drawn per room (`default_rng([seed, 31])`, even odds), so both sets are
-   driven in every building. The image of the other camera is placed too (placement only).
+2. **Goals**: the start room is the first room; the goal rooms are the others, at most
+   `max_goals` of them (drawn with `default_rng([seed, 31])`, kept in room order: the floor's
+   14 would triple its driving time), each photographed by the goal rule (`litevloc.sim.goals`);
+   whether a room's driven image is the robot camera's or the hand-held one is drawn per room
+   (the same stream, even odds), so both sets are driven in every building. The image of the
+   other camera is placed too (placement only).
 3. **Navigation**: the goal sequence driven twice from the start room's goal place, with
    LiteVLoc localization (`runtime.sim_navigation.run_navigation`, as `litevloc sim navigate`)
    and with ground-truth localization, the same goal images, map and seeds.
@@ -76,6 +78,7 @@ class BenchSettings:
     vloc_hz: float = 1.0
     out_dir: Path = Path("out/bench/buildings")
     keep_maps: bool = True  # reuse a building's map when its folder holds one (same code, same seed)
+    max_goals: int = 6  # goal rooms per building at most (drawn with the seed)
     # placement only (no driving): variant name -> `--set` overrides of the configuration, each
     # placing every room's robot and hand-held image; empty: map, place and drive
     placement_variants: tuple[tuple[str, tuple[str, ...]], ...] = ()
@@ -138,11 +141,15 @@ def ensure_map(run: BuildingRun, world: World, settings: BenchSettings, cfg: Lit
 
 
 # ------------------------------------------------------------------ goals
-def building_goals(world: World, cfg: LiteVLocConfig, seed: int) -> tuple[str, list[Goal], list[Goal]]:
+def building_goals(world: World, cfg: LiteVLocConfig, seed: int,
+                   max_goals: int) -> tuple[str, list[Goal], list[Goal]]:
     """(start room, the driven goals, the other camera's images of the same rooms)."""
     rooms = sorted(world.goal_places)
     start, rest = rooms[0], rooms[1:]
-    hand = np.random.default_rng([seed, 31]).random(len(rest)) < 0.5
+    rng = np.random.default_rng([seed, 31])
+    if len(rest) > max_goals:
+        rest = [rest[k] for k in sorted(rng.choice(len(rest), max_goals, replace=False))]
+    hand = rng.random(len(rest)) < 0.5
     driven, other = [], []
     for name, h in zip(rest, hand, strict=True):
         sets = (render_goals(world, cfg, [name], camera="hand"), render_goals(world, cfg, [name], camera="robot"))
@@ -207,7 +214,7 @@ def run_building(run: BuildingRun, settings: BenchSettings, cfg: LiteVLocConfig,
     m = rec["map"]
     log(f"  {run.name}: map {m['keyframes']} keyframes, free space {100 * m['free_space_coverage']:.0f} %, "
         f"{m['unmapped_openings']} unmapped openings")
-    start, goals, other = building_goals(world, cfg, run.seed)
+    start, goals, other = building_goals(world, cfg, run.seed, settings.max_goals)
     rec["start"] = start
     params = NavParams(goal_timeout_s=settings.goal_timeout_s, vloc_hz=settings.vloc_hz)
     for mode in ("litevloc", "ground-truth"):

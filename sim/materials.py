@@ -196,64 +196,58 @@ def photo_poster(name: str, h: int, w: int, rng: np.random.Generator) -> NDArray
 
 
 
-def _wrap_blur(img: NDArray[np.float32], sigma_x: float, sigma_y: float | None = None) -> NDArray[np.float32]:
-    """Gaussian blur of a tile that wraps around (the tile stays seamless)."""
-    sy = sigma_x if sigma_y is None else sigma_y
-    py, px = min(int(3 * sy) + 1, img.shape[0]), min(int(3 * sigma_x) + 1, img.shape[1])
-    padded = np.pad(img, ((py, py), (px, px)), mode="wrap")
-    out = cv2.GaussianBlur(padded, (0, 0), sigmaX=sigma_x, sigmaY=sy)
-    return np.asarray(out[py : py + img.shape[0], px : px + img.shape[1]], np.float32)
-
-
 def room_material(kind: str, ppm: float, rng: np.random.Generator,
                   colour: tuple[float, float, float]) -> NDArray[np.float32] | None:
-    """A seamless tile (float32 RGB) of a room's own brick, plaster, wallpaper or panelling,
-    drawn from the room's stream; None for plain paint."""
+    """A room's wallpaper: one seamless tile of its own pattern (wallpaper is printed and
+    repeats, in a real room too), drawn from the room's stream; None for the other materials."""
+    return _wallpaper(ppm, rng, colour) if kind == "wallpaper" else None
+
+
+def wall_surface(kind: str, h: int, w: int, ppm: float, style: np.random.Generator, rng: np.random.Generator,
+                 colour: tuple[float, float, float]) -> NDArray[np.float32] | None:
+    """One wall face's own brick, plaster or panelling (h x w atlas pixels): the room's style
+    (`style`: the room's stream, drawn the same for each of its faces) and this face's own
+    bricks, noise and grain (`rng`), so no stretch of wall repeats another. None for the other
+    materials."""
     if kind == "brick":
-        return _bricks(ppm, rng, colour)
+        return _bricks(h, w, ppm, rng, colour)
     if kind == "plaster":
-        n = 256
-        noise = _wrap_blur(rng.normal(0, 1, (n, n)).astype(np.float32), rng.uniform(1.5, 5.0))
-        noise = noise / max(float(noise.std()), 1e-6) * rng.uniform(6.0, 14.0)
+        sigma, amplitude = style.uniform(1.5, 5.0), style.uniform(6.0, 14.0)
+        noise = blur(rng.normal(0, 1, (h, w)).astype(np.float32), (0, 0), sigma)
+        noise = noise / max(float(noise.std()), 1e-6) * amplitude
         return np.clip(np.array(colour, np.float32)[None, None, :] + noise[..., None], 0, 255)
-    if kind == "wallpaper":
-        return _wallpaper(ppm, rng, colour)
     if kind == "panel":
-        n = 256
-        grain = _wrap_blur(rng.normal(0, 1, (n, n)).astype(np.float32), 0.5, 8.0)
-        r, g, b = colorsys.hsv_to_rgb(rng.uniform(0.04, 0.11), rng.uniform(0.35, 0.7), rng.uniform(0.35, 0.75))
-        wood = np.array([r, g, b], np.float32)[None, None, :] * 255 * (1 + 0.25 * grain[..., None] / max(
-            float(grain.std()), 1e-6) * 0.3)
-        plank = max(4, int(rng.uniform(0.12, 0.35) * ppm))
-        wood[:, (np.arange(n) % plank) == 0] *= 0.55
-        return np.asarray(np.clip(wood[:, : n - n % plank] if n % plank else wood, 0, 255), np.float32)
+        r, g, b = colorsys.hsv_to_rgb(style.uniform(0.04, 0.11), style.uniform(0.35, 0.7), style.uniform(0.35, 0.75))
+        plank = max(4, int(style.uniform(0.12, 0.35) * ppm))
+        grain = blur(rng.normal(0, 1, (h, w)).astype(np.float32), (0, 0), sigmaX=0.5, sigmaY=8)
+        wood = np.array([r, g, b], np.float32)[None, None, :] * 255 * (
+            1 + 0.075 * grain[..., None] / max(float(grain.std()), 1e-6))
+        shades = rng.uniform(0.88, 1.12, w // plank + 1)  # each plank its own shade
+        wood *= np.repeat(shades, plank)[:w][None, :, None].astype(np.float32)
+        wood[:, (np.arange(w) % plank) == 0] *= 0.55
+        return np.asarray(np.clip(wood, 0, 255), np.float32)
     return None
 
 
-def _bricks(ppm: float, rng: np.random.Generator, colour: tuple[float, float, float]) -> NDArray[np.float32]:
-    """Running-bond brickwork (bricks ~0.215 x 0.065 m, 1 cm joints), every brick its own shade:
-    a regular, repetitive pattern, but no two rooms' walls alike. Drawn 4x and shrunk."""
+def _bricks(h: int, w: int, ppm: float, rng: np.random.Generator,
+            colour: tuple[float, float, float]) -> NDArray[np.float32]:
+    """Running-bond brickwork (bricks ~0.215 x 0.065 m, 1 cm joints) over h x w atlas pixels,
+    every brick its own shade: a regular pattern, but no stretch of wall like another. Drawn
+    at 4x and shrunk (the joints are thinner than an atlas pixel)."""
     up = 4
-    course, length = max(3, int(0.075 * ppm * up)), max(6, int(0.225 * ppm * up))
-    rows, per_row = 24, 12  # one tile: 24 courses x 12 bricks (~1.8 m x 2.7 m)
-    joint = max(1, int(0.01 * ppm * up))
-    t = np.empty((rows * course, per_row * length, 3), np.float32)
-    t[:] = np.array(colour, np.float32) * 0.35 + 150
-    base = np.array(colour, np.float32)
-    for r in range(rows):
-        shift = (length // 2) * (r % 2)
-        for b in range(per_row + 1):
-            x0 = b * length - shift
-            shade = base * rng.uniform(0.78, 1.15) + rng.normal(0, 6, 3)
-            xs = np.arange(max(x0, 0), min(x0 + length - joint, t.shape[1]))
-            if len(xs):
-                t[r * course : (r + 1) * course - joint, xs] = shade
-        if shift:  # the brick cut by the tile's edge continues on the other side
-            t[r * course : (r + 1) * course - joint, t.shape[1] - shift : t.shape[1] - joint] = \
-                t[r * course, max(0, (per_row - 1) * length - shift + 1)]
+    ys, xs = (np.arange(h * up) + 0.5) / (ppm * up), (np.arange(w * up) + 0.5) / (ppm * up)
+    course = np.floor(ys / 0.075).astype(np.int64)
+    shift = (course % 2) * 0.1125
+    along = xs[None, :] + shift[:, None]
+    brick = np.floor(along / 0.225).astype(np.int64)
+    shade = rng.uniform(0.78, 1.15, (int(course.max()) + 1, int(brick.max()) + 1)).astype(np.float32)
+    tint_ = rng.normal(0, 6, (int(course.max()) + 1, int(brick.max()) + 1, 3)).astype(np.float32)
+    t = np.array(colour, np.float32)[None, None, :] * shade[course[:, None], brick][..., None] \
+        + tint_[course[:, None], brick]
+    joint = ((ys % 0.075) < 0.01)[:, None] | ((along % 0.225) < 0.01)
+    t[joint] = np.array(colour, np.float32) * 0.35 + 150
     t += rng.normal(0, 5, t.shape[:2])[..., None].astype(np.float32)
-    return np.asarray(cv2.resize(t, (t.shape[1] // up, t.shape[0] // up), interpolation=cv2.INTER_AREA),
-                      np.float32)
+    return np.asarray(cv2.resize(t, (w, h), interpolation=cv2.INTER_AREA), np.float32)
 
 
 def floor_patch(kind: str, h: int, w: int, fppm: float, rng: np.random.Generator) -> NDArray[np.float32]:

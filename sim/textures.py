@@ -38,6 +38,7 @@ from litevloc.sim.materials import (
     room_material,
     tile,
     tint,
+    wall_surface,
 )
 from litevloc.sim.pictures import picture
 from litevloc.sim.world import World
@@ -93,20 +94,23 @@ def _face_world_start(f: Face) -> float:
     return f.lo if s_increasing(f) else -f.hi
 
 
-def _wall_patch(world: World, f: Face, rows: int, w: int, looks: dict[int, Look],
+def _wall_patch(world: World, fi: int, rows: int, w: int, looks: dict[int, Look],
                 tiles: dict[int, NDArray[np.float32]], rng: np.random.Generator) -> NDArray[np.float32]:
-    ppm = world.spec.texels_per_m
+    ppm, f, seed = world.spec.texels_per_m, world.faces[fi], world.spec.seed
     mat, colour, scale = looks.get(f.region, ("painted", (170.0, 170.0, 170.0), 1.0))
     reg = world.regions.get(f.region)
     if reg is not None and reg.kind == "corridor" and rng.random() < 0.5:
         # long corridors: wall sections vary, so places along them differ
         mat = str(rng.choice(["painted", "plaster", "panel", "painted"]))
         colour = pastel(rng)
-    own = tiles.get(f.region) if world.spec.appearance == "varied" and mat == looks[f.region][0] else None
-    if own is not None:
-        patch = tile(np.clip(own, 0, 255).astype(np.uint8), rows, w, 1.0, 0.0, _face_world_start(f) * ppm)
-    else:
-        patch = material(mat, rows, w, ppm, rng, colour, scale)
+    own = None
+    if world.spec.appearance == "varied":
+        own = wall_surface(mat, rows, w, ppm, np.random.default_rng([seed, 8, f.region]),
+                           np.random.default_rng([seed, 12, fi]), colour)
+        if own is None and mat == "wallpaper" and f.region in tiles:
+            own = tile(np.clip(tiles[f.region], 0, 255).astype(np.uint8), rows, w, 1.0, 0.0,
+                       _face_world_start(f) * ppm)
+    patch = own if own is not None else material(mat, rows, w, ppm, rng, colour, scale)
     z_row = world.wall_height - (np.arange(rows) + 0.5) / ppm
     patch[z_row < 0.08] = np.array(colour, np.float32) * 0.45  # skirting
     return patch
@@ -175,7 +179,7 @@ def bake(world: World) -> BakedTextures:
     for fi, f in enumerate(world.faces):
         w = widths[fi]
         o = int(offsets[fi])
-        patch = (_wall_patch(world, f, rows, w, looks, tiles, rng) if f.kind == "wall"
+        patch = (_wall_patch(world, fi, rows, w, looks, tiles, rng) if f.kind == "wall"
                  else _box_patch(world, f, rows, w, rng, palettes))
         # soft shading near floor and ceiling
         patch *= (0.8 + 0.2 * np.clip(z_row / 0.5, 0, 1) * np.clip((H - z_row) / 0.4, 0, 1))[:, None, None]

@@ -36,6 +36,16 @@ class GoalParams:
     # and the loop are reported on, not tuned on.
     planar_rms_m: float = 0.03
     planar_factor: float = 2.0
+    # neighbourhood expansion: the expand_from candidates with most essential-matrix inliers (at
+    # least expand_min_inliers) each bring up to expand_k more keyframes to verify, those within
+    # expand_m (m) of theirs whose optical axes lie within expand_deg (deg): the keyframe that saw
+    # the goal's view best is often near a retrieved one but far down the VPR ranking (a goal
+    # image taken higher up, by hand). expand_k 0 = off.
+    expand_from: int = 2
+    expand_k: int = 4
+    expand_m: float = 2.5
+    expand_deg: float = 60.0
+    expand_min_inliers: int = 15
 
     def __post_init__(self) -> None:
         if self.top_k < 1 or self.min_inliers < 8 or self.ransac_px <= 0:
@@ -48,6 +58,10 @@ class GoalParams:
             raise ValueError("agree_m > 0 and 0 < agree_deg <= 180 required")
         if self.planar_rms_m < 0 or not self.planar_factor >= 1:
             raise ValueError("planar_rms_m >= 0 (0 = off) and planar_factor >= 1 required")
+        if self.expand_from < 0 or self.expand_k < 0 or self.expand_m <= 0 or not 0 < self.expand_deg <= 180 \
+                or self.expand_min_inliers < 0:
+            raise ValueError("expand_from, expand_k, expand_min_inliers >= 0, expand_m > 0 and 0 < expand_deg <= 180 "
+                             "required")
 
 
 @dataclass(frozen=True)
