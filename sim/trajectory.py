@@ -4,12 +4,13 @@
   `skimage.graph.route_through_array`, costs rising steeply near walls so that a path
   through a door keeps to its middle), keeping the robot's radius plus a margin free.
 * `pass_tasks`: the "map" pass drives as an operator mapping a building would: into every
-  room and along every corridor (in a door-graph depth-first order), a full turn at the
-  room's centre and, in a room at least `SIDE_SPOTS_FROM_M` long, also halfway between the
-  centre and each end of its long axis (views from nearer its walls), and a full turn at
-  spots `CORRIDOR_SPACING_M` apart along each corridor, its ends included; "map-rooms" turns
-  at all three spots in every room (corridors only driven through); a "query" pass visits
-  the rooms in another (seeded) order at other spots with partial turns only.
+  room and along every corridor (in a door-graph depth-first order); in each room a full
+  turn at its centre, then `EDGE_SPOTS` spots in the outer part of the room, far apart, at
+  each a sweep of +-`EDGE_SWEEP_RAD` around the way into the room (the views a person gets
+  who photographs the room from its edge); a full turn at spots `CORRIDOR_SPACING_M` apart
+  along each corridor, its ends included. "map-rooms" turns a full circle at the centre and
+  halfway to each end of every room's long axis (corridors only driven through); a "query"
+  pass visits the rooms in another (seeded) order at other spots with partial turns only.
 * `follow`: a pure-pursuit controller with turn-in-place, run on `Simulator` at the
   odometry rate; returns ground truth and odometry without rendering. Its short lookahead
   (`LOOKAHEAD_M`) keeps it on the planned path through doors (a longer one cut the corner
@@ -30,13 +31,16 @@ from litevloc.base.errors import LiteVLocError
 from litevloc.base.geometry import invert
 from litevloc.base.params.drift import DriftParams
 from litevloc.pipelines.odometry_drift import IncrementalDrift
+from litevloc.sim.goals import reachable
 from litevloc.sim.simulator import SimParams, base_pose
 from litevloc.sim.world import World
 
 PassName = Literal["map", "query", "loop", "loop-lane", "loop-back", "map-rooms"]
 PASS_NAMES: tuple[str, ...] = ("map", "query", "loop", "loop-lane", "loop-back", "map-rooms")
 LOOP_BACK_LANE_M = 0.3  # "loop-lane" / "loop-back" drive this far off the corridor centre line, inner side
-SIDE_SPOTS_FROM_M = 5.5  # "map": rooms at least this long (bbox, m) are also looked around from two side spots
+EDGE_SPOTS = 3  # "map": spots in the outer part of each room, looking into it
+EDGE_CLEAR_M = 0.6  # an edge spot stands this far from every wall and box (grid clearance, m)
+EDGE_SWEEP_RAD = np.radians(60.0)  # "map": at an edge spot the camera sweeps +-this around the way into the room
 CORRIDOR_SPACING_M = 8.0  # "map": corridors are driven to spots this far apart (covering their ends), turning at each
 LOOKAHEAD_M = 0.35  # the follower steers toward the path point this far ahead
 TURN_IN_PLACE_RAD = 0.5  # the follower turns in place while the path point is farther off its heading
@@ -53,9 +57,9 @@ class PlanningError(LiteVLocError, RuntimeError):
 
 @dataclass(frozen=True)
 class Task:
-    kind: Literal["goto", "turn"]
+    kind: Literal["goto", "turn", "face"]
     path: NDArray[np.float64] | None = None  # (N, 2) for goto
-    angle: float = 0.0  # signed radians for turn
+    angle: float = 0.0  # turn: signed radians to turn; face: the heading to turn to (world yaw, radians)
 
 
 def plan_path(
@@ -112,6 +116,32 @@ def _random_spot(
         return world.room_centre(label)
     k = int(rng.integers(len(ii)))
     return np.array([(jj[k] + 0.5) * res, (ii[k] + 0.5) * res])
+
+
+def _edge_spots(world: World, label: int, centre: NDArray[np.float64]) -> list[tuple[NDArray[np.float64], float]]:
+    """`EDGE_SPOTS` spots in the outer part of room `label` (as far from each other as they can
+    be), each with the heading toward the middle of the room's free space; nearest first from
+    `centre`. Where a person stands to photograph a room, the operator looks into it too."""
+    import cv2
+
+    dist, res = world.clearance_grid
+    lab = cv2.resize(world.labels.astype(np.float32), (dist.shape[1], dist.shape[0]),
+                     interpolation=cv2.INTER_NEAREST)
+    ii, jj = np.nonzero((lab == label) & reachable(world) & (dist >= EDGE_CLEAR_M))
+    mi, mj = np.nonzero((lab == label) & (dist > 0.3))
+    if len(ii) == 0 or len(mi) == 0:
+        return []
+    middle = (np.array([mj.mean(), mi.mean()]) + 0.5) * res
+    pts = (np.stack([jj, ii], 1) + 0.5) * res
+    from_mid = np.hypot(*(pts - middle).T)
+    pts = pts[from_mid >= 0.4 * from_mid.max()]
+    picked = [int(np.argmax(np.hypot(*(pts - middle).T)))]
+    d = np.hypot(*(pts - pts[picked[0]]).T)
+    while len(picked) < EDGE_SPOTS and d.max() > 1.0:
+        picked.append(int(np.argmax(d)))
+        d = np.minimum(d, np.hypot(*(pts - pts[picked[-1]]).T))
+    chosen = sorted((pts[k] for k in picked), key=lambda p: float(np.hypot(*(p - centre))))
+    return [(p, float(np.arctan2(*(middle - p)[::-1]))) for p in chosen]
 
 
 def _side_spots(world: World, label: int, centre: NDArray[np.float64], clear: float,
@@ -191,29 +221,35 @@ def pass_tasks(
             if world.regions[k].kind == "room" or pass_name == "map":
                 order.append(k)
             stack += sorted(graph[k], reverse=True)
-        min_length = 0.0 if pass_name == "map-rooms" else SIDE_SPOTS_FROM_M
-        spots: list[NDArray[np.float64]] = []
+        # (spot, look): look None = a full turn there; a heading = a sweep of +-EDGE_SWEEP_RAD around it
+        spots: list[tuple[NDArray[np.float64], float | None]] = []
         for k in order:
             if world.regions[k].kind == "corridor":
-                spots += _corridor_spots(world, k, spots[-1] if spots else world.room_centre(k), params.robot_radius)
+                here = spots[-1][0] if spots else world.room_centre(k)
+                spots += [(p, None) for p in _corridor_spots(world, k, here, params.robot_radius)]
                 continue
             c = world.room_centre(k)
-            spots += [c, *_side_spots(world, k, c, params.robot_radius + 0.3, min_length)]
+            if pass_name == "map-rooms":
+                spots += [(p, None) for p in [c, *_side_spots(world, k, c, params.robot_radius + 0.3)]]
+            else:
+                spots += [(c, None), *_edge_spots(world, k, c)]
     else:
         order = [int(k) for k in rng.permutation(rooms)]
-        spots = [_random_spot(world, k, rng, params.robot_radius + 0.5) for k in order]
-    start_xy = spots[0]
+        spots = [(_random_spot(world, k, rng, params.robot_radius + 0.5), 0.0) for k in order]
+    start_xy = spots[0][0]
     yaw0 = float(rng.uniform(-np.pi, np.pi))
     tasks: list[Task] = []
     cur = start_xy
-    for i, xy in enumerate(spots):
+    for i, (xy, look) in enumerate(spots):
         if i > 0:
             tasks.append(Task("goto", plan_path(world, cur, xy, params.robot_radius)))
             cur = xy
-        if mapping:
+        if not mapping:
+            tasks.append(Task("turn", angle=float(rng.uniform(-1.5, 1.5))))
+        elif look is None:
             tasks.append(Task("turn", angle=2 * np.pi * (1 if i % 2 == 0 else -1)))
         else:
-            tasks.append(Task("turn", angle=float(rng.uniform(-1.5, 1.5))))
+            tasks += [Task("face", angle=look - EDGE_SWEEP_RAD), Task("turn", angle=2 * EDGE_SWEEP_RAD)]
     return base_pose(float(start_xy[0]), float(start_xy[1]), yaw0), tasks
 
 
@@ -309,8 +345,8 @@ def follow(
     for task in tasks:
         idx, turned = 0, 0.0
         while len(poses) <= max_ticks:
-            if task.kind == "turn":
-                remaining = task.angle - turned
+            if task.kind in ("turn", "face"):
+                remaining = task.angle - turned if task.kind == "turn" else _wrap(task.angle - yaw)
                 if abs(remaining) < 0.02:
                     break
                 v_cmd, w_cmd = 0.0, float(np.sign(remaining) * min(params.cruise_omega, 2.0 * abs(remaining) + 0.1))

@@ -206,25 +206,30 @@ def test_depth_only_steps_render_no_colour_and_keep_the_frame_clock(office) -> N
 
 
 def test_map_pass_enters_every_room_and_corridor_and_looks_around() -> None:
-    """The operator-like mapping pass: a full turn in every room and along the corridor, driven
-    without touching anything. In this building the first follower cut a door's corner, pushed
-    against the jamb and never entered three of the six rooms."""
+    """The operator-like mapping pass: a full turn in every room and along the corridor, and in
+    every room sweeps into it from spots in its outer part, driven without touching anything.
+    In this building the first follower cut a door's corner, pushed against the jamb and never
+    entered three of the six rooms."""
     from litevloc.sim.simulator import SimParams
-    from litevloc.sim.trajectory import follow, pass_tasks
+    from litevloc.sim.trajectory import EDGE_SWEEP_RAD, follow, pass_tasks
 
     world = load_world("office-aliased", seed=2)
-    params = SimParams()
+    params = SimParams(odometry_rate_hz=50.0)  # the follower's ticks: 4x fewer than the default, as tight
     start, tasks = pass_tasks(world, "map", 0, params)
-    turns = [t for t in tasks if t.kind == "turn"]
-    assert all(abs(abs(t.angle) - 2 * np.pi) < 1e-9 for t in turns)
-    spots = [start[:2, 3]] + [t.path[-1] for t in tasks if t.kind == "goto"]
-    assert len(spots) == len(turns)
-    looked = {world.region_at(p) for p in spots}
-    assert looked == set(world.regions)  # every room and the corridor
+    spots, here = [], start[:2, 3]
+    for t in tasks:  # where each look happens: full turns, and sweeps (face, then turn 2 x sweep)
+        if t.kind == "goto":
+            here = t.path[-1]
+        elif t.kind == "turn":
+            spots.append((world.region_at(here), "full" if abs(abs(t.angle) - 2 * np.pi) < 1e-9 else "sweep"))
+            assert abs(abs(t.angle) - 2 * np.pi) < 1e-9 or abs(t.angle - 2 * EDGE_SWEEP_RAD) < 1e-9
+    rooms = {k for k, r in world.regions.items() if r.kind == "room"}
+    corridor = next(k for k, r in world.regions.items() if r.kind == "corridor")
+    assert {k for k, how in spots if how == "full"} == set(world.regions)  # every room and the corridor
+    assert all(sum(s == (k, "sweep") for s in spots) == 3 for k in rooms)  # three sweeps into every room
+    assert sum(s == (corridor, "full") for s in spots) >= 2  # the corridor's ends, 8 m apart at most
     run = follow(world, params, 0, start, tasks)
     assert run.collisions == 0
     assert {world.region_at(p) for p in run.T_world_base[::20, :2, 3]} == set(world.regions)
-    corridor = next(k for k, r in world.regions.items() if r.kind == "corridor")
-    assert sum(world.region_at(p) == corridor for p in spots) >= 2  # its ends, 8 m apart at most
-    _, rooms = pass_tasks(world, "map-rooms", 0, params)  # three spots in every room, no corridor turns
-    assert sum(t.kind == "turn" for t in rooms) == 3 * sum(r.kind == "room" for r in world.regions.values())
+    _, side = pass_tasks(world, "map-rooms", 0, params)  # three full turns in every room, none in corridors
+    assert sum(t.kind == "turn" for t in side) == 3 * len(rooms)
