@@ -27,7 +27,7 @@ from litevloc.base.params.fusion import FusionParams
 from litevloc.base.params.localization import LocalizationParams
 from litevloc.base.params.mapping import MappingParams
 from litevloc.base.params.models import ModelsConfig
-from litevloc.base.params.navigation import GoalParams, TrackerParams
+from litevloc.base.params.navigation import GoalParams, OpeningParams, TrackerParams
 from litevloc.base.params.odometry import OdometryCheckParams
 from litevloc.base.params.sim import SimParams
 from litevloc.base.params.slam import SlamParams
@@ -401,6 +401,8 @@ class PlannerConfig:
     goal: GoalParams = field(default_factory=GoalParams)
     # following the planned path
     tracker: TrackerParams = field(default_factory=TrackerParams)
+    # what `map build` / `map info` list as unmapped openings of a map's occupancy grid (where to go back)
+    openings: OpeningParams = field(default_factory=OpeningParams)
     # sensor time between subgoal messages (s; 0 = on every fused pose)
     publish_period_s: float = 0.0
     # wall time between repeated status messages (s)

@@ -23,7 +23,12 @@ simulator's true base pose (published on `litevloc/pose` in place of the runtime
 baseline of the navigation benchmark.
 
 Success of a goal: the planner reported it reached and the true robot position is within
-`success_radius_m` of the goal image's true place.
+`success_radius_m` of the goal image's true place. Where the planner put each goal image is
+recorded as it placed it (`GoalRecord.placed_*`, `placement_error_m` from where the image was
+taken).
+
+Goal images: the building's goal places (`litevloc.sim.goals`) seen by the robot's camera
+(`camera="robot"`) or by the hand-held camera of the same goal (`camera="hand"`).
 """
 
 from __future__ import annotations
@@ -87,6 +92,8 @@ class Goal:
     name: str
     jpeg: bytes
     T_world_base: NDArray[np.float64] | None  # true place (None: unknown, e.g. a user image)
+    T_world_camera: NDArray[np.float64] | None = None  # where the image was taken (4x4; None: unknown)
+    camera: str = "robot"  # "robot" | "hand" (a hand-held camera) | "file"
 
 
 @dataclass
@@ -99,6 +106,10 @@ class GoalRecord:
     time_s: float = 0.0  # simulated seconds from when this goal became active
     path_length_m: float = 0.0
     distance_to_goal_m: float | None = None  # true, at the end
+    camera: str = "robot"
+    placed_node: int | None = None  # where the planner put the goal image (None: refused)
+    placed_xy: tuple[float, float] | None = None  # its metric goal pose, else its node's camera (map = world frame)
+    placement_error_m: float | None = None  # horizontal, from where the image was taken (None: unknown)
     t_start_ns: int | None = None
 
 
@@ -137,8 +148,11 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def render_goals(world: World, cfg: LiteVLocConfig, names: list[str], seed: int = 0) -> list[Goal]:
-    """Goal images (JPEG, the robot camera at the world's goal places) as `sim goals` renders them."""
+def render_goals(world: World, cfg: LiteVLocConfig, names: list[str], seed: int = 0,
+                 camera: Literal["robot", "hand"] = "robot") -> list[Goal]:
+    """Goal images (JPEG) at the world's goal places as `sim goals` renders them: the robot's
+    camera (the robot standing at the goal place) or the goal's hand-held camera (its height and
+    tilt drawn by the goal rule; the robot camera's intrinsics and imaging effects)."""
     params = cfg.sim
     ren = Renderer(world)
     light = sample_lighting(params.realism, np.random.default_rng([seed, 11]))
@@ -149,11 +163,13 @@ def render_goals(world: World, cfg: LiteVLocConfig, names: list[str], seed: int 
             raise ValueError(f"unknown goal place {name!r}; the world has {order}")
         T_base = world.goal_places[name]
         k = order.index(name)
-        f = render_frame(ren, camera_pose(T_base, 0.0, 0.0, params), params.intrinsics, params.realism, light,
-                         np.random.default_rng([seed, 19, k]), 0, k)
+        T_cam = (camera_pose(T_base, 0.0, 0.0, params) if camera == "robot"
+                 else world.goal_views[name].T_world_camera_hand)
+        f = render_frame(ren, T_cam, params.intrinsics, params.realism, light,
+                         np.random.default_rng([seed, 19 if camera == "robot" else 23, k]), 0, k)
         ok, buf = cv2.imencode(".jpg", f.color[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, 90])
         assert ok
-        goals.append(Goal(name, buf.tobytes(), T_base))
+        goals.append(Goal(name if camera == "robot" else f"{name}-hand", buf.tobytes(), T_base, T_cam, camera))
     return goals
 
 
@@ -180,7 +196,7 @@ class _Driver:
         self.events: list[dict[str, Any]] = []
         self.on_plan: Callable[[dict[str, Any]], None] | None = None  # the live view's put_plan, if on
         self.subgoals_xy: list[tuple[float, float]] = []
-        self.records = {g.name: GoalRecord(g.name) for g in goals}
+        self.records = {g.name: GoalRecord(g.name, camera=g.camera) for g in goals}
         self.path: list[NDArray[np.float64]] = []
         self.collision_xy: list[tuple[float, float]] = []  # true base position at each bump (metres)
         self.last_depth: NDArray[np.float32] | None = None
@@ -459,8 +475,10 @@ def run_navigation(
                             view_save=view_save)
             closers.append(app.close)
             last = {"published": 0}
+            lost = _LostClock()
 
-            def on_step_rt(_step: Any) -> int | None:
+            def on_step_rt(step: Any) -> int | None:
+                lost.update(step.t_ns, app.service.core.tracking_state()[0])
                 n = app.service.counters["poses_published"]
                 if n == last["published"]:
                     return None
@@ -482,7 +500,9 @@ def run_navigation(
 
         pl_bus = Bus(z_pl, node_name=f"{z_pl.node_name}_planner")
         closers.append(pl_bus.close)
-        planner = PlannerService(pl_bus, build_planner(cfg, load_map(map_path), bundle)).start()
+        goal_planner = build_planner(cfg, load_map(map_path), bundle)
+        placements = _record_placements(goal_planner)
+        planner = PlannerService(pl_bus, goal_planner).start()
         closers.append(planner.close)
         dr_bus = Bus(z_dr, node_name=f"{z_dr.node_name}_sim_driver")
         closers.append(dr_bus.close)
@@ -500,6 +520,7 @@ def run_navigation(
             extra["runtime"] = {k: c[k] for k in ("frames_in", "odometry_in", "vloc_calls", "vloc_accepted",
                                                    "fusion_accepted", "poses_published")}
             extra["localization_error_m"] = _fused_error(app.recorder, sim, driver)
+            extra["lost_max_s"], extra["lost_total_s"] = round(lost.longest_s, 2), round(lost.total_s, 2)
         else:
             for _ in gen:
                 pass
@@ -510,6 +531,7 @@ def run_navigation(
         for close in reversed(closers):
             with contextlib.suppress(Exception):  # best effort on the way out
                 close()
+    _placement_records(driver, goals, placements, goal_planner.map)
     path = np.array([p[1:] for p in driver.path])
     t_total = (driver.path[-1][0] - driver.path[0][0]) * 1e-9 if driver.path else 0.0
     extra["trace"] = driver.trace
@@ -518,6 +540,63 @@ def run_navigation(
     extra["collision_xy"] = driver.collision_xy
     return NavRun(localization, list(driver.records.values()), path, np.array(driver.subgoals_xy).reshape(-1, 2),
                   float(t_total), len(driver.collision_xy), time.perf_counter() - t_wall, extra)
+
+
+class _LostClock:
+    """Longest and total stretch (simulated seconds) the runtime's tracking state was LOST."""
+
+    def __init__(self) -> None:
+        self.since_ns: int | None = None
+        self.longest_s = self.total_s = 0.0
+
+    def update(self, t_ns: int, state: str) -> None:
+        if state == "LOST":
+            if self.since_ns is None:
+                self.since_ns = t_ns
+            self.longest_s = max(self.longest_s, (t_ns - self.since_ns) * 1e-9)
+        elif self.since_ns is not None:
+            self.total_s += (t_ns - self.since_ns) * 1e-9
+            self.since_ns = None
+
+
+def _record_placements(goal_planner: Any) -> list[Any]:
+    """Wrap the planner's goal locator so that each `GoalResult` is kept, in the order the
+    goal images arrive (the driver sends them one at a time, each acknowledged)."""
+    out: list[Any] = []
+    inner = goal_planner.locate
+
+    def locate(rgb: NDArray[np.uint8]) -> Any:
+        res = inner(rgb)
+        out.append(res)
+        return res
+
+    goal_planner.locate = locate
+    return out
+
+
+def placed_position(res: Any, topomap: Any) -> NDArray[np.float64] | None:
+    """(3,) where a `GoalResult` put the goal camera (map frame): its metric goal pose, else its
+    node's keyframe camera; None when refused."""
+    if res.node is None:
+        return None
+    if res.T_map_goal is not None:
+        return np.asarray(res.T_map_goal, np.float64)[:3, 3]
+    return np.asarray(topomap.T_map_camera[res.node], np.float64)[:3, 3]
+
+
+def _placement_records(driver: _Driver, goals: list[Goal], placements: list[Any], topomap: Any) -> None:
+    """Fill each goal record's placement from the locator's results (one per goal, in order)."""
+    if len(placements) != len(goals):
+        return  # an image the planner could not decode: the order is unknown, leave them unset
+    for g, res in zip(goals, placements, strict=True):
+        rec = driver.records[g.name]
+        p = placed_position(res, topomap)
+        rec.placed_node = res.node
+        if p is None:
+            continue
+        rec.placed_xy = (round(float(p[0]), 3), round(float(p[1]), 3))
+        if g.T_world_camera is not None:  # the map frame is the world frame (maps built from the simulator)
+            rec.placement_error_m = round(float(np.linalg.norm(p[:2] - g.T_world_camera[:2, 3])), 3)
 
 
 def _fused_error(recorder: Any, sim: Simulator, driver: _Driver) -> dict[str, float]:

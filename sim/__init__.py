@@ -1,12 +1,16 @@
-"""CPU simulator of indoor worlds: RGB-D sequences with ground truth, and a closed loop.
+"""CPU simulator of indoor buildings: RGB-D sequences with ground truth, and a closed loop.
 
-* `world`: procedural floor plans from a seed + YAML (`config/worlds/*.yaml`; `load_world`).
-* `textures`: CC0 / public-domain photos and materials from scikit-image's data folder.
+* `spec`: `WorldSpec`, a building generator's parameters (`config/worlds/*.yaml`).
+* `world`: a generated building (`load_world`), made by `layout` (rooms, corridors, doors,
+  walls), `furnish` (furniture and clutter), `decor` (wall materials and pictures) and
+  `goals` (the goal-image rule); its parts are in `elements`.
+* `pictures`, `materials`, `textures`: generated pictures, wall and furniture surfaces (and
+  the first simulator's CC0 / public-domain photographs), baked into texture arrays.
 * `render`: vectorised ray caster, colour + metric depth (`Renderer.render`).
 * `realism`: seeded lighting, noise, blur, depth noise and holes.
-* `params`: `SimParams` (robot, camera mount, rates), the `sim` config section.
 * `simulator`: closed loop `Simulator.reset(pose)` / `step(v, omega, dt)` -> `SimStep`.
-* `trajectory`: route planning, map/query passes, waypoint follower.
+* `trajectory`: route planning, mapping/query passes, waypoint follower.
+* `local_planner`, `search`: the simulated robot's own local planner and its search for a first fix.
 * `source`: `SimSequenceSource`, a `StreamSource` for recording (`litevloc sim record`).
 * `plot`: top-down plan PNG and contact sheets.
 """

@@ -6,7 +6,12 @@ ground plane (base frame), a fan of constant-(v, omega) arcs (motion primitives)
 rolled out over a short horizon, arcs that pass within the robot radius plus a margin
 of an obstacle point are discarded, and the remaining arc whose end lands closest to the
 subgoal (with penalties for low clearance and turning) is driven. A subgoal far to the
-side or behind is first faced by turning in place. The camera only sees ahead (and nothing
+side or behind is first faced by turning in place. The arcs do not steer to the subgoal itself
+but to the farthest point of the cheapest path to it (on a local grid of the known obstacles,
+inflated by the robot's radius; unknown space counts as free) that is in straight, clear line
+from the robot, at least `carrot_m` along it: a subgoal behind a wall next to
+a door is then reached through the middle of the door, where arcs aimed straight at it ran into
+the jamb, turned away and came back (dithering at doors). The camera only sees ahead (and nothing
 closer than its minimum depth), so obstacle points are kept in the odometry frame as a rolling
 local map (one point per voxel, the newest sighting wins) while they are within
 `memory_radius_m` of the robot and were seen less than `memory_travel_m` of odometry ago
@@ -25,6 +30,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -71,6 +77,17 @@ class LocalPlannerParams:
     # then driven around instead of faced again and again (turn to the subgoal, blocked, turn
     # away, turn back).
     detour_commands: int = 10
+    # Local path to the subgoal: known obstacle points rasterised on a grid of grid_m cells out to
+    # grid_radius_m around the robot (0: arcs steer straight to the subgoal); cells nearer an
+    # obstacle than robot_radius + margin_m cost blocked_cost extra, nearer than path_clear_m
+    # proportionally more; the arcs steer to the farthest path point within lookahead_m that a
+    # straight line from the robot reaches with robot_radius + margin_m of clearance (at least
+    # the point carrot_m along the path).
+    grid_m: float = 0.05
+    grid_radius_m: float = 3.0
+    path_clear_m: float = 0.6
+    blocked_cost: float = 40.0
+    carrot_m: float = 0.8
 
     def __post_init__(self) -> None:
         if not 0 < self.min_speed <= self.max_speed:
@@ -85,6 +102,8 @@ class LocalPlannerParams:
             raise ValueError("need memory_radius_m > 0, memory_travel_m >= 0 and memory_m_per_rad >= 0")
         if not self.height_band_m[0] < self.height_band_m[1]:
             raise ValueError("height_band_m must be (low, high) with low < high")
+        if self.grid_m <= 0 or self.grid_radius_m < 0 or self.carrot_m <= 0 or self.blocked_cost < 0:
+            raise ValueError("need grid_m > 0, grid_radius_m >= 0, carrot_m > 0 and blocked_cost >= 0")
 
 
 @dataclass(frozen=True)
@@ -218,12 +237,51 @@ class LocalPlanner:
         if self._reversing > 0:
             self._reversing -= 1
             return Command(-p.min_speed, 0.0, "recover")
-        cmd = self._choose(g, dist, pts)
+        g = self.carrot(g, pts)
+        cmd = self._choose(g, float(np.hypot(*g)), pts)
         self._stuck = 0 if cmd.reason in ("arc", "squeeze") else self._stuck + 1
         if self._stuck >= p.recover_after:
             self._stuck, self._reversing, self._turn_sign = 0, p.recover_commands - 1, 0.0
             return Command(-p.min_speed, 0.0, "recover")
         return cmd
+
+    def carrot(self, g: NDArray[np.float64], pts: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Where the arcs should steer (2,): the farthest point of the cheapest local-grid path
+        from the robot to the subgoal `g` (base frame, m; a subgoal beyond the grid: to where
+        the straight line to it leaves the grid) in clear straight line from the robot, given
+        the obstacle points `pts` (M, 2); `g` itself when there are no obstacles, the grid is
+        off or the subgoal is nearer than `carrot_m`."""
+        p = self.params
+        dist = float(np.hypot(*g))
+        if p.grid_radius_m <= 0 or len(pts) == 0 or dist <= p.carrot_m:
+            return g
+        from skimage.graph import route_through_array
+
+        c = round(p.grid_radius_m / p.grid_m)
+        n = 2 * c + 1
+        ij = np.round(pts[:, ::-1] / p.grid_m).astype(np.int64) + c
+        inside = np.all((ij >= 0) & (ij < n), axis=1)
+        free = np.full((n, n), 255, np.uint8)
+        free[ij[inside, 0], ij[inside, 1]] = 0
+        clear = cv2.distanceTransform(free, cv2.DIST_L2, 5) * p.grid_m
+        cost = 1.0 + p.blocked_cost * (clear <= p.robot_radius + p.margin_m) \
+            + 4.0 * np.clip(p.path_clear_m - clear, 0.0, None) / p.path_clear_m
+        end = g * min(1.0, 0.95 * p.grid_radius_m / dist)
+        e = (round(end[1] / p.grid_m) + c, round(end[0] / p.grid_m) + c)
+        idx, _ = route_through_array(cost, (c, c), e, fully_connected=True, geometric=True)
+        cells = np.asarray(idx, np.int64)
+        path = (cells[:, ::-1] - c) * p.grid_m
+        along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
+        k_min = min(int(np.searchsorted(along, p.carrot_m)), len(path) - 1)
+        k_max = int(np.searchsorted(along, p.lookahead_m, side="right")) - 1
+        for k in range(max(k_max, k_min), k_min, -1):
+            t = np.linspace(0.0, 1.0, max(2, int(along[k] / p.grid_m) + 1))
+            ray = np.round(t[:, None] * cells[k] + (1 - t[:, None]) * c).astype(np.int64)
+            if np.all(clear[ray[:, 0], ray[:, 1]] > p.robot_radius + p.margin_m) or \
+                    np.all(clear[ray[1:, 0], ray[1:, 1]] >= clear[c, c]):  # from a tight spot: no closer
+                return np.asarray(path[k], np.float64) if k < len(path) - 1 or dist > 0.95 * p.grid_radius_m \
+                    else g
+        return np.asarray(path[k_min], np.float64)
 
     def _choose(self, g: NDArray[np.float64], dist: float, pts: NDArray[np.float64]) -> Command:
         """Turn, an arc, a squeeze or blocked, from the subgoal `g` (base frame, `dist` m away)

@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.sim.elements import s_increasing
 from litevloc.sim.world import World
 
 
@@ -51,9 +52,7 @@ def plot_world(
         )
     for p in world.posters:
         f = world.faces[p.face]
-        from litevloc.sim.world import _s_increasing
-
-        a = f.lo + p.s0 if _s_increasing(f) else f.hi - p.s0 - p.width
+        a = f.lo + p.s0 if s_increasing(f) else f.hi - p.s0 - p.width
         xs, ys = ((f.c, f.c), (a, a + p.width)) if f.axis == 0 else ((a, a + p.width), (f.c, f.c))
         ax.plot(xs, ys, color="tab:red", lw=3)
     for name, T in world.goal_places.items():

@@ -16,6 +16,7 @@ metres (z along the optical axis), NaN where nothing was hit.
 
 from __future__ import annotations
 
+import weakref
 from functools import lru_cache
 
 import cv2
@@ -24,8 +25,9 @@ from numpy.typing import NDArray
 
 from litevloc.base.errors import LiteVLocError
 from litevloc.base.geometry import PinholeIntrinsics, check_rigid
+from litevloc.sim.elements import s_increasing
 from litevloc.sim.textures import MIP_LEVELS, BakedTextures, bake
-from litevloc.sim.world import World, _s_increasing
+from litevloc.sim.world import World
 
 KIND_VOID, KIND_WALL, KIND_FLOOR, KIND_CEIL, KIND_SIDE, KIND_TOP = 0, 1, 2, 3, 4, 5
 
@@ -34,15 +36,15 @@ class RenderError(LiteVLocError, ValueError):
     """The camera pose cannot be rendered (e.g. looking straight up or down)."""
 
 
-_BAKE_CACHE: dict[int, BakedTextures] = {}
+_BAKED: weakref.WeakKeyDictionary[World, BakedTextures] = weakref.WeakKeyDictionary()
 
 
 def baked_textures(world: World) -> BakedTextures:
-    """Textures of `world`, baked once per World object."""
-    tex = world._baked
+    """Textures of `world`, baked once per World object (kept while the world lives)."""
+    tex = _BAKED.get(world)
     if tex is None:
         tex = bake(world)
-        world._baked = tex
+        _BAKED[world] = tex
     return tex
 
 
@@ -105,7 +107,7 @@ class Renderer:
         self._lo = np.array([f.lo for f in faces])
         self._hi = np.array([f.hi for f in faces])
         self._normal = np.array([f.normal for f in faces], np.float64)
-        self._sinc = np.array([_s_increasing(f) for f in faces])
+        self._sinc = np.array([s_increasing(f) for f in faces])
         self._wall = np.array([f.kind == "wall" for f in faces])
         box_face0 = [i for i, f in enumerate(faces) if f.kind == "box"]
         self._box_face0 = box_face0[0] if box_face0 else 0

@@ -24,6 +24,7 @@ Example (closed loop)::
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from numpy.typing import NDArray
@@ -49,6 +50,13 @@ def bob_transform(t_s: float, speed_frac: float, params: SimParams) -> NDArray[n
     )
 
 
+@lru_cache(maxsize=16)
+def _T_base_camera(params: SimParams) -> NDArray[np.float64]:
+    T = params.T_base_camera
+    T.setflags(write=False)
+    return T
+
+
 def camera_pose(
     T_world_base: NDArray[np.float64], t_s: float, speed: float, params: SimParams
 ) -> NDArray[np.float64]:
@@ -56,7 +64,7 @@ def camera_pose(
     return (
         T_world_base
         @ bob_transform(t_s, abs(speed) / params.max_speed, params)
-        @ params.T_base_camera
+        @ _T_base_camera(params)
     )
 
 

@@ -1,15 +1,9 @@
 """Surface appearance of a world, baked once into texture arrays for the renderer.
 
-Photographs and material textures come from the data folder that the scikit-image
-package ships (read with OpenCV by path; nothing is downloaded). Only files whose
-licence the package documents as CC0 / public domain are used:
-
-* materials: brick.png, gravel.png, grass.png (CC0Textures.com, CC0);
-* pictures ("posters"): astronaut.png, rocket.jpg, hubble_deep_field.jpg (NASA /
-  SpaceX, public domain), camera.png (CC0, L. Varshney), chelsea.png (CC0,
-  S. van der Walt), coffee.png (CC0, R. Michetti), coins.png (public domain),
-  clock_motion.png (public domain, S. van der Walt), text.png (public domain),
-  retina.jpg (CC0), cell.png (CC0).
+Surfaces come from `litevloc.sim.materials` (wall materials, furniture fronts, the
+photographs of the aliased appearance) and `litevloc.sim.pictures` (the varied appearance's
+generated posters, prints, notice boards, plates and signs). A world with the aliased
+appearance bakes exactly as the first simulator did (same stream, same order).
 
 Baked arrays (uint8 RGB unless noted):
 
@@ -23,229 +17,34 @@ Baked arrays (uint8 RGB unless noted):
 from __future__ import annotations
 
 import colorsys
-import importlib.util
 from dataclasses import dataclass
-from functools import lru_cache
-from pathlib import Path
-from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.base.errors import LiteVLocError
-
-if TYPE_CHECKING:
-    from litevloc.sim.world import Face, World
-
-POSTER_IMAGES = (
-    "astronaut.png",
-    "rocket.jpg",
-    "hubble_deep_field.jpg",
-    "camera.png",
-    "chelsea.png",
-    "coffee.png",
-    "coins.png",
-    "clock_motion.png",
-    "text.png",
-    "retina.jpg",
-    "cell.png",
+from litevloc.sim.decor import door_faces
+from litevloc.sim.elements import Face, Poster, s_increasing
+from litevloc.sim.materials import (
+    blur,
+    books,
+    cabinet,
+    clutter_front,
+    floor_patch,
+    load_image,
+    material,
+    pastel,
+    photo_poster,
+    room_material,
+    tile,
+    tint,
+    wall_surface,
 )
-MATERIAL_IMAGES = ("brick.png", "gravel.png", "grass.png")
+from litevloc.sim.pictures import picture
+from litevloc.sim.world import World
+
 MIP_LEVELS = 4
-
-
-class TextureError(LiteVLocError, RuntimeError):
-    """The scikit-image data folder (texture source) is missing or a file is unreadable."""
-
-
-def data_dir() -> Path:
-    """scikit-image's shipped data folder."""
-    spec = importlib.util.find_spec("skimage")
-    if spec is None or not spec.submodule_search_locations:
-        raise TextureError(
-            "scikit-image is not installed; the simulator takes its textures from its data folder"
-        )
-    return Path(next(iter(spec.submodule_search_locations))) / "data"
-
-
-@lru_cache(maxsize=32)
-def load_image(name: str) -> NDArray[np.uint8]:
-    """HxWx3 uint8 RGB of a file in scikit-image's data folder."""
-    path = data_dir() / name
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
-        raise TextureError(f"cannot read texture {path}")
-    img = np.ascontiguousarray(img[:, :, ::-1])
-    img.setflags(write=False)
-    return np.asarray(img, dtype=np.uint8)
-
-
-def tile(
-    img: NDArray[np.uint8], h: int, w: int, texel: float, oy: float = 0.0, ox: float = 0.0
-) -> NDArray[np.float32]:
-    """Tile `img` over an h x w patch, `texel` image pixels per patch pixel; float32 0..255."""
-    ih, iw = img.shape[:2]
-    rows = ((np.arange(h) * texel + oy) % ih).astype(np.intp)
-    cols = ((np.arange(w) * texel + ox) % iw).astype(np.intp)
-    return img[np.ix_(rows, cols)].astype(np.float32)
-
-
-def _blur(
-    img: NDArray[np.float32], ksize: tuple[int, int], sigmaX: float, sigmaY: float = 0.0
-) -> NDArray[np.float32]:
-    return np.asarray(cv2.GaussianBlur(img, ksize, sigmaX=sigmaX, sigmaY=sigmaY), dtype=np.float32)
-
-
-def tint(
-    patch: NDArray[np.float32], rgb: tuple[float, float, float], contrast: float = 1.0
-) -> NDArray[np.float32]:
-    """Grey-level texture -> coloured: mean-preserving contrast, multiplied by a colour."""
-    g = patch.mean(axis=2, keepdims=True)
-    m = float(g.mean())
-    g = m + (g - m) * contrast
-    return np.clip(g / max(m, 1.0) * np.array(rgb, np.float32), 0, 255)
-
-
-def _pastel(
-    rng: np.random.Generator,
-    sat: tuple[float, float] = (0.05, 0.3),
-    val: tuple[float, float] = (0.65, 0.92),
-) -> tuple[float, float, float]:
-    r, g, b = colorsys.hsv_to_rgb(rng.random(), rng.uniform(*sat), rng.uniform(*val))
-    return (r * 255, g * 255, b * 255)
-
-
-def hue_shift(img: NDArray[np.uint8], shift_deg: float, sat: float = 1.0) -> NDArray[np.uint8]:
-    hsv = cv2.cvtColor(img, cv2.COLOR_RGB2HSV).astype(np.int32)
-    hsv[..., 0] = (hsv[..., 0] + int(shift_deg / 2)) % 180
-    hsv[..., 1] = np.clip(hsv[..., 1] * sat, 0, 255)
-    return np.asarray(cv2.cvtColor(hsv.astype(np.uint8), cv2.COLOR_HSV2RGB), dtype=np.uint8)
-
-
-def _material(
-    kind: str,
-    h: int,
-    w: int,
-    ppm: float,
-    rng: np.random.Generator,
-    colour: tuple[float, float, float],
-    scale: float,
-) -> NDArray[np.float32]:
-    """A wall material patch h x w (atlas pixels at `ppm` per metre)."""
-    if kind == "painted":
-        base = np.empty((h, w, 3), np.float32)
-        base[:] = colour
-        base += rng.normal(0, 1.5, (h, w, 1)).astype(np.float32)
-        return base
-    if kind == "brick":
-        # brick.png spans about 1.6 m of wall
-        return tint(
-            tile(
-                load_image("brick.png"),
-                h,
-                w,
-                512 / (1.6 * scale * ppm),
-                rng.uniform(0, 512),
-                rng.uniform(0, 512),
-            ),
-            colour,
-            0.8,
-        )
-    if kind == "plaster":
-        p = tile(
-            load_image("gravel.png"),
-            h,
-            w,
-            512 / (2.0 * scale * ppm),
-            rng.uniform(0, 512),
-            rng.uniform(0, 512),
-        )
-        return tint(_blur(p, (0, 0), 2.5), colour, 0.35)
-    if kind == "wallpaper":
-        return tint(
-            tile(
-                load_image("grass.png"),
-                h,
-                w,
-                512 / (1.2 * scale * ppm),
-                rng.uniform(0, 512),
-                rng.uniform(0, 512),
-            ),
-            colour,
-            0.8,
-        )
-    if kind == "panel":
-        grain = tile(load_image("gravel.png"), h, w, 0.5, rng.uniform(0, 512), rng.uniform(0, 512))
-        wood = tint(_blur(grain, (0, 0), sigmaX=0.5, sigmaY=6), (150, 105, 70), 0.8)
-        plank = max(4, int(0.3 * ppm * scale))
-        cols = np.arange(w) % plank
-        wood[:, cols == 0] *= 0.55
-        return wood
-    raise ValueError(f"unknown material {kind!r}")
-
-
-def _books(h: int, w: int, ppm: float, rng: np.random.Generator) -> NDArray[np.float32]:
-    """Front of a shelf: wooden frame, shelf boards every ~0.38 m, rows of coloured spines."""
-    out = np.empty((h, w, 3), np.float32)
-    out[:] = (120, 85, 55)
-    shelf = int(0.38 * ppm)
-    board = max(2, int(0.03 * ppm))
-    frame = max(2, int(0.04 * ppm))
-    for top in range(frame, h - board, shelf):
-        x = frame
-        bottom = min(top + shelf - board, h - frame)
-        while x < w - frame:
-            bw = int(rng.uniform(0.02, 0.06) * ppm) + 1
-            bh = int(rng.uniform(0.55, 0.95) * (bottom - top))
-            if rng.random() < 0.12:
-                x += bw * 2
-                continue
-            col = colorsys.hsv_to_rgb(rng.random(), rng.uniform(0.3, 0.9), rng.uniform(0.25, 0.9))
-            out[bottom - bh : bottom, x : min(x + bw, w - frame)] = np.array(col, np.float32) * 255
-            out[bottom - bh : bottom, x] *= 0.6
-            x += bw
-        out[bottom : bottom + board] = (100, 70, 45)
-    out[:, :frame] = out[:, -frame:] = (95, 65, 40)
-    return out
-
-
-def _cabinet(
-    h: int, w: int, ppm: float, rng: np.random.Generator, colour: tuple[float, float, float]
-) -> NDArray[np.float32]:
-    grain = tile(load_image("gravel.png"), h, w, 0.4, rng.uniform(0, 512), rng.uniform(0, 512))
-    out = tint(_blur(grain, (0, 0), 2.0), colour, 0.4)
-    n_draw = int(rng.integers(2, 5))
-    for k in range(1, n_draw):
-        r = int(k * h / n_draw)
-        out[max(r - 1, 0) : r + 1] *= 0.5
-    n_door = max(1, int(w / (0.5 * ppm)))
-    for k in range(1, n_door):
-        c = int(k * w / n_door)
-        out[:, max(c - 1, 0) : c + 1] *= 0.5
-    for k in range(n_draw):
-        r = int((k + 0.5) * h / n_draw)
-        for m in range(n_door):
-            c = int((m + 0.5) * w / n_door)
-            out[r - 2 : r + 2, c - int(0.06 * ppm) : c + int(0.06 * ppm)] = (60, 60, 65)
-    return out
-
-
-def _poster(name: str, h: int, w: int, rng: np.random.Generator) -> NDArray[np.float32]:
-    img = load_image(name)
-    ih, iw = img.shape[:2]
-    # random crop with the poster's aspect ratio (same photo, different framing per copy)
-    ar = w / max(h, 1)
-    ch = int(min(ih, iw / ar) * rng.uniform(0.6, 1.0))
-    cw = int(ch * ar)
-    y0, x0 = int(rng.integers(0, ih - ch + 1)), int(rng.integers(0, iw - cw + 1))
-    crop = img[y0 : y0 + ch, x0 : x0 + cw]
-    if rng.random() < 0.5:
-        crop = hue_shift(np.ascontiguousarray(crop), rng.uniform(-40, 40), rng.uniform(0.7, 1.2))
-    out = cv2.resize(crop, (w, h), interpolation=cv2.INTER_AREA).astype(np.float32)
-    f = max(2, int(0.03 * max(h, w)))
-    out[:f], out[-f:], out[:, :f], out[:, -f:] = 30, 30, 30, 30
-    return out
+Look = tuple[str, tuple[float, float, float], float]  # material, colour, pattern scale
 
 
 @dataclass
@@ -268,6 +67,100 @@ class BakedTextures:
         return int(sum(a.nbytes for a in self.atlas) + self.floor.nbytes + self.ceiling.nbytes)
 
 
+def _looks(world: World, rng: np.random.Generator) -> dict[int, Look]:
+    """Per-region wall look: material, colour and pattern scale."""
+    looks: dict[int, Look] = {}
+    for r in world.regions.values():
+        colour = pastel(rng)
+        if r.material == "brick":  # red-brown to grey bricks
+            rr, gg, bb = colorsys.hsv_to_rgb(rng.uniform(0.0, 0.08), rng.uniform(0.1, 0.5), rng.uniform(0.6, 0.85))
+            colour = (rr * 255, gg * 255, bb * 255)
+        looks[r.label] = (r.material, colour, float(rng.uniform(0.8, 1.25)))
+    return looks
+
+
+def _room_tiles(world: World, looks: dict[int, Look]) -> dict[int, NDArray[np.float32]]:
+    """Varied appearance: each region's own plaster / wallpaper / panel tile (its own stream)."""
+    out = {}
+    for label, (mat, colour, _scale) in looks.items():
+        t = room_material(mat, world.spec.texels_per_m, np.random.default_rng([world.spec.seed, 8, label]), colour)
+        if t is not None:
+            out[label] = t
+    return out
+
+
+def _face_world_start(f: Face) -> float:
+    """World coordinate (m) along a face where its s = 0 lies (room patterns continue across faces)."""
+    return f.lo if s_increasing(f) else -f.hi
+
+
+def _wall_patch(world: World, fi: int, rows: int, w: int, looks: dict[int, Look],
+                tiles: dict[int, NDArray[np.float32]], rng: np.random.Generator) -> NDArray[np.float32]:
+    ppm, f, seed = world.spec.texels_per_m, world.faces[fi], world.spec.seed
+    mat, colour, scale = looks.get(f.region, ("painted", (170.0, 170.0, 170.0), 1.0))
+    reg = world.regions.get(f.region)
+    if reg is not None and reg.kind == "corridor" and rng.random() < 0.5:
+        # long corridors: wall sections vary, so places along them differ
+        mat = str(rng.choice(["painted", "plaster", "panel", "painted"]))
+        colour = pastel(rng)
+    own = None
+    if world.spec.appearance == "varied":
+        own = wall_surface(mat, rows, w, ppm, np.random.default_rng([seed, 8, f.region]),
+                           np.random.default_rng([seed, 12, fi]), colour)
+        if own is None and mat == "wallpaper" and f.region in tiles:
+            own = tile(np.clip(tiles[f.region], 0, 255).astype(np.uint8), rows, w, 1.0, 0.0,
+                       _face_world_start(f) * ppm)
+    patch = own if own is not None else material(mat, rows, w, ppm, rng, colour, scale)
+    z_row = world.wall_height - (np.arange(rows) + 0.5) / ppm
+    patch[z_row < 0.08] = np.array(colour, np.float32) * 0.45  # skirting
+    return patch
+
+
+def _box_patch(world: World, f: Face, rows: int, w: int, rng: np.random.Generator,
+               palettes: dict[int, list[tuple[float, float, float]]]) -> NDArray[np.float32]:
+    ppm, H = world.spec.texels_per_m, world.wall_height
+    kind = world.box_kinds[f.box]
+    patch = np.zeros((rows, w, 3), np.float32)
+    r0 = int(np.floor((H - f.height) * ppm))
+    bh = rows - r0
+    if kind == "shelf" and rng.random() < 0.85:
+        sub = books(bh, w, ppm, rng)
+    elif kind == "pillar":
+        sub = material("plaster", bh, w, ppm, rng, (175, 175, 170), 1.0)
+    elif kind in ("bin", "plant", "stool", "crate"):
+        sub = clutter_front(kind, bh, w, ppm, rng)
+    elif world.spec.appearance == "varied":  # the room's own furniture colours
+        b = world.boxes[f.box]
+        pal = palettes.get(world.region_at(np.array([(b[0] + b[2]) / 2, (b[1] + b[3]) / 2])), [(150.0,) * 3])
+        sub = cabinet(bh, w, ppm, rng, pal[f.box % len(pal)])
+    else:
+        sub = cabinet(bh, w, ppm, rng, pastel(rng, (0.1, 0.5), (0.35, 0.8)))
+    patch[r0:] = sub
+    return patch
+
+
+def _picture(p: Poster, h: int, w: int, rng: np.random.Generator) -> NDArray[np.float32]:
+    if p.kind == "photo":
+        return photo_poster(p.image, h, w, rng)
+    return picture(p.kind, p.design, p.text, h, w)
+
+
+def _door_frames(world: World, atlas: NDArray[np.float32], offsets: NDArray[np.float64]) -> None:
+    """Varied appearance: a frame strip (one colour per building, as real doors repeat) on
+    each wall face beside a door, up to the door's height."""
+    rng = np.random.default_rng([world.spec.seed, 10])
+    colour = np.array(pastel(rng, (0.0, 0.5), (0.25, 0.9)), np.float32)
+    ppm, H = world.spec.texels_per_m, world.wall_height
+    strip, r0 = max(2, int(0.07 * ppm)), int((H - min(2.1, H - 0.1)) * ppm)
+    for door in world.doors:
+        for region in door[:2]:
+            for fi, s_end in door_faces(door, region, world.faces):
+                c = int(offsets[fi] + s_end * ppm)
+                c0, c1 = (c - strip, c) if s_end > 0 else (c, c + strip)
+                atlas[r0:, max(c0, int(offsets[fi])) : c1] = colour
+                atlas[r0 : r0 + strip, max(c0, int(offsets[fi])) : c1] = colour * 0.8
+
+
 def bake(world: World) -> BakedTextures:
     """Bake every face, the floor and the ceiling of `world` (deterministic in its seed)."""
     rng = np.random.default_rng([world.spec.seed, 7])
@@ -277,61 +170,32 @@ def bake(world: World) -> BakedTextures:
     widths = [int(np.ceil((f.hi - f.lo) * ppm)) + 2 for f in world.faces]
     offsets = np.concatenate([[0], np.cumsum(widths)[:-1]]).astype(np.float64)
     atlas = np.zeros((rows, int(sum(widths)), 3), np.float32)
-    # per-region wall look
-    looks: dict[int, tuple[str, tuple[float, float, float], float]] = {}
-    for r in world.regions.values():
-        colour = _pastel(rng)
-        if r.material == "brick":  # red-brown to grey bricks
-            rr, gg, bb = colorsys.hsv_to_rgb(
-                rng.uniform(0.0, 0.08), rng.uniform(0.1, 0.5), rng.uniform(0.6, 0.85)
-            )
-            colour = (rr * 255, gg * 255, bb * 255)
-        looks[r.label] = (r.material, colour, float(rng.uniform(0.8, 1.25)))
+    looks = _looks(world, rng)
+    varied = world.spec.appearance == "varied"
+    tiles = _room_tiles(world, looks) if varied else {}
+    palettes = {label: [pastel(np.random.default_rng([world.spec.seed, 9, label, k]), (0.1, 0.6), (0.3, 0.85))
+                        for k in range(2)] for label in world.regions} if varied else {}
     z_row = H - (np.arange(rows) + 0.5) / ppm  # height of each atlas row
     for fi, f in enumerate(world.faces):
         w = widths[fi]
         o = int(offsets[fi])
-        if f.kind == "wall":
-            mat, colour, scale = looks.get(f.region, ("painted", (170.0, 170.0, 170.0), 1.0))
-            reg = world.regions.get(f.region)
-            if reg is not None and reg.kind == "corridor" and rng.random() < 0.5:
-                # long corridors: wall sections vary, so places along them differ
-                mat = str(rng.choice(["painted", "plaster", "panel", "painted"]))
-                colour = _pastel(rng)
-            patch = _material(mat, rows, w, ppm, rng, colour, scale)
-            skirting = z_row < 0.08
-            patch[skirting] = np.array(colour, np.float32) * 0.45
-        else:
-            kind = world.box_kinds[f.box]
-            hb = f.height
-            patch = np.zeros((rows, w, 3), np.float32)
-            r0 = int(np.floor((H - hb) * ppm))
-            bh = rows - r0
-            if kind == "shelf" and rng.random() < 0.85:
-                sub = _books(bh, w, ppm, rng)
-            elif kind == "pillar":
-                sub = _material("plaster", bh, w, ppm, rng, (175, 175, 170), 1.0)
-            else:
-                sub = _cabinet(bh, w, ppm, rng, _pastel(rng, (0.1, 0.5), (0.35, 0.8)))
-            patch[r0:] = sub
+        patch = (_wall_patch(world, fi, rows, w, looks, tiles, rng) if f.kind == "wall"
+                 else _box_patch(world, f, rows, w, rng, palettes))
         # soft shading near floor and ceiling
-        patch *= (0.8 + 0.2 * np.clip(z_row / 0.5, 0, 1) * np.clip((H - z_row) / 0.4, 0, 1))[
-            :, None, None
-        ]
+        patch *= (0.8 + 0.2 * np.clip(z_row / 0.5, 0, 1) * np.clip((H - z_row) / 0.4, 0, 1))[:, None, None]
         atlas[:, o : o + w] = patch
+    if varied:
+        _door_frames(world, atlas, offsets)
     for p in world.posters:
-        f = world.faces[p.face]
         o = int(offsets[p.face])
         c0, c1 = o + int(p.s0 * ppm), o + int((p.s0 + p.width) * ppm)
         r0, r1 = int((H - p.z0 - p.height) * ppm), int((H - p.z0) * ppm)
-        atlas[r0:r1, c0:c1] = _poster(p.image, r1 - r0, c1 - c0, rng)
+        atlas[r0:r1, c0:c1] = _picture(p, r1 - r0, c1 - c0, rng)
     # orientation shading: faces facing +-x slightly darker than +-y (one light direction)
     shade = np.ones(atlas.shape[1], np.float32)
     for fi, f in enumerate(world.faces):
         o = int(offsets[fi])
-        shade[o : o + widths[fi]] = (
-            (0.86 if f.normal > 0 else 0.94) if f.axis == 0 else (1.0 if f.normal > 0 else 0.9)
-        )
+        shade[o : o + widths[fi]] = (0.86 if f.normal > 0 else 0.94) if f.axis == 0 else (1.0 if f.normal > 0 else 0.9)
     atlas *= shade[None, :, None]
     atlas_u8 = np.clip(atlas, 0, 255).astype(np.uint8)
     mips = [atlas_u8]
@@ -342,24 +206,12 @@ def bake(world: World) -> BakedTextures:
     top_ppm = 64.0
     grain = tile(load_image("gravel.png"), 128, 128, 0.5)
     top_tile = cv2.GaussianBlur(grain, (0, 0), sigmaX=6, sigmaY=0.7).mean(axis=2, keepdims=True)
-    top_tile = (
-        0.75 + 0.25 * (top_tile - top_tile.mean()) / max(float(top_tile.std()), 1e-3) * 0.5
-    ).astype(np.float32)
-    top_color = np.array(
-        [_pastel(rng, (0.2, 0.5), (0.4, 0.8)) for _ in range(len(world.boxes))], np.float32
-    ).reshape(-1, 3)
-    return BakedTextures(
-        ppm,
-        mips,
-        offsets,
-        floor,
-        fppm,
-        ceiling,
-        cppm,
-        np.repeat(top_tile, 3, axis=2),
-        top_ppm,
-        top_color,
-    )
+    top_tile = (0.75 + 0.25 * (top_tile - top_tile.mean()) / max(float(top_tile.std()), 1e-3) * 0.5).astype(
+        np.float32)
+    top_color = np.array([pastel(rng, (0.2, 0.5), (0.4, 0.8)) for _ in range(len(world.boxes))],
+                         np.float32).reshape(-1, 3)
+    return BakedTextures(ppm, mips, offsets, floor, fppm, ceiling, cppm, np.repeat(top_tile, 3, axis=2), top_ppm,
+                         top_color)
 
 
 def _bake_floor(world: World, rng: np.random.Generator) -> tuple[NDArray[np.uint8], float]:
@@ -378,23 +230,25 @@ def _bake_floor(world: World, rng: np.random.Generator) -> tuple[NDArray[np.uint
             if r.kind == "corridor"
             else str(rng.choice(["carpet", "wood", "tiles", "carpet"]))
         )
-        if kind == "carpet":
+        if world.spec.appearance == "varied":
+            p = floor_patch(kind, h, w, fppm, np.random.default_rng([world.spec.seed, 11, r.label]))
+        elif kind == "carpet":
             p = tint(
                 tile(load_image("gravel.png"), h, w, 512 / (1.5 * fppm), rng.uniform(0, 512)),
-                _pastel(rng, (0.15, 0.5), (0.3, 0.6)),
+                pastel(rng, (0.15, 0.5), (0.3, 0.6)),
                 0.7,
             )
         elif kind == "wood":
             grain = tile(load_image("gravel.png"), h, w, 0.6, rng.uniform(0, 512))
             p = tint(
-                _blur(grain, (0, 0), sigmaX=5, sigmaY=0.5),
-                _pastel(rng, (0.35, 0.55), (0.45, 0.7)),
+                blur(grain, (0, 0), sigmaX=5, sigmaY=0.5),
+                pastel(rng, (0.35, 0.55), (0.45, 0.7)),
                 0.8,
             )
             plank = int(0.18 * fppm)
             p[(np.arange(h) % plank) == 0] *= 0.6
         else:
-            base = np.array(_pastel(rng, (0.0, 0.15), (0.6, 0.85)), np.float32)
+            base = np.array(pastel(rng, (0.0, 0.15), (0.6, 0.85)), np.float32)
             p = np.empty((h, w, 3), np.float32)
             p[:] = base
             p += rng.normal(0, 3, (h, w, 1)).astype(np.float32)
@@ -420,9 +274,3 @@ def _bake_ceiling(world: World, rng: np.random.Generator) -> tuple[NDArray[np.ui
         for xx in range(step // 2, W - 2 * t, step):
             out[yy : yy + t, xx : xx + 2 * t] = 250
     return np.clip(out, 0, 255).astype(np.uint8), cppm
-
-
-def face_s_sign(f: Face) -> bool:
-    from litevloc.sim.world import _s_increasing
-
-    return _s_increasing(f)

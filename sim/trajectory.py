@@ -1,34 +1,49 @@
 """Routes through a world and a waypoint follower that drives the closed-loop simulator.
 
 * `plan_path`: shortest path on the world's clearance grid (minimum-cost path of
-  `skimage.graph.route_through_array`, costs rising near walls), keeping the robot's
-  radius plus a margin free.
-* `pass_tasks`: the "map" pass visits every room (in a door-graph depth-first order,
-  through corridors) and turns a full circle at each room centre, so the map sees every
-  direction; "map-rooms" also turns a full circle halfway between the centre and each end
-  of the room's long axis (as a person mapping a building walks a room, so views from near
-  its walls are in the map too); a "query" pass visits the rooms in another (seeded) order
-  at other spots with partial turns only.
+  `skimage.graph.route_through_array`, costs rising steeply near walls so that a path
+  through a door keeps to its middle), keeping the robot's radius plus a margin free.
+* `pass_tasks`: the "map" pass drives as an operator mapping a building would: into every
+  room and along every corridor (in a door-graph depth-first order); in each room a full
+  turn at its centre, then `EDGE_SPOTS` spots in the outer part of the room, far apart, at
+  each a sweep of +-`EDGE_SWEEP_RAD` around the way into the room (the views a person gets
+  who photographs the room from its edge); a full turn at spots `CORRIDOR_SPACING_M` apart
+  along each corridor, its ends included. "map-rooms" turns a full circle at the centre and
+  halfway to each end of every room's long axis (corridors only driven through); a "query"
+  pass visits the rooms in another (seeded) order at other spots with partial turns only.
 * `follow`: a pure-pursuit controller with turn-in-place, run on `Simulator` at the
-  odometry rate; returns ground truth and odometry without rendering.
+  odometry rate; returns ground truth and odometry without rendering. Its short lookahead
+  (`LOOKAHEAD_M`) keeps it on the planned path through doors (a longer one cut the corner
+  of a door, pushed against its jamb and never reached the rooms behind it).
 """
 
 from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Literal, TypeGuard
 
 import numpy as np
 from numpy.typing import NDArray
 
 from litevloc.base.errors import LiteVLocError
-from litevloc.sim.simulator import SimParams, Simulator, base_pose
+from litevloc.base.geometry import invert
+from litevloc.base.params.drift import DriftParams
+from litevloc.pipelines.odometry_drift import IncrementalDrift
+from litevloc.sim.goals import reachable
+from litevloc.sim.simulator import SimParams, base_pose
 from litevloc.sim.world import World
 
 PassName = Literal["map", "query", "loop", "loop-lane", "loop-back", "map-rooms"]
 PASS_NAMES: tuple[str, ...] = ("map", "query", "loop", "loop-lane", "loop-back", "map-rooms")
 LOOP_BACK_LANE_M = 0.3  # "loop-lane" / "loop-back" drive this far off the corridor centre line, inner side
+EDGE_SPOTS = 3  # "map": spots in the outer part of each room, looking into it
+EDGE_CLEAR_M = 0.6  # an edge spot stands this far from every wall and box (grid clearance, m)
+EDGE_SWEEP_RAD = np.radians(60.0)  # "map": at an edge spot the camera sweeps +-this around the way into the room
+CORRIDOR_SPACING_M = 8.0  # "map": corridors are driven to spots this far apart (covering their ends), turning at each
+LOOKAHEAD_M = 0.35  # the follower steers toward the path point this far ahead
+TURN_IN_PLACE_RAD = 0.5  # the follower turns in place while the path point is farther off its heading
 
 
 def is_pass_name(name: str) -> TypeGuard[PassName]:
@@ -42,9 +57,9 @@ class PlanningError(LiteVLocError, RuntimeError):
 
 @dataclass(frozen=True)
 class Task:
-    kind: Literal["goto", "turn"]
+    kind: Literal["goto", "turn", "face"]
     path: NDArray[np.float64] | None = None  # (N, 2) for goto
-    angle: float = 0.0  # signed radians for turn
+    angle: float = 0.0  # turn: signed radians to turn; face: the heading to turn to (world yaw, radians)
 
 
 def plan_path(
@@ -55,7 +70,8 @@ def plan_path(
 
     dist, res = world.clearance_grid
     margin = radius + 0.1
-    cost = np.where(dist > margin, 1.0 + 1.5 / np.maximum(dist, 0.05), 1e6)
+    # the steep term below 0.7 m keeps a path in the middle of a 1 m door
+    cost = np.where(dist > margin, 1.0 + 1.5 / np.maximum(dist, 0.05) + 8.0 * np.clip(0.7 - dist, 0.0, None), 1e6)
     s = (int(start[1] / res), int(start[0] / res))
     g = (int(goal[1] / res), int(goal[0] / res))
     for name, (i, j) in (("start", s), ("goal", g)):
@@ -102,9 +118,39 @@ def _random_spot(
     return np.array([(jj[k] + 0.5) * res, (ii[k] + 0.5) * res])
 
 
-def _side_spots(world: World, label: int, centre: NDArray[np.float64], clear: float) -> list[NDArray[np.float64]]:
-    """Free spots of room `label` halfway from its centre to each end of its longer bbox axis."""
+def _edge_spots(world: World, label: int, centre: NDArray[np.float64]) -> list[tuple[NDArray[np.float64], float]]:
+    """`EDGE_SPOTS` spots in the outer part of room `label` (as far from each other as they can
+    be), each with the heading toward the middle of the room's free space; nearest first from
+    `centre`. Where a person stands to photograph a room, the operator looks into it too."""
+    import cv2
+
+    dist, res = world.clearance_grid
+    lab = cv2.resize(world.labels.astype(np.float32), (dist.shape[1], dist.shape[0]),
+                     interpolation=cv2.INTER_NEAREST)
+    ii, jj = np.nonzero((lab == label) & reachable(world) & (dist >= EDGE_CLEAR_M))
+    mi, mj = np.nonzero((lab == label) & (dist > 0.3))
+    if len(ii) == 0 or len(mi) == 0:
+        return []
+    middle = (np.array([mj.mean(), mi.mean()]) + 0.5) * res
+    pts = (np.stack([jj, ii], 1) + 0.5) * res
+    from_mid = np.hypot(*(pts - middle).T)
+    pts = pts[from_mid >= 0.4 * from_mid.max()]
+    picked = [int(np.argmax(np.hypot(*(pts - middle).T)))]
+    d = np.hypot(*(pts - pts[picked[0]]).T)
+    while len(picked) < EDGE_SPOTS and d.max() > 1.0:
+        picked.append(int(np.argmax(d)))
+        d = np.minimum(d, np.hypot(*(pts - pts[picked[-1]]).T))
+    chosen = sorted((pts[k] for k in picked), key=lambda p: float(np.hypot(*(p - centre))))
+    return [(p, float(np.arctan2(*(middle - p)[::-1]))) for p in chosen]
+
+
+def _side_spots(world: World, label: int, centre: NDArray[np.float64], clear: float,
+                min_length: float = 0.0) -> list[NDArray[np.float64]]:
+    """Free spots of room `label` halfway from its centre to each end of its longer bbox axis
+    (none when that axis is shorter than `min_length` m)."""
     x0, y0, x1, y1 = world.regions[label].bbox
+    if max(x1 - x0, y1 - y0) < min_length:
+        return []
     axis = np.array([1.0, 0.0]) if x1 - x0 >= y1 - y0 else np.array([0.0, 1.0])
     half = 0.25 * max(x1 - x0, y1 - y0)
     out = []
@@ -114,6 +160,31 @@ def _side_spots(world: World, label: int, centre: NDArray[np.float64], clear: fl
             if world.is_free(p, clear) and world.region_at(p) == label:
                 out.append(p)
                 break
+    return out
+
+
+def _corridor_spots(world: World, label: int, here: NDArray[np.float64], radius: float) -> list[NDArray[np.float64]]:
+    """Spots along corridor `label`, `CORRIDOR_SPACING_M` apart (farthest-point sampling of its
+    free cells, starting with the one farthest from `here`), visited nearest first from `here`."""
+    import cv2
+
+    dist, res = world.clearance_grid
+    lab = cv2.resize(world.labels.astype(np.float32), (dist.shape[1], dist.shape[0]),
+                     interpolation=cv2.INTER_NEAREST)
+    ii, jj = np.nonzero((lab == label) & (dist > radius + 0.35))
+    if len(ii) == 0:
+        return []
+    pts = (np.stack([jj, ii], 1) + 0.5) * res
+    picked = [int(np.argmax(np.hypot(*(pts - here).T)))]
+    d = np.hypot(*(pts - pts[picked[0]]).T)
+    while d.max() > CORRIDOR_SPACING_M:
+        picked.append(int(np.argmax(d)))
+        d = np.minimum(d, np.hypot(*(pts - pts[picked[-1]]).T))
+    out, cur, left = [], here, [pts[k] for k in picked]
+    while left:
+        k = int(np.argmin([np.hypot(*(p - cur)) for p in left]))
+        cur = left.pop(k)
+        out.append(cur)
     return out
 
 
@@ -142,33 +213,43 @@ def pass_tasks(
         order: list[int] = []
         seen: set[int] = set()
         stack = [rooms[0]]
-        while stack:  # depth-first over the door graph; rooms in visiting order
+        while stack:  # depth-first over the door graph; regions in visiting order
             k = stack.pop()
             if k in seen:
                 continue
             seen.add(k)
-            if world.regions[k].kind == "room":
+            if world.regions[k].kind == "room" or pass_name == "map":
                 order.append(k)
             stack += sorted(graph[k], reverse=True)
-        spots = [world.room_centre(k) for k in order]
-        if pass_name == "map-rooms":
-            spots = [p for k, c in zip(order, spots, strict=True)
-                     for p in [c, *_side_spots(world, k, c, params.robot_radius + 0.3)]]
+        # (spot, look): look None = a full turn there; a heading = a sweep of +-EDGE_SWEEP_RAD around it
+        spots: list[tuple[NDArray[np.float64], float | None]] = []
+        for k in order:
+            if world.regions[k].kind == "corridor":
+                here = spots[-1][0] if spots else world.room_centre(k)
+                spots += [(p, None) for p in _corridor_spots(world, k, here, params.robot_radius)]
+                continue
+            c = world.room_centre(k)
+            if pass_name == "map-rooms":
+                spots += [(p, None) for p in [c, *_side_spots(world, k, c, params.robot_radius + 0.3)]]
+            else:
+                spots += [(c, None), *_edge_spots(world, k, c)]
     else:
         order = [int(k) for k in rng.permutation(rooms)]
-        spots = [_random_spot(world, k, rng, params.robot_radius + 0.5) for k in order]
-    start_xy = spots[0]
+        spots = [(_random_spot(world, k, rng, params.robot_radius + 0.5), 0.0) for k in order]
+    start_xy = spots[0][0]
     yaw0 = float(rng.uniform(-np.pi, np.pi))
     tasks: list[Task] = []
     cur = start_xy
-    for i, xy in enumerate(spots):
+    for i, (xy, look) in enumerate(spots):
         if i > 0:
             tasks.append(Task("goto", plan_path(world, cur, xy, params.robot_radius)))
             cur = xy
-        if mapping:
+        if not mapping:
+            tasks.append(Task("turn", angle=float(rng.uniform(-1.5, 1.5))))
+        elif look is None:
             tasks.append(Task("turn", angle=2 * np.pi * (1 if i % 2 == 0 else -1)))
         else:
-            tasks.append(Task("turn", angle=float(rng.uniform(-1.5, 1.5))))
+            tasks += [Task("face", angle=look - EDGE_SWEEP_RAD), Task("turn", angle=2 * EDGE_SWEEP_RAD)]
     return base_pose(float(start_xy[0]), float(start_xy[1]), yaw0), tasks
 
 
@@ -208,8 +289,36 @@ class FollowResult:
     t_ns: NDArray[np.int64]  # (N,)
     T_world_base: NDArray[np.float64]  # (N, 4, 4)
     speed: NDArray[np.float64]  # (N,) m/s
-    T_odom_base: NDArray[np.float64]  # (N, 4, 4)
     collisions: int
+    drift: DriftParams
+    seed: int
+
+    @cached_property
+    def T_odom_base(self) -> NDArray[np.float64]:
+        """(N, 4, 4) drift-model odometry of the run (`IncrementalDrift` seeded with `seed`,
+        one step per odometry tick; computed when first asked for: a map build never reads it)."""
+        drift = IncrementalDrift(self.drift, self.seed)
+        out = [np.eye(4)]
+        for k in range(1, len(self.t_ns)):
+            D = invert(self.T_world_base[k - 1]) @ self.T_world_base[k]
+            out.append(drift.step(D, (int(self.t_ns[k]) - int(self.t_ns[k - 1])) * 1e-9))
+        return np.stack(out)
+
+
+def _track(path: NDArray[np.float64], idx: int, x: float, y: float, yaw: float,
+           params: SimParams) -> tuple[float, float, int, bool]:
+    """Pure pursuit on `path` from waypoint `idx`: (v, omega, new idx, arrived)."""
+    while idx < len(path) - 1 and np.hypot(path[idx, 0] - x, path[idx, 1] - y) < LOOKAHEAD_M:
+        idx += 1
+    tx, ty = path[idx]
+    dist_goal = float(np.hypot(path[-1, 0] - x, path[-1, 1] - y))
+    if idx == len(path) - 1 and dist_goal < 0.15:
+        return 0.0, 0.0, idx, True
+    err = _wrap(float(np.arctan2(ty - y, tx - x)) - yaw)
+    if abs(err) > TURN_IN_PLACE_RAD:
+        return 0.0, float(np.sign(err) * params.cruise_omega), idx, False
+    v = params.cruise_speed * (1 - 0.6 * abs(err) / TURN_IN_PLACE_RAD) * min(1.0, dist_goal / 0.5 + 0.3)
+    return v, float(np.clip(2.5 * err, -params.cruise_omega * 1.5, params.cruise_omega * 1.5)), idx, False
 
 
 def follow(
@@ -220,70 +329,56 @@ def follow(
     tasks: list[Task],
     duration_s: float | None = None,
 ) -> FollowResult:
-    """Drive the tasks with a pure-pursuit controller on a non-rendering `Simulator`."""
-    sim = Simulator(world, params, seed, render=False)
-    step = sim.reset(start)
-    dt = 1.0 / params.odometry_rate_hz
-    ts, Ts, sp, odo = [step.t_ns], [step.T_world_base], [0.0], [step.odometry[0].T_odom_base]
+    """Drive the tasks with a pure-pursuit controller (turning in place where the path turns
+    sharply): unicycle kinematics at the odometry rate, stopped by walls and boxes as
+    `Simulator` is (a tick that would touch one does not move and counts as a collision)."""
+    period = round(1e9 / params.odometry_rate_hz)
+    dt = period * 1e-9
+    x, y = float(start[0, 3]), float(start[1, 3])
+    yaw = float(np.arctan2(start[1, 0], start[0, 0]))
+    if not world.is_free(np.array([x, y]), params.robot_radius):
+        raise PlanningError(f"start ({x:.2f}, {y:.2f}) is not free for radius {params.robot_radius} m")
+    poses, speeds = [(x, y, yaw)], [0.0]
     v_prev, w_prev = 0.0, 0.0
-    max_t = int((duration_s if duration_s is not None else 1e9) * 1e9)
+    max_ticks = int((duration_s if duration_s is not None else 1e7) / dt)
     collisions = 0
-    lookahead = 0.6
     for task in tasks:
-        idx = 0
-        turned = 0.0
-        while ts[-1] < max_t:
-            x, y, yaw = sim.state
-            if task.kind == "turn":
-                remaining = task.angle - turned
+        idx, turned = 0, 0.0
+        while len(poses) <= max_ticks:
+            if task.kind in ("turn", "face"):
+                remaining = task.angle - turned if task.kind == "turn" else _wrap(task.angle - yaw)
                 if abs(remaining) < 0.02:
                     break
-                v_cmd, w_cmd = (
-                    0.0,
-                    float(
-                        np.sign(remaining) * min(params.cruise_omega, 2.0 * abs(remaining) + 0.1)
-                    ),
-                )
+                v_cmd, w_cmd = 0.0, float(np.sign(remaining) * min(params.cruise_omega, 2.0 * abs(remaining) + 0.1))
             else:
-                path = task.path
-                assert path is not None
-                while (
-                    idx < len(path) - 1 and np.hypot(path[idx, 0] - x, path[idx, 1] - y) < lookahead
-                ):
-                    idx += 1
-                tx, ty = path[idx]
-                dist_goal = np.hypot(path[-1, 0] - x, path[-1, 1] - y)
-                if idx == len(path) - 1 and dist_goal < 0.15:
+                assert task.path is not None
+                v_cmd, w_cmd, idx, arrived = _track(task.path, idx, x, y, yaw, params)
+                if arrived:
                     break
-                err = _wrap(np.arctan2(ty - y, tx - x) - yaw)
-                if abs(err) > 0.7:
-                    v_cmd, w_cmd = 0.0, float(np.sign(err) * params.cruise_omega)
-                else:
-                    v_cmd = (
-                        params.cruise_speed
-                        * (1 - 0.6 * abs(err) / 0.7)
-                        * min(1.0, dist_goal / 0.5 + 0.3)
-                    )
-                    w_cmd = float(
-                        np.clip(2.0 * err, -params.cruise_omega * 1.5, params.cruise_omega * 1.5)
-                    )
             # acceleration limits
             v_cmd = float(np.clip(v_cmd, v_prev - 1.0 * dt, v_prev + 1.0 * dt))
             w_cmd = float(np.clip(w_cmd, w_prev - 4.0 * dt, w_prev + 4.0 * dt))
-            yaw_before = sim.state[2]
-            step = sim.step(v_cmd, w_cmd, dt)
-            turned += sim.state[2] - yaw_before
-            v_prev, w_prev = (0.0, 0.0) if step.collided else (v_cmd, w_cmd)
-            collisions += int(step.collided)
-            for o in step.odometry:
-                ts.append(o.t_ns)
-                Ts.append(step.T_world_base)
-                sp.append(v_prev)
-                odo.append(o.T_odom_base)
-            if step.collided and collisions > 200:
-                break
-        if ts[-1] >= max_t:
+            v_cmd = float(np.clip(v_cmd, -params.max_speed, params.max_speed))
+            w_cmd = float(np.clip(w_cmd, -params.max_omega, params.max_omega))
+            mid = yaw + 0.5 * w_cmd * dt
+            nx, ny = x + v_cmd * dt * np.cos(mid), y + v_cmd * dt * np.sin(mid)
+            if world.is_free(np.array([nx, ny]), params.robot_radius):
+                x, y, yaw = float(nx), float(ny), yaw + w_cmd * dt
+                turned += w_cmd * dt
+                v_prev, w_prev = v_cmd, w_cmd
+            else:
+                collisions += 1
+                v_prev, w_prev = 0.0, 0.0
+            poses.append((x, y, yaw))
+            speeds.append(v_prev)
+            if collisions > 200:
+                raise PlanningError(f"the pass is stuck at ({x:.2f}, {y:.2f}): {collisions} collisions")
+        if len(poses) > max_ticks:
             break
-    return FollowResult(
-        np.array(ts, np.int64), np.stack(Ts), np.array(sp), np.stack(odo), collisions
-    )
+    P = np.array(poses)
+    c, s_ = np.cos(P[:, 2]), np.sin(P[:, 2])
+    T = np.tile(np.eye(4), (len(P), 1, 1))
+    T[:, 0, 0], T[:, 0, 1], T[:, 1, 0], T[:, 1, 1] = c, -s_, s_, c
+    T[:, 0, 3], T[:, 1, 3] = P[:, 0], P[:, 1]
+    t = np.arange(len(P), dtype=np.int64) * period
+    return FollowResult(t, T, np.array(speeds), collisions, params.drift, seed)

@@ -34,6 +34,16 @@ class GoalParams:
     planar_rms_m: float = 0.03
     # a flat-patch candidate verifies a place only with this many times min_inliers
     planar_factor: float = 2.0
+    # neighbourhood expansion: the expand_from candidates with most essential-matrix inliers (at
+    # least expand_min_inliers) each bring up to expand_k more keyframes to verify, those within
+    # expand_m (m) of theirs whose optical axes lie within expand_deg (deg): the keyframe that saw
+    # the goal's view best is often near a retrieved one but far down the VPR ranking (a goal
+    # image taken higher up, by hand). expand_k 0 = off.
+    expand_from: int = 2
+    expand_k: int = 4
+    expand_m: float = 2.5
+    expand_deg: float = 60.0
+    expand_min_inliers: int = 15
 
     def __post_init__(self) -> None:
         if self.top_k < 1 or self.min_inliers < 8 or self.ransac_px <= 0:
@@ -46,6 +56,10 @@ class GoalParams:
             raise ValueError("agree_m > 0 and 0 < agree_deg <= 180 required")
         if self.planar_rms_m < 0 or not self.planar_factor >= 1:
             raise ValueError("planar_rms_m >= 0 (0 = off) and planar_factor >= 1 required")
+        if self.expand_from < 0 or self.expand_k < 0 or self.expand_m <= 0 or not 0 < self.expand_deg <= 180 \
+                or self.expand_min_inliers < 0:
+            raise ValueError("expand_from, expand_k, expand_min_inliers >= 0, expand_m > 0 and 0 < expand_deg <= 180 "
+                             "required")
 
 
 @dataclass(frozen=True)
@@ -76,3 +90,22 @@ class TrackerParams:
             raise ValueError("need a finite against_view_cost >= 1 (1 = off) and 0 < against_view_deg <= 180")
         if not (0 <= self.stall_s < float("inf")) or self.stall_progress_m <= 0:
             raise ValueError("need a finite stall_s >= 0 (0 = off) and stall_progress_m > 0")
+
+
+@dataclass(frozen=True)
+class OpeningParams:
+    """Unmapped openings of a map's occupancy grid (`pipelines.topomap.openings`: listed by
+    `map build` and `map info`, where a mapping team should go back)."""
+
+    # narrowest opening listed (m): the frontier cells' longest extent; below a robot's width
+    min_width_m: float = 0.6
+    # least unknown area (m^2) an opening must lead to within look_m (a shadow behind furniture is smaller)
+    min_unknown_m2: float = 1.0
+    # how far beyond the frontier (m) the unknown area is counted
+    look_m: float = 1.5
+    # free space is closed over unknown gaps up to this size (m): a floor or wall seen from afar is speckled
+    close_m: float = 0.2
+
+    def __post_init__(self) -> None:
+        if self.min_width_m <= 0 or self.min_unknown_m2 < 0 or self.look_m <= 0 or self.close_m < 0:
+            raise ValueError("need min_width_m > 0, min_unknown_m2 >= 0, look_m > 0 and close_m >= 0")

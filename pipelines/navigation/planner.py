@@ -3,7 +3,9 @@
 * `localize_goal`: the goal image is placed on a map node by VPR top-k retrieval **plus
   geometric verification** (the published research code takes VPR top-1 unchecked): the
   goal's features are matched to each candidate keyframe's cached features and an
-  essential matrix is fitted with RANSAC; the candidate with most inliers wins if it has
+  essential matrix is fitted with RANSAC; the keyframes near the strongest candidates (in
+  place and viewing direction) are verified too, since the one that saw the goal's view
+  best often ranks far down in retrieval; the candidate with most inliers wins if it has
   at least `min_inliers`. A goal that matches no place is reported as such. Where the map
   stores keypoint depth, `goal_pose` then gives the goal camera's metric pose (PnP against
   the keyframe's depth-lifted keypoints), so the robot can drive to where the image was
@@ -204,6 +206,25 @@ def _places(cands: list[_Candidate], agree_m: float, agree_deg: float,
     return places
 
 
+def _neighbours(topomap: TopoMap, cands: list[_Candidate], params: GoalParams) -> list[int]:
+    """Keyframes to verify next to the strongest candidates (see `GoalParams.expand_k`): up to
+    `expand_k` per candidate, nearest first, not yet verified."""
+    if params.expand_k == 0:
+        return []
+    tried = {c.node for c in cands}
+    pos = np.asarray(topomap.positions, np.float64)
+    axis = np.asarray(topomap.T_map_camera, np.float64)[:, :3, 2]
+    cos_max = float(np.cos(np.radians(params.expand_deg)))
+    out: list[int] = []
+    strong = [c for c in sorted(cands, key=lambda c: -c.inliers) if c.inliers >= params.expand_min_inliers]
+    for c in strong[: params.expand_from]:
+        d = np.linalg.norm(pos - pos[c.node], axis=1)
+        ok = (d <= params.expand_m) & (axis @ axis[c.node] >= cos_max)
+        near = [int(k) for k in np.argsort(d, kind="stable") if ok[k] and int(k) not in tried and int(k) not in out]
+        out += near[: params.expand_k]
+    return out
+
+
 def localize_goal(
     goal_feats: FeatureSet, goal_desc: NDArray[np.float32], K_goal: NDArray[np.float64], topomap: TopoMap,
     match: MatchFn, params: GoalParams = GoalParams(),
@@ -214,15 +235,17 @@ def localize_goal(
     top-k candidate serves both the essential matrix and the PnP."""
     sims = topomap.vpr @ np.asarray(goal_desc, np.float32)
     order = np.argsort(-sims, kind="stable")[: params.top_k]
-    cands: list[_Candidate] = []
-    for node in (int(n) for n in order):
+
+    def verify(node: int) -> _Candidate:
         feats, K_node = topomap.features[node], topomap.K[node]
         pairs = match(goal_feats, feats)
         n_e = essential_inliers(goal_feats, K_goal, feats, K_node, match, params, pairs)
         gp = goal_pose(goal_feats, K_goal, feats, topomap.keypoint_depth(node), K_node, match, params, pairs)
         T_map_goal = None if gp.T_node_goal is None else topomap.T_map_camera[node] @ gp.T_node_goal
-        cands.append(_Candidate(node, float(sims[node]), n_e, T_map_goal, gp.inliers, gp.plane_rms_m,
-                                gp.support_points))
+        return _Candidate(node, float(sims[node]), n_e, T_map_goal, gp.inliers, gp.plane_rms_m, gp.support_points)
+
+    cands = [verify(int(n)) for n in order]
+    cands += [verify(n) for n in _neighbours(topomap, cands, params)]
     table = tuple((c.node, c.similarity, c.inliers) for c in cands)
     strongest = max(cands, key=lambda c: (c.inliers, c.similarity))
     verified = [c for c in cands if c.inliers >= c.needed(params)]

@@ -7,8 +7,8 @@ from pathlib import Path
 
 from litevloc.pipelines.topomap.io import load_map, storage_summary
 from litevloc.pipelines.topomap.plot import plot_map
-from litevloc.runtime.cli.common import add_config_args, add_frames_arg, add_json_arg, write_json
-from litevloc.runtime.cli.map_build import add_pose_args, build, print_storage
+from litevloc.runtime.cli.common import add_config_args, add_frames_arg, add_json_arg, config_of, write_json
+from litevloc.runtime.cli.map_build import add_pose_args, build, print_openings, print_storage
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -25,8 +25,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_config_args(b)
     add_json_arg(b)
     b.set_defaults(func=build)
-    i = msub.add_parser("info", help="nodes, edges and storage of a map")
+    i = msub.add_parser("info", help="nodes, edges, storage and unmapped openings of a map")
     i.add_argument("map", type=Path)
+    add_config_args(i)  # planner.openings: what counts as an unmapped opening
     add_json_arg(i)
     i.set_defaults(func=info)
     pl = msub.add_parser("plot", help="top-down PNG of nodes and both edge sets over the occupancy grid")
@@ -64,6 +65,7 @@ def info(args: argparse.Namespace) -> int:
         print(f"keyframes: coverage {b.get('keyframe_coverage')} (target {b.get('keyframe_coverage_target')}), "
               f"budget {b.get('keyframe_budget')}{' (BOUND)' if b.get('keyframe_budget_bound') == 'True' else ''}, "
               f"built in {b.get('build_seconds')} s from {b.get('build_frames')} frames")
+    data["unmapped_openings"] = print_openings(m, config_of(args).planner.openings)
     write_json(args.json, data)
     return 0
 

@@ -278,6 +278,7 @@ def _build(args: argparse.Namespace) -> int:
     if slam is not None:
         summary["slam"] = _slam_report(args, slam, src, t3 - t1)
     _print_summary(args, builder, topomap, summary)
+    summary["unmapped_openings"] = print_openings(topomap, cfg.planner.openings)
     write_json(args.json, summary)
     return 0
 
@@ -349,6 +350,19 @@ def _print_summary(args: argparse.Namespace, builder: MapBuilder, topomap: Any, 
     print_storage(storage_summary(args.output))
     if "slam" in s:
         print_slam_report(s["slam"])
+
+
+def print_openings(m: Any, params: Any) -> list[dict[str, object]]:
+    """List the unmapped openings of the map's occupancy grid (where to go back); their rows."""
+    from litevloc.pipelines.topomap.openings import find_openings, openings_summary
+
+    rows = openings_summary(find_openings(m.grid, params))
+    print(f"unmapped openings: {len(rows)}" + ("" if rows else " (every opening of the grid was entered)"))
+    for r in rows:
+        print(f"  at ({r['x']:.1f}, {r['y']:.1f}) m, {r['width_m']:.1f} m wide, leading "
+              f"({r['direction'][0]:+.2f}, {r['direction'][1]:+.2f}, {r['direction'][2]:+.2f}) into "
+              f"{r['unknown_m2']:.1f} m^2 never seen")
+    return rows
 
 
 def print_storage(s: dict[str, int]) -> None:

@@ -3,12 +3,13 @@
     litevloc sim record WORLD -o REC.mcap [--seed N] [--duration S] [--pass map|map-rooms|query|loop|...]
                         [--json PATH] [--plot PNG]
     litevloc sim plot WORLD -o PLAN.png [--seed N] [--duration S] [--sheet SHEET.png]
-    litevloc sim goals WORLD -o DIR [--seed N]
+    litevloc sim goals WORLD -o DIR [--seed N] [--world-seed M]
 
 Simulator parameters (image size, rates, camera mount, realism) come from the config
 section `sim` (`--config PRESET`, `--set sim.width=640 --set sim.height=480`).
 
-WORLD is a shipped world name (`office`, `floor`, `loop`) or a YAML file.
+WORLD is a shipped world name (`office`, `floor`, `bland`, `loop`, the `-aliased` first-simulator
+worlds) or a YAML file; `--world-seed` generates another building from the same file.
 """
 
 from __future__ import annotations
@@ -18,7 +19,6 @@ import json
 import time
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from litevloc.runtime.cli.common import (
@@ -80,7 +80,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     add_config_args(pl)
     pl.set_defaults(func=run_plot)
-    g = ss.add_parser("goals", help="render the world's goal images (PNG) and their poses (JSON)")
+    g = ss.add_parser("goals", help="render the world's goal images (robot and hand-held camera, JPEG) and their "
+                                    "poses (JSON)")
     g.add_argument("world")
     g.add_argument("-o", "--output", type=Path, required=True, help="output folder")
     g.add_argument("--seed", type=int, default=0, help="lighting/noise seed")
@@ -180,37 +181,22 @@ def run_plot(args: argparse.Namespace) -> int:
 
 
 def run_goals(args: argparse.Namespace) -> int:
-    from litevloc.sim.realism import sample_lighting
-    from litevloc.sim.render import Renderer
-    from litevloc.sim.simulator import camera_pose, render_frame
+    from litevloc.runtime.sim_navigation import render_goals
 
     world = _world(args)
-    params = config_of(args).sim
-    ren = Renderer(world)
-    light = sample_lighting(params.realism, np.random.default_rng([args.seed, 11]))
+    cfg = config_of(args)
     args.output.mkdir(parents=True, exist_ok=True)
     poses = {}
-    for k, (name, T_base) in enumerate(sorted(world.goal_places.items())):
-        T_cam = camera_pose(T_base, 0.0, 0.0, params)
-        f = render_frame(
-            ren,
-            T_cam,
-            params.intrinsics,
-            params.realism,
-            light,
-            np.random.default_rng([args.seed, 19, k]),
-            0,
-            k,
-        )
-        cv2.imwrite(str(args.output / f"{name}.png"), f.color[:, :, ::-1])
-        poses[name] = {
-            "T_world_base": T_base.tolist(),
-            "T_world_camera": T_cam.tolist(),
-            "image": f"{name}.png",
-        }
-    write_json(
-        args.output / "goals.json",
-        {"world": world.spec.name, "K": params.intrinsics.K, "goals": poses},
-    )
-    print(f"wrote {len(poses)} goal images and goals.json to {args.output}")
+    for camera in ("robot", "hand"):
+        goals = render_goals(world, cfg, sorted(world.goal_places), seed=args.seed, camera=camera)
+        for g in goals:
+            assert g.T_world_base is not None and g.T_world_camera is not None
+            (args.output / f"{g.name}.jpg").write_bytes(g.jpeg)
+            poses[g.name] = {"camera": camera, "T_world_base": g.T_world_base.tolist(),
+                             "T_world_camera": g.T_world_camera.tolist(), "image": f"{g.name}.jpg"}
+    write_json(args.output / "goals.json", {"world": world.spec.name, "seed": world.spec.seed,
+                                            "goal_rule": world.spec.goal_rule, "K": cfg.sim.intrinsics.K,
+                                            "goals": poses})
+    print(f"wrote {len(poses)} goal images (the robot camera's and the hand-held camera's of each room) and "
+          f"goals.json to {args.output}")
     return 0

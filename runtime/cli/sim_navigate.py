@@ -42,7 +42,10 @@ def add_parser(ss: argparse._SubParsersAction) -> None:
     n.add_argument("--vloc-hz", type=float, default=1.0, help="frames to VLoc per simulated second")
     n.add_argument("--goal-timeout", type=float, default=120.0, metavar="S", help="simulated seconds per goal")
     n.add_argument("--seed", type=int, default=0)
-    n.add_argument("--world-seed", type=int, default=None)
+    n.add_argument("--world-seed", type=int, default=None,
+                   help="generate another building from the world file (what varies: docs/simulator.md)")
+    n.add_argument("--goal-camera", choices=("robot", "hand"), default="robot",
+                   help="goal images from the robot's camera or the goal rule's hand-held camera")
     n.add_argument("--out-dir", type=Path, default=None,
                    help="folder for the cached map (default: out/navigate/WORLD)")
     n.add_argument("-o", "--output", type=Path, default=None, help="top-down PNG (default: OUT_DIR/navigate.png)")
@@ -129,7 +132,7 @@ def map_summary(map_path: Path) -> dict[str, Any]:
 
 def navigate(world_name: str, cfg: Any, map_path: Path, goal_args: list[str] | None, start: str | None,
              modes: list[str], params: Any, world_seed: int | None = None, png: Path | None = None,
-             view_spawn: bool = False, view_save: Path | None = None) -> dict[str, Any]:
+             view_spawn: bool = False, view_save: Path | None = None, goal_camera: str = "robot") -> dict[str, Any]:
     """Run the loop for each localization mode; returns the results dict (and writes the PNG)."""
     from litevloc.pipelines.topomap.io import load_map
     from litevloc.runtime.sim_navigation import Goal, plot_navigation, render_goals, run_navigation
@@ -147,7 +150,8 @@ def navigate(world_name: str, cfg: Any, map_path: Path, goal_args: list[str] | N
     goals: list[Goal] = []
     for g in names:
         if g in world.goal_places:
-            goals.extend(render_goals(world, cfg, [g], seed=params.seed))
+            camera: Literal["robot", "hand"] = "hand" if goal_camera == "hand" else "robot"
+            goals.extend(render_goals(world, cfg, [g], seed=params.seed, camera=camera))
         elif Path(g).is_file():
             goals.append(Goal(Path(g).stem, Path(g).read_bytes(), None))
         else:
@@ -232,8 +236,8 @@ def run_navigate(args: argparse.Namespace) -> int:
 
     cfg = config_of(args)
     t0 = time.perf_counter()
-    if args.out_dir is None:
-        stem = Path(args.world).stem
+    if args.out_dir is None:  # one cached map per world file, world seed and mapping pass
+        stem = Path(args.world).stem + ("" if args.world_seed is None else f"-seed{args.world_seed}")
         args.out_dir = Path("out/navigate") / (stem if args.map_pass == "map" else f"{stem}-{args.map_pass}")
         if args.map_poses == "slam":
             args.out_dir = args.out_dir.with_name(args.out_dir.name + "-slam")
@@ -246,7 +250,7 @@ def run_navigate(args: argparse.Namespace) -> int:
         raise UserError(str(exc)) from exc
     png = args.output or args.out_dir / "navigate.png"
     res = navigate(args.world, cfg, map_path, args.goals, args.start, modes, params, args.world_seed, png,
-                   view_spawn=bool(args.view), view_save=args.view_save)
+                   view_spawn=bool(args.view), view_save=args.view_save, goal_camera=args.goal_camera)
     res["map_info"] = map_summary(map_path)
     for k in ("keyframes", "coverage", "bytes", "build_seconds"):
         res[f"map_{k}"] = res["map_info"][k]

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from litevloc.sim.world import load_world, world_names
+from litevloc.sim.spec import world_names
+from litevloc.sim.world import load_world
 
 
 def _materials(name: str) -> dict[str, int]:

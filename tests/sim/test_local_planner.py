@@ -50,9 +50,12 @@ def test_wall_ahead_turns_away_and_blocked_stops() -> None:
     assert c.reason == "arc" and c.omega < -0.05 and c.v > 0, c
     # without the wall it would go straight
     assert abs(lp.command(np.array([4.0, 0.0]), None, K, T_BC).omega) < 1e-9
-    # a wall right in front, everywhere: no admissible arc, turn in place without moving
-    c = lp.command(np.array([4.0, 0.1]), wall_depth(0.2), K, T_BC)
+    # a wall right in front, everywhere: no admissible arc, turn in place without moving (the
+    # local path, off here, would lead around the wall's end: a turn toward it, see below)
+    c = LocalPlanner(LocalPlannerParams(grid_radius_m=0)).command(np.array([4.0, 0.1]), wall_depth(0.2), K, T_BC)
     assert c.reason == "blocked" and c.v == 0.0 and c.omega != 0.0
+    c = lp.command(np.array([4.0, 0.1]), wall_depth(0.2), K, T_BC)
+    assert c.reason == "turn" and c.v == 0.0 and c.omega != 0.0
 
 
 def test_goal_behind_turns_in_place_and_arrival_stops() -> None:
@@ -131,7 +134,7 @@ def test_bumper_contacts_block_arcs_the_camera_cannot_see() -> None:
 
 
 def test_stuck_without_a_drivable_arc_backs_up_then_tries_again() -> None:
-    p = LocalPlannerParams(recover_after=5, recover_commands=3)
+    p = LocalPlannerParams(recover_after=5, recover_commands=3, grid_radius_m=0)
     lp = LocalPlanner(p)
     wall = wall_depth(0.2)  # a wall right in front, everywhere: every arc blocked
     cmds = [lp.command(np.array([4.0, 0.1]), wall, K, T_BC) for _ in range(10)]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -13,9 +14,10 @@ from litevloc.hw.messages import GroundTruthPose, Odometry, RgbdFrame
 from litevloc.hw.streams.mcap_io import McapSource
 from litevloc.pipelines.odometry_drift import IncrementalDrift, resample_times, simulate_odometry
 from litevloc.runtime.cli.main import main
+from litevloc.sim.elements import pose2d
 from litevloc.sim.simulator import SimParams, Simulator
 from litevloc.sim.source import SimSequenceSource
-from litevloc.sim.world import load_world, pose2d
+from litevloc.sim.world import load_world
 
 TINY = SimParams(width=48, height=36)
 
@@ -165,9 +167,10 @@ def test_cli_record_and_plot(tmp_path: Path) -> None:
     )
     import cv2
 
-    img = cv2.imread(str(next((tmp_path / "goals").glob("room_*.png"))))
+    img = cv2.imread(str(next((tmp_path / "goals").glob("room_*-hand.jpg"))))
     assert img is not None and img.shape == (60, 80, 3)
-    assert (tmp_path / "goals" / "goals.json").is_file()
+    goals = json.loads((tmp_path / "goals" / "goals.json").read_text())["goals"]
+    assert {g["camera"] for g in goals.values()} == {"robot", "hand"} and len(goals) % 2 == 0
 
 
 def test_open_sim_source_uri() -> None:
@@ -202,20 +205,31 @@ def test_depth_only_steps_render_no_colour_and_keep_the_frame_clock(office) -> N
             np.testing.assert_array_equal(sb.frame.color, sa.frame.color)
 
 
-def test_map_rooms_pass_also_turns_near_each_end_of_every_room(office) -> None:
+def test_map_pass_enters_every_room_and_corridor_and_looks_around() -> None:
+    """The operator-like mapping pass: a full turn in every room and along the corridor, and in
+    every room sweeps into it from spots in its outer part, driven without touching anything.
+    In this building the first follower cut a door's corner, pushed against the jamb and never
+    entered three of the six rooms."""
     from litevloc.sim.simulator import SimParams
-    from litevloc.sim.trajectory import pass_tasks
+    from litevloc.sim.trajectory import EDGE_SWEEP_RAD, follow, pass_tasks
 
-    params = SimParams()
-    _, plain = pass_tasks(office, "map", 0, params)
-    start, rooms = pass_tasks(office, "map-rooms", 0, params)
-    n_rooms = sum(r.kind == "room" for r in office.regions.values())
-    turns = [t for t in rooms if t.kind == "turn"]
-    assert sum(t.kind == "turn" for t in plain) == n_rooms
-    assert len(turns) == 3 * n_rooms  # the centre and two side spots of every room (office: all free)
-    assert all(abs(abs(t.angle) - 2 * np.pi) < 1e-9 for t in turns)
-    ends = [start[:2, 3]] + [t.path[-1] for t in rooms if t.kind == "goto"]
-    assert len(ends) == len(turns)
-    for p in ends:  # every spot is free for the robot and inside a room
-        assert office.is_free(p, params.robot_radius + 0.3)
-        assert office.regions[office.region_at(p)].kind == "room"
+    world = load_world("office-aliased", seed=2)
+    params = SimParams(odometry_rate_hz=50.0)  # the follower's ticks: 4x fewer than the default, as tight
+    start, tasks = pass_tasks(world, "map", 0, params)
+    spots, here = [], start[:2, 3]
+    for t in tasks:  # where each look happens: full turns, and sweeps (face, then turn 2 x sweep)
+        if t.kind == "goto":
+            here = t.path[-1]
+        elif t.kind == "turn":
+            spots.append((world.region_at(here), "full" if abs(abs(t.angle) - 2 * np.pi) < 1e-9 else "sweep"))
+            assert abs(abs(t.angle) - 2 * np.pi) < 1e-9 or abs(t.angle - 2 * EDGE_SWEEP_RAD) < 1e-9
+    rooms = {k for k, r in world.regions.items() if r.kind == "room"}
+    corridor = next(k for k, r in world.regions.items() if r.kind == "corridor")
+    assert {k for k, how in spots if how == "full"} == set(world.regions)  # every room and the corridor
+    assert all(sum(s == (k, "sweep") for s in spots) == 3 for k in rooms)  # three sweeps into every room
+    assert sum(s == (corridor, "full") for s in spots) >= 2  # the corridor's ends, 8 m apart at most
+    run = follow(world, params, 0, start, tasks)
+    assert run.collisions == 0
+    assert {world.region_at(p) for p in run.T_world_base[::20, :2, 3]} == set(world.regions)
+    _, side = pass_tasks(world, "map-rooms", 0, params)  # three full turns in every room, none in corridors
+    assert sum(t.kind == "turn" for t in side) == 3 * len(rooms)

@@ -9,10 +9,12 @@ import pytest
 
 from litevloc.base.geometry import PinholeIntrinsics
 from litevloc.base.loader import ConfigError
+from litevloc.sim.elements import pose2d
 from litevloc.sim.render import Renderer, RenderError
 from litevloc.sim.simulator import SimParams, camera_pose
+from litevloc.sim.spec import WorldSpec, world_names
 from litevloc.sim.trajectory import plan_path
-from litevloc.sim.world import WorldSpec, load_world, pose2d, world_names
+from litevloc.sim.world import load_world
 
 
 @pytest.fixture(scope="module")

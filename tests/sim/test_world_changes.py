@@ -7,7 +7,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from litevloc.sim.world import World, load_world, load_world_spec
+from litevloc.sim.spec import load_world_spec
+from litevloc.sim.world import World, load_world
 
 
 @pytest.mark.parametrize("world", ["office", "floor"])

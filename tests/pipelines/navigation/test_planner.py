@@ -142,12 +142,12 @@ def test_goal_that_verifies_at_two_places_is_refused_as_ambiguous() -> None:
     goal, _ = observe(T_goal)
     desc = np.zeros(4, np.float32)
     desc[2] = 1.0
-    res = localize_goal(goal, desc, K, twin, match_by_id, GoalParams(top_k=2))
+    res = localize_goal(goal, desc, K, twin, match_by_id, GoalParams(top_k=2, expand_k=0))
     assert res.node is None and res.T_map_goal is None
     assert "ambiguous" in res.reason and "0" in res.reason and "2" in res.reason and "2.0 m apart" in res.reason
     assert "horizontal surface" not in res.reason  # the support spans heights: no floor-tile hint
     # the veto off: a node is chosen as before
-    res_off = localize_goal(goal, desc, K, twin, match_by_id, GoalParams(top_k=2, ambiguity_ratio=0))
+    res_off = localize_goal(goal, desc, K, twin, match_by_id, GoalParams(top_k=2, ambiguity_ratio=0, expand_k=0))
     assert res_off.node in (0, 2) and res_off.reason == "ok"
     # a weak copy: node 0 keeps every third keypoint of node 2's view
     f2 = feats[2]
@@ -156,7 +156,7 @@ def test_goal_that_verifies_at_two_places_is_refused_as_ambiguous() -> None:
                                scores=f2.scores[keep], depth=f2.depth[keep])
     feats[0] = weak
     res_weak = localize_goal(goal, desc, K, dataclasses.replace(md, features=feats), match_by_id,
-                             GoalParams(top_k=2))
+                             GoalParams(top_k=2, expand_k=0))
     assert res_weak.node == 2 and res_weak.reason == "ok" and res_weak.T_map_goal is not None
     np.testing.assert_allclose(res_weak.T_map_goal, T_goal, atol=1e-6)
 
@@ -175,8 +175,9 @@ def test_covisible_keyframes_are_one_place_not_a_rival() -> None:
     goal, _ = observe(T_goal)
     desc = np.zeros(4, np.float32)
     desc[2] = 1.0
-    assert localize_goal(goal, desc, K, twin, match_by_id, GoalParams(top_k=2)).node is None  # not linked: refused
-    res = localize_goal(goal, desc, K, linked, match_by_id, GoalParams(top_k=2))
+    alone = GoalParams(top_k=2, expand_k=0)
+    assert localize_goal(goal, desc, K, twin, match_by_id, alone).node is None  # not linked: refused
+    res = localize_goal(goal, desc, K, linked, match_by_id, GoalParams(top_k=2, expand_k=0))
     assert res.node in (0, 2) and res.reason == "ok" and res.T_map_goal is not None
 
 
@@ -256,7 +257,7 @@ def test_goal_supported_by_one_flat_patch_needs_more_inliers(monkeypatch: pytest
     T_goal = pose(2.3, yaw_deg=10.0)
     desc = np.zeros(4, np.float32)
     desc[2] = 1.0
-    params = GoalParams(top_k=1, min_inliers=40, planar_rms_m=0.03, planar_factor=2.0)
+    params = GoalParams(top_k=1, min_inliers=40, planar_rms_m=0.03, planar_factor=2.0, expand_k=0)
     # a scene spread in depth: 60 keypoints per keyframe verify (40 <= inliers < 80)
     goal, _ = observe(T_goal)
     res = localize_goal(goal, desc, K, _sparse_map(60), match_by_id, params)
@@ -293,3 +294,20 @@ def test_horizontal_share_is_the_part_of_a_support_on_one_horizontal_surface() -
     assert horizontal_share(pts, np.array([0.0, 0.0, 1.0])) == pytest.approx(0.8, abs=0.02)
     assert horizontal_share(np.vstack([floor, wall]), np.array([1.0, 0.0, 0.0])) < 0.1
     assert np.isnan(horizontal_share(np.zeros((0, 3)), np.array([0.0, 0.0, 1.0])))
+
+
+def test_keyframes_near_the_strongest_candidate_are_verified_too() -> None:
+    """Retrieval ranks the keyframe that saw the goal's view last (top_k=1 takes node 0, 2.1 m
+    from the goal's camera); the keyframes near node 0 facing its way are verified as well, and
+    node 2, whose view the goal shares most, wins."""
+    m = make_vloc_map([0.0, 1.0, 2.0, 3.0])
+    feats, _ = observe(pose(2.1))
+    desc = np.zeros(4, np.float32)
+    desc[0] = 1.0
+    alone = localize_goal(feats, desc, K, m, match_by_id, GoalParams(top_k=1, min_inliers=8, expand_k=0))
+    assert [c[0] for c in alone.candidates] == [0]
+    res = localize_goal(feats, desc, K, m, match_by_id, GoalParams(top_k=1, min_inliers=8, expand_m=2.5))
+    assert [c[0] for c in res.candidates] == [0, 1, 2]  # node 3 is 3 m away: not within expand_m
+    assert res.node == 2 and res.reason == "ok"
+    with pytest.raises(ValueError, match="expand"):
+        GoalParams(expand_m=0.0)
