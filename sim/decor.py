@@ -225,7 +225,8 @@ def add_boards_and_signs(regions: dict[int, Region], faces: list[Face], posters:
             boards, prints, signs = int(rich and rng.random() < 0.5), int(rng.integers(0, 3)) if rich else 0, 0
         else:
             boards, prints, signs = max(1, int(wall_m / 8.0)), 0, max(1, int(wall_m / 10.0))
-        for kind, n in (("notice", boards), ("print", prints), ("sign", signs)):
+        wanted: tuple[tuple[PictureKind, int], ...] = (("notice", boards), ("print", prints), ("sign", signs))
+        for kind, n in wanted:
             for _ in range(n * 4):
                 if n <= 0:
                     break

@@ -359,8 +359,9 @@ def print_openings(m: Any, params: Any) -> list[dict[str, object]]:
     rows = openings_summary(find_openings(m.grid, params))
     print(f"unmapped openings: {len(rows)}" + ("" if rows else " (every opening of the grid was entered)"))
     for r in rows:
+        d: Any = r["direction"]
         print(f"  at ({r['x']:.1f}, {r['y']:.1f}) m, {r['width_m']:.1f} m wide, leading "
-              f"({r['direction'][0]:+.2f}, {r['direction'][1]:+.2f}, {r['direction'][2]:+.2f}) into "
+              f"({d[0]:+.2f}, {d[1]:+.2f}, {d[2]:+.2f}) into "
               f"{r['unknown_m2']:.1f} m^2 never seen")
     return rows
 
