@@ -171,8 +171,7 @@ def navigate(map_dir: Path, config: str, n_goals: int, baseline: bool) -> dict[s
     the same way in both runs, so a goal the baseline misses too is lost to its image or the
     map, not to the localization."""
     from litevloc.config import load_config
-    from litevloc.runtime.cli.sim_navigate import goal_ratios
-    from litevloc.runtime.sim_navigation import NavParams, run_navigation
+    from litevloc.runtime.sim_navigation import NavParams, goal_ratios, run_navigation
     from litevloc.sim.world import load_world
 
     cfg = load_config(config)

@@ -162,7 +162,7 @@ def navigation(world: str, config: str) -> dict[str, Any]:
                         poses, "--localization", "litevloc", "--json", str(js), "--config", config])
         out[poses] = json.loads(js.read_text())
     s, g = out["slam"], out["ground-truth"]
-    from litevloc.runtime.cli.sim_navigate import goal_ratios
+    from litevloc.runtime.sim_navigation import goal_ratios
 
     return {"goals_reached_slam_map": s["goals_reached"], "goals_reached_gt_map": g["goals_reached"],
             "goals_total": s["goals_total"], "path_ratio_slam_vs_gt_map": goal_ratios(s["goals"], g["goals"]),

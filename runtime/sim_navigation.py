@@ -658,3 +658,17 @@ def plot_navigation(world: World, topomap: Any, runs: list[NavRun], goals: list[
     fig.savefig(out)
     plt.close(fig)
     return out
+
+
+def goal_ratios(goals: list[dict[str, Any]], base_goals: list[dict[str, Any]]) -> dict[str, Any]:
+    """LiteVLoc / ground-truth time and path over the goals both reached (None when there is
+    none: a run that reached nothing has no meaningful ratio), and how many goals that is."""
+    base = {g["name"]: g for g in base_goals}
+    both = [(g, base[g["name"]]) for g in goals
+            if g["outcome"] == "reached" and base.get(g["name"], {}).get("outcome") == "reached"]
+    out: dict[str, Any] = {"goals_compared": len(both), "path_length": None, "time": None}
+    if both:
+        for key, field in (("path_length", "path_length_m"), ("time", "time_s")):
+            den = sum(b[field] for _, b in both)
+            out[key] = round(sum(g[field] for g, _ in both) / den, 3) if den > 0 else None
+    return out

@@ -34,15 +34,15 @@ class GoalParams:
     planar_rms_m: float = 0.03
     # a flat-patch candidate verifies a place only with this many times min_inliers
     planar_factor: float = 2.0
-    # neighbourhood expansion: the expand_from candidates with most essential-matrix inliers (at
-    # least expand_min_inliers) each bring up to expand_k more keyframes to verify, those within
-    # expand_m (m) of theirs whose optical axes lie within expand_deg (deg): the keyframe that saw
-    # the goal's view best is often near a retrieved one but far down the VPR ranking (a goal
-    # image taken higher up, by hand). expand_k 0 = off.
+    # the candidates with most essential-matrix inliers that bring their neighbour keyframes to verify too
     expand_from: int = 2
+    # neighbour keyframes each such candidate brings at most (0 = no expansion)
     expand_k: int = 4
+    # a neighbour stands within this distance of the candidate's keyframe (m)
     expand_m: float = 2.5
+    # ... and its optical axis within this angle of the candidate's (degrees)
     expand_deg: float = 60.0
+    # essential-matrix inliers a candidate needs to bring its neighbours
     expand_min_inliers: int = 15
 
     def __post_init__(self) -> None:

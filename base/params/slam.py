@@ -56,26 +56,19 @@ class SlamVisualParams:
 
     # visual edges from each keyframe to this many previous keyframes (matched with models.vo_matcher)
     neighbours: int = 2
-    # PnP gates of a visual edge (the keyframe's keypoints lifted with its depth, into the other
-    # image); its min_sigma_* are the floor of the edge's noise
+    # PnP gates of a visual edge (keyframe points lifted with its depth); min_sigma_* floor the edge's noise
     pnp: PnpParams = field(default_factory=lambda: PnpParams(
         min_inliers=25, min_inlier_ratio=0.0, max_median_reprojection_px=2.0, min_sigma_trans_m=0.003,
         min_sigma_rot_rad=float(np.radians(0.15))))
-    # where the odometry (or tracking) predicts the motion, a visual edge's matches are found by
-    # projecting the keyframe's points with the prediction: each pairs with the most similar keypoint
-    # within this radius that is also its mutual nearest neighbour over all keypoints (pixels); the
-    # matcher runs only where these are too few
+    # radius of guided matching: keyframe points projected with the predicted motion (pixels; matcher if too few)
     guided_radius_px: float = 20.0
     # cosine similarity a guided match needs
     guided_min_similarity: float = 0.6
-    # two edges into a new keyframe (odometry, visual) agree when their estimates of its pose differ by
-    # at most this many sigmas of the two edges (translation and rotation); the largest agreeing set
-    # is kept and the other edges dropped (an odometry edge dropped so is reported as a fault)
+    # edges into a keyframe agree within this many sigmas; the largest agreeing set is kept (dropped odometry: a fault)
     max_disagreement_sigma: float = 8.0
     # without odometry, every Nth camera frame is tracked against the last keyframe (1 = every frame)
     track_every: int = 2
     # without odometry, a tracked frame with fewer PnP inliers than this becomes a keyframe
-    # (the view is leaving the last keyframe's)
     track_min_inliers: int = 60
 
     def __post_init__(self) -> None:
@@ -135,15 +128,17 @@ class SlamGraphParams:
 class SlamParams:
     """The mapping pass's SLAM (see the module docstring), and external trajectories (`--poses FILE`)."""
 
+    # the robot's odometry as pose-graph edges
     odometry: SlamOdometryParams = field(default_factory=SlamOdometryParams)
+    # visual edges between nearby keyframes, and visual odometry where odometry is missing
     visual: SlamVisualParams = field(default_factory=SlamVisualParams)
+    # loop closures: candidates, verification, robust factors
     loops: SlamLoopParams = field(default_factory=SlamLoopParams)
+    # robust optimisation of the pose graph
     graph: SlamGraphParams = field(default_factory=SlamGraphParams)
-    # matcher of the visual edges and of tracking ("mnn": mutual nearest neighbours, ~100x cheaper than
-    # LightGlue; PnP with depth verifies); loops use the localizer's matcher (models.matcher)
+    # matcher of visual edges and tracking (loops use models.matcher); PnP with depth verifies its matches
     vo_matcher: Literal["lightglue", "lightglue-int8", "lightglue-adaptive", "mnn", "nn-ratio"] = "mnn"
-    # --poses FILE: frames between two poses of the trajectory further apart than this get no pose
-    # (seconds; an external SLAM that lost tracking leaves such gaps)
+    # --poses FILE: frames in a gap of the trajectory longer than this get no pose (s; lost tracking)
     file_max_gap_s: float = 1.0
 
     def __post_init__(self) -> None:

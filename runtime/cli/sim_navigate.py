@@ -135,7 +135,7 @@ def navigate(world_name: str, cfg: Any, map_path: Path, goal_args: list[str] | N
              view_spawn: bool = False, view_save: Path | None = None, goal_camera: str = "robot") -> dict[str, Any]:
     """Run the loop for each localization mode; returns the results dict (and writes the PNG)."""
     from litevloc.pipelines.topomap.io import load_map
-    from litevloc.runtime.sim_navigation import Goal, plot_navigation, render_goals, run_navigation
+    from litevloc.runtime.sim_navigation import Goal, goal_ratios, plot_navigation, render_goals, run_navigation
     from litevloc.runtime.vloc_models import load_bundle
     from litevloc.sim.world import load_world
 
@@ -190,20 +190,6 @@ def navigate(world_name: str, cfg: Any, map_path: Path, goal_args: list[str] | N
         out["png"] = str(plot_navigation(world, load_map(map_path), list(runs.values()), goals, png,
                                          f"LiteVLoc image-goal navigation: {world_name}"))
     out["per_goal_time_s"] = [g["time_s"] for g in res["goals"]]
-    return out
-
-
-def goal_ratios(goals: list[dict[str, Any]], base_goals: list[dict[str, Any]]) -> dict[str, Any]:
-    """LiteVLoc / ground-truth time and path over the goals both reached (None when there is
-    none: a run that reached nothing has no meaningful ratio), and how many goals that is."""
-    base = {g["name"]: g for g in base_goals}
-    both = [(g, base[g["name"]]) for g in goals
-            if g["outcome"] == "reached" and base.get(g["name"], {}).get("outcome") == "reached"]
-    out: dict[str, Any] = {"goals_compared": len(both), "path_length": None, "time": None}
-    if both:
-        for key, field in (("path_length", "path_length_m"), ("time", "time_s")):
-            den = sum(b[field] for _, b in both)
-            out[key] = round(sum(g[field] for g, _ in both) / den, 3) if den > 0 else None
     return out
 
 

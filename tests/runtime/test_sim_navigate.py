@@ -156,7 +156,7 @@ def test_ensure_map_passes_build_overrides_and_reuses_a_built_map(tmp_path: Path
 
 
 def test_ratios_compare_only_goals_both_modes_reached() -> None:
-    from litevloc.runtime.cli.sim_navigate import goal_ratios
+    from litevloc.runtime.sim_navigation import goal_ratios
 
     def g(name: str, outcome: str, t: float, p: float) -> dict:
         return {"name": name, "outcome": outcome, "time_s": t, "path_length_m": p}
