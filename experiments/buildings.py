@@ -39,7 +39,8 @@ from typing import Any
 
 import numpy as np
 
-from litevloc.config import LiteVLocConfig, load_config
+from litevloc.config import load_config
+from litevloc.config.schema import LiteVLocConfig
 from litevloc.pipelines.topomap.build import MapBuilder
 from litevloc.pipelines.topomap.io import load_map, save_map
 from litevloc.pipelines.topomap.openings import find_openings, openings_summary

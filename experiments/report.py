@@ -98,12 +98,31 @@ def _update(d: Json) -> str:
             f"{old['accepted']}/{old['queries']} -> {new['accepted']}/{new['queries']}")
 
 
+def _slam(d: Json) -> str:
+    o = d["office"]
+    return (f"office mapping pass posed by its own SLAM: keyframe ATE {100 * o['keyframe_ate_m']:.1f} cm "
+            f"(odometry alone {100 * o['odometry_ate_m']:.0f} cm), {o['loops_kept']} loops kept, "
+            f"{o['wrong_loops_kept']} wrong; {o['cpu_s_per_keyframe']:.1f} CPU-s per map keyframe")
+
+
+def _buildings(d: Json) -> str:
+    t = d["totals"]
+    lv, gt = t["litevloc"], t["ground-truth"]
+    return (f"{lv['reached']}/{lv['goals']} goal images reached in {t['buildings']} buildings "
+            f"({gt['reached']}/{gt['goals']} with ground-truth localization), {lv['wrong_placements']} wrong "
+            f"placements, {lv['buildings_without_collision']}/{t['buildings']} buildings without collision")
+
+
 HEADLINES: tuple[Headline, ...] = (
     Headline("7-Scenes accuracy, 500 held-out queries", "bench/accuracy.json",
              "python bench/accuracy.py --map out/bench/inputs/7scenes/map", _accuracy),
     Headline("7-Scenes global localization", "bench/global_loc.json",
              "python bench/global_loc.py out/bench/inputs/7scenes/map --config 7scenes", _global_loc),
     Headline("image-goal navigation, simulated office", "demo/demo.json", "make demo", _navigation),
+    Headline("image-goal navigation, generated buildings", "bench/buildings.json", "python bench/buildings.py",
+             _buildings),
+    Headline("maps from the robot's own sensors", "bench/slam.json", "python bench/slam.py --cases office",
+             _slam),
     Headline("onboard service, simulated office, real time", "bench/runtime.json",
              "python bench/runtime.py --rec out/bench/inputs/office/query.mcap --map out/bench/inputs/office/map",
              _runtime),

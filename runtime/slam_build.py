@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from litevloc.config import LiteVLocConfig
+from litevloc.config.schema import LiteVLocConfig
 from litevloc.hw.messages import GroundTruthPose, Message, Odometry, RgbdFrame
 from litevloc.pipelines.slam.evaluate import evaluate
 from litevloc.pipelines.slam.session import SlamResult, SlamSession

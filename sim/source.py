@@ -15,10 +15,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litevloc.base.geometry import interpolate_pose_at
+from litevloc.base.params.sim import SimParams
 from litevloc.hw.messages import GroundTruthPose, Message, Odometry, StreamStats
 from litevloc.sim.realism import Lighting, sample_lighting
 from litevloc.sim.render import Renderer
-from litevloc.sim.simulator import SimParams, camera_pose, render_frame
+from litevloc.sim.simulator import camera_pose, render_frame
 from litevloc.sim.trajectory import (
     PASS_NAMES,
     FollowResult,

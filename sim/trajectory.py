@@ -30,9 +30,10 @@ from numpy.typing import NDArray
 from litevloc.base.errors import LiteVLocError
 from litevloc.base.geometry import invert
 from litevloc.base.params.drift import DriftParams
+from litevloc.base.params.sim import SimParams
 from litevloc.pipelines.odometry_drift import IncrementalDrift
 from litevloc.sim.goals import reachable
-from litevloc.sim.simulator import SimParams, base_pose
+from litevloc.sim.simulator import base_pose
 from litevloc.sim.world import World
 
 PassName = Literal["map", "query", "loop", "loop-lane", "loop-back", "map-rooms"]

@@ -76,12 +76,13 @@ class World:
         self.posters: list[Poster] = hang_posters(spec, self.regions, self.faces, self.wall_height, self.rng)
         if spec.appearance == "varied":
             self.posters = decorate(spec, self.regions, self.faces, self.doors, self.posters, self.wall_height)
-        self.changes: dict[str, int] = {"posters": 0, "furniture": 0}
-        if spec.change_seed >= 0:
-            self._apply_changes(np.random.default_rng(spec.change_seed), spec.change_fraction)
+        # goal spots come from the building as generated: a changed version keeps them (map update)
         self.goal_views: dict[str, GoalView] = (
             person_goals(self, spec.seed) if spec.goal_rule == "person"
             else poster_goals(self, self.faces, self.posters, spec.seed))
+        self.changes: dict[str, int] = {"posters": 0, "furniture": 0}
+        if spec.change_seed >= 0:
+            self._apply_changes(np.random.default_rng(spec.change_seed), spec.change_fraction)
         # where the robot stands for each room's robot-camera goal image (4x4 T_world_base)
         self.goal_places: dict[str, NDArray[np.float64]] = {k: v.T_world_base for k, v in self.goal_views.items()}
 
@@ -98,6 +99,8 @@ class World:
         self.boxes, self.changes["furniture"] = slide_furniture(self.boxes, self.box_kinds, self.doors,
                                                                 self.regions, centres, rng, fraction)
         self.faces = [f for f in self.faces if f.kind != "box"] + box_faces(self.boxes)
+        for name in ("wall_segments", "clearance_grid"):  # computed for the goal spots before the changes
+            self.__dict__.pop(name, None)
 
     # ----------------------------------------------------------------- queries
     @cached_property

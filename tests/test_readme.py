@@ -73,6 +73,7 @@ def _same_recipe(line: str, args: tuple[str, ...]) -> bool:
     return words == list(args)
 
 
+@pytest.mark.timeout(900)  # every README command in turn, the one-minute demo included
 def test_every_readme_usage_line_runs(seven_scenes_held_out: HeldOut, tmp_path: Path) -> None:
     lines = readme_commands(README.read_text())
     assert len(lines) >= 8, lines
