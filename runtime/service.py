@@ -592,7 +592,7 @@ def localizer_callable(localizer: VisualLocalizer) -> VlocFn:
         else:
             res = localizer.process(frame.t_ns, frame.color, frame.depth, frame.K, prior.T_map_camera,
                                     prior_age_s=prior.age_s)
-        return dataclasses.replace(res, tracking_state=str(localizer.state))
+        return dataclasses.replace(res, tracking_state=localizer.state)
 
     return vloc
 

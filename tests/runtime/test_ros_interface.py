@@ -17,7 +17,8 @@ from litevloc.config.schema import InitialPoseConfig, RuntimeConfig, ZenohConfig
 from litevloc.hw import ros_msgs
 from litevloc.pipelines.fusion.online import OnlineFusion
 from litevloc.pipelines.localization.search_region import SearchRegion, nodes_within
-from litevloc.pipelines.localization.vloc import TrackingState, VisualLocalizer
+from litevloc.pipelines.localization.tracking import TrackingState
+from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.runtime.bus import Bus, LiteVLocPublisher, gtsam_to_ros_covariance
 from litevloc.runtime.localization_core import LocalizationCore
 from litevloc.runtime.ros_inputs import InitialPoseInput
