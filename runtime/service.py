@@ -29,7 +29,7 @@ Injected callables (the lead plugs the real ones; tests use fakes):
   smoother update that `fusion_callables(..., defer_updates=True)` left for after the pose.
 
 Fused covariances are converted with `covariance_to_ros` (e.g.
-`bus.gtsam_to_ros_covariance`) before publishing; default: already in ROS order.
+`base.geometry.gtsam_to_ros_covariance`) before publishing; default: already in ROS order.
 
 Modes (`RuntimeConfig.mode`):
 * `realtime`: the source is paced at `rate` (1 = recorded timing); frames go through a
