@@ -14,6 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from litevloc.base.stats import percentiles_ms
+
 
 def now_ns() -> int:
     """The runtime's wall-independent clock: `time.monotonic_ns()` (CLOCK_MONOTONIC on
@@ -33,22 +35,6 @@ def memory_mb() -> dict[str, float]:
     except OSError:
         pass
     return out
-
-
-def percentiles_ms(samples: list[float] | np.ndarray) -> dict[str, float]:
-    """{count, median_ms, p90_ms, p99_ms, max_ms, mean_ms} of samples in milliseconds (NaN when empty)."""
-    a = np.asarray(samples, dtype=np.float64)
-    if a.size == 0:
-        nan = float("nan")
-        return {"count": 0, "median_ms": nan, "p90_ms": nan, "p99_ms": nan, "max_ms": nan, "mean_ms": nan}
-    return {
-        "count": int(a.size),
-        "median_ms": float(np.median(a)),
-        "p90_ms": float(np.percentile(a, 90)),
-        "p99_ms": float(np.percentile(a, 99)),
-        "max_ms": float(a.max()),
-        "mean_ms": float(a.mean()),
-    }
 
 
 class LatencyWindow:

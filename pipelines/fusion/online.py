@@ -71,6 +71,7 @@ from litevloc.base.geometry import (
     rotation_angle,
 )
 from litevloc.base.params.fusion import FusionParams
+from litevloc.base.stats import percentile
 
 F64 = NDArray[np.float64]
 
@@ -158,12 +159,6 @@ def _valid_cov(C: NDArray[np.floating] | None) -> F64 | None:
 
 def _pose3(T: F64) -> gtsam.Pose3:
     return gtsam.Pose3(T)
-
-
-def _percentile(values: deque[float], q: float) -> float | None:
-    if not values:
-        return None
-    return float(np.percentile(np.fromiter(values, dtype=np.float64), q))
 
 
 def _map_odom_close(A: F64, B: F64, max_trans: float, max_rot_rad: float) -> bool:
@@ -614,8 +609,8 @@ class OnlineFusion:
             "covariance_computations": self._counts["covariance_computations"],
             "reinitialisations": self._counts["reinitialised"],
             "solver_errors": self._counts["solver_errors"],
-            "update_ms_p50": _percentile(self._update_ms, 50),
-            "update_ms_p99": _percentile(self._update_ms, 99),
+            "update_ms_p50": percentile(self._update_ms, 50),
+            "update_ms_p99": percentile(self._update_ms, 99),
             "update_ms_max": max(self._update_ms) if self._update_ms else None,
             "updates_timed": len(self._update_ms),
         }
