@@ -23,20 +23,6 @@ def now_ns() -> int:
     return time.monotonic_ns()
 
 
-def memory_mb() -> dict[str, float]:
-    """{"rss": resident set size now, "peak": its peak (VmHWM)} of this process in MB, from
-    /proc/self/status; NaN where the system has no such file (not Linux)."""
-    out = {"rss": float("nan"), "peak": float("nan")}
-    try:
-        with open("/proc/self/status") as fh:
-            for line in fh:
-                if line.startswith(("VmRSS:", "VmHWM:")):
-                    out["rss" if line.startswith("VmRSS") else "peak"] = int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    return out
-
-
 class LatencyWindow:
     """The last `size` latencies in ms plus a total count; `summary()` gives median/p99."""
 
