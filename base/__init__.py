@@ -4,6 +4,8 @@
 * `geometry`: SE(3) and pinhole geometry on numpy arrays (frame and unit conventions).
 * `loader`: strict YAML -> frozen dataclass loading (`ConfigError`).
 * `frames`: `parse_frames` for `--frames A:B`.
+* `process_usage`: this process's CPU seconds and memory (RSS now, peak).
+* `stats`: percentiles of samples (latencies, errors) for status reports and benchmarks.
 * `params`: the parameter dataclasses that the configuration tree (`config/schema.py`)
   references, so `config` imports no algorithm or hardware module.
 

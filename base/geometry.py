@@ -165,6 +165,22 @@ def relative_pose_error(T_a: NDArray[np.floating], T_b: NDArray[np.floating]) ->
     )
 
 
+# 6x6 pose covariances: ROS order (tx, ty, tz, rx, ry, rz) <-> GTSAM Pose3 order (rx, ry, rz,
+# tx, ty, tz). Swapping the two 3-blocks is its own inverse.
+_SWAP_TRANS_ROT = np.array([3, 4, 5, 0, 1, 2])
+
+
+def gtsam_to_ros_covariance(cov: NDArray[np.floating]) -> F64:
+    """6x6 covariance in GTSAM Pose3 order (rot, trans) -> ROS order (trans, rot)."""
+    c = np.asarray(cov, dtype=np.float64).reshape(6, 6)
+    return np.asarray(c[np.ix_(_SWAP_TRANS_ROT, _SWAP_TRANS_ROT)], dtype=np.float64)
+
+
+def ros_to_gtsam_covariance(cov: NDArray[np.floating]) -> F64:
+    """6x6 covariance in ROS order (trans, rot) -> GTSAM Pose3 order (rot, trans)."""
+    return gtsam_to_ros_covariance(cov)
+
+
 def slerp_xyzw(q0: NDArray[np.floating], q1: NDArray[np.floating], s: float) -> F64:
     """Spherical linear interpolation between unit quaternions, s in [0, 1]."""
     a = np.asarray(q0, dtype=np.float64)

@@ -45,7 +45,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import ROOT, print_table
 
-from litevloc.pipelines.localization.vloc import TrackingState, VisualLocalizer
+from litevloc.pipelines.localization.tracking import TrackingState
+from litevloc.pipelines.localization.vloc import VisualLocalizer
 
 LOST_GRACE_S = 5.0  # a fault's loss of tracking comes within this many seconds of its end
 

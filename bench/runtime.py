@@ -111,6 +111,7 @@ def one_run(mode: str, rec: Path, map_dir: Path, seconds: float, endpoint: str, 
             overrides: list[str], alt_overrides: list[str] | None = None) -> None:
     import dataclasses
 
+    from litevloc.base.process_usage import cpu_seconds, peak_rss_mb
     from litevloc.config import load_config
     from litevloc.hw.messages import SourceMessage
     from litevloc.hw.streams.mcap_io import McapSource
@@ -139,26 +140,25 @@ def one_run(mode: str, rec: Path, map_dir: Path, seconds: float, endpoint: str, 
 
     app = build_app(cfg, map_dir, limited(), 1.0, view_save=out.with_suffix(".rrd") if view else None)
     child = app.vloc_process.pid if app.vloc_process is not None else None  # runtime.vloc_process
-    ru0, t0 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
+    cpu0, t0 = cpu_seconds(), time.perf_counter()
     child_cpu0 = proc_cpu_s(child)  # the VLoc process loaded its models before t0: not counted
-    ruc0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    children_cpu0 = cpu_seconds(resource.RUSAGE_CHILDREN)
     rss = RssSampler()
     res = app.service.run()
     wall = time.perf_counter() - t0
-    ru1 = resource.getrusage(resource.RUSAGE_SELF)
+    cpu1, self_peak_mb = cpu_seconds(), peak_rss_mb()
     rss_report = rss.stop()
     view_report = None if app.view is None else app.view.report()
     app.close()  # ends (and reaps) the VLoc process; the recording reader ended with the source
-    ruc1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    child_cpu = (ruc1.ru_utime - ruc0.ru_utime) + (ruc1.ru_stime - ruc0.ru_stime) - child_cpu0
+    child_cpu = cpu_seconds(resource.RUSAGE_CHILDREN) - children_cpu0 - child_cpu0
     st = res.status
     c = st.get("counters", {})
     out.write_text(json.dumps({
         "mode": mode, "ok": res.ok, "reason": res.reason, "wall_s": wall, "frames": n_frames,
-        "cpu_percent": 100 * ((ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime) + child_cpu) / wall,
+        "cpu_percent": 100 * ((cpu1 - cpu0) + child_cpu) / wall,
         # this process and its children (VLoc process, recording reader) together: the largest
         # sampled sum, or this process's own peak where that is larger
-        "peak_rss_mb": max(ru1.ru_maxrss / 1024, rss_report["max_mb"]), "self_peak_rss_mb": ru1.ru_maxrss / 1024,
+        "peak_rss_mb": max(self_peak_mb, rss_report["max_mb"]), "self_peak_rss_mb": self_peak_mb,
         "peak_pss_mb": rss_report["max_pss_mb"],
         "vloc_process": child is not None, "counters": c, "frames_dropped": st.get("frames_dropped"),
         "vloc_hz": c.get("vloc_calls", 0) / seconds,

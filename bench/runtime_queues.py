@@ -33,10 +33,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import print_table, write_json
 
 from litevloc.base.geometry import make_T, so3_exp
+from litevloc.base.stats import percentiles_ms
 from litevloc.config.schema import ZenohConfig
 from litevloc.hw import ros_msgs
 from litevloc.runtime.bus import Bus, LiteVLocPublisher
-from litevloc.runtime.metrics import now_ns, percentiles_ms
+from litevloc.runtime.metrics import now_ns
 from litevloc.runtime.queues import BoundedFifo, LatestMailbox
 
 

@@ -56,9 +56,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import ROOT, print_table, require_7scenes
 
+from litevloc.base.process_usage import memory_mb
 from litevloc.pipelines.topomap.io import load_map, save_map
 from litevloc.pipelines.topomap.types import FeatureStore, OccupancyGrid, TopoMap
-from litevloc.runtime.metrics import memory_mb
 
 SCALE_VERSION = "2"  # bump when `replicate` or the map format changes (cached maps are rebuilt); 2: format 3
 NOISE = 0.1  # norm of the VPR descriptor perturbation (per component sd = NOISE / sqrt(D))

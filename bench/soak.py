@@ -47,7 +47,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from _common import OUT, ROOT, office_inputs, print_table, write_json
 
-from litevloc.runtime.metrics import memory_mb
+from litevloc.base.process_usage import memory_mb
 
 # At 2x real time a VLoc result arrives twice as late in sensor time: a 1-3 s VLoc step on a
 # shared 2-core machine is 2-6 s of sensor time, beyond fusion's default 3 s smoother window

@@ -29,7 +29,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import multiprocessing
-import resource
 import time
 from collections.abc import Callable, Iterable
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -39,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from litevloc.base.process_usage import cpu_seconds
 from litevloc.config import load_config
 from litevloc.config.schema import LiteVLocConfig
 from litevloc.pipelines.topomap.build import MapBuilder
@@ -93,7 +93,7 @@ def load_building(run: BuildingRun) -> World:
 def build_map(world: World, cfg: LiteVLocConfig, bundle: ModelBundle, out: Path) -> dict[str, Any]:
     """The mapping pass of `world` built into a map at `out` (as `map build sim:...`); its build
     figures. Pass 1 renders depth for keyframe candidates only, pass 2 colour for keyframes."""
-    t0, cpu0 = time.perf_counter(), _cpu_s()
+    t0, cpu0 = time.perf_counter(), cpu_seconds()
     src = SimSequenceSource(world, "map", 0, params=cfg.sim)
     builder = MapBuilder(cfg.mapping, bundle.extract, bundle.describe, bundle.match, bundle.extractor.name,
                          bundle.vpr.name)
@@ -115,7 +115,7 @@ def build_map(world: World, cfg: LiteVLocConfig, bundle: ModelBundle, out: Path)
     save_map(topomap, out, overwrite=True, descriptor_bytes=cfg.mapping.descriptor_bytes)
     return {"keyframes": topomap.n_nodes, "frames": r.frames, "coverage": round(r.coverage, 4),
             "pass_s": round(src.duration_s, 1), "build_wall_s": round(time.perf_counter() - t0, 1),
-            "build_cpu_s": round(_cpu_s() - cpu0, 1)}
+            "build_cpu_s": round(cpu_seconds() - cpu0, 1)}
 
 
 def map_report(world: World, map_dir: Path, radius: float) -> dict[str, Any]:
@@ -207,7 +207,7 @@ def _run_summary(run: NavRun) -> dict[str, Any]:
 def run_building(run: BuildingRun, settings: BenchSettings, cfg: LiteVLocConfig, bundles: dict[str, ModelBundle],
                  log: Callable[[str], None] = print) -> dict[str, Any]:
     """Map, place and drive one building (module docstring); its JSON record."""
-    t0, cpu0 = time.perf_counter(), _cpu_s()
+    t0, cpu0 = time.perf_counter(), cpu_seconds()
     world = load_building(run)
     map_dir, map_rec = ensure_map(run, world, settings, cfg, bundles["build"])
     rec: dict[str, Any] = {"building": run.name, "generator": run.generator, "seed": run.seed,
@@ -224,7 +224,7 @@ def run_building(run: BuildingRun, settings: BenchSettings, cfg: LiteVLocConfig,
         s = rec[mode]["summary"]
         log(f"  {run.name}: {mode} {s['goals_reached']}/{s['goals_total']} ({s['wall_s']:.0f} s wall)")
     rec["other_set"] = place_other(other, map_dir, cfg, bundles["nav"])
-    rec["wall_s"], rec["cpu_s"] = round(time.perf_counter() - t0, 1), round(_cpu_s() - cpu0, 1)
+    rec["wall_s"], rec["cpu_s"] = round(time.perf_counter() - t0, 1), round(cpu_seconds() - cpu0, 1)
     return rec
 
 
@@ -306,11 +306,6 @@ def run_buildings(runs: Iterable[BuildingRun], settings: BenchSettings, workers:
                 on_result(rec)
     order = {r.name: k for k, r in enumerate(runs)}
     return sorted(results, key=lambda r: order.get(r["building"], 0))
-
-
-def _cpu_s() -> float:
-    r = resource.getrusage(resource.RUSAGE_SELF)
-    return r.ru_utime + r.ru_stime
 
 
 def render_cost(runs: Iterable[BuildingRun], cfg: LiteVLocConfig, frames: int = 60) -> list[dict[str, Any]]:

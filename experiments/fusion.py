@@ -31,12 +31,12 @@ from numpy.typing import NDArray
 from litevloc.base.geometry import interpolate_pose_at, invert
 from litevloc.base.params.drift import DriftParams
 from litevloc.base.params.fusion import FusionParams
+from litevloc.base.process_usage import memory_mb
 from litevloc.config.schema import LiteVLocConfig
 from litevloc.experiments.fusion_sim import run_online, simulate_vloc, synthetic_trajectory
 from litevloc.pipelines.evaluation.trajectory import ate, write_tum
 from litevloc.pipelines.fusion.batch import refine_session
 from litevloc.pipelines.odometry_drift import simulate_odometry
-from litevloc.runtime.metrics import memory_mb
 
 F64 = NDArray[np.float64]
 

@@ -386,13 +386,6 @@ class Bus:
         self.close()
 
 
-def gtsam_to_ros_covariance(cov: NDArray[np.floating]) -> NDArray[np.float64]:
-    """6x6 covariance in GTSAM Pose3 order (rot, trans) -> ROS order (trans, rot)."""
-    c = np.asarray(cov, dtype=np.float64).reshape(6, 6)
-    p = [3, 4, 5, 0, 1, 2]
-    return c[np.ix_(p, p)]
-
-
 def flag_covariance(cov: NDArray[np.floating] | None, variance: float) -> NDArray[np.float64]:
     """Covariance with every diagonal entry raised to at least `variance` (the LOST flag)."""
     c = np.zeros((6, 6)) if cov is None else np.array(cov, dtype=np.float64).reshape(6, 6)

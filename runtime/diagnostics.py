@@ -33,6 +33,7 @@ from typing import Any
 
 from litevloc.config.schema import DiagnosticsConfig, LevelThresholds
 from litevloc.hw import ros_msgs
+from litevloc.pipelines.localization.tracking import TrackingState
 from litevloc.runtime.metrics import LatencyWindow
 
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
@@ -166,9 +167,10 @@ def diagnostic_statuses(
         ("accepted", str(acc)), ("fusion_accepted", str(c.get("fusion_accepted", 0))),
         ("frames_dropped", str(status.get("frames_dropped", 0))),
         ("last_reason", str(status.get("last_vloc_reason") or "")), ("period_s", _fmt(dt, 3))]))
-    state = str(status.get("state", "INIT"))
+    state = str(status.get("state", TrackingState.INIT))
     reasons = [str(r) for r in status.get("reasons") or []]
-    lvl = {"TRACKING": OK, "INIT": WARN}.get(state, ERROR)
+    levels: dict[str, int] = {TrackingState.TRACKING: OK, TrackingState.INIT: WARN}
+    lvl = levels.get(state, ERROR)
     out.append((lvl, "litevloc/tracking", state + (f": {reasons[0]}" if reasons else ""), hw, [
         ("state", state), ("reason", "; ".join(reasons)), ("vloc_state", str(status.get("vloc_state") or "")),
         ("last_fusion_reason", str(status.get("last_fusion_reason") or ""))]))

@@ -15,6 +15,8 @@ from typing import Any
 
 import numpy as np
 
+from litevloc.pipelines.localization.tracking import TrackingState
+
 MIN_SIDE, MAX_SIDE = 32, 4096
 
 
@@ -29,7 +31,7 @@ class RejectedFrame:
     covariance: None = None
     timings_ms: Mapping[str, float] = field(default_factory=dict)
     provisional: None = None
-    tracking_state: str = ""
+    tracking_state: TrackingState | None = None
 
 
 def frame_problem(frame: Any) -> str | None:

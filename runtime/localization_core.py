@@ -13,11 +13,10 @@ vloc_result(result)      -> [VlocOut]                  (fusion thread)
 prior(t_frame_ns)        -> VlocPrior | None           (vloc thread: reads a reference and a locked buffer)
 ```
 
-Tracking state (`tracking_state()`): INIT until a fused pose is initialised; then TRACKING
-while a VLoc fix was accepted by fusion within `lost_after_s` of sensor time (odometry
-stamps), LOST otherwise, or when the localizer reported LOST with its latest result
-(`VlocOutcome.tracking_state`, set by the VLoc stage right after the query: no state is read
-across threads).
+Tracking state (`tracking_state()`): `pipelines.localization.tracking.published_state` of the
+localizer's state reported with its latest result (`VlocOutcome.tracking_state`, set by the
+VLoc stage right after the query: no state is read across threads), whether fusion is
+initialised, and the sensor time (odometry stamps) since fusion last accepted a VLoc fix.
 """
 
 from __future__ import annotations
@@ -32,6 +31,7 @@ from numpy.typing import NDArray
 
 from litevloc.config.schema import RuntimeConfig
 from litevloc.hw.messages import Odometry
+from litevloc.pipelines.localization.tracking import TrackingState, published_state
 from litevloc.runtime.diagnostics import VlocStageTimes
 from litevloc.runtime.ros_interface import InitialPose
 from litevloc.runtime.vloc_prior import OdometryHistory, VlocPrior, prior_at
@@ -59,7 +59,7 @@ class VlocOutcome(Protocol):
 
     `T_map_camera` 4x4 (metres), None unless accepted; `covariance` 6x6 camera-frame
     perturbation (tx, ty, tz, rx, ry, rz); `timings_ms` per stage; `provisional` only on
-    rejected GL results; `tracking_state` the localizer's state after this query ("" = unknown).
+    rejected GL results; `tracking_state` the localizer's state after this query (None = unknown).
     """
 
     @property
@@ -84,7 +84,7 @@ class VlocOutcome(Protocol):
     def provisional(self) -> ProvisionalLike | None: ...
 
     @property
-    def tracking_state(self) -> str: ...
+    def tracking_state(self) -> TrackingState | None: ...
 
 
 class FusedPoseLike(Protocol):
@@ -178,7 +178,7 @@ class LocalizationCore:
         self.last_vloc_accept_ns: int | None = None
         self.last_vloc_reason: str | None = None
         self.last_fusion_reason: str | None = None
-        self.localizer_state = ""  # as reported with the latest VLoc result
+        self.localizer_state: TrackingState | None = None  # as reported with the latest VLoc result
         self.vloc_times = VlocStageTimes(window)  # per-query extract/vpr/match/pnp ms
         self._last_m2o_ns: int | None = None
         self._m2o_due = False
@@ -207,7 +207,7 @@ class LocalizationCore:
             self.on_fused(fused)
         if not fused.initialised:
             return []
-        lost = self.tracking_state()[0] == "LOST"
+        lost = self.tracking_state()[0] == TrackingState.LOST
         cov = fused.covariance
         if cov is not None and self.covariance_to_ros is not None:
             cov = self.covariance_to_ros(np.asarray(cov, dtype=np.float64))
@@ -251,7 +251,7 @@ class LocalizationCore:
         self.vloc_times.add(res.timings_ms)
         self.last_vloc_reason = str(res.reason)
         if res.tracking_state:
-            self.localizer_state = str(res.tracking_state)
+            self.localizer_state = res.tracking_state
         if not res.accepted or res.T_map_camera is None:
             self.counters["vloc_rejected"] += 1
             if res.provisional is not None:
@@ -299,20 +299,13 @@ class LocalizationCore:
             return VlocPrior(np.asarray(f.T_map_base, dtype=np.float64) @ self.T_base_camera, 0.0, False)
         return got
 
-    def tracking_state(self) -> tuple[str, list[str]]:
+    def tracking_state(self) -> tuple[TrackingState, list[str]]:
         """(INIT | TRACKING | LOST, reasons); see the module docstring."""
         f = self.last_fused
-        if f is None or not f.initialised:
-            return "INIT", ["waiting for the first accepted VLoc fix"]
-        state, reasons = "TRACKING", []
-        if self.localizer_state == "LOST":
-            state = "LOST"
-            reasons.append("localizer state machine is LOST")
         now, last = self.sensor_now_ns, self.last_vloc_accept_ns
-        if now is not None and last is not None and (now - last) * 1e-9 > self.params.lost_after_s:
-            state = "LOST"
-            reasons.append(f"no VLoc fix accepted for {(now - last) * 1e-9:.1f} s (> {self.params.lost_after_s:g})")
-        return state, reasons
+        since_fix_s = (now - last) * 1e-9 if now is not None and last is not None else None
+        return published_state(self.localizer_state, f is not None and f.initialised, since_fix_s,
+                               self.params.lost_after_s)
 
     def report(self) -> dict[str, Any]:
         """The core's part of the status report (JSON-able values)."""
@@ -322,7 +315,7 @@ class LocalizationCore:
             reasons.append(f"fusion rejected {c['odometry_rejected']} odometry message(s) "
                            "(time not increasing or invalid pose)")
         out: dict[str, Any] = {
-            "state": state,
+            "state": str(state),
             "reasons": reasons,
             "counters": dict(c),
             "last_vloc_reason": self.last_vloc_reason,
@@ -331,5 +324,5 @@ class LocalizationCore:
             "vloc_stages": self.vloc_times.summary(),
         }
         if self.localizer_state:
-            out["vloc_state"] = self.localizer_state
+            out["vloc_state"] = str(self.localizer_state)
         return out

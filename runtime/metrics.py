@@ -14,41 +14,13 @@ from typing import Any
 
 import numpy as np
 
+from litevloc.base.stats import percentiles_ms
+
 
 def now_ns() -> int:
     """The runtime's wall-independent clock: `time.monotonic_ns()` (CLOCK_MONOTONIC on
     Linux, shared by every process on the machine, so it can time cross-process hops)."""
     return time.monotonic_ns()
-
-
-def memory_mb() -> dict[str, float]:
-    """{"rss": resident set size now, "peak": its peak (VmHWM)} of this process in MB, from
-    /proc/self/status; NaN where the system has no such file (not Linux)."""
-    out = {"rss": float("nan"), "peak": float("nan")}
-    try:
-        with open("/proc/self/status") as fh:
-            for line in fh:
-                if line.startswith(("VmRSS:", "VmHWM:")):
-                    out["rss" if line.startswith("VmRSS") else "peak"] = int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    return out
-
-
-def percentiles_ms(samples: list[float] | np.ndarray) -> dict[str, float]:
-    """{count, median_ms, p90_ms, p99_ms, max_ms, mean_ms} of samples in milliseconds (NaN when empty)."""
-    a = np.asarray(samples, dtype=np.float64)
-    if a.size == 0:
-        nan = float("nan")
-        return {"count": 0, "median_ms": nan, "p90_ms": nan, "p99_ms": nan, "max_ms": nan, "mean_ms": nan}
-    return {
-        "count": int(a.size),
-        "median_ms": float(np.median(a)),
-        "p90_ms": float(np.percentile(a, 90)),
-        "p99_ms": float(np.percentile(a, 99)),
-        "max_ms": float(a.max()),
-        "mean_ms": float(a.mean()),
-    }
 
 
 class LatencyWindow:

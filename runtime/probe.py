@@ -65,10 +65,11 @@ def main(argv: list[str] | None = None) -> int:
     if args.send_odometry:
         return _send(args)
 
+    from litevloc.base.stats import percentiles_ms
     from litevloc.config.schema import ZenohConfig
     from litevloc.hw import ros_msgs
     from litevloc.runtime.bus import TOPICS, Bus, warm_codecs, wire_latency_ns
-    from litevloc.runtime.metrics import now_ns, percentiles_ms
+    from litevloc.runtime.metrics import now_ns
 
     topics = [t.strip() for t in args.topics.split(",") if t.strip()]
     for t in topics:

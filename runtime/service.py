@@ -29,7 +29,7 @@ Injected callables (the lead plugs the real ones; tests use fakes):
   smoother update that `fusion_callables(..., defer_updates=True)` left for after the pose.
 
 Fused covariances are converted with `covariance_to_ros` (e.g.
-`bus.gtsam_to_ros_covariance`) before publishing; default: already in ROS order.
+`base.geometry.gtsam_to_ros_covariance`) before publishing; default: already in ROS order.
 
 Modes (`RuntimeConfig.mode`):
 * `realtime`: the source is paced at `rate` (1 = recorded timing); frames go through a
@@ -592,7 +592,7 @@ def localizer_callable(localizer: VisualLocalizer) -> VlocFn:
         else:
             res = localizer.process(frame.t_ns, frame.color, frame.depth, frame.K, prior.T_map_camera,
                                     prior_age_s=prior.age_s)
-        return dataclasses.replace(res, tracking_state=str(localizer.state))
+        return dataclasses.replace(res, tracking_state=localizer.state)
 
     return vloc
 

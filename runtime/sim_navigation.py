@@ -52,6 +52,7 @@ from litevloc.base.errors import LiteVLocError
 from litevloc.config.schema import LiteVLocConfig
 from litevloc.hw import ros_msgs
 from litevloc.hw.messages import Message, Odometry
+from litevloc.pipelines.localization.tracking import TrackingState
 from litevloc.runtime.bus import Bus, LiteVLocPublisher
 from litevloc.runtime.planner_service import KEYS, PlannerService, build_planner
 from litevloc.sim.local_planner import LocalPlanner, LocalPlannerParams
@@ -549,8 +550,8 @@ class _LostClock:
         self.since_ns: int | None = None
         self.longest_s = self.total_s = 0.0
 
-    def update(self, t_ns: int, state: str) -> None:
-        if state == "LOST":
+    def update(self, t_ns: int, state: TrackingState) -> None:
+        if state == TrackingState.LOST:
             if self.since_ns is None:
                 self.since_ns = t_ns
             self.longest_s = max(self.longest_s, (t_ns - self.since_ns) * 1e-9)

@@ -43,10 +43,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litevloc.base.errors import LiteVLocError
+from litevloc.pipelines.localization.tracking import TrackingState
 
 log = logging.getLogger(__name__)
 
-STATE_CODES = {"INIT": 0, "GLOBAL": 1, "TRACKING": 2, "LOST": 3, "FAILED": 4}  # GLOBAL: localizer only
+# the state plot's value per state (GLOBAL: the localizer only); anything else plots as UNKNOWN_STATE_CODE
+STATE_CODES: dict[str, int] = {s: code for code, s in enumerate(TrackingState)}
+UNKNOWN_STATE_CODE = len(STATE_CODES)
 
 
 # The view thread's Linux nice: VLoc's (runtime.vloc_nice). Lower priority would be worse: a
@@ -450,12 +453,14 @@ class LiveView:
         t = st.get("sensor_time_ns")
         if t is not None:
             self._time(int(t))
-        state = str(st.get("state", "INIT"))
+        state = str(st.get("state", TrackingState.INIT))
         reasons = "; ".join(str(r) for r in st.get("reasons") or [])
-        self._log("plots/state", rr.Scalars(float(STATE_CODES.get(state, 4))))
+        self._log("plots/state", rr.Scalars(float(STATE_CODES.get(state, UNKNOWN_STATE_CODE))))
         if (state, reasons) != self._last_state:
             self._last_state = (state, reasons)
-            level = {"TRACKING": "INFO", "INIT": "WARN", "GLOBAL": "WARN"}.get(state, "ERROR")
+            levels: dict[str, str] = {TrackingState.TRACKING: "INFO", TrackingState.INIT: "WARN",
+                                      TrackingState.GLOBAL: "WARN"}
+            level = levels.get(state, "ERROR")
             self._log("status/tracking", rr.TextLog(f"{state}" + (f": {reasons}" if reasons else ""),
                                                        level=level))
         stages = st.get("stages") or {}

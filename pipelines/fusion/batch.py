@@ -22,9 +22,9 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.base.geometry import interpolate_pose_at, invert, rotation_angle
+from litevloc.base.geometry import interpolate_pose_at, invert, ros_to_gtsam_covariance, rotation_angle
 from litevloc.base.params.fusion import FusionParams
-from litevloc.pipelines.fusion.online import _valid_pose, ros_to_gtsam_cov
+from litevloc.pipelines.fusion.online import _valid_pose
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -164,7 +164,7 @@ def refine_session(
         if vloc_covariances is None:
             c = params.vloc_cov_gtsam()
         else:
-            c = ros_to_gtsam_cov(np.asarray(vloc_covariances, dtype=np.float64)[i])
+            c = ros_to_gtsam_covariance(np.asarray(vloc_covariances, dtype=np.float64)[i])
         return Ad @ c @ Ad.T
 
     def noise(c: F64) -> gtsam.noiseModel.Base:

@@ -63,8 +63,15 @@ import gtsam
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.base.geometry import interpolate_pose, invert, rotation_angle
+from litevloc.base.geometry import (
+    gtsam_to_ros_covariance,
+    interpolate_pose,
+    invert,
+    ros_to_gtsam_covariance,
+    rotation_angle,
+)
 from litevloc.base.params.fusion import FusionParams
+from litevloc.base.stats import percentile
 
 F64 = NDArray[np.float64]
 
@@ -73,27 +80,10 @@ __all__ = [
     "FusionParams",
     "OnlineFusion",
     "VlocUpdate",
-    "gtsam_to_ros_cov",
-    "ros_to_gtsam_cov",
 ]
 
-# ROS (tx, ty, tz, rx, ry, rz) <-> GTSAM (rx, ry, rz, tx, ty, tz)
-_PERM = np.array([3, 4, 5, 0, 1, 2])
 _I3 = np.eye(3)
 _ROW3 = np.array([0.0, 0.0, 0.0, 1.0])
-
-
-def ros_to_gtsam_cov(cov: NDArray[np.floating]) -> F64:
-    """6x6 covariance, ROS order (trans, rot) -> GTSAM order (rot, trans)."""
-    c = np.asarray(cov, dtype=np.float64)
-    return np.asarray(c[np.ix_(_PERM, _PERM)], dtype=np.float64)
-
-
-def gtsam_to_ros_cov(cov: NDArray[np.floating]) -> F64:
-    """6x6 covariance, GTSAM order (rot, trans) -> ROS order (trans, rot)."""
-    c = np.asarray(cov, dtype=np.float64)
-    inv = np.argsort(_PERM)
-    return c[np.ix_(inv, inv)]
 
 
 @dataclass(frozen=True)
@@ -169,12 +159,6 @@ def _valid_cov(C: NDArray[np.floating] | None) -> F64 | None:
 
 def _pose3(T: F64) -> gtsam.Pose3:
     return gtsam.Pose3(T)
-
-
-def _percentile(values: deque[float], q: float) -> float | None:
-    if not values:
-        return None
-    return float(np.percentile(np.fromiter(values, dtype=np.float64), q))
 
 
 def _map_odom_close(A: F64, B: F64, max_trans: float, max_rot_rad: float) -> bool:
@@ -474,7 +458,7 @@ class OnlineFusion:
         T_map_odom = self._last_est @ _inv(T_key_odom)
         T_map_base = T_map_odom @ T_odom_base
         cov = self._cov_state + self._odom_cov(self._cov_key_T_odom, T_odom_base)
-        return FusedPose(t_ns, T_map_base, T_map_odom, gtsam_to_ros_cov(cov), True)
+        return FusedPose(t_ns, T_map_base, T_map_odom, gtsam_to_ros_covariance(cov), True)
 
     def current(self) -> FusedPose | None:
         """The fused pose at the newest odometry time (None before initialisation)."""
@@ -487,7 +471,7 @@ class OnlineFusion:
         """Marginal covariance (ROS order) of the newest state, computed now (on demand)."""
         if not self._initialised:
             return None
-        return gtsam_to_ros_cov(np.asarray(self._smoother.marginalCovariance(self._keys[-1][0])))
+        return gtsam_to_ros_covariance(np.asarray(self._smoother.marginalCovariance(self._keys[-1][0])))
 
     # ------------------------------------------------------------------ VLoc
     def add_vloc(
@@ -528,7 +512,7 @@ class OnlineFusion:
             cov_c = _valid_cov(covariance)
         except ValueError:
             return VlocUpdate(False, "invalid_covariance")
-        cov = p.vloc_cov_gtsam() if cov_c is None else ros_to_gtsam_cov(cov_c)
+        cov = p.vloc_cov_gtsam() if cov_c is None else ros_to_gtsam_covariance(cov_c)
         cov = self._Ad_bc @ cov @ self._Ad_bc.T
         T_mb = T_mc @ self.T_camera_base
         if not self._odom:
@@ -625,8 +609,8 @@ class OnlineFusion:
             "covariance_computations": self._counts["covariance_computations"],
             "reinitialisations": self._counts["reinitialised"],
             "solver_errors": self._counts["solver_errors"],
-            "update_ms_p50": _percentile(self._update_ms, 50),
-            "update_ms_p99": _percentile(self._update_ms, 99),
+            "update_ms_p50": percentile(self._update_ms, 50),
+            "update_ms_p99": percentile(self._update_ms, 99),
             "update_ms_max": max(self._update_ms) if self._update_ms else None,
             "updates_timed": len(self._update_ms),
         }

@@ -25,7 +25,7 @@
   them); in GLOBAL state with a prior (the fused pose), one that agrees with the prior within
   the LL prior gate is accepted (the prior is the independent second view).
 * `VisualLocalizer.process` runs the state machine INIT -> GLOBAL -> TRACKING -> LOST ->
-  GLOBAL, exposing each transition with its reason.
+  GLOBAL (`tracking.TrackingState`), exposing each transition with its reason.
 
 Pose chain: PnP gives `T_node_live` (live camera -> map keyframe camera), hence
 `T_map_live = T_map_node @ T_node_live`. The covariance is that of a right (camera-frame)
@@ -38,7 +38,6 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from enum import StrEnum
 
 import numpy as np
 from numpy.typing import NDArray
@@ -54,6 +53,7 @@ from litevloc.pipelines.localization.refine import (
     refine_pose,
 )
 from litevloc.pipelines.localization.search_region import SearchRegion, nodes_within
+from litevloc.pipelines.localization.tracking import TrackingState, Transition
 from litevloc.pipelines.pnp import PnpResult, inverse_result, solve_pnp
 from litevloc.pipelines.topomap.types import FeatureSet, TopoMap
 
@@ -65,13 +65,6 @@ MatchFn = Callable[[FeatureSet, FeatureSet], tuple[NDArray[np.int64], NDArray[np
 Clock = Callable[[], float]  # monotonic seconds
 
 _CLOCK_JITTER_S = 1e-3  # timestamps that differ by less than this are the same instant for time windows
-
-
-class TrackingState(StrEnum):
-    INIT = "INIT"
-    GLOBAL = "GLOBAL"
-    TRACKING = "TRACKING"
-    LOST = "LOST"
 
 
 @dataclass(frozen=True)
@@ -137,7 +130,7 @@ class LocalizationResult:
     matches: MatchedPixels | None = None  # accepted results: matches with `ref_node`, inliers marked
     provisional: ProvisionalPose | None = None  # rejected GL results only (see ProvisionalPose)
     candidates: tuple[int, ...] = ()  # GL: the nodes it would verify, in order (`global_candidates`)
-    tracking_state: str = ""  # the localizer's state after this query, when the caller reports it
+    tracking_state: TrackingState | None = None  # the localizer's state after this query, when the caller reports it
 
 
 @dataclass(frozen=True)
@@ -149,14 +142,6 @@ class HeldPose:
     t_ns: int
     T_map_camera: NDArray[np.float64]
     prior_T_map_camera: NDArray[np.float64]
-
-
-@dataclass(frozen=True)
-class Transition:
-    t_ns: int
-    from_state: TrackingState
-    to_state: TrackingState
-    reason: str
 
 
 class StageTimer:

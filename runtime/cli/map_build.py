@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.base.process_usage import cpu_seconds, peak_rss_mb
 from litevloc.hw.messages import Message, RgbdFrame
 from litevloc.pipelines.slam.frames import interpolate_trajectory
 from litevloc.pipelines.slam.session import SlamError, map_frame
@@ -254,7 +255,7 @@ def _build(args: argparse.Namespace) -> int:
         bundle, matcher=load_matcher(cfg.mapping.covisibility_matcher, cfg.models))
     builder = MapBuilder(cfg.mapping, covis.extract, covis.describe, covis.match, bundle.extractor.name,
                          bundle.vpr.name)
-    t0, cpu0 = time.perf_counter(), _cpu_s()
+    t0, cpu0 = time.perf_counter(), cpu_seconds()
     slam = None
     if kind == "slam":
         slam = slam_pass(args, cfg, bundle, src, builder)
@@ -274,7 +275,7 @@ def _build(args: argparse.Namespace) -> int:
     topomap.meta.update(_meta(args, cfg, builder, kind, t2 - t0))
     save_map(topomap, args.output, overwrite=args.force, descriptor_bytes=cfg.mapping.descriptor_bytes)
     t3 = time.perf_counter()
-    summary = _summary(args, cfg, builder, topomap, missing, kind, (t0, t1, t2, t3), _cpu_s() - cpu0)
+    summary = _summary(args, cfg, builder, topomap, missing, kind, (t0, t1, t2, t3), cpu_seconds() - cpu0)
     if slam is not None:
         summary["slam"] = _slam_report(args, slam, src, t3 - t1)
     _print_summary(args, builder, topomap, summary)
@@ -393,15 +394,3 @@ def print_slam_report(rep: dict[str, Any]) -> None:
                 f"{ev['wrong_loops_kept']} of {ev['wrong_loops']}")
 
 
-def _cpu_s() -> float:
-    import resource
-
-    r = resource.getrusage(resource.RUSAGE_SELF)
-    return r.ru_utime + r.ru_stime
-
-
-def peak_rss_mb() -> float:
-    """Peak resident set size of this process so far (MB; Linux ru_maxrss is in KB)."""
-    import resource
-
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0

@@ -18,6 +18,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Literal
 
+from litevloc.base.process_usage import cpu_seconds
 from litevloc.runtime.cli.common import add_config_args, config_of, write_json
 from litevloc.runtime.cli.main import UserError
 from litevloc.runtime.cli.run import add_view_args
@@ -241,11 +242,8 @@ def run_navigate(args: argparse.Namespace) -> int:
     for k in ("keyframes", "coverage", "bytes", "build_seconds"):
         res[f"map_{k}"] = res["map_info"][k]
     res["wall_s_total"] = round(time.perf_counter() - t0, 1)
-    import resource
-
-    ru = resource.getrusage(resource.RUSAGE_SELF)
     # CPU seconds of the whole command (all threads): comparable across loads of a shared machine
-    res["cpu_s_total"] = round(ru.ru_utime + ru.ru_stime, 1)
+    res["cpu_s_total"] = round(cpu_seconds(), 1)
     print_table(res)
     print(f"plot: {res.get('png')}")
     write_json(args.json or args.out_dir / "navigate.json", res)

@@ -61,11 +61,12 @@ _ARENA_PROBE = """
 import sys
 import numpy as np
 from litevloc.base.params.models import ModelsConfig
+from litevloc.base.process_usage import memory_mb
 from litevloc.models.ort import make_session
 from litevloc.models.registry import locate
 
 def rss_mb():
-    return next(int(ln.split()[1]) for ln in open("/proc/self/status") if ln.startswith("VmRSS")) / 1024
+    return memory_mb()["rss"]
 
 path, _ = locate("aliked-n16-240x320-k512", ModelsConfig(cache_dir=sys.argv[1]))
 sessions = [make_session(path, ("cpu",), 1) for _ in range(3)]

@@ -7,14 +7,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from litevloc.base.geometry import make_T, so3_exp
+from litevloc.base.geometry import gtsam_to_ros_covariance, make_T, so3_exp
 from litevloc.config.schema import ZenohConfig
 from litevloc.runtime.bus import (
     Bus,
     BusError,
     LiteVLocPublisher,
     flag_covariance,
-    gtsam_to_ros_covariance,
     topic_key,
     zenoh_config,
 )

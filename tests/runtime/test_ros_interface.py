@@ -10,15 +10,23 @@ from typing import Any
 import numpy as np
 import pytest
 
-from litevloc.base.geometry import invert, make_T, quat_xyzw_to_matrix, relative_pose_error, so3_exp
+from litevloc.base.geometry import (
+    gtsam_to_ros_covariance,
+    invert,
+    make_T,
+    quat_xyzw_to_matrix,
+    relative_pose_error,
+    so3_exp,
+)
 from litevloc.base.params.drift import T_BASE_CAMERA_OPTICAL
 from litevloc.base.params.fusion import FusionParams
 from litevloc.config.schema import InitialPoseConfig, RuntimeConfig, ZenohConfig
 from litevloc.hw import ros_msgs
 from litevloc.pipelines.fusion.online import OnlineFusion
 from litevloc.pipelines.localization.search_region import SearchRegion, nodes_within
-from litevloc.pipelines.localization.vloc import TrackingState, VisualLocalizer
-from litevloc.runtime.bus import Bus, LiteVLocPublisher, gtsam_to_ros_covariance
+from litevloc.pipelines.localization.tracking import TrackingState
+from litevloc.pipelines.localization.vloc import VisualLocalizer
+from litevloc.runtime.bus import Bus, LiteVLocPublisher
 from litevloc.runtime.localization_core import LocalizationCore
 from litevloc.runtime.ros_inputs import InitialPoseInput
 from litevloc.runtime.ros_interface import TF_MESSAGE, InitialPoseRefused, parse_initial_pose

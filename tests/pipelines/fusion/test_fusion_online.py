@@ -7,16 +7,18 @@ import dataclasses
 import numpy as np
 import pytest
 
-from litevloc.base.geometry import interpolate_pose_at, make_T, so3_exp
+from litevloc.base.geometry import (
+    gtsam_to_ros_covariance,
+    interpolate_pose_at,
+    make_T,
+    ros_to_gtsam_covariance,
+    so3_exp,
+)
 from litevloc.base.params.drift import T_BASE_CAMERA_OPTICAL, DriftParams
 from litevloc.base.params.fusion import FusionParams
 from litevloc.experiments.fusion_sim import run_online, simulate_vloc, synthetic_trajectory
 from litevloc.pipelines.evaluation.trajectory import ate
-from litevloc.pipelines.fusion.online import (
-    OnlineFusion,
-    gtsam_to_ros_cov,
-    ros_to_gtsam_cov,
-)
+from litevloc.pipelines.fusion.online import OnlineFusion
 from litevloc.pipelines.odometry_drift import simulate_odometry
 
 T_BC = T_BASE_CAMERA_OPTICAL
@@ -186,8 +188,8 @@ def test_params_and_covariance_order() -> None:
     with pytest.raises(ValueError, match="lag_s"):
         FusionParams(lag_s=0.1, keyframe_period_s=0.1)
     C = np.diag([1.0, 2, 3, 4, 5, 6])  # ROS: x y z rx ry rz
-    np.testing.assert_array_equal(np.diag(ros_to_gtsam_cov(C)), [4, 5, 6, 1, 2, 3])
-    np.testing.assert_array_equal(gtsam_to_ros_cov(ros_to_gtsam_cov(C)), C)
+    np.testing.assert_array_equal(np.diag(ros_to_gtsam_covariance(C)), [4, 5, 6, 1, 2, 3])
+    np.testing.assert_array_equal(gtsam_to_ros_covariance(ros_to_gtsam_covariance(C)), C)
     with pytest.raises(ValueError, match="T_base_camera"):
         OnlineFusion(FusionParams(), np.zeros((4, 4)))
 

@@ -14,7 +14,8 @@ from numpy.typing import NDArray
 
 from litevloc.base import geometry as g
 from litevloc.base.params.localization import LocalizationParams, PnpParams
-from litevloc.pipelines.localization.vloc import StageTimer, TrackingState, VisualLocalizer, _Query
+from litevloc.pipelines.localization.tracking import TrackingState
+from litevloc.pipelines.localization.vloc import StageTimer, VisualLocalizer, _Query
 from litevloc.pipelines.topomap.types import NodeFeatures, OccupancyGrid, TopoMap
 
 W, H = 320, 240

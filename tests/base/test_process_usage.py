@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from litevloc.runtime.metrics import memory_mb
+from litevloc.base.process_usage import memory_mb
 
 
 def test_memory_grows_with_an_allocation_and_the_peak_remembers_it() -> None:
