@@ -108,8 +108,11 @@ def _slam(d: Json) -> str:
 def _buildings(d: Json) -> str:
     t = d["totals"]
     lv, gt = t["litevloc"], t["ground-truth"]
+    gens = sorted({b["generator"] for b in d["buildings"]})
+    seeds = sorted({int(b["seed"]) for b in d["buildings"]})
     return (f"{lv['reached']}/{lv['goals']} goal images reached in {t['buildings']} buildings "
-            f"({gt['reached']}/{gt['goals']} with ground-truth localization), {lv['wrong_placements']} wrong "
+            f"({'/'.join(gens)}, seeds {seeds[0]}-{seeds[-1]}) "
+            f"vs {gt['reached']}/{gt['goals']} with ground-truth localization, {lv['wrong_placements']} wrong "
             f"placements, {lv['buildings_without_collision']}/{t['buildings']} buildings without collision")
 
 
