@@ -580,7 +580,7 @@ class VisualLocalizer:
         stop = f"all {len(order)} VPR candidates tried"
         provisional: ProvisionalPose | None = None
         growth = self._prior_growth_m(prior_age_s, fused=True)
-        verified: list[VerifiedPose] = []  # every candidate's PnP pose, for the distinctiveness test
+        evidence: list[VerifiedPose] = []  # every candidate's PnP pose, for the distinctiveness test
         trusted = prior is not None and self._fresh(growth)
         gl_params = self._gl_params(trusted)
         if self.params.refine.enabled:
@@ -598,7 +598,7 @@ class VisualLocalizer:
                             f"{ahead:.0f} ms per candidate, after {k} of {len(order)} candidates")
                     break
                 t_cand = self.clock()
-                res, att = self._verify_global(node, q, float(sims[node]), verified, gl_params)
+                res, att = self._verify_global(node, q, float(sims[node]), evidence, gl_params)
                 if res is None or not res.accepted or res.T_target_source is None:
                     attempts.append(att)
                     candidates_ms += (self.clock() - t_cand) * 1e3
@@ -612,7 +612,7 @@ class VisualLocalizer:
                     best = (node, res, joint)
                     stop = f"candidate {k + 1} of {len(order)} passed the joint check"
                     amb = "" if trusted else self._ambiguity(node, res, joint.T_map_camera, q, order[k + 1:],
-                                                             sims, verified)
+                                                             sims, evidence)
                     if amb:
                         best, provisional, reason = None, None, f"not localized: {amb}"
                         stop = f"{stop}; {amb}"
