@@ -14,6 +14,18 @@ are those of the run that first called the models, on this machine at that time)
         [--compare out/bench/splits_before.json]
 
 Writes out/bench/NAME.json and NAME.png (accepted vs covered per split).
+
+    python bench/splits.py --loop-probe [--set K=V ...] [--name splits_loop] [--compare OLD.json]
+
+The loop probe instead (`experiments.splits_loop`, a safety check, not a split): GL from no prior
+on every 200th frame of the simulated loop's query lap against the map of `bench/loop.py`
+(out/bench/loop/map, built by it), its frames recorded under out/bench/inputs/loopgl/ and its
+model calls under out/cache/loopgl/; accepted poses more than 0.5 m off are wrong fixes.
+
+    python bench/splits.py --gl-latency [--splits published] [--step 10] --set K=V ...
+
+GL latency instead (`experiments.splits_latency`): GL from no prior with the defaults and with
+the --set overrides on the same frames, interleaved, models called live; medians and their ratio.
 """
 
 from __future__ import annotations
@@ -30,6 +42,8 @@ from _common import INPUTS, OUT, ROOT, litevloc, print_table, require_7scenes, w
 
 from litevloc.experiments.split_report import MAIN_COLUMNS, failure_rows, main_row, plot
 from litevloc.experiments.splits import ensure_map, run_split, splits_named
+from litevloc.experiments.splits_latency import gl_latency
+from litevloc.experiments.splits_loop import run_loop_probe
 
 
 def _build(argv: list[str]) -> int:
@@ -46,7 +60,15 @@ def main() -> None:
     ap.add_argument("--set", dest="overrides", action="append", default=[])
     ap.add_argument("--name", default="splits")
     ap.add_argument("--compare", type=Path, help="an earlier run's JSON: its rows are printed beside")
+    ap.add_argument("--loop-probe", action="store_true", help="run the loop probe instead of the splits")
+    ap.add_argument("--gl-latency", action="store_true", help="GL latency, defaults vs --set, instead")
     args = ap.parse_args()
+    if args.gl_latency:
+        latency(args)
+        return
+    if args.loop_probe:
+        loop_probe(args.overrides, args.name if args.name != "splits" else "splits_loop", args.compare)
+        return
     data = require_7scenes()
     results = []
     for split in splits_named(args.splits):
@@ -72,6 +94,36 @@ def main() -> None:
     print(f"plot: {png}")
     write_json(args.name, {"config": args.config, "overrides": args.overrides, "step": args.step,
                            "load_average": os.getloadavg(), "splits": results})
+
+
+def latency(args: argparse.Namespace) -> None:
+    """GL latency of the defaults vs `--set` on the first named split (default: published)."""
+    split = splits_named(args.splits[:1] or ["published"])[0]
+    data = require_7scenes()
+    map_dir = ensure_map(data, split, INPUTS / "splits", args.config, _build)
+    r = gl_latency(split, map_dir, data, args.config, args.overrides, args.step)
+    print_table(f"GL latency, {split.name} every {args.step}th frame ({r['frames']}), models live, load average "
+                f"{r['load_average_1min'][0]:.1f} -> {r['load_average_1min'][1]:.1f}",
+                ["defaults ms", "with --set ms", "median ratio"],
+                [[r["median_ms"]["base"], r["median_ms"]["new"], r["median_ratio"]]])
+    write_json(args.name if args.name != "splits" else "splits_latency", r)
+
+
+def loop_probe(overrides: list[str], name: str, compare: Path | None) -> None:
+    """The loop probe (see the module docstring): per-frame lines, a summary row, JSON."""
+    map_dir = OUT / "loop" / "map"
+    if not (map_dir / "manifest.json").is_file():
+        sys.exit(f"no loop map at {map_dir}: run `python bench/loop.py` first")
+    r = run_loop_probe(map_dir, INPUTS / "loopgl", overrides, ROOT / "out" / "cache" / "loopgl",
+                       on_frame=_progress("loop"))
+    for f in r["frames"]:
+        err = f"{f['error_m']:.2f} m" if f["accepted"] else "-"
+        print(f"  frame {f['frame']:5d}: {err:>8}  {f['reason'][:110]}")
+    cols = ["run", "queries", "accepted", "wrong", "max_error_m", "gl_ms_median"]
+    runs = [("now", r["summary"])] + ([("before", json.loads(compare.read_text())["summary"])] if compare else [])
+    print_table(f"Loop probe, GL from no prior (default {' '.join(overrides)}; wrong: > 0.5 m off)", cols,
+                [[k] + [s[c] for c in cols[1:]] for k, s in runs])
+    write_json(name, {"overrides": overrides, "load_average": os.getloadavg(), **r})
 
 
 def _progress(name: str):  # type: ignore[no-untyped-def]

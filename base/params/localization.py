@@ -217,6 +217,16 @@ class LocalizationParams:
     min_matches: int = 20
     # verification and refinement also use the map's depth at keyframe keypoints (off: it verifies aliased places too)
     verify_map_depth: bool = False
+    # without a fresh prior, GL refuses a pose if a candidate at another pose has >= 1/this of its PnP inliers (0 = off)
+    gl_distinct_ratio: float = 0.0
+    # candidate poses farther apart than this are different places for that test (m)
+    gl_distinct_m: float = 0.3
+    # ... or turned further apart than this (degrees)
+    gl_distinct_deg: float = 10.0
+    # candidates verified after the accepted one for that test at most (those with >= 1/ratio of its re-ranking count)
+    gl_distinct_max_rivals: int = 3
+    # > 0: where that test judges a GL pose, its PnP needs this many inliers instead of pnp.min_inliers
+    gl_distinct_min_inliers: int = 0
     # PnP + RANSAC of live keypoints (with live depth) against a keyframe
     pnp: PnpParams = field(default_factory=PnpParams)
     # validity gates of the live depth at keypoints
@@ -239,6 +249,12 @@ class LocalizationParams:
             raise ValueError("gl_time_budget_ms must be >= 0 (0 = no budget)")
         if self.lost_cost_ratio < 0:
             raise ValueError("lost_cost_ratio must be >= 0 (0 = no bound)")
+        if self.gl_distinct_ratio < 0 or 0 < self.gl_distinct_ratio < 1:
+            raise ValueError("gl_distinct_ratio must be 0 (off) or >= 1")
+        if self.gl_distinct_m <= 0 or not 0 < self.gl_distinct_deg <= 180 or self.gl_distinct_max_rivals < 0:
+            raise ValueError("need gl_distinct_m > 0, gl_distinct_deg in (0, 180] and gl_distinct_max_rivals >= 0")
+        if self.gl_distinct_min_inliers < 0 or 0 < self.gl_distinct_min_inliers < 4:
+            raise ValueError("gl_distinct_min_inliers must be 0 (pnp.min_inliers) or >= 4")
         if self.gl_rerank_depth < 0:
             raise ValueError("gl_rerank_depth must be >= 0")
         if not -1 <= self.gl_rerank_min_similarity <= 1:

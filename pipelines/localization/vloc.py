@@ -46,6 +46,7 @@ from litevloc.base.geometry import backproject_pixels, check_rigid, relative_pos
 from litevloc.base.params.localization import LocalizationParams
 from litevloc.pipelines.depth_lookup import depth_at
 from litevloc.pipelines.guided_matching import mutual_nn_count
+from litevloc.pipelines.localization.distinct import VerifiedPose, ambiguity, strongest_rival
 from litevloc.pipelines.localization.refine import (
     KeyframeObservations,
     RefineResult,
@@ -232,6 +233,7 @@ class _Query:
         self.loc, self.feats, self.depth, self.K, self.timer = loc, feats, depth, K, timer
         self._matches: dict[int, tuple[NDArray[np.int64], NDArray[np.int64]]] = {}
         self._points: NDArray[np.float64] | None = None
+        self.rerank_counts: dict[int, int] = {}  # GL: mutual-nearest-neighbour count per re-ranked node
 
     def matches(self, node: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
         """(live indices, keyframe indices) of the matches with `node`."""
@@ -353,11 +355,13 @@ class VisualLocalizer:
         feats, desc, dimg = self._prepare(color, depth, timer)
         return _Query(self, feats, dimg, K, timer), desc
 
-    def _verify(self, node: int, q: _Query, similarity: float) -> tuple[PnpResult | None, CandidateAttempt]:
+    def _verify(self, node: int, q: _Query, similarity: float,
+                params: LocalizationParams | None = None) -> tuple[PnpResult | None, CandidateAttempt]:
+        """Match and PnP with `node` under `params` (default: the localizer's)."""
         q.matches(node)  # timed as "match" once; relative_pose then reads the cached matches
         res, n_matches, reason = relative_pose(
             q.feats, q.depth, q.K, self.map.features[node], self.map.K[node], lambda a, b: q.matches(node),
-            self.params, q.timer, self.map.keypoint_depth(node),
+            params or self.params, q.timer, self.map.keypoint_depth(node),
         )
         return res, CandidateAttempt(node, similarity, n_matches, res.n_inliers if res else 0, reason)
 
@@ -373,10 +377,14 @@ class VisualLocalizer:
             q.forget(node)
         return self._verify(node, q, similarity)
 
-    def _verify_global(self, node: int, q: _Query, similarity: float) -> tuple[PnpResult | None, CandidateAttempt]:
+    def _verify_global(self, node: int, q: _Query, similarity: float, verified: list[VerifiedPose] | None = None,
+                       params: LocalizationParams | None = None) -> tuple[PnpResult | None, CandidateAttempt]:
         """`_verify`, then the floor check (GL only): a pose resting on one horizontal plane
-        comes back as no result, its attempt carrying the reason."""
-        res, att = self._verify(node, q, similarity)
+        comes back as no result, its attempt carrying the reason. Any PnP pose, accepted or
+        not, floor or not, is appended to `verified` (evidence for the distinctiveness test)."""
+        res, att = self._verify(node, q, similarity, params)
+        if verified is not None and res is not None and res.T_target_source is not None:
+            verified.append(VerifiedPose(node, self.map.T_map_camera[node] @ res.T_target_source, res.n_inliers))
         flat = "" if res is None or not res.accepted else self._flat_support(node, res, q)
         return (None, replace(att, reason=flat)) if flat else (res, att)
 
@@ -557,6 +565,9 @@ class VisualLocalizer:
         stop = f"all {len(order)} VPR candidates tried"
         provisional: ProvisionalPose | None = None
         growth = self._prior_growth_m(prior_age_s, fused=True)
+        evidence: list[VerifiedPose] = []  # every candidate's PnP pose, for the distinctiveness test
+        trusted = prior is not None and self._fresh(growth)
+        gl_params = self._gl_params(trusted)
         if self.params.refine.enabled:
             # Bounded cost: candidates in VPR order, each verified and jointly refined at once;
             # the first that passes the joint check wins; the time budget stops the search.
@@ -572,7 +583,7 @@ class VisualLocalizer:
                             f"{ahead:.0f} ms per candidate, after {k} of {len(order)} candidates")
                     break
                 t_cand = self.clock()
-                res, att = self._verify_global(node, q, float(sims[node]))
+                res, att = self._verify_global(node, q, float(sims[node]), evidence, gl_params)
                 if res is None or not res.accepted or res.T_target_source is None:
                     attempts.append(att)
                     candidates_ms += (self.clock() - t_cand) * 1e3
@@ -585,6 +596,11 @@ class VisualLocalizer:
                     attempts.append(att)
                     best = (node, res, joint)
                     stop = f"candidate {k + 1} of {len(order)} passed the joint check"
+                    amb = "" if trusted else self._ambiguity(node, res, joint.T_map_camera, q, order[k + 1:],
+                                                             sims, evidence)
+                    if amb:
+                        best, provisional, reason = None, None, f"not localized: {amb}"
+                        stop = f"{stop}; {amb}"
                     break
                 single = self._single_keyframe(node, joint)
                 if single is not None and prior is not None and self._fresh(growth) and self._within_gate(
@@ -650,8 +666,38 @@ class VisualLocalizer:
         live = np.asarray(q.feats.descriptors)
         counts = [mutual_nn_count(live, self.map.features[int(n)].descriptors, self.params.gl_rerank_min_similarity)
                   for n in order]
+        q.rerank_counts = {int(n): int(c) for n, c in zip(order, counts, strict=True)}
         q.timer.add("rerank", t0)
         return order[np.argsort(-np.asarray(counts), kind="stable")]
+
+    def _gl_params(self, trusted_prior: bool) -> LocalizationParams:
+        """The parameters GL verifies its candidates with: PnP's inlier floor lowered to
+        `gl_distinct_min_inliers` where the distinctiveness test will judge the pose (on, and
+        no trusted prior), else the localizer's own."""
+        p = self.params
+        if p.gl_distinct_ratio <= 0 or p.gl_distinct_min_inliers <= 0 or trusted_prior:
+            return p
+        return replace(p, pnp=replace(p.pnp, min_inliers=p.gl_distinct_min_inliers))
+
+    def _ambiguity(self, winner: int, res: PnpResult, T_winner: NDArray[np.float64], q: _Query,
+                   later: NDArray[np.int64], sims: NDArray[np.float32], verified: list[VerifiedPose]) -> str:
+        """The distinctiveness test of a GL pose `T_winner` (4x4) verified through `winner`
+        (`res` its PnP) without a trusted prior: up to `gl_distinct_max_rivals` of the `later`
+        candidates whose re-ranking count is at least 1/`gl_distinct_ratio` of the winner's are
+        verified too (appended to `verified`, the candidates verified so far); the refusal
+        reason when one at another place has at least 1/ratio of its inliers, else ''."""
+        p = self.params
+        if p.gl_distinct_ratio <= 0:
+            return ""
+        t0 = self.clock()
+        need = q.rerank_counts.get(winner, 0) / p.gl_distinct_ratio
+        more = [int(n) for n in later if q.rerank_counts.get(int(n), need) >= need][: p.gl_distinct_max_rivals]
+        for node in more:
+            self._verify_global(node, q, float(sims[node]), verified)
+        rival = strongest_rival(T_winner, [v for v in verified if v.node != winner], p.gl_distinct_m,
+                                p.gl_distinct_deg)
+        q.timer.add("distinct", t0)
+        return ambiguity(winner, res.n_inliers, rival, p.gl_distinct_ratio)
 
     def gl_budget_ms(self, nominal_ll_ms: float = float("inf")) -> float:
         """The wall-time bound (ms) on a GL query while recovering: `lost_cost_ratio` x the cost
