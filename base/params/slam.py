@@ -127,9 +127,9 @@ class SlamGraphParams:
     # the same in rotation (degrees)
     gate_floor_deg: float = 2.0
     # the chain's drift allowed per metre of chain path between the compared keyframes (fraction of the path)
-    chain_drift_m_per_m: float = 0.05
+    chain_drift_m_per_m: float = 0.1
     # the chain's rotation drift allowed per metre of chain path between the compared keyframes (degrees per metre)
-    chain_drift_deg_per_m: float = 0.1
+    chain_drift_deg_per_m: float = 0.2
     # both bounds also grow by this many of the chain's own sigmas over the stretch (its edges' noise as a random walk)
     gate_sigmas: float = 3.0
 
