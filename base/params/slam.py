@@ -124,7 +124,7 @@ class SlamGraphParams:
     gate_loops: bool = True
     # a loop agrees with the chain (two loops with each other) within this plus the drift terms (metres)
     gate_floor_m: float = 0.1
-    # the same in rotation (degrees)
+    # a loop agrees with the chain (two loops with each other) within this plus the drift terms, in rotation (degrees)
     gate_floor_deg: float = 2.0
     # the chain's drift allowed per metre of chain path between the compared keyframes (fraction of the path)
     chain_drift_m_per_m: float = 0.1
