@@ -166,29 +166,38 @@ def consistency_matrix(loops: Sequence[Edge], path: ChainPath, params: SlamGraph
 
 
 def max_clique(adjacency: NDArray[np.bool_]) -> list[int]:
-    """A large clique of a symmetric boolean graph (diagonal True), greedily: from each vertex
-    (most neighbours first) add the candidate with the most neighbours among the remaining
-    candidates; vertices too poorly connected to beat the best clique found are not tried.
-    Returns the clique's vertex indices, sorted."""
-    n = len(adjacency)
+    """A large clique of a symmetric boolean graph (diagonal True), greedily: from a start
+    vertex (most neighbours first) add the candidate with the most neighbours among the
+    remaining candidates (counts kept up to date as candidates drop out: O(n^2) per start).
+    Vertices too poorly connected to beat the best clique found, and members of it (a start
+    there grows the same clique again), are not tried as starts. Returns the clique's vertex
+    indices, sorted."""
     C = np.asarray(adjacency, bool)
     degree = C.sum(axis=1)
     best: list[int] = []
+    in_best = np.zeros(len(C), bool)
     for v in np.argsort(-degree, kind="stable"):
         if degree[v] <= len(best):
             break
+        if in_best[v]:
+            continue
         clique = [int(v)]
         cand = C[v].copy()
         cand[v] = False
+        score = C[:, cand].sum(axis=1)  # each vertex's neighbours among the candidates
         while cand.any():
-            idx = np.nonzero(cand)[0]
-            u = int(idx[np.argmax(C[np.ix_(idx, idx)].sum(axis=1))])
+            idx = np.flatnonzero(cand)
+            u = int(idx[np.argmax(score[idx])])
             clique.append(u)
-            cand &= C[u]
-            cand[u] = False
+            gone = cand & ~C[u]
+            gone[u] = True
+            cand &= ~gone
+            score -= C[:, gone].sum(axis=1)
         if len(clique) > len(best):
             best = clique
-    return sorted(best) if n else []
+            in_best[:] = False
+            in_best[best] = True
+    return sorted(best)
 
 
 def gate_loops(loops: Sequence[Edge], path: ChainPath, params: SlamGraphParams) -> list[str]:
