@@ -64,6 +64,8 @@ class SlamVisualParams:
     guided_radius_px: float = 20.0
     # cosine similarity a guided match needs
     guided_min_similarity: float = 0.6
+    # with an odometry prediction, a visual edge uses guided matches only (no matcher: it aliases repeated textures)
+    guided_only: bool = True
     # edges into a keyframe agree within this many sigmas; the largest agreeing set is kept (dropped odometry: a fault)
     max_disagreement_sigma: float = 8.0
     # without odometry, every Nth camera frame is tracked against the last keyframe (1 = every frame)
@@ -118,10 +120,26 @@ class SlamGraphParams:
     inlier_probability: float = 0.99
     # a loop factor whose final GNC weight is above this counts as kept (else rejected by the optimiser)
     kept_weight: float = 0.5
+    # gate loops before GNC: against the chain, then the largest pairwise consistent set (PCM; False: GNC alone)
+    gate_loops: bool = True
+    # a loop agrees with the chain (two loops with each other) within this plus the drift terms (metres)
+    gate_floor_m: float = 0.1
+    # a loop agrees with the chain (two loops with each other) within this plus the drift terms, in rotation (degrees)
+    gate_floor_deg: float = 2.0
+    # the chain's drift allowed per metre of chain path between the compared keyframes (fraction of the path)
+    chain_drift_m_per_m: float = 0.1
+    # the chain's rotation drift allowed per metre of chain path between the compared keyframes (degrees per metre)
+    chain_drift_deg_per_m: float = 0.2
+    # both bounds also grow by this many of the chain's own sigmas over the stretch (its edges' noise as a random walk)
+    gate_sigmas: float = 3.0
 
     def __post_init__(self) -> None:
         if not (0 < self.inlier_probability < 1) or not (0 < self.kept_weight < 1):
             raise ValueError("slam.graph.inlier_probability and kept_weight must be in (0, 1)")
+        for name in ("gate_floor_m", "gate_floor_deg", "chain_drift_m_per_m", "chain_drift_deg_per_m", "gate_sigmas"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0):
+                raise ValueError(f"slam.graph.{name} must be a finite number >= 0, got {v}")
 
 
 @dataclass(frozen=True)

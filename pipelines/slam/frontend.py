@@ -12,7 +12,9 @@
   odometry or tracking predicts the motion, matches come from projecting the keyframe's points
   with that prediction (mutual nearest neighbours over all keypoints, within a radius: ~1 ms,
   and repeated textures cannot pair with the wrong repetition); the cheap matcher runs only
-  where too few are found. Of these edges the largest set whose estimates of the new
+  where too few are found and no odometry predicts the motion (`visual.guided_only`: the
+  matcher pairs a repeating texture with the wrong repetition, and the edge then outvotes the
+  odometry). Of these edges the largest set whose estimates of the new
   keyframe's pose agree (within `visual.max_disagreement_sigma` of their noise) is kept, with
   the odometry first in line; a dropped odometry edge is recorded as a `Fault`.
 
@@ -142,11 +144,12 @@ class FrontEnd:
         return feats, pts
 
     def _relative(self, points: F64, feats: NodeFeatures, target: Keyframe,
-                  prior: F64 | None = None) -> Relative | None:
+                  prior: F64 | None = None, guided_only: bool = False) -> Relative | None:
         """Pose of a frame relative to `target` (T_target_frame, see `Relative`) from its lifted
-        points: matches (by projection with a predicted `prior`, else the cheap matcher), PnP into
-        the target's image, then the joint refinement with both images' depth (3D residuals pin
-        the motion along the optical axis that reprojections leave loose). None when a gate fails."""
+        points: matches (by projection with a predicted `prior`, else the cheap matcher; never the
+        matcher when `guided_only`), PnP into the target's image, then the joint refinement with
+        both images' depth (3D residuals pin the motion along the optical axis that reprojections
+        leave loose). None when a gate fails."""
         vp = self.params.visual
         i_s = i_t = np.zeros(0, np.int64)
         if prior is not None:
@@ -154,6 +157,8 @@ class FrontEnd:
                                            target.features.descriptors, target.K, np.eye(4), vp.guided_radius_px,
                                            vp.guided_min_similarity, True)
         if len(i_s) < vp.pnp.min_inliers:
+            if prior is not None and guided_only:
+                return None
             i_s, i_t = self.models.match_vo(feats, target.features)
         pts = points[i_s]
         ok = np.all(np.isfinite(pts), axis=1)
@@ -200,11 +205,12 @@ class FrontEnd:
             T, cov = odometry_edge(prev.odom[1], kf.odom[1], self.T_base_camera, self.params.odometry)
             odo = Edge(prev.id, kf.id, T, cov, "odometry")
         predicted = odo.T_a_b if odo is not None else (None if tracked is None else tracked.T)
+        vp = self.params.visual
         visual: list[Edge] = []
         for other in reversed(self.keyframes[-self.params.visual.neighbours:]):
             prior = None if predicted is None else invert(other.T_init) @ prev.T_init @ predicted
             res = tracked if (other is prev and tracked is not None) else \
-                self._relative(kf.points, kf.features, other, prior)
+                self._relative(kf.points, kf.features, other, prior, odo is not None and vp.guided_only)
             if res is None:
                 self.counts["visual_edge_failures"] += 1
                 continue

@@ -6,6 +6,11 @@ robust factors under GTSAM's graduated non-convexity (GNC, truncated least squar
 Levenberg-Marquardt: a loop that the rest of the graph contradicts ends with weight ~0
 instead of bending the map, and the result names each loop's final weight.
 
+Before GNC, loops are gated against the chain and against each other
+(`pipelines.slam.consistency`, `graph.gate_loops`): a loop that a repeating texture shifted
+by one repetition is rejected there, with its reason (`GraphResult.loop_gate`), and GNC runs
+over the loops left, from the least-squares solution with them.
+
 Chains (keyframes joined by odometry or visual edges) other than the first keyframe's enter
 only through loops: each such chain gets a weak prior on its first keyframe so the problem
 stays well posed if the optimiser rejects every loop to it, and a chain whose loops to the
@@ -25,6 +30,7 @@ from numpy.typing import NDArray
 
 from litevloc.base.geometry import invert
 from litevloc.base.params.slam import SlamGraphParams
+from litevloc.pipelines.slam.consistency import chain_path, gate_loops
 from litevloc.pipelines.slam.types import F64, Edge
 
 
@@ -47,12 +53,14 @@ _WEAK_PRIOR_SIGMA = 1e3  # metres and radians: a placeholder prior that any real
 @dataclass
 class GraphResult:
     """Optimised poses of the keyframes in the map (id -> 4x4 T_map_camera), the final GNC
-    weight of every loop edge given (same order; 1.0 when no robust solve ran), and the ids of
-    keyframes left out (their chain is not joined to the map by a kept loop)."""
+    weight of every loop edge given (same order; 1.0 when no robust solve ran, 0.0 when the
+    gate rejected it), the ids of keyframes left out (their chain is not joined to the map by a
+    kept loop), and per loop why the gate rejected it ("" = passed; `pipelines.slam.consistency`)."""
 
     poses: dict[int, F64]
     loop_weights: list[float]
     dropped: list[int] = field(default_factory=list)
+    loop_gate: list[str] = field(default_factory=list)
 
 
 def _key(i: int) -> int:
@@ -139,11 +147,51 @@ def _gnc_weights(graph: gtsam.NonlinearFactorGraph, init: gtsam.Values, robust: 
     return np.asarray(opt.getWeights(), np.float64)
 
 
+def chain_solution(keyframes: Sequence[GraphNode], edges: list[Edge]) -> dict[int, F64]:
+    """Least-squares poses (id -> 4x4) of every keyframe from the odometry and visual edges
+    alone, each chain in its own frame (its first keyframe held at its initial estimate)."""
+    init = gtsam.Values()
+    graph = gtsam.NonlinearFactorGraph()
+    first: set[int] = set()
+    for kf in keyframes:
+        init.insert(_key(kf.id), _pose3(kf.T_init))
+        if kf.chain not in first:
+            first.add(kf.chain)
+            graph.add(gtsam.PriorFactorPose3(_key(kf.id), _pose3(kf.T_init), gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)))
+    for e in edges:
+        if e.kind != "loop":
+            graph.add(_between(e))
+    values = gtsam.LevenbergMarquardtOptimizer(graph, init).optimize()
+    return {kf.id: np.asarray(values.atPose3(_key(kf.id)).matrix(), np.float64) for kf in keyframes}
+
+
+def _gate(keyframes: Sequence[GraphNode], edges: list[Edge], loops: list[Edge], params: SlamGraphParams) -> list[str]:
+    if not params.gate_loops or not loops:
+        return [""] * len(loops)
+    path = chain_path([(kf.id, kf.chain) for kf in keyframes], chain_solution(keyframes, edges), edges)
+    return gate_loops(loops, path, params)
+
+
 def optimise(keyframes: Sequence[GraphNode], edges: list[Edge], T_map_first: F64,
              params: SlamGraphParams) -> GraphResult:
     """Optimise the keyframe poses (see the module docstring). `edges` of all kinds; loop
     weights come back in the order of the loop edges in `edges`. The poses are the
     least-squares solution over the odometry and visual edges and the loops GNC kept."""
+    all_loops = [e for e in edges if e.kind == "loop"]
+    gate = _gate(keyframes, edges, all_loops, params)
+    passed = [e for e, g in zip(all_loops, gate, strict=True) if not g]
+    res = _optimise(keyframes, [e for e in edges if e.kind != "loop"] + passed, T_map_first, params,
+                    warm=params.gate_loops)
+    it = iter(res.loop_weights)
+    res.loop_weights = [0.0 if g else next(it) for g in gate]
+    res.loop_gate = gate
+    return res
+
+
+def _optimise(keyframes: Sequence[GraphNode], edges: list[Edge], T_map_first: F64,
+              params: SlamGraphParams, warm: bool) -> GraphResult:
+    """GNC over the loops in `edges`, then least squares over the kept ones; `warm`: GNC starts
+    from the least-squares solution with every loop (loops already found consistent)."""
     loops = [e for e in edges if e.kind == "loop"]
     chains, align = _chain_order(keyframes, loops)
     in_map = {kf.id for kf in keyframes if kf.chain in align}
@@ -161,7 +209,8 @@ def optimise(keyframes: Sequence[GraphNode], edges: list[Edge], T_map_first: F64
         if usable:
             graph.add(_between(e))
     robust = [r for r in loop_rows if r is not None]
-    weights = _gnc_weights(graph, init, robust, params) if robust else np.ones(graph.size())
+    start = gtsam.LevenbergMarquardtOptimizer(graph, init).optimize() if (warm and robust) else init
+    weights = _gnc_weights(graph, start, robust, params) if robust else np.ones(graph.size())
     loop_weights = [float(weights[r]) if r is not None else 0.0 for r in loop_rows]
     final = _priors(keyframes, chains, init, T0)
     final.push_back(kept)

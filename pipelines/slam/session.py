@@ -170,9 +170,15 @@ class SlamSession:
         c = self.front.counts
         loops = res.loops
         kept = [w > self.params.graph.kept_weight for w in res.graph.loop_weights]
+        gate = res.graph.loop_gate or [""] * len(loops)
         rejected = [{"from_keyframe": e.a, "to_keyframe": e.b, "from_frame": res.keyframes[e.a].index,
-                     "to_frame": res.keyframes[e.b].index, "weight": round(w, 3), "inliers": e.inliers}
-                    for e, w, k in zip(loops, res.graph.loop_weights, kept, strict=True) if not k]
+                     "to_frame": res.keyframes[e.b].index, "weight": round(w, 3), "inliers": e.inliers,
+                     "by": g or "optimiser"}
+                    for e, w, k, g in zip(loops, res.graph.loop_weights, kept, gate, strict=True) if not k]
+        by_gate: dict[str, int] = {}
+        for g in gate:
+            if g:
+                by_gate[g] = by_gate.get(g, 0) + 1
         reasons: dict[str, int] = {}
         for a in self.attempts:
             if not a.accepted:
@@ -195,7 +201,8 @@ class SlamSession:
                       "visual_failed": c["visual_edge_failures"]},
             "loops": {"candidates": self.loop_counts.candidates, "tried": self.loop_counts.tried,
                       "verified": self.loop_counts.verified, "kept": int(sum(kept)),
-                      "rejected_by_optimiser": len(rejected), "rejected": rejected,
+                      "rejected_by_gate": by_gate, "rejected_by_optimiser": len(rejected) - sum(by_gate.values()),
+                      "rejected": rejected,
                       "verification_failures": dict(sorted(reasons.items(), key=lambda kv: -kv[1]))},
             "odometry": {"samples": self.track.samples, "segments": self.track.segments,
                          "out_of_order": self.track.out_of_order},

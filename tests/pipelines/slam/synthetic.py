@@ -178,9 +178,14 @@ def run_session(scene: Scene, cfg: Any = None, odometry: bool = True,
 
 def keyframe_ate(scene: Scene, res: SlamResult) -> float:
     """RMSE (m) of the mapped keyframes' positions against the truth after SE(3) alignment."""
+    return keyframe_ate_of(scene, res, res.graph.poses)
+
+
+def keyframe_ate_of(scene: Scene, res: SlamResult, poses: dict[int, F64]) -> float:
+    """The same for keyframe `poses` (id -> T_map_camera) of `res`'s keyframes."""
     from litevloc.pipelines.evaluation.trajectory import ate
 
-    ids = sorted(res.graph.poses)
-    est = np.stack([res.graph.poses[i] for i in ids])
+    ids = sorted(poses)
+    est = np.stack([poses[i] for i in ids])
     ref = np.stack([scene.T_world_camera(res.keyframes[i].index) for i in ids])
     return float(ate(est, ref).rmse)

@@ -10,7 +10,7 @@ from litevloc.base.geometry import invert, make_T
 from litevloc.config import load_config
 from litevloc.pipelines.slam.graph import optimise
 from litevloc.pipelines.slam.types import Edge
-from tests.pipelines.slam.synthetic import Scene, keyframe_ate, make_scene, run_session
+from tests.pipelines.slam.synthetic import Scene, keyframe_ate, keyframe_ate_of, make_scene, run_session
 
 
 @pytest.fixture(scope="module")
@@ -139,3 +139,44 @@ def test_camera_only_is_visual_odometry(scene: Scene) -> None:
     assert any("no odometry" in w for w in rep["warnings"])
     assert "camera mount" in rep["up"]
     assert keyframe_ate(scene, res) < 0.005
+
+
+def _shifted_loops(scene: Scene, res, pairs: list[tuple[int, int]], shift_m: float) -> list[Edge]:  # type: ignore[no-untyped-def]
+    """Loops as a repeating corridor verifies them: keyframe b seen as if `shift_m` (world x)
+    from where it is, the same shift for all (consistent among themselves, not with the chain)."""
+    G = {i: scene.T_world_camera(res.keyframes[i].index) for i in range(len(res.keyframes))}
+    S = make_T(np.eye(3), np.array([shift_m, 0.0, 0.0]))
+    cov = res.loops[0].covariance
+    return [Edge(a, b, invert(G[a]) @ S @ G[b], cov, "loop") for a, b in pairs]
+
+
+def test_a_repetition_the_chain_contradicts_is_rejected(scene: Scene, base) -> None:  # type: ignore[no-untyped-def]
+    # twice as many loops shifted by 1 m as true ones, between keyframes 8-12 apart: the chain
+    # (a few metres, mm-accurate) says they are 1 m off, so the gate rejects them all
+    _, res = base
+    cfg = load_config("default")
+    n = len(res.loops)
+    pairs = [(a, a + d) for a in range(len(res.keyframes)) for d in (8, 10, 12) if a + d < len(res.keyframes)]
+    wrong = _shifted_loops(scene, res, pairs[: 2 * n], 1.0)
+    assert len(wrong) == 2 * n
+    g = optimise(res.keyframes, res.edges + wrong, res.T_map_first, cfg.slam.graph)
+    assert g.loop_gate[:n] == [""] * n and all(w > 0.5 for w in g.loop_weights[:n])
+    assert g.loop_gate[n:] == ["chain gate"] * len(wrong) and all(w == 0.0 for w in g.loop_weights[n:])
+    assert keyframe_ate_of(scene, res, g.poses) < 0.005
+    # kept, these loops would bend the map (plain least squares over all of them)
+    plain = optimise(res.keyframes, [e if e.kind != "loop" else Edge(e.a, e.b, e.T_a_b, e.covariance, "visual")
+                                     for e in res.edges + wrong], res.T_map_first, cfg.slam.graph)
+    assert keyframe_ate_of(scene, res, plain.poses) > 0.05
+
+
+def test_a_repetition_at_the_revisit_loses_to_the_true_loops(scene: Scene, base) -> None:  # type: ignore[no-untyped-def]
+    # loops shifted by 0.4 m where the lap closes: within the chain's drift over the lap, so the
+    # chain gate lets them by, but they do not close cycles with the true loops (PCM)
+    _, res = base
+    cfg = load_config("default")
+    n = len(res.loops)
+    wrong = _shifted_loops(scene, res, [(e.a, e.b) for e in res.loops[: n // 2]], 0.4)
+    g = optimise(res.keyframes, res.edges + wrong, res.T_map_first, cfg.slam.graph)
+    assert g.loop_gate[:n] == [""] * n
+    assert g.loop_gate[n:] == ["pairwise consistency"] * len(wrong)
+    assert keyframe_ate_of(scene, res, g.poses) < 0.005
