@@ -378,7 +378,9 @@ def print_slam_report(rep: dict[str, Any]) -> None:
     print(f"SLAM: {rep['keyframes']} keyframes ({rep['keyframes_in_map']} in the map), odometry: "
           f"{rep['odometry_source']}; up: {rep['up']}")
     print(f"  loops: {lp['candidates']} candidates, {lp['tried']} tried, {lp['verified']} verified, {lp['kept']} kept, "
-          f"{lp['rejected_by_optimiser']} rejected by the optimiser")
+          f"{sum(lp['rejected_by_gate'].values())} rejected by the consistency gate "
+          f"({', '.join(f'{k} {v}' for k, v in lp['rejected_by_gate'].items()) or 'none'}), "
+          f"{lp['rejected_by_optimiser']} by the optimiser")
     print(f"  time: front end {sec['front_end']:.1f} s, loop search {sec['loop_search']:.1f} s, optimisation "
           f"{sec['optimisation']:.1f} s, map (graphs + write) {sec['map_write']:.1f} s")
     for f in rep["faults"]:
