@@ -138,12 +138,11 @@ class ModelCache:
 def ensure_map(path: Path, data: Path, overrides: list[str]) -> None:
     if (path / "manifest.json").is_file():
         return
-    from litevloc.runtime.cli.main import main as cli
+    from litevloc.runtime.map_building import MapBuildRequest, build_map
 
     print(f"building the map {path} (frames 0-499, --config 7scenes {' '.join(overrides)}) ...")
-    sets = [a for o in overrides for a in ("--set", o)]
-    if cli(["map", "build", str(data), "--frames", "0:500", "-o", str(path), "--config", "7scenes", *sets]) != 0:
-        raise SystemExit(f"map build failed for {path}")
+    build_map(MapBuildRequest(src=data, output=path, frames="0:500", config="7scenes"),
+              load_config("7scenes", overrides))
 
 
 def map_of(name: str, args: argparse.Namespace) -> tuple[Path, list[str]]:

@@ -30,8 +30,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import OUT, print_table, write_json
 
 from litevloc.config import load_config
-from litevloc.runtime.cli.sim_navigate import ensure_map, navigate
 from litevloc.runtime.sim_navigation import NavParams
+from litevloc.runtime.world_navigation import ensure_map, navigate
 
 
 def keyframes_of(map_dir: Path) -> int:

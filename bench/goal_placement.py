@@ -49,7 +49,7 @@ OUTCOMES = ("right", "wrong", "refused")
 def world_map(world: str, config: str, maps_dir: Path | None = None, map_set: tuple[str, ...] = ()) -> Path:
     """The cached map `sim navigate` (or `bench/loop.py`) uses for the world; built when absent.
     With `maps_dir`: the map under maps_dir/WORLD, built there with the `map_set` overrides."""
-    from litevloc.runtime.cli.sim_navigate import ensure_map
+    from litevloc.runtime.world_navigation import ensure_map
 
     if maps_dir is not None:
         return ensure_map(world, maps_dir / world, config, map_pass="loop" if world == "loop" else "map",

@@ -54,14 +54,13 @@ def _rmse(err: np.ndarray) -> float:
 
 
 def build_map(out: Path, config: str) -> dict[str, Any]:
-    from litevloc.runtime.cli.main import main
+    from litevloc.config import load_config
+    from litevloc.runtime import map_building, outputs
 
     js = out / "map.json"
     t0 = time.perf_counter()
-    rc = main(["map", "build", "sim:loop?pass=loop&seed=0", "-o", str(out / "map"), "--force",
-               "--config", config, "--json", str(js)])
-    if rc != 0:
-        raise SystemExit(f"map build failed ({rc})")
+    req = map_building.MapBuildRequest(src="sim:loop?pass=loop&seed=0", output=out / "map", force=True, config=config)
+    outputs.write_json(js, map_building.build_map(req, load_config(config)))
     info = json.loads(js.read_text())
     info["wall_s"] = time.perf_counter() - t0
     return info

@@ -148,27 +148,13 @@ def bench_map_feed(world_name: str, sim_seconds: float) -> dict[str, float]:
 
 
 def bench_record(seconds: float) -> dict[str, float]:
-    from litevloc.runtime.cli.main import main
+    from litevloc.config import load_config
+    from litevloc.runtime.sim_recording import record_pass
 
     with tempfile.TemporaryDirectory() as d:
-        js = Path(d) / "r.json"
         t0 = time.perf_counter()
-        rc = main(
-            [
-                "sim",
-                "record",
-                "office",
-                "-o",
-                str(Path(d) / "r.mcap"),
-                "--duration",
-                str(seconds),
-                "--json",
-                str(js),
-            ]
-        )
+        info = record_pass(load_world("office"), "map", 0, seconds, load_config(None).sim, Path(d) / "r.mcap")
         wall = time.perf_counter() - t0
-        info = json.loads(js.read_text())
-    assert rc == 0
     return {
         "simulated_s": info["simulated_seconds"],
         "frames": info["frames"],

@@ -13,13 +13,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from litevloc.runtime.cli.common import (
-    add_config_args,
-    add_json_arg,
-    config_of,
-    progress,
-    write_json,
-)
+from litevloc.runtime.cli.common import add_config_args, add_json_arg, config_of
+from litevloc.runtime.outputs import progress, write_json
 
 DEFAULT_SRC = Path("..") / "shared" / "data" / "7scenes-redkitchen"
 

@@ -6,16 +6,9 @@ import argparse
 from pathlib import Path
 
 from litevloc.pipelines.topomap.io import load_map
-from litevloc.runtime.cli.common import (
-    add_config_args,
-    add_frames_arg,
-    add_json_arg,
-    config_of,
-    progress,
-    source_of,
-    write_json,
-)
+from litevloc.runtime.cli.common import add_config_args, add_frames_arg, add_json_arg, config_of, source_of
 from litevloc.runtime.cli.main import UserError
+from litevloc.runtime.outputs import progress, write_json
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -18,16 +18,9 @@ import yaml
 
 from litevloc.base.params.calibration import ColorDepthCalibration
 from litevloc.pipelines.calibration import calibrate_color_depth
-from litevloc.runtime.cli.common import (
-    add_config_args,
-    add_frames_arg,
-    add_json_arg,
-    config_of,
-    frames_of,
-    progress,
-    write_json,
-)
+from litevloc.runtime.cli.common import add_config_args, add_frames_arg, add_json_arg, config_of, frames_of
 from litevloc.runtime.cli.main import UserError
+from litevloc.runtime.outputs import progress, write_json
 from litevloc.runtime.posed import posed_frames
 from litevloc.runtime.sources import open_source
 

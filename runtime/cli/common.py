@@ -1,14 +1,9 @@
-"""Helpers shared by subcommands: the common flags, JSON summaries, progress bars."""
+"""Helpers shared by subcommands: the common flags, the configuration and the input they name."""
 
 from __future__ import annotations
 
 import argparse
-import json
-import sys
 from pathlib import Path
-from typing import Any
-
-from tqdm import tqdm
 
 from litevloc.base.frames import parse_frames
 from litevloc.config import load_config
@@ -49,28 +44,3 @@ def source_of(args: argparse.Namespace, cfg: LiteVLocConfig) -> StreamSource:
     from litevloc.runtime.sources import open_source
 
     return open_source(args.src, frames_of(args), strict=True, rgbd_calibration=cfg.rgbd_calibration)
-
-
-def write_json(path: Path | None, data: dict[str, Any]) -> None:
-    if path is None:
-        return
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(data, indent=2, sort_keys=True, default=_jsonable) + "\n")
-
-
-def _jsonable(o: Any) -> Any:
-    import numpy as np
-
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
-
-
-def progress(total: int | None, desc: str, unit: str = "frame") -> tqdm:
-    """A progress bar on stderr (quiet when stderr is not a terminal, except in CI logs)."""
-    return tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, dynamic_ncols=True, mininterval=0.5,
-                disable=None)

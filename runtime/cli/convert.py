@@ -7,16 +7,9 @@ import time
 from pathlib import Path
 
 from litevloc.hw.streams.mcap_io import record_messages
-from litevloc.runtime.cli.common import (
-    add_config_args,
-    add_frames_arg,
-    add_json_arg,
-    config_of,
-    progress,
-    source_of,
-    write_json,
-)
+from litevloc.runtime.cli.common import add_config_args, add_frames_arg, add_json_arg, config_of, source_of
 from litevloc.runtime.cli.main import UserError
+from litevloc.runtime.outputs import progress, write_json
 from litevloc.runtime.sources import with_simulated_odometry
 
 

@@ -19,8 +19,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-from litevloc.runtime.cli.common import add_json_arg, write_json
+from litevloc.runtime.cli.common import add_json_arg
 from litevloc.runtime.cli.main import UserError
+from litevloc.runtime.outputs import write_json
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -8,7 +8,8 @@ import platform
 from pathlib import Path
 
 from litevloc.config import preset_names
-from litevloc.runtime.cli.common import add_json_arg, write_json
+from litevloc.runtime.cli.common import add_json_arg
+from litevloc.runtime.outputs import write_json
 
 _PACKAGES = ("numpy", "opencv-python-headless", "onnxruntime", "gtsam", "eclipse-zenoh", "pyyaml", "depthai",
              "mcap", "rosbags")

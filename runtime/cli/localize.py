@@ -15,15 +15,8 @@ import numpy as np
 from litevloc.base.geometry import relative_pose_error
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map
-from litevloc.runtime.cli.common import (
-    add_config_args,
-    add_frames_arg,
-    add_json_arg,
-    config_of,
-    progress,
-    source_of,
-    write_json,
-)
+from litevloc.runtime.cli.common import add_config_args, add_frames_arg, add_json_arg, config_of, source_of
+from litevloc.runtime.outputs import progress, write_json
 from litevloc.runtime.posed import posed_frames
 
 

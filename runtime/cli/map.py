@@ -7,8 +7,10 @@ from pathlib import Path
 
 from litevloc.pipelines.topomap.io import load_map, storage_summary
 from litevloc.pipelines.topomap.plot import plot_map
-from litevloc.runtime.cli.common import add_config_args, add_frames_arg, add_json_arg, config_of, write_json
-from litevloc.runtime.cli.map_build import add_pose_args, build, print_openings, print_storage
+from litevloc.runtime.cli.common import add_config_args, add_frames_arg, add_json_arg, config_of
+from litevloc.runtime.cli.map_build import add_pose_args, build
+from litevloc.runtime.map_building import print_openings, print_storage
+from litevloc.runtime.outputs import write_json
 
 
 def register(sub: argparse._SubParsersAction) -> None:

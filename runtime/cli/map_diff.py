@@ -8,8 +8,9 @@ from pathlib import Path
 from litevloc.pipelines.topomap.diff import MapDiffError, diff_maps
 from litevloc.pipelines.topomap.io import load_map
 from litevloc.pipelines.topomap.plot import plot_diff
-from litevloc.runtime.cli.common import add_config_args, add_json_arg, config_of, write_json
+from litevloc.runtime.cli.common import add_config_args, add_json_arg, config_of
 from litevloc.runtime.cli.main import UserError
+from litevloc.runtime.outputs import write_json
 
 
 def add_diff_parser(msub: argparse._SubParsersAction) -> None:

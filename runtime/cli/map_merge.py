@@ -17,8 +17,9 @@ import numpy as np
 from litevloc.base.geometry import rotation_angle
 from litevloc.pipelines.topomap.io import load_map, save_map, storage_summary
 from litevloc.pipelines.topomap.merge import MapMergeError, merge_sessions
-from litevloc.runtime.cli.common import add_config_args, add_json_arg, config_of, progress, write_json
+from litevloc.runtime.cli.common import add_config_args, add_json_arg, config_of
 from litevloc.runtime.cli.main import UserError
+from litevloc.runtime.outputs import progress, write_json
 
 
 def add_merge_parser(msub: argparse._SubParsersAction) -> None:

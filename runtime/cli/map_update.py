@@ -21,16 +21,9 @@ from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map, save_map
 from litevloc.pipelines.topomap.merge import MapMergeError
 from litevloc.pipelines.topomap.session import OncePerImage, SessionFrame, update_from_session
-from litevloc.runtime.cli.common import (
-    add_config_args,
-    add_frames_arg,
-    add_json_arg,
-    config_of,
-    progress,
-    source_of,
-    write_json,
-)
+from litevloc.runtime.cli.common import add_config_args, add_frames_arg, add_json_arg, config_of, source_of
 from litevloc.runtime.cli.main import UserError
+from litevloc.runtime.outputs import progress, write_json
 from litevloc.runtime.posed import posed_frames
 
 

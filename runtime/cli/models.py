@@ -15,7 +15,8 @@ from typing import Any
 from litevloc.base.params.models import ModelsConfig
 from litevloc.models.catalog import DEFAULT_EXPORTS, EXTRA_EXPORTS, aliked_id, spec_for, vpr_id
 from litevloc.models.registry import ModelError, cache_dir_of, locate, read_manifest
-from litevloc.runtime.cli.common import add_config_args, add_json_arg, config_of, write_json
+from litevloc.runtime.cli.common import add_config_args, add_json_arg, config_of
+from litevloc.runtime.outputs import write_json
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -14,8 +14,9 @@ import signal
 import threading
 from pathlib import Path
 
-from litevloc.runtime.cli.common import add_config_args, add_json_arg, config_of, write_json
+from litevloc.runtime.cli.common import add_config_args, add_json_arg, config_of
 from litevloc.runtime.cli.main import UserError
+from litevloc.runtime.outputs import write_json
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -24,16 +24,9 @@ from pathlib import Path
 from typing import Any
 
 from litevloc.hw.streams.mcap_io import McapRecorder
-from litevloc.runtime.cli.common import (
-    add_config_args,
-    add_frames_arg,
-    add_json_arg,
-    config_of,
-    frames_of,
-    progress,
-    write_json,
-)
+from litevloc.runtime.cli.common import add_config_args, add_frames_arg, add_json_arg, config_of, frames_of
 from litevloc.runtime.cli.main import UserError
+from litevloc.runtime.outputs import progress, write_json
 from litevloc.runtime.recording import (
     ODOMETRY_PROVIDERS,
     RecordingError,

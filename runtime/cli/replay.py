@@ -7,15 +7,8 @@ import time
 from pathlib import Path
 
 from litevloc.hw.messages import GroundTruthPose, Odometry, RgbdFrame
-from litevloc.runtime.cli.common import (
-    add_config_args,
-    add_frames_arg,
-    add_json_arg,
-    config_of,
-    frames_of,
-    progress,
-    write_json,
-)
+from litevloc.runtime.cli.common import add_config_args, add_frames_arg, add_json_arg, config_of, frames_of
+from litevloc.runtime.outputs import progress, write_json
 from litevloc.runtime.pacing import paced
 from litevloc.runtime.sources import open_source
 

@@ -8,8 +8,9 @@ import logging
 from pathlib import Path
 from typing import Any
 
-from litevloc.runtime.cli.common import add_config_args, add_json_arg, config_of, frames_of, write_json
+from litevloc.runtime.cli.common import add_config_args, add_json_arg, config_of, frames_of
 from litevloc.runtime.cli.main import UserError
+from litevloc.runtime.outputs import write_json
 
 log = logging.getLogger(__name__)
 

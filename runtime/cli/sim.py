@@ -15,20 +15,13 @@ worlds) or a YAML file; `--world-seed` generates another building from the same 
 from __future__ import annotations
 
 import argparse
-import json
-import time
 from pathlib import Path
 
 import numpy as np
 
-from litevloc.runtime.cli.common import (
-    add_config_args,
-    add_json_arg,
-    config_of,
-    progress,
-    write_json,
-)
+from litevloc.runtime.cli.common import add_config_args, add_json_arg, config_of
 from litevloc.runtime.cli.main import UserError
+from litevloc.runtime.outputs import write_json
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -100,56 +93,15 @@ def _world(args: argparse.Namespace):
 
 
 def run_record(args: argparse.Namespace) -> int:
-    from litevloc.hw.streams.mcap_io import record_messages
-    from litevloc.sim.source import SimSequenceSource
+    from litevloc.runtime.sim_recording import record_pass
 
     if args.output.suffix.lower() != ".mcap":
         raise UserError(f"output must be a .mcap file, got {args.output}")
     if args.duration is not None and args.duration <= 0:
         raise UserError("--duration must be > 0")
-    t0 = time.perf_counter()
-    world = _world(args)
-    src = SimSequenceSource(world, args.pass_name, args.seed, args.duration, config_of(args).sim)
-    t_plan = time.perf_counter() - t0
-    meta = {
-        "source": src.name,
-        "world": json.dumps(world.summary()),
-        "seed": str(args.seed),
-        "pass": args.pass_name,
-        "lighting": repr(src.lighting),
-        "params": repr(src.params),
-    }
-    counts = {"frames": 0, "odometry": 0, "ground_truth": 0}
-    t1 = time.perf_counter()
-    with progress(src.frame_count(), f"sim {args.pass_name}") as bar:
-        counts.update(record_messages(src, args.output, meta, on_frame=lambda: bar.update(1)))
-    dt = time.perf_counter() - t1
-    if args.plot is not None:
-        from litevloc.sim.plot import plot_world
-
-        plot_world(world, args.plot, [(args.pass_name, src.run.T_world_base[:, :2, 3])])
-    size = args.output.stat().st_size
-    print(
-        f"wrote {args.output}: {counts['frames']} frames, {counts['odometry']} odometry, "
-        f"{counts['ground_truth']} "
-        f"ground-truth poses, {src.duration_s:.1f} s simulated, {size / 1e6:.1f} MB in {dt:.1f} s "
-        f"({counts['frames'] / max(dt, 1e-9):.1f} frames/s; planning {t_plan:.1f} s)"
-    )
-    write_json(
-        args.json,
-        {
-            "output": str(args.output),
-            **counts,
-            "bytes": size,
-            "seconds": dt,
-            "planning_seconds": t_plan,
-            "simulated_seconds": src.duration_s,
-            "seed": args.seed,
-            "pass": args.pass_name,
-            "world": world.summary(),
-            "collisions": src.run.collisions,
-        },
-    )
+    summary = record_pass(_world(args), args.pass_name, args.seed, args.duration, config_of(args).sim, args.output,
+                          args.plot)
+    write_json(args.json, summary)
     return 0
 
 

@@ -14,7 +14,7 @@ from litevloc.runtime.cli.main import main
 @pytest.fixture(scope="module")
 def small_map(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Map of the first 12 s of the office mapping pass (the start room)."""
-    from litevloc.runtime.cli.sim_navigate import ensure_map
+    from litevloc.runtime.world_navigation import ensure_map
 
     return ensure_map("office", tmp_path_factory.mktemp("nav"), "default", map_duration=12.0)
 
@@ -92,7 +92,7 @@ def test_cli_goal_send_without_planner_reports_no_answer(tmp_path: Path) -> None
 
 def test_map_from_the_simulator_reports_how_its_keyframes_were_chosen(small_map: Path, tmp_path: Path) -> None:
     """ensure_map builds straight from the simulator; the map carries coverage, budget and build time."""
-    from litevloc.runtime.cli.sim_navigate import map_summary
+    from litevloc.runtime.world_navigation import map_summary
 
     s = map_summary(small_map)
     assert s["keyframes"] >= 3 and s["coverage"] is not None and s["coverage"] >= 0.95
@@ -130,27 +130,29 @@ def test_driver_status_callback_updates_state_and_feeds_the_view() -> None:
 
 def test_ensure_map_passes_build_overrides_and_reuses_a_built_map(tmp_path: Path,
                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
-    """`ensure_map(..., overrides=...)` hands each KEY=VALUE to `map build` as `--set` (the
-    density benchmark caps the keyframe budget this way) and builds nothing when the map exists."""
-    import litevloc.runtime.cli.main as cli_main
-    from litevloc.runtime.cli.sim_navigate import ensure_map
+    """`ensure_map(..., overrides=...)` builds with each KEY=VALUE applied to the configuration
+    (the density benchmark caps the keyframe budget this way) and builds nothing when the map exists."""
+    import litevloc.runtime.world_navigation as world_navigation
+    from litevloc.config.schema import LiteVLocConfig
+    from litevloc.runtime.map_building import MapBuildRequest
+    from litevloc.runtime.world_navigation import ensure_map
 
-    calls: list[list[str]] = []
+    calls: list[tuple[MapBuildRequest, LiteVLocConfig]] = []
 
-    def fake_main(argv: list[str]) -> int:
-        calls.append(argv)
-        out = Path(argv[argv.index("-o") + 1])
+    def fake_build(req: MapBuildRequest, cfg: LiteVLocConfig) -> dict[str, object]:
+        calls.append((req, cfg))
+        out = req.output
         out.mkdir(parents=True)
         (out / "manifest.json").write_text("{}")
-        return 0
+        return {"nodes": 0}
 
-    monkeypatch.setattr(cli_main, "main", fake_main)
+    monkeypatch.setattr(world_navigation, "build_map", fake_build)
     got = ensure_map("office", tmp_path / "m", "default", overrides=["mapping.keyframes.budget=17"])
     assert got == tmp_path / "m" / "map" and len(calls) == 1
-    argv = calls[0]
-    assert argv[:2] == ["map", "build"] and argv[2].startswith("sim:office?")
-    i = argv.index("--set")
-    assert argv[i + 1] == "mapping.keyframes.budget=17" and argv[argv.index("--config") + 1] == "default"
+    req, cfg = calls[0]
+    assert str(req.src).startswith("sim:office?") and req.config == "default"
+    assert cfg.mapping.keyframes.budget == 17
+    assert json.loads((tmp_path / "m" / "map.json").read_text()) == {"nodes": 0}
     assert ensure_map("office", tmp_path / "m", "default", overrides=["mapping.keyframes.budget=17"]) == got
     assert len(calls) == 1  # cached
 
