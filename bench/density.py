@@ -19,6 +19,7 @@ Writes out/bench/density.json and prints a table.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -30,7 +31,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import OUT, print_table, write_json
 
 from litevloc.config import load_config
-from litevloc.runtime.sim_navigation import NavParams
 from litevloc.runtime.world_navigation import ensure_map, navigate
 
 
@@ -62,7 +62,7 @@ def main(argv: list[str] | None = None) -> int:
         t_map = time.perf_counter() - t0
         build = json.loads((map_dir.parent / "map.json").read_text())
         res = navigate(args.world, cfg, map_dir, None, None, ["litevloc", "ground-truth"],
-                       NavParams(goal_timeout_s=args.goal_timeout),
+                       dataclasses.replace(cfg.sim_navigation, goal_timeout_s=args.goal_timeout),
                        png=OUT / f"density_{args.world}_{budget}.png")
         base = res["baseline"]
         failed = [g for g in res["goals"] if g["outcome"] != "reached"]

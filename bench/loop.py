@@ -170,18 +170,19 @@ def navigate(map_dir: Path, config: str, n_goals: int, baseline: bool) -> dict[s
     the same way in both runs, so a goal the baseline misses too is lost to its image or the
     map, not to the localization."""
     from litevloc.config import load_config
-    from litevloc.runtime.sim_navigation import NavParams, goal_ratios, run_navigation
+    from litevloc.runtime.sim_navigation import goal_ratios, run_navigation
     from litevloc.sim.world import load_world
 
     cfg = load_config(config)
     world = load_world("loop")
     goals, route, arc = loop_goals(world, cfg, n_goals)
-    run = run_navigation(world, cfg, map_dir, goals, route.T_world_base[0], "litevloc", NavParams())
+    run = run_navigation(world, cfg, map_dir, goals, route.T_world_base[0], "litevloc", cfg.sim_navigation)
     out = run.summary()
     out.pop("trace", None)
     out["goal_arc_m"] = arc
     if baseline:
-        base = run_navigation(world, cfg, map_dir, goals, route.T_world_base[0], "ground-truth", NavParams()).summary()
+        base = run_navigation(world, cfg, map_dir, goals, route.T_world_base[0], "ground-truth",
+                              cfg.sim_navigation).summary()
         base.pop("trace", None)
         out["baseline"] = base
         out["ratios"] = goal_ratios(out["goals"], base["goals"])

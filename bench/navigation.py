@@ -20,6 +20,7 @@ Writes out/bench/navigation.json and prints a table.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -29,7 +30,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import OUT, print_table, write_json
 
 from litevloc.config import load_config
-from litevloc.runtime.sim_navigation import NavParams
 from litevloc.runtime.world_navigation import ensure_map, navigate
 
 
@@ -52,7 +52,8 @@ def main(argv: list[str] | None = None) -> int:
             map_path = ensure_map(world, args.maps_dir / name, "default", map_pass=args.map_pass)
             t_map = time.perf_counter() - t0
             res = navigate(world, cfg, map_path, None, None, ["litevloc", "ground-truth"],
-                           NavParams(goal_timeout_s=args.goal_timeout, vloc_hz=args.vloc_hz),
+                           dataclasses.replace(cfg.sim_navigation, goal_timeout_s=args.goal_timeout,
+                                               vloc_hz=args.vloc_hz),
                            png=OUT / f"navigation_{name}.png")
         except Exception as exc:  # report and go on with the next world
             results[name] = {"error": f"{type(exc).__name__}: {exc}", "wall_s": time.perf_counter() - t0}

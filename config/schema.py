@@ -30,6 +30,7 @@ from litevloc.base.params.models import ModelsConfig
 from litevloc.base.params.navigation import GoalParams, OpeningParams, TrackerParams
 from litevloc.base.params.odometry import OdometryCheckParams
 from litevloc.base.params.sim import SimParams
+from litevloc.base.params.sim_navigation import NavParams
 from litevloc.base.params.slam import SlamParams
 
 
@@ -141,6 +142,8 @@ class LiteVLocConfig:
     fusion: FusionConfig = field(default_factory=FusionConfig)
     # the simulated robot and camera
     sim: SimParams = field(default_factory=SimParams)
+    # closed-loop navigation in the simulator (`litevloc sim navigate`, demo): rates, local planner, search
+    sim_navigation: NavParams = field(default_factory=NavParams)
     # the Zenoh session
     zenoh: ZenohConfig = field(default_factory=lambda: ZenohConfig())
     # threads, queues, status and tracking-loss policy of the onboard service

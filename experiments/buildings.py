@@ -45,7 +45,7 @@ from litevloc.pipelines.topomap.build import MapBuilder
 from litevloc.pipelines.topomap.io import load_map, save_map
 from litevloc.pipelines.topomap.openings import find_openings, openings_summary
 from litevloc.runtime.planner_service import decode_goal_image, goal_locator
-from litevloc.runtime.sim_navigation import Goal, NavParams, NavRun, placed_position, render_goals, run_navigation
+from litevloc.runtime.sim_navigation import Goal, NavRun, placed_position, render_goals, run_navigation
 from litevloc.runtime.vloc_models import ModelBundle, load_bundle
 from litevloc.sim.coverage import map_coverage
 from litevloc.sim.source import SimSequenceSource
@@ -217,7 +217,7 @@ def run_building(run: BuildingRun, settings: BenchSettings, cfg: LiteVLocConfig,
         f"{m['unmapped_openings']} unmapped openings")
     start, goals, other = building_goals(world, cfg, run.seed, settings.max_goals)
     rec["start"] = start
-    params = NavParams(goal_timeout_s=settings.goal_timeout_s, vloc_hz=settings.vloc_hz)
+    params = dataclasses.replace(cfg.sim_navigation, goal_timeout_s=settings.goal_timeout_s, vloc_hz=settings.vloc_hz)
     for mode in ("litevloc", "ground-truth"):
         nav = run_navigation(world, cfg, map_dir, goals, world.goal_places[start], mode, params, bundles["nav"])
         rec[mode] = _run_summary(nav)

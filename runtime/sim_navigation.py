@@ -49,43 +49,23 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litevloc.base.errors import LiteVLocError
+from litevloc.base.params.sim_navigation import NavParams
 from litevloc.config.schema import LiteVLocConfig
 from litevloc.hw import ros_msgs
 from litevloc.hw.messages import Message, Odometry
 from litevloc.pipelines.localization.tracking import TrackingState
 from litevloc.runtime.bus import Bus, LiteVLocPublisher
 from litevloc.runtime.planner_service import KEYS, PlannerService, build_planner
-from litevloc.sim.local_planner import LocalPlanner, LocalPlannerParams
+from litevloc.sim.local_planner import LocalPlanner
 from litevloc.sim.realism import sample_lighting
 from litevloc.sim.render import Renderer
-from litevloc.sim.search import LocalizationSearch, SearchParams
+from litevloc.sim.search import LocalizationSearch
 from litevloc.sim.simulator import Simulator, camera_pose, render_frame
 from litevloc.sim.world import World
 
 
 class NavigationRunError(LiteVLocError, RuntimeError):
     """The closed loop could not run (planner unreachable, no answer in time)."""
-
-
-@dataclass(frozen=True)
-class NavParams:
-    control_hz: float = 5.0  # local planner / simulator step rate (a frame is rendered each step)
-    vloc_hz: float = 1.0  # frames handed to the runtime per simulated second
-    goal_timeout_s: float = 120.0  # simulated seconds per goal before it is cancelled
-    success_radius_m: float = 2.0  # goals are localized to a map keyframe, often 1-2 m from the goal spot
-    search_after_s: float = 3.0  # no pose yet for this long: look for a place (turn, then move; see sim/search.py)
-    answer_timeout_s: float = 20.0  # wall time to wait for the planner's answer to a pose
-    seed: int = 0
-    odometry_hz: float | None = 50.0  # simulated odometry rate (None: the config's); every fused pose
-    # goes over Zenoh and is answered by the planner, so this sets the message load of the loop
-    local: LocalPlannerParams = field(default_factory=LocalPlannerParams)
-    search: SearchParams = field(default_factory=SearchParams)
-
-    def __post_init__(self) -> None:
-        if not (0 < self.control_hz <= 50 and 0 < self.vloc_hz <= self.control_hz):
-            raise ValueError("need 0 < vloc_hz <= control_hz <= 50")
-        if self.goal_timeout_s <= 0 or self.success_radius_m <= 0 or self.answer_timeout_s <= 0:
-            raise ValueError("goal_timeout_s, success_radius_m and answer_timeout_s must be > 0")
 
 
 @dataclass(frozen=True)

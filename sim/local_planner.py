@@ -34,76 +34,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-
-@dataclass(frozen=True)
-class LocalPlannerParams:
-    max_speed: float = 0.6  # m/s
-    min_speed: float = 0.15
-    max_omega: float = 1.0  # rad/s
-    max_curvature: float = 2.5  # 1/m; arcs have curvatures in [-max, max]
-    n_arcs: int = 21
-    lookahead_m: float = 2.5  # arcs are checked this far (or to the subgoal)
-    samples: int = 25
-    time_to_end_s: float = 1.5  # speed = free arc length / this (clipped)
-    min_progress_m: float = 0.2  # arcs blocked sooner are not driven
-    robot_radius: float = 0.3
-    margin_m: float = 0.03  # hard: arcs closer than radius + margin are blocked (clearance_m is soft)
-    height_band_m: tuple[float, float] = (0.08, 1.5)  # obstacle heights above the floor
-    max_range_m: float = 4.0
-    stride_px: int = 4  # depth subsampling
-    turn_in_place_deg: float = 55.0
-    turn_gain: float = 1.5
-    arrive_m: float = 0.15  # stop when the subgoal is this close
-    clearance_m: float = 0.7  # clearance below this is penalised
-    w_clearance: float = 3.0
-    w_turn: float = 0.1
-    # Remembered obstacle points farther from the robot than memory_radius_m are dropped, and so
-    # are those seen more than memory_travel_m of odometry ago, where a radian turned counts as
-    # memory_m_per_rad metres (0 travel: no memory). Odometry drifts ~1.5 deg per metre driven and
-    # ~0.6 deg per radian turned (the simulator's drift model), so a radian turned drifts like
-    # ~0.4 m driven; after 1.5 m a point 2 m away has moved by up to ~8 cm.
-    memory_radius_m: float = 2.5
-    memory_travel_m: float = 1.5
-    memory_m_per_rad: float = 0.4
-    voxel_m: float = 0.05  # obstacle points are thinned to one per voxel
-    contact_points: int = 64  # bumper contacts remembered (odometry frame), newest kept
-    # Recovery: after this many consecutive commands without a drivable arc (blocked / turned
-    # back and forth in a tight spot, e.g. diagonally in a doorway), back straight up along the
-    # way the robot came (free: it just drove there) for `recover_commands` commands.
-    recover_after: int = 15
-    recover_commands: int = 8
-    # After a blocked command, arcs are tried for this many commands even when the subgoal is
-    # far to the side: an obstacle straight ahead of a subgoal (a box in front of a door) is
-    # then driven around instead of faced again and again (turn to the subgoal, blocked, turn
-    # away, turn back).
-    detour_commands: int = 10
-    # Local path to the subgoal: known obstacle points rasterised on a grid of grid_m cells out to
-    # grid_radius_m around the robot (0: arcs steer straight to the subgoal); cells nearer an
-    # obstacle than robot_radius + margin_m cost blocked_cost extra, nearer than path_clear_m
-    # proportionally more; the arcs steer to the farthest path point within lookahead_m that a
-    # straight line from the robot reaches with robot_radius + margin_m of clearance (at least
-    # the point carrot_m along the path).
-    grid_m: float = 0.05
-    grid_radius_m: float = 3.0
-    path_clear_m: float = 0.6
-    blocked_cost: float = 40.0
-    carrot_m: float = 0.8
-
-    def __post_init__(self) -> None:
-        if not 0 < self.min_speed <= self.max_speed:
-            raise ValueError("need 0 < min_speed <= max_speed")
-        if self.max_omega <= 0 or self.max_curvature <= 0 or self.n_arcs < 3 or self.samples < 2:
-            raise ValueError("need max_omega > 0, max_curvature > 0, n_arcs >= 3 and samples >= 2")
-        if self.lookahead_m <= 0 or self.time_to_end_s <= 0 or self.min_progress_m < 0:
-            raise ValueError("need lookahead_m > 0, time_to_end_s > 0 and min_progress_m >= 0")
-        if self.robot_radius <= 0 or self.margin_m < 0 or self.stride_px < 1:
-            raise ValueError("need robot_radius > 0, margin_m >= 0 and stride_px >= 1")
-        if self.memory_radius_m <= 0 or self.memory_travel_m < 0 or self.memory_m_per_rad < 0:
-            raise ValueError("need memory_radius_m > 0, memory_travel_m >= 0 and memory_m_per_rad >= 0")
-        if not self.height_band_m[0] < self.height_band_m[1]:
-            raise ValueError("height_band_m must be (low, high) with low < high")
-        if self.grid_m <= 0 or self.grid_radius_m < 0 or self.carrot_m <= 0 or self.blocked_cost < 0:
-            raise ValueError("need grid_m > 0, grid_radius_m >= 0, carrot_m > 0 and blocked_cost >= 0")
+from litevloc.base.params.sim_navigation import LocalPlannerParams
 
 
 @dataclass(frozen=True)

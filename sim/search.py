@@ -24,35 +24,13 @@ once a pose arrives the planner's subgoals take over.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.base.params.sim_navigation import SearchParams
 from litevloc.sim.local_planner import Command, LocalPlanner, obstacle_points
-
-
-@dataclass(frozen=True)
-class SearchParams:
-    omega: float = 0.5  # rad/s while looking around
-    look_rad: float = 2 * np.pi  # turn this far at each spot before moving on
-    leg_m: float = 1.5  # drive at most this far to the next spot
-    min_leg_m: float = 0.4  # headings with less free length than this are not taken
-    stop_short_m: float = 0.6  # stop this far before the first obstacle ahead
-    margin_m: float = 0.05  # corridor half-width = robot radius + this
-    range_m: float = 8.0  # free length is measured this far (the local planner looks 4 m ahead)
-    novelty_weight: float = 1.0
-    novelty_cap_m: float = 2.0
-    leg_timeout_s: float = 15.0
-    leg_blocked_commands: int = 10
-
-    def __post_init__(self) -> None:
-        if self.omega <= 0 or self.look_rad <= 0 or self.leg_timeout_s <= 0 or self.range_m <= 0:
-            raise ValueError("need omega > 0, look_rad > 0, leg_timeout_s > 0 and range_m > 0")
-        if not 0 < self.min_leg_m <= self.leg_m or self.stop_short_m < 0 or self.margin_m < 0:
-            raise ValueError("need 0 < min_leg_m <= leg_m, stop_short_m >= 0 and margin_m >= 0")
-        if self.novelty_weight < 0 or self.novelty_cap_m < 0 or self.leg_blocked_commands < 1:
-            raise ValueError("need novelty_weight >= 0, novelty_cap_m >= 0 and leg_blocked_commands >= 1")
 
 
 def free_length(pts_base: NDArray[np.floating], half_width_m: float, max_range_m: float) -> float:

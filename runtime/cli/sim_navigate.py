@@ -8,11 +8,14 @@ Without --map the map is built from a simulated mapping pass (`sim record --pass
 `map build`), cached under the output folder. Goals are the world's goal places (their
 images are rendered like `sim goals`) or image files. With `both` (the default) the run
 is repeated with ground-truth localization as the baseline (JSON key `baseline`).
+The loop's rates, local planner and search come from the config section `sim_navigation`
+(`--set sim_navigation.local.max_speed=0.4`); --vloc-hz, --goal-timeout and --seed override it.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 from pathlib import Path
 from typing import Any
@@ -41,9 +44,11 @@ def add_parser(ss: argparse._SubParsersAction) -> None:
                         "moved into the world frame by the SE(3) alignment of its keyframes, for the ground-truth "
                         "baseline and the plots; cached in OUT_DIR-slam)")
     n.add_argument("--localization", choices=("litevloc", "ground-truth", "both"), default="both")
-    n.add_argument("--vloc-hz", type=float, default=1.0, help="frames to VLoc per simulated second")
-    n.add_argument("--goal-timeout", type=float, default=120.0, metavar="S", help="simulated seconds per goal")
-    n.add_argument("--seed", type=int, default=0)
+    n.add_argument("--vloc-hz", type=float, default=None,
+                   help="frames to VLoc per simulated second (default: config sim_navigation.vloc_hz)")
+    n.add_argument("--goal-timeout", type=float, default=None, metavar="S",
+                   help="simulated seconds per goal (default: config sim_navigation.goal_timeout_s)")
+    n.add_argument("--seed", type=int, default=None, help="default: config sim_navigation.seed")
     n.add_argument("--world-seed", type=int, default=None,
                    help="generate another building from the world file (what varies: docs/simulator.md)")
     n.add_argument("--goal-camera", choices=("robot", "hand"), default="robot",
@@ -82,8 +87,6 @@ def print_table(res: dict[str, Any]) -> None:
 
 
 def run_navigate(args: argparse.Namespace) -> int:
-    from litevloc.runtime.sim_navigation import NavParams
-
     cfg = config_of(args)
     t0 = time.perf_counter()
     if args.out_dir is None:  # one cached map per world file, world seed and mapping pass
@@ -94,8 +97,9 @@ def run_navigate(args: argparse.Namespace) -> int:
     map_path = args.map or ensure_map(args.world, args.out_dir, args.config, world_seed=args.world_seed,
                                       map_pass=args.map_pass, map_poses=args.map_poses)
     modes = ["litevloc", "ground-truth"] if args.localization == "both" else [args.localization]
-    try:
-        params = NavParams(vloc_hz=args.vloc_hz, goal_timeout_s=args.goal_timeout, seed=args.seed)
+    flags = {"vloc_hz": args.vloc_hz, "goal_timeout_s": args.goal_timeout, "seed": args.seed}
+    try:  # the config's sim_navigation section, with the flags given on top
+        params = dataclasses.replace(cfg.sim_navigation, **{k: v for k, v in flags.items() if v is not None})
     except ValueError as exc:
         raise UserError(str(exc)) from exc
     png = args.output or args.out_dir / "navigate.png"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -20,8 +21,9 @@ def small_map(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def test_closed_loop_reaches_a_goal_with_litevloc(small_map: Path, tmp_path: Path) -> None:
+    from litevloc.base.params.sim_navigation import NavParams
     from litevloc.config import load_config
-    from litevloc.runtime.sim_navigation import NavParams, render_goals, run_navigation
+    from litevloc.runtime.sim_navigation import render_goals, run_navigation
     from litevloc.sim.world import load_world
 
     cfg = load_config("default")
@@ -56,8 +58,9 @@ def test_a_run_that_never_localizes_ends_with_the_reason(small_map: Path) -> Non
     """Started where the map (the start room only) sees nothing, the robot looks around (a full
     turn, then a move to open space, `sim/search.py`); after a goal's time without any pose
     the run ends and every goal fails as never localized, the reason counting the moves."""
+    from litevloc.base.params.sim_navigation import NavParams
     from litevloc.config import load_config
-    from litevloc.runtime.sim_navigation import NavParams, render_goals, run_navigation
+    from litevloc.runtime.sim_navigation import render_goals, run_navigation
     from litevloc.sim.world import load_world
 
     cfg = load_config("default")
@@ -168,3 +171,28 @@ def test_ratios_compare_only_goals_both_modes_reached() -> None:
     assert goal_ratios(lv, gt) == {"goals_compared": 1, "path_length": 1.25, "time": 2.0}
     none = goal_ratios([g("a", "failed", 0.0, 0.0)], gt)
     assert none == {"goals_compared": 0, "path_length": None, "time": None}
+
+
+def test_sim_navigate_takes_the_loop_settings_from_the_config(tmp_path: Path,
+                                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    """`sim navigate` runs with the config's `sim_navigation` section (`--set` reaches the local
+    planner), its flags on top; nothing else is changed."""
+    import litevloc.runtime.cli.sim_navigate as cli_nav
+    from litevloc.base.params.sim_navigation import NavParams
+
+    seen: list[NavParams] = []
+
+    def fake_navigate(world: str, cfg: object, map_path: Path, goals: object, start: object, modes: object,
+                      params: NavParams, *args: object, **kwargs: object) -> dict[str, object]:
+        seen.append(params)
+        return {"goals": [], "goals_reached": 0, "goals_total": 0, "time_s": 0.0, "path_length_m": 0.0}
+
+    monkeypatch.setattr(cli_nav, "navigate", fake_navigate)
+    monkeypatch.setattr(cli_nav, "map_summary", lambda p: dict.fromkeys(("keyframes", "coverage", "bytes",
+                                                                          "build_seconds")))
+    argv = ["sim", "navigate", "office", "--map", str(tmp_path), "--out-dir", str(tmp_path), "--localization",
+            "litevloc", "--set", "sim_navigation.local.max_speed=0.4", "--set", "sim_navigation.seed=3"]
+    assert main([*argv, "--vloc-hz", "2"]) == 0
+    assert main(argv) == 0
+    assert seen[0] == NavParams(vloc_hz=2.0, seed=3, local=dataclasses.replace(NavParams().local, max_speed=0.4))
+    assert seen[1].vloc_hz == NavParams().vloc_hz and seen[1].local.max_speed == 0.4 and seen[1].seed == 3

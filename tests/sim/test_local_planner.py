@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from litevloc.base.params.sim import SimParams
-from litevloc.sim.local_planner import LocalPlanner, LocalPlannerParams, arc_points, obstacle_points
+from litevloc.base.params.sim_navigation import LocalPlannerParams
+from litevloc.sim.local_planner import LocalPlanner, arc_points, obstacle_points
 
 P = SimParams()
 K = P.intrinsics.K

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from litevloc.base.params.sim import SimParams
+from litevloc.base.params.sim_navigation import SearchParams
 from litevloc.sim.local_planner import Command, LocalPlanner
-from litevloc.sim.search import LocalizationSearch, SearchParams, free_length
+from litevloc.sim.search import LocalizationSearch, free_length
 
 P = SimParams()
 K = P.intrinsics.K
