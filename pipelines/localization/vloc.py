@@ -555,10 +555,28 @@ class VisualLocalizer:
                                                                       atol=1e-4)
         timer = StageTimer(self.clock)
         t_all = self.clock()
+        q, sims, order, front_ms = self._retrieve(color, depth, K, region, timer, t_all)
+        if self.params.refine.enabled:
+            return self._verify_refined(t_ns, q, sims, order, prior, prior_age_s, recovering, timer, t_all, front_ms)
+        return self._verify_confirmed(t_ns, q, sims, order, timer, t_all)
+
+    def _retrieve(self, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64],
+                  region: SearchRegion | None, timer: StageTimer, t_all: float
+                  ) -> tuple[_Query, NDArray[np.float32], NDArray[np.int64], float]:
+        """Retrieval: the query's features and VPR descriptor, its (N,) similarity to every
+        keyframe, the candidate keyframes in VPR order and the front end's milliseconds."""
         q, desc = self._query(color, depth, K, timer)
         front_ms = (self.clock() - t_all) * 1e3  # feature extraction and VPR, as in an LL query
         sims = self.map.vpr @ desc
-        order = self.global_candidates(sims, q, region)
+        return q, sims, self.global_candidates(sims, q, region), front_ms
+
+    def _verify_refined(self, t_ns: int, q: _Query, sims: NDArray[np.float32], order: NDArray[np.int64],
+                        prior: NDArray[np.float64] | None, prior_age_s: float, recovering: bool,
+                        timer: StageTimer, t_all: float, front_ms: float) -> LocalizationResult:
+        """Verification with joint refinement: candidates in VPR order, each verified and jointly
+        refined at once; the first that passes the joint check wins (then the opt-in
+        distinctiveness test), or one that agrees with a fresh prior; the time budget stops the
+        search (bounded cost)."""
         attempts: list[CandidateAttempt] = []
         best: tuple[int, PnpResult, RefineResult | None] | None = None
         reason = "not localized: no VPR candidate verified"
@@ -568,57 +586,67 @@ class VisualLocalizer:
         evidence: list[VerifiedPose] = []  # every candidate's PnP pose, for the distinctiveness test
         trusted = prior is not None and self._fresh(growth)
         gl_params = self._gl_params(trusted)
-        if self.params.refine.enabled:
-            # Bounded cost: candidates in VPR order, each verified and jointly refined at once;
-            # the first that passes the joint check wins; the time budget stops the search.
-            budget = self.params.gl_time_budget_ms
-            candidates_ms = 0.0  # verification time (match, PnP, joint refinement) of the candidates so far
-            for k, node in enumerate(int(n) for n in order):
-                spent = (self.clock() - t_all) * 1e3
-                ahead = candidates_ms / max(k, 1)  # this query's mean cost per candidate so far
-                if k == 1 and recovering:
-                    budget = self.gl_budget_ms(nominal_ll_ms=front_ms + candidates_ms)
-                if k > 0 and budget > 0 and spent + ahead > budget:
-                    stop = (f"time budget ({budget:.0f} ms) would be overrun: {spent:.0f} ms spent + "
-                            f"{ahead:.0f} ms per candidate, after {k} of {len(order)} candidates")
-                    break
-                t_cand = self.clock()
-                res, att = self._verify_global(node, q, float(sims[node]), evidence, gl_params)
-                if res is None or not res.accepted or res.T_target_source is None:
-                    attempts.append(att)
-                    candidates_ms += (self.clock() - t_cand) * 1e3
-                    continue
-                T = self.map.T_map_camera[node] @ res.T_target_source
-                joint = self._joint(node, T, q, [int(n) for n in order],
-                                    self.params.refine.min_keyframes if self.params.gl_confirm else 1)
+        budget = self.params.gl_time_budget_ms
+        candidates_ms = 0.0  # verification time (match, PnP, joint refinement) of the candidates so far
+        for k, node in enumerate(int(n) for n in order):
+            spent = (self.clock() - t_all) * 1e3
+            ahead = candidates_ms / max(k, 1)  # this query's mean cost per candidate so far
+            if k == 1 and recovering:
+                budget = self.gl_budget_ms(nominal_ll_ms=front_ms + candidates_ms)
+            if k > 0 and budget > 0 and spent + ahead > budget:
+                stop = (f"time budget ({budget:.0f} ms) would be overrun: {spent:.0f} ms spent + "
+                        f"{ahead:.0f} ms per candidate, after {k} of {len(order)} candidates")
+                break
+            t_cand = self.clock()
+            res, att = self._verify_global(node, q, float(sims[node]), evidence, gl_params)
+            if res is None or not res.accepted or res.T_target_source is None:
+                attempts.append(att)
                 candidates_ms += (self.clock() - t_cand) * 1e3
-                if joint.accepted:
-                    attempts.append(att)
-                    best = (node, res, joint)
-                    stop = f"candidate {k + 1} of {len(order)} passed the joint check"
-                    amb = "" if trusted else self._ambiguity(node, res, joint.T_map_camera, q, order[k + 1:],
-                                                             sims, evidence)
-                    if amb:
-                        best, provisional, reason = None, None, f"not localized: {amb}"
-                        stop = f"{stop}; {amb}"
-                    break
-                single = self._single_keyframe(node, joint)
-                if single is not None and prior is not None and self._fresh(growth) and self._within_gate(
-                        single.T_map_camera, prior, self._gate_m(growth, fused=True)):
-                    attempts.append(CandidateAttempt(node, att.similarity, att.matches, att.inliers,
-                                                     "one keyframe only; agrees with the prior"))
-                    best = (node, res, replace(joint, accepted=True, reason="ok"))
-                    stop = f"candidate {k + 1} of {len(order)}: one keyframe, agrees with the prior"
-                    break
-                if single is not None and (provisional is None or single.n_inliers > provisional.n_inliers):
-                    provisional = single
+                continue
+            T = self.map.T_map_camera[node] @ res.T_target_source
+            joint = self._joint(node, T, q, [int(n) for n in order],
+                                self.params.refine.min_keyframes if self.params.gl_confirm else 1)
+            candidates_ms += (self.clock() - t_cand) * 1e3
+            if joint.accepted:
+                attempts.append(att)
+                best = (node, res, joint)
+                stop = f"candidate {k + 1} of {len(order)} passed the joint check"
+                amb = "" if trusted else self._ambiguity(node, res, joint.T_map_camera, q, order[k + 1:],
+                                                         sims, evidence)
+                if amb:
+                    best, provisional, reason = None, None, f"not localized: {amb}"
+                    stop = f"{stop}; {amb}"
+                break
+            single = self._single_keyframe(node, joint)
+            if single is not None and self._agrees_with_prior(single, prior, growth):
                 attempts.append(CandidateAttempt(node, att.similarity, att.matches, att.inliers,
-                                                 f"joint refinement rejected: {joint.reason}"))
-                reason = f"not localized: no verified pose was confirmed by a second keyframe (last: node {node})"
-            timer.add("total", t_all)
-            out = replace(self._result(t_ns, "global", best, attempts, timer, reason, q), stop_reason=stop,
-                          candidates=tuple(int(n) for n in order))
-            return out if out.accepted or provisional is None else replace(out, provisional=provisional)
+                                                 "one keyframe only; agrees with the prior"))
+                best = (node, res, replace(joint, accepted=True, reason="ok"))
+                stop = f"candidate {k + 1} of {len(order)}: one keyframe, agrees with the prior"
+                break
+            if single is not None and (provisional is None or single.n_inliers > provisional.n_inliers):
+                provisional = single
+            attempts.append(CandidateAttempt(node, att.similarity, att.matches, att.inliers,
+                                             f"joint refinement rejected: {joint.reason}"))
+            reason = f"not localized: no verified pose was confirmed by a second keyframe (last: node {node})"
+        timer.add("total", t_all)
+        out = replace(self._result(t_ns, "global", best, attempts, timer, reason, q), stop_reason=stop,
+                      candidates=tuple(int(n) for n in order))
+        return out if out.accepted or provisional is None else replace(out, provisional=provisional)
+
+    def _agrees_with_prior(self, single: ProvisionalPose, prior: NDArray[np.float64] | None, growth: float) -> bool:
+        """Whether a one-keyframe pose lies within the gate of a fresh fused prior (the opt-in
+        acceptance of a pose only its own keyframe confirms)."""
+        return prior is not None and self._fresh(growth) and self._within_gate(
+            single.T_map_camera, prior, self._gate_m(growth, fused=True))
+
+    def _verify_confirmed(self, t_ns: int, q: _Query, sims: NDArray[np.float32], order: NDArray[np.int64],
+                          timer: StageTimer, t_all: float) -> LocalizationResult:
+        """Verification without joint refinement: every candidate verified (or up to the early
+        accept), then the one with most inliers that a second keyframe confirms wins."""
+        attempts: list[CandidateAttempt] = []
+        best: tuple[int, PnpResult, RefineResult | None] | None = None
+        reason = "not localized: no VPR candidate verified"
         verified: list[tuple[int, PnpResult]] = []
         for node in order:
             res, att = self._verify_global(int(node), q, float(sims[node]))
