@@ -40,10 +40,19 @@ class PnpResult:
     n_matches: int = 0
     median_reprojection_px: float = float("nan")
     covariance: NDArray[np.float64] | None = None  # 6x6, right perturbation of T_target_source, (t, rotvec)
+    # RANSAC's consensus set (match indices, sorted), before the refined pose re-scores `inliers`
+    ransac_inliers: NDArray[np.intp] = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
 
     @property
     def n_inliers(self) -> int:
+        """Matches within `reprojection_px` of the refined pose."""
         return len(self.inliers)
+
+    @property
+    def n_ransac_inliers(self) -> int:
+        """Size of RANSAC's consensus set (a looser count than `n_inliers` when the refinement
+        moves the pose)."""
+        return len(self.ransac_inliers)
 
     @property
     def inlier_ratio(self) -> float:
@@ -134,7 +143,8 @@ def solve_pnp(
     except cv2.error as exc:
         return PnpResult(False, f"PnP failed: {exc.err}", n_matches=n)
     if not ok or inl is None or len(inl) < 4:
-        return PnpResult(False, "RANSAC found no pose", n_matches=n)
+        consensus = np.zeros(0, np.intp) if inl is None else np.sort(np.asarray(inl, dtype=np.intp).reshape(-1))
+        return PnpResult(False, "RANSAC found no pose", n_matches=n, ransac_inliers=consensus)
     idx = np.sort(np.asarray(inl, dtype=np.intp).reshape(-1))
     if params.refine_lm:
         rvec, tvec = cv2.solvePnPRefineLM(obj[idx], img[idx], K, None, rvec, tvec)
@@ -156,7 +166,7 @@ def solve_pnp(
         reason = f"median reprojection error too high ({med:.2f} px > {params.max_median_reprojection_px})"
     else:
         reason = "ok"
-    return PnpResult(reason == "ok", reason, T, inliers, n, med, cov)
+    return PnpResult(reason == "ok", reason, T, inliers, n, med, cov, idx)
 
 
 def inverse_result(res: PnpResult) -> PnpResult:
@@ -173,4 +183,5 @@ def inverse_result(res: PnpResult) -> PnpResult:
         tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
         ad = np.block([[R, tx @ R], [np.zeros((3, 3)), R]])
         cov = ad @ res.covariance @ ad.T
-    return PnpResult(res.accepted, res.reason, invert(A), res.inliers, res.n_matches, res.median_reprojection_px, cov)
+    return PnpResult(res.accepted, res.reason, invert(A), res.inliers, res.n_matches, res.median_reprojection_px, cov,
+                     res.ransac_inliers)

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from litevloc.base.params.localization import PnpMethod, PnpParams
+
 
 @dataclass(frozen=True)
 class GoalParams:
@@ -24,6 +26,12 @@ class GoalParams:
     pose_px: float = 4.0
     # metric goal pose: must lie within this of its keyframe (m)
     pose_max_m: float = 5.0
+    # metric goal pose: OpenCV minimal solver inside the PnP RANSAC
+    pose_method: PnpMethod = "epnp"
+    # metric goal pose: PnP RANSAC iterations at most
+    pose_iterations: int = 1000
+    # metric goal pose: PnP RANSAC confidence
+    pose_confidence: float = 0.999
     # refuse a goal as ambiguous when another place has more than 1/this of the chosen place's support (0 = off)
     ambiguity_ratio: float = 2.0
     # candidates' goal poses within this of each other are one place (m)
@@ -60,6 +68,15 @@ class GoalParams:
                 or self.expand_min_inliers < 0:
             raise ValueError("expand_from, expand_k, expand_min_inliers >= 0, expand_m > 0 and 0 < expand_deg <= 180 "
                              "required")
+        self.pose_pnp()  # the goal pose's PnP settings are valid
+
+    def pose_pnp(self) -> PnpParams:
+        """The PnP settings of the metric goal pose: RANSAC with `pose_*`, then a refinement on
+        RANSAC's consensus set; its count (`PnpResult.n_ransac_inliers`) is the goal pose's
+        support, so the re-scoring gates are open."""
+        return PnpParams(method=self.pose_method, reprojection_px=self.pose_px, iterations=self.pose_iterations,
+                         confidence=self.pose_confidence, min_inliers=self.pose_min_inliers, min_inlier_ratio=0.0,
+                         max_median_reprojection_px=float("inf"), seed=self.seed)
 
 
 @dataclass(frozen=True)

@@ -44,6 +44,7 @@ from scipy.sparse.csgraph import dijkstra
 from litevloc.base.errors import LiteVLocError
 from litevloc.base.geometry import backproject_pixels, invert
 from litevloc.base.params.navigation import GoalParams, TrackerParams
+from litevloc.pipelines.pnp import solve_pnp
 from litevloc.pipelines.topomap.node_index import ZERO_EDGE_M, NodeIndex
 from litevloc.pipelines.topomap.types import FeatureSet, TopoMap
 
@@ -116,21 +117,13 @@ def goal_pose(
         return GoalPose(None, int(ok.sum()))
     pts = backproject_pixels(K_node, np.asarray(node_feats.keypoints, np.float64)[i_node[ok]], z[ok])
     uv = np.asarray(goal_feats.keypoints, np.float64)[i_goal[ok]]
-    cv2.setRNGSeed(params.seed)
-    found, rvec, tvec, inl = cv2.solvePnPRansac(pts, uv, np.asarray(K_goal, np.float64), None,
-                                                reprojectionError=params.pose_px, iterationsCount=1000,
-                                                confidence=0.999, flags=cv2.SOLVEPNP_EPNP)
-    n = 0 if inl is None else len(inl)
-    if not found or n < params.pose_min_inliers:
+    res = solve_pnp(pts, uv, K_goal, params.pose_pnp())
+    n = res.n_ransac_inliers  # the support: RANSAC's consensus, not the refined pose's re-scored inliers
+    if res.T_target_source is None or n < params.pose_min_inliers:
         return GoalPose(None, n)
-    idx = inl.reshape(-1)
-    ok2, rvec, tvec = cv2.solvePnP(pts[idx], uv[idx], np.asarray(K_goal, np.float64), None, rvec, tvec,
-                                   useExtrinsicGuess=True, flags=cv2.SOLVEPNP_ITERATIVE)
-    T_goal_node = np.eye(4)
-    T_goal_node[:3, :3] = cv2.Rodrigues(rvec)[0]
-    T_goal_node[:3, 3] = np.asarray(tvec, np.float64).reshape(3)
-    T_node_goal = invert(T_goal_node)
-    if not ok2 or not np.all(np.isfinite(T_node_goal)) or np.linalg.norm(T_node_goal[:3, 3]) > params.pose_max_m:
+    idx = res.ransac_inliers
+    T_node_goal = invert(res.T_target_source)
+    if not np.all(np.isfinite(T_node_goal)) or np.linalg.norm(T_node_goal[:3, 3]) > params.pose_max_m:
         return GoalPose(None, n)
     return GoalPose(T_node_goal, n, plane_rms(pts[idx]), pts[idx])
 

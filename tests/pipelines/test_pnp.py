@@ -67,3 +67,21 @@ def test_bad_input() -> None:
         solve_pnp(np.full((10, 3), np.nan), np.zeros((10, 2)), K)
     with pytest.raises(ValueError, match="pixels"):
         solve_pnp(np.zeros((10, 3)), np.zeros((9, 2)), K)
+
+
+def test_result_keeps_ransacs_consensus_set_apart_from_the_rescored_inliers() -> None:
+    """`ransac_inliers` is RANSAC's consensus (sorted match indices, the goal planner's support
+    count), kept beside the refined pose's re-scored `inliers` and through `inverse_result`."""
+    import cv2
+
+    from litevloc.pipelines.pnp import inverse_result
+
+    pts, pix, _, n_out = scene(n=200, outlier_frac=0.2, noise_px=2.0)
+    res = solve_pnp(pts, pix, K, PnpParams(method="epnp", reprojection_px=3.0, seed=1))
+    cv2.setRNGSeed(1)
+    _ok, _r, _t, inl = cv2.solvePnPRansac(pts, pix, K, None, iterationsCount=1000, reprojectionError=3.0,
+                                          confidence=0.9999, flags=cv2.SOLVEPNP_EPNP)
+    assert np.array_equal(res.ransac_inliers, np.sort(inl.reshape(-1)))
+    assert not np.array_equal(res.ransac_inliers, res.inliers)  # here the refined pose re-scores others
+    assert np.count_nonzero(res.ransac_inliers < n_out) <= 2  # the gross outliers stay out
+    assert np.array_equal(inverse_result(res).ransac_inliers, res.ransac_inliers)
