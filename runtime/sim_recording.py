@@ -9,10 +9,11 @@ from typing import Any
 
 from litevloc.base.params.sim import SimParams
 from litevloc.runtime.outputs import progress
+from litevloc.sim.trajectory import PassName
 from litevloc.sim.world import World
 
 
-def record_pass(world: World, pass_name: str, seed: int, duration_s: float | None, params: SimParams,
+def record_pass(world: World, pass_name: PassName, seed: int, duration_s: float | None, params: SimParams,
                 output: Path, plot: Path | None = None) -> dict[str, Any]:
     """Simulate `pass_name` through `world` (`duration_s` simulated seconds; None: the whole
     pass) and record it to the MCAP file `output` (and, with `plot`, a top-down PNG of the
