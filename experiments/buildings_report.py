@@ -16,6 +16,7 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
+from litevloc.base.figures import save_figure
 from litevloc.experiments.buildings import WRONG_PLACEMENT_M, failure_class
 
 MODES = ("litevloc", "ground-truth")
@@ -166,11 +167,7 @@ def plot(buildings: list[dict[str, Any]], png: Path, title: str) -> Path:
     ax[1, 1].hist(ratios, bins=15, color="tab:purple")
     ax[1, 1].set_xlabel("path ratio LiteVLoc / ground truth (per building)")
     fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    png.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(png)
-    plt.close(fig)
-    return png
+    return save_figure(fig, png)
 
 
 def placement_totals(results: list[dict[str, Any]]) -> dict[str, Any]:

@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from litevloc.base.figures import save_figure
 from litevloc.pipelines.localization.vloc import LocalizationResult
 
 RECALL_AT = (1, 5, 10)
@@ -133,8 +134,4 @@ def plot(results: Sequence[dict[str, Any]], path: Path, before: Sequence[dict[st
     ax.set_title("7-Scenes redkitchen splits (* = parameters chosen here)")
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.08), fontsize=8, ncol=4, frameon=False)
     ax.grid(axis="y", alpha=0.3)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=110)

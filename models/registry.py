@@ -191,27 +191,20 @@ def load_place_recognizer(name: str, cfg: ModelsConfig | None = None) -> PlaceRe
 
     if name == "effnet-gem":
         path, _ = locate(vpr_id("effnet-gem", cfg.vpr_size), cfg)
-        return OnnxPlaceRecognizer(
-            path,
-            name,
-            "effnet-gem" if name == "effnet-gem" else "cosplace-r18",
-            cfg.vpr_size,
-            cfg.providers,
-            cfg.intra_op_threads,
-        )
-    if name == "cosplace":
+    elif name == "cosplace":
         try:
             path, _ = locate(vpr_id("cosplace-r18", cfg.vpr_size), cfg)
         except ModelError as exc:
             raise ModelError(
                 f"{exc} (CosPlace needs the official checkpoint: add --cosplace-checkpoint PATH)"
             ) from exc
-        return OnnxPlaceRecognizer(
-            path,
-            name,
-            "effnet-gem" if name == "effnet-gem" else "cosplace-r18",
-            cfg.vpr_size,
-            cfg.providers,
-            cfg.intra_op_threads,
-        )
-    raise ModelError(f"unknown place recognizer {name!r}; known: effnet-gem, cosplace")
+    else:
+        raise ModelError(f"unknown place recognizer {name!r}; known: effnet-gem, cosplace")
+    return OnnxPlaceRecognizer(
+        path,
+        name,
+        "effnet-gem" if name == "effnet-gem" else "cosplace-r18",
+        cfg.vpr_size,
+        cfg.providers,
+        cfg.intra_op_threads,
+    )

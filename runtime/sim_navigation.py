@@ -49,6 +49,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litevloc.base.errors import LiteVLocError
+from litevloc.base.figures import save_figure
 from litevloc.base.params.sim_navigation import NavParams
 from litevloc.config.schema import LiteVLocConfig
 from litevloc.hw import ros_msgs
@@ -633,12 +634,7 @@ def plot_navigation(world: World, topomap: Any, runs: list[NavRun], goals: list[
     ax.set_ylabel("y (m)")
     ax.set_title(title or "LiteVLoc image-goal navigation")
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
-    out = Path(out_png)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.tight_layout()
-    fig.savefig(out)
-    plt.close(fig)
-    return out
+    return save_figure(fig, out_png)
 
 
 def goal_ratios(goals: list[dict[str, Any]], base_goals: list[dict[str, Any]]) -> dict[str, Any]:

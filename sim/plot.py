@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.base.figures import save_figure
 from litevloc.sim.elements import s_increasing
 from litevloc.sim.world import World
 
@@ -70,12 +71,7 @@ def plot_world(
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.set_title(title or f"world {world.spec.name} (seed {world.spec.seed})")
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.tight_layout()
-    fig.savefig(out)
-    plt.close(fig)
-    return out
+    return save_figure(fig, path)
 
 
 def depth_to_rgb(depth: NDArray[np.float32], max_m: float = 8.0) -> NDArray[np.uint8]:

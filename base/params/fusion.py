@@ -17,7 +17,7 @@ F64 = NDArray[np.float64]
 
 @dataclass(frozen=True)
 class FusionParams:
-    """Parameters of `OnlineFusion` and `batch_refine` (lengths m, angles deg, times s).
+    """Parameters of `OnlineFusion` and `refine_session` (lengths m, angles deg, times s).
 
     Odometry increment noise (per axis, 1 sigma) for an increment of length d metres and
     rotation a radians: trans = odom_sigma_trans_floor + odom_sigma_trans_per_m * d,

@@ -30,6 +30,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from litevloc.models.export.weights import load_strict
+
 if TYPE_CHECKING:
     from torch.onnx._internal.torchscript_exporter.jit_utils import GraphContext
 
@@ -359,7 +361,4 @@ class ALIKED(nn.Module):
 
 def load_aliked(weights: Path, model_name: str, top_k: int) -> ALIKED:
     """Build ALIKED `model_name` and load the reference state dict (strict) from `weights`."""
-    model = ALIKED(model_name, top_k=top_k)
-    state = torch.load(weights, map_location="cpu", weights_only=True)
-    model.load_state_dict(state, strict=True)
-    return model.eval()
+    return load_strict(ALIKED(model_name, top_k=top_k), weights)

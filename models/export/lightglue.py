@@ -27,6 +27,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from litevloc.models.export.weights import load_strict
+
 
 def rotate_half(x: torch.Tensor) -> torch.Tensor:
     """(B, H, N, D) -> pairs (a, b) -> (-b, a). Explicit ranks keep the ONNX export simple."""
@@ -208,10 +210,7 @@ def normalize_keypoints(kpts: torch.Tensor, width: float, height: float) -> torc
 
 def load_lightglue(weights: Path) -> LightGlue:
     """Build LightGlue-for-ALIKED and load `aliked_lightglue.pth` (strict)."""
-    model = LightGlue()
-    state = torch.load(weights, map_location="cpu", weights_only=True)
-    model.load_state_dict(state, strict=True)
-    return model.eval()
+    return load_strict(LightGlue(), weights)
 
 
 # --- Adaptive LightGlue (early stopping + point pruning), exported as one graph per stage ---

@@ -28,6 +28,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from litevloc.models.export.weights import load_strict
+
 
 def gem(x: torch.Tensor, p: torch.Tensor | float = 3.0, eps: float = 1e-6) -> torch.Tensor:
     """Generalised-mean pooling over H, W: (B, C, H, W) -> (B, C)."""
@@ -128,10 +130,7 @@ class EfficientNetLite0GeM(nn.Module):
 
 
 def load_effnet_gem(weights: Path) -> EfficientNetLite0GeM:
-    model = EfficientNetLite0GeM()
-    state = torch.load(weights, map_location="cpu", weights_only=True)
-    model.load_state_dict(state, strict=True)
-    return model.eval()
+    return load_strict(EfficientNetLite0GeM(), weights)
 
 
 # ----------------------------------------------------------------- CosPlace ResNet-18

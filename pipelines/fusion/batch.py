@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 
 from litevloc.base.geometry import interpolate_pose_at, invert, ros_to_gtsam_covariance, rotation_angle
 from litevloc.base.params.fusion import FusionParams
-from litevloc.pipelines.fusion.online import _valid_pose
+from litevloc.pipelines.fusion.online import _valid_pose, vloc_noise_model
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -32,7 +32,7 @@ I64 = NDArray[np.int64]
 
 @dataclass(frozen=True)
 class BatchInfo:
-    """Diagnostics of one `batch_refine` run."""
+    """Diagnostics of one `refine_session` run."""
 
     states: int
     priors_used: int
@@ -82,26 +82,43 @@ class BatchResult:
     info: BatchInfo
 
 
-def batch_refine(
-    odom_times_ns: NDArray[np.integer],
-    T_odom_base: NDArray[np.floating],
-    vloc_times_ns: NDArray[np.integer],
-    T_map_camera: NDArray[np.floating],
-    vloc_covariances: NDArray[np.floating] | None,
-    params: FusionParams,
-    T_base_camera: NDArray[np.floating],
-) -> tuple[I64, F64]:
-    """`refine_session` returning only (times, T_map_base); see there for arguments."""
-    r = refine_session(
-        odom_times_ns,
-        T_odom_base,
-        vloc_times_ns,
-        T_map_camera,
-        vloc_covariances,
-        params,
-        T_base_camera,
+def _odometry_chain(st_T: F64, T_map_odom0: F64,
+                    params: FusionParams) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+    """The odometry between consecutive states ((S, 4, 4) T_odom_base) as GTSAM between factors,
+    and the initial values: each state moved into the map by `T_map_odom0`."""
+    base = gtsam.NonlinearFactorGraph()
+    values = gtsam.Values()
+    for k in range(len(st_T)):
+        values.insert(k, gtsam.Pose3(T_map_odom0 @ st_T[k]))
+        if k > 0:
+            D = invert(st_T[k - 1]) @ st_T[k]
+            s = params.odom_sigmas(float(np.linalg.norm(D[:3, 3])), rotation_angle(D[:3, :3]))
+            base.add(
+                gtsam.BetweenFactorPose3(
+                    k - 1, k, gtsam.Pose3(D), gtsam.noiseModel.Diagonal.Sigmas(s)
+                )
+            )
+    return base, values
+
+
+def _prior_mahalanobis2(result: gtsam.Values, vl_state: NDArray[np.int64], vl_T_mb: F64, covs: list[F64]) -> F64:
+    """Squared Mahalanobis distance of each VLoc prior (T_map_base, GTSAM-order covariance) from
+    its state in `result` (gtsam.Values)."""
+    return np.array(
+        [
+            float(
+                np.sum(
+                    np.square(
+                        np.linalg.solve(
+                            np.linalg.cholesky(covs[k]),
+                            gtsam.Pose3.Logmap(result.atPose3(int(vl_state[k])).between(gtsam.Pose3(vl_T_mb[k]))),
+                        )
+                    )
+                )
+            )
+            for k in range(len(vl_T_mb))
+        ]
     )
-    return r.times_ns, r.T_map_base
 
 
 def refine_session(
@@ -167,30 +184,7 @@ def refine_session(
             c = ros_to_gtsam_covariance(np.asarray(vloc_covariances, dtype=np.float64)[i])
         return Ad @ c @ Ad.T
 
-    def noise(c: F64) -> gtsam.noiseModel.Base:
-        g = gtsam.noiseModel.Gaussian.Covariance(c)
-        if params.robust_kernel == "huber":
-            return gtsam.noiseModel.Robust.Create(
-                gtsam.noiseModel.mEstimator.Huber.Create(params.robust_k), g
-            )
-        if params.robust_kernel == "cauchy":
-            return gtsam.noiseModel.Robust.Create(
-                gtsam.noiseModel.mEstimator.Cauchy.Create(params.robust_k), g
-            )
-        return g
-
-    base = gtsam.NonlinearFactorGraph()
-    values = gtsam.Values()
-    for k in range(len(st_t)):
-        values.insert(k, gtsam.Pose3(T_map_odom0 @ st_T[k]))
-        if k > 0:
-            D = invert(st_T[k - 1]) @ st_T[k]
-            s = params.odom_sigmas(float(np.linalg.norm(D[:3, 3])), rotation_angle(D[:3, :3]))
-            base.add(
-                gtsam.BetweenFactorPose3(
-                    k - 1, k, gtsam.Pose3(D), gtsam.noiseModel.Diagonal.Sigmas(s)
-                )
-            )
+    base, values = _odometry_chain(st_T, T_map_odom0, params)
     covs = [cov_of(int(i)) for i in vidx]
     active = np.ones(len(vidx), dtype=bool)
     iterations = 0
@@ -199,33 +193,14 @@ def refine_session(
         graph = gtsam.NonlinearFactorGraph(base)
         for kk in np.nonzero(active)[0]:
             graph.add(
-                gtsam.PriorFactorPose3(int(vl_state[kk]), gtsam.Pose3(vl_T_mb[kk]), noise(covs[kk]))
+                gtsam.PriorFactorPose3(int(vl_state[kk]), gtsam.Pose3(vl_T_mb[kk]), vloc_noise_model(covs[kk], params))
             )
         lm = gtsam.LevenbergMarquardtOptimizer(graph, result, gtsam.LevenbergMarquardtParams())
         result = lm.optimize()
         iterations += lm.iterations()
         if params.gate_chi2 <= 0:
             break
-        m2 = np.array(
-            [
-                float(
-                    np.sum(
-                        np.square(
-                            np.linalg.solve(
-                                np.linalg.cholesky(covs[k]),
-                                gtsam.Pose3.Logmap(
-                                    result.atPose3(int(vl_state[k])).between(
-                                        gtsam.Pose3(vl_T_mb[k])
-                                    )
-                                ),
-                            )
-                        )
-                    )
-                )
-                for k in range(len(vidx))
-            ]
-        )
-        new_active = m2 <= params.gate_chi2
+        new_active = _prior_mahalanobis2(result, vl_state, vl_T_mb, covs) <= params.gate_chi2
         if not new_active.any() or np.array_equal(new_active, active):
             break
         active = new_active

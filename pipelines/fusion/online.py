@@ -161,6 +161,17 @@ def _pose3(T: F64) -> gtsam.Pose3:
     return gtsam.Pose3(T)
 
 
+def vloc_noise_model(cov_gtsam: F64, params: FusionParams) -> gtsam.noiseModel.Base:
+    """Noise model of a VLoc prior: Gaussian with the 6x6 covariance `cov_gtsam` (GTSAM order:
+    rotation first), behind the robust kernel `params.robust_kernel` (none, huber, cauchy)."""
+    gauss = gtsam.noiseModel.Gaussian.Covariance(cov_gtsam)
+    if params.robust_kernel == "huber":
+        return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(params.robust_k), gauss)
+    if params.robust_kernel == "cauchy":
+        return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy.Create(params.robust_k), gauss)
+    return gauss
+
+
 def _map_odom_close(A: F64, B: F64, max_trans: float, max_rot_rad: float) -> bool:
     D = invert(A) @ B
     return (
@@ -249,19 +260,6 @@ class OnlineFusion:
         while self._keys and self._keys[0][1] < horizon:  # mirror what the smoother marginalised
             self._keys.popleft()
         return True
-
-    def _vloc_noise(self, cov_gtsam: F64) -> gtsam.noiseModel.Base:
-        gauss = gtsam.noiseModel.Gaussian.Covariance(cov_gtsam)
-        p = self.params
-        if p.robust_kernel == "huber":
-            return gtsam.noiseModel.Robust.Create(
-                gtsam.noiseModel.mEstimator.Huber.Create(p.robust_k), gauss
-            )
-        if p.robust_kernel == "cauchy":
-            return gtsam.noiseModel.Robust.Create(
-                gtsam.noiseModel.mEstimator.Cauchy.Create(p.robust_k), gauss
-            )
-        return gauss
 
     def _odom_cov(self, T_a: F64, T_b: F64) -> F64:
         D = _inv(T_a) @ T_b
@@ -556,7 +554,7 @@ class OnlineFusion:
         self._consecutive_rejects = 0
         self._rejected.clear()
         graph = gtsam.NonlinearFactorGraph()
-        graph.add(gtsam.PriorFactorPose3(key, _pose3(meas), self._vloc_noise(cov_meas)))
+        graph.add(gtsam.PriorFactorPose3(key, _pose3(meas), vloc_noise_model(cov_meas, self.params)))
         if not self._update(graph, gtsam.Values(), {}):
             return VlocUpdate(False, "solver_error", m2)
         self._counts["priors"] += 1

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.base.figures import save_figure
 from litevloc.pipelines.topomap.diff import MapDiff, coverage_raster
 from litevloc.pipelines.topomap.types import OccupancyGrid, TopoMap
 
@@ -50,12 +51,7 @@ def plot_map(
     ax.set_ylabel("plane axis b (m)")
     ax.set_title(title or "LiteVLoc map (grey: occupied, white: free)")
     ax.legend(loc="upper right", fontsize=8)
-    out = Path(out_png)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.tight_layout()
-    fig.savefig(out)
-    plt.close(fig)
-    return out
+    return save_figure(fig, out_png)
 
 
 def plot_diff(old: TopoMap, new: TopoMap, d: MapDiff, out_png: Path) -> Path:
@@ -98,8 +94,4 @@ def plot_diff(old: TopoMap, new: TopoMap, d: MapDiff, out_png: Path) -> Path:
     ax.set_ylabel("plane axis b (m)")
     ax.set_title(f"map diff: {d.n_old} -> {d.n_new} keyframes")
     ax.legend(loc="upper right", fontsize=8)
-    out_png.parent.mkdir(parents=True, exist_ok=True)
-    fig.tight_layout()
-    fig.savefig(out_png)
-    plt.close(fig)
-    return out_png
+    return save_figure(fig, out_png)

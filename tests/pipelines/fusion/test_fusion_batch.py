@@ -12,7 +12,7 @@ from litevloc.base.params.drift import T_BASE_CAMERA_OPTICAL, DriftParams
 from litevloc.base.params.fusion import FusionParams
 from litevloc.experiments.fusion_sim import simulate_vloc, synthetic_trajectory
 from litevloc.pipelines.evaluation.trajectory import ate
-from litevloc.pipelines.fusion.batch import batch_refine, refine_session
+from litevloc.pipelines.fusion.batch import refine_session
 from litevloc.pipelines.odometry_drift import simulate_odometry
 
 T_BC = T_BASE_CAMERA_OPTICAL
@@ -39,13 +39,13 @@ def test_batch_refine_is_accurate_and_robust() -> None:
     assert res["clean"] < 0.5 * odo_ate
     assert res["robust"] <= 1.5 * res["clean"]
     assert res["naive"] >= 2.0 * res["robust"]
-    _, T = batch_refine(ot, oT, vl.t_capture_ns, vl.T_map_camera, None, p, T_BC)
+    T = refine_session(ot, oT, vl.t_capture_ns, vl.T_map_camera, None, p, T_BC).T_map_base
     assert T.shape == (len(ot), 4, 4)
 
 
 def test_batch_refine_rejects_bad_input() -> None:
     with pytest.raises(ValueError, match="inside the odometry time span"):
-        batch_refine(
+        refine_session(
             np.array([0, 10]),
             np.stack([np.eye(4)] * 2),
             np.array([99]),
@@ -55,7 +55,7 @@ def test_batch_refine_rejects_bad_input() -> None:
             np.eye(4),
         )
     with pytest.raises(ValueError, match="strictly increasing"):
-        batch_refine(
+        refine_session(
             np.array([0, 0]),
             np.stack([np.eye(4)] * 2),
             np.array([0]),
