@@ -90,15 +90,8 @@ def posed_sequence_experiment(
         put(rates, "odometry", (len(ot) - 1) / dur)
         for name, v in VARIANTS.items():
             p = dataclasses.replace(p0, **v["params"])
-            vl = simulate_vloc(
-                gt_t,
-                T_world_camera,
-                vloc_rate_hz,
-                p0.vloc_sigma_trans,
-                p0.vloc_sigma_rot_deg,
-                v["outliers"],
-                seed=1000 + s,
-            )
+            vl = simulate_vloc(gt_t, T_world_camera, vloc_rate_hz, p0.vloc_sigma_trans, p0.vloc_sigma_rot_deg,
+                               v["outliers"], seed=1000 + s)
             if name in ("robust", "outlier_free"):
                 T_vb = vl.T_map_camera @ invert(T_base_camera)
                 put(per, f"vloc_{name}", ate(T_vb, _gt_at(vl.t_capture_ns, gt_t, T_wb)).rmse)
@@ -108,26 +101,17 @@ def posed_sequence_experiment(
             put(per, f"fused_{name}", ate(run.T_map_base[m], gt_o[m]).rmse)
             put(per, f"fused_{name}_unaligned", ate(run.T_map_base[m], gt_o[m], align=False).rmse)
             put(rates, f"fused_{name}", (m.sum() - 1) / max((ot[m][-1] - ot[m][0]) * 1e-9, 1e-9))
-            put(
-                timing,
-                f"fused_{name}_odometry_call_ms_p50",
-                np.percentile(run.odometry_call_ms, 50),
-            )
-            put(
-                timing,
-                f"fused_{name}_odometry_call_ms_p99",
-                np.percentile(run.odometry_call_ms, 99),
-            )
+            for q in (50, 99):
+                put(timing, f"fused_{name}_odometry_call_ms_p{q}", np.percentile(run.odometry_call_ms, q))
             put(timing, f"fused_{name}_odometry_cpu_ms_p99", np.percentile(run.odometry_cpu_ms, 99))
             put(timing, f"fused_{name}_init_delay_s", (ot[m][0] - ot[0]) * 1e-9)
             t0 = time.perf_counter()
             b = refine_session(ot, oT, vl.t_capture_ns, vl.T_map_camera, None, p, T_base_camera)
             if tum_dir is not None and s == 0:
-                if name == "robust":
+                if name == "robust":  # the inputs once
                     write_tum(tum_dir / "ground_truth.txt", gt_t * 1e-9, T_wb)
                     write_tum(tum_dir / "odometry.txt", ot * 1e-9, oT)
-                    T_vb = vl.T_map_camera @ invert(T_base_camera)
-                    write_tum(tum_dir / "vloc.txt", vl.t_capture_ns * 1e-9, T_vb)
+                    write_tum(tum_dir / "vloc.txt", vl.t_capture_ns * 1e-9, vl.T_map_camera @ invert(T_base_camera))
                 write_tum(tum_dir / f"fused_{name}.txt", ot[m] * 1e-9, run.T_map_base[m])
                 write_tum(tum_dir / f"batch_{name}.txt", b.times_ns * 1e-9, b.T_map_base)
             put(timing, f"batch_{name}_seconds", time.perf_counter() - t0)

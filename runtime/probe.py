@@ -42,7 +42,7 @@ def _pose_row(t_ns: int, T: np.ndarray) -> list[float]:
     return [float(t_ns), *map(float, T[:3, 3]), *map(float, q)]
 
 
-def main(argv: list[str] | None = None) -> int:
+def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="python -m litevloc.runtime.probe", description=__doc__.split("\n")[0])
     ap.add_argument("--connect", action="append", default=[], help="endpoint, e.g. tcp/127.0.0.1:7447")
     ap.add_argument("--listen", action="append", default=[], help="listen here instead (the service connects)")
@@ -59,6 +59,28 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--send-odometry", default=None, metavar="KEY", help="sender mode: publish odometry on KEY")
     ap.add_argument("--rate", type=float, default=200.0, help="sender mode: Hz")
     ap.add_argument("--seconds", type=float, default=10.0, help="sender mode: duration")
+    return ap
+
+
+def _kept_item(topic: str, msg: Any) -> Any:
+    """What `--keep` stores of one message: a pose row (t_ns, x, y, z, qx, qy, qz, qw) for the
+    pose topics and the transform, the decoded JSON for the status."""
+    from litevloc.hw import ros_msgs
+
+    if topic == "pose":
+        t_ns, T, _ = ros_msgs.odometry_to_matrix(msg)
+        return _pose_row(t_ns, T)
+    if topic == "vloc":
+        return _pose_row(ros_msgs.stamp_ns(msg.header), ros_msgs.pose_to_matrix(msg.pose.pose))
+    if topic == "map_to_odom":
+        tr = msg.transform
+        return [ros_msgs.stamp_ns(msg.header), tr.translation.x, tr.translation.y, tr.translation.z,
+                tr.rotation.x, tr.rotation.y, tr.rotation.z, tr.rotation.w]
+    return json.loads(msg.data)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = _parser()
     args = ap.parse_args(argv)
     if not args.connect and not args.listen:
         ap.error("give --connect ENDPOINT or --listen ENDPOINT")
@@ -99,19 +121,7 @@ def main(argv: list[str] | None = None) -> int:
                 with lock:
                     r["decode_errors"] += 1
                 return
-            item: Any = None
-            if args.keep:
-                if topic == "pose":
-                    t_ns, T, _ = ros_msgs.odometry_to_matrix(msg)
-                    item = _pose_row(t_ns, T)
-                elif topic == "vloc":
-                    item = _pose_row(ros_msgs.stamp_ns(msg.header), ros_msgs.pose_to_matrix(msg.pose.pose))
-                elif topic == "map_to_odom":
-                    tr = msg.transform
-                    item = [ros_msgs.stamp_ns(msg.header), tr.translation.x, tr.translation.y, tr.translation.z,
-                            tr.rotation.x, tr.rotation.y, tr.rotation.z, tr.rotation.w]
-                else:
-                    item = json.loads(msg.data)
+            item = _kept_item(topic, msg) if args.keep else None
             if args.stamp_latency and topic == "pose":
                 r["stamp_ms"].append((t_rx - ros_msgs.stamp_ns(msg.header)) * 1e-6)
             with lock:

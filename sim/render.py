@@ -269,6 +269,79 @@ class Renderer:
         h = self.world.boxes[bidx, 4]
         return ti.T, to.T, h.T, face.T, s.T, bidx.T, valid.T
 
+    def _shade(
+        self,
+        p: NDArray[np.float64],
+        d: NDArray[np.float64],
+        Y: NDArray[np.float64],
+        f: float,
+        kind: NDArray[np.int8],
+        t: NDArray[np.float64],
+        rng: NDArray[np.float64],
+        acol: NDArray[np.float64],
+        top_box: NDArray[np.intp],
+    ) -> NDArray[np.float32]:
+        """Colour (float, 0-255) of each pixel of a level camera at `p` from what it hit (`kind`,
+        ray parameter `t`, range `rng` m; `d` (W, 2) column directions, `Y` (H, 1) normalised
+        rows): textured walls and box sides (atlas column `acol`), floor, ceiling and box tops
+        (`top_box`), grey where nothing was hit, darker with distance."""
+        H = self.world.wall_height
+        h = float(p[2])
+        hh, ww = kind.shape
+        color = np.zeros((hh, ww, 3), np.float32)
+        # texture level per pixel from its footprint in texels; -1 = magnified: bilinear level 0
+        lvl = np.clip(
+            np.round(np.log2(np.maximum(rng * self.tex.ppm / f, 1e-6))), -1, MIP_LEVELS - 1
+        ).astype(np.int8)
+        # walls and box sides: atlas
+        m = (kind == KIND_WALL) | (kind == KIND_SIDE)
+        if m.any():
+            zz = h - Y * t
+            arow = (H - zz) * self.tex.ppm
+            for L in range(-1, MIP_LEVELS):
+                mm = m & (lvl == L)
+                if not mm.any():
+                    continue
+                A = self.tex.atlas[max(L, 0)]
+                sc = 0.5 ** max(L, 0)
+                color[mm] = _sample(A, arow[mm] * sc, acol[mm] * sc, bilinear=L < 0)
+        # floor and box tops: world-aligned maps
+        mf = kind == KIND_FLOOR
+        mt = kind == KIND_TOP
+        mc = kind == KIND_CEIL
+        if mf.any() or mt.any() or mc.any():
+            wx = p[0] + t * d[None, :, 0]
+            wy = p[1] + t * d[None, :, 1]
+            if mf.any():
+                flvl = np.clip(
+                    np.round(np.log2(np.maximum(rng * self._fppm / f, 1e-6))), -1, 2
+                ).astype(np.int8)
+                for L in range(-1, 3):
+                    mm = mf & (flvl == L)
+                    if not mm.any():
+                        continue
+                    A = self._floor_mips[max(L, 0)]
+                    sc = self._fppm * 0.5 ** max(L, 0)
+                    color[mm] = _sample(A, wy[mm] * sc, wx[mm] * sc, bilinear=L < 0)
+            if mc.any():
+                A = self.tex.ceiling
+                sc = self.tex.ceiling_ppm
+                r_ = np.clip((wy[mc] * sc).astype(np.intp), 0, A.shape[0] - 1)
+                c_ = np.clip((wx[mc] * sc).astype(np.intp), 0, A.shape[1] - 1)
+                color[mc] = A[r_, c_]
+            if mt.any():
+                T_ = self.tex.top_tile
+                n = T_.shape[0]
+                r_ = (wy[mt] * self.tex.top_ppm).astype(np.intp) % n
+                c_ = (wx[mt] * self.tex.top_ppm).astype(np.intp) % n
+                color[mt] = T_[r_, c_] * self.tex.top_color[top_box[mt]]
+        color[kind == KIND_VOID] = 128
+        if self.light_falloff > 0:
+            color *= (1.0 - self.light_falloff * np.clip(rng / 10.0, 0, 1))[..., None].astype(
+                np.float32
+            )
+        return color
+
     def _render_level(
         self,
         p: NDArray[np.float64],
@@ -343,57 +416,6 @@ class Renderer:
         rng = t * np.sqrt(1.0 + xn[None, :] ** 2 + Y**2)
         if acol is None or top_box is None:
             return None, np.where(kind == KIND_VOID, np.nan, rng).astype(np.float32)
-        color = np.zeros((hh, ww, 3), np.float32)
-        # texture level per pixel from its footprint in texels; -1 = magnified: bilinear level 0
-        lvl = np.clip(
-            np.round(np.log2(np.maximum(rng * self.tex.ppm / f, 1e-6))), -1, MIP_LEVELS - 1
-        ).astype(np.int8)
-        # walls and box sides: atlas
-        m = (kind == KIND_WALL) | (kind == KIND_SIDE)
-        if m.any():
-            zz = h - Y * t
-            arow = (H - zz) * self.tex.ppm
-            for L in range(-1, MIP_LEVELS):
-                mm = m & (lvl == L)
-                if not mm.any():
-                    continue
-                A = self.tex.atlas[max(L, 0)]
-                sc = 0.5 ** max(L, 0)
-                color[mm] = _sample(A, arow[mm] * sc, acol[mm] * sc, bilinear=L < 0)
-        # floor and box tops: world-aligned maps
-        mf = kind == KIND_FLOOR
-        mt = kind == KIND_TOP
-        mc = kind == KIND_CEIL
-        if mf.any() or mt.any() or mc.any():
-            wx = p[0] + t * d[None, :, 0]
-            wy = p[1] + t * d[None, :, 1]
-            if mf.any():
-                flvl = np.clip(
-                    np.round(np.log2(np.maximum(rng * self._fppm / f, 1e-6))), -1, 2
-                ).astype(np.int8)
-                for L in range(-1, 3):
-                    mm = mf & (flvl == L)
-                    if not mm.any():
-                        continue
-                    A = self._floor_mips[max(L, 0)]
-                    sc = self._fppm * 0.5 ** max(L, 0)
-                    color[mm] = _sample(A, wy[mm] * sc, wx[mm] * sc, bilinear=L < 0)
-            if mc.any():
-                A = self.tex.ceiling
-                sc = self.tex.ceiling_ppm
-                r_ = np.clip((wy[mc] * sc).astype(np.intp), 0, A.shape[0] - 1)
-                c_ = np.clip((wx[mc] * sc).astype(np.intp), 0, A.shape[1] - 1)
-                color[mc] = A[r_, c_]
-            if mt.any():
-                T_ = self.tex.top_tile
-                n = T_.shape[0]
-                r_ = (wy[mt] * self.tex.top_ppm).astype(np.intp) % n
-                c_ = (wx[mt] * self.tex.top_ppm).astype(np.intp) % n
-                color[mt] = T_[r_, c_] * self.tex.top_color[top_box[mt]]
-        color[kind == KIND_VOID] = 128
-        if self.light_falloff > 0:
-            color *= (1.0 - self.light_falloff * np.clip(rng / 10.0, 0, 1))[..., None].astype(
-                np.float32
-            )
+        color = self._shade(p, d, Y, f, kind, t, rng, acol, top_box)
         out_rng = np.where(kind == KIND_VOID, np.nan, rng).astype(np.float32)
         return np.clip(color, 0, 255).astype(np.uint8), out_rng

@@ -376,6 +376,26 @@ _CHUNK = 1 << 22  # bytes per read when streaming a large file through the check
 RowCheck = Callable[[NDArray[Any], int], None]  # (rows of a chunk, index of its first row)
 
 
+def _rows_problem(a: NDArray[Any], scratch: NDArray[np.uint16], row_check: RowCheck | None, row: int) -> str | None:
+    """The first value problem of a chunk of whole rows `a` (row index `row` first): NaN or
+    infinity in float data, else what `row_check` raises; None when there is none. `scratch`
+    (at least a.size uint16) holds float16 exponent bits."""
+    if a.dtype == np.float16:  # non-finite iff all exponent bits are set (in place: no temporaries)
+        bits = scratch[: a.size]
+        np.bitwise_and(a.reshape(-1).view(np.uint16), 0x7C00, out=bits)
+        bad = bool(bits.max() == 0x7C00)
+    else:
+        bad = a.dtype.kind == "f" and not bool(np.all(np.isfinite(a)))
+    if bad:
+        return "contains NaN or infinity"
+    if row_check is not None:
+        try:
+            row_check(a, row)
+        except MapFormatError as exc:
+            return str(exc)
+    return None
+
+
 def _streamed_npy(
     folder: Path, rel: str, entry: Any, dtype: Any, shape: tuple[int | None, ...], row_check: RowCheck | None = None,
 ) -> NDArray[Any]:
@@ -434,20 +454,7 @@ def _streamed_npy(
                 n_rows = have // row_bytes if row_bytes else 0
                 if n_rows and problem is None:
                     a = np.frombuffer(buf, dt, count=n_rows * int(np.prod(row_shape, dtype=np.int64)))
-                    a = a.reshape((n_rows, *row_shape))
-                    if dt == np.float16:  # non-finite iff all exponent bits are set (in place: no temporaries)
-                        bits = scratch[: a.size]
-                        np.bitwise_and(a.reshape(-1).view(np.uint16), 0x7C00, out=bits)
-                        bad = bool(bits.max() == 0x7C00)
-                    else:
-                        bad = dt.kind == "f" and not bool(np.all(np.isfinite(a)))
-                    if bad:
-                        problem = "contains NaN or infinity"
-                    elif row_check is not None:
-                        try:
-                            row_check(a, row)
-                        except MapFormatError as exc:
-                            problem = str(exc)
+                    problem = _rows_problem(a.reshape((n_rows, *row_shape)), scratch, row_check, row)
                     del a
                 rest = have - n_rows * row_bytes
                 buf[:rest] = buf[n_rows * row_bytes:have]
@@ -566,6 +573,56 @@ def _codes_below(root: Path, k: int) -> RowCheck:
     return check
 
 
+def _load_features(root: Path, man: dict[str, Any], off: NDArray[np.int64], size: NDArray[np.int32]) -> FeatureStore:
+    """The local features of a map folder (`off` (N+1,) row offsets, `size` (N, 2) image sizes),
+    each file checked in one streaming pass and memory-mapped (see `load_map`)."""
+    files: dict[str, Any] = man["files"]
+    N = len(size)
+    M = int(off[-1])
+    if off[0] != 0 or np.any(np.diff(off) < 0):
+        raise _fail(root, "features/offsets.npy", "must rise from 0 (node i owns rows offsets[i]:offsets[i+1])")
+    wh = size.astype(np.float32) - 0.5
+
+    def in_image(k: NDArray[Any], first: int) -> None:
+        """Keypoints of rows first.. lie inside their node's image (one array operation)."""
+        if k.dtype == np.uint16:
+            k = keypoints_from_fixed(k)
+        # rows past offsets[-1] (a count mismatch, reported after the pass) count as the last node's
+        owner = np.minimum(np.searchsorted(off, np.arange(first, first + len(k)), side="right") - 1, N - 1)
+        out = (k.min(axis=1) < -0.5) | (k[:, 0] > wh[owner, 0]) | (k[:, 1] > wh[owner, 1])
+        if out.any():
+            i = int(owner[int(np.argmax(out))])
+            raise _fail(root, "features/keypoints.npy",
+                        f"keypoints of node {i} fall outside its {int(size[i, 0])}x{int(size[i, 1])} image")
+
+    v3 = man["version"] >= 3  # fixed-point keypoints and float16 scores
+    codebook = _codebook(root, man)  # the manifest's codec first: it decides what the features must be
+    kps = _streamed_npy(root, "features/keypoints.npy", files["features/keypoints.npy"],
+                        (np.float32, np.uint16) if v3 else np.float32, (None, 2), in_image if N else None)
+    if len(kps) != M:
+        raise _fail(root, "features/offsets.npy", f"must rise from 0 to {len(kps)} (keypoint count)")
+    scores = _streamed_npy(root, "features/scores.npy", files["features/scores.npy"],
+                           (np.float32, np.float16) if v3 else np.float32, (M,))
+    v1 = man["version"] == 1
+    desc = _streamed_npy(root, "features/descriptors.npy", files["features/descriptors.npy"],
+                         (np.float16, np.uint8) if v1 else (np.int8, np.uint8),
+                         (M, None if codebook is None else codebook.shape[0]),
+                         None if codebook is None else _codes_below(root, len(codebook[0])))
+    if codebook is not None and desc.dtype != np.uint8:
+        raise _fail(root, "features/descriptors.npy", f"dtype {desc.dtype}, expected uint8 (product-quantiser codes)")
+    desc_scale = None
+    if desc.dtype == np.int8:
+        rel = "features/descriptor_scale.npy"
+        if rel not in files:
+            raise _fail(root, rel, "not listed in manifest.json (int8 descriptors need their row scales)")
+        desc_scale = _streamed_npy(root, rel, files[rel], np.float32, (M,), _positive_rows(root, rel))
+    depth = None
+    if "features/depth.npy" in files:
+        rel = "features/depth.npy"
+        depth = _streamed_npy(root, rel, files[rel], np.float16, (M,), _nonnegative_rows(root, rel))
+    return FeatureStore(off, kps, desc, scores, size, descriptor_scale=desc_scale, depth=depth, codebook=codebook)
+
+
 def load_map(folder: str | Path) -> TopoMap:
     """Load and validate a map folder (see module docstring); MapFormatError on any problem.
 
@@ -618,49 +675,7 @@ def load_map(folder: str | Path) -> TopoMap:
     if vpr.shape[1] != man.get("vpr_dim"):
         raise _fail(root, "vpr/descriptors.npy", f"dimension {vpr.shape[1]} != manifest vpr_dim {man.get('vpr_dim')}")
     off = arr("features/offsets.npy", np.int64, (N + 1,))
-    M = int(off[-1])
-    if off[0] != 0 or np.any(np.diff(off) < 0):
-        raise _fail(root, "features/offsets.npy", "must rise from 0 (node i owns rows offsets[i]:offsets[i+1])")
-    wh = size.astype(np.float32) - 0.5
-
-    def in_image(k: NDArray[Any], first: int) -> None:
-        """Keypoints of rows first.. lie inside their node's image (one array operation)."""
-        if k.dtype == np.uint16:
-            k = keypoints_from_fixed(k)
-        # rows past offsets[-1] (a count mismatch, reported after the pass) count as the last node's
-        owner = np.minimum(np.searchsorted(off, np.arange(first, first + len(k)), side="right") - 1, N - 1)
-        out = (k.min(axis=1) < -0.5) | (k[:, 0] > wh[owner, 0]) | (k[:, 1] > wh[owner, 1])
-        if out.any():
-            i = int(owner[int(np.argmax(out))])
-            raise _fail(root, "features/keypoints.npy",
-                        f"keypoints of node {i} fall outside its {int(size[i, 0])}x{int(size[i, 1])} image")
-
-    v3 = man["version"] >= 3  # fixed-point keypoints and float16 scores
-    codebook = _codebook(root, man)  # the manifest's codec first: it decides what the features must be
-    kps = _streamed_npy(root, "features/keypoints.npy", files["features/keypoints.npy"],
-                        (np.float32, np.uint16) if v3 else np.float32, (None, 2), in_image if N else None)
-    if len(kps) != M:
-        raise _fail(root, "features/offsets.npy", f"must rise from 0 to {len(kps)} (keypoint count)")
-    scores = _streamed_npy(root, "features/scores.npy", files["features/scores.npy"],
-                           (np.float32, np.float16) if v3 else np.float32, (M,))
-    v1 = man["version"] == 1
-    desc = _streamed_npy(root, "features/descriptors.npy", files["features/descriptors.npy"],
-                         (np.float16, np.uint8) if v1 else (np.int8, np.uint8),
-                         (M, None if codebook is None else codebook.shape[0]),
-                         None if codebook is None else _codes_below(root, len(codebook[0])))
-    if codebook is not None and desc.dtype != np.uint8:
-        raise _fail(root, "features/descriptors.npy", f"dtype {desc.dtype}, expected uint8 (product-quantiser codes)")
-    desc_scale = None
-    if desc.dtype == np.int8:
-        rel = "features/descriptor_scale.npy"
-        if rel not in files:
-            raise _fail(root, rel, "not listed in manifest.json (int8 descriptors need their row scales)")
-        desc_scale = _streamed_npy(root, rel, files[rel], np.float32, (M,), _positive_rows(root, rel))
-    depth = None
-    if "features/depth.npy" in files:
-        rel = "features/depth.npy"
-        depth = _streamed_npy(root, rel, files[rel], np.float16, (M,), _nonnegative_rows(root, rel))
-    feats = FeatureStore(off, kps, desc, scores, size, descriptor_scale=desc_scale, depth=depth, codebook=codebook)
+    feats = _load_features(root, man, off, size)
     ce = arr("graph/covisibility_edges.npy", np.int64, (None, 2))
     ci = arr("graph/covisibility_inliers.npy", np.int32, (len(ce),))
     cw = arr("graph/covisibility_weight.npy", np.float32, (len(ce),))

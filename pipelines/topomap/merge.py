@@ -283,15 +283,9 @@ def fuse_grids(a: OccupancyGrid, b: OccupancyGrid, params: MergeParams) -> Occup
     return OccupancyGrid(cells, origin, res, a.up, a.plane_axes)
 
 
-def join_maps(A: TopoMap, B_in_A: TopoMap, links: list[Link], alignment: Alignment,
-              params: MergeParams) -> tuple[TopoMap, MergeReport]:
-    """One map from A and B (B already re-expressed in A's frame by `transform_map`)."""
-    if A.extractor != B_in_A.extractor or A.vpr_model != B_in_A.vpr_model:
-        raise MapMergeError(f"the maps were built with other models ({A.extractor}/{A.vpr_model} vs "
-                            f"{B_in_A.extractor}/{B_in_A.vpr_model})")
-    nA = A.n_nodes
-    grid = fuse_grids(A.grid, B_in_A.grid, params)
-    # duplicates: a B keyframe at an A keyframe's place (position + viewing direction)
+def _duplicates(A: TopoMap, B_in_A: TopoMap, params: MergeParams) -> dict[int, int]:
+    """B keyframes at an A keyframe's place (position + viewing direction): B node -> the
+    nearest such A node."""
     tree_a = cKDTree(A.positions)
     cos_dup = np.cos(np.radians(params.duplicate_angle_deg))
     replace: dict[int, int] = {}
@@ -303,6 +297,44 @@ def join_maps(A: TopoMap, B_in_A: TopoMap, links: list[Link], alignment: Alignme
                 if float(A.T_map_camera[a, :3, 2] @ zb) >= cos_dup]
         if cand:
             replace[b] = min(cand)[1]
+    return replace
+
+
+def _connect_across(grid: OccupancyGrid, xy: NDArray[np.float64], nA: int, tree_b: cKDTree, params: MergeParams,
+                    conn: dict[tuple[int, int], list[float]]) -> int:
+    """Connectivity edges between A's nodes (xy[:nA], plane metres) and B's kept ones (xy[nA:],
+    in `tree_b`) within `connect_m` along free segments, each node's `connect_neighbours`
+    nearest; added to `conn` (the shorter length where one exists). Returns the new edges."""
+    partners: dict[int, list[tuple[float, int]]] = {}
+    for a, near in enumerate(tree_b.query_ball_point(xy[:nA], r=params.connect_m)):
+        for k in near:
+            j = nA + k
+            d = float(np.linalg.norm(xy[a] - xy[j]))
+            if segment_is_free(grid, xy[a], xy[j]):
+                partners.setdefault(a, []).append((d, j))
+                partners.setdefault(j, []).append((d, a))
+    chosen: set[tuple[int, int]] = set()
+    for i, lst in partners.items():
+        for _d, j in sorted(lst)[: params.connect_neighbours]:
+            chosen.add((min(i, j), max(i, j)))
+    n_new = 0
+    for e in sorted(chosen):
+        if e not in conn:
+            n_new += 1
+        d = float(np.linalg.norm(xy[e[0]] - xy[e[1]]))
+        conn[e] = [min(conn.get(e, [np.inf])[0], d)]
+    return n_new
+
+
+def join_maps(A: TopoMap, B_in_A: TopoMap, links: list[Link], alignment: Alignment,
+              params: MergeParams) -> tuple[TopoMap, MergeReport]:
+    """One map from A and B (B already re-expressed in A's frame by `transform_map`)."""
+    if A.extractor != B_in_A.extractor or A.vpr_model != B_in_A.vpr_model:
+        raise MapMergeError(f"the maps were built with other models ({A.extractor}/{A.vpr_model} vs "
+                            f"{B_in_A.extractor}/{B_in_A.vpr_model})")
+    nA = A.n_nodes
+    grid = fuse_grids(A.grid, B_in_A.grid, params)
+    replace = _duplicates(A, B_in_A, params)
     keep_b = [b for b in range(B_in_A.n_nodes) if b not in replace]
     new_id = {b: nA + k for k, b in enumerate(keep_b)}
     new_id.update({b: a for b, a in replace.items()})
@@ -340,25 +372,7 @@ def join_maps(A: TopoMap, B_in_A: TopoMap, links: list[Link], alignment: Alignme
     T_all = np.concatenate([A.T_map_camera, B_in_A.T_map_camera[keep_b]])
     xy = grid.to_plane(T_all[:, :3, 3])
     tree_b = cKDTree(xy[nA:]) if len(keep_b) else None
-    n_cross_conn = 0
-    if tree_b is not None:
-        partners: dict[int, list[tuple[float, int]]] = {}
-        for a, near in enumerate(tree_b.query_ball_point(xy[:nA], r=params.connect_m)):
-            for k in near:
-                j = nA + k
-                d = float(np.linalg.norm(xy[a] - xy[j]))
-                if segment_is_free(grid, xy[a], xy[j]):
-                    partners.setdefault(a, []).append((d, j))
-                    partners.setdefault(j, []).append((d, a))
-        chosen: set[tuple[int, int]] = set()
-        for i, lst in partners.items():
-            for _d, j in sorted(lst)[: params.connect_neighbours]:
-                chosen.add((min(i, j), max(i, j)))
-        for e in sorted(chosen):
-            if e not in conn:
-                n_cross_conn += 1
-            d = float(np.linalg.norm(xy[e[0]] - xy[e[1]]))
-            conn[e] = [min(conn.get(e, [np.inf])[0], d)]
+    n_cross_conn = 0 if tree_b is None else _connect_across(grid, xy, nA, tree_b, params, conn)
 
     def arrays(acc: dict[tuple[int, int], list[float]]) -> tuple[NDArray[np.int64], list[list[float]]]:
         keys = sorted(acc)
