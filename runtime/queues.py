@@ -14,9 +14,12 @@ blocked (the `Waker` protocol below), so a busy pipeline never pays for it.
   the put raises `QueueOverflow` and the item is not enqueued (the caller owns it).
   `capacity` is exact with one producer; several producers may overshoot it by at most
   one item each (the check and the append are two atomic steps).
+* `DropQueue`: the live view's bounded queue, off the hot path: a put never blocks and
+  drops the oldest item when full; a lock keeps the drop count exact. Any producer, one
+  consumer taking everything queued at once.
 
-Metrics (`QueueMetrics`): depth, high-water mark, puts, gets, drops, overflows, and
-message age in ms = now - enqueue time of the oldest / newest queued item (queue wait,
+Metrics of the first two (`QueueMetrics`): depth, high-water mark, puts, gets, drops,
+overflows, and message age in ms = now - enqueue time of the oldest / newest queued item (queue wait,
 on the `metrics.now_ns` monotonic clock; independent of sensor stamps, which may come
 from a recording), plus a sliding window of the wait time of consumed items.
 
@@ -281,3 +284,41 @@ class BoundedFifo(QueueBase[T]):
             f"high-water {self.high_water}): the consumer is not keeping up"
             + ("" if self.overflow == "record" else "; overflowing items were refused")
         )
+
+
+class DropQueue:
+    """Bounded FIFO that never blocks the producer: when full, the oldest item is dropped (counted).
+
+    Any thread may `put`; one consumer thread `get`s. A lock guards the deque (uncontended:
+    well under a microsecond) so the drop count is exact."""
+
+    def __init__(self, capacity: int) -> None:
+        if capacity < 1:
+            raise ValueError(f"capacity must be >= 1, got {capacity}")
+        self.capacity = capacity
+        self._dq: deque[Any] = deque()
+        self._lock = threading.Lock()
+        self._ready = threading.Event()
+        self.puts = 0
+        self.drops = 0
+
+    def put(self, item: Any) -> None:
+        with self._lock:
+            if len(self._dq) >= self.capacity:
+                self._dq.popleft()
+                self.drops += 1
+            self._dq.append(item)
+            self.puts += 1
+        self._ready.set()
+
+    def get_all(self, timeout: float) -> list[Any]:
+        """Everything queued (oldest first), waiting up to `timeout` s for something."""
+        self._ready.wait(timeout)
+        with self._lock:
+            items = list(self._dq)
+            self._dq.clear()
+            self._ready.clear()
+        return items
+
+    def __len__(self) -> int:
+        return len(self._dq)

@@ -34,7 +34,6 @@ import contextlib
 import logging
 import threading
 import time
-from collections import deque
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
@@ -44,6 +43,7 @@ from numpy.typing import NDArray
 
 from litevloc.base.errors import LiteVLocError
 from litevloc.pipelines.localization.tracking import TrackingState
+from litevloc.runtime.queues import DropQueue
 
 log = logging.getLogger(__name__)
 
@@ -59,44 +59,6 @@ VIEW_NICE = 10
 
 class ViewError(LiteVLocError, RuntimeError):
     """The view could not be started (Rerun missing, no viewer can be spawned, bad path)."""
-
-
-class DropQueue:
-    """Bounded FIFO that never blocks the producer: when full, the oldest item is dropped (counted).
-
-    Any thread may `put`; one consumer thread `get`s. A lock guards the deque (uncontended:
-    well under a microsecond) so the drop count is exact."""
-
-    def __init__(self, capacity: int) -> None:
-        if capacity < 1:
-            raise ValueError(f"capacity must be >= 1, got {capacity}")
-        self.capacity = capacity
-        self._dq: deque[Any] = deque()
-        self._lock = threading.Lock()
-        self._ready = threading.Event()
-        self.puts = 0
-        self.drops = 0
-
-    def put(self, item: Any) -> None:
-        with self._lock:
-            if len(self._dq) >= self.capacity:
-                self._dq.popleft()
-                self.drops += 1
-            self._dq.append(item)
-            self.puts += 1
-        self._ready.set()
-
-    def get_all(self, timeout: float) -> list[Any]:
-        """Everything queued (oldest first), waiting up to `timeout` s for something."""
-        self._ready.wait(timeout)
-        with self._lock:
-            items = list(self._dq)
-            self._dq.clear()
-            self._ready.clear()
-        return items
-
-    def __len__(self) -> int:
-        return len(self._dq)
 
 
 def _quat_xyzw(R: NDArray[np.float64]) -> NDArray[np.float64]:

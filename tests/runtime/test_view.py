@@ -19,7 +19,8 @@ from litevloc.base.geometry import make_T, so3_exp
 from litevloc.hw.messages import RgbdFrame
 from litevloc.pipelines.localization.vloc import MatchedPixels
 from litevloc.pipelines.topomap.types import NodeFeatures, OccupancyGrid, TopoMap
-from litevloc.runtime.view import DropQueue, covariance_ellipsoid, occupied_points
+from litevloc.runtime.queues import DropQueue
+from litevloc.runtime.view import covariance_ellipsoid, occupied_points
 from tests.conftest import HeldOut
 from tests.runtime.zenoh_helpers import free_port
 
