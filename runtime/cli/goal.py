@@ -25,8 +25,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
                    help="the planner's (or runtime's) endpoint, e.g. tcp/127.0.0.1:7448")
     s.add_argument("--namespace", default=None)
-    s.add_argument("--wait", type=float, default=5.0, metavar="S",
-                   help="wait up to S s for the planner's answer (0: do not wait)")
+    s.add_argument("--wait", type=float, default=30.0, metavar="S",
+                   help="wait up to S s for the planner's answer (0: do not wait); it places the goal "
+                        "image first (seconds on a busy computer)")
     add_config_args(s)
     s.set_defaults(func=run_send)
 
