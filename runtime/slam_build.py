@@ -125,7 +125,7 @@ def evaluate_against(session: SlamSession, res: SlamResult, gt_by_stamp: dict[in
     return out
 
 
-_KINDS: tuple[EdgeKind, ...] = ("odometry", "visual", "loop")
+_KINDS: tuple[EdgeKind, ...] = ("odometry", "visual", "loop", "planar")
 
 
 @dataclass(frozen=True, eq=False)

@@ -143,6 +143,25 @@ class SlamGraphParams:
 
 
 @dataclass(frozen=True)
+class SlamPlanarParams:
+    """The platform's base moves on a floor (a wheeled or legged ground robot): between
+    consecutive keyframes its base_link keeps its height, roll and pitch up to these sigmas."""
+
+    # the base_link moves in a plane (a ground robot; off for a hand-held or flying camera)
+    enabled: bool = False
+    # height change of base_link between consecutive keyframes, one sigma (floor unevenness, gait; metres)
+    sigma_height_m: float = 0.01
+    # roll and pitch change of base_link between consecutive keyframes, one sigma (degrees)
+    sigma_tilt_deg: float = 0.5
+
+    def __post_init__(self) -> None:
+        for name in ("sigma_height_m", "sigma_tilt_deg"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"slam.planar.{name} must be a finite number > 0, got {v}")
+
+
+@dataclass(frozen=True)
 class SlamParams:
     """The mapping pass's SLAM (see the module docstring), and external trajectories (`--poses FILE`)."""
 
@@ -154,6 +173,8 @@ class SlamParams:
     loops: SlamLoopParams = field(default_factory=SlamLoopParams)
     # robust optimisation of the pose graph
     graph: SlamGraphParams = field(default_factory=SlamGraphParams)
+    # planar motion of a ground robot's base between consecutive keyframes
+    planar: SlamPlanarParams = field(default_factory=SlamPlanarParams)
     # matcher of visual edges and tracking (loops use models.matcher); PnP with depth verifies its matches
     vo_matcher: Literal["lightglue", "lightglue-int8", "lightglue-adaptive", "mnn", "nn-ratio"] = "mnn"
     # --poses FILE: frames in a gap of the trajectory longer than this get no pose (s; lost tracking)

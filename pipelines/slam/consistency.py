@@ -64,7 +64,7 @@ def chain_path(ids_chains: Sequence[tuple[int, int]], poses: dict[int, F64], edg
     step_t: dict[int, float] = {}
     step_r: dict[int, float] = {}
     for e in edges:
-        if e.kind == "loop":
+        if e.kind in ("loop", "planar"):
             continue
         d = np.diag(e.covariance)
         step_t[e.b] = min(step_t.get(e.b, np.inf), float(d[3:].max()))

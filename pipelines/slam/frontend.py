@@ -14,9 +14,11 @@
   and repeated textures cannot pair with the wrong repetition); the cheap matcher runs only
   where too few are found and no odometry predicts the motion (`visual.guided_only`: the
   matcher pairs a repeating texture with the wrong repetition, and the edge then outvotes the
-  odometry). Of these edges the largest set whose estimates of the new
-  keyframe's pose agree (within `visual.max_disagreement_sigma` of their noise) is kept, with
-  the odometry first in line; a dropped odometry edge is recorded as a `Fault`.
+  odometry). Of these edges the set whose estimates of the new keyframe's pose agree (within
+  `visual.max_disagreement_sigma` of their noise) with the most independent votes is kept:
+  the odometry is one vote and the visual edges together one (they all use the new
+  keyframe's image, so one aliased image shifts them alike); a tie keeps the odometry, and
+  visual edges that agree among themselves against it are recorded as a `Fault`.
 
 Camera motion from odometry: `T_odom_camera = T_odom_base @ T_base_camera`.
 """
@@ -196,7 +198,7 @@ class FrontEnd:
         return kf
 
     def _edges_to_previous(self, kf: Keyframe, tracked: Relative | None) -> list[Edge]:
-        """Odometry and visual edges from the previous keyframes to `kf`, the largest agreeing set."""
+        """Odometry and visual edges from the previous keyframes to `kf`, the agreeing set with most votes."""
         if not self.keyframes:
             return []
         prev = self.keyframes[-1]
@@ -218,29 +220,36 @@ class FrontEnd:
         kept = self._consensus(([odo] if odo is not None else []) + visual)
         if odo is not None and odo not in kept:
             self.counts["odometry_edges_dropped"] += 1
-            self._odometry_dropped(kf, len(kept))
+        if odo is not None and len(visual) >= 2 and not any(e in kept for e in visual):
+            self._vision_overruled(kf, len(visual))
         self.counts["visual_edges_dropped"] += sum(e not in kept for e in visual)
         self.counts["odometry_edges"] += int(odo is not None and odo in kept)
         self.counts["visual_edges"] += sum(e in kept for e in visual)
         return kept
 
-    def _odometry_dropped(self, kf: Keyframe, n_visual: int) -> None:
-        """Record a dropped odometry edge: one fault per run of keyframes whose odometry the
-        visual edges contradict (a slipping wheel contradicts many in a row)."""
+    def _vision_overruled(self, kf: Keyframe, n_visual: int) -> None:
+        """Record keyframes whose visual edges (two or more) all contradict the odometry, which is
+        kept (one image is one vote: a repeating texture, or a slipping wheel): one fault per
+        run of such keyframes (a slipping wheel contradicts many in a row)."""
+        kind = "vision disagrees with odometry"
         last = self.faults[-1] if self.faults else None
-        if last is not None and last.kind == "odometry disagrees with vision" and self._dropped_run[1] == kf.id - 1:
+        if last is not None and last.kind == kind and self._dropped_run[1] == kf.id - 1:
             self._dropped_run = (self._dropped_run[0], kf.id, self._dropped_run[2] + 1)
         else:
             self._dropped_run = (kf.id, kf.id, 1)
-            last = Fault("odometry disagrees with vision", kf.t_ns * 1e-9, "", "odometry edges dropped")
+            last = Fault(kind, kf.t_ns * 1e-9, "", "visual edges dropped, odometry kept (the new keyframe's image "
+                                                    "is one vote against the odometry's one; ties go to the odometry)")
             self.faults.append(last)
         a, b, n = self._dropped_run
-        last.detail = (f"keyframes {a}-{b}: the odometry contradicts the agreeing visual edges at {n} keyframe(s) "
-                       f"(last at {kf.t_ns * 1e-9:.1f} s, {n_visual} visual edge(s))")
+        last.detail = (f"keyframes {a}-{b}: all {n_visual} visual edges contradict the odometry at {n} "
+                       f"keyframe(s) (last at {kf.t_ns * 1e-9:.1f} s)")
 
     def _consensus(self, edges: list[Edge]) -> list[Edge]:
-        """The largest set of edges (in priority order: odometry, then visual from the nearest
-        keyframe back) whose estimates of the new keyframe's pose agree pairwise."""
+        """The set of edges whose estimates of the new keyframe's pose agree pairwise with the
+        most independent votes: the odometry is one vote, all visual edges together are one
+        (they share the new keyframe's image: a repeating texture shifts them alike). Ties go
+        to the set with the odometry, then to the larger set, then to priority order
+        (odometry, then visual from the nearest keyframe back)."""
         est = [self.keyframes[e.a].T_init @ e.T_a_b for e in edges]
         k = self.params.visual.max_disagreement_sigma
         n = len(edges)
@@ -251,13 +260,16 @@ class FrontEnd:
                 var = np.diag(edges[i].covariance) + np.diag(edges[j].covariance)
                 ok[i, j] = ok[j, i] = et <= k * np.sqrt(var[3:].max()) and er <= k * np.sqrt(var[:3].max())
         best: tuple[int, ...] = ()
+        best_score = (0, False, 0)
         for size in range(n, 0, -1):
             for subset in itertools.combinations(range(n), size):
-                if all(ok[i, j] for i, j in itertools.combinations(subset, 2)):
-                    best = subset
-                    break
-            if best:
-                break
+                if not all(ok[i, j] for i, j in itertools.combinations(subset, 2)):
+                    continue
+                odometry = any(edges[i].kind == "odometry" for i in subset)
+                visual = any(edges[i].kind != "odometry" for i in subset)
+                score = (int(odometry) + int(visual), odometry, size)
+                if score > best_score:
+                    best, best_score = subset, score
         return [edges[i] for i in best]
 
     def _place(self, kf: Keyframe, edges: list[Edge]) -> None:

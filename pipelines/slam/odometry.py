@@ -94,7 +94,7 @@ class OdometryTrack:
         return bool(self._t) and self._t[-1][-1] >= t_ns
 
 
-def _adjoint(T: F64) -> F64:
+def adjoint(T: F64) -> F64:
     """6x6 adjoint of a pose in GTSAM's tangent order (rotation, translation)."""
     return np.asarray(gtsam.Pose3(gtsam.Rot3(T[:3, :3]), T[:3, 3].astype(float)).AdjointMap(), np.float64)
 
@@ -113,5 +113,5 @@ def odometry_edge(T_odom_base_a: F64, T_odom_base_b: F64, T_base_camera: F64,
     s_r = float(np.hypot(np.radians(p.sigma_deg_per_m) * d + p.sigma_deg_per_deg * a, np.radians(p.sigma_floor_deg)))
     cov_base = np.diag([s_r**2] * 3 + [s_t**2] * 3)
     T_cb = invert(T_base_camera)
-    Ad = _adjoint(T_cb)
+    Ad = adjoint(T_cb)
     return T_cb @ D @ T_base_camera, Ad @ cov_base @ Ad.T

@@ -33,6 +33,7 @@ from litevloc.pipelines.slam.frontend import FrontEnd
 from litevloc.pipelines.slam.graph import GraphResult, optimise
 from litevloc.pipelines.slam.loops import LoopCounts, LoopSearch, loop_closures
 from litevloc.pipelines.slam.odometry import OdometryTrack
+from litevloc.pipelines.slam.planar import planar_edges
 from litevloc.pipelines.slam.types import F64, Edge, FrameRecord, FrameRef, Keyframe, LoopAttempt, SlamModels, Timings
 
 
@@ -145,7 +146,7 @@ class SlamSession:
         T_first, up_note = map_frame(None if kfs[0].odom is None else kfs[0].odom[1], self.T_base_camera,
                                      self.mapping.up)
         t0 = time.perf_counter()
-        edges = self.front.edges + self.loop_edges
+        edges = self.front.edges + planar_edges(kfs, self.T_base_camera, self.params.planar) + self.loop_edges
         graph = optimise(kfs, edges, T_first, self.params.graph)
         poses = frame_poses(self.front.frames, graph.poses)
         self.timings.optimisation += time.perf_counter() - t0
@@ -198,7 +199,8 @@ class SlamSession:
             "frames_tracked": c["frames_tracked"], "tracking_failures": c["tracking_failures"],
             "edges": {"odometry": c["odometry_edges"], "visual": c["visual_edges"],
                       "odometry_dropped": c["odometry_edges_dropped"], "visual_dropped": c["visual_edges_dropped"],
-                      "visual_failed": c["visual_edge_failures"]},
+                      "visual_failed": c["visual_edge_failures"],
+                      "planar": sum(e.kind == "planar" for e in res.edges)},
             "loops": {"candidates": self.loop_counts.candidates, "tried": self.loop_counts.tried,
                       "verified": self.loop_counts.verified, "kept": int(sum(kept)),
                       "rejected_by_gate": by_gate, "rejected_by_optimiser": len(rejected) - sum(by_gate.values()),

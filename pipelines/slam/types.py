@@ -20,7 +20,7 @@ F64 = NDArray[np.float64]
 ExtractFn = Callable[[NDArray[np.uint8]], FeatureSet]
 DescribeFn = Callable[[NDArray[np.uint8]], NDArray[np.float32]]
 MatchFn = Callable[[FeatureSet, FeatureSet], tuple[NDArray[np.int64], NDArray[np.int64]]]
-EdgeKind = Literal["odometry", "visual", "loop"]
+EdgeKind = Literal["odometry", "visual", "loop", "planar"]
 
 
 @dataclass(frozen=True, eq=False)

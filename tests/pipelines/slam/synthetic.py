@@ -63,6 +63,8 @@ class Scene:
     odom_T: F64
     pixel_noise: float = 0.3
     seed: int = 0
+    # frame index -> where its image appears taken from (camera-frame offset, m): an aliased view
+    aliased: dict[int, F64] = field(default_factory=dict)
     _seen: dict[int, tuple[NodeFeatures, NDArray[np.float32]]] = field(default_factory=dict)
 
     def T_world_camera(self, i: int) -> F64:
@@ -79,7 +81,7 @@ class Scene:
     def _view(self, i: int) -> tuple[NodeFeatures, NDArray[np.float32]]:
         if i not in self._seen:
             rng = np.random.default_rng([self.seed, i])
-            Tcw = invert(self.T_world_camera(i))
+            Tcw = invert(self.T_world_camera(i) @ make_T(np.eye(3), self.aliased.get(i, np.zeros(3))))
             pc = self.landmarks @ Tcw[:3, :3].T + Tcw[:3, 3]
             front = (pc[:, 2] > 0.3) & (pc[:, 2] < 8.0)
             uv = np.full((len(pc), 2), -1.0)
