@@ -1,7 +1,7 @@
 """A 200 m route: map the `loop` world's ring corridor once, localize a query lap driven in
 another lane through the full runtime, then navigate to goal images along it.
 
-    .venv/bin/python bench/loop.py [--json out/bench/loop.json] [--goals 5] [--skip-nav]
+    .venv/bin/python bench/loop.py [--json out/bench/loop.json] [--goals 5] [--skip-nav] [--set K=V ...]
 
 1. Map: `litevloc map build sim:loop?pass=loop&seed=0` (one lap of the ~200 m ring, the
    default preset; depth-only pass 1, colour for the keyframes only). Map size in total and
@@ -20,6 +20,8 @@ another lane through the full runtime, then navigate to goal images along it.
    * `fused_ate_m`: RMSE of the published fused camera positions vs ground truth;
    * `odometry_ate_m`: RMSE of the odometry alone (anchored at the true start pose);
    * `localized_fraction`: accepted VLoc poses / frames VLoc processed (and of all frames).
+   * `first_fix_s`, `longest_without_fix_s`: sensor seconds to the first accepted VLoc pose, and
+     the longest stretch without one (the robot on odometry alone).
 3. Navigation: `--goals` goal images rendered at equal arc length along the mapping route
    (facing along it), driven to in order from the route's start with LiteVLoc localization
    (`runtime.sim_navigation.run_navigation`, as `sim navigate`), and again with ground-truth
