@@ -1,7 +1,7 @@
 """A 200 m route: map the `loop` world's ring corridor once, localize a query lap driven in
 another lane through the full runtime, then navigate to goal images along it.
 
-    .venv/bin/python bench/loop.py [--json out/bench/loop.json] [--goals 5] [--skip-nav]
+    .venv/bin/python bench/loop.py [--json out/bench/loop.json] [--goals 5] [--skip-nav] [--set K=V ...]
 
 1. Map: `litevloc map build sim:loop?pass=loop&seed=0` (one lap of the ~200 m ring, the
    default preset; depth-only pass 1, colour for the keyframes only). Map size in total and
@@ -20,6 +20,8 @@ another lane through the full runtime, then navigate to goal images along it.
    * `fused_ate_m`: RMSE of the published fused camera positions vs ground truth;
    * `odometry_ate_m`: RMSE of the odometry alone (anchored at the true start pose);
    * `localized_fraction`: accepted VLoc poses / frames VLoc processed (and of all frames).
+   * `first_fix_s`, `longest_without_fix_s`: sensor seconds to the first accepted VLoc pose, and
+     the longest stretch without one (the robot on odometry alone).
 3. Navigation: `--goals` goal images rendered at equal arc length along the mapping route
    (facing along it), driven to in order from the route's start with LiteVLoc localization
    (`runtime.sim_navigation.run_navigation`, as `sim navigate`), and again with ground-truth
@@ -66,15 +68,17 @@ def build_map(out: Path, config: str) -> dict[str, Any]:
     return info
 
 
-def query(map_dir: Path, config: str, pass_name: str = "loop-lane", rate: float = 1.0) -> dict[str, Any]:
-    """The query lap through the threaded runtime (as `litevloc replay --map`)."""
+def query(map_dir: Path, config: str, pass_name: str = "loop-lane", rate: float = 1.0,
+          overrides: tuple[str, ...] = ()) -> dict[str, Any]:
+    """The query lap through the threaded runtime (as `litevloc replay --map`), the
+    configuration `config` with `overrides` (key=value)."""
     from litevloc.base.geometry import invert
     from litevloc.config import load_config
     from litevloc.runtime.app import build_app, with_endpoints
     from litevloc.sim.source import SimSequenceSource
     from litevloc.sim.world import load_world
 
-    cfg = with_endpoints(load_config(config), [f"tcp/127.0.0.1:{_free_port()}"], [], None)
+    cfg = with_endpoints(load_config(config, overrides), [f"tcp/127.0.0.1:{_free_port()}"], [], None)
     src = SimSequenceSource(load_world("loop"), pass_name, 1, params=cfg.sim)
     app = build_app(cfg, map_dir, src, rate)
     vloc: list[tuple[int, bool, np.ndarray | None]] = []
@@ -131,9 +135,21 @@ def query(map_dir: Path, config: str, pass_name: str = "loop-lane", rate: float 
         "fused_ate_m": _rmse(f_err), "fused_err_median_m": float(np.median(f_err)) if len(f_err) else None,
         "fused_poses": len(f_err), "odometry_ate_m": _rmse(o_err), "odometry_final_error_m": float(o_err[-1]),
         "odometry_max_error_m": float(o_err.max()),
+        **_time_without_fix(np.array([t for t, _, _ in vloc]) * 1e-9, np.array([t for t, _ in acc]) * 1e-9),
         "counters": {k: c[k] for k in ("frames_in", "odometry_in", "vloc_calls", "vloc_accepted",
                                        "fusion_accepted", "poses_published") if k in c},
     }
+
+
+def _time_without_fix(t_calls_s: np.ndarray, t_fixes_s: np.ndarray) -> dict[str, float | None]:
+    """Sensor seconds from the first VLoc call to the first accepted pose, and the longest
+    stretch between VLoc calls `t_calls_s` without an accepted pose (`t_fixes_s`, the lap's
+    end included): the time a robot runs on odometry alone."""
+    if len(t_calls_s) == 0:
+        return {"first_fix_s": None, "longest_without_fix_s": None}
+    edges = np.concatenate([[t_calls_s[0]], np.sort(t_fixes_s), [t_calls_s[-1]]])
+    return {"first_fix_s": float(t_fixes_s.min() - t_calls_s[0]) if len(t_fixes_s) else None,
+            "longest_without_fix_s": float(np.diff(edges).max())}
 
 
 def loop_goals(world: Any, cfg: Any, n_goals: int) -> tuple[list[Any], Any, list[float]]:
@@ -163,7 +179,8 @@ def loop_goals(world: Any, cfg: Any, n_goals: int) -> tuple[list[Any], Any, list
     return goals, route, [round(lap * (k + 1) / (n_goals + 1), 1) for k in range(n_goals)]
 
 
-def navigate(map_dir: Path, config: str, n_goals: int, baseline: bool) -> dict[str, Any]:
+def navigate(map_dir: Path, config: str, n_goals: int, baseline: bool,
+             overrides: tuple[str, ...] = ()) -> dict[str, Any]:
     """LiteVLoc's navigation run (summary dict, as `sim navigate`'s JSON) and, with `baseline`,
     the same goals driven with ground-truth localization (`baseline`) and the time and path
     ratios over the goals both reached (`ratios`): the goal images are placed on the map in
@@ -173,7 +190,7 @@ def navigate(map_dir: Path, config: str, n_goals: int, baseline: bool) -> dict[s
     from litevloc.runtime.sim_navigation import goal_ratios, run_navigation
     from litevloc.sim.world import load_world
 
-    cfg = load_config(config)
+    cfg = load_config(config, overrides)
     world = load_world("loop")
     goals, route, arc = loop_goals(world, cfg, n_goals)
     run = run_navigation(world, cfg, map_dir, goals, route.T_world_base[0], "litevloc", cfg.sim_navigation)
@@ -194,6 +211,7 @@ def main() -> int:
     ap.add_argument("--json", type=Path, default=Path("out/bench/loop.json"))
     ap.add_argument("--out-dir", type=Path, default=Path("out/bench/loop"))
     ap.add_argument("--config", default="default")
+    ap.add_argument("--set", dest="overrides", action="append", default=[], help="KEY=VALUE (query and navigation)")
     ap.add_argument("--goals", type=int, default=5)
     ap.add_argument("--skip-nav", action="store_true", help="map and query pass only")
     ap.add_argument("--no-baseline", action="store_true",
@@ -233,17 +251,18 @@ def main() -> int:
           f"{res['map_split_bytes_per_100m']['features'] / 1e6:.2f}, graph+descriptors "
           f"{res['map_split_bytes_per_100m']['graph_descriptors'] / 1e6:.3f}, other "
           f"{res['map_split_bytes_per_100m']['other'] / 1e6:.3f})", flush=True)
-    q = query(map_dir, args.config, args.query_pass, args.rate)
-    q["pass"], q["rate"] = args.query_pass, args.rate
+    q = query(map_dir, args.config, args.query_pass, args.rate, tuple(args.overrides))
+    q["pass"], q["rate"], q["overrides"] = args.query_pass, args.rate, list(args.overrides)
     res["query"] = q
     for k in ("vloc_ate_m", "fused_ate_m", "odometry_ate_m", "localized_fraction"):
         res[k] = q[k]
     print(f"query lap ({q['frames']} frames, {q['sensor_s']:.0f} s sensor, {q['wall_s']:.0f} s wall): VLoc "
           f"{q['vloc_accepted']}/{q['vloc_calls']} accepted ({100 * q['localized_fraction']:.0f} %), ATE VLoc "
           f"{100 * q['vloc_ate_m']:.1f} cm, fused {100 * q['fused_ate_m']:.1f} cm, odometry alone "
-          f"{q['odometry_ate_m']:.2f} m (final {q['odometry_final_error_m']:.2f} m)", flush=True)
+          f"{q['odometry_ate_m']:.2f} m (final {q['odometry_final_error_m']:.2f} m); first fix after "
+          f"{q['first_fix_s']} s, longest without a fix {q['longest_without_fix_s']} s", flush=True)
     if not args.skip_nav:
-        nav = navigate(map_dir, args.config, args.goals, not args.no_baseline)
+        nav = navigate(map_dir, args.config, args.goals, not args.no_baseline, tuple(args.overrides))
         res["navigation"] = nav
         res["goals_reached"], res["goals_total"] = nav["goals_reached"], nav["goals_total"]
         print(f"navigation: {nav['goals_reached']}/{nav['goals_total']} goals, {nav['time_s']:.0f} s simulated, "

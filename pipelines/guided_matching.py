@@ -89,12 +89,19 @@ def mutual_nn_count(desc_a: NDArray[Any], desc_b: NDArray[Any], min_similarity: 
     Hamming) is at least `min_similarity`. No model run, ~1 ms for 512 x 512 ALIKED
     descriptors: a cheap score of how much two images share, used to order GL candidates
     before the matcher runs on them."""
+    return len(mutual_nn_pairs(desc_a, desc_b, min_similarity)[0])
+
+
+def mutual_nn_pairs(desc_a: NDArray[Any], desc_b: NDArray[Any],
+                    min_similarity: float) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """(indices into `desc_a`, indices into `desc_b`) of the mutual nearest neighbours that
+    `mutual_nn_count` counts: appearance-only matches, no pose and no model involved."""
     a, b = np.asarray(desc_a), np.asarray(desc_b)
     if len(a) == 0 or len(b) == 0:
-        return 0
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
     S = _similarity(a, b)
     best_b = np.argmax(S, axis=1)
     best_a = np.argmax(S, axis=0)
     rows = np.arange(len(a))
-    mutual = best_a[best_b] == rows
-    return int(np.count_nonzero(mutual & (S[rows, best_b] >= min_similarity)))
+    keep = (best_a[best_b] == rows) & (S[rows, best_b] >= min_similarity)
+    return rows[keep].astype(np.int64), best_b[keep].astype(np.int64)

@@ -225,6 +225,8 @@ class LocalizationParams:
     gl_distinct_deg: float = 10.0
     # candidates verified after the accepted one for that test at most (those with >= 1/ratio of its re-ranking count)
     gl_distinct_max_rivals: int = 3
+    # that test skips the later candidates whose PnP on the re-ranking's matches (no model run) agrees with that pose
+    gl_distinct_screen: bool = True
     # > 0: where that test judges a GL pose, its PnP needs this many inliers instead of pnp.min_inliers
     gl_distinct_min_inliers: int = 0
     # PnP + RANSAC of live keypoints (with live depth) against a keyframe

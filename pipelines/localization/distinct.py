@@ -11,7 +11,7 @@ way, `pipelines.navigation.planner`).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -41,6 +41,13 @@ class Rival:
     apart_deg: float
 
 
+def same_place(T_a: NDArray[np.float64], T_b: NDArray[np.float64], apart_m: float, apart_deg: float) -> bool:
+    """Whether two camera poses (4x4 T_map_camera) are one place for the test: within
+    `apart_m` of each other and turned by at most `apart_deg`."""
+    dt, dr = relative_pose_error(T_a, T_b)
+    return bool(dt <= apart_m and dr <= apart_deg)
+
+
 def strongest_rival(T_winner: NDArray[np.float64], verified: Sequence[VerifiedPose], apart_m: float,
                     apart_deg: float) -> Rival | None:
     """The verified candidate with the most inliers whose pose lies farther than `apart_m`
@@ -48,8 +55,9 @@ def strongest_rival(T_winner: NDArray[np.float64], verified: Sequence[VerifiedPo
     candidate agrees with the winner."""
     best: Rival | None = None
     for v in verified:
-        dt, dr = relative_pose_error(v.T_map_camera, T_winner)
-        if (dt > apart_m or dr > apart_deg) and (best is None or v.n_inliers > best.n_inliers):
+        elsewhere = not same_place(v.T_map_camera, T_winner, apart_m, apart_deg)
+        if elsewhere and (best is None or v.n_inliers > best.n_inliers):
+            dt, dr = relative_pose_error(v.T_map_camera, T_winner)
             best = Rival(v.node, v.n_inliers, float(dt), float(dr))
     return best
 
@@ -62,3 +70,13 @@ def ambiguity(winner_node: int, winner_inliers: int, rival: Rival | None, ratio:
     return (f"ambiguous: node {winner_node} ({winner_inliers} inliers) and node {rival.node} "
             f"({rival.n_inliers}) verify poses {rival.apart_m:.2f} m / {rival.apart_deg:.0f} deg apart "
             f"(need x{ratio:g})")
+
+
+def rivals_to_verify(later: Sequence[int], rerank_counts: Mapping[int, int], winner: int, ratio: float,
+                     max_rivals: int) -> list[int]:
+    """The `later` candidates (node ids, in GL order) worth verifying after `winner` for the
+    test, at most `max_rivals`: those whose re-ranking count (`rerank_counts`, mutual nearest
+    neighbours with the live frame; a node without one passes) is at least 1/`ratio` of the
+    winner's."""
+    need = rerank_counts.get(winner, 0) / ratio
+    return [n for n in later if rerank_counts.get(n, need) >= need][:max_rivals]

@@ -45,8 +45,14 @@ from numpy.typing import NDArray
 from litevloc.base.geometry import backproject_pixels, check_rigid, relative_pose_error
 from litevloc.base.params.localization import LocalizationParams
 from litevloc.pipelines.depth_lookup import depth_at
-from litevloc.pipelines.guided_matching import mutual_nn_count
-from litevloc.pipelines.localization.distinct import VerifiedPose, ambiguity, strongest_rival
+from litevloc.pipelines.guided_matching import mutual_nn_pairs
+from litevloc.pipelines.localization.distinct import (
+    VerifiedPose,
+    ambiguity,
+    rivals_to_verify,
+    same_place,
+    strongest_rival,
+)
 from litevloc.pipelines.localization.refine import (
     KeyframeObservations,
     RefineResult,
@@ -234,6 +240,8 @@ class _Query:
         self._matches: dict[int, tuple[NDArray[np.int64], NDArray[np.int64]]] = {}
         self._points: NDArray[np.float64] | None = None
         self.rerank_counts: dict[int, int] = {}  # GL: mutual-nearest-neighbour count per re-ranked node
+        # GL: those mutual nearest neighbours, (live indices, keyframe indices) per re-ranked node
+        self.rerank_pairs: dict[int, tuple[NDArray[np.int64], NDArray[np.int64]]] = {}
 
     def matches(self, node: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
         """(live indices, keyframe indices) of the matches with `node`."""
@@ -611,8 +619,7 @@ class VisualLocalizer:
                 attempts.append(att)
                 best = (node, res, joint)
                 stop = f"candidate {k + 1} of {len(order)} passed the joint check"
-                amb = "" if trusted else self._ambiguity(node, res, joint.T_map_camera, q, order[k + 1:],
-                                                         sims, evidence)
+                amb = "" if trusted else self._ambiguity(node, res, joint, q, order[k + 1:], sims, evidence)
                 if amb:
                     best, provisional, reason = None, None, f"not localized: {amb}"
                     stop = f"{stop}; {amb}"
@@ -692,9 +699,10 @@ class VisualLocalizer:
             return order
         t0 = self.clock()
         live = np.asarray(q.feats.descriptors)
-        counts = [mutual_nn_count(live, self.map.features[int(n)].descriptors, self.params.gl_rerank_min_similarity)
-                  for n in order]
-        q.rerank_counts = {int(n): int(c) for n, c in zip(order, counts, strict=True)}
+        q.rerank_pairs = {int(n): mutual_nn_pairs(live, self.map.features[int(n)].descriptors,
+                                                  self.params.gl_rerank_min_similarity) for n in order}
+        q.rerank_counts = {n: len(pairs[0]) for n, pairs in q.rerank_pairs.items()}
+        counts = [q.rerank_counts[int(n)] for n in order]
         q.timer.add("rerank", t0)
         return order[np.argsort(-np.asarray(counts), kind="stable")]
 
@@ -707,25 +715,47 @@ class VisualLocalizer:
             return p
         return replace(p, pnp=replace(p.pnp, min_inliers=p.gl_distinct_min_inliers))
 
-    def _ambiguity(self, winner: int, res: PnpResult, T_winner: NDArray[np.float64], q: _Query,
+    def _ambiguity(self, winner: int, res: PnpResult, joint: RefineResult, q: _Query,
                    later: NDArray[np.int64], sims: NDArray[np.float32], verified: list[VerifiedPose]) -> str:
-        """The distinctiveness test of a GL pose `T_winner` (4x4) verified through `winner`
-        (`res` its PnP) without a trusted prior: up to `gl_distinct_max_rivals` of the `later`
-        candidates whose re-ranking count is at least 1/`gl_distinct_ratio` of the winner's are
-        verified too (appended to `verified`, the candidates verified so far); the refusal
-        reason when one at another place has at least 1/ratio of its inliers, else ''."""
+        """The distinctiveness test of the GL pose `joint.T_map_camera` verified through `winner`
+        (`res` its PnP) without a trusted prior: the refusal reason when a candidate at another
+        place has at least 1/`gl_distinct_ratio` of its inliers, else ''. Judged on `verified`
+        (the candidates verified so far), then on the `rivals_to_verify` among the `later`
+        candidates one at a time (appended to `verified`), stopping once a rival decides."""
         p = self.params
         if p.gl_distinct_ratio <= 0:
             return ""
         t0 = self.clock()
-        need = q.rerank_counts.get(winner, 0) / p.gl_distinct_ratio
-        more = [int(n) for n in later if q.rerank_counts.get(int(n), need) >= need][: p.gl_distinct_max_rivals]
-        for node in more:
-            self._verify_global(node, q, float(sims[node]), verified)
-        rival = strongest_rival(T_winner, [v for v in verified if v.node != winner], p.gl_distinct_m,
-                                p.gl_distinct_deg)
+        more = rivals_to_verify([int(n) for n in later], q.rerank_counts, winner, p.gl_distinct_ratio,
+                                p.gl_distinct_max_rivals)
+        amb = ""
+        for node in [None, *more]:
+            if node is not None and not (p.gl_distinct_screen and self._same_place_unmatched(node, q, joint)):
+                self._verify_global(node, q, float(sims[node]), verified)
+            rival = strongest_rival(joint.T_map_camera, [v for v in verified if v.node != winner], p.gl_distinct_m,
+                                    p.gl_distinct_deg)
+            amb = ambiguity(winner, res.n_inliers, rival, p.gl_distinct_ratio)
+            if amb:
+                break
         q.timer.add("distinct", t0)
-        return ambiguity(winner, res.n_inliers, rival, p.gl_distinct_ratio)
+        return amb
+
+    def _same_place_unmatched(self, node: int, q: _Query, joint: RefineResult) -> bool:
+        """Whether PnP on `node`'s re-ranking matches (mutual nearest neighbours, no model run)
+        puts the live camera at the joint pose's place (`same_place`); False where it cannot
+        tell (no such matches, no pose): the candidate is then verified with the matcher."""
+        pairs = q.rerank_pairs.get(node)
+        if pairs is None:
+            return False
+        t0 = self.clock()
+        res, _, _ = relative_pose(q.feats, q.depth, q.K, self.map.features[node], self.map.K[node],
+                                  lambda a, b: pairs, self.params, None, self.map.keypoint_depth(node))
+        q.timer.add("distinct_screen", t0)
+        if res is None or not res.accepted or res.T_target_source is None:
+            return False
+        p = self.params
+        return same_place(self.map.T_map_camera[node] @ res.T_target_source, joint.T_map_camera, p.gl_distinct_m,
+                          p.gl_distinct_deg)
 
     def gl_budget_ms(self, nominal_ll_ms: float = float("inf")) -> float:
         """The wall-time bound (ms) on a GL query while recovering: `lost_cost_ratio` x the cost

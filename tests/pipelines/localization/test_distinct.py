@@ -3,16 +3,19 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import replace
 
+import numpy as np
 import pytest
+from numpy.typing import NDArray
 
 from litevloc.base import geometry as g
 from litevloc.base.params.localization import LocalizationParams
-from litevloc.pipelines.localization.distinct import Rival, VerifiedPose, ambiguity, strongest_rival
+from litevloc.pipelines.localization.distinct import Rival, VerifiedPose, ambiguity, rivals_to_verify, strongest_rival
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.types import NodeFeatures, TopoMap
-from tests.pipelines.localization.test_vloc import IMG, PARAMS, K, Scene, make_map, pose
+from tests.pipelines.localization.test_vloc import IMG, PARAMS, Feats, K, Scene, make_map, pose
 
 # re-ranking and guided matching off: over these large synthetic keypoint sets they dominate the time
 GUARD = replace(PARAMS, gl_top_k=4, gl_distinct_ratio=2.0, gl_rerank=False,
@@ -71,15 +74,49 @@ def test_gl_refuses_a_pose_that_another_place_verifies_as_well() -> None:
     assert r.accepted and g.relative_pose_error(r.T_map_camera, T_true)[0] < 0.01, r.reason
 
 
+def test_rivals_to_verify_skip_weak_candidates() -> None:
+    counts = {0: 100, 1: 80, 2: 40, 3: 60, 4: 55}
+    assert rivals_to_verify([1, 2, 3, 4, 5], counts, 0, 2.0, 2) == [1, 3]  # 2: < 100 / 2
+    assert rivals_to_verify([1, 2, 3, 4, 5], counts, 0, 2.0, 9) == [1, 3, 4, 5]  # 5: not re-ranked, passes
 
-def test_lower_inlier_floor_only_where_the_distinctiveness_test_judges() -> None:
-    m = make_map([0.0, 1.0])
+
+Pairs = tuple[NDArray[np.int64], NDArray[np.int64]]
+
+
+def _counting(s: Scene, seen: list[int]) -> Callable[[Feats, NodeFeatures], Pairs]:
+    """The scene's matcher, recording the node of every call in `seen`."""
+    def match(a: Feats, b: NodeFeatures) -> Pairs:
+        seen.append(next(i for i, f in enumerate(s.map.features) if f is b))
+        return s.match(a, b)
+    return match
+
+
+def test_the_test_stops_once_a_rival_decides() -> None:
+    m = _corridor()
     s = Scene(m)
-    p = replace(GUARD, gl_distinct_min_inliers=12)
-    loc = VisualLocalizer(m, p, s.extract, s.describe, s.match)
-    assert loc._gl_params(trusted_prior=False).pnp.min_inliers == 12
-    assert loc._gl_params(trusted_prior=True).pnp.min_inliers == p.pnp.min_inliers
-    off = VisualLocalizer(m, replace(p, gl_distinct_ratio=0.0), s.extract, s.describe, s.match)
-    assert off._gl_params(trusted_prior=False).pnp.min_inliers == p.pnp.min_inliers
-    with pytest.raises(ValueError, match="gl_distinct_min_inliers"):
-        LocalizationParams(gl_distinct_min_inliers=3)
+    depth = s.look(pose(0.3, 4.0), vpr_best=0)
+    s.vpr[1:] = [0.9, 0.8, 0.7]  # GL order 0, 1, 2 (the alias of 0), 3 (the alias of 1)
+    seen: list[int] = []
+    loc = VisualLocalizer(m, GUARD, s.extract, s.describe, _counting(s, seen))
+    r = loc.localize_global(0, IMG, depth, K)
+    assert not r.accepted and "node 2" in r.reason and 3 not in seen, (r.reason, seen)  # node 3: never matched
+
+
+def test_the_screen_verifies_only_candidates_the_reranking_puts_elsewhere() -> None:
+    screen = replace(GUARD, gl_rerank=True, gl_distinct_screen=True, refine=PARAMS.refine)  # guided joint: no matcher
+    m = make_map([0.0, 1.0, 2.0])
+    s = Scene(m)
+    depth = s.look(pose(0.8, 3.0), vpr_best=1)
+    runs: dict[bool, list[int]] = {}
+    for on in (False, True):
+        runs[on] = []
+        loc = VisualLocalizer(m, replace(screen, gl_distinct_screen=on), s.extract, s.describe, _counting(s, runs[on]))
+        r = loc.localize_global(0, IMG, depth, K)
+        assert r.accepted and g.relative_pose_error(r.T_map_camera, pose(0.8, 3.0))[0] < 0.01, r.reason
+    assert len(runs[False]) == 3 and len(runs[True]) == 1, runs  # the same place: no matcher run for the test
+    # the aliased copy of the corridor: its re-ranking pose is 10 m away, so it is verified and decides
+    m = _corridor()
+    s = Scene(m)
+    depth = s.look(pose(0.3, 4.0), vpr_best=0)
+    r = VisualLocalizer(m, screen, s.extract, s.describe, s.match).localize_global(0, IMG, depth, K)
+    assert not r.accepted and "ambiguous" in r.reason and "10.00 m" in r.reason, r.reason
