@@ -14,6 +14,7 @@ from litevloc.base.params.navigation import TrackerParams
 from litevloc.config.schema import PlannerConfig, ZenohConfig
 from litevloc.hw import ros_msgs
 from litevloc.pipelines.navigation.planner import GoalResult
+from litevloc.pipelines.topomap.types import OccupancyGrid
 from litevloc.runtime.planner_service import KEYS, GoalPlanner, PlannerService
 from tests.pipelines.navigation.test_planner import grid_map
 from tests.runtime.zenoh_helpers import free_port
@@ -26,6 +27,10 @@ def planner(locate_nodes: dict[int, int | None], goal_places: dict[int, np.ndarr
     """Nodes 0..3 on a line 1 m apart (x = 0..3 m); goal image k (first byte) -> node (and,
     in `goal_places`, the goal camera's metric pose in the map)."""
     m = grid_map([(0, 1, 1.0), (1, 2, 1.0), (2, 3, 1.0)], 4)
+    # z up, as the service's level poses assume: 8 x 8 m of free floor around the nodes
+    free = np.full((80, 80), OccupancyGrid.FREE, np.uint8)
+    m = dataclasses.replace(m, grid=OccupancyGrid(free, np.array([-2.0, -4.0]), 0.1, np.array([0, 0, 1.0]),
+                                                  np.eye(3)[:2]))
 
     def locate(rgb: np.ndarray) -> GoalResult:
         k = int(rgb[0, 0, 0])
@@ -96,7 +101,7 @@ def test_final_approach_drives_on_to_the_goal_images_place() -> None:
     place[1, 3] = 0.8  # the goal image was taken 0.8 m beside node 2
     p = planner({1: 2, 2: 1}, goal_places={1: place})
     outs = p.add_goal("beside", img(1))  # no pose yet: queued, with where its place is
-    assert "its place 0.80 m from the node (80 PnP inliers)" in outs[0][1]["reason"]
+    assert "its place 0.80 m from the node (80 PnP inliers; 0.80 m on the grid)" in outs[0][1]["reason"]
     for t, x in enumerate((0.0, 0.05, 1.0)):
         p.on_pose(t, pose(x))
     outs = p.on_pose(3, pose(2.0))  # at the goal node: not reached yet, on to the place
