@@ -208,6 +208,22 @@ class GoalPlanner:
         T_goal = (self._goal_base if self._goal_base is not None else self.node_base[node]).copy()
         return Subgoal(self.pose[0], node, T_goal, invert(self.pose[1]) @ T_goal)
 
+    def place(self, image: NDArray[np.uint8]) -> tuple[GoalResult, NDArray[np.float64] | None, Approach | None]:
+        """Where the goal image is (`locate`) and, where the map gives its metric place, the final
+        approach to it from its node; a place the approach cannot reach from its node comes back
+        refused (`node` None, the approach's reason). Returns (result, level base pose at the
+        goal image's place or None, the approach or None)."""
+        res = self.locate(image)
+        goal_base = None if res.node is None else self.goal_base_pose(res)
+        if res.node is None or goal_base is None:
+            return res, None, None
+        approach = plan_approach(self.map.grid, self.node_base[res.node, :3, 3], goal_base[:3, 3],
+                                 self.params.tracker)
+        if not approach.ok:
+            return dataclasses.replace(res, node=None, reason=f"placed at node {res.node}, refused: "
+                                       f"{approach.reason}"), None, None
+        return res, goal_base, approach
+
     @property
     def busy(self) -> bool:
         """A goal is active or queued."""
@@ -225,21 +241,13 @@ class GoalPlanner:
                 image = decode_goal_image(bytes(image))
             if len(self.queue) >= self.params.max_queued_goals:
                 raise ValueError(f"goal queue full ({self.params.max_queued_goals} goals)")
-            res = self.locate(image)
+            res, goal_base, approach = self.place(image)
         except Exception as exc:
             self._emit(out, "failed", f"goal {name!r} rejected: {exc}", name)
             return out
         if res.node is None:
             self._emit(out, "failed", f"goal {name!r}: {res.reason}", name)
             return out
-        goal_base = self.goal_base_pose(res)
-        approach = None
-        if goal_base is not None:
-            approach = plan_approach(self.map.grid, self.node_base[res.node, :3, 3], goal_base[:3, 3],
-                                     self.params.tracker)
-            if not approach.ok:
-                self._emit(out, "failed", f"goal {name!r} at node {res.node} refused: {approach.reason}", name)
-                return out
         self.queue.append((name, res.node, float(res.inliers), goal_base, approach))
         where = f"goal {name!r} at node {res.node} ({res.inliers} inliers)"
         if goal_base is not None and approach is not None:
