@@ -375,11 +375,12 @@ class GoalPlanner:
         p = self.robot_position(T)
         reach = self.params.tracker.reach_m
         legs = len(self._waypoints)
-        while len(self._waypoints) > 1 and np.linalg.norm(self._waypoints[0][:2] - p[:2]) <= reach:
-            self._waypoints.pop(0)
+        near = [k for k, w in enumerate(self._waypoints) if np.linalg.norm(w[:2] - p[:2]) <= reach]
+        if near:  # on from the last turn within reach (the end stays the subgoal)
+            del self._waypoints[:min(near[-1] + 1, legs - 1)]
         pts = [p, *self._waypoints]
         d = float(sum(np.linalg.norm(b[:2] - a[:2]) for a, b in itertools.pairwise(pts)))
-        if d <= reach:  # at the approach's end: the goal place, or the free cell next to it
+        if np.linalg.norm(self._waypoints[-1][:2] - p[:2]) <= reach:  # the goal place, or the free cell next to it
             name, self.active, self._final = self.active, None, False
             self._emit(out, "reached", f"goal {name!r}: within {reach} m of the goal image's place "
                        f"(past node {node})", name, goal_node=node)
