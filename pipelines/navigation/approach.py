@@ -55,11 +55,11 @@ def blocked_cells(cells: NDArray[np.uint8], radius_cells: float) -> NDArray[np.b
     of any part of an OCCUPIED cell (to half a cell: offsets up to radius + 0.5 cells)."""
     occ = (cells == OccupancyGrid.OCCUPIED).astype(np.uint8)
     if radius_cells <= 0:
-        return occ.astype(bool)
+        return np.asarray(occ, bool)
     r = int(np.ceil(radius_cells + 0.5))
     yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
     disc = (np.hypot(yy, xx) <= radius_cells + 0.5).astype(np.uint8)
-    return cv2.dilate(occ, disc).astype(bool)
+    return np.asarray(cv2.dilate(occ, disc), bool)
 
 
 def grid_distances(free: NDArray[np.bool_], start: tuple[int, int], resolution: float,

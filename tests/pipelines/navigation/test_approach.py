@@ -4,6 +4,7 @@ obstacle's margin (approached at the free cell next to it)."""
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 
 import numpy as np
@@ -65,6 +66,17 @@ def test_a_place_behind_a_wall_is_refused_as_contradicting_the_map() -> None:
     assert "behind a wall" in a.reason or "not reachable" in a.reason
     near_door = plan_approach(grid(c), at(4.2, 4.6), at(5.8, 4.6), P)  # the door is a short detour here
     assert near_door.ok and near_door.length_m > near_door.straight_m + 0.3
+
+
+def test_the_detour_bound_decides_between_going_round_and_refusing() -> None:
+    c = room(6.0, 10.0)
+    c[:, 50:52] = OccupancyGrid.OCCUPIED
+    c[11:20, 50:52] = OccupancyGrid.FREE  # a door 1.1-2.0 m up, 0.5 m beside the straight line
+    ok = plan_approach(grid(c), at(4.5, 1.0), at(5.7, 1.0), P)
+    assert ok.ok and ok.straight_m + 0.2 < ok.length_m < ok.straight_m + P.approach_detour_m
+    tight = dataclasses.replace(P, approach_detour_m=0.2)
+    no = plan_approach(grid(c), at(4.5, 1.0), at(5.7, 1.0), tight)
+    assert not no.ok and "behind a wall from its node" in no.reason and np.isclose(no.length_m, ok.length_m)
 
 
 def test_an_unreachable_place_is_refused_with_the_reason() -> None:
