@@ -44,7 +44,7 @@ from litevloc.config.schema import LiteVLocConfig
 from litevloc.pipelines.topomap.build import MapBuilder
 from litevloc.pipelines.topomap.io import load_map, save_map
 from litevloc.pipelines.topomap.openings import find_openings, openings_summary
-from litevloc.runtime.planner_service import decode_goal_image, goal_locator
+from litevloc.runtime.planner_service import GoalPlanner, decode_goal_image, goal_locator
 from litevloc.runtime.sim_navigation import Goal, NavRun, placed_position, render_goals, run_navigation
 from litevloc.runtime.vloc_models import ModelBundle, load_bundle
 from litevloc.sim.coverage import map_coverage
@@ -54,7 +54,10 @@ from litevloc.sim.world import World, load_world
 GENERATORS = ("office", "floor", "bland")
 WRONG_PLACEMENT_M = 2.0
 REFUSAL_CLASSES = (("matches no map place", "no map place"), ("ambiguous", "ambiguous"),
-                   ("only a flat patch", "flat patch only"), ("rejected", "bad image"))
+                   ("only a flat patch", "flat patch only"), ("rejected", "bad image"),
+                   ("behind a wall from its node", "place behind a wall"),
+                   ("not reachable on the map's grid", "place unreachable"),
+                   ("lies in an obstacle", "place in obstacle"))
 
 
 @dataclass(frozen=True)
@@ -184,9 +187,10 @@ def place_other(goals: list[Goal], map_dir: Path, cfg: LiteVLocConfig, bundle: M
     the bundle's, or caching wrappers of them."""
     topomap = load_map(map_dir)
     locate = goal_locator(topomap, extract or bundle.extract, bundle.describe, match or bundle.match, cfg.planner)
+    planner = GoalPlanner(topomap, locate, cfg.planner, cfg.fusion.T_base_camera())
     out = []
     for g in goals:
-        res = locate(decode_goal_image(g.jpeg))
+        res = planner.place(decode_goal_image(g.jpeg))[0]
         p = placed_position(res, topomap)
         err = None if p is None or g.T_world_camera is None else float(np.linalg.norm(p[:2] - g.T_world_camera[:2, 3]))
         out.append({"name": g.name, "camera": g.camera, "placed_node": res.node, "reason": res.reason,

@@ -32,12 +32,17 @@ queued, a subgoal pair or a status stamped with that pose is published (with
 `planner.publish_period_s: 0`, the default).
 
 A goal image that matches no map place is reported `failed` with the reason and is never
-planned to.
+planned to. Where the map gives the goal image's metric place, the final approach from the
+goal node to it is planned on the map's occupancy grid (`pipelines.navigation.approach`)
+when the goal arrives; a place the grid cannot reach from its node, or only by a detour
+(behind a wall: the placement contradicts the map), is refused with the reason. The goal is
+reached only within `tracker.reach_m` of the place.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import json
 import logging
 import queue
@@ -55,7 +60,8 @@ from numpy.typing import NDArray
 from litevloc.base.geometry import invert
 from litevloc.config.schema import PlannerConfig, TfConfig
 from litevloc.hw import ros_msgs
-from litevloc.pipelines.navigation.planner import GoalResult, NavStatus, SubgoalTracker, localize_goal, segment_clear
+from litevloc.pipelines.navigation.approach import Approach, plan_approach
+from litevloc.pipelines.navigation.planner import GoalResult, NavStatus, SubgoalTracker, localize_goal
 from litevloc.pipelines.topomap.types import TopoMap
 from litevloc.runtime.metrics import jsonable
 from litevloc.runtime.ros_interface import image_to_rgb
@@ -138,8 +144,8 @@ class GoalPlanner:
         # where the base stands at each node: the keyframe camera pose moved back to the base, level
         self.node_base = np.stack([level_pose(T @ self.T_camera_base) for T in topomap.T_map_camera])
         self.tracker = SubgoalTracker(topomap, params.tracker, self.node_base[:, :3, 3])
-        # (name, node, inliers, level base pose at the goal image's place or None)
-        self.queue: deque[tuple[str, int, float, NDArray[np.float64] | None]] = deque()
+        # (name, node, inliers, level base pose at the goal image's place or None, its approach from the node)
+        self.queue: deque[tuple[str, int, float, NDArray[np.float64] | None, Approach | None]] = deque()
         self.active: str | None = None
         self.goals_received = 0
         self.seq = 0
@@ -150,6 +156,8 @@ class GoalPlanner:
         self._nav: NavStatus | None = None
         self._goal_base: NDArray[np.float64] | None = None  # metric goal of the active goal (map frame)
         self._final = False  # driving from the goal node to the goal image's own place
+        self._approach: Approach | None = None  # the active goal's final approach, planned from its node
+        self._waypoints: list[NDArray[np.float64]] = []  # final approach points still to reach (map frame)
         self._progress: tuple[float, int] | None = None  # (closest remaining m, its t_ns) of the active goal
 
     # ----------------------------------------------------------------- helpers
@@ -178,6 +186,8 @@ class GoalPlanner:
     def subgoal_of(self, node: int, t_ns: int, T_map_base: NDArray[np.float64]) -> Subgoal:
         final = self._final and self._goal_base is not None
         T_map_sub = (self._goal_base if final and self._goal_base is not None else self.node_base[node]).copy()
+        if final and self._waypoints:  # the final approach's next turn or its end, with the place's heading
+            T_map_sub[:3, 3] = self._waypoints[0]
         return Subgoal(t_ns, node, T_map_sub, invert(T_map_base) @ T_map_sub)
 
     def goal_base_pose(self, res: GoalResult) -> NDArray[np.float64] | None:
@@ -198,6 +208,22 @@ class GoalPlanner:
         T_goal = (self._goal_base if self._goal_base is not None else self.node_base[node]).copy()
         return Subgoal(self.pose[0], node, T_goal, invert(self.pose[1]) @ T_goal)
 
+    def place(self, image: NDArray[np.uint8]) -> tuple[GoalResult, NDArray[np.float64] | None, Approach | None]:
+        """Where the goal image is (`locate`) and, where the map gives its metric place, the final
+        approach to it from its node; a place the approach cannot reach from its node comes back
+        refused (`node` None, the approach's reason). Returns (result, level base pose at the
+        goal image's place or None, the approach or None)."""
+        res = self.locate(image)
+        goal_base = None if res.node is None else self.goal_base_pose(res)
+        if res.node is None or goal_base is None:
+            return res, None, None
+        approach = plan_approach(self.map.grid, self.node_base[res.node, :3, 3], goal_base[:3, 3],
+                                 self.params.tracker)
+        if not approach.ok:
+            return dataclasses.replace(res, node=None, reason=f"placed at node {res.node}, refused: "
+                                       f"{approach.reason}"), None, None
+        return res, goal_base, approach
+
     @property
     def busy(self) -> bool:
         """A goal is active or queued."""
@@ -215,19 +241,18 @@ class GoalPlanner:
                 image = decode_goal_image(bytes(image))
             if len(self.queue) >= self.params.max_queued_goals:
                 raise ValueError(f"goal queue full ({self.params.max_queued_goals} goals)")
-            res = self.locate(image)
+            res, goal_base, approach = self.place(image)
         except Exception as exc:
             self._emit(out, "failed", f"goal {name!r} rejected: {exc}", name)
             return out
         if res.node is None:
             self._emit(out, "failed", f"goal {name!r}: {res.reason}", name)
             return out
-        goal_base = self.goal_base_pose(res)
-        self.queue.append((name, res.node, float(res.inliers), goal_base))
+        self.queue.append((name, res.node, float(res.inliers), goal_base, approach))
         where = f"goal {name!r} at node {res.node} ({res.inliers} inliers)"
-        if goal_base is not None:
-            d = float(np.linalg.norm(goal_base[:2, 3] - self.node_base[res.node, :2, 3]))
-            where += f", its place {d:.2f} m from the node ({res.pose_inliers} PnP inliers)"
+        if goal_base is not None and approach is not None:
+            where += (f", its place {approach.straight_m:.2f} m from the node ({res.pose_inliers} PnP inliers; "
+                      f"{approach.length_m:.2f} m on the grid)")
         was_active = self.active
         if self.active is None:
             self._start_next(out)
@@ -256,14 +281,15 @@ class GoalPlanner:
 
     def _start_next(self, out: list[Output]) -> None:
         while self.active is None and self.queue and self.pose is not None:
-            name, node, _, goal_base = self.queue.popleft()
+            name, node, _, goal_base, approach = self.queue.popleft()
             T = self.pose[1]
             nav = self.tracker.set_goal(node, self.robot_position(T))
             if nav.state == "failed":
                 self._emit(out, "failed", f"goal {name!r}: {nav.reason}", name, goal_node=node)
                 continue
             self.active, self._nav = name, nav
-            self._goal_base, self._final, self._progress = goal_base, False, None
+            self._goal_base, self._approach, self._final, self._progress = goal_base, approach, False, None
+            self._waypoints = []
             self._last_sub_node = None
             self._emit(out, "planned", f"goal {name!r}: {nav.reason}", name, nav, node)
             self._publish_subgoal(out, nav, force=True)
@@ -294,16 +320,17 @@ class GoalPlanner:
         nav = self._nav = self.tracker.update(self.robot_position(T))
         if nav.state == "reached" and self._goal_base is not None:
             node = self.tracker.goal
-            assert node is not None
-            a, b = self.node_base[node, :3, 3], self._goal_base[:3, 3]
-            clearance = self.params.tracker.clearance_m
-            if clearance == 0 or segment_clear(self.map, a, b, clearance):
-                self._final, self._progress = True, None  # progress counts on the straight distance now
-                self._emit(out, "planned", f"goal {self.active!r}: at node {node}; on to the goal image's place "
-                           f"{np.linalg.norm(b[:2] - a[:2]):.2f} m away", self.active, nav, node)
-                return self._final_approach(out, T)
-            nav = NavStatus("reached", f"{nav.reason}; the goal image's place is not in clear sight of it "
-                                       f"({np.linalg.norm(b[:2] - a[:2]):.2f} m away)")
+            assert node is not None and self._approach is not None
+            # replanned from where the robot stands (within reach_m of the node); the node's plan otherwise
+            here = plan_approach(self.map.grid, self.robot_position(T), self._goal_base[:3, 3], self.params.tracker)
+            way = here if here.ok else self._approach
+            assert way.waypoints is not None
+            self._waypoints = list(way.waypoints)
+            self._final, self._progress = True, None  # progress counts on the approach's length now
+            self._emit(out, "planned", f"goal {self.active!r}: at node {node}; on to the goal image's place "
+                       f"{way.straight_m:.2f} m away ({way.length_m:.2f} m on the grid, {len(self._waypoints)} "
+                       "legs)", self.active, nav, node)
+            return self._final_approach(out, T)
         if nav.state == "reached":
             name, self.active = self.active, None
             self._emit(out, "reached", f"goal {name!r}: {nav.reason}", name, goal_node=self.tracker.goal)
@@ -341,12 +368,19 @@ class GoalPlanner:
         return True
 
     def _final_approach(self, out: list[Output], T: NDArray[np.float64]) -> list[Output]:
-        """From the goal node straight to the goal image's place (subgoal = that place)."""
+        """From the goal node along the grid path's turns to the goal image's place (subgoal = the
+        next turn, then that place); reached only within `reach_m` of the place."""
         assert self._goal_base is not None and self.pose is not None
         node = self.tracker.goal
-        d = float(np.linalg.norm(self._goal_base[:3, 3] - self.robot_position(T)))
+        p = self.robot_position(T)
         reach = self.params.tracker.reach_m
-        if d <= reach:
+        legs = len(self._waypoints)
+        near = [k for k, w in enumerate(self._waypoints) if np.linalg.norm(w[:2] - p[:2]) <= reach]
+        if near:  # on from the last turn within reach (the end stays the subgoal)
+            del self._waypoints[:min(near[-1] + 1, legs - 1)]
+        pts = [p, *self._waypoints]
+        d = float(sum(np.linalg.norm(b[:2] - a[:2]) for a, b in itertools.pairwise(pts)))
+        if np.linalg.norm(self._waypoints[-1][:2] - p[:2]) <= reach:  # the goal place, or the free cell next to it
             name, self.active, self._final = self.active, None, False
             self._emit(out, "reached", f"goal {name!r}: within {reach} m of the goal image's place "
                        f"(past node {node})", name, goal_node=node)
@@ -354,7 +388,7 @@ class GoalPlanner:
             return out
         nav = NavStatus("planned", "final approach", node, (node,) if node is not None else (), d)
         self._nav = nav
-        self._publish_subgoal(out, nav)
+        self._publish_subgoal(out, nav, force=len(self._waypoints) != legs)
         return out
 
 
@@ -376,7 +410,8 @@ class PlannerService:
         self.counters = {"poses_in": 0, "goals_in": 0, "bad_messages": 0, "subgoals_published": 0,
                          "status_published": 0, "goal_poses_published": 0}
         self._stop = threading.Event()
-        self._last_goal_pose: tuple[str | None, int, bool] | None = None  # (goal, subgoal node, final) sent to Nav2
+        # (goal, subgoal node, final, approach legs left) last sent to Nav2
+        self._last_goal_pose: tuple[str | None, int, bool, int] | None = None
         self._last_goal: str | None = None  # the goal whose place went to Nav2 (goal_pose "goal")
         self.pubs = {
             "subgoal": bus.publisher(KEYS["subgoal"], ros_msgs.POSE_STAMPED),
@@ -491,7 +526,7 @@ class PlannerService:
         self.pubs["subgoal_base"].put(ros_msgs.pose_stamped_msg(s.t_ns, s.T_base_subgoal, self.tf.base_frame))
         self.counters["subgoals_published"] += 1
         if self.goal_pose == "subgoal":  # Nav2 replans on every goal: only a new subgoal is sent
-            which = (self.planner.active, s.node, self.planner._final)
+            which = (self.planner.active, s.node, self.planner._final, len(self.planner._waypoints))
             if which != self._last_goal_pose:
                 self._last_goal_pose = which
                 self._publish_goal_pose(s)

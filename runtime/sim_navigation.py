@@ -542,17 +542,18 @@ class _LostClock:
 
 
 def _record_placements(goal_planner: Any) -> list[Any]:
-    """Wrap the planner's goal locator so that each `GoalResult` is kept, in the order the
-    goal images arrive (the driver sends them one at a time, each acknowledged)."""
+    """Wrap the planner's goal placement (`GoalPlanner.place`: the locator, then the final
+    approach's check) so that each `GoalResult` is kept, in the order the goal images arrive
+    (the driver sends them one at a time, each acknowledged)."""
     out: list[Any] = []
-    inner = goal_planner.locate
+    inner = goal_planner.place
 
-    def locate(rgb: NDArray[np.uint8]) -> Any:
+    def place(rgb: NDArray[np.uint8]) -> Any:
         res = inner(rgb)
-        out.append(res)
+        out.append(res[0])
         return res
 
-    goal_planner.locate = locate
+    goal_planner.place = place
     return out
 
 

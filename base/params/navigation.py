@@ -87,8 +87,14 @@ class TrackerParams:
     reach_m: float = 0.5
     # farther than this from the path replans (m)
     stray_m: float = 2.0
-    # after the goal node, drive on to the goal image's own place when the way there is clear
+    # after the goal node, drive on to the goal image's own place along a path on the map's occupancy grid
     final_approach: bool = True
+    # the final approach's grid path keeps this far from occupied cells (m; the robot's radius)
+    approach_radius_m: float = 0.3
+    # a goal place inside an obstacle's margin is approached at the nearest free cell within this (m)
+    approach_snap_m: float = 0.5
+    # a goal place whose grid path from its node is this much longer than the straight line is refused (m)
+    approach_detour_m: float = 2.0
     # advance past a reached node only when the way on is clear for a robot of this radius (m; 0 = off)
     clearance_m: float = 0.45
     # a goal fails ("no progress") when not stall_progress_m closer within this (s of sensor time; 0 = off)
@@ -103,6 +109,8 @@ class TrackerParams:
     def __post_init__(self) -> None:
         if self.reach_m <= 0 or self.stray_m <= self.reach_m or self.clearance_m < 0:
             raise ValueError("need 0 < reach_m < stray_m and clearance_m >= 0")
+        if self.approach_radius_m < 0 or self.approach_snap_m < 0 or self.approach_detour_m <= 0:
+            raise ValueError("need approach_radius_m >= 0, approach_snap_m >= 0 and approach_detour_m > 0")
         if not (1.0 <= self.against_view_cost < float("inf")) or not 0 < self.against_view_deg <= 180:
             raise ValueError("need a finite against_view_cost >= 1 (1 = off) and 0 < against_view_deg <= 180")
         if not (0 <= self.stall_s < float("inf")) or self.stall_progress_m <= 0:

@@ -14,6 +14,7 @@ from litevloc.base.params.navigation import TrackerParams
 from litevloc.config.schema import PlannerConfig, ZenohConfig
 from litevloc.hw import ros_msgs
 from litevloc.pipelines.navigation.planner import GoalResult
+from litevloc.pipelines.topomap.types import OccupancyGrid
 from litevloc.runtime.planner_service import KEYS, GoalPlanner, PlannerService
 from tests.pipelines.navigation.test_planner import grid_map
 from tests.runtime.zenoh_helpers import free_port
@@ -26,6 +27,10 @@ def planner(locate_nodes: dict[int, int | None], goal_places: dict[int, np.ndarr
     """Nodes 0..3 on a line 1 m apart (x = 0..3 m); goal image k (first byte) -> node (and,
     in `goal_places`, the goal camera's metric pose in the map)."""
     m = grid_map([(0, 1, 1.0), (1, 2, 1.0), (2, 3, 1.0)], 4)
+    # z up, as the service's level poses assume: 8 x 8 m of free floor around the nodes
+    free = np.full((80, 80), OccupancyGrid.FREE, np.uint8)
+    m = dataclasses.replace(m, grid=OccupancyGrid(free, np.array([-2.0, -4.0]), 0.1, np.array([0, 0, 1.0]),
+                                                  np.eye(3)[:2]))
 
     def locate(rgb: np.ndarray) -> GoalResult:
         k = int(rgb[0, 0, 0])
@@ -96,7 +101,7 @@ def test_final_approach_drives_on_to_the_goal_images_place() -> None:
     place[1, 3] = 0.8  # the goal image was taken 0.8 m beside node 2
     p = planner({1: 2, 2: 1}, goal_places={1: place})
     outs = p.add_goal("beside", img(1))  # no pose yet: queued, with where its place is
-    assert "its place 0.80 m from the node (80 PnP inliers)" in outs[0][1]["reason"]
+    assert "its place 0.80 m from the node (80 PnP inliers; 0.80 m on the grid)" in outs[0][1]["reason"]
     for t, x in enumerate((0.0, 0.05, 1.0)):
         p.on_pose(t, pose(x))
     outs = p.on_pose(3, pose(2.0))  # at the goal node: not reached yet, on to the place
@@ -120,6 +125,49 @@ def test_final_approach_drives_on_to_the_goal_images_place() -> None:
     for t, x in enumerate((0.0, 0.05, 1.0)):
         off.on_pose(t, pose(x))
     assert kinds(off.on_pose(3, pose(2.0))) == ["status:reached"]
+
+
+def wall(p: GoalPlanner, y: float, x0: float, x1: float) -> None:
+    """An occupied wall 0.1 m thick at y (m) from x0 to x1 on the planner map's grid (origin (-2, -4), 0.1 m)."""
+    i, j0, j1 = round((y + 4.0) / 0.1), round((x0 + 2.0) / 0.1), round((x1 + 2.0) / 0.1)
+    p.map.grid.cells[i, max(j0, 0):j1] = OccupancyGrid.OCCUPIED
+
+
+def test_a_goal_place_behind_a_wall_from_its_node_is_refused_not_driven_to() -> None:
+    place = pose(2.0)
+    place[1, 3] = 0.8
+    p = planner({1: 2}, goal_places={1: place})
+    wall(p, 0.4, -2.0, 6.0)  # the whole floor split between node 2 (y = 0) and the place (y = 0.8)
+    p.on_pose(0, pose(0.0))
+    outs = p.add_goal("walled", img(1))
+    assert kinds(outs) == ["status:failed"]
+    reason = outs[0][1]["reason"]
+    assert "placed at node 2, refused" in reason and "not reachable on the map's grid" in reason
+    assert not p.busy and kinds(p.on_pose(1, pose(0.1))) == []
+
+
+def test_the_final_approach_goes_round_an_obstacle_and_is_reached_only_at_the_place() -> None:
+    place = pose(2.0)
+    place[1, 3] = 0.8
+    p = planner({1: 2}, goal_places={1: place})
+    wall(p, 0.4, 1.5, 2.5)  # a bench between node 2 and the place
+    p.on_pose(0, pose(0.0))
+    assert kinds(p.add_goal("round", img(1))) == ["status:planned", "subgoal"]  # placed and started
+    for t, x in enumerate((0.05, 1.0), start=1):
+        p.on_pose(t, pose(x))
+    outs = p.on_pose(3, pose(2.0))  # at the goal node: on along the grid path, first to a turn beside the bench
+    assert kinds(outs) == ["status:planned", "subgoal"] and "legs" in outs[0][1]["reason"]
+    turn = outs[1][1].T_map_subgoal[:3, 3]
+    assert np.linalg.norm(turn[:2] - place[:2, 3]) > 0.5 and abs(turn[0] - 2.0) > 0.5  # beside the bench's end
+    legs = len(p._waypoints)
+    assert legs >= 2
+    at_turn = pose(float(turn[0]))
+    at_turn[1, 3] = turn[1]
+    outs = p.on_pose(4, at_turn)  # the turn reached: the next subgoal is the place, still not reached
+    assert kinds(outs) == ["subgoal"] and len(p._waypoints) < legs
+    np.testing.assert_allclose(outs[0][1].T_map_subgoal[:3, 3], p._waypoints[0], atol=1e-9)
+    outs = p.on_pose(5, place)
+    assert kinds(outs) == ["status:reached"] and "goal image's place" in outs[0][1]["reason"]
 
 
 def test_replan_when_strayed_and_cancel() -> None:
