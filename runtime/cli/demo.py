@@ -73,23 +73,7 @@ def run(args: argparse.Namespace) -> int:
                                "navigation": nav, "png": str(png)}
     if (out / "map.json").is_file():
         summary["map"] = json.loads((out / "map.json").read_text())
-    rows = [("goals reached (LiteVLoc)", f"{nav['goals_reached']}/{nav['goals_total']} in {nav['time_s']:.0f} s "
-                                         f"simulated, {nav['path_length_m']:.1f} m driven, "
-                                         f"{nav['collisions']} collisions")]
-    if "baseline" in nav:
-        b = nav["baseline"]
-        rows.append(("ground-truth baseline", f"{b['goals_reached']}/{b['goals_total']} in {b['time_s']:.0f} s, "
-                                              f"{b['path_length_m']:.1f} m"))
-        rows.append(("LiteVLoc / baseline", f"path x{nav['ratios']['path_length']:.2f}, "
-                                            f"time x{nav['ratios']['time']:.2f}"))
-    err = nav.get("localization_error_m") or {}
-    if err:
-        rows.append(("fused pose error", f"median {100 * err['median']:.1f} cm, max {100 * err['max']:.1f} cm "
-                                         f"(base position vs ground truth, {err['n']} control steps)"))
-    rt = nav.get("runtime") or {}
-    if rt:
-        rows.append(("VLoc", f"{rt['vloc_calls']} queries, {rt['vloc_accepted']} accepted, "
-                             f"{rt['poses_published']} fused poses published over Zenoh"))
+    rows = result_rows(nav)
     rows.append(("wall time", ", ".join(f"{k} {v:.0f} s" for k, v in times.items())))
     rows.append(("plot", str(png)))
     print("\n== LiteVLoc demo results")
@@ -99,3 +83,27 @@ def run(args: argparse.Namespace) -> int:
     summary["ok"] = ok
     write_json(args.json or out / "demo.json", summary)
     return 0 if ok else 1
+
+
+def result_rows(nav: dict[str, Any]) -> list[tuple[str, str]]:
+    """The results table's rows of a `sim navigate --json` summary (goals, baseline, ratios,
+    fused error, VLoc); a run where no goal was reached by both modes has no ratio."""
+    rows = [("goals reached (LiteVLoc)", f"{nav['goals_reached']}/{nav['goals_total']} in {nav['time_s']:.0f} s "
+                                         f"simulated, {nav['path_length_m']:.1f} m driven, "
+                                         f"{nav['collisions']} collisions")]
+    if "baseline" in nav:
+        b = nav["baseline"]
+        rows.append(("ground-truth baseline", f"{b['goals_reached']}/{b['goals_total']} in {b['time_s']:.0f} s, "
+                                              f"{b['path_length_m']:.1f} m"))
+        r = nav.get("ratios") or {}
+        rows.append(("LiteVLoc / baseline", "no goal reached by both: no ratio" if r.get("path_length") is None
+                     else f"path x{r['path_length']:.2f}, time x{r['time']:.2f}"))
+    err = nav.get("localization_error_m") or {}
+    if err:
+        rows.append(("fused pose error", f"median {100 * err['median']:.1f} cm, max {100 * err['max']:.1f} cm "
+                                         f"(base position vs ground truth, {err['n']} control steps)"))
+    rt = nav.get("runtime") or {}
+    if rt:
+        rows.append(("VLoc", f"{rt['vloc_calls']} queries, {rt['vloc_accepted']} accepted, "
+                             f"{rt['poses_published']} fused poses published over Zenoh"))
+    return rows
