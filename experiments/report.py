@@ -61,7 +61,7 @@ def _navigation(demo: Json) -> str:
 def _runtime(d: Json) -> str:
     r = d["realtime"]
     return (f"VLoc {r['vloc_hz']:.2f} Hz, fused pose p99 {r['latency']['p99_ms']:.1f} ms in the service + "
-            f"{r['wire_latency']['p99_ms']:.1f} ms on the wire, {r['odometry_lost']} odometry lost, "
+            f"{r['wire_latency']['p99_ms']:.1f} ms on the wire, {int(r['odometry_lost'])} odometry lost, "
             f"RSS {r['peak_rss_mb']:.0f} MB")
 
 
