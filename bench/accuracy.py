@@ -50,7 +50,8 @@ from litevloc.models.types import Features
 from litevloc.pipelines.depth_lookup import depth_at
 from litevloc.pipelines.evaluation.reloc import inside_95_ellipsoids
 from litevloc.pipelines.localization.refine import keyframe_distance_m, viewpoint_angle_rad
-from litevloc.pipelines.localization.vloc import MatchedPixels, VisualLocalizer
+from litevloc.pipelines.localization.results import MatchedPixels
+from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map
 from litevloc.pipelines.topomap.types import NodeFeatures
 from litevloc.runtime.posed import posed_frames

@@ -317,7 +317,7 @@ def measure(path: Path, verify: bool) -> dict[str, Any]:
 
     verify_ms: list[float] = []
     if verify:
-        from litevloc.pipelines.localization.vloc import relative_pose
+        from litevloc.pipelines.localization.query import relative_pose
         from litevloc.runtime.posed import posed_frames
         from litevloc.runtime.sources import open_source
         from litevloc.runtime.vloc_models import as_features, load_bundle

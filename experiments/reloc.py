@@ -28,7 +28,7 @@ from litevloc.hw.streams.base import StreamSource
 from litevloc.models.registry import load_extractor, load_matcher
 from litevloc.models.types import Features
 from litevloc.pipelines.evaluation.reloc import reloc_metrics
-from litevloc.pipelines.localization.vloc import relative_pose
+from litevloc.pipelines.localization.query import relative_pose
 from litevloc.pipelines.topomap.types import TopoMap
 from litevloc.runtime.posed import posed_frames
 

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from litevloc.base.figures import save_figure
-from litevloc.pipelines.localization.vloc import LocalizationResult
+from litevloc.pipelines.localization.results import LocalizationResult
 
 RECALL_AT = (1, 5, 10)
 

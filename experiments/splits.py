@@ -35,7 +35,8 @@ from litevloc.base.geometry import relative_pose_error
 from litevloc.config import load_config
 from litevloc.experiments.model_replay import ReplayedModels
 from litevloc.experiments.split_report import failure_of, summarize
-from litevloc.pipelines.localization.vloc import LocalizationResult, VisualLocalizer
+from litevloc.pipelines.localization.results import LocalizationResult
+from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map
 from litevloc.pipelines.topomap.types import TopoMap
 from litevloc.runtime.posed import posed_frames

@@ -55,7 +55,7 @@ class ProvisionalLike(Protocol):
 
 
 class VlocOutcome(Protocol):
-    """What the service needs from one VLoc query (`pipelines.localization.vloc.LocalizationResult`).
+    """What the service needs from one VLoc query (`pipelines.localization.results.LocalizationResult`).
 
     `T_map_camera` 4x4 (metres), None unless accepted; `covariance` 6x6 camera-frame
     perturbation (tx, ty, tz, rx, ry, rz); `timings_ms` per stage; `provisional` only on

@@ -37,14 +37,13 @@ from __future__ import annotations
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 
 import numpy as np
 from numpy.typing import NDArray
 
 from litevloc.base.geometry import backproject_pixels, check_rigid, relative_pose_error
 from litevloc.base.params.localization import LocalizationParams
-from litevloc.pipelines.depth_lookup import depth_at
 from litevloc.pipelines.guided_matching import mutual_nn_pairs
 from litevloc.pipelines.localization.distinct import (
     VerifiedPose,
@@ -53,284 +52,29 @@ from litevloc.pipelines.localization.distinct import (
     same_place,
     strongest_rival,
 )
+from litevloc.pipelines.localization.query import Clock, MatchFn, Query, StageTimer, relative_pose, reprojects
 from litevloc.pipelines.localization.refine import (
-    KeyframeObservations,
     RefineResult,
-    guided_matches,
     refine_pose,
+)
+from litevloc.pipelines.localization.results import (
+    CandidateAttempt,
+    HeldPose,
+    LocalizationResult,
+    MatchedPixels,
+    ProvisionalPose,
 )
 from litevloc.pipelines.localization.search_region import SearchRegion, nodes_within
 from litevloc.pipelines.localization.tracking import TrackingState, Transition
-from litevloc.pipelines.pnp import PnpResult, inverse_result, solve_pnp
+from litevloc.pipelines.pnp import PnpResult
 from litevloc.pipelines.topomap.types import FeatureSet, TopoMap
 
 LL_COST_WINDOW = 50  # LL queries whose median wall time sets the bound on a recovering GL query
 
 ExtractFn = Callable[[NDArray[np.uint8]], FeatureSet]
 DescribeFn = Callable[[NDArray[np.uint8]], NDArray[np.float32]]
-MatchFn = Callable[[FeatureSet, FeatureSet], tuple[NDArray[np.int64], NDArray[np.int64]]]
-Clock = Callable[[], float]  # monotonic seconds
 
 _CLOCK_JITTER_S = 1e-3  # timestamps that differ by less than this are the same instant for time windows
-
-
-@dataclass(frozen=True)
-class CandidateAttempt:
-    """One map node tried for a query, and why it was accepted or rejected."""
-
-    node: int
-    similarity: float
-    matches: int
-    inliers: int
-    reason: str
-
-
-@dataclass(frozen=True, eq=False)
-class MatchedPixels:
-    """The live frame's matches with the reference keyframe, for display and diagnosis.
-
-    `live_px` (M, 2) and `keyframe_px` (M, 2) are pixel coordinates (x, y) in the live image and
-    in the reference keyframe's image; `inlier` (M,) is True where the live keypoint, lifted with
-    the live depth and moved by the accepted pose, reprojects into the keyframe within the PnP
-    reprojection threshold (False also where the live keypoint has no depth).
-    """
-
-    keyframe: int
-    live_px: NDArray[np.float32]
-    keyframe_px: NDArray[np.float32]
-    inlier: NDArray[np.bool_]
-
-
-@dataclass(frozen=True, eq=False)
-class ProvisionalPose:
-    """A GL pose verified by one keyframe only (no second keyframe sees the place): not a fix.
-
-    `T_map_camera` 4x4 (metres), `covariance` 6x6 camera-frame right perturbation
-    (tx, ty, tz, rx, ry, rz) from the single-keyframe solve; `node` the keyframe, `n_inliers`
-    its inliers under the pose."""
-
-    T_map_camera: NDArray[np.float64]
-    covariance: NDArray[np.float64]
-    node: int
-    n_inliers: int
-
-
-@dataclass(frozen=True, eq=False)
-class LocalizationResult:
-    """Outcome of one query. `accepted` False means "not localized" (pose is None)."""
-
-    t_ns: int
-    mode: str  # "global" | "local"
-    accepted: bool
-    reason: str
-    T_map_camera: NDArray[np.float64] | None = None
-    covariance: NDArray[np.float64] | None = None  # 6x6, camera-frame perturbation (t, rotvec)
-    ref_node: int = -1
-    n_matches: int = 0
-    n_inliers: int = 0
-    inlier_ratio: float = 0.0
-    median_reprojection_px: float = float("nan")
-    attempts: tuple[CandidateAttempt, ...] = ()
-    timings_ms: dict[str, float] = field(default_factory=dict)
-    keyframes: tuple[int, ...] = ()  # keyframes whose matches support the pose (joint refinement)
-    stop_reason: str = ""  # GL: why the candidate search stopped (passed, all tried, time budget)
-    matches: MatchedPixels | None = None  # accepted results: matches with `ref_node`, inliers marked
-    provisional: ProvisionalPose | None = None  # rejected GL results only (see ProvisionalPose)
-    candidates: tuple[int, ...] = ()  # GL: the nodes it would verify, in order (`global_candidates`)
-    tracking_state: TrackingState | None = None  # the localizer's state after this query, when the caller reports it
-
-
-@dataclass(frozen=True)
-class HeldPose:
-    """A GL or LL pose that its fused prior could not confirm (outside its gate, or the prior
-    too stale), held until a later frame repeats it (`LocalizationParams.repeat_within_s`):
-    both 4x4 `T_map_camera`, stamp in ns."""
-
-    t_ns: int
-    T_map_camera: NDArray[np.float64]
-    prior_T_map_camera: NDArray[np.float64]
-
-
-class StageTimer:
-    """Accumulated milliseconds per named stage of one query (extract, vpr, match, lift, pnp, ...),
-    read from `clock` (seconds; a benchmark that replays cached model calls passes a clock that
-    also counts their recorded time, so time budgets see what a live run would)."""
-
-    def __init__(self, clock: Clock = time.perf_counter) -> None:
-        self.ms: dict[str, float] = {}
-        self.now = clock
-
-    def add(self, key: str, t0: float) -> None:
-        self.ms[key] = self.ms.get(key, 0.0) + (self.now() - t0) * 1e3
-
-
-def relative_pose(
-    live_feats: FeatureSet, live_depth: NDArray[np.float32], K_live: NDArray[np.float64],
-    ref_feats: FeatureSet, K_ref: NDArray[np.float64], match: MatchFn, params: LocalizationParams,
-    timer: StageTimer | None = None, ref_depth: NDArray[np.float32] | None = None,
-) -> tuple[PnpResult | None, int, str]:
-    """Pose of the live camera relative to a reference image: `T_ref_live` in the result.
-
-    Matches live vs reference features, lifts the matched live keypoints with the live
-    depth (`pipelines.depth_lookup`), solves PnP into the reference image and applies the
-    acceptance gates plus the distance gate. With `ref_depth` ((N_ref,) metres at each
-    reference keypoint, NaN = none: the map's depth) and `params.verify_map_depth`, it also
-    solves PnP from the reference points into the live pixels and keeps the direction with
-    more inliers (see `LocalizationParams.verify_map_depth`). Returns (PnpResult or None if
-    too few matches, number of matches, reason).
-    """
-    timer = timer if timer is not None else StageTimer()
-    add = timer.add
-    t0 = timer.now()
-    i_live, i_ref = match(live_feats, ref_feats)
-    add("match", t0)
-    if len(i_live) < max(params.min_matches, params.pnp.min_inliers):  # cheap rejection: PnP cannot pass
-        return None, len(i_live), f"too few matches ({len(i_live)})"
-    t0 = timer.now()
-    uv = np.asarray(live_feats.keypoints, dtype=np.float64)[i_live]
-    kp_ref = np.asarray(ref_feats.keypoints, dtype=np.float64)[i_ref]
-    z = depth_at(live_depth, uv, params.depth)
-    ok = np.isfinite(z)
-    z_ref = (np.asarray(ref_depth, np.float64)[i_ref] if ref_depth is not None and params.verify_map_depth
-             else np.full(len(i_ref), np.nan))
-    ok_ref = np.isfinite(z_ref) & (z_ref > 0)
-    add("lift", t0)
-    if max(ok.sum(), ok_ref.sum()) < params.min_matches:
-        return None, len(i_live), f"too few matches with depth ({max(ok.sum(), ok_ref.sum())})"
-    t0 = timer.now()
-    res: PnpResult | None = None
-    if ok.sum() >= params.min_matches:
-        pts = backproject_pixels(K_live, uv[ok], z[ok].astype(np.float64))
-        res = solve_pnp(pts, kp_ref[ok], K_ref, params.pnp)
-    if ok_ref.sum() >= params.min_matches:
-        rev = inverse_result(solve_pnp(backproject_pixels(K_ref, kp_ref[ok_ref], z_ref[ok_ref]), uv[ok_ref],
-                                       K_live, params.pnp))
-        if res is None or (rev.accepted, rev.n_inliers) > (res.accepted, res.n_inliers):
-            res = rev
-    add("pnp", t0)
-    assert res is not None
-    if res.accepted and res.T_target_source is not None:
-        # The translation of T_ref_live is the live camera centre in the reference frame.
-        dist = float(np.linalg.norm(res.T_target_source[:3, 3]))
-        if dist > params.max_distance_to_node_m:
-            reason = f"pose {dist:.1f} m from its reference node (> {params.max_distance_to_node_m})"
-            res = PnpResult(False, reason, res.T_target_source, res.inliers, res.n_matches,
-                            res.median_reprojection_px, res.covariance)
-    return res, len(i_live), res.reason
-
-
-def _reprojects(pts: NDArray[np.float64], T_target_source: NDArray[np.float64], K: NDArray[np.float64],
-                px: NDArray[np.float64], threshold_px: float) -> NDArray[np.bool_]:
-    """(N,) True where source-frame points `pts` (N, 3; NaN rows = no depth), moved into the
-    target camera, lie in front of it and project within `threshold_px` of `px` (N, 2)."""
-    p = pts @ T_target_source[:3, :3].T + T_target_source[:3, 3]
-    uvw = p @ np.asarray(K, dtype=np.float64).T
-    err = np.linalg.norm(uvw[:, :2] / uvw[:, 2:3] - px, axis=1)
-    return np.asarray(np.isfinite(err) & (p[:, 2] > 0) & (err <= threshold_px), dtype=bool)
-
-
-class _Query:
-    """One live frame being localized: its features, depth, the live points lifted once and
-    the matches with each keyframe computed at most once (verification, refinement and
-    confirmation share them)."""
-
-    def __init__(self, loc: VisualLocalizer, feats: FeatureSet, depth: NDArray[np.float32],
-                 K: NDArray[np.float64], timer: StageTimer) -> None:
-        self.loc, self.feats, self.depth, self.K, self.timer = loc, feats, depth, K, timer
-        self._matches: dict[int, tuple[NDArray[np.int64], NDArray[np.int64]]] = {}
-        self._points: NDArray[np.float64] | None = None
-        self.rerank_counts: dict[int, int] = {}  # GL: mutual-nearest-neighbour count per re-ranked node
-        # GL: those mutual nearest neighbours, (live indices, keyframe indices) per re-ranked node
-        self.rerank_pairs: dict[int, tuple[NDArray[np.int64], NDArray[np.int64]]] = {}
-
-    def matches(self, node: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-        """(live indices, keyframe indices) of the matches with `node`."""
-        if node not in self._matches:
-            t0 = self.timer.now()
-            i_live, i_ref = self.loc.match(self.feats, self.loc.map.features[node])
-            self._matches[node] = (np.asarray(i_live, dtype=np.int64), np.asarray(i_ref, dtype=np.int64))
-            self.timer.add("match", t0)
-        return self._matches[node]
-
-    def points(self) -> NDArray[np.float64]:
-        """(N, 3) live keypoints lifted with the live depth (NaN rows where no depth)."""
-        if self._points is None:
-            t0 = self.timer.now()
-            uv = np.asarray(self.feats.keypoints, dtype=np.float64).reshape(-1, 2)
-            z = depth_at(self.depth, uv, self.loc.params.depth).astype(np.float64)
-            pts = np.full((len(uv), 3), np.nan)
-            ok = np.isfinite(z)
-            pts[ok] = backproject_pixels(self.K, uv[ok], z[ok])
-            self._points = pts
-            self.timer.add("lift", t0)
-        return self._points
-
-    def observations(self, node: int) -> KeyframeObservations:
-        """The matches with `node` as refinement input (see `_observations`)."""
-        return self._observations(node, *self.matches(node))
-
-    def _observations(self, node: int, i_live: NDArray[np.int64], i_kf: NDArray[np.int64]) -> KeyframeObservations:
-        """Matches (live indices, keyframe indices) with `node` as refinement input: those with
-        live depth as live points; those without, where the map has depth at the keyframe
-        keypoint (and `verify_map_depth`), as keyframe points reprojected into the live image."""
-        m = self.loc.map
-        pts = self.points()[i_live]
-        ok = np.all(np.isfinite(pts), axis=1)
-        kp = np.asarray(m.features[node].keypoints, dtype=np.float64)[i_kf]
-        z_kf = self._map_depth(node, i_kf)
-        if z_kf is None or not self.loc.params.verify_map_depth:
-            return KeyframeObservations(node, pts[ok], kp[ok], m.K[node], m.T_map_camera[node],
-                                        None if z_kf is None else z_kf[ok])
-        rev = ~ok & np.isfinite(z_kf) & (z_kf > 0)
-        live_px = np.asarray(self.feats.keypoints, dtype=np.float64).reshape(-1, 2)[i_live[rev]]
-        return KeyframeObservations(node, pts[ok], kp[ok], m.K[node], m.T_map_camera[node], z_kf[ok],
-                                    backproject_pixels(m.K[node], kp[rev], z_kf[rev]), live_px, self.K)
-
-    def _map_depth(self, node: int, i_kf: NDArray[np.int64]) -> NDArray[np.float64] | None:
-        """The map's depth (metres, NaN = none) at keyframe keypoints `i_kf`, None without."""
-        z = self.loc.map.keypoint_depth(node)
-        return None if z is None else np.asarray(z, np.float64)[i_kf]
-
-    def try_guided(self, node: int, T_map_live: NDArray[np.float64], min_matches: int) -> bool:
-        """Match `node` by projecting with `T_map_live` (a fresh prior) instead of the matcher;
-        the matches are kept (and returned by `matches`) only when at least `min_matches`."""
-        if node in self._matches:
-            return False
-        t0 = self.timer.now()
-        i_live, i_kf = self._guided(node, T_map_live)
-        self.timer.add("guided_match", t0)
-        if len(i_live) < min_matches:
-            return False
-        self._matches[node] = (i_live, i_kf)
-        return True
-
-    def forget(self, node: int) -> None:
-        """Drop `node`'s cached matches (the next `matches` runs the matcher)."""
-        self._matches.pop(node, None)
-
-    def _guided(self, node: int, T_map_live: NDArray[np.float64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-        """(live, keyframe) indices of the matches with `node` found by projecting the live
-        points with `T_map_live` (no model)."""
-        m = self.loc.map
-        f = m.features[node]
-        return guided_matches(self.points(), self.feats.descriptors, T_map_live, f.keypoints, f.descriptors,
-                              m.K[node], m.T_map_camera[node], self.loc.params.refine)
-
-    def guided_observations(self, node: int, T_map_live: NDArray[np.float64]) -> KeyframeObservations:
-        """Matches with `node` found by projecting with `T_map_live` (no model): the live points
-        into the keyframe, and (`verify_map_depth`) the keyframe's points (map depth) into the
-        live image for live keypoints without live depth."""
-        i_live, i_kf = self._guided(node, T_map_live)
-        z_kf = self._map_depth(node, np.arange(len(self.loc.map.features[node].keypoints)))
-        if z_kf is not None and self.loc.params.verify_map_depth:
-            m, f = self.loc.map, self.loc.map.features[node]
-            kf_pts = backproject_pixels(m.K[node], np.asarray(f.keypoints, np.float64).reshape(-1, 2), z_kf)
-            kf_pts[~(z_kf > 0)] = np.nan
-            j_kf, j_live = guided_matches(kf_pts, f.descriptors, m.T_map_camera[node], self.feats.keypoints,
-                                          self.feats.descriptors, self.K, T_map_live, self.loc.params.refine)
-            new = ~np.all(np.isfinite(self.points()[j_live]), axis=1) & ~np.isin(j_live, i_live)
-            i_live, i_kf = np.concatenate([i_live, j_live[new]]), np.concatenate([i_kf, j_kf[new]])
-        return self._observations(node, i_live, i_kf)
 
 
 class VisualLocalizer:
@@ -359,11 +103,11 @@ class VisualLocalizer:
     # ---------------------------------------------------------------- building blocks
     def _query(
         self, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64], timer: StageTimer
-    ) -> tuple[_Query, NDArray[np.float32]]:
+    ) -> tuple[Query, NDArray[np.float32]]:
         feats, desc, dimg = self._prepare(color, depth, timer)
-        return _Query(self, feats, dimg, K, timer), desc
+        return Query(self.map, self.params, self.match, feats, dimg, K, timer), desc
 
-    def _verify(self, node: int, q: _Query, similarity: float,
+    def _verify(self, node: int, q: Query, similarity: float,
                 params: LocalizationParams | None = None) -> tuple[PnpResult | None, CandidateAttempt]:
         """Match and PnP with `node` under `params` (default: the localizer's)."""
         q.matches(node)  # timed as "match" once; relative_pose then reads the cached matches
@@ -373,7 +117,7 @@ class VisualLocalizer:
         )
         return res, CandidateAttempt(node, similarity, n_matches, res.n_inliers if res else 0, reason)
 
-    def _verify_local(self, node: int, q: _Query, similarity: float,
+    def _verify_local(self, node: int, q: Query, similarity: float,
                       guided_prior: NDArray[np.float64] | None) -> tuple[PnpResult | None, CandidateAttempt]:
         """`_verify`, first on matches guided by a fresh prior when given (see
         `LocalizationParams.ll_guided_min_matches`); the matcher's when those are too few or
@@ -385,7 +129,7 @@ class VisualLocalizer:
             q.forget(node)
         return self._verify(node, q, similarity)
 
-    def _verify_global(self, node: int, q: _Query, similarity: float, verified: list[VerifiedPose] | None = None,
+    def _verify_global(self, node: int, q: Query, similarity: float, verified: list[VerifiedPose] | None = None,
                        params: LocalizationParams | None = None) -> tuple[PnpResult | None, CandidateAttempt]:
         """`_verify`, then the floor check (GL only): a pose resting on one horizontal plane
         comes back as no result, its attempt carrying the reason. Any PnP pose, accepted or
@@ -396,7 +140,7 @@ class VisualLocalizer:
         flat = "" if res is None or not res.accepted else self._flat_support(node, res, q)
         return (None, replace(att, reason=flat)) if flat else (res, att)
 
-    def support_height_spread(self, node: int, res: PnpResult, q: _Query) -> float:
+    def support_height_spread(self, node: int, res: PnpResult, q: Query) -> float:
         """Extent (m) along the map's up vector of the points that support a verified pose
         (10th to 90th percentile of the heights of the matches it explains, `_support_points`);
         inf when the pose or the support is missing. Near 0: every supporting point lies on one
@@ -413,7 +157,7 @@ class VisualLocalizer:
         return float(hi - lo)
 
     def _explained_matches(self, node: int, T_map_live: NDArray[np.float64],
-                           q: _Query) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:
+                           q: Query) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:
         """Which matches with `node` (`q.matches` order) the pose `T_map_live` explains within
         the PnP reprojection threshold, either way: a live point (live depth) reprojected into
         the keyframe, or a keyframe point (map depth) projected into the live image; and each
@@ -428,13 +172,13 @@ class VisualLocalizer:
         kf_pts = (backproject_pixels(self.map.K[node], kf_px, np.asarray(z_kf, np.float64)[i_ref])
                   if z_kf is not None else np.full((len(i_ref), 3), np.nan))
         with np.errstate(invalid="ignore", divide="ignore"):
-            ok_live = _reprojects(live_pts, np.linalg.inv(T_map_kf) @ T_map_live, self.map.K[node], kf_px, thr)
-            ok_kf = _reprojects(kf_pts, np.linalg.inv(T_map_live) @ T_map_kf, q.K, live_px, thr)
+            ok_live = reprojects(live_pts, np.linalg.inv(T_map_kf) @ T_map_live, self.map.K[node], kf_px, thr)
+            ok_kf = reprojects(kf_pts, np.linalg.inv(T_map_live) @ T_map_kf, q.K, live_px, thr)
         out = np.where(ok_kf[:, None], kf_pts @ T_map_kf[:3, :3].T + T_map_kf[:3, 3],
                        live_pts @ T_map_live[:3, :3].T + T_map_live[:3, 3])
         return ok_live | ok_kf, np.asarray(out, dtype=np.float64)
 
-    def _flat_support(self, node: int, res: PnpResult, q: _Query) -> str:
+    def _flat_support(self, node: int, res: PnpResult, q: Query) -> str:
         """A rejection reason when a GL pose rests on one horizontal plane only (see
         `LocalizationParams.gl_min_support_height_m`), else ''."""
         need = self.params.gl_min_support_height_m
@@ -448,7 +192,7 @@ class VisualLocalizer:
 
     def _result(
         self, t_ns: int, mode: str, best: tuple[int, PnpResult, RefineResult | None] | None,
-        attempts: list[CandidateAttempt], timer: StageTimer, fail_reason: str, q: _Query | None = None,
+        attempts: list[CandidateAttempt], timer: StageTimer, fail_reason: str, q: Query | None = None,
     ) -> LocalizationResult:
         if best is None:
             return LocalizationResult(t_ns, mode, False, fail_reason, attempts=tuple(attempts), timings_ms=timer.ms)
@@ -499,7 +243,7 @@ class VisualLocalizer:
         dt, dr = relative_pose_error(T, prior)
         return bool(dt <= gate_m and dr <= self.params.prior_gate_deg)
 
-    def _matched_pixels(self, q: _Query | None, node: int, T_map_live: NDArray[np.float64]) -> MatchedPixels | None:
+    def _matched_pixels(self, q: Query | None, node: int, T_map_live: NDArray[np.float64]) -> MatchedPixels | None:
         """The cached matches of `q` with `node`, inliers marked under the accepted pose."""
         if q is None:
             return None
@@ -523,7 +267,7 @@ class VisualLocalizer:
         timer.add("vpr", t0)
         return feats, desc, depth
 
-    def _joint(self, node: int, T_init: NDArray[np.float64], q: _Query, fallback: list[int],
+    def _joint(self, node: int, T_init: NDArray[np.float64], q: Query, fallback: list[int],
                min_keyframes: int) -> RefineResult:
         """Joint refinement over `node` and up to `refine.max_keyframes - 1` other keyframes
         (covisible neighbours of `node` by weight first, then `fallback` nodes)."""
@@ -570,7 +314,7 @@ class VisualLocalizer:
 
     def _retrieve(self, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64],
                   region: SearchRegion | None, timer: StageTimer, t_all: float
-                  ) -> tuple[_Query, NDArray[np.float32], NDArray[np.int64], float]:
+                  ) -> tuple[Query, NDArray[np.float32], NDArray[np.int64], float]:
         """Retrieval: the query's features and VPR descriptor, its (N,) similarity to every
         keyframe, the candidate keyframes in VPR order and the front end's milliseconds."""
         q, desc = self._query(color, depth, K, timer)
@@ -578,7 +322,7 @@ class VisualLocalizer:
         sims = self.map.vpr @ desc
         return q, sims, self.global_candidates(sims, q, region), front_ms
 
-    def _verify_refined(self, t_ns: int, q: _Query, sims: NDArray[np.float32], order: NDArray[np.int64],
+    def _verify_refined(self, t_ns: int, q: Query, sims: NDArray[np.float32], order: NDArray[np.int64],
                         prior: NDArray[np.float64] | None, prior_age_s: float, recovering: bool,
                         timer: StageTimer, t_all: float, front_ms: float) -> LocalizationResult:
         """Verification with joint refinement: candidates in VPR order, each verified and jointly
@@ -647,7 +391,7 @@ class VisualLocalizer:
         return prior is not None and self._fresh(growth) and self._within_gate(
             single.T_map_camera, prior, self._gate_m(growth, fused=True))
 
-    def _verify_confirmed(self, t_ns: int, q: _Query, sims: NDArray[np.float32], order: NDArray[np.int64],
+    def _verify_confirmed(self, t_ns: int, q: Query, sims: NDArray[np.float32], order: NDArray[np.int64],
                           timer: StageTimer, t_all: float) -> LocalizationResult:
         """Verification without joint refinement: every candidate verified (or up to the early
         accept), then the one with most inliers that a second keyframe confirms wins."""
@@ -678,7 +422,7 @@ class VisualLocalizer:
         timer.add("total", t_all)
         return self._result(t_ns, "global", best, attempts, timer, reason, q)
 
-    def global_candidates(self, sims: NDArray[np.float32], q: _Query,
+    def global_candidates(self, sims: NDArray[np.float32], q: Query,
                           region: SearchRegion | None = None) -> NDArray[np.int64]:
         """The map nodes GL verifies, in order (node ids, at most `gl_top_k`): the
         `gl_rerank_depth` most similar by place descriptor (`sims`, (N,) per node) among the
@@ -692,7 +436,7 @@ class VisualLocalizer:
         shortlist = ranked[: max(p.gl_top_k, p.gl_rerank_depth if p.gl_rerank else 0)]
         return self._rerank(shortlist, q)[: p.gl_top_k]
 
-    def _rerank(self, order: NDArray[np.int64], q: _Query) -> NDArray[np.int64]:
+    def _rerank(self, order: NDArray[np.int64], q: Query) -> NDArray[np.int64]:
         """The VPR candidates `order` (best first) re-ordered by their mutual-nearest-neighbour
         count with the live descriptors (`gl_rerank`), VPR order breaking ties."""
         if not self.params.gl_rerank or len(order) < 2:
@@ -715,7 +459,7 @@ class VisualLocalizer:
             return p
         return replace(p, pnp=replace(p.pnp, min_inliers=p.gl_distinct_min_inliers))
 
-    def _ambiguity(self, winner: int, res: PnpResult, joint: RefineResult, q: _Query,
+    def _ambiguity(self, winner: int, res: PnpResult, joint: RefineResult, q: Query,
                    later: NDArray[np.int64], sims: NDArray[np.float32], verified: list[VerifiedPose]) -> str:
         """The distinctiveness test of the GL pose `joint.T_map_camera` verified through `winner`
         (`res` its PnP) without a trusted prior: the refusal reason when a candidate at another
@@ -740,7 +484,7 @@ class VisualLocalizer:
         q.timer.add("distinct", t0)
         return amb
 
-    def _same_place_unmatched(self, node: int, q: _Query, joint: RefineResult) -> bool:
+    def _same_place_unmatched(self, node: int, q: Query, joint: RefineResult) -> bool:
         """Whether PnP on `node`'s re-ranking matches (mutual nearest neighbours, no model run)
         puts the live camera at the joint pose's place (`same_place`); False where it cannot
         tell (no such matches, no pose): the candidate is then verified with the matcher."""
@@ -769,7 +513,7 @@ class VisualLocalizer:
             bounds.append(self.params.lost_cost_ratio * ll)
         return min(bounds) if bounds else 0.0
 
-    def _confirmed(self, node: int, T_map_live: NDArray[np.float64], q: _Query, fallback: list[int]) -> int:
+    def _confirmed(self, node: int, T_map_live: NDArray[np.float64], q: Query, fallback: list[int]) -> int:
         """Best count of matches explained by the pose over up to `confirm_max_nodes` other
         keyframes (covisible neighbours of `node` by weight first, then `fallback` nodes).
         The old, single-keyframe behaviour (`refine.enabled: false`)."""
@@ -789,9 +533,10 @@ class VisualLocalizer:
         K: NDArray[np.float64], node: int,
     ) -> int:
         """Matches with `node` that the pose `T_map_live` explains (reprojection within the PnP threshold)."""
-        return self._consistent(T_map_live, _Query(self, live_feats, depth, K, StageTimer(self.clock)), node)
+        q = Query(self.map, self.params, self.match, live_feats, depth, K, StageTimer(self.clock))
+        return self._consistent(T_map_live, q, node)
 
-    def _consistent(self, T_map_live: NDArray[np.float64], q: _Query, node: int) -> int:
+    def _consistent(self, T_map_live: NDArray[np.float64], q: Query, node: int) -> int:
         ob = q.observations(node)
         if len(ob.points_live) == 0:
             return 0

@@ -8,7 +8,7 @@ import numpy as np
 
 from litevloc.base import geometry as g
 from litevloc.base.params.localization import LocalizationParams
-from litevloc.pipelines.localization.vloc import MatchedPixels
+from litevloc.pipelines.localization.results import MatchedPixels
 from tests.bench import load_bench
 
 

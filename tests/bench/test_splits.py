@@ -14,7 +14,7 @@ import pytest
 from litevloc.experiments.model_replay import ReplayedModels
 from litevloc.experiments.split_report import failure_of, reason_key, summarize
 from litevloc.experiments.splits import SPLITS, splits_named
-from litevloc.pipelines.localization.vloc import CandidateAttempt, LocalizationResult
+from litevloc.pipelines.localization.results import CandidateAttempt, LocalizationResult
 
 
 def test_split_rule_is_the_stated_one() -> None:

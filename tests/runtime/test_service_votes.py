@@ -10,7 +10,7 @@ from litevloc.base.params.fusion import FusionParams
 from litevloc.config.schema import RuntimeConfig
 from litevloc.hw.messages import RgbdFrame
 from litevloc.pipelines.fusion.online import OnlineFusion
-from litevloc.pipelines.localization.vloc import LocalizationResult, ProvisionalPose
+from litevloc.pipelines.localization.results import LocalizationResult, ProvisionalPose
 from litevloc.runtime.service import Service, fusion_callables
 from tests.runtime.fakes import T_MAP_ODOM_TRUE, FakePublisher, SyntheticSource, T_odom_base_at
 

@@ -17,7 +17,7 @@ import pytest
 
 from litevloc.base.geometry import make_T, so3_exp
 from litevloc.hw.messages import RgbdFrame
-from litevloc.pipelines.localization.vloc import MatchedPixels
+from litevloc.pipelines.localization.results import MatchedPixels
 from litevloc.pipelines.topomap.types import NodeFeatures, OccupancyGrid, TopoMap
 from litevloc.runtime.queues import DropQueue
 from litevloc.runtime.view import covariance_ellipsoid, occupied_points

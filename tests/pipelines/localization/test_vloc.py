@@ -14,8 +14,9 @@ from numpy.typing import NDArray
 
 from litevloc.base import geometry as g
 from litevloc.base.params.localization import LocalizationParams, PnpParams
+from litevloc.pipelines.localization.query import Query, StageTimer
 from litevloc.pipelines.localization.tracking import TrackingState
-from litevloc.pipelines.localization.vloc import StageTimer, VisualLocalizer, _Query
+from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.types import NodeFeatures, OccupancyGrid, TopoMap
 
 W, H = 320, 240
@@ -246,7 +247,7 @@ def test_gl_candidates_are_tried_in_order_of_shared_mutual_neighbours() -> None:
         LocalizationParams(gl_rerank_min_similarity=1.5)
 
 
-def _query(loc: VisualLocalizer, depth: NDArray[np.float32]) -> _Query:
+def _query(loc: VisualLocalizer, depth: NDArray[np.float32]) -> Query:
     q, _ = loc._query(IMG, depth, K, StageTimer())
     return q
 

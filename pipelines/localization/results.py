@@ -1,0 +1,87 @@
+"""What one visual-localization query returns: the result, its candidates, matches and provisional pose."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from litevloc.pipelines.localization.tracking import TrackingState
+
+
+@dataclass(frozen=True)
+class CandidateAttempt:
+    """One map node tried for a query, and why it was accepted or rejected."""
+
+    node: int
+    similarity: float
+    matches: int
+    inliers: int
+    reason: str
+
+
+@dataclass(frozen=True, eq=False)
+class MatchedPixels:
+    """The live frame's matches with the reference keyframe, for display and diagnosis.
+
+    `live_px` (M, 2) and `keyframe_px` (M, 2) are pixel coordinates (x, y) in the live image and
+    in the reference keyframe's image; `inlier` (M,) is True where the live keypoint, lifted with
+    the live depth and moved by the accepted pose, reprojects into the keyframe within the PnP
+    reprojection threshold (False also where the live keypoint has no depth).
+    """
+
+    keyframe: int
+    live_px: NDArray[np.float32]
+    keyframe_px: NDArray[np.float32]
+    inlier: NDArray[np.bool_]
+
+
+@dataclass(frozen=True, eq=False)
+class ProvisionalPose:
+    """A GL pose verified by one keyframe only (no second keyframe sees the place): not a fix.
+
+    `T_map_camera` 4x4 (metres), `covariance` 6x6 camera-frame right perturbation
+    (tx, ty, tz, rx, ry, rz) from the single-keyframe solve; `node` the keyframe, `n_inliers`
+    its inliers under the pose."""
+
+    T_map_camera: NDArray[np.float64]
+    covariance: NDArray[np.float64]
+    node: int
+    n_inliers: int
+
+
+@dataclass(frozen=True, eq=False)
+class LocalizationResult:
+    """Outcome of one query. `accepted` False means "not localized" (pose is None)."""
+
+    t_ns: int
+    mode: str  # "global" | "local"
+    accepted: bool
+    reason: str
+    T_map_camera: NDArray[np.float64] | None = None
+    covariance: NDArray[np.float64] | None = None  # 6x6, camera-frame perturbation (t, rotvec)
+    ref_node: int = -1
+    n_matches: int = 0
+    n_inliers: int = 0
+    inlier_ratio: float = 0.0
+    median_reprojection_px: float = float("nan")
+    attempts: tuple[CandidateAttempt, ...] = ()
+    timings_ms: dict[str, float] = field(default_factory=dict)
+    keyframes: tuple[int, ...] = ()  # keyframes whose matches support the pose (joint refinement)
+    stop_reason: str = ""  # GL: why the candidate search stopped (passed, all tried, time budget)
+    matches: MatchedPixels | None = None  # accepted results: matches with `ref_node`, inliers marked
+    provisional: ProvisionalPose | None = None  # rejected GL results only (see ProvisionalPose)
+    candidates: tuple[int, ...] = ()  # GL: the nodes it would verify, in order (`global_candidates`)
+    tracking_state: TrackingState | None = None  # the localizer's state after this query, when the caller reports it
+
+
+@dataclass(frozen=True)
+class HeldPose:
+    """A GL or LL pose that its fused prior could not confirm (outside its gate, or the prior
+    too stale), held until a later frame repeats it (`LocalizationParams.repeat_within_s`):
+    both 4x4 `T_map_camera`, stamp in ns."""
+
+    t_ns: int
+    T_map_camera: NDArray[np.float64]
+    prior_T_map_camera: NDArray[np.float64]
