@@ -51,7 +51,8 @@ from litevloc.base.params.map_maintenance import MergeParams
 from litevloc.config import load_config
 from litevloc.hw.streams.mcap_io import TOPIC_COLOR, McapSource
 from litevloc.pipelines.localization.vloc import VisualLocalizer
-from litevloc.pipelines.topomap.io import load_map, save_map
+from litevloc.pipelines.topomap.io import load_map
+from litevloc.pipelines.topomap.map_save import save_map
 from litevloc.pipelines.topomap.merge import Link, align, find_links, join_maps, transform_map
 from litevloc.pipelines.topomap.types import TopoMap
 from litevloc.runtime.posed import posed_frames

@@ -57,7 +57,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import ROOT, print_table, require_7scenes
 
 from litevloc.base.process_usage import memory_mb
-from litevloc.pipelines.topomap.io import load_map, save_map
+from litevloc.pipelines.topomap.io import load_map
+from litevloc.pipelines.topomap.map_save import save_map
 from litevloc.pipelines.topomap.types import FeatureStore, OccupancyGrid, TopoMap
 
 SCALE_VERSION = "2"  # bump when `replicate` or the map format changes (cached maps are rebuilt); 2: format 3

@@ -130,7 +130,8 @@ def _odometry_ate(rec: Path, npz: Path) -> float:
 
 def moved_map(src: Path, dst: Path, T: list[list[float]]) -> Path:
     """A copy of a map moved into the reference frame (rigidly, SE(3) over its keyframes)."""
-    from litevloc.pipelines.topomap.io import load_map, save_map
+    from litevloc.pipelines.topomap.io import load_map
+    from litevloc.pipelines.topomap.map_save import save_map
     from litevloc.pipelines.topomap.merge import transform_map
 
     save_map(transform_map(load_map(src), np.asarray(T, np.float64)), dst, overwrite=True)

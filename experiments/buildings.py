@@ -42,7 +42,8 @@ from litevloc.base.process_usage import cpu_seconds
 from litevloc.config import load_config
 from litevloc.config.schema import LiteVLocConfig
 from litevloc.pipelines.topomap.build import MapBuilder
-from litevloc.pipelines.topomap.io import load_map, save_map
+from litevloc.pipelines.topomap.io import load_map
+from litevloc.pipelines.topomap.map_save import save_map
 from litevloc.pipelines.topomap.openings import find_openings, openings_summary
 from litevloc.runtime.planner_service import GoalPlanner, decode_goal_image, goal_locator
 from litevloc.runtime.sim_navigation import Goal, NavRun, placed_position, render_goals, run_navigation

@@ -38,7 +38,8 @@ from litevloc.hw.streams.base import StreamSource
 from litevloc.pipelines.slam.frames import interpolate_trajectory
 from litevloc.pipelines.slam.session import SlamError, map_frame
 from litevloc.pipelines.topomap.build import MapBuilder
-from litevloc.pipelines.topomap.io import save_map, storage_summary
+from litevloc.pipelines.topomap.io import storage_summary
+from litevloc.pipelines.topomap.map_save import save_map
 from litevloc.runtime.outputs import progress
 from litevloc.runtime.posed import odometry_posed_frames, posed_frames, trajectory_posed_frames
 

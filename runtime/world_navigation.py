@@ -60,7 +60,8 @@ def _to_world_frame(map_dir: Path, report: Path) -> None:
 
     import numpy as np
 
-    from litevloc.pipelines.topomap.io import load_map, save_map
+    from litevloc.pipelines.topomap.io import load_map
+    from litevloc.pipelines.topomap.map_save import save_map
     from litevloc.pipelines.topomap.merge import transform_map
 
     ev = json.loads(report.read_text())["slam"]["evaluation"]

@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from litevloc.base.geometry import rotation_angle
-from litevloc.pipelines.topomap.io import load_map, save_map, storage_summary
+from litevloc.pipelines.topomap.io import load_map, storage_summary
+from litevloc.pipelines.topomap.map_save import save_map
 from litevloc.pipelines.topomap.merge import MapMergeError, merge_sessions
 from litevloc.runtime.cli.common import add_config_args, add_json_arg, config_of
 from litevloc.runtime.cli.main import UserError

@@ -18,7 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from litevloc.pipelines.localization.vloc import VisualLocalizer
-from litevloc.pipelines.topomap.io import load_map, save_map
+from litevloc.pipelines.topomap.io import load_map
+from litevloc.pipelines.topomap.map_save import save_map
 from litevloc.pipelines.topomap.merge import MapMergeError
 from litevloc.pipelines.topomap.session import OncePerImage, SessionFrame, update_from_session
 from litevloc.runtime.cli.common import add_config_args, add_frames_arg, add_json_arg, config_of, source_of

@@ -15,7 +15,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from litevloc.pipelines.topomap.io import MapFormatError, load_map, save_map
+from litevloc.pipelines.topomap.io import MapFormatError, load_map
+from litevloc.pipelines.topomap.map_save import save_map
 from tests.pipelines.localization.test_vloc import make_map
 
 

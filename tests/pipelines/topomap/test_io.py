@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from litevloc.pipelines.topomap.io import MapFormatError, load_map, save_map, storage_summary
+from litevloc.pipelines.topomap.io import MapFormatError, load_map, storage_summary
+from litevloc.pipelines.topomap.map_save import save_map
 from litevloc.pipelines.topomap.types import TopoMap
 
 from .helpers import build_7scenes, seven_scenes_mapping
@@ -43,10 +44,10 @@ def assert_same(a: object, b: object, where: str) -> None:
     elif isinstance(a, np.ndarray) and where.endswith(".descriptors") and a.dtype == np.float32:
         # float descriptors are stored as int8 codes with one scale per row (documented): exactly
         # that rounding, within half a step of each row's largest value
-        from litevloc.pipelines.topomap.io import _quantise
+        from litevloc.pipelines.topomap.map_save import quantise
 
         assert isinstance(b, np.ndarray) and b.shape == a.shape, where
-        codes, scale = _quantise(a)
+        codes, scale = quantise(a)
         np.testing.assert_array_equal(np.asarray(b, np.float32), codes.astype(np.float32) * scale[:, None],
                                       err_msg=where)
     elif isinstance(a, np.ndarray) and where.endswith(".keypoints"):
@@ -189,7 +190,7 @@ def test_pickled_array_is_refused(saved_map: Path, tmp_path: Path) -> None:
 
 
 def test_loaded_features_and_images_are_lazy_and_exact(saved_map: Path, tmp_path: Path) -> None:
-    from litevloc.pipelines.topomap.io import map_arrays
+    from litevloc.pipelines.topomap.map_save import map_arrays
     from litevloc.pipelines.topomap.types import FeatureStore, keypoints_from_fixed
 
     m = load_map(saved_map)
@@ -312,14 +313,14 @@ def test_int8_descriptors_keep_nearest_neighbours() -> None:
     # 128-d unit descriptors like ALIKED's, queries noisy enough that the best match's cosine
     # is ~0.8 (a typical accepted LightGlue pair): the stored codes change no nearest neighbour
     # in 99 % of queries and no similarity by more than 0.01
-    from litevloc.pipelines.topomap.io import _quantise
+    from litevloc.pipelines.topomap.map_save import quantise
 
     rng = np.random.default_rng(0)
     ref = rng.normal(size=(2048, 128)).astype(np.float32)
     ref /= np.linalg.norm(ref, axis=1, keepdims=True)
     q = ref[:512] + rng.normal(scale=0.06, size=(512, 128)).astype(np.float32)
     q /= np.linalg.norm(q, axis=1, keepdims=True)
-    codes, scale = _quantise(ref)
+    codes, scale = quantise(ref)
     deq = codes.astype(np.float32) * scale[:, None]
     s32, s8 = q @ ref.T, q @ deq.T
     assert 0.7 < float(np.median(s32.max(axis=1))) < 0.9
@@ -416,14 +417,14 @@ def test_product_quantiser_problems_are_named(built_map: TopoMap, tmp_path: Path
 
 
 def test_keypoints_beyond_the_fixed_point_range_stay_float() -> None:
-    from litevloc.pipelines.topomap.io import _stored_keypoints
+    from litevloc.pipelines.topomap.map_save import stored_keypoints
     from litevloc.pipelines.topomap.types import KEYPOINT_FIXED_MAX, keypoints_from_fixed, keypoints_to_fixed
 
     k = np.array([[-0.5, 0.0], [100.3, 7.06], [KEYPOINT_FIXED_MAX, 2.0]], np.float32)
-    q = _stored_keypoints(k)
+    q = stored_keypoints(k)
     assert q.dtype == np.uint16
     assert float(np.abs(keypoints_from_fixed(q) - k).max()) <= 1 / 16
     big = np.array([[9000.0, 1.0]], np.float32)  # a > 8191 px image: float32, as format 2 stored them
-    assert _stored_keypoints(big).dtype == np.float32
+    assert stored_keypoints(big).dtype == np.float32
     with pytest.raises(ValueError, match="fixed-point"):
         keypoints_to_fixed(big)

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from litevloc.base import geometry as g
-from litevloc.pipelines.topomap.io import load_map, save_map
+from litevloc.pipelines.topomap.io import load_map
+from litevloc.pipelines.topomap.map_save import save_map
 from litevloc.pipelines.topomap.merge import (
     Link,
     MapMergeError,

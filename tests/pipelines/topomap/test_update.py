@@ -18,7 +18,8 @@ from litevloc.base.params.localization import DepthLookupParams
 from litevloc.hw.messages import GroundTruthPose, RgbdFrame
 from litevloc.hw.streams.sevenscenes import SevenScenesSource
 from litevloc.pipelines.depth_lookup import depth_at
-from litevloc.pipelines.topomap.io import load_map, save_map
+from litevloc.pipelines.topomap.io import load_map
+from litevloc.pipelines.topomap.map_save import save_map
 from litevloc.pipelines.topomap.types import NodeFeatures, TopoMap
 from litevloc.pipelines.topomap.update import (
     MapUpdate,

@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from litevloc.pipelines.topomap.io import save_map
+from litevloc.pipelines.topomap.map_save import save_map
 from litevloc.runtime.cli.main import main
 from tests.pipelines.topomap.test_diff import camera, grid, make_map
 
