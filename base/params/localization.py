@@ -217,6 +217,8 @@ class LocalizationParams:
     min_matches: int = 20
     # verification and refinement also use the map's depth at keyframe keypoints (off: it verifies aliased places too)
     verify_map_depth: bool = False
+    # a GL query that live depth cannot verify is verified again with the map's depth (verify_map_depth for it alone)
+    map_depth_fallback: bool = False
     # without a fresh prior, GL refuses a pose if a candidate at another pose has >= 1/this of its PnP inliers (0 = off)
     gl_distinct_ratio: float = 0.0
     # candidate poses farther apart than this are different places for that test (m)
