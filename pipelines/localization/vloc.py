@@ -318,15 +318,19 @@ class VisualLocalizer:
 
         return self._with_map_depth_fallback(verify, q)
 
-    def _with_map_depth_fallback(self, verify: Callable[[], LocalizationResult], q: Query) -> LocalizationResult:
-        """`verify()`; where it is refused and `map_depth_fallback` is on (the map has keypoint
-        depth, `verify_map_depth` off), `verify()` again on the same features and matches with
-        `verify_map_depth` on for this query alone: the refusal's attempts are kept in front."""
+    def _with_map_depth_fallback(self, verify: Callable[[], LocalizationResult], q: Query,
+                                 allowed: bool = True) -> LocalizationResult:
+        """`verify()`; where it is refused, `allowed` (LL: only from a fresh prior, whose gate
+        keeps a repeated place out) and `map_depth_fallback` is on (the map has keypoint depth,
+        `verify_map_depth` off), `verify()` again on the same features and matches with
+        `verify_map_depth` on for this query alone, GL's distinctiveness test on (map depth lets
+        a repeated place verify too): the refusal's attempts are kept in front."""
         res = verify()
         p = self.params
-        if res.accepted or not p.map_depth_fallback or p.verify_map_depth or not self._map_has_depth:
+        if res.accepted or not allowed or not p.map_depth_fallback or p.verify_map_depth or not self._map_has_depth:
             return res
-        self.params = q.params = replace(p, verify_map_depth=True)
+        self.params = q.params = replace(p, verify_map_depth=True,
+                                         gl_distinct_ratio=p.map_depth_fallback_distinct_ratio or p.gl_distinct_ratio)
         q.timer.ms.pop("total", None)  # the total is the whole query's, both passes
         try:
             again = verify()
@@ -600,7 +604,8 @@ class VisualLocalizer:
         growth = self._prior_growth_m(prior_age_s, fused_prior)
         gate_m = self._gate_m(growth, fused_prior)
         return self._with_map_depth_fallback(
-            lambda: self._local_attempts(t_ns, q, cands, prior, growth, gate_m, timer, t_all), q)
+            lambda: self._local_attempts(t_ns, q, cands, prior, growth, gate_m, timer, t_all), q,
+            allowed=self._fresh(growth))
 
     def _local_attempts(self, t_ns: int, q: Query, cands: list[tuple[int, float]], prior: NDArray[np.float64],
                         growth: float, gate_m: float, timer: StageTimer, t_all: float) -> LocalizationResult:

@@ -67,6 +67,8 @@ def test_the_map_depth_fallback_verifies_again_only_what_live_depth_refused() ->
         assert any("too few matches with depth" in a.reason for a in r.attempts)  # the first pass's refusal kept
         assert g.relative_pose_error(r.T_map_camera, T_true)[0] < 0.01
     assert not loc.params.verify_map_depth  # for that query alone
+    stale = loc.localize_local(0, IMG, holes, K, pose(0.75), prior_age_s=10.0)  # a repeated place could pass its gate
+    assert not stale.accepted and "map's depth" not in stale.stop_reason
     r = loc.localize_global(0, IMG, full, K)
     assert r.accepted and "map's depth" not in r.stop_reason
     off = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)
