@@ -77,14 +77,17 @@ def _cpu_model() -> str:
     return next((ln.split(":", 1)[1].strip() for ln in lines if ln.startswith("model name")), platform.machine())
 
 
+def run_meta() -> dict[str, Any]:
+    """The machine and how busy it was (a shared machine's timings say so), the command, when."""
+    return {"machine": platform.machine(), "python": platform.python_version(), "time": time.strftime("%FT%T%z"),
+            "cpu": _cpu_model(), "cpus": os.cpu_count(), "load_avg": os.getloadavg()[0],
+            "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]])}
+
+
 def write_json(name: str, data: dict[str, Any]) -> Path:
     OUT.mkdir(parents=True, exist_ok=True)
     path = OUT / f"{name}.json"
-    # the machine and how busy it was (a shared machine's timings say so), the command, when
-    meta = {"machine": platform.machine(), "python": platform.python_version(), "time": time.strftime("%FT%T%z"),
-            "cpu": _cpu_model(), "cpus": os.cpu_count(), "load_avg": os.getloadavg()[0],
-            "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]])}
-    path.write_text(json.dumps({"meta": meta, **data}, indent=2, default=float) + "\n")
+    path.write_text(json.dumps({"meta": run_meta(), **data}, indent=2, default=float) + "\n")
     print(f"\nwrote {path}")
     return path
 

@@ -43,6 +43,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from _common import run_meta
 
 
 def _free_port() -> int:
@@ -279,7 +280,7 @@ def main() -> int:
     else:
         res["goals_reached"] = res["goals_total"] = None
     args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(res, indent=2, sort_keys=True, default=float) + "\n")
+    args.json.write_text(json.dumps({"meta": run_meta(), **res}, indent=2, sort_keys=True, default=float) + "\n")
     print(f"wrote {args.json}")
     return 0
 

@@ -217,6 +217,10 @@ class LocalizationParams:
     min_matches: int = 20
     # verification and refinement also use the map's depth at keyframe keypoints (off: it verifies aliased places too)
     verify_map_depth: bool = False
+    # a GL query that live depth cannot verify is verified again with the map's depth (verify_map_depth for it alone)
+    map_depth_fallback: bool = False
+    # that second pass: GL refuses a pose another place verifies with >= 1/this of its inliers (0 = gl_distinct_ratio)
+    map_depth_fallback_distinct_ratio: float = 2.0
     # without a fresh prior, GL refuses a pose if a candidate at another pose has >= 1/this of its PnP inliers (0 = off)
     gl_distinct_ratio: float = 0.0
     # candidate poses farther apart than this are different places for that test (m)
@@ -253,6 +257,8 @@ class LocalizationParams:
             raise ValueError("lost_cost_ratio must be >= 0 (0 = no bound)")
         if self.gl_distinct_ratio < 0 or 0 < self.gl_distinct_ratio < 1:
             raise ValueError("gl_distinct_ratio must be 0 (off) or >= 1")
+        if self.map_depth_fallback_distinct_ratio < 0 or 0 < self.map_depth_fallback_distinct_ratio < 1:
+            raise ValueError("map_depth_fallback_distinct_ratio must be 0 (gl_distinct_ratio) or >= 1")
         if self.gl_distinct_m <= 0 or not 0 < self.gl_distinct_deg <= 180 or self.gl_distinct_max_rivals < 0:
             raise ValueError("need gl_distinct_m > 0, gl_distinct_deg in (0, 180] and gl_distinct_max_rivals >= 0")
         if self.gl_distinct_min_inliers < 0 or 0 < self.gl_distinct_min_inliers < 4:

@@ -99,6 +99,7 @@ class VisualLocalizer:
         self.ll_wall_ms: deque[float] = deque(maxlen=LL_COST_WINDOW)
         # Covisible neighbours of each node, strongest edge first (computed once, used per query).
         self._neighbours = topomap.covisibility_lists
+        self._map_has_depth = topomap.n_nodes > 0 and topomap.keypoint_depth(0) is not None
 
     # ---------------------------------------------------------------- building blocks
     def _query(
@@ -308,9 +309,35 @@ class VisualLocalizer:
         timer = StageTimer(self.clock)
         t_all = self.clock()
         q, sims, order, front_ms = self._retrieve(color, depth, K, region, timer, t_all)
-        if self.params.refine.enabled:
-            return self._verify_refined(t_ns, q, sims, order, prior, prior_age_s, recovering, timer, t_all, front_ms)
-        return self._verify_confirmed(t_ns, q, sims, order, timer, t_all)
+
+        def verify() -> LocalizationResult:
+            if self.params.refine.enabled:
+                return self._verify_refined(t_ns, q, sims, order, prior, prior_age_s, recovering, timer, t_all,
+                                            front_ms)
+            return self._verify_confirmed(t_ns, q, sims, order, timer, t_all)
+
+        return self._with_map_depth_fallback(verify, q)
+
+    def _with_map_depth_fallback(self, verify: Callable[[], LocalizationResult], q: Query,
+                                 allowed: bool = True) -> LocalizationResult:
+        """`verify()`; where it is refused, `allowed` (LL: only from a fresh prior, whose gate
+        keeps a repeated place out) and `map_depth_fallback` is on (the map has keypoint depth,
+        `verify_map_depth` off), `verify()` again on the same features and matches with
+        `verify_map_depth` on for this query alone, GL's distinctiveness test on (map depth lets
+        a repeated place verify too): the refusal's attempts are kept in front."""
+        res = verify()
+        p = self.params
+        if res.accepted or not allowed or not p.map_depth_fallback or p.verify_map_depth or not self._map_has_depth:
+            return res
+        self.params = q.params = replace(p, verify_map_depth=True,
+                                         gl_distinct_ratio=p.map_depth_fallback_distinct_ratio or p.gl_distinct_ratio)
+        q.timer.ms.pop("total", None)  # the total is the whole query's, both passes
+        try:
+            again = verify()
+        finally:
+            self.params = q.params = p
+        return replace(again, attempts=res.attempts + again.attempts,
+                       stop_reason=f"{again.stop_reason}; verified again with the map's depth ({res.reason})")
 
     def _retrieve(self, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64],
                   region: SearchRegion | None, timer: StageTimer, t_all: float
@@ -573,11 +600,19 @@ class VisualLocalizer:
         timer = StageTimer(self.clock)
         t_all = self.clock()
         q, desc = self._query(color, depth, K, timer)
-        attempts: list[CandidateAttempt] = []
-        best: tuple[int, PnpResult, RefineResult | None] | None = None
         cands = self.local_candidates(prior, desc)
         growth = self._prior_growth_m(prior_age_s, fused_prior)
         gate_m = self._gate_m(growth, fused_prior)
+        return self._with_map_depth_fallback(
+            lambda: self._local_attempts(t_ns, q, cands, prior, growth, gate_m, timer, t_all), q,
+            allowed=self._fresh(growth))
+
+    def _local_attempts(self, t_ns: int, q: Query, cands: list[tuple[int, float]], prior: NDArray[np.float64],
+                        growth: float, gate_m: float, timer: StageTimer, t_all: float) -> LocalizationResult:
+        """LL's candidates `cands` (node, similarity) tried in order until one passes the prior
+        gate (`gate_m`) and the joint refinement or confirmation (see `localize_local`)."""
+        attempts: list[CandidateAttempt] = []
+        best: tuple[int, PnpResult, RefineResult | None] | None = None
         guided_first = self.params.ll_guided_min_matches > 0 and self._fresh(growth)
         for node, sim in cands:
             res, att = self._verify_local(node, q, sim, prior if guided_first else None)

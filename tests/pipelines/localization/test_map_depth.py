@@ -53,6 +53,29 @@ def test_gl_verifies_and_confirms_with_map_depth_where_live_depth_is_missing() -
     assert not r.accepted and all("too few matches with depth" in a.reason for a in r.attempts)
 
 
+def test_the_map_depth_fallback_verifies_again_only_what_live_depth_refused() -> None:
+    """`map_depth_fallback`: GL and LL refused for want of live depth are verified again with the
+    map's depth (accepted, saying so); a frame that live depth verifies is not verified twice."""
+    m = _with_map_depth(make_map([0.0, 0.5, 1.0, 1.5]))
+    s = Scene(m)
+    T_true = pose(0.7, 4.0)
+    full = s.look(T_true, vpr_best=1)
+    holes = _holes(full, 8)
+    loc = VisualLocalizer(m, replace(PARAMS, map_depth_fallback=True), s.extract, s.describe, s.match)
+    for r in (loc.localize_global(0, IMG, holes, K), loc.localize_local(0, IMG, holes, K, pose(0.75))):
+        assert r.accepted and "verified again with the map's depth" in r.stop_reason, (r.mode, r.reason)
+        assert any("too few matches with depth" in a.reason for a in r.attempts)  # the first pass's refusal kept
+        assert g.relative_pose_error(r.T_map_camera, T_true)[0] < 0.01
+    assert not loc.params.verify_map_depth  # for that query alone
+    stale = loc.localize_local(0, IMG, holes, K, pose(0.75), prior_age_s=10.0)  # a repeated place could pass its gate
+    assert not stale.accepted and "map's depth" not in stale.stop_reason
+    r = loc.localize_global(0, IMG, full, K)
+    assert r.accepted and "map's depth" not in r.stop_reason
+    off = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)
+    assert not off.localize_global(0, IMG, holes, K).accepted
+    assert not off.localize_local(0, IMG, holes, K, pose(0.75)).accepted
+
+
 def test_refinement_with_keyframe_points_only_reaches_the_truth() -> None:
     rng = np.random.default_rng(3)
     obs = []
