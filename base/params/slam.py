@@ -98,6 +98,10 @@ class SlamLoopParams:
     max_verifications: int = 2
     # a candidate within this many keyframes of a loop partner already verified for this keyframe is skipped
     partner_spacing: int = 3
+    # skip (unmatched, before the verification bound) a candidate of the same chain that lies farther from the
+    # new keyframe on the chain than slam.graph's chain gate would accept for any verified loop (its bound plus
+    # localization.max_distance_to_node_m); needs slam.graph.gate_loops
+    chain_pregate: bool = True
     # a loop factor's translation noise is at least this, per axis (metres)
     sigma_floor_m: float = 0.003
     # a loop factor's rotation noise is at least this, per axis (degrees)

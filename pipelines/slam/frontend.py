@@ -193,6 +193,7 @@ class FrontEnd:
         rec.keyframe = kf.id
         new_edges = self._edges_to_previous(kf, tracked)
         self._place(kf, new_edges)
+        self._advance_path(kf, new_edges)
         self.keyframes.append(kf)
         self.edges.extend(new_edges)
         return kf
@@ -271,6 +272,14 @@ class FrontEnd:
                 if score > best_score:
                     best, best_score = subset, score
         return [edges[i] for i in best]
+
+    def _advance_path(self, kf: Keyframe, edges: list[Edge]) -> None:
+        """`path_m` and `path_var_t` of a placed keyframe from the previous one of its chain."""
+        prev = self.keyframes[-1] if self.keyframes else None
+        if prev is None or prev.chain != kf.chain or not edges:
+            return
+        kf.path_m = prev.path_m + float(np.linalg.norm(kf.T_init[:3, 3] - prev.T_init[:3, 3]))
+        kf.path_var_t = prev.path_var_t + min(float(np.diag(e.covariance)[3:].max()) for e in edges)
 
     def _place(self, kf: Keyframe, edges: list[Edge]) -> None:
         """Initial pose and chain of a new keyframe from its edges (the visual edge to the

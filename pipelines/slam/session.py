@@ -131,8 +131,10 @@ class SlamSession:
         if kf is None:
             return
         self.search.add(kf.vpr)
+        pregate = self.params.loops.chain_pregate and self.params.graph.gate_loops
         edges, attempts = loop_closures(kf, self.front.keyframes, self.search, self.models.match_loop,
-                                        self.localization, self.params.loops, self.loop_counts)
+                                        self.localization, self.params.loops, self.loop_counts,
+                                        self.params.graph if pregate else None)
         self.loop_edges.extend(edges)
         self.attempts.extend(attempts)
         self.timings.loop_search += time.perf_counter() - t1
@@ -201,7 +203,8 @@ class SlamSession:
                       "odometry_dropped": c["odometry_edges_dropped"], "visual_dropped": c["visual_edges_dropped"],
                       "visual_failed": c["visual_edge_failures"],
                       "planar": sum(e.kind == "planar" for e in res.edges)},
-            "loops": {"candidates": self.loop_counts.candidates, "tried": self.loop_counts.tried,
+            "loops": {"candidates": self.loop_counts.candidates, "skipped_by_chain_pregate": self.loop_counts.pregated,
+                      "tried": self.loop_counts.tried,
                       "verified": self.loop_counts.verified, "kept": int(sum(kept)),
                       "rejected_by_gate": by_gate, "rejected_by_optimiser": len(rejected) - sum(by_gate.values()),
                       "rejected": rejected,

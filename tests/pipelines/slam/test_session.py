@@ -3,6 +3,8 @@ goes, and each fault of a mapping recording is bridged or reported, never a bent
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -42,6 +44,16 @@ def test_loops_remove_the_odometry_drift(scene: Scene, base) -> None:  # type: i
     for rec, T in zip(res.frames, res.frame_poses, strict=True):
         if rec.keyframe is not None:
             assert np.allclose(T, res.graph.poses[rec.keyframe])
+
+
+def test_keyframes_know_their_path_along_the_chain(scene: Scene, base) -> None:  # type: ignore[no-untyped-def]
+    # the loop search's chain pre-gate bounds a loop by the path between its keyframes
+    _, res = base
+    kfs = res.keyframes
+    true = [scene.T_world_camera(k.index)[:3, 3] for k in kfs]
+    length = sum(float(np.linalg.norm(b - a)) for a, b in itertools.pairwise(true))
+    assert abs(kfs[-1].path_m - length) < 0.02 * length
+    assert all(b.path_m >= a.path_m and b.path_var_t > a.path_var_t for a, b in itertools.pairwise(kfs))
 
 
 def test_map_frame_is_the_first_keyframe_levelled(base) -> None:  # type: ignore[no-untyped-def]
