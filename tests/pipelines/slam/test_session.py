@@ -124,13 +124,15 @@ def test_one_aliased_image_does_not_outvote_the_odometry() -> None:
     assert keyframe_ate(scene, res) < 0.005
 
 
-def test_slow_odometry_slip_is_reported(scene: Scene) -> None:
-    # 0.5 m of extra motion over one second: slower than the jump check; one image is one vote, so
-    # the visual edges cannot overrule the odometry, and the disagreement is reported where it happened
+def test_slow_odometry_slip_is_corrected_by_the_skip_edge(scene: Scene) -> None:
+    # 0.5 m of extra motion over one second: slower than the jump check; each keyframe's image is
+    # one vote against the odometry (a tie), and the next keyframe seen from the one before (a
+    # second image) sides with vision: the slipped odometry edges are dropped where it happened
     _, res = run_session(scene, odometry_shift=lambda t: 0.5 * min(max(t - 7.0, 0.0), 1.0))
     rep = res.report
-    assert [f["kind"] for f in rep["faults"]] == ["vision disagrees with odometry"]
-    assert 7.0 <= rep["faults"][0]["t_s"] <= 8.0
+    assert [f["kind"] for f in rep["faults"]] == ["odometry disagrees with vision"]
+    assert 7.0 <= rep["faults"][0]["t_s"] <= 8.0 and rep["edges"]["odometry_dropped"] >= 1
+    assert rep["chains"] == 1 and keyframe_ate(scene, res) < 0.005
 
 
 def test_jump_in_a_blackout_splits_the_chain_and_a_loop_joins_it(scene: Scene) -> None:
