@@ -11,9 +11,12 @@ k-1 -> k+1, a visual edge that does not use the disputed image k:
   the visual edge k -> k+1: a slip may last): a second image sides with vision, two votes
   against one, and the odometry edge k-1 -> k is dropped for k's visual edges.
 
-So a slow wheel slip is corrected, and one aliased image still cannot move the chain; a
-texture that aliases two consecutive keyframes alike (k and k+1) can, and is reported.
-Agreement is the front end's test (`visual.max_disagreement_sigma` of the summed variances).
+So a slow wheel slip is corrected, and one aliased image still cannot move the chain. A
+texture that repeats along the path with a period of about the keyframe spacing can: then
+the skip edge, too, matches the wrong repetition (the simulator's ring corridor: the skip
+edge sided with visual edges 0.6 m off at every tie of a lap), so it is off unless
+`slam.visual.skip_edge_ties` is set. Agreement is the front end's test
+(`visual.max_disagreement_sigma` of the summed variances).
 """
 
 from __future__ import annotations
@@ -94,5 +97,5 @@ def dispute_faults(disputes: Sequence[Dispute]) -> list[Fault]:
                              f"{where}: all {last.n_visual} visual edges contradict the odometry at {n} keyframe(s) "
                              f"(last at {last.t_s:.1f} s)",
                              "visual edges dropped, odometry kept (the new keyframe's image is one vote against the "
-                             "odometry's one, and the skip edge over the next keyframe did not side with it)"))
+                             "odometry's one; a tie keeps the odometry)"))
     return out

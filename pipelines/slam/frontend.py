@@ -17,9 +17,10 @@
   odometry). Of these edges the set whose estimates of the new keyframe's pose agree (within
   `visual.max_disagreement_sigma` of their noise) with the most independent votes is kept:
   the odometry is one vote and the visual edges together one (they all use the new
-  keyframe's image, so one aliased image shifts them alike); a tie keeps the odometry for
-  now, and the next keyframe's skip edge breaks it (`pipelines.slam.disputes`: a slipping
-  wheel is corrected, one aliased image is not followed); both outcomes are reported as faults.
+  keyframe's image, so one aliased image shifts them alike); a tie keeps the odometry, and
+  with `visual.skip_edge_ties` the next keyframe's skip edge breaks it
+  (`pipelines.slam.disputes`: a slipping wheel is corrected, one aliased image is not
+  followed, a texture repeating along the path can fool it); both outcomes are faults.
 
 Camera motion from odometry: `T_odom_camera = T_odom_base @ T_base_camera`.
 """
@@ -226,7 +227,7 @@ class FrontEnd:
                 continue
             visual.append(Edge(other.id, kf.id, res.T, res.covariance, "visual", inliers=res.inliers))
         open_dispute = self.disputes[-1] if self.disputes and self.disputes[-1].keyframe == prev.id else None
-        if odo is not None and open_dispute is not None:
+        if odo is not None and open_dispute is not None and vp.skip_edge_ties:
             self._settle(open_dispute, kf, odo, visual)
         kept = self._consensus(([odo] if odo is not None else []) + visual)
         if odo is not None and odo not in kept:

@@ -31,6 +31,7 @@ from litevloc.base.params.slam import SlamParams
 from litevloc.pipelines.slam.frames import frame_poses
 from litevloc.pipelines.slam.frontend import FrontEnd
 from litevloc.pipelines.slam.graph import GraphResult, optimise
+from litevloc.pipelines.slam.level import LevelFloor, floor_of
 from litevloc.pipelines.slam.loops import LoopCounts, LoopSearch, loop_closures
 from litevloc.pipelines.slam.odometry import OdometryTrack
 from litevloc.pipelines.slam.planar import planar_edges
@@ -53,6 +54,7 @@ class SlamResult:
     frame_poses: list[F64 | None]
     T_map_first: F64
     report: dict[str, Any] = field(default_factory=dict)
+    level: LevelFloor | None = None
 
     @property
     def loops(self) -> list[Edge]:
@@ -149,16 +151,20 @@ class SlamSession:
                                      self.mapping.up)
         t0 = time.perf_counter()
         edges = self.front.edges + planar_edges(kfs, self.T_base_camera, self.params.planar) + self.loop_edges
-        graph = optimise(kfs, edges, T_first, self.params.graph)
+        pl = self.params.planar
+        level = floor_of(T_first, self.T_base_camera, self.mapping.up, pl.sigma_height_m,
+                         float(np.radians(pl.sigma_tilt_deg))) if pl.enabled and pl.level_floor else None
+        graph = optimise(kfs, edges, T_first, self.params.graph, level)
         poses = frame_poses(self.front.frames, graph.poses)
         self.timings.optimisation += time.perf_counter() - t0
-        res = SlamResult(kfs, edges, graph, self.front.frames, poses, T_first)
+        res = SlamResult(kfs, edges, graph, self.front.frames, poses, T_first, level=level)
         res.report = self._report(res, up_note)
         return res
 
     def no_loop_poses(self, res: SlamResult) -> dict[int, F64]:
         """The keyframe poses optimised without the loop edges (for the report's comparison)."""
-        g = optimise(res.keyframes, [e for e in res.edges if e.kind != "loop"], res.T_map_first, self.params.graph)
+        g = optimise(res.keyframes, [e for e in res.edges if e.kind != "loop"], res.T_map_first, self.params.graph,
+                     res.level)
         return g.poses
 
     def odometry_poses(self, res: SlamResult) -> dict[int, F64] | None:
