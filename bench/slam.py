@@ -228,12 +228,13 @@ def main() -> int:
         res["loop"]["query_lap"] = loop_query(ev["T_reference_map"])
         write_json(args.json, res)
     rows = [[c, r.get("keyframe_ate_m"), r.get("odometry_ate_m"), r.get("rpe_per_m"), r.get("loops_kept"),
-             r.get("wrong_loops_kept"), sum((r.get("loops_rejected_by_gate") or {}).values()), r.get("s_per_keyframe"),
-             r.get("peak_rss_mb"), (r.get("wrong_loop_injection") or {}).get("moved_max_m")]
+             r.get("wrong_loops_kept"), sum((r.get("loops_rejected_by_gate") or {}).values()), r.get("loops_tried"),
+             r.get("loops_pregated"), r.get("s_per_keyframe"), r.get("cpu_s_per_keyframe"), r.get("peak_rss_mb"),
+             (r.get("wrong_loop_injection") or {}).get("moved_max_m")]
             for c, r in res.items() if c != "meta"]
     print_table("map build --poses slam (shared 2-core machine)",
-                ["case", "kf ATE m", "odom ATE m", "RPE m/m", "loops kept", "wrong kept", "gate rejects", "s/kf",
-                 "RSS MB", "10% wrong: moved m"], rows)
+                ["case", "kf ATE m", "odom ATE m", "RPE m/m", "loops kept", "wrong kept", "gate rejects", "tried",
+                 "pre-gated", "s/kf", "CPU-s/kf", "RSS MB", "10% wrong: moved m"], rows)
     return 0
 
 

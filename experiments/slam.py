@@ -40,7 +40,8 @@ def case_figures(build: dict[str, Any], world: str | None = None) -> dict[str, A
     return {"keyframe_ate_m": ev.get("keyframe_ate_m"), "odometry_ate_m": ev.get("odometry_ate_m"),
             "no_loop_ate_m": ev.get("no_loop_ate_m"), "rpe_per_m": ev.get("rpe_per_m"),
             "loops_kept": s["loops"]["kept"], "loops_verified": s["loops"]["verified"],
-            "loops_tried": s["loops"]["tried"], "loops_rejected_by_optimiser": s["loops"]["rejected_by_optimiser"],
+            "loops_tried": s["loops"]["tried"], "loops_pregated": s["loops"].get("skipped_by_chain_pregate"),
+            "loops_rejected_by_optimiser": s["loops"]["rejected_by_optimiser"],
             "loops_rejected_by_gate": s["loops"].get("rejected_by_gate"),
             "wrong_loops_kept": ev.get("wrong_loops_kept"), "wrong_loops_verified": ev.get("wrong_loops"),
             "s_per_keyframe": build["seconds_per_keyframe"], "cpu_s_per_keyframe": build["cpu_seconds_per_keyframe"],
@@ -68,7 +69,7 @@ def inject_wrong_loops(graph_npz: Path, ref_by_frame: dict[int, F64], params: Sl
     ref = _ref_by_id(g, ref_by_frame)
     loops = [e for e in g.edges if e.kind == "loop"]
     kept = [e for e, w in zip(loops, g.loop_weights, strict=True) if w > params.kept_weight]
-    base = optimise(g.keyframes, g.edges, g.T_map_first, params)
+    base = optimise(g.keyframes, g.edges, g.T_map_first, params, g.level)
     cov = np.median(np.stack([e.covariance for e in kept]), axis=0) if kept else np.diag([1e-4] * 6)
     rng = np.random.default_rng(seed)
     ids = sorted(ref)
@@ -78,7 +79,7 @@ def inject_wrong_loops(graph_npz: Path, ref_by_frame: dict[int, F64], params: Sl
         a, b = sorted(int(x) for x in rng.choice(ids, 2, replace=False))
         if np.linalg.norm(ref[a][:3, 3] - ref[b][:3, 3]) > min_apart_m:
             wrong.append(Edge(a, b, make_T(np.eye(3), np.array([0.1, 0.0, 0.0])), cov, "loop"))
-    res = optimise(g.keyframes, g.edges + wrong, g.T_map_first, params)
+    res = optimise(g.keyframes, g.edges + wrong, g.T_map_first, params, g.level)
     common = sorted(set(base.poses) & set(res.poses))
     moved = np.array([np.linalg.norm(res.poses[k][:3, 3] - base.poses[k][:3, 3]) for k in common])
     w_wrong = res.loop_weights[len(loops):]
@@ -135,7 +136,7 @@ def regraph(graph_npz: Path, ref_by_frame: dict[int, F64], params: SlamGraphPara
     g = load_graph(graph_npz)
     ref = _ref_by_id(g, ref_by_frame)
     t0 = time.perf_counter()
-    res = optimise(g.keyframes, g.edges, g.T_map_first, params)
+    res = optimise(g.keyframes, g.edges, g.T_map_first, params, g.level)
     seconds = time.perf_counter() - t0
     loops = [e for e in g.edges if e.kind == "loop"]
     errs = loop_errors(loops, ref)

@@ -20,6 +20,7 @@ import numpy as np
 from litevloc.config.schema import LiteVLocConfig
 from litevloc.hw.messages import GroundTruthPose, Message, Odometry, RgbdFrame
 from litevloc.pipelines.slam.evaluate import evaluate
+from litevloc.pipelines.slam.level import LevelFloor
 from litevloc.pipelines.slam.session import SlamResult, SlamSession
 from litevloc.pipelines.slam.types import F64, Edge, EdgeKind, FrameImages, FrameRef, SlamModels
 from litevloc.pipelines.topomap.build import MapBuilder
@@ -149,6 +150,7 @@ class SavedGraph:
     loop_weights: list[float]
     poses: F64
     T_map_first: F64
+    level: LevelFloor | None = None
 
 
 def save_graph(path: Path, res: SlamResult) -> None:
@@ -159,7 +161,10 @@ def save_graph(path: Path, res: SlamResult) -> None:
         poses[k] = T
     E = res.edges
     path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez(path, kf_id=np.array([k.id for k in res.keyframes], np.int64),
+    lv = res.level
+    level: dict[str, Any] = {} if lv is None else {"level_up": lv.up, "level_T_base_camera": lv.T_base_camera,
+                                   "level_sigmas": np.array([lv.height_m, lv.sigma_height_m, lv.sigma_tilt_rad])}
+    np.savez(path, **level, kf_id=np.array([k.id for k in res.keyframes], np.int64),
              kf_chain=np.array([k.chain for k in res.keyframes], np.int64),
              kf_T_init=np.stack([k.T_init for k in res.keyframes]), kf_index=np.array([k.index for k in res.keyframes]),
              kf_t_ns=np.array([k.t_ns for k in res.keyframes], np.int64), kf_pose=poses,
@@ -179,5 +184,9 @@ def load_graph(path: Path) -> SavedGraph:
         edges = [Edge(int(a), int(b), T, C, _KINDS[int(k)], int(n)) for a, b, k, T, C, n in
                  zip(z["edge_a"], z["edge_b"], z["edge_kind"], z["edge_T"], z["edge_cov"], z["edge_inliers"],
                      strict=True)]
+        level = None
+        if "level_up" in z:
+            h, s_h, s_t = (float(x) for x in z["level_sigmas"])
+            level = LevelFloor(np.asarray(z["level_up"]), np.asarray(z["level_T_base_camera"]), h, s_h, s_t)
         return SavedGraph(kfs, edges, [float(w) for w in z["loop_weights"]], np.asarray(z["kf_pose"]),
-                          np.asarray(z["T_map_first"]))
+                          np.asarray(z["T_map_first"]), level)

@@ -68,6 +68,8 @@ class SlamVisualParams:
     guided_only: bool = True
     # edges into a keyframe agree within this many sigmas; the largest agreeing set is kept (dropped odometry: a fault)
     max_disagreement_sigma: float = 8.0
+    # odometry-vision ties broken by the next keyframe's skip edge (fixes a slow wheel slip; periodic textures fool it)
+    skip_edge_ties: bool = False
     # without odometry, every Nth camera frame is tracked against the last keyframe (1 = every frame)
     track_every: int = 2
     # without odometry, a tracked frame with fewer PnP inliers than this becomes a keyframe
@@ -98,6 +100,8 @@ class SlamLoopParams:
     max_verifications: int = 2
     # a candidate within this many keyframes of a loop partner already verified for this keyframe is skipped
     partner_spacing: int = 3
+    # skip unmatched a candidate the chain puts beyond the chain gate's bound + localization.max_distance_to_node_m
+    chain_pregate: bool = True
     # a loop factor's translation noise is at least this, per axis (metres)
     sigma_floor_m: float = 0.003
     # a loop factor's rotation noise is at least this, per axis (degrees)
@@ -153,6 +157,8 @@ class SlamPlanarParams:
     sigma_height_m: float = 0.01
     # roll and pitch change of base_link between consecutive keyframes, one sigma (degrees)
     sigma_tilt_deg: float = 0.5
+    # the whole pass is on one level floor (one storey, no ramps): base level and camera height held in the map frame
+    level_floor: bool = False
 
     def __post_init__(self) -> None:
         for name in ("sigma_height_m", "sigma_tilt_deg"):

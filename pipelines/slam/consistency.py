@@ -95,10 +95,18 @@ def _angles(R: NDArray[np.float64]) -> NDArray[np.float64]:
     return np.asarray(np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0)), np.float64)
 
 
+def translation_bound(path_m: NDArray[np.float64] | float, var_t: NDArray[np.float64] | float,
+                      params: SlamGraphParams) -> NDArray[np.float64]:
+    """How far (m) a loop may disagree with a chain stretch of `path_m` metres whose edges'
+    translation variances add up to `var_t` (m^2) and still pass the chain gate."""
+    return np.asarray(params.gate_floor_m + params.chain_drift_m_per_m * np.asarray(path_m)
+                      + params.gate_sigmas * np.sqrt(var_t), np.float64)
+
+
 def _within(t_err: NDArray[np.float64], r_err: NDArray[np.float64], path_m: NDArray[np.float64],
             var_t: NDArray[np.float64], var_r: NDArray[np.float64], params: SlamGraphParams) -> NDArray[np.bool_]:
     """Errors within the bound of a chain stretch of `path_m` metres and accumulated variances."""
-    bound_t = params.gate_floor_m + params.chain_drift_m_per_m * path_m + params.gate_sigmas * np.sqrt(var_t)
+    bound_t = translation_bound(path_m, var_t, params)
     bound_r = (np.radians(params.gate_floor_deg + params.chain_drift_deg_per_m * path_m)
                + params.gate_sigmas * np.sqrt(var_r))
     return np.asarray((t_err <= bound_t) & (r_err <= bound_r), np.bool_)

@@ -18,7 +18,9 @@
   `visual.max_disagreement_sigma` of their noise) with the most independent votes is kept:
   the odometry is one vote and the visual edges together one (they all use the new
   keyframe's image, so one aliased image shifts them alike); a tie keeps the odometry, and
-  visual edges that agree among themselves against it are recorded as a `Fault`.
+  with `visual.skip_edge_ties` the next keyframe's skip edge breaks it
+  (`pipelines.slam.disputes`: a slipping wheel is corrected, one aliased image is not
+  followed, a texture repeating along the path can fool it); both outcomes are faults.
 
 Camera motion from odometry: `T_odom_camera = T_odom_base @ T_base_camera`.
 """
@@ -39,6 +41,7 @@ from litevloc.pipelines.depth_lookup import depth_at
 from litevloc.pipelines.guided_matching import match_by_projection
 from litevloc.pipelines.localization.refine import KeyframeObservations, refine_pose
 from litevloc.pipelines.pnp import solve_pnp
+from litevloc.pipelines.slam.disputes import ODOMETRY_DROPPED, Dispute, dispute_faults, vision_wins
 from litevloc.pipelines.slam.odometry import odometry_edge
 from litevloc.pipelines.slam.types import F64, Edge, Fault, FrameImages, FrameRecord, FrameRef, Keyframe, SlamModels
 from litevloc.pipelines.topomap.build import candidate_points, encode_jpeg
@@ -91,12 +94,17 @@ class FrontEnd:
         self.keyframes: list[Keyframe] = []
         self.edges: list[Edge] = []
         self.frames: list[FrameRecord] = []
-        self.faults: list[Fault] = []
+        self.disputes: list[Dispute] = []
+        self._faults: list[Fault] = []
         self.counts = {"frames": 0, "frames_tracked": 0, "tracking_failures": 0, "odometry_edges": 0,
                        "odometry_edges_dropped": 0, "visual_edges": 0, "visual_edges_dropped": 0,
                        "visual_edge_failures": 0, "chains": 0, "keyframes_with_odometry": 0}
         self._since_track = 0
-        self._dropped_run = (-1, -1, 0)  # first and last keyframe, count of the current run of dropped odometry
+
+    @property
+    def faults(self) -> list[Fault]:
+        """What the front end worked around, in time order (unlinked keyframes, disputed ones)."""
+        return sorted(self._faults + dispute_faults(self.disputes), key=lambda f: f.t_s)
 
     # ---------------------------------------------------------------- per frame
     def add(self, ref: FrameRef, odom: tuple[int, F64] | None) -> Keyframe | None:
@@ -193,6 +201,7 @@ class FrontEnd:
         rec.keyframe = kf.id
         new_edges = self._edges_to_previous(kf, tracked)
         self._place(kf, new_edges)
+        self._advance_path(kf, new_edges)
         self.keyframes.append(kf)
         self.edges.extend(new_edges)
         return kf
@@ -217,32 +226,49 @@ class FrontEnd:
                 self.counts["visual_edge_failures"] += 1
                 continue
             visual.append(Edge(other.id, kf.id, res.T, res.covariance, "visual", inliers=res.inliers))
+        open_dispute = self.disputes[-1] if self.disputes and self.disputes[-1].keyframe == prev.id else None
+        if odo is not None and open_dispute is not None and vp.skip_edge_ties:
+            self._settle(open_dispute, kf, odo, visual)
         kept = self._consensus(([odo] if odo is not None else []) + visual)
         if odo is not None and odo not in kept:
             self.counts["odometry_edges_dropped"] += 1
         if odo is not None and len(visual) >= 2 and not any(e in kept for e in visual):
-            self._vision_overruled(kf, len(visual))
+            self.disputes.append(Dispute(kf.id, kf.t_ns * 1e-9, odo, self._consensus(visual), len(visual)))
         self.counts["visual_edges_dropped"] += sum(e not in kept for e in visual)
         self.counts["odometry_edges"] += int(odo is not None and odo in kept)
         self.counts["visual_edges"] += sum(e in kept for e in visual)
         return kept
 
-    def _vision_overruled(self, kf: Keyframe, n_visual: int) -> None:
-        """Record keyframes whose visual edges (two or more) all contradict the odometry, which is
-        kept (one image is one vote: a repeating texture, or a slipping wheel): one fault per
-        run of such keyframes (a slipping wheel contradicts many in a row)."""
-        kind = "vision disagrees with odometry"
-        last = self.faults[-1] if self.faults else None
-        if last is not None and last.kind == kind and self._dropped_run[1] == kf.id - 1:
-            self._dropped_run = (self._dropped_run[0], kf.id, self._dropped_run[2] + 1)
-        else:
-            self._dropped_run = (kf.id, kf.id, 1)
-            last = Fault(kind, kf.t_ns * 1e-9, "", "visual edges dropped, odometry kept (the new keyframe's image "
-                                                    "is one vote against the odometry's one; ties go to the odometry)")
-            self.faults.append(last)
-        a, b, n = self._dropped_run
-        last.detail = (f"keyframes {a}-{b}: all {n_visual} visual edges contradict the odometry at {n} "
-                       f"keyframe(s) (last at {kf.t_ns * 1e-9:.1f} s)")
+    def _settle(self, d: Dispute, kf: Keyframe, odo: Edge, visual: list[Edge]) -> None:
+        """Break the tie at the previous keyframe with the skip edge into `kf` from the one before
+        it (`pipelines.slam.disputes`); `odo` and `visual`: `kf`'s edges (the skip edge, computed
+        here with vision's prediction when the odometry's found too few matches, joins them).
+        Where vision wins, the previous keyframe gets its visual edges and pose from them."""
+        if len(self.keyframes) < 2 or self.keyframes[-2].id != d.odometry.a or not d.visual:
+            return
+        before, k = self.keyframes[-2], self.keyframes[-1]
+        T_vision = self.keyframes[d.visual[0].a].T_init @ d.visual[0].T_a_b
+        visual_next = next((e for e in visual if e.a == k.id), None)
+        skip = next((e for e in visual if e.a == before.id), None)
+        if skip is None:
+            step = odo.T_a_b if visual_next is None else visual_next.T_a_b
+            res = self._relative(kf.points, kf.features, before, invert(before.T_init) @ T_vision @ step, True)
+            if res is None:
+                return
+            skip = Edge(before.id, kf.id, res.T, res.covariance, "visual", inliers=res.inliers)
+            visual.append(skip)
+        if not vision_wins(d, before.T_init, k.T_init, T_vision, skip, odo, visual_next,
+                           self.params.visual.max_disagreement_sigma):
+            return
+        d.outcome = ODOMETRY_DROPPED
+        self.edges.remove(d.odometry)
+        self.edges.extend(d.visual)
+        self.counts["odometry_edges"] -= 1
+        self.counts["odometry_edges_dropped"] += 1
+        self.counts["visual_edges"] += len(d.visual)
+        self.counts["visual_edges_dropped"] -= len(d.visual)
+        k.T_init = T_vision
+        k.path_m = before.path_m + float(np.linalg.norm(T_vision[:3, 3] - before.T_init[:3, 3]))
 
     def _consensus(self, edges: list[Edge]) -> list[Edge]:
         """The set of edges whose estimates of the new keyframe's pose agree pairwise with the
@@ -272,6 +298,14 @@ class FrontEnd:
                     best, best_score = subset, score
         return [edges[i] for i in best]
 
+    def _advance_path(self, kf: Keyframe, edges: list[Edge]) -> None:
+        """`path_m` and `path_var_t` of a placed keyframe from the previous one of its chain."""
+        prev = self.keyframes[-1] if self.keyframes else None
+        if prev is None or prev.chain != kf.chain or not edges:
+            return
+        kf.path_m = prev.path_m + float(np.linalg.norm(kf.T_init[:3, 3] - prev.T_init[:3, 3]))
+        kf.path_var_t = prev.path_var_t + min(float(np.diag(e.covariance)[3:].max()) for e in edges)
+
     def _place(self, kf: Keyframe, edges: list[Edge]) -> None:
         """Initial pose and chain of a new keyframe from its edges (the visual edge to the
         nearest previous keyframe first, then odometry); a keyframe no edge reaches starts a
@@ -289,6 +323,6 @@ class FrontEnd:
         kf.T_init = prev.T_init.copy()
         kf.chain = self.counts["chains"]
         self.counts["chains"] += 1
-        self.faults.append(Fault("keyframe not linked", kf.t_ns * 1e-9,
+        self._faults.append(Fault("keyframe not linked", kf.t_ns * 1e-9,
                                  f"keyframe {kf.id} (frame {kf.index}): no odometry and no visual edge reaches the "
                                  "previous keyframes", "starts a new chain; kept only if a loop joins it to the map"))

@@ -15,6 +15,10 @@ Chains (keyframes joined by odometry or visual edges) other than the first keyfr
 only through loops: each such chain gets a weak prior on its first keyframe so the problem
 stays well posed if the optimiser rejects every loop to it, and a chain whose loops to the
 map are all rejected (or that has none) is left out of the map (`GraphResult.dropped`).
+
+With a `LevelFloor` (`pipelines.slam.level`) every keyframe in the map also gets absolute
+level and height factors (known inliers, like the odometry and visual edges); the chain gate's
+chain solution is solved without them (each chain in its own frame).
 """
 
 from __future__ import annotations
@@ -31,6 +35,7 @@ from numpy.typing import NDArray
 from litevloc.base.geometry import invert
 from litevloc.base.params.slam import SlamGraphParams
 from litevloc.pipelines.slam.consistency import chain_path, gate_loops
+from litevloc.pipelines.slam.level import LevelFloor, level_factors
 from litevloc.pipelines.slam.types import F64, Edge
 
 
@@ -173,15 +178,16 @@ def _gate(keyframes: Sequence[GraphNode], edges: list[Edge], loops: list[Edge], 
 
 
 def optimise(keyframes: Sequence[GraphNode], edges: list[Edge], T_map_first: F64,
-             params: SlamGraphParams) -> GraphResult:
+             params: SlamGraphParams, level: LevelFloor | None = None) -> GraphResult:
     """Optimise the keyframe poses (see the module docstring). `edges` of all kinds; loop
     weights come back in the order of the loop edges in `edges`. The poses are the
-    least-squares solution over the odometry and visual edges and the loops GNC kept."""
+    least-squares solution over the odometry and visual edges (and the `level` floor's
+    factors) and the loops GNC kept."""
     all_loops = [e for e in edges if e.kind == "loop"]
     gate = _gate(keyframes, edges, all_loops, params)
     passed = [e for e, g in zip(all_loops, gate, strict=True) if not g]
     res = _optimise(keyframes, [e for e in edges if e.kind != "loop"] + passed, T_map_first, params,
-                    warm=params.gate_loops)
+                    warm=params.gate_loops, level=level)
     it = iter(res.loop_weights)
     res.loop_weights = [0.0 if g else next(it) for g in gate]
     res.loop_gate = gate
@@ -189,7 +195,7 @@ def optimise(keyframes: Sequence[GraphNode], edges: list[Edge], T_map_first: F64
 
 
 def _optimise(keyframes: Sequence[GraphNode], edges: list[Edge], T_map_first: F64,
-              params: SlamGraphParams, warm: bool) -> GraphResult:
+              params: SlamGraphParams, warm: bool, level: LevelFloor | None = None) -> GraphResult:
     """GNC over the loops in `edges`, then least squares over the kept ones; `warm`: GNC starts
     from the least-squares solution with every loop (loops already found consistent)."""
     loops = [e for e in edges if e.kind == "loop"]
@@ -208,6 +214,11 @@ def _optimise(keyframes: Sequence[GraphNode], edges: list[Edge], T_map_first: F6
             kept.add(_between(e))
         if usable:
             graph.add(_between(e))
+    if level is not None:
+        floor = level_factors(level, [(_key(kf.id), init.atPose3(_key(kf.id)).matrix()) for kf in keyframes
+                                      if kf.id in in_map])
+        graph.push_back(floor)
+        kept.push_back(floor)
     robust = [r for r in loop_rows if r is not None]
     start = gtsam.LevenbergMarquardtOptimizer(graph, init).optimize() if (warm and robust) else init
     weights = _gnc_weights(graph, start, robust, params) if robust else np.ones(graph.size())

@@ -3,7 +3,11 @@
 Candidates (`LoopSearch.candidates`): the `top_k` keyframes most similar to the new one
 (cosine of the VPR descriptors, at least `min_similarity`) among those older than
 `exclude_recent` keyframes; never all pairs, and at most `max_verifications` are verified
-per keyframe (each costs one run of the localizer's matcher).
+per keyframe (each costs one run of the localizer's matcher). With `loops.chain_pregate`, a
+candidate of the new keyframe's chain is skipped before that bound when the chain places it
+farther away than the chain gate (`pipelines.slam.consistency`) could accept for any loop
+verification can return (a verified loop is at most `localization.max_distance_to_node_m`
+long): in a corridor whose texture repeats, most candidates are such repetitions.
 
 Verification (`verify_loop`) is the localizer's own geometry (`pipelines.localization`):
 the new keyframe plays the live frame (its keypoints lifted with its depth) and the candidate
@@ -26,9 +30,10 @@ from numpy.typing import NDArray
 
 from litevloc.base.geometry import invert
 from litevloc.base.params.localization import LocalizationParams
-from litevloc.base.params.slam import SlamLoopParams
+from litevloc.base.params.slam import SlamGraphParams, SlamLoopParams
 from litevloc.pipelines.localization.refine import KeyframeObservations, guided_matches, refine_pose
 from litevloc.pipelines.pnp import solve_pnp
+from litevloc.pipelines.slam.consistency import translation_bound
 from litevloc.pipelines.slam.frontend import edge_refine_params
 from litevloc.pipelines.slam.types import Edge, Keyframe, LoopAttempt, MatchFn
 
@@ -111,6 +116,7 @@ class LoopCounts:
     """Loop-closure counters for the report."""
 
     candidates: int = 0  # place-descriptor candidates found (before the verification bound)
+    pregated: int = 0  # skipped unmatched: the chain places them too far for the chain gate to accept
     tried: int = 0  # verified with the matcher
     verified: int = 0  # passed the geometry
 
@@ -124,15 +130,31 @@ def neighbour_views(cand: Keyframe, keyframes: list[Keyframe]) -> list[Keyframe]
     return out
 
 
+def beyond_chain_gate(q: Keyframe, cand: Keyframe, gate: SlamGraphParams, max_loop_m: float) -> bool:
+    """Would the chain gate reject any loop `cand` -> `q` at most `max_loop_m` long? True when
+    both lie on one chain whose initial poses put them farther apart than the gate's bound over
+    the path between them plus `max_loop_m` (triangle inequality on the translations)."""
+    if q.chain != cand.chain:
+        return False
+    apart = float(np.linalg.norm(q.T_init[:3, 3] - cand.T_init[:3, 3]))
+    bound = translation_bound(abs(q.path_m - cand.path_m), abs(q.path_var_t - cand.path_var_t), gate)
+    return apart > float(bound) + max_loop_m
+
+
 def loop_closures(q: Keyframe, keyframes: list[Keyframe], search: LoopSearch, match: MatchFn,
-                  loc: LocalizationParams, params: SlamLoopParams, counts: LoopCounts
-                  ) -> tuple[list[Edge], list[LoopAttempt]]:
-    """Loop edges for keyframe `q` (already added to `search`): candidates, then at most
-    `max_verifications` verified, skipping candidates near a partner already found."""
+                  loc: LocalizationParams, params: SlamLoopParams, counts: LoopCounts,
+                  gate: SlamGraphParams | None = None) -> tuple[list[Edge], list[LoopAttempt]]:
+    """Loop edges for keyframe `q` (already added to `search`): candidates (without those
+    `beyond_chain_gate` of the chain `gate`, when given), then at most `max_verifications`
+    verified, skipping candidates near a partner already found."""
     edges: list[Edge] = []
     attempts: list[LoopAttempt] = []
     cands = search.candidates(q.id)
     counts.candidates += len(cands)
+    if gate is not None:
+        near = [(j, s) for j, s in cands if not beyond_chain_gate(q, keyframes[j], gate, loc.max_distance_to_node_m)]
+        counts.pregated += len(cands) - len(near)
+        cands = near
     for j, sim in cands:
         if len(attempts) >= params.max_verifications:
             break

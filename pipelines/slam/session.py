@@ -31,6 +31,7 @@ from litevloc.base.params.slam import SlamParams
 from litevloc.pipelines.slam.frames import frame_poses
 from litevloc.pipelines.slam.frontend import FrontEnd
 from litevloc.pipelines.slam.graph import GraphResult, optimise
+from litevloc.pipelines.slam.level import LevelFloor, floor_of
 from litevloc.pipelines.slam.loops import LoopCounts, LoopSearch, loop_closures
 from litevloc.pipelines.slam.odometry import OdometryTrack
 from litevloc.pipelines.slam.planar import planar_edges
@@ -53,6 +54,7 @@ class SlamResult:
     frame_poses: list[F64 | None]
     T_map_first: F64
     report: dict[str, Any] = field(default_factory=dict)
+    level: LevelFloor | None = None
 
     @property
     def loops(self) -> list[Edge]:
@@ -131,8 +133,10 @@ class SlamSession:
         if kf is None:
             return
         self.search.add(kf.vpr)
+        pregate = self.params.loops.chain_pregate and self.params.graph.gate_loops
         edges, attempts = loop_closures(kf, self.front.keyframes, self.search, self.models.match_loop,
-                                        self.localization, self.params.loops, self.loop_counts)
+                                        self.localization, self.params.loops, self.loop_counts,
+                                        self.params.graph if pregate else None)
         self.loop_edges.extend(edges)
         self.attempts.extend(attempts)
         self.timings.loop_search += time.perf_counter() - t1
@@ -147,16 +151,20 @@ class SlamSession:
                                      self.mapping.up)
         t0 = time.perf_counter()
         edges = self.front.edges + planar_edges(kfs, self.T_base_camera, self.params.planar) + self.loop_edges
-        graph = optimise(kfs, edges, T_first, self.params.graph)
+        pl = self.params.planar
+        level = floor_of(T_first, self.T_base_camera, self.mapping.up, pl.sigma_height_m,
+                         float(np.radians(pl.sigma_tilt_deg))) if pl.enabled and pl.level_floor else None
+        graph = optimise(kfs, edges, T_first, self.params.graph, level)
         poses = frame_poses(self.front.frames, graph.poses)
         self.timings.optimisation += time.perf_counter() - t0
-        res = SlamResult(kfs, edges, graph, self.front.frames, poses, T_first)
+        res = SlamResult(kfs, edges, graph, self.front.frames, poses, T_first, level=level)
         res.report = self._report(res, up_note)
         return res
 
     def no_loop_poses(self, res: SlamResult) -> dict[int, F64]:
         """The keyframe poses optimised without the loop edges (for the report's comparison)."""
-        g = optimise(res.keyframes, [e for e in res.edges if e.kind != "loop"], res.T_map_first, self.params.graph)
+        g = optimise(res.keyframes, [e for e in res.edges if e.kind != "loop"], res.T_map_first, self.params.graph,
+                     res.level)
         return g.poses
 
     def odometry_poses(self, res: SlamResult) -> dict[int, F64] | None:
@@ -201,7 +209,8 @@ class SlamSession:
                       "odometry_dropped": c["odometry_edges_dropped"], "visual_dropped": c["visual_edges_dropped"],
                       "visual_failed": c["visual_edge_failures"],
                       "planar": sum(e.kind == "planar" for e in res.edges)},
-            "loops": {"candidates": self.loop_counts.candidates, "tried": self.loop_counts.tried,
+            "loops": {"candidates": self.loop_counts.candidates, "skipped_by_chain_pregate": self.loop_counts.pregated,
+                      "tried": self.loop_counts.tried,
                       "verified": self.loop_counts.verified, "kept": int(sum(kept)),
                       "rejected_by_gate": by_gate, "rejected_by_optimiser": len(rejected) - sum(by_gate.values()),
                       "rejected": rejected,

@@ -65,7 +65,10 @@ class Keyframe:
     cloud: (M, 3) strided depth points (camera frame) for the map's occupancy and coverage;
     odom: (odometry segment, 4x4 T_odom_base) at its stamp, None where the odometry had none;
     T_init: 4x4 initial T_map_camera (chained edges); chain: id of its chain of odometry and
-    visual edges (a new chain starts where neither reaches the previous keyframe).
+    visual edges (a new chain starts where neither reaches the previous keyframe);
+    path_m: distance travelled along its chain from the chain's first keyframe (metres, from the
+    initial poses); path_var_t: its edges' translation variances accumulated along the chain
+    from there (m^2, per step the most certain edge into the keyframe, its largest axis).
     """
 
     id: int
@@ -81,6 +84,8 @@ class Keyframe:
     odom: tuple[int, F64] | None
     T_init: F64
     chain: int
+    path_m: float = 0.0
+    path_var_t: float = 0.0
 
 
 @dataclass(frozen=True, eq=False)

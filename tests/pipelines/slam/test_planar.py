@@ -11,6 +11,7 @@ import numpy as np
 from litevloc.base.geometry import invert, make_T, so3_exp
 from litevloc.base.params.slam import SlamGraphParams, SlamPlanarParams
 from litevloc.pipelines.slam.graph import optimise
+from litevloc.pipelines.slam.level import floor_of
 from litevloc.pipelines.slam.planar import planar_edges
 from litevloc.pipelines.slam.types import Edge
 from tests.pipelines.slam.synthetic import T_BASE_CAMERA, lap_poses
@@ -62,3 +63,35 @@ def test_planar_edges_are_off_by_default_and_within_chains() -> None:
         kf.chain = 1  # a new chain starts at keyframe 3: no planar edge joins 2 and 3
     pairs = [(e.a, e.b) for e in planar_edges(kfs, T_BASE_CAMERA, SlamPlanarParams(enabled=True))]
     assert pairs == [(0, 1), (1, 2), (3, 4), (4, 5)]
+
+
+
+def test_a_level_floor_stops_a_climb_the_steps_allow() -> None:
+    # visual-like edges 2 mm too high and 0.05 deg pitched per step, surer than the gait's bob:
+    # consecutive planar edges give way a little at every step and the chain climbs; held level
+    # in the map frame it cannot, and the motion in the plane is left to the edges
+    n = 100
+    T_base = lap_poses(n, 1.8, 0.9)
+    cams = T_base @ T_BASE_CAMERA
+    T_cb = invert(T_BASE_CAMERA)
+    bias = make_T(so3_exp(np.array([0.0, np.radians(0.05), 0.0])), np.array([0.0, 0.0, 0.002]))
+    cov = np.diag([np.radians(0.1) ** 2] * 3 + [0.002**2] * 3)
+    edges, T_init = [], [cams[0]]
+    for i in range(n - 1):
+        M = invert(T_base[i]) @ T_base[i + 1]
+        edges.append(Edge(i, i + 1, T_cb @ M @ bias @ T_BASE_CAMERA, cov, "visual"))
+        T_init.append(T_init[-1] @ edges[-1].T_a_b)
+    kfs = [SimpleNamespace(id=i, chain=0, T_init=T) for i, T in enumerate(T_init)]
+    graph = SlamGraphParams()
+    steps = edges + planar_edges(kfs, T_BASE_CAMERA, SlamPlanarParams(enabled=True))
+    floor = floor_of(cams[0], T_BASE_CAMERA, (0.0, 0.0, 1.0), 0.01, float(np.radians(0.5)))
+    free = _bases(optimise(kfs, steps, cams[0], graph).poses)
+    held = _bases(optimise(kfs, steps, cams[0], graph, floor).poses)
+    assert np.abs(free[:, 2, 3]).max() > 0.1 and np.abs(held[:, 2, 3]).max() < 0.01
+    def tilt(b: np.ndarray) -> float:
+        return float(np.degrees(np.arccos(np.clip(b[:, 2, 2], -1, 1))).max())
+
+    assert tilt(free) > 1.0 and tilt(held) < 0.5  # within the gait's bob
+    # yaw and x, y are free: the biased edges, now contradicted, move them by a compromise only
+    true_xy = T_base[:, :2, 3]
+    assert np.abs(held[:, :2, 3] - true_xy).max() <= np.abs(free[:, :2, 3] - true_xy).max() + 0.02

@@ -3,6 +3,10 @@ goes, and each fault of a mapping recording is bridged or reported, never a bent
 
 from __future__ import annotations
 
+import dataclasses
+import itertools
+from typing import Any
+
 import numpy as np
 import pytest
 
@@ -44,6 +48,29 @@ def test_loops_remove_the_odometry_drift(scene: Scene, base) -> None:  # type: i
             assert np.allclose(T, res.graph.poses[rec.keyframe])
 
 
+def test_keyframes_know_their_path_along_the_chain(scene: Scene, base) -> None:  # type: ignore[no-untyped-def]
+    # the loop search's chain pre-gate bounds a loop by the path between its keyframes
+    _, res = base
+    kfs = res.keyframes
+    true = [scene.T_world_camera(k.index)[:3, 3] for k in kfs]
+    length = sum(float(np.linalg.norm(b - a)) for a, b in itertools.pairwise(true))
+    assert abs(kfs[-1].path_m - length) < 0.02 * length
+    assert all(b.path_m >= a.path_m and b.path_var_t > a.path_var_t for a, b in itertools.pairwise(kfs))
+
+
+def test_saved_graph_reoptimises_to_the_same_map(base, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    # the simulator's preset holds the base on one level floor: the saved graph keeps that too
+    from litevloc.runtime.slam_build import load_graph, save_graph
+
+    _, res = base
+    assert res.level is not None
+    save_graph(tmp_path / "g.npz", res)
+    g = load_graph(tmp_path / "g.npz")
+    assert g.level is not None and abs(g.level.height_m - res.level.height_m) < 1e-12
+    again = optimise(g.keyframes, g.edges, g.T_map_first, load_config("default").slam.graph, g.level)
+    assert max(float(np.abs(again.poses[i] - T).max()) for i, T in res.graph.poses.items()) < 1e-6
+
+
 def test_map_frame_is_the_first_keyframe_levelled(base) -> None:  # type: ignore[no-untyped-def]
     _, res = base
     from tests.pipelines.slam.synthetic import T_BASE_CAMERA
@@ -64,14 +91,14 @@ def test_wrong_loops_cannot_bend_the_map(scene: Scene, base) -> None:  # type: i
         a, b = sorted(rng.choice(len(kfs), 2, replace=False).tolist())
         if np.linalg.norm(P[a][:3, 3] - P[b][:3, 3]) > 2.5:  # claim they are 10 cm apart
             wrong.append(Edge(a, b, make_T(np.eye(3), np.array([0.1, 0.0, 0.0])), res.loops[0].covariance, "loop"))
-    g = optimise(kfs, res.edges + wrong, res.T_map_first, cfg.slam.graph)
+    g = optimise(kfs, res.edges + wrong, res.T_map_first, cfg.slam.graph, res.level)
     moved = max(np.linalg.norm(g.poses[i][:3, 3] - P[i][:3, 3]) for i in P)
     assert moved < 1e-4  # the kept loops are the same: the same least-squares solution
     n = len(res.loops)
     assert all(w < 0.5 for w in g.loop_weights[n:]) and all(w > 0.5 for w in g.loop_weights[:n])
     # without the robust loss the same loops do bend it: the test can fail
     plain = optimise(kfs, [e if e.kind != "loop" else Edge(e.a, e.b, e.T_a_b, e.covariance, "visual")
-                           for e in res.edges + wrong], res.T_map_first, cfg.slam.graph)
+                           for e in res.edges + wrong], res.T_map_first, cfg.slam.graph, res.level)
     assert max(np.linalg.norm(plain.poses[i][:3, 3] - P[i][:3, 3]) for i in P) > 0.1
 
 
@@ -112,6 +139,12 @@ def test_one_aliased_image_does_not_outvote_the_odometry() -> None:
     assert keyframe_ate(scene, res) < 0.005
 
 
+def _skip_edge_ties() -> Any:
+    cfg = load_config("default")
+    return dataclasses.replace(cfg, slam=dataclasses.replace(
+        cfg.slam, visual=dataclasses.replace(cfg.slam.visual, skip_edge_ties=True)))
+
+
 def test_slow_odometry_slip_is_reported(scene: Scene) -> None:
     # 0.5 m of extra motion over one second: slower than the jump check; one image is one vote, so
     # the visual edges cannot overrule the odometry, and the disagreement is reported where it happened
@@ -119,6 +152,26 @@ def test_slow_odometry_slip_is_reported(scene: Scene) -> None:
     rep = res.report
     assert [f["kind"] for f in rep["faults"]] == ["vision disagrees with odometry"]
     assert 7.0 <= rep["faults"][0]["t_s"] <= 8.0
+
+
+def test_slow_odometry_slip_is_corrected_by_the_skip_edge(scene: Scene) -> None:
+    # the same slip with slam.visual.skip_edge_ties: the next keyframe seen from the one before the
+    # tie (a second image) sides with vision: the slipped odometry edges are dropped where it happened
+    _, res = run_session(scene, _skip_edge_ties(), odometry_shift=lambda t: 0.5 * min(max(t - 7.0, 0.0), 1.0))
+    rep = res.report
+    assert [f["kind"] for f in rep["faults"]] == ["odometry disagrees with vision"]
+    assert 7.0 <= rep["faults"][0]["t_s"] <= 8.0 and rep["edges"]["odometry_dropped"] >= 1
+    assert rep["chains"] == 1 and keyframe_ate(scene, res) < 0.005
+
+
+def test_one_aliased_image_does_not_win_the_skip_edge_vote() -> None:
+    scene = make_scene(240, 1.2)
+    scene.aliased = {i: np.array([0.0, 0.0, 0.15]) for i, t in enumerate(scene.t_ns) if 7.0 <= t * 1e-9 < 7.4}
+    _, res = run_session(scene, _skip_edge_ties())
+    rep = res.report
+    assert rep["edges"]["odometry_dropped"] == 0
+    assert [f["kind"] for f in rep["faults"]] == ["vision disagrees with odometry"]
+    assert keyframe_ate(scene, res) < 0.005
 
 
 def test_jump_in_a_blackout_splits_the_chain_and_a_loop_joins_it(scene: Scene) -> None:
@@ -171,13 +224,13 @@ def test_a_repetition_the_chain_contradicts_is_rejected(scene: Scene, base) -> N
     pairs = [(a, a + d) for a in range(len(res.keyframes)) for d in (8, 10, 12) if a + d < len(res.keyframes)]
     wrong = _shifted_loops(scene, res, pairs[: 2 * n], 1.0)
     assert len(wrong) == 2 * n
-    g = optimise(res.keyframes, res.edges + wrong, res.T_map_first, cfg.slam.graph)
+    g = optimise(res.keyframes, res.edges + wrong, res.T_map_first, cfg.slam.graph, res.level)
     assert g.loop_gate[:n] == [""] * n and all(w > 0.5 for w in g.loop_weights[:n])
     assert g.loop_gate[n:] == ["chain gate"] * len(wrong) and all(w == 0.0 for w in g.loop_weights[n:])
     assert keyframe_ate_of(scene, res, g.poses) < 0.005
     # kept, these loops would bend the map (plain least squares over all of them)
     plain = optimise(res.keyframes, [e if e.kind != "loop" else Edge(e.a, e.b, e.T_a_b, e.covariance, "visual")
-                                     for e in res.edges + wrong], res.T_map_first, cfg.slam.graph)
+                                     for e in res.edges + wrong], res.T_map_first, cfg.slam.graph, res.level)
     assert keyframe_ate_of(scene, res, plain.poses) > 0.05
 
 
@@ -188,7 +241,7 @@ def test_a_repetition_at_the_revisit_loses_to_the_true_loops(scene: Scene, base)
     cfg = load_config("default")
     n = len(res.loops)
     wrong = _shifted_loops(scene, res, [(e.a, e.b) for e in res.loops[: n // 2]], 0.4)
-    g = optimise(res.keyframes, res.edges + wrong, res.T_map_first, cfg.slam.graph)
+    g = optimise(res.keyframes, res.edges + wrong, res.T_map_first, cfg.slam.graph, res.level)
     assert g.loop_gate[:n] == [""] * n
     assert g.loop_gate[n:] == ["pairwise consistency"] * len(wrong)
     assert keyframe_ate_of(scene, res, g.poses) < 0.005
