@@ -182,7 +182,6 @@ class _Driver:
         self.path: list[NDArray[np.float64]] = []
         self.collision_xy: list[tuple[float, float]] = []  # true base position at each bump (metres)
         self.last_depth: NDArray[np.float32] | None = None
-        self.last_collided = False
         self.trace: list[tuple[Any, ...]] = []
         self.T_odom_base: NDArray[np.float64] | None = None
         self.K = sim.K.K
@@ -291,8 +290,6 @@ class _Driver:
                                    round(c.v, 2), round(c.omega, 2), c.reason))
                 return c.v, c.omega
             return 0.0, 0.0
-        if self.last_collided:  # bumped (a door frame out of view): back off, turning toward the subgoal
-            return -0.15, 0.5 * float(np.sign(T[1, 3]) or 1.0)
         c = self.local.command(T[:2, 3], self.last_depth, self.K, self.T_base_camera, self.T_odom_base)
         self.trace.append((t_ns * 1e-9, *self.sim.T_world_base[:2, 3].round(2), round(float(T[0, 3]), 2),
                            round(float(T[1, 3]), 2), round(c.v, 2), round(c.omega, 2), c.reason))
@@ -368,7 +365,6 @@ class _Driver:
         if step.collided:
             x, y = step.T_world_base[:2, 3]
             self.collision_xy.append((round(float(x), 2), round(float(y), 2)))
-        self.last_collided = bool(step.collided)
         if step.collided and self.T_odom_base is not None:
             self._bumper(step.T_world_base)
         if step.odometry:

@@ -20,7 +20,11 @@ door jamb seen on the way in stays known while the robot turns in the doorway fo
 memory of the last N frames forgot it after a few back-and-forth turns).
 Contacts (a bumper: where the robot touched something, `add_contacts`) are kept the same way
 and block arcs like seen obstacles: a door frame beside the robot, which the forward camera
-cannot see, is otherwise driven into again and again.
+cannot see, is otherwise driven into again and again. After a bump the robot backs up until
+the contact ahead is `contact_clear_m` beyond its radius, and no arc may come closer to a contact
+than the robot already is (nor within robot_radius + margin_m): a turn toward the next subgoal in
+a doorway otherwise picked an arc into the jamb it had just touched (seen obstacles may be
+approached 5 mm in a tight spot; contacts, stored on a ring just outside the robot, may not).
 
 Frames: `base_link` x forward, y left, z up on the floor; the depth image is in the camera
 optical frame mounted at `T_base_camera`.
@@ -41,7 +45,7 @@ from litevloc.base.params.sim_navigation import LocalPlannerParams
 class Command:
     v: float  # m/s
     omega: float  # rad/s
-    reason: str  # "arc" | "turn" | "arrived" | "blocked" | "squeeze" | "recover"
+    reason: str  # "arc" | "turn" | "arrived" | "blocked" | "squeeze" | "recover" | "back off"
     clearance_m: float = float("inf")
 
 
@@ -85,6 +89,9 @@ class LocalPlanner:
         self.kappas = np.linspace(-p.max_curvature, p.max_curvature, p.n_arcs)
         self.s = np.linspace(p.lookahead_m / p.samples, p.lookahead_m, p.samples)
         self.arcs = np.stack([arc_points(k, self.s) for k in self.kappas])  # (A, n, 2)
+        # 2 cm steps up to the second sample: where a contact is checked between the coarse samples
+        fine = np.arange(0.02, self.s[min(1, p.samples - 1)], 0.02)
+        self.fine_arcs = np.stack([arc_points(k, fine) for k in self.kappas])  # (A, f, 2)
         self.memory = np.zeros((0, 2))  # (M, 2) obstacle points, odometry frame
         self._mem_odometer = np.zeros(0)  # (M,) `_odometer` when each point was last seen
         self._odometer = 0.0  # odometry so far: metres driven + memory_m_per_rad x radians turned
@@ -94,13 +101,38 @@ class LocalPlanner:
         self._stuck = 0  # consecutive commands without a drivable arc
         self._detour = 0  # commands left in which arcs are tried whatever the subgoal's bearing
         self._reversing = 0  # recovery commands left
+        self._backing = 0  # back-off commands left after a bump (0: none)
 
     def add_contacts(self, pts_base: NDArray[np.floating], T_odom_base: NDArray[np.floating]) -> None:
         """Remember (N, 2) contact points (base frame, m) as obstacles, stored in the odometry
-        frame (`T_odom_base` 4x4); the newest `contact_points` are kept."""
+        frame (`T_odom_base` 4x4); the newest `contact_points` are kept. A bump: the next commands
+        back off until clear (see `back_off`)."""
         T = np.asarray(T_odom_base, np.float64)
         pts = np.asarray(pts_base, np.float64).reshape(-1, 2) @ T[:2, :2].T + T[:2, 3]
         self.contacts = np.concatenate([self.contacts, pts])[-self.params.contact_points:]
+        if len(pts):
+            self._backing = self.params.backoff_commands
+
+    def contacts_base(self, T_odom_base: NDArray[np.floating] | None) -> NDArray[np.float64]:
+        """(C, 2) the remembered contacts in the base frame (m); none without `T_odom_base`."""
+        if T_odom_base is None or not len(self.contacts):
+            return np.zeros((0, 2))
+        T = np.asarray(T_odom_base, np.float64)
+        return np.asarray((self.contacts - T[:2, 3]) @ T[:2, :2], np.float64)
+
+    def back_off(self, contacts: NDArray[np.float64]) -> Command | None:
+        """After a bump: back straight up at `min_speed` while one of the `contacts` (C, 2, base
+        frame) ahead of the robot's centre lies nearer than `contact_clear_m` beyond its radius,
+        for at most `backoff_commands` commands (every forward arc would come closer to a
+        contact ahead); None: clear, or nothing to back off from."""
+        p = self.params
+        ahead = contacts[contacts[:, 0] > 0]
+        if self._backing > 0 and len(ahead) and \
+                float(np.sqrt(np.min((ahead**2).sum(1)))) < p.robot_radius + p.contact_clear_m:
+            self._backing -= 1
+            return Command(-p.min_speed, 0.0, "back off")
+        self._backing = 0
+        return None
 
     def _remember(self, pts_base: NDArray[np.float64], T_odom_base: NDArray[np.floating]) -> NDArray[np.float64]:
         """Merge this frame's (N, 2) points (base frame) into the rolling local map (odometry
@@ -147,10 +179,7 @@ class LocalPlanner:
         pts = np.zeros((0, 2)) if depth is None else self._thin(obstacle_points(depth, K, T_base_camera, p))
         if T_odom_base is not None and p.memory_travel_m > 0:
             pts = self._remember(pts, T_odom_base)
-        if T_odom_base is not None and len(self.contacts):
-            T = np.asarray(T_odom_base, np.float64)
-            pts = np.concatenate([pts, (self.contacts - T[:2, 3]) @ T[:2, :2]])
-        return pts
+        return np.concatenate([pts, self.contacts_base(T_odom_base)])
 
     def command(
         self, goal_xy: NDArray[np.floating], depth: NDArray[np.floating] | None, K: NDArray[np.floating],
@@ -165,11 +194,15 @@ class LocalPlanner:
         if dist < p.arrive_m:
             self._stuck = self._reversing = 0
             return Command(0.0, 0.0, "arrived")
+        contacts = self.contacts_base(T_odom_base)
+        backing = self.back_off(contacts)
+        if backing is not None:
+            return backing
         if self._reversing > 0:
             self._reversing -= 1
             return Command(-p.min_speed, 0.0, "recover")
         g = self.carrot(g, pts)
-        cmd = self._choose(g, float(np.hypot(*g)), pts)
+        cmd = self._choose(g, float(np.hypot(*g)), pts, contacts)
         self._stuck = 0 if cmd.reason in ("arc", "squeeze") else self._stuck + 1
         if self._stuck >= p.recover_after:
             self._stuck, self._reversing, self._turn_sign = 0, p.recover_commands - 1, 0.0
@@ -214,9 +247,11 @@ class LocalPlanner:
                     else g
         return np.asarray(path[k_min], np.float64)
 
-    def _choose(self, g: NDArray[np.float64], dist: float, pts: NDArray[np.float64]) -> Command:
-        """Turn, an arc, a squeeze or blocked, from the subgoal `g` (base frame, `dist` m away)
-        and the obstacle points `pts` (M, 2, base frame)."""
+    def _choose(self, g: NDArray[np.float64], dist: float, pts: NDArray[np.float64],
+                contacts: NDArray[np.float64] | None = None) -> Command:
+        """Turn, an arc, a squeeze or blocked, from the subgoal `g` (base frame, `dist` m away),
+        the obstacle points `pts` (M, 2, base frame, contacts included) and the bumper
+        `contacts` (C, 2, base frame; none: no contact rule)."""
         p = self.params
         bearing = float(np.arctan2(g[1], g[0]))
         if abs(bearing) > np.radians(p.turn_in_place_deg) and self._detour == 0:
@@ -225,12 +260,7 @@ class LocalPlanner:
         need = min(dist, p.lookahead_m)
         n_need = int(np.searchsorted(self.s, need - 1e-9)) + 1  # samples up to the subgoal
         arcs = self.arcs[:, :n_need]
-        if len(pts):
-            flat = arcs.reshape(-1, 2)
-            d2 = (flat**2).sum(1)[:, None] + (pts**2).sum(1)[None, :] - 2.0 * flat @ pts.T
-            dmin = np.sqrt(np.maximum(d2.min(axis=1), 0.0)).reshape(arcs.shape[:2])  # (A, n)
-        else:
-            dmin = np.full(arcs.shape[:2], np.inf)
+        dmin = _nearest(arcs, pts)  # (A, n)
         # blocked where an arc comes within radius + margin of an obstacle; from a tight spot
         # (a doorway) arcs that get at most 5 mm closer than the robot already is are allowed,
         # but never within the radius + 5 mm (obstacle points are thinned to voxels: a tighter
@@ -238,6 +268,11 @@ class LocalPlanner:
         here = float(np.sqrt(np.min((pts**2).sum(1)))) if len(pts) else np.inf
         limit = min(p.robot_radius + p.margin_m, max(here - 0.005, p.robot_radius + 0.005))
         hit = dmin <= limit
+        if contacts is not None and len(contacts):  # a contact: never closer than the robot is now
+            here_c = float(np.sqrt(np.min((contacts**2).sum(1))))
+            limit_c = min(here_c, p.robot_radius + p.margin_m) - 1e-6
+            hit |= _nearest(arcs, contacts) < limit_c
+            hit[:, 0] |= (_nearest(self.fine_arcs, contacts) < limit_c).any(axis=1)  # the next command's stretch
         first = np.where(hit.any(axis=1), hit.argmax(axis=1), n_need)  # first blocked sample
         free_len = np.where(first > 0, self.s[np.maximum(first - 1, 0)], 0.0)
         free_len = np.minimum(free_len, need)
@@ -267,3 +302,13 @@ class LocalPlanner:
             v *= p.max_omega / abs(w)
             w = float(np.sign(w) * p.max_omega)
         return Command(v, w, "arc", float(clear[a]))
+
+
+def _nearest(arcs: NDArray[np.float64], pts: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(A, n) distance (m) from each of the arcs' (A, n, 2) points to the nearest of `pts` (M, 2);
+    inf without points."""
+    if not len(pts):
+        return np.full(arcs.shape[:2], np.inf)
+    flat = arcs.reshape(-1, 2)
+    d2 = (flat**2).sum(1)[:, None] + (pts**2).sum(1)[None, :] - 2.0 * flat @ pts.T
+    return np.sqrt(np.maximum(d2.min(axis=1), 0.0)).reshape(arcs.shape[:2])

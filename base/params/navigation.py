@@ -32,6 +32,8 @@ class GoalParams:
     pose_iterations: int = 1000
     # metric goal pose: PnP RANSAC confidence
     pose_confidence: float = 0.999
+    # in a map with keypoint depth, refuse a goal verified at a node without a metric pose (its place cannot be checked)
+    require_pose: bool = True
     # refuse a goal as ambiguous when another place has more than 1/this of the chosen place's support (0 = off)
     ambiguity_ratio: float = 2.0
     # candidates' goal poses within this of each other are one place (m)

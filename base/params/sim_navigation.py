@@ -74,6 +74,10 @@ class LocalPlannerParams:
     voxel_m: float = 0.05
     # bumper contacts remembered in the odometry frame, newest kept
     contact_points: int = 64
+    # after a bump, back up until the nearest contact ahead is this far beyond robot_radius (m)
+    contact_clear_m: float = 0.1
+    # commands spent backing off after a bump at most
+    backoff_commands: int = 8
     # consecutive commands without a drivable arc before backing up
     recover_after: int = 15
     # commands spent backing up along the way the robot came
@@ -106,6 +110,8 @@ class LocalPlannerParams:
             raise ValueError("height_band_m must be (low, high) with low < high")
         if self.grid_m <= 0 or self.grid_radius_m < 0 or self.carrot_m <= 0 or self.blocked_cost < 0:
             raise ValueError("need grid_m > 0, grid_radius_m >= 0, carrot_m > 0 and blocked_cost >= 0")
+        if self.contact_clear_m < 0 or self.backoff_commands < 0:
+            raise ValueError("need contact_clear_m >= 0 and backoff_commands >= 0")
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,10 @@
   the map, are one place. A candidate whose PnP inliers all lie on one plane (`plane_rms`
   below `planar_rms_m`) matched a single flat patch -- a poster, a sign, one wall -- which
   can hang at several places, so it needs `planar_factor` x `min_inliers` to verify a place;
-  otherwise the goal is refused and the reason says so.
+  otherwise the goal is refused and the reason says so. A goal that verifies at a node of a
+  map with depth but gives no metric pose there is refused too (`require_pose`): it has no
+  place to check against rival places or the occupancy grid, and the node alone can be metres
+  from where the image was taken (a keyframe that saw the goal's scene from across a room).
 * `shortest_path`: Dijkstra on the connectivity graph (edge weights in metres) with
   `scipy.sparse.csgraph.dijkstra` on the map's CSR matrix (built once per map); ~1 ms at
   10,000 nodes where the former pure-Python heap took tens (`bench/scale.py`).
@@ -252,6 +255,12 @@ def localize_goal(
         return GoalResult(None, strongest.inliers, f"goal image matches no map place (best {strongest.inliers} "
                           f"inliers < {params.min_inliers})", table)
     best = max(verified, key=lambda c: (c.inliers, c.similarity))
+    if best.T_map_goal is None and params.require_pose and topomap.keypoint_depth(best.node) is not None:
+        return GoalResult(None, best.inliers,
+                          f"goal image verifies at node {best.node} ({best.inliers} inliers) but gives no metric "
+                          f"pose there (PnP: {best.pose_inliers} inliers, need {params.pose_min_inliers} and a pose "
+                          f"within {params.pose_max_m:g} m of the keyframe): where it was taken, and whether another "
+                          "place fits as well, cannot be checked", table, None, best.pose_inliers)
     if best.T_map_goal is not None and params.ambiguity_ratio > 0:
         covis = topomap.covisibility_lists
         places = _places(cands, params.agree_m, params.agree_deg, lambda a, b: b in covis[a])

@@ -124,9 +124,15 @@ def test_goal_pose_from_keypoint_depth_is_metric() -> None:
     # a map without keypoint depth (format 1, or features converted in memory): the node only
     res2 = localize_goal(goal, desc, K, m, match_by_id, GoalParams(top_k=4))
     assert res2.node == res.node and res2.T_map_goal is None and res2.reason == "ok"
-    # a pose beyond pose_max_m of its keyframe is not trusted
+    # a pose beyond pose_max_m of its keyframe is not trusted: in a map with depth the goal is
+    # refused (its node alone can be metres from where the image was taken), not placed on the node
     res3 = localize_goal(goal, desc, K, md, match_by_id, GoalParams(top_k=4, pose_max_m=0.1))
-    assert res3.node is not None and res3.T_map_goal is None
+    assert res3.node is None and res3.T_map_goal is None
+    strongest = max(res3.candidates, key=lambda c: c[2])[0]
+    assert "no metric pose" in res3.reason and f"node {strongest}" in res3.reason
+    assert "within 0.1 m" in res3.reason
+    node_only = localize_goal(goal, desc, K, md, match_by_id, GoalParams(top_k=4, pose_max_m=0.1, require_pose=False))
+    assert node_only.node is not None and node_only.T_map_goal is None and node_only.reason == "ok"
 
 
 def test_goal_that_verifies_at_two_places_is_refused_as_ambiguous() -> None:
