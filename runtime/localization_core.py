@@ -208,9 +208,7 @@ class LocalizationCore:
         if not fused.initialised:
             return []
         lost = self.tracking_state()[0] == TrackingState.LOST
-        cov = fused.covariance
-        if cov is not None and self.covariance_to_ros is not None:
-            cov = self.covariance_to_ros(np.asarray(cov, dtype=np.float64))
+        cov = self._ros_covariance(fused)
         t = int(fused.t_ns)
         outs: list[CoreOutput] = [PoseOut(t, fused.T_map_base, cov, lost, t_in_ns)]
         due = self._m2o_due or self._last_m2o_ns is None or (
@@ -275,6 +273,13 @@ class LocalizationCore:
             self.counters["fusion_initialised_by_votes"] += 1
             self._fix_accepted(int(res.t_ns))  # the LOST timer starts here
 
+    def _ros_covariance(self, fused: FusedPoseLike) -> NDArray[np.floating] | None:
+        """The fused pose's 6x6 covariance in ROS order (see `covariance_to_ros`), None if it has none."""
+        cov = fused.covariance
+        if cov is not None and self.covariance_to_ros is not None:
+            cov = self.covariance_to_ros(np.asarray(cov, dtype=np.float64))
+        return cov
+
     def _fix_accepted(self, t_ns: int) -> None:
         last = self.last_vloc_accept_ns
         self.last_vloc_accept_ns = t_ns if last is None else max(last, t_ns)
@@ -294,7 +299,8 @@ class LocalizationCore:
         if f is None or not f.initialised:
             return None
         t = int(f.t_ns) if t_frame_ns is None else int(t_frame_ns)
-        got = prior_at(t, f.T_map_odom, self.odometry_history, self.T_base_camera, self.last_vloc_accept_ns)
+        got = prior_at(t, f.T_map_odom, self.odometry_history, self.T_base_camera, self.last_vloc_accept_ns,
+                       self._ros_covariance(f))
         if got is None:  # no odometry history around that stamp: the latest fused pose
             return VlocPrior(np.asarray(f.T_map_base, dtype=np.float64) @ self.T_base_camera, 0.0, False)
         return got

@@ -60,18 +60,21 @@ def test_delayed_frame_gets_the_pose_at_its_stamp_and_its_true_age() -> None:
     dt, dr = relative_pose_error(latest.T_map_camera, truth)
     assert dt > 0.2 and dr > 5.0
     # the localizer adapter hands both on
-    seen: list[tuple[np.ndarray | None, float]] = []
+    seen: list[tuple[np.ndarray | None, float, np.ndarray | None]] = []
 
     class Loc:
         state = "LOCAL"
 
         def process(self, t_ns: int, color: object, depth: object, K: object, prior: np.ndarray | None,
-                    prior_age_s: float = 0.0) -> Result:
-            seen.append((prior, prior_age_s))
+                    prior_age_s: float = 0.0, prior_cov: np.ndarray | None = None) -> Result:
+            seen.append((prior, prior_age_s, prior_cov))
             return Result(t_ns, False, "too few inliers")
 
     from litevloc.runtime.service import localizer_callable
     frame = RgbdFrame(t_frame, np.zeros((8, 8, 3), np.uint8), None, np.eye(3))
     out = localizer_callable(Loc())(frame, prior)
     assert seen[0][0] is prior.T_map_camera and seen[0][1] == pytest.approx(0.4)
+    # fusion's covariance (0.01 m^2 / rad^2 per axis) reaches the camera's position over the lever arm
+    assert seen[0][2] is prior.cov_position and prior.cov_position is not None
+    assert np.all(np.linalg.eigvalsh(prior.cov_position) >= 0.01 - 1e-9)
     assert out.tracking_state == "LOCAL"  # the localizer's state travels with its result
