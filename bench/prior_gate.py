@@ -88,7 +88,8 @@ def main() -> None:
                  "age_gate_m": age_gate, "right_refused": int((err > gate_err).sum()),
                  "right_refused_age_gate": int((err > age_gate).sum())}
             results.append(r)
-            rows.append([uri.removeprefix("sim:"), f"{age:g}", len(ws), f"{r['err_median_m']:.3f} / {r['err_max_m']:.3f}",
+            rows.append([uri.removeprefix("sim:"), f"{age:g}", len(ws),
+                         f"{r['err_median_m']:.3f} / {r['err_max_m']:.3f}",
                          f"{r['z_median']:.2f} / {r['z_max']:.2f}", f"{r['gate_axis_median_m']:.2f} / "
                          f"{r['gate_axis_max_m']:.2f}", f"{age_gate:.2f}", f"{r['right_refused']} / "
                          f"{r['right_refused_age_gate']}"])
