@@ -130,6 +130,7 @@ bench: $(VENV)/.dev-installed models $(BENCH_7S_MAP)/manifest.json $(BENCH_7S_SP
 	$(VENV)/bin/python bench/runtime_queues.py
 	$(VENV)/bin/python bench/global_loc.py $(BENCH_7S_MAP) --config 7scenes
 	$(VENV)/bin/python bench/splits.py
+	$(VENV)/bin/python bench/prior_gate.py
 	$(VENV)/bin/python bench/merge.py
 	$(VENV)/bin/python bench/update.py
 	$(VENV)/bin/python bench/accuracy.py --map $(BENCH_7S_MAP)

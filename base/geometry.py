@@ -181,6 +181,22 @@ def ros_to_gtsam_covariance(cov: NDArray[np.floating]) -> F64:
     return gtsam_to_ros_covariance(cov)
 
 
+def camera_position_covariance(
+    T_map_base: NDArray[np.floating], cov_ros: NDArray[np.floating], T_base_camera: NDArray[np.floating]
+) -> F64:
+    """3x3 covariance (m^2, map frame) of the camera's position `T_map_base @ T_base_camera`,
+    from the 6x6 covariance of `T_map_base` in ROS order (trans, rot) of a body-frame (right)
+    perturbation, as GTSAM's Pose3 marginals are: the rotation's part reaches the camera over
+    the lever arm base -> camera."""
+    T = np.asarray(T_map_base, dtype=np.float64)
+    C = np.asarray(cov_ros, dtype=np.float64).reshape(6, 6)
+    x, y, z = np.asarray(T_base_camera, dtype=np.float64)[:3, 3]
+    skew = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    # T exp((v, w)) moves the camera by R (v + w x t_bc) = R (v - [t_bc]x w)
+    J = T[:3, :3] @ np.hstack([np.eye(3), -skew])
+    return np.asarray(J @ C @ J.T, dtype=np.float64)
+
+
 def slerp_xyzw(q0: NDArray[np.floating], q1: NDArray[np.floating], s: float) -> F64:
     """Spherical linear interpolation between unit quaternions, s in [0, 1]."""
     a = np.asarray(q0, dtype=np.float64)

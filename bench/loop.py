@@ -98,6 +98,8 @@ def query(map_dir: Path, config: str, pass_name: str = "loop-lane", rate: float 
                            "keyframes": [int(k) for k in r.keyframes], "inliers": int(r.n_inliers),
                            "matches": int(r.n_matches), "reason": str(r.reason),
                            "prior_age_s": None if prior is None else round(float(prior.age_s), 2),
+                           "prior_sigma_m": None if getattr(prior, "cov_position", None) is None else
+                           round(float(np.sqrt(np.linalg.eigvalsh(prior.cov_position)[-1])), 3),
                            "from_prior_m": None if T_prior is None else
                            round(float(np.linalg.norm(np.asarray(r.T_map_camera)[:3, 3] - T_prior[:3, 3])), 3)})
         return r

@@ -176,6 +176,8 @@ class LocalizationCore:
         self.odometry_history = OdometryHistory()  # fused odometry poses, for the prior at a frame's stamp
         self.sensor_now_ns: int | None = None
         self.last_vloc_accept_ns: int | None = None
+        # the latest fix the localizer accepted while fusion was not yet initialised: (t_ns, T_map_camera)
+        self._pre_init_fix: tuple[int, NDArray[np.float64]] | None = None
         self.last_vloc_reason: str | None = None
         self.last_fusion_reason: str | None = None
         self.localizer_state: TrackingState | None = None  # as reported with the latest VLoc result
@@ -207,10 +209,9 @@ class LocalizationCore:
             self.on_fused(fused)
         if not fused.initialised:
             return []
+        self._pre_init_fix = None
         lost = self.tracking_state()[0] == TrackingState.LOST
-        cov = fused.covariance
-        if cov is not None and self.covariance_to_ros is not None:
-            cov = self.covariance_to_ros(np.asarray(cov, dtype=np.float64))
+        cov = self._ros_covariance(fused)
         t = int(fused.t_ns)
         outs: list[CoreOutput] = [PoseOut(t, fused.T_map_base, cov, lost, t_in_ns)]
         due = self._m2o_due or self._last_m2o_ns is None or (
@@ -258,6 +259,8 @@ class LocalizationCore:
                 self._vote(res)
             return []
         self.counters["vloc_accepted"] += 1
+        if self.last_fused is None or not self.last_fused.initialised:
+            self._pre_init_fix = (int(res.t_ns), np.asarray(res.T_map_camera, dtype=np.float64))
         update = self.on_vloc(res)
         self.last_fusion_reason = None if update is None else str(update.reason)
         if update is not None and not update.accepted:
@@ -275,6 +278,13 @@ class LocalizationCore:
             self.counters["fusion_initialised_by_votes"] += 1
             self._fix_accepted(int(res.t_ns))  # the LOST timer starts here
 
+    def _ros_covariance(self, fused: FusedPoseLike) -> NDArray[np.floating] | None:
+        """The fused pose's 6x6 covariance in ROS order (see `covariance_to_ros`), None if it has none."""
+        cov = fused.covariance
+        if cov is not None and self.covariance_to_ros is not None:
+            cov = self.covariance_to_ros(np.asarray(cov, dtype=np.float64))
+        return cov
+
     def _fix_accepted(self, t_ns: int) -> None:
         last = self.last_vloc_accept_ns
         self.last_vloc_accept_ns = t_ns if last is None else max(last, t_ns)
@@ -284,20 +294,36 @@ class LocalizationCore:
     def prior(self, t_frame_ns: int | None = None) -> VlocPrior | None:
         """The VLoc prior at `t_frame_ns`: the latest `T_map_odom` applied to the odometry
         interpolated at the frame's stamp, times `T_base_camera`, with its age (seconds since
-        the last fix fusion accepted); at the newest odometry when None. None before fusion
-        is initialised. While an initial pose is pending, that pose with its search region."""
+        the last fix fusion accepted); at the newest odometry when None. Before fusion is
+        initialised: the last accepted fix carried by odometry (see `_carried_pre_init_fix`), or
+        None. While an initial pose is pending, that pose with its search region."""
         f = self.last_fused
         t_now = (int(f.t_ns) if f is not None else self.sensor_now_ns or 0) if t_frame_ns is None else int(t_frame_ns)
         initial = self._initial_region_at(t_now)
         if initial is not None:
             return initial
         if f is None or not f.initialised:
-            return None
+            return self._carried_pre_init_fix(t_now)
         t = int(f.t_ns) if t_frame_ns is None else int(t_frame_ns)
-        got = prior_at(t, f.T_map_odom, self.odometry_history, self.T_base_camera, self.last_vloc_accept_ns)
+        got = prior_at(t, f.T_map_odom, self.odometry_history, self.T_base_camera, self.last_vloc_accept_ns,
+                       self._ros_covariance(f))
         if got is None:  # no odometry history around that stamp: the latest fused pose
             return VlocPrior(np.asarray(f.T_map_base, dtype=np.float64) @ self.T_base_camera, 0.0, False)
         return got
+
+    def _carried_pre_init_fix(self, t_frame_ns: int) -> VlocPrior | None:
+        """Before fusion starts (it waits for agreeing fixes): the last accepted fix carried to
+        `t_frame_ns` by the odometry since, aged from its stamp; None without one or without
+        odometry. Without it the localizer's prior is its last pose, where the robot was."""
+        fix = self._pre_init_fix
+        if fix is None:
+            return None
+        got = self.odometry_history.at(fix[0])
+        if got is None:
+            return None
+        T_odom_base, _ = got
+        T_map_odom = fix[1] @ np.linalg.inv(self.T_base_camera) @ np.linalg.inv(T_odom_base)
+        return prior_at(t_frame_ns, T_map_odom, self.odometry_history, self.T_base_camera, fix[0])
 
     def tracking_state(self) -> tuple[TrackingState, list[str]]:
         """(INIT | TRACKING | LOST, reasons); see the module docstring."""

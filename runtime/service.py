@@ -591,7 +591,7 @@ def localizer_callable(localizer: VisualLocalizer) -> VlocFn:
             res = localizer.process(frame.t_ns, frame.color, frame.depth, frame.K, None, region=prior.region)
         else:
             res = localizer.process(frame.t_ns, frame.color, frame.depth, frame.K, prior.T_map_camera,
-                                    prior_age_s=prior.age_s)
+                                    prior_age_s=prior.age_s, prior_cov=prior.cov_position)
         return dataclasses.replace(res, tracking_state=localizer.state)
 
     return vloc

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.base.geometry import interpolate_pose_at
+from litevloc.base.geometry import camera_position_covariance, interpolate_pose_at
 from litevloc.pipelines.localization.search_region import SearchRegion
 
 F64 = NDArray[np.float64]
@@ -29,12 +29,15 @@ class VlocPrior:
     fix fusion accepted to the frame's stamp (0 if the frame is older than that fix);
     `interpolated`: False where the stamp lay outside the odometry history and the nearest
     odometry pose was used (the age then includes the gap); `region`: an initial pose's bound on
-    the next global localization (then `T_map_camera` is the initial pose's camera pose, not a fix)."""
+    the next global localization (then `T_map_camera` is the initial pose's camera pose, not a fix);
+    `cov_position`: 3x3 covariance of the camera's position (m^2, map frame) from fusion's latest
+    covariance (newer than the frame: it only overstates), None where fusion gave none."""
 
     T_map_camera: F64
     age_s: float
     interpolated: bool = True
     region: SearchRegion | None = None
+    cov_position: F64 | None = None
 
 
 class OdometryHistory:
@@ -80,16 +83,19 @@ class OdometryHistory:
 
 def prior_at(
     t_frame_ns: int, T_map_odom: NDArray[np.floating], history: OdometryHistory, T_base_camera: NDArray[np.floating],
-    last_fix_ns: int | None,
+    last_fix_ns: int | None, cov_base_ros: NDArray[np.floating] | None = None,
 ) -> VlocPrior | None:
     """`T_map_odom @ T_odom_base(t_frame) @ T_base_camera` and its age (see `VlocPrior`);
     None without odometry. `last_fix_ns`: stamp of the last VLoc result fusion accepted
-    (None: unknown, counted as 0)."""
+    (None: unknown, counted as 0). `cov_base_ros`: fusion's 6x6 covariance of `T_map_base`
+    (ROS order, body frame), carried to the camera's position at the frame's stamp."""
     got = history.at(t_frame_ns)
     if got is None:
         return None
     T_odom_base, t_used = got
-    T = np.asarray(T_map_odom, np.float64) @ T_odom_base @ np.asarray(T_base_camera, np.float64)
+    T_map_base = np.asarray(T_map_odom, np.float64) @ T_odom_base
+    T = T_map_base @ np.asarray(T_base_camera, np.float64)
     since = 0 if last_fix_ns is None else t_frame_ns - last_fix_ns
     gap = abs(t_frame_ns - t_used)
-    return VlocPrior(T, max(since, 0) * 1e-9 + gap * 1e-9, interpolated=gap == 0)
+    cov = None if cov_base_ros is None else camera_position_covariance(T_map_base, cov_base_ros, T_base_camera)
+    return VlocPrior(T, max(since, 0) * 1e-9 + gap * 1e-9, interpolated=gap == 0, cov_position=cov)

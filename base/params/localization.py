@@ -195,6 +195,8 @@ class LocalizationParams:
     prior_gate_rate_fused_mps: float = 0.1
     # a fused prior's gate starts from this radius (m)
     prior_gate_fused_m: float = 0.25
+    # with fusion's covariance, a fused prior's gate toward a pose is at most its start + this many sigmas (0 = off)
+    prior_gate_sigmas: float = 3.0
     # a pose outside a fused prior's gate (or with a stale prior) waits this long for a repeat (s; 0 = off)
     repeat_within_s: float = 5.0
     # a held pose is repeated when the two agree within this rotation (degrees)
@@ -269,6 +271,8 @@ class LocalizationParams:
             raise ValueError("gl_rerank_min_similarity must be in [-1, 1]")
         if self.repeat_within_s < 0 or not 0 < self.repeat_deg <= 180:
             raise ValueError("repeat_within_s must be >= 0 (0 = off) and repeat_deg in (0, 180]")
+        if self.prior_gate_sigmas < 0:
+            raise ValueError("prior_gate_sigmas must be >= 0 (0 = off)")
         if self.prior_gate_rate_fused_mps < 0 or self.prior_gate_fused_m <= 0:
             raise ValueError("prior_gate_rate_fused_mps must be >= 0 and prior_gate_fused_m > 0")
         if self.prior_gate_m <= 0 or self.prior_gate_rate_mps < 0 or not (0 < self.prior_gate_deg <= 180):

@@ -239,10 +239,25 @@ class VisualLocalizer:
         """The prior gate's radius (m): its base (fused or last-pose prior) + the growth."""
         return (self.params.prior_gate_fused_m if fused else self.params.prior_gate_m) + growth_m
 
-    def _within_gate(self, T: NDArray[np.float64], prior: NDArray[np.float64], gate_m: float) -> bool:
-        """The prior gate: within gate_m and prior_gate_deg."""
+    def _gate_toward(self, T: NDArray[np.float64], prior: NDArray[np.float64], gate_m: float,
+                     cov: NDArray[np.float64] | None) -> float:
+        """The prior gate's radius (m) toward the pose `T`: `gate_m`, or less where fusion's 3x3
+        position covariance `cov` (m^2, map frame) of a fused prior says it is better known
+        along that direction: its start + `prior_gate_sigmas` sigmas."""
+        k = self.params.prior_gate_sigmas
+        d = np.asarray(T, np.float64)[:3, 3] - np.asarray(prior, np.float64)[:3, 3]
+        n = float(np.linalg.norm(d))
+        if cov is None or k <= 0 or n == 0.0:
+            return gate_m
+        u = d / n
+        sigma = float(np.sqrt(max(float(u @ np.asarray(cov, np.float64) @ u), 0.0)))
+        return min(gate_m, self.params.prior_gate_fused_m + k * sigma)
+
+    def _within_gate(self, T: NDArray[np.float64], prior: NDArray[np.float64], gate_m: float,
+                     cov: NDArray[np.float64] | None = None) -> bool:
+        """The prior gate: within `_gate_toward` and prior_gate_deg."""
         dt, dr = relative_pose_error(T, prior)
-        return bool(dt <= gate_m and dr <= self.params.prior_gate_deg)
+        return bool(dt <= self._gate_toward(T, prior, gate_m, cov) and dr <= self.params.prior_gate_deg)
 
     def _matched_pixels(self, q: Query | None, node: int, T_map_live: NDArray[np.float64]) -> MatchedPixels | None:
         """The cached matches of `q` with `node`, inliers marked under the accepted pose."""
@@ -292,7 +307,7 @@ class VisualLocalizer:
     def localize_global(
         self, t_ns: int, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64],
         prior_T_map_camera: NDArray[np.float64] | None = None, prior_age_s: float = 0.0,
-        recovering: bool = False, region: SearchRegion | None = None,
+        recovering: bool = False, region: SearchRegion | None = None, prior_cov: NDArray[np.float64] | None = None,
     ) -> LocalizationResult:
         """VPR top-k + geometric verification; the best accepted candidate wins (after the
         joint refinement / confirmation by a second keyframe, see `LocalizationParams`).
@@ -302,7 +317,8 @@ class VisualLocalizer:
         With joint refinement on, a candidate that only its own keyframe confirms becomes the
         result's `provisional` pose (most inliers first), or is accepted when it agrees with the
         fused prior `prior_T_map_camera` (`prior_age_s` s since its last fix; only while fresh,
-        see `_fresh`) within the prior gate. `region` (an initial pose) restricts the candidates to
+        see `_fresh`) within the prior gate (`prior_cov`: fusion's 3x3 camera position covariance,
+        m^2, map frame, see `_gate_toward`). `region` (an initial pose) restricts the candidates to
         keyframes within it before the top-k cut."""
         prior = None if prior_T_map_camera is None else check_rigid(prior_T_map_camera, "prior T_map_camera",
                                                                       atol=1e-4)
@@ -312,8 +328,8 @@ class VisualLocalizer:
 
         def verify() -> LocalizationResult:
             if self.params.refine.enabled:
-                return self._verify_refined(t_ns, q, sims, order, prior, prior_age_s, recovering, timer, t_all,
-                                            front_ms)
+                return self._verify_refined(t_ns, q, sims, order, (prior, prior_age_s, prior_cov), recovering,
+                                            timer, t_all, front_ms)
             return self._verify_confirmed(t_ns, q, sims, order, timer, t_all)
 
         return self._with_map_depth_fallback(verify, q)
@@ -350,12 +366,13 @@ class VisualLocalizer:
         return q, sims, self.global_candidates(sims, q, region), front_ms
 
     def _verify_refined(self, t_ns: int, q: Query, sims: NDArray[np.float32], order: NDArray[np.int64],
-                        prior: NDArray[np.float64] | None, prior_age_s: float, recovering: bool,
-                        timer: StageTimer, t_all: float, front_ms: float) -> LocalizationResult:
+                        fused: tuple[NDArray[np.float64] | None, float, NDArray[np.float64] | None],
+                        recovering: bool, timer: StageTimer, t_all: float, front_ms: float) -> LocalizationResult:
         """Verification with joint refinement: candidates in VPR order, each verified and jointly
         refined at once; the first that passes the joint check wins (then the opt-in
         distinctiveness test), or one that agrees with a fresh prior; the time budget stops the
-        search (bounded cost)."""
+        search (bounded cost). `fused`: the fused prior, its age (s) and position covariance."""
+        prior, prior_age_s, prior_cov = fused
         attempts: list[CandidateAttempt] = []
         best: tuple[int, PnpResult, RefineResult | None] | None = None
         reason = "not localized: no VPR candidate verified"
@@ -396,7 +413,7 @@ class VisualLocalizer:
                     stop = f"{stop}; {amb}"
                 break
             single = self._single_keyframe(node, joint)
-            if single is not None and self._agrees_with_prior(single, prior, growth):
+            if single is not None and self._agrees_with_prior(single, prior, growth, prior_cov):
                 attempts.append(CandidateAttempt(node, att.similarity, att.matches, att.inliers,
                                                  "one keyframe only; agrees with the prior"))
                 best = (node, res, replace(joint, accepted=True, reason="ok"))
@@ -412,11 +429,12 @@ class VisualLocalizer:
                       candidates=tuple(int(n) for n in order))
         return out if out.accepted or provisional is None else replace(out, provisional=provisional)
 
-    def _agrees_with_prior(self, single: ProvisionalPose, prior: NDArray[np.float64] | None, growth: float) -> bool:
+    def _agrees_with_prior(self, single: ProvisionalPose, prior: NDArray[np.float64] | None, growth: float,
+                           cov: NDArray[np.float64] | None) -> bool:
         """Whether a one-keyframe pose lies within the gate of a fresh fused prior (the opt-in
         acceptance of a pose only its own keyframe confirms)."""
         return prior is not None and self._fresh(growth) and self._within_gate(
-            single.T_map_camera, prior, self._gate_m(growth, fused=True))
+            single.T_map_camera, prior, self._gate_m(growth, fused=True), cov)
 
     def _verify_confirmed(self, t_ns: int, q: Query, sims: NDArray[np.float32], order: NDArray[np.int64],
                           timer: StageTimer, t_all: float) -> LocalizationResult:
@@ -590,12 +608,14 @@ class VisualLocalizer:
     def localize_local(
         self, t_ns: int, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64],
         prior_T_map_camera: NDArray[np.float64], prior_age_s: float = 0.0, fused_prior: bool = False,
+        prior_cov: NDArray[np.float64] | None = None,
     ) -> LocalizationResult:
         """LL from a prior pose; candidates tried in similarity order until one is accepted.
 
         A candidate's pose must also pass the prior gate (see `LocalizationParams`), which grows
         with `prior_age_s` at the fused-prior rate (`fused_prior`: odometry since the last fix)
-        or at the robot's top speed (the last VLoc pose)."""
+        or at the robot's top speed (the last VLoc pose); a fused prior's `prior_cov` (3x3
+        position covariance, m^2, map frame) narrows it where fusion knows better (`_gate_toward`)."""
         prior = check_rigid(prior_T_map_camera, "prior T_map_camera", atol=1e-4)
         timer = StageTimer(self.clock)
         t_all = self.clock()
@@ -604,13 +624,16 @@ class VisualLocalizer:
         growth = self._prior_growth_m(prior_age_s, fused_prior)
         gate_m = self._gate_m(growth, fused_prior)
         return self._with_map_depth_fallback(
-            lambda: self._local_attempts(t_ns, q, cands, prior, growth, gate_m, timer, t_all), q,
+            lambda: self._local_attempts(t_ns, q, cands, prior, (growth, gate_m, prior_cov), timer, t_all), q,
             allowed=self._fresh(growth))
 
     def _local_attempts(self, t_ns: int, q: Query, cands: list[tuple[int, float]], prior: NDArray[np.float64],
-                        growth: float, gate_m: float, timer: StageTimer, t_all: float) -> LocalizationResult:
+                        gate: tuple[float, float, NDArray[np.float64] | None], timer: StageTimer,
+                        t_all: float) -> LocalizationResult:
         """LL's candidates `cands` (node, similarity) tried in order until one passes the prior
-        gate (`gate_m`) and the joint refinement or confirmation (see `localize_local`)."""
+        gate (`gate`: the prior's growth and radius in m, its position covariance, see
+        `_gate_toward`) and the joint refinement or confirmation (see `localize_local`)."""
+        growth, gate_m, cov = gate
         attempts: list[CandidateAttempt] = []
         best: tuple[int, PnpResult, RefineResult | None] | None = None
         guided_first = self.params.ll_guided_min_matches > 0 and self._fresh(growth)
@@ -619,9 +642,11 @@ class VisualLocalizer:
             if res is not None and res.accepted and res.T_target_source is not None:
                 T = self.map.T_map_camera[node] @ res.T_target_source
                 dt, dr = relative_pose_error(T, prior)
-                if dt > gate_m or dr > self.params.prior_gate_deg:
+                radius = self._gate_toward(T, prior, gate_m, cov)
+                if dt > radius or dr > self.params.prior_gate_deg:
                     att = CandidateAttempt(node, sim, att.matches, att.inliers,
-                                           f"inconsistent with the prior ({dt:.2f} m, {dr:.0f} deg)")
+                                           f"inconsistent with the prior ({dt:.2f} m > {radius:.2f} m or "
+                                           f"{dr:.0f} deg)")
                     attempts.append(att)
                     continue
                 close = (dt <= self.params.confirm_skip_within_m and dr <= self.params.confirm_skip_within_deg
@@ -650,7 +675,7 @@ class VisualLocalizer:
 
     # ---------------------------------------------------------------- state machine
     def _hold_unless_repeated(self, res: LocalizationResult, prior_T_map_camera: NDArray[np.float64],
-                              prior_age_s: float) -> LocalizationResult:
+                              prior_age_s: float, prior_cov: NDArray[np.float64] | None) -> LocalizationResult:
         """An accepted result (GL, or LL with a fused prior) as it is when it lies inside the
         gate of a fresh fused prior (see `_fresh`) or repeats the held pose (see
         `LocalizationParams.repeat_within_s`); otherwise it is held and the result says so
@@ -661,7 +686,7 @@ class VisualLocalizer:
         T = np.asarray(res.T_map_camera, np.float64)
         prior = np.asarray(prior_T_map_camera, np.float64)
         growth = self._prior_growth_m(prior_age_s, fused=True)
-        gate = self._gate_m(growth, fused=True)
+        gate = self._gate_toward(T, prior, self._gate_m(growth, fused=True), prior_cov)
         dt, dr = relative_pose_error(T, prior)
         inside, fresh = dt <= gate and dr <= p.prior_gate_deg, self._fresh(growth)
         if inside and fresh:
@@ -698,12 +723,17 @@ class VisualLocalizer:
     def process(
         self, t_ns: int, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64],
         prior_T_map_camera: NDArray[np.float64] | None = None, prior_age_s: float = 0.0,
-        region: SearchRegion | None = None,
+        region: SearchRegion | None = None, prior_cov: NDArray[np.float64] | None = None,
     ) -> LocalizationResult:
         """One frame through the state machine. The prior (e.g. the fused pose at `t_ns`,
-        `prior_age_s` old) is used in TRACKING; without one, the last accepted VLoc pose is the
-        prior. In GLOBAL state it can accept a single-keyframe GL pose that agrees with it.
+        `prior_age_s` old, `prior_cov` its 3x3 camera position covariance in m^2, map frame) is
+        used in TRACKING; without one, the last accepted VLoc pose is the prior. In GLOBAL state
+        it can accept a single-keyframe GL pose that agrees with it.
         `region` (an initial pose given by the user): GL within it, whatever the state, the prior ignored."""
+        if prior_cov is not None:
+            prior_cov = np.asarray(prior_cov, np.float64)
+            if prior_cov.shape != (3, 3) or not np.all(np.isfinite(prior_cov)):
+                raise ValueError(f"prior_cov must be a finite 3x3 covariance (m^2), got shape {prior_cov.shape}")
         if region is not None:
             self._go(t_ns, TrackingState.GLOBAL, "initial pose given")
             prior_T_map_camera = None
@@ -717,11 +747,12 @@ class VisualLocalizer:
             else:
                 assert self.last_pose is not None
                 prior, age = self.last_pose, (t_ns - self.last_pose_t_ns) * 1e-9
-            res = self.localize_local(t_ns, color, depth, K, prior, prior_age_s=age, fused_prior=fused)
+            res = self.localize_local(t_ns, color, depth, K, prior, prior_age_s=age, fused_prior=fused,
+                                      prior_cov=prior_cov if fused else None)
             if "total" in res.timings_ms:
                 self.ll_wall_ms.append(res.timings_ms["total"])
             if res.accepted and fused:  # a stale fused prior cannot confirm an LL pose either
-                res = self._hold_unless_repeated(res, prior, age)
+                res = self._hold_unless_repeated(res, prior, age, prior_cov)
             if res.accepted:
                 self.failures = 0
                 self.last_pose, self.last_pose_t_ns = res.T_map_camera, t_ns
@@ -734,10 +765,10 @@ class VisualLocalizer:
                     self._go(t_ns, TrackingState.LOST, f"{self.failures} consecutive LL failures")
                     self.failures = 0
                 return res
-        res = self.localize_global(t_ns, color, depth, K, prior_T_map_camera, prior_age_s,
-                                   recovering=self.last_pose is not None, region=region)  # it has tracked before
+        res = self.localize_global(t_ns, color, depth, K, prior_T_map_camera, prior_age_s,  # recovering: it has tracked
+                                   recovering=self.last_pose is not None, region=region, prior_cov=prior_cov)
         if res.accepted and prior_T_map_camera is not None:
-            res = self._hold_unless_repeated(res, prior_T_map_camera, prior_age_s)
+            res = self._hold_unless_repeated(res, prior_T_map_camera, prior_age_s, prior_cov)
         if res.accepted:
             self.failures = 0
             self.last_pose, self.last_pose_t_ns = res.T_map_camera, t_ns

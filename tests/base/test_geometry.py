@@ -15,3 +15,25 @@ def test_undistort_normalized_inverts_the_radial_model() -> None:
     np.testing.assert_allclose(undistort_normalized(xd, k1, k2), x, atol=1e-9)
     np.testing.assert_array_equal(undistort_normalized(xd, 0.0, 0.0), xd)  # no model: unchanged
     assert np.abs(xd - x).max() > 1e-3  # the model does move these points
+
+
+def test_camera_position_covariance_matches_sampled_body_frame_perturbations() -> None:
+    """Camera positions of `T_map_base @ exp(xi) @ T_base_camera`, xi ~ N(0, C) in ROS order
+    (trans, rot; body frame), spread as the 3x3 covariance says: the lever arm carries the
+    rotation's uncertainty to the camera."""
+    from litevloc.base.geometry import camera_position_covariance, make_T, so3_exp
+
+    rng = np.random.default_rng(3)
+    T_map_base = make_T(so3_exp(np.array([0.1, -0.2, 1.2])), np.array([4.0, -2.0, 0.3]))
+    T_base_camera = make_T(so3_exp(np.array([-1.2, 0.0, -1.5])), np.array([0.3, 0.05, 0.6]))
+    C = np.diag([0.02, 0.01, 0.005, 0.002, 0.003, 0.04]) ** 2
+    C[0, 5] = C[5, 0] = 0.5 * 0.02 * 0.04
+    xi = rng.multivariate_normal(np.zeros(6), C, size=40000)
+    pts = []
+    for v in xi:
+        dT = make_T(so3_exp(v[3:]), v[:3])  # first order as exp((v, w)) for small xi
+        pts.append((T_map_base @ dT @ T_base_camera)[:3, 3])
+    sampled = np.cov(np.asarray(pts).T)
+    got = camera_position_covariance(T_map_base, C, T_base_camera)
+    assert np.allclose(got, got.T)
+    assert np.allclose(got, sampled, atol=0.04 * float(np.max(np.abs(sampled))))

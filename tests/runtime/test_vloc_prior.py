@@ -11,7 +11,7 @@ from litevloc.config.schema import RuntimeConfig
 from litevloc.hw.messages import Odometry, RgbdFrame
 from litevloc.runtime.service import Service
 from litevloc.runtime.vloc_prior import OdometryHistory, prior_at
-from tests.runtime.fakes import MS, T_MAP_ODOM_TRUE, FakeFusion, FakePublisher, Result, T_odom_base_at
+from tests.runtime.fakes import MS, T_MAP_ODOM_TRUE, FakeFusion, FakePublisher, Result, T_odom_base_at, Update
 
 
 def test_history_interpolates_and_clamps_at_the_ends() -> None:
@@ -60,18 +60,58 @@ def test_delayed_frame_gets_the_pose_at_its_stamp_and_its_true_age() -> None:
     dt, dr = relative_pose_error(latest.T_map_camera, truth)
     assert dt > 0.2 and dr > 5.0
     # the localizer adapter hands both on
-    seen: list[tuple[np.ndarray | None, float]] = []
+    seen: list[tuple[np.ndarray | None, float, np.ndarray | None]] = []
 
     class Loc:
         state = "LOCAL"
 
         def process(self, t_ns: int, color: object, depth: object, K: object, prior: np.ndarray | None,
-                    prior_age_s: float = 0.0) -> Result:
-            seen.append((prior, prior_age_s))
+                    prior_age_s: float = 0.0, prior_cov: np.ndarray | None = None) -> Result:
+            seen.append((prior, prior_age_s, prior_cov))
             return Result(t_ns, False, "too few inliers")
 
     from litevloc.runtime.service import localizer_callable
     frame = RgbdFrame(t_frame, np.zeros((8, 8, 3), np.uint8), None, np.eye(3))
     out = localizer_callable(Loc())(frame, prior)
     assert seen[0][0] is prior.T_map_camera and seen[0][1] == pytest.approx(0.4)
+    # fusion's covariance (0.01 m^2 / rad^2 per axis) reaches the camera's position over the lever arm
+    assert seen[0][2] is prior.cov_position and prior.cov_position is not None
+    assert np.all(np.linalg.eigvalsh(prior.cov_position) >= 0.01 - 1e-9)
     assert out.tracking_state == "LOCAL"  # the localizer's state travels with its result
+
+
+def test_before_fusion_starts_the_first_fix_is_carried_by_odometry() -> None:
+    """Fusion waits for a second agreeing fix; meanwhile VLoc's prior is the first fix carried
+    to the frame's stamp by the odometry since, aged from the fix (not the pose where the robot
+    was, nor nothing); once fusion starts, fusion's prior again."""
+    fusion = FakeFusion()
+    fixes: list[int] = []
+
+    def add_vloc(r: Result) -> Update:  # the first fix only waits, as fusion's initialisation votes do
+        fixes.append(r.t_ns)
+        return fusion.add_vloc(r) if len(fixes) > 1 else Update(False, "awaiting_init")
+
+    svc = Service([], lambda f, p: None, fusion.add_odometry, add_vloc, FakePublisher(),
+                  RuntimeConfig(mode="sequential"))
+    t_fix = 100 * MS
+    for k in range(0, 201):  # odometry at 200 Hz for 1 s
+        t = k * 5 * MS + 1
+        svc._handle_odometry_item((0, Odometry(t, T_odom_base_at(t))))
+        if k == 10:
+            assert svc.core.prior(t) is None  # no fix yet: nothing to carry
+        if k == 20:
+            T = T_MAP_ODOM_TRUE @ T_odom_base_at(t_fix) @ T_BASE_CAMERA_OPTICAL
+            svc._handle_result(Result(t_fix, True, "ok", T, np.eye(6) * 1e-4))
+    t_frame = 800 * MS
+    prior = svc.core.prior(t_frame)
+    assert prior is not None and prior.cov_position is None and prior.age_s == pytest.approx(0.7)
+    truth = T_MAP_ODOM_TRUE @ T_odom_base_at(t_frame) @ T_BASE_CAMERA_OPTICAL
+    dt, dr = relative_pose_error(prior.T_map_camera, truth)
+    assert dt < 1e-3 and dr < 0.05
+    assert relative_pose_error(prior.T_map_camera, T)[0] > 0.2  # the robot moved on since the fix
+    # a second fix starts fusion: its prior (with its covariance) from then on
+    svc._handle_result(Result(900 * MS, True, "ok", T_MAP_ODOM_TRUE @ T_odom_base_at(900 * MS) @ T_BASE_CAMERA_OPTICAL,
+                              np.eye(6) * 1e-4))
+    svc._handle_odometry_item((0, Odometry(1006 * MS, T_odom_base_at(1006 * MS))))
+    after = svc.core.prior(t_frame)
+    assert after is not None and after.cov_position is not None

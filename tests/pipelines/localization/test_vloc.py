@@ -383,6 +383,26 @@ def test_fused_prior_gate_grows_with_odometry_drift_not_speed() -> None:
     assert loc.localize_local(0, IMG, depth, K, pose(1.6), prior_age_s=5.0, fused_prior=True).accepted
 
 
+def test_fused_prior_gate_narrows_to_fusions_covariance() -> None:
+    """A fused prior 0.5 m along x from the truth, 4 s old (age gate 0.25 + 0.4 m covers it):
+    fusion's covariance says 5 cm along x, so the gate toward the pose is 0.25 + 3 x 0.05 m and
+    refuses it; 30 cm along x (or an isotropic 30 cm sigma) lets it in again."""
+    m = make_map([0.0, 1.0, 2.0, 3.0])
+    s = Scene(m)
+    loc = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)
+    depth = s.look(pose(2.1), vpr_best=2)
+    prior = pose(1.6)
+    assert loc.localize_local(0, IMG, depth, K, prior, prior_age_s=4.0, fused_prior=True).accepted
+    tight_x = np.diag([0.05**2, 0.3**2, 0.3**2])
+    r = loc.localize_local(0, IMG, depth, K, prior, prior_age_s=4.0, fused_prior=True, prior_cov=tight_x)
+    assert not r.accepted and any("> 0.40 m" in a.reason for a in r.attempts if a.inliers)
+    tight_y = np.diag([0.3**2, 0.05**2, 0.05**2])
+    assert loc.localize_local(0, IMG, depth, K, prior, prior_age_s=4.0, fused_prior=True, prior_cov=tight_y).accepted
+    # the state machine hands the covariance on and checks it
+    with pytest.raises(ValueError, match="prior_cov"):
+        loc.process(0, IMG, depth, K, prior, prior_age_s=4.0, prior_cov=np.eye(2))
+
+
 def test_gl_refuses_a_pose_resting_on_the_floor_alone(monkeypatch: pytest.MonkeyPatch) -> None:
     """Every point on one horizontal plane (the map's up is -y here): floor tiles repeat, so GL
     refuses the pose with the reason; the same scene with the check off is accepted (scenes with
