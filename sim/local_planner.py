@@ -14,10 +14,13 @@ a door is then reached through the middle of the door, where arcs aimed straight
 the jamb, turned away and came back (dithering at doors). The camera only sees ahead (and nothing
 closer than its minimum depth), so obstacle points are kept in the odometry frame as a rolling
 local map (one point per voxel, the newest sighting wins) while they are within
-`memory_radius_m` of the robot and were seen less than `memory_travel_m` of odometry ago
-(metres driven plus `memory_m_per_rad` per radian turned, so that drift stays a few cm): a
-door jamb seen on the way in stays known while the robot turns in the doorway for a while (a
-memory of the last N frames forgot it after a few back-and-forth turns).
+`memory_radius_m` of the robot and were seen less than `memory_travel_m` of odometry ago:
+metres driven since the sighting plus `memory_m_per_rad` per radian of *net* heading change
+since it (unwrapped, so a full turn counts whole), so that drift stays a few cm. Net, not
+summed: a robot turning back and forth in place (a wall behind it, the subgoal flipping sides)
+keeps the wall it can no longer see, where a count of every radian turned forgot it after one
+swing and the local path then ran through it; a yaw-rate scale error, the drift of turning in
+place, also cancels on the way back. A door jamb seen on the way in likewise stays known.
 Contacts (a bumper: where the robot touched something, `add_contacts`) are kept the same way
 and block arcs like seen obstacles: a door frame beside the robot, which the forward camera
 cannot see, is otherwise driven into again and again. After a bump the robot backs up until
@@ -93,8 +96,10 @@ class LocalPlanner:
         fine = np.arange(0.02, self.s[min(1, p.samples - 1)], 0.02)
         self.fine_arcs = np.stack([arc_points(k, fine) for k in self.kappas])  # (A, f, 2)
         self.memory = np.zeros((0, 2))  # (M, 2) obstacle points, odometry frame
-        self._mem_odometer = np.zeros(0)  # (M,) `_odometer` when each point was last seen
-        self._odometer = 0.0  # odometry so far: metres driven + memory_m_per_rad x radians turned
+        self._mem_driven = np.zeros(0)  # (M,) `_driven` when each point was last seen
+        self._mem_heading = np.zeros(0)  # (M,) `_heading` when each point was last seen
+        self._driven = 0.0  # metres driven so far (odometry)
+        self._heading = 0.0  # unwrapped odometry heading (rad): net turning, full turns counted
         self._last_pose: NDArray[np.float64] | None = None  # x, y, yaw (odometry)
         self._turn_sign = 0.0  # while blocked, keep turning the same way (no dithering)
         self.contacts = np.zeros((0, 2))  # (C, 2) bumper contact points, odometry frame
@@ -144,17 +149,18 @@ class LocalPlanner:
         xy = T[:2, 3].copy()
         yaw = float(np.arctan2(s_, c))
         if self._last_pose is not None:
-            turned = abs(float(np.angle(np.exp(1j * (yaw - self._last_pose[2])))))
-            self._odometer += float(np.hypot(*(xy - self._last_pose[:2]))) + p.memory_m_per_rad * turned
+            self._heading += float(np.angle(np.exp(1j * (yaw - self._last_pose[2]))))
+            self._driven += float(np.hypot(*(xy - self._last_pose[:2])))
         self._last_pose = np.array([xy[0], xy[1], yaw])
         cur = pts_base @ R.T + xy
         pts = np.concatenate([cur, self.memory])
-        seen = np.concatenate([np.full(len(cur), self._odometer), self._mem_odometer])
-        keep = (np.hypot(*(pts - xy).T) <= p.memory_radius_m) & (self._odometer - seen <= p.memory_travel_m)
-        pts, seen = pts[keep], seen[keep]
-        idx = self._voxel_firsts(pts)  # the current frame's points come first, so they win
-        pts, seen = pts[idx], seen[idx]
-        self.memory, self._mem_odometer = pts, seen
+        driven = np.concatenate([np.full(len(cur), self._driven), self._mem_driven])
+        heading = np.concatenate([np.full(len(cur), self._heading), self._mem_heading])
+        age = self._driven - driven + p.memory_m_per_rad * np.abs(self._heading - heading)
+        keep = (np.hypot(*(pts - xy).T) <= p.memory_radius_m) & (age <= p.memory_travel_m)
+        idx = np.flatnonzero(keep)[self._voxel_firsts(pts[keep])]  # this frame's points come first: they win
+        self.memory, self._mem_driven, self._mem_heading = pts[idx], driven[idx], heading[idx]
+        pts = self.memory
         return np.asarray((pts - xy) @ R, dtype=np.float64)
 
     def _voxel_firsts(self, pts: NDArray[np.float64]) -> NDArray[np.intp]:

@@ -14,8 +14,9 @@ class LocalPlannerParams:
     """The simulated robot's reactive planner: arcs scored on depth-derived obstacle points.
 
     Obstacle memory: points are kept in the odometry frame while they stay within
-    `memory_radius_m` and were seen less than `memory_travel_m` of odometry ago (a radian turned
-    counts as `memory_m_per_rad` metres), so odometry drift cannot move them far.
+    `memory_radius_m` and were seen less than `memory_travel_m` of odometry ago (metres driven
+    since, plus `memory_m_per_rad` per radian of net heading change since: turning back and
+    forth in place keeps them), so odometry drift cannot move them far.
     Recovery: after `recover_after` commands without a drivable arc (e.g. diagonally in a
     doorway) the robot backs up along the way it came for `recover_commands` commands.
     Detour: after a blocked command, arcs are tried for `detour_commands` commands even when the
@@ -68,8 +69,8 @@ class LocalPlannerParams:
     memory_radius_m: float = 2.5
     # remembered obstacle points seen more than this much odometry ago are dropped (m; 0: no memory)
     memory_travel_m: float = 1.5
-    # a radian turned counts as this many metres of odometry for the obstacle memory (m/rad)
-    memory_m_per_rad: float = 0.4
+    # a radian of net heading change since a sighting counts as this many metres of odometry (m/rad)
+    memory_m_per_rad: float = 0.1
     # obstacle points are thinned to one per voxel of this size (m)
     voxel_m: float = 0.05
     # bumper contacts remembered in the odometry frame, newest kept

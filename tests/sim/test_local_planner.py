@@ -92,21 +92,25 @@ def _yawed(yaw_deg: float, x: float = 0.0) -> np.ndarray:
     return T
 
 
-def test_memory_outlasts_turning_back_and_forth_in_place() -> None:
-    """Seen once on the way in, a wall stays known through a back-and-forth sweep in place
-    (a memory of the last N frames lost it: the door jamb hit on the floor world), and is
-    forgotten once the robot has turned or driven on long enough for odometry to drift."""
+def test_memory_outlasts_turning_in_place_and_ages_with_net_turning_and_travel() -> None:
+    """Seen once, a wall stays known through any number of back-and-forth sweeps in place (net
+    heading change ~0: the dithering robot of office-101 forgot its wall after one swing and
+    drove the local path through it) and through a full turn; it is forgotten after turning
+    one way long enough (net radians x memory_m_per_rad > memory_travel_m) or driving on."""
     lp = LocalPlanner()
     empty = np.full((P.height, P.width), np.nan, np.float32)
     lp.command(np.array([4.0, 0.0]), wall_depth(1.0, x_from=0.0), K, T_BC, T_odom_base=np.eye(4))
     n0 = len(lp._remember(np.zeros((0, 2)), np.eye(4)))
     assert n0 > 10
-    sweep = [*range(0, 46, 5), *range(45, -46, -5), *range(-45, 1, 5)]  # 180 deg turned in 5-deg steps
-    for yaw in sweep:
+    sweep = [*range(0, 91, 10), *range(90, -91, -10), *range(-90, 1, 10)]  # 2 pi turned in 10-deg steps
+    for yaw in sweep * 5:
         lp.command(np.array([4.0, 0.0]), empty, K, T_BC, T_odom_base=_yawed(yaw))
     pts = lp._remember(np.zeros((0, 2)), np.eye(4))
     assert len(pts) == n0 and np.median(pts[:, 0]) > 0.5  # still ahead of the (unturned) robot
-    for yaw in sweep * 2:  # two more sweeps: 3 x pi x 0.4 m per rad > the 1.5 m budget
+    for yaw in range(10, 361, 10):  # one full turn to the left: 2 pi x 0.1 m per rad < 1.5 m
+        lp.command(np.array([4.0, 0.0]), empty, K, T_BC, T_odom_base=_yawed(yaw))
+    assert len(lp._remember(np.zeros((0, 2)), np.eye(4))) == n0
+    for yaw in range(370, 361 * 3, 10):  # two more: 6 pi x 0.1 m per rad > the 1.5 m budget
         lp.command(np.array([4.0, 0.0]), empty, K, T_BC, T_odom_base=_yawed(yaw))
     assert len(lp._remember(np.zeros((0, 2)), np.eye(4))) == 0
     lp2 = LocalPlanner()
