@@ -136,10 +136,15 @@ class SlamGraphParams:
     chain_drift_deg_per_m: float = 0.2
     # both bounds also grow by this many of the chain's own sigmas over the stretch (its edges' noise as a random walk)
     gate_sigmas: float = 3.0
+    # the visual edges' covariance is multiplied by this in the optimisation (the refinement understates their error)
+    visual_covariance_scale: float = 1.0
 
     def __post_init__(self) -> None:
         if not (0 < self.inlier_probability < 1) or not (0 < self.kept_weight < 1):
             raise ValueError("slam.graph.inlier_probability and kept_weight must be in (0, 1)")
+        if not (np.isfinite(self.visual_covariance_scale) and self.visual_covariance_scale > 0):
+            raise ValueError(f"slam.graph.visual_covariance_scale must be a finite number > 0, "
+                             f"got {self.visual_covariance_scale}")
         for name in ("gate_floor_m", "gate_floor_deg", "chain_drift_m_per_m", "chain_drift_deg_per_m", "gate_sigmas"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):

@@ -19,6 +19,10 @@ map are all rejected (or that has none) is left out of the map (`GraphResult.dro
 With a `LevelFloor` (`pipelines.slam.level`) every keyframe in the map also gets absolute
 level and height factors (known inliers, like the odometry and visual edges); the chain gate's
 chain solution is solved without them (each chain in its own frame).
+
+The visual edges' covariance (the two-keyframe refinement's) is multiplied by
+`graph.visual_covariance_scale` in the optimisation: compared with a simulator's truth their
+errors exceed it (whitened errors, `docs/mapping.md`); the chain gate keeps their own.
 """
 
 from __future__ import annotations
@@ -133,8 +137,9 @@ def _priors(keyframes: Sequence[GraphNode], chains: list[int], init: gtsam.Value
     return graph
 
 
-def _between(e: Edge) -> gtsam.BetweenFactorPose3:
-    noise = gtsam.noiseModel.Gaussian.Covariance(np.asarray(e.covariance, float))
+def _between(e: Edge, visual_scale: float = 1.0) -> gtsam.BetweenFactorPose3:
+    scale = visual_scale if e.kind == "visual" else 1.0
+    noise = gtsam.noiseModel.Gaussian.Covariance(scale * np.asarray(e.covariance, float))
     return gtsam.BetweenFactorPose3(_key(e.a), _key(e.b), _pose3(e.T_a_b), noise)
 
 
@@ -211,9 +216,9 @@ def _optimise(keyframes: Sequence[GraphNode], edges: list[Edge], T_map_first: F6
         if e.kind == "loop":
             loop_rows.append(graph.size() if usable else None)
         elif usable:
-            kept.add(_between(e))
+            kept.add(_between(e, params.visual_covariance_scale))
         if usable:
-            graph.add(_between(e))
+            graph.add(_between(e, params.visual_covariance_scale))
     if level is not None:
         floor = level_factors(level, [(_key(kf.id), init.atPose3(_key(kf.id)).matrix()) for kf in keyframes
                                       if kf.id in in_map])

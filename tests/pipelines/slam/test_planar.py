@@ -95,3 +95,14 @@ def test_a_level_floor_stops_a_climb_the_steps_allow() -> None:
     # yaw and x, y are free: the biased edges, now contradicted, move them by a compromise only
     true_xy = T_base[:, :2, 3]
     assert np.abs(held[:, :2, 3] - true_xy).max() <= np.abs(free[:, :2, 3] - true_xy).max() + 0.02
+
+
+def test_visual_covariance_scale_weighs_the_visual_edge_down() -> None:
+    # one step: odometry says 1.00 m ahead, a visual edge with the same noise 1.10 m
+    kfs = [SimpleNamespace(id=i, chain=0, T_init=make_T(np.eye(3), np.array([0.0, 0.0, float(i)]))) for i in (0, 1)]
+    cov = np.diag([1e-4] * 3 + [1e-4] * 3)
+    edges = [Edge(0, 1, make_T(np.eye(3), np.array([0.0, 0.0, 1.0])), cov, "odometry"),
+             Edge(0, 1, make_T(np.eye(3), np.array([0.0, 0.0, 1.1])), cov, "visual")]
+    ahead = {s: optimise(kfs, edges, np.eye(4), SlamGraphParams(visual_covariance_scale=s)).poses[1][2, 3]
+             for s in (1.0, 4.0)}
+    assert abs(ahead[1.0] - 1.05) < 1e-3 and abs(ahead[4.0] - 1.02) < 1e-3
