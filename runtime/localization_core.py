@@ -259,8 +259,7 @@ class LocalizationCore:
                 self._vote(res)
             return []
         self.counters["vloc_accepted"] += 1
-        if self.last_fused is None or not self.last_fused.initialised:
-            self._pre_init_fix = (int(res.t_ns), np.asarray(res.T_map_camera, dtype=np.float64))
+        self.note_fix(res)
         update = self.on_vloc(res)
         self.last_fusion_reason = None if update is None else str(update.reason)
         if update is not None and not update.accepted:
@@ -310,6 +309,16 @@ class LocalizationCore:
         if got is None:  # no odometry history around that stamp: the latest fused pose
             return VlocPrior(np.asarray(f.T_map_base, dtype=np.float64) @ self.T_base_camera, 0.0, False)
         return got
+
+    def note_fix(self, res: VlocOutcome) -> None:
+        """Remember an accepted fix while fusion has not started, for `_carried_pre_init_fix`. The
+        VLoc thread calls it as soon as the result exists: the fusion thread may take the result
+        later than the VLoc thread asks for the next frame's prior."""
+        if not res.accepted or res.T_map_camera is None:
+            return
+        f, fix = self.last_fused, self._pre_init_fix
+        if (f is None or not f.initialised) and (fix is None or int(res.t_ns) > fix[0]):
+            self._pre_init_fix = (int(res.t_ns), np.asarray(res.T_map_camera, dtype=np.float64))
 
     def _carried_pre_init_fix(self, t_frame_ns: int) -> VlocPrior | None:
         """Before fusion starts (it waits for agreeing fixes): the last accepted fix carried to

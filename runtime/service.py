@@ -408,7 +408,9 @@ class Service:
                 self.shell_counters["frames_undecodable"] += 1
                 return RejectedFrame(frame.t_ns, False, f"bad frame: {exc}")
             self.shell_counters["frames_decoded"] += 1
-        return self.vloc_fn(frame, self.core.prior(frame.t_ns))
+        res = self.vloc_fn(frame, self.core.prior(frame.t_ns))
+        self.core.note_fix(res)  # before the next frame's prior, whenever the fusion thread takes it
+        return res
 
     # ------------------------------------------------------------------ fusion thread
     def _handle_odometry_item(self, item: tuple[int, Odometry]) -> None:

@@ -115,3 +115,23 @@ def test_before_fusion_starts_the_first_fix_is_carried_by_odometry() -> None:
     svc._handle_odometry_item((0, Odometry(1006 * MS, T_odom_base_at(1006 * MS))))
     after = svc.core.prior(t_frame)
     assert after is not None and after.cov_position is not None
+
+
+def test_the_next_frames_prior_has_the_fix_before_the_fusion_thread_takes_it() -> None:
+    """The VLoc thread asks for the next frame's prior while the fusion thread may not yet have
+    taken the last result from its queue: the fix is remembered as VLoc returns it."""
+    fusion = FakeFusion()
+    t_fix = 100 * MS
+    T = T_MAP_ODOM_TRUE @ T_odom_base_at(t_fix) @ T_BASE_CAMERA_OPTICAL
+    svc = Service([], lambda f, p: Result(f.t_ns, True, "ok", T, np.eye(6) * 1e-4),
+                  fusion.add_odometry, lambda r: Update(False, "awaiting_init"), FakePublisher(),
+                  RuntimeConfig(mode="sequential"))
+    for k in range(0, 201):
+        t = k * 5 * MS + 1
+        svc._handle_odometry_item((0, Odometry(t, T_odom_base_at(t))))
+    assert svc.core.prior(800 * MS) is None
+    svc._vloc(RgbdFrame(t_fix, np.zeros((8, 8, 3), np.uint8), None, np.eye(3)))  # its result not handled yet
+    prior = svc.core.prior(800 * MS)
+    assert prior is not None and prior.age_s == pytest.approx(0.7)
+    truth = T_MAP_ODOM_TRUE @ T_odom_base_at(800 * MS) @ T_BASE_CAMERA_OPTICAL
+    assert relative_pose_error(prior.T_map_camera, truth)[0] < 1e-3
