@@ -29,6 +29,7 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.base.geometry import invert
 from litevloc.config.schema import RuntimeConfig
 from litevloc.hw.messages import Odometry
 from litevloc.pipelines.localization.tracking import TrackingState, published_state
@@ -331,7 +332,7 @@ class LocalizationCore:
         if got is None:
             return None
         T_odom_base, _ = got
-        T_map_odom = fix[1] @ np.linalg.inv(self.T_base_camera) @ np.linalg.inv(T_odom_base)
+        T_map_odom = fix[1] @ invert(self.T_base_camera) @ invert(T_odom_base)
         return prior_at(t_frame_ns, T_map_odom, self.odometry_history, self.T_base_camera, fix[0])
 
     def tracking_state(self) -> tuple[TrackingState, list[str]]:
