@@ -174,7 +174,8 @@ class LocalizationCore:
         self.covariance_to_ros, self.on_fused = covariance_to_ros, on_fused
         self.counters: dict[str, int] = dict.fromkeys(CORE_COUNTERS, 0)
         self.last_fused: FusedPoseLike | None = None
-        self.odometry_history = OdometryHistory()  # odometry poses (fused, or before fusion starts), for the prior at a frame's stamp
+        # odometry poses (fused, or before fusion starts), for the prior at a frame's stamp
+        self.odometry_history = OdometryHistory()
         self.sensor_now_ns: int | None = None
         self.last_vloc_accept_ns: int | None = None
         # the latest fix the localizer accepted while fusion was not yet initialised: (t_ns, T_map_camera)

@@ -7,9 +7,9 @@ import pytest
 
 from litevloc.base.geometry import relative_pose_error
 from litevloc.base.params.drift import T_BASE_CAMERA_OPTICAL
+from litevloc.base.params.fusion import FusionParams
 from litevloc.config.schema import RuntimeConfig
 from litevloc.hw.messages import Odometry, RgbdFrame
-from litevloc.base.params.fusion import FusionParams
 from litevloc.pipelines.fusion.online import OnlineFusion
 from litevloc.runtime.service import Service, fusion_callables
 from litevloc.runtime.vloc_prior import OdometryHistory, prior_at
