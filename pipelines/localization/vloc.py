@@ -118,17 +118,17 @@ class VisualLocalizer:
         )
         return res, CandidateAttempt(node, similarity, n_matches, res.n_inliers if res else 0, reason)
 
-    def _verify_local(self, node: int, q: Query, similarity: float,
-                      guided_prior: NDArray[np.float64] | None) -> tuple[PnpResult | None, CandidateAttempt]:
-        """`_verify`, first on matches guided by a fresh prior when given (see
+    def _verify_local(self, node: int, q: Query, similarity: float, guided_prior: NDArray[np.float64] | None,
+                      params: LocalizationParams | None = None) -> tuple[PnpResult | None, CandidateAttempt]:
+        """`_verify` under `params`, first on matches guided by a fresh prior when given (see
         `LocalizationParams.ll_guided_min_matches`); the matcher's when those are too few or
         their PnP fails."""
         if guided_prior is not None and q.try_guided(node, guided_prior, self.params.ll_guided_min_matches):
-            res, att = self._verify(node, q, similarity)
+            res, att = self._verify(node, q, similarity, params)
             if res is not None and res.accepted:
                 return res, att
             q.forget(node)
-        return self._verify(node, q, similarity)
+        return self._verify(node, q, similarity, params)
 
     def _verify_global(self, node: int, q: Query, similarity: float, verified: list[VerifiedPose] | None = None,
                        params: LocalizationParams | None = None) -> tuple[PnpResult | None, CandidateAttempt]:
@@ -224,6 +224,26 @@ class VisualLocalizer:
         if joint.shift_m > rp.max_shift_m or joint.shift_deg > rp.max_shift_deg:
             return None
         return ProvisionalPose(joint.T_map_camera, joint.covariance, node, joint.inliers_per_keyframe[node])
+
+    @staticmethod
+    def _pooled(p: LocalizationParams) -> LocalizationParams:
+        """`p` with PnP's inlier floor lowered to `pooled_min_inliers` (a weak candidate then
+        reaches the joint refinement, see `_pooled_short`); `p` itself when that is off."""
+        k = p.pooled_min_inliers
+        return replace(p, pnp=replace(p.pnp, min_inliers=k)) if 0 < k < p.pnp.min_inliers else p
+
+    def _pooled_short(self, res: PnpResult, joint: RefineResult | None, floor: int) -> str:
+        """'' when the candidate's PnP has `floor` inliers, or when it has fewer and the joint
+        refinement's keyframes (at least `refine.min_keyframes`) explain `floor` inliers together;
+        else the refusal reason."""
+        if res.n_inliers >= floor:
+            return ""
+        if (joint is not None and joint.accepted and joint.consistent_keyframes >= self.params.refine.min_keyframes
+                and joint.n_inliers >= floor):
+            return ""
+        pooled = "no joint refinement" if joint is None else (
+            f"{joint.n_inliers} over {joint.consistent_keyframes} keyframe(s): {joint.reason}")
+        return f"too few inliers ({res.n_inliers} < {floor}; pooled {pooled})"
 
     def _prior_growth_m(self, prior_age_s: float, fused: bool) -> float:
         """How far the prior may have wandered in `prior_age_s` (m): odometry drift for a fused
@@ -382,6 +402,7 @@ class VisualLocalizer:
         evidence: list[VerifiedPose] = []  # every candidate's PnP pose, for the distinctiveness test
         trusted = prior is not None and self._fresh(growth)
         gl_params = self._gl_params(trusted)
+        floor = gl_params.pnp.min_inliers  # a weaker candidate passes only pooled (see `_pooled_short`)
         budget = self.params.gl_time_budget_ms
         candidates_ms = 0.0  # verification time (match, PnP, joint refinement) of the candidates so far
         for k, node in enumerate(int(n) for n in order):
@@ -394,15 +415,20 @@ class VisualLocalizer:
                         f"{ahead:.0f} ms per candidate, after {k} of {len(order)} candidates")
                 break
             t_cand = self.clock()
-            res, att = self._verify_global(node, q, float(sims[node]), evidence, gl_params)
+            res, att = self._verify_global(node, q, float(sims[node]), evidence, self._pooled(gl_params))
             if res is None or not res.accepted or res.T_target_source is None:
                 attempts.append(att)
                 candidates_ms += (self.clock() - t_cand) * 1e3
                 continue
             T = self.map.T_map_camera[node] @ res.T_target_source
+            weak = res.n_inliers < floor
             joint = self._joint(node, T, q, [int(n) for n in order],
-                                self.params.refine.min_keyframes if self.params.gl_confirm else 1)
+                                self.params.refine.min_keyframes if self.params.gl_confirm or weak else 1)
             candidates_ms += (self.clock() - t_cand) * 1e3
+            short = self._pooled_short(res, joint, floor)
+            if short:
+                attempts.append(replace(att, reason=short))
+                continue
             if joint.accepted:
                 attempts.append(att)
                 best = (node, res, joint)
@@ -637,8 +663,9 @@ class VisualLocalizer:
         attempts: list[CandidateAttempt] = []
         best: tuple[int, PnpResult, RefineResult | None] | None = None
         guided_first = self.params.ll_guided_min_matches > 0 and self._fresh(growth)
+        floor = self.params.pnp.min_inliers  # a weaker candidate passes only pooled (see `_pooled_short`)
         for node, sim in cands:
-            res, att = self._verify_local(node, q, sim, prior if guided_first else None)
+            res, att = self._verify_local(node, q, sim, prior if guided_first else None, self._pooled(self.params))
             if res is not None and res.accepted and res.T_target_source is not None:
                 T = self.map.T_map_camera[node] @ res.T_target_source
                 dt, dr = relative_pose_error(T, prior)
@@ -649,13 +676,14 @@ class VisualLocalizer:
                                            f"{dr:.0f} deg)")
                     attempts.append(att)
                     continue
+                weak = res.n_inliers < floor
                 close = (dt <= self.params.confirm_skip_within_m and dr <= self.params.confirm_skip_within_deg
-                         and self._fresh(growth))
+                         and self._fresh(growth) and not weak)
                 joint: RefineResult | None = None
                 if self.params.refine.enabled:
-                    need = self.params.refine.min_keyframes if self.params.ll_confirm and not close else 1
+                    need = self.params.refine.min_keyframes if (self.params.ll_confirm and not close) or weak else 1
                     joint = self._joint(node, T, q, [n for n, _ in cands], need)
-                    if not joint.accepted:
+                    if not joint.accepted and not weak:  # a weak one is refused below, saying so
                         attempts.append(CandidateAttempt(node, sim, att.matches, att.inliers,
                                                          f"joint refinement rejected: {joint.reason}"))
                         continue
@@ -665,6 +693,10 @@ class VisualLocalizer:
                         why = f"unconfirmed ({n_ok} consistent matches with a second keyframe)"
                         attempts.append(CandidateAttempt(node, sim, att.matches, att.inliers, why))
                         continue
+                short = self._pooled_short(res, joint, floor)
+                if short:
+                    attempts.append(replace(att, reason=short))
+                    continue
                 attempts.append(att)
                 best = (node, res, joint)
                 break
