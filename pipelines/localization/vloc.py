@@ -52,6 +52,7 @@ from litevloc.pipelines.localization.distinct import (
     same_place,
     strongest_rival,
 )
+from litevloc.pipelines.localization.prior_gate import narrowed_gate, sigma_along
 from litevloc.pipelines.localization.query import Clock, MatchFn, Query, StageTimer, relative_pose, reprojects
 from litevloc.pipelines.localization.refine import (
     RefineResult,
@@ -264,14 +265,11 @@ class VisualLocalizer:
         """The prior gate's radius (m) toward the pose `T`: `gate_m`, or less where fusion's 3x3
         position covariance `cov` (m^2, map frame) of a fused prior says it is better known
         along that direction: its start + `prior_gate_sigmas` sigmas."""
-        k = self.params.prior_gate_sigmas
         d = np.asarray(T, np.float64)[:3, 3] - np.asarray(prior, np.float64)[:3, 3]
-        n = float(np.linalg.norm(d))
-        if cov is None or k <= 0 or n == 0.0:
+        if cov is None or not np.any(d):
             return gate_m
-        u = d / n
-        sigma = float(np.sqrt(max(float(u @ np.asarray(cov, np.float64) @ u), 0.0)))
-        return min(gate_m, self.params.prior_gate_fused_m + k * sigma)
+        p = self.params
+        return narrowed_gate(gate_m, p.prior_gate_fused_m, p.prior_gate_sigmas, sigma_along(cov, d))
 
     def _within_gate(self, T: NDArray[np.float64], prior: NDArray[np.float64], gate_m: float,
                      cov: NDArray[np.float64] | None = None) -> bool:
