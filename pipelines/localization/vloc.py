@@ -350,28 +350,48 @@ class VisualLocalizer:
                                             timer, t_all, front_ms)
             return self._verify_confirmed(t_ns, q, sims, order, timer, t_all)
 
-        return self._with_map_depth_fallback(verify, q)
+        return self._with_second_passes(verify, q)
 
-    def _with_map_depth_fallback(self, verify: Callable[[], LocalizationResult], q: Query,
-                                 allowed: bool = True) -> LocalizationResult:
-        """`verify()`; where it is refused, `allowed` (LL: only from a fresh prior, whose gate
-        keeps a repeated place out) and `map_depth_fallback` is on (the map has keypoint depth,
-        `verify_map_depth` off), `verify()` again on the same features and matches with
-        `verify_map_depth` on for this query alone, GL's distinctiveness test on (map depth lets
-        a repeated place verify too): the refusal's attempts are kept in front."""
-        res = verify()
+    def _with_second_passes(self, verify: Callable[[], LocalizationResult], q: Query,
+                            allowed: bool = True) -> LocalizationResult:
+        """`verify()`; where it is refused, again on the same features and matches (no model
+        runs again), each later pass only where the earlier ones refused:
+
+        * with the map's depth (`map_depth_fallback`; the map has keypoint depth, `verify_map_depth`
+          off; `allowed`: LL only from a fresh prior, whose gate keeps a repeated place out), GL's
+          distinctiveness test on (map depth lets a repeated place verify too);
+        * with weak candidates pooled (`pooled_min_inliers` > 0, see `_pooled_short`), as the pass
+          before it.
+
+        A frame an earlier pass accepts is never verified again, so what it accepts is unchanged.
+        The refusals' attempts are kept in front."""
         p = self.params
-        if res.accepted or not allowed or not p.map_depth_fallback or p.verify_map_depth or not self._map_has_depth:
+        passes: list[tuple[LocalizationParams, str]] = [(replace(p, pooled_min_inliers=0), "")]
+        if allowed and p.map_depth_fallback and not p.verify_map_depth and self._map_has_depth:
+            passes.append((replace(passes[0][0], verify_map_depth=True,
+                                   gl_distinct_ratio=p.map_depth_fallback_distinct_ratio or p.gl_distinct_ratio),
+                           "verified again with the map's depth"))
+        if p.pooled_min_inliers > 0:
+            passes.append((replace(passes[-1][0], pooled_min_inliers=p.pooled_min_inliers),
+                           "verified again with weak candidates pooled"))
+        attempts: tuple[CandidateAttempt, ...] = ()
+        refusals: list[str] = []
+        for k, (params, _) in enumerate(passes):
+            if k:
+                q.timer.ms.pop("total", None)  # the total is the whole query's, all passes
+            self.params = q.params = params
+            try:
+                res = verify()
+            finally:
+                self.params = q.params = p
+            attempts += res.attempts
+            if res.accepted or k == len(passes) - 1:
+                break
+            refusals.append(res.reason)
+        if not refusals:
             return res
-        self.params = q.params = replace(p, verify_map_depth=True,
-                                         gl_distinct_ratio=p.map_depth_fallback_distinct_ratio or p.gl_distinct_ratio)
-        q.timer.ms.pop("total", None)  # the total is the whole query's, both passes
-        try:
-            again = verify()
-        finally:
-            self.params = q.params = p
-        return replace(again, attempts=res.attempts + again.attempts,
-                       stop_reason=f"{again.stop_reason}; verified again with the map's depth ({res.reason})")
+        return replace(res, attempts=attempts,
+                       stop_reason=f"{res.stop_reason}; {passes[len(refusals)][1]} ({'; '.join(refusals)})")
 
     def _retrieve(self, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64],
                   region: SearchRegion | None, timer: StageTimer, t_all: float
@@ -647,7 +667,7 @@ class VisualLocalizer:
         cands = self.local_candidates(prior, desc)
         growth = self._prior_growth_m(prior_age_s, fused_prior)
         gate_m = self._gate_m(growth, fused_prior)
-        return self._with_map_depth_fallback(
+        return self._with_second_passes(
             lambda: self._local_attempts(t_ns, q, cands, prior, (growth, gate_m, prior_cov), timer, t_all), q,
             allowed=self._fresh(growth))
 

@@ -544,9 +544,10 @@ def _matching_25_with_depth(s: Scene, depth: NDArray[np.float32]) -> Callable[[F
 
 def test_a_weak_candidate_counts_only_when_its_keyframes_together_reach_the_inlier_floor() -> None:
     """The matcher finds 25 matches per keyframe (a wide view angle), under PnP's floor of 30.
-    With `pooled_min_inliers` 20 the candidate reaches the joint refinement, whose keyframes
-    together explain far more: GL and LL accept the true pose. Alone (a one-keyframe map) it is
-    refused, even beside an agreeing fresh prior, and never becomes a provisional vote."""
+    With `pooled_min_inliers` 20, a second pass lets the candidate reach the joint refinement,
+    whose keyframes together explain far more: GL and LL accept the true pose. Alone (a
+    one-keyframe map) it is refused, even beside an agreeing fresh prior, and never becomes a
+    provisional vote."""
     m = make_map([0.0, 1.0, 2.0, 3.0])
     s = Scene(m)
     T_true = pose(1.3, 5.0)
@@ -560,8 +561,14 @@ def test_a_weak_candidate_counts_only_when_its_keyframes_together_reach_the_inli
     for r in (on.localize_global(0, IMG, depth, K), on.localize_local(0, IMG, depth, K, pose(1.4, 5.0))):
         assert r.accepted and len(r.keyframes) >= 2, r.reason
         assert 20 <= r.attempts[-1].inliers < 30  # its own PnP: under the floor
+        assert "verified again with weak candidates pooled" in r.stop_reason
         dt, dr = g.relative_pose_error(r.T_map_camera, T_true)
         assert dt < 0.01 and dr < 0.5
+    # a frame the strong candidates localize is localized by them alone: the same pose either way
+    full = [VisualLocalizer(m, p, s.extract, s.describe, s.match).localize_global(0, IMG, depth, K)
+            for p in (PARAMS, pooled)]
+    assert all(r.accepted for r in full) and np.array_equal(full[0].T_map_camera, full[1].T_map_camera)
+    assert "pooled" not in full[1].stop_reason
     m1 = make_map([0.0])
     s1 = Scene(m1)
     depth1 = s1.look(pose(0.3, 5.0), vpr_best=0)
