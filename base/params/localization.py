@@ -222,7 +222,7 @@ class LocalizationParams:
     # verification and refinement also use the map's depth at keyframe keypoints (off: it verifies aliased places too)
     verify_map_depth: bool = False
     # a GL query that live depth cannot verify is verified again with the map's depth (verify_map_depth for it alone)
-    map_depth_fallback: bool = False
+    map_depth_fallback: bool = True
     # that second pass: GL refuses a pose another place verifies with >= 1/this of its inliers (0 = gl_distinct_ratio)
     map_depth_fallback_distinct_ratio: float = 2.0
     # without a fresh prior, GL refuses a pose if a candidate at another pose has >= 1/this of its PnP inliers (0 = off)
