@@ -218,7 +218,7 @@ class LocalizationParams:
     # matches a candidate needs before PnP
     min_matches: int = 20
     # > 0: a candidate with this many PnP inliers (< pnp.min_inliers) passes if its joint keyframes reach that many
-    pooled_min_inliers: int = 0
+    pooled_min_inliers: int = 20
     # verification and refinement also use the map's depth at keyframe keypoints (off: it verifies aliased places too)
     verify_map_depth: bool = False
     # a GL query that live depth cannot verify is verified again with the map's depth (verify_map_depth for it alone)

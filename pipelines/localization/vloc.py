@@ -78,6 +78,13 @@ DescribeFn = Callable[[NDArray[np.uint8]], NDArray[np.float32]]
 _CLOCK_JITTER_S = 1e-3  # timestamps that differ by less than this are the same instant for time windows
 
 
+def _weak(attempt: CandidateAttempt, floor: int) -> bool:
+    """Whether a refused candidate had `floor` inliers (or matches, where too few matches stopped it
+    before PnP): one that pooling over keyframes could still let through."""
+    return ((attempt.reason.startswith("too few inliers") and attempt.inliers >= floor)
+            or (attempt.reason.startswith("too few matches (") and attempt.matches >= floor))
+
+
 class VisualLocalizer:
     """GL + LL against one map with injected model callables (no I/O, no threads)."""
 
@@ -375,9 +382,15 @@ class VisualLocalizer:
             passes.append((replace(passes[-1][0], pooled_min_inliers=p.pooled_min_inliers),
                            "verified again with weak candidates pooled"))
         attempts: tuple[CandidateAttempt, ...] = ()
-        refusals: list[str] = []
-        for k, (params, _) in enumerate(passes):
-            if k:
+        refusals: list[str] = []  # the reasons of the passes refused before the last one run
+        res: LocalizationResult | None = None
+        last_how = ""
+        for params, how in passes:
+            if res is not None:
+                if res.accepted or (params.pooled_min_inliers
+                                    and not any(_weak(a, params.pooled_min_inliers) for a in attempts)):
+                    break  # accepted, or no candidate that a weaker floor could let through
+                refusals.append(res.reason)
                 q.timer.ms.pop("total", None)  # the total is the whole query's, all passes
             self.params = q.params = params
             try:
@@ -385,13 +398,11 @@ class VisualLocalizer:
             finally:
                 self.params = q.params = p
             attempts += res.attempts
-            if res.accepted or k == len(passes) - 1:
-                break
-            refusals.append(res.reason)
+            last_how = how
+        assert res is not None
         if not refusals:
             return res
-        return replace(res, attempts=attempts,
-                       stop_reason=f"{res.stop_reason}; {passes[len(refusals)][1]} ({'; '.join(refusals)})")
+        return replace(res, attempts=attempts, stop_reason=f"{res.stop_reason}; {last_how} ({'; '.join(refusals)})")
 
     def _retrieve(self, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64],
                   region: SearchRegion | None, timer: StageTimer, t_all: float

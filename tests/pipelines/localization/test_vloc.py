@@ -553,10 +553,11 @@ def test_a_weak_candidate_counts_only_when_its_keyframes_together_reach_the_inli
     T_true = pose(1.3, 5.0)
     depth = s.look(T_true, vpr_best=1)
     few = _matching_25_with_depth(s, depth)
-    off = VisualLocalizer(m, PARAMS, s.extract, s.describe, few)
+    off = VisualLocalizer(m, replace(PARAMS, pooled_min_inliers=0), s.extract, s.describe, few)
     assert not off.localize_global(0, IMG, depth, K).accepted
     assert not off.localize_local(0, IMG, depth, K, prior_T_map_camera=pose(1.4, 5.0)).accepted
-    pooled = replace(PARAMS, pooled_min_inliers=20)
+    pooled = PARAMS  # pooled_min_inliers 20 by default
+    assert pooled.pooled_min_inliers == 20
     on = VisualLocalizer(m, pooled, s.extract, s.describe, few)
     for r in (on.localize_global(0, IMG, depth, K), on.localize_local(0, IMG, depth, K, pose(1.4, 5.0))):
         assert r.accepted and len(r.keyframes) >= 2, r.reason
@@ -566,7 +567,7 @@ def test_a_weak_candidate_counts_only_when_its_keyframes_together_reach_the_inli
         assert dt < 0.01 and dr < 0.5
     # a frame the strong candidates localize is localized by them alone: the same pose either way
     full = [VisualLocalizer(m, p, s.extract, s.describe, s.match).localize_global(0, IMG, depth, K)
-            for p in (PARAMS, pooled)]
+            for p in (replace(PARAMS, pooled_min_inliers=0), pooled)]
     assert all(r.accepted for r in full) and np.array_equal(full[0].T_map_camera, full[1].T_map_camera)
     assert "pooled" not in full[1].stop_reason
     m1 = make_map([0.0])
