@@ -2,7 +2,7 @@
 
 LL accepts a pose only inside the prior gate; toward a pose, the gate of a fused prior is at
 most `prior_gate_fused_m` + `prior_gate_sigmas` sigma of the fused camera position along the
-offset (`VisualLocalizer._gate_toward`). That is only safe if fusion's covariance covers the
+offset (`pipelines.localization.prior_gate`, as LL uses it). That is only safe if fusion's covariance covers the
 odometry's real drift. Here, on a simulator pass (its own drift model, with a yaw bias the
 fusion model does not have): every `--every` s, fusion (the runtime's `OnlineFusion`, default
 settings) starts on two fixes at the truth (0.5 s apart, 1 cm / 0.5 deg), then gets odometry
@@ -27,6 +27,7 @@ from _common import print_table, write_json
 from litevloc.base.geometry import camera_position_covariance
 from litevloc.config import load_config
 from litevloc.pipelines.fusion.online import OnlineFusion
+from litevloc.pipelines.localization.prior_gate import narrowed_gate, sigma_along
 from litevloc.sim.source import open_sim_source
 
 _FIX_COV = np.diag([0.01**2] * 3 + [np.radians(0.5) ** 2] * 3)  # ROS order: a well-verified VLoc fix
@@ -53,9 +54,8 @@ def window(cfg: Any, run: Any, T_bc: np.ndarray, s_ns: int, age_s: float) -> dic
     T_true = T_world[ke] @ T_bc
     e = (np.asarray(out.T_map_base) @ T_bc)[:3, 3] - T_true[:3, 3]
     C = camera_position_covariance(out.T_map_base, out.covariance, T_bc)
-    err = float(np.linalg.norm(e))
-    u, axis = e / max(err, 1e-12), T_true[:3, 2]
-    return {"err_m": err, "sigma_err_m": float(np.sqrt(u @ C @ u)), "sigma_axis_m": float(np.sqrt(axis @ C @ axis))}
+    return {"err_m": float(np.linalg.norm(e)), "sigma_err_m": sigma_along(C, e),
+            "sigma_axis_m": sigma_along(C, T_true[:3, 2])}
 
 
 def main() -> None:
@@ -78,10 +78,9 @@ def main() -> None:
             err = np.array([w["err_m"] for w in ws])
             z = err / np.array([w["sigma_err_m"] for w in ws])
             age_gate = lp.prior_gate_fused_m + lp.prior_gate_rate_fused_mps * age
-            gate_err = np.minimum(age_gate, lp.prior_gate_fused_m + lp.prior_gate_sigmas * np.array(
-                [w["sigma_err_m"] for w in ws]))
-            gate_axis = np.minimum(age_gate, lp.prior_gate_fused_m + lp.prior_gate_sigmas * np.array(
-                [w["sigma_axis_m"] for w in ws]))
+            gate_err, gate_axis = (np.array([narrowed_gate(age_gate, lp.prior_gate_fused_m, lp.prior_gate_sigmas,
+                                                           w[key]) for w in ws])
+                                   for key in ("sigma_err_m", "sigma_axis_m"))
             r = {"pass": uri, "age_s": age, "windows": len(ws), "err_median_m": float(np.median(err)),
                  "err_max_m": float(err.max()), "z_median": float(np.median(z)), "z_max": float(z.max()),
                  "gate_axis_median_m": float(np.median(gate_axis)), "gate_axis_max_m": float(gate_axis.max()),

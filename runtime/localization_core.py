@@ -29,7 +29,7 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.base.geometry import invert
+from litevloc.base.geometry import invert, is_rigid
 from litevloc.config.schema import RuntimeConfig
 from litevloc.hw.messages import Odometry
 from litevloc.pipelines.localization.tracking import TrackingState, published_state
@@ -174,7 +174,8 @@ class LocalizationCore:
         self.covariance_to_ros, self.on_fused = covariance_to_ros, on_fused
         self.counters: dict[str, int] = dict.fromkeys(CORE_COUNTERS, 0)
         self.last_fused: FusedPoseLike | None = None
-        self.odometry_history = OdometryHistory()  # fused odometry poses, for the prior at a frame's stamp
+        # odometry poses (fused, or before fusion starts), for the prior at a frame's stamp
+        self.odometry_history = OdometryHistory()
         self.sensor_now_ns: int | None = None
         self.last_vloc_accept_ns: int | None = None
         # the latest fix the localizer accepted while fusion was not yet initialised: (t_ns, T_map_camera)
@@ -203,6 +204,9 @@ class LocalizationCore:
         if fused is None:
             if self.last_fused is not None:  # fusion refused it (time not increasing, bad pose)
                 self.counters["odometry_rejected"] += 1
+            elif is_rigid(odom.T_odom_base, atol=1e-4):
+                # fusion answers nothing until it starts; the first fix is carried by this odometry
+                self.odometry_history.add(odom.t_ns, odom.T_odom_base)
             return []
         self.odometry_history.add(odom.t_ns, odom.T_odom_base)
         self.last_fused = fused

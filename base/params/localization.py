@@ -217,10 +217,12 @@ class LocalizationParams:
     max_distance_to_node_m: float = 5.0
     # matches a candidate needs before PnP
     min_matches: int = 20
+    # > 0: a candidate with this many PnP inliers (< pnp.min_inliers) passes if its joint keyframes reach that many
+    pooled_min_inliers: int = 20
     # verification and refinement also use the map's depth at keyframe keypoints (off: it verifies aliased places too)
     verify_map_depth: bool = False
     # a GL query that live depth cannot verify is verified again with the map's depth (verify_map_depth for it alone)
-    map_depth_fallback: bool = False
+    map_depth_fallback: bool = True
     # that second pass: GL refuses a pose another place verifies with >= 1/this of its inliers (0 = gl_distinct_ratio)
     map_depth_fallback_distinct_ratio: float = 2.0
     # without a fresh prior, GL refuses a pose if a candidate at another pose has >= 1/this of its PnP inliers (0 = off)
@@ -263,6 +265,8 @@ class LocalizationParams:
             raise ValueError("map_depth_fallback_distinct_ratio must be 0 (gl_distinct_ratio) or >= 1")
         if self.gl_distinct_m <= 0 or not 0 < self.gl_distinct_deg <= 180 or self.gl_distinct_max_rivals < 0:
             raise ValueError("need gl_distinct_m > 0, gl_distinct_deg in (0, 180] and gl_distinct_max_rivals >= 0")
+        if self.pooled_min_inliers < 0 or 0 < self.pooled_min_inliers < 4:
+            raise ValueError("pooled_min_inliers must be 0 (off) or >= 4")
         if self.gl_distinct_min_inliers < 0 or 0 < self.gl_distinct_min_inliers < 4:
             raise ValueError("gl_distinct_min_inliers must be 0 (pnp.min_inliers) or >= 4")
         if self.gl_rerank_depth < 0:

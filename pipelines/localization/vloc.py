@@ -52,6 +52,7 @@ from litevloc.pipelines.localization.distinct import (
     same_place,
     strongest_rival,
 )
+from litevloc.pipelines.localization.prior_gate import narrowed_gate, sigma_along
 from litevloc.pipelines.localization.query import Clock, MatchFn, Query, StageTimer, relative_pose, reprojects
 from litevloc.pipelines.localization.refine import (
     RefineResult,
@@ -75,6 +76,13 @@ ExtractFn = Callable[[NDArray[np.uint8]], FeatureSet]
 DescribeFn = Callable[[NDArray[np.uint8]], NDArray[np.float32]]
 
 _CLOCK_JITTER_S = 1e-3  # timestamps that differ by less than this are the same instant for time windows
+
+
+def _weak(attempt: CandidateAttempt, floor: int) -> bool:
+    """Whether a refused candidate had `floor` inliers (or matches, where too few matches stopped it
+    before PnP): one that pooling over keyframes could still let through."""
+    return ((attempt.reason.startswith("too few inliers") and attempt.inliers >= floor)
+            or (attempt.reason.startswith("too few matches (") and attempt.matches >= floor))
 
 
 class VisualLocalizer:
@@ -118,17 +126,17 @@ class VisualLocalizer:
         )
         return res, CandidateAttempt(node, similarity, n_matches, res.n_inliers if res else 0, reason)
 
-    def _verify_local(self, node: int, q: Query, similarity: float,
-                      guided_prior: NDArray[np.float64] | None) -> tuple[PnpResult | None, CandidateAttempt]:
-        """`_verify`, first on matches guided by a fresh prior when given (see
+    def _verify_local(self, node: int, q: Query, similarity: float, guided_prior: NDArray[np.float64] | None,
+                      params: LocalizationParams | None = None) -> tuple[PnpResult | None, CandidateAttempt]:
+        """`_verify` under `params`, first on matches guided by a fresh prior when given (see
         `LocalizationParams.ll_guided_min_matches`); the matcher's when those are too few or
         their PnP fails."""
         if guided_prior is not None and q.try_guided(node, guided_prior, self.params.ll_guided_min_matches):
-            res, att = self._verify(node, q, similarity)
+            res, att = self._verify(node, q, similarity, params)
             if res is not None and res.accepted:
                 return res, att
             q.forget(node)
-        return self._verify(node, q, similarity)
+        return self._verify(node, q, similarity, params)
 
     def _verify_global(self, node: int, q: Query, similarity: float, verified: list[VerifiedPose] | None = None,
                        params: LocalizationParams | None = None) -> tuple[PnpResult | None, CandidateAttempt]:
@@ -225,6 +233,26 @@ class VisualLocalizer:
             return None
         return ProvisionalPose(joint.T_map_camera, joint.covariance, node, joint.inliers_per_keyframe[node])
 
+    @staticmethod
+    def _pooled(p: LocalizationParams) -> LocalizationParams:
+        """`p` with PnP's inlier floor lowered to `pooled_min_inliers` (a weak candidate then
+        reaches the joint refinement, see `_pooled_short`); `p` itself when that is off."""
+        k = p.pooled_min_inliers
+        return replace(p, pnp=replace(p.pnp, min_inliers=k)) if 0 < k < p.pnp.min_inliers else p
+
+    def _pooled_short(self, res: PnpResult, joint: RefineResult | None, floor: int) -> str:
+        """'' when the candidate's PnP has `floor` inliers, or when it has fewer and the joint
+        refinement's keyframes (at least `refine.min_keyframes`) explain `floor` inliers together;
+        else the refusal reason."""
+        if res.n_inliers >= floor:
+            return ""
+        if (joint is not None and joint.accepted and joint.consistent_keyframes >= self.params.refine.min_keyframes
+                and joint.n_inliers >= floor):
+            return ""
+        pooled = "no joint refinement" if joint is None else (
+            f"{joint.n_inliers} over {joint.consistent_keyframes} keyframe(s): {joint.reason}")
+        return f"too few inliers ({res.n_inliers} < {floor}; pooled {pooled})"
+
     def _prior_growth_m(self, prior_age_s: float, fused: bool) -> float:
         """How far the prior may have wandered in `prior_age_s` (m): odometry drift for a fused
         prior, the robot's top speed for the last VLoc pose."""
@@ -244,14 +272,11 @@ class VisualLocalizer:
         """The prior gate's radius (m) toward the pose `T`: `gate_m`, or less where fusion's 3x3
         position covariance `cov` (m^2, map frame) of a fused prior says it is better known
         along that direction: its start + `prior_gate_sigmas` sigmas."""
-        k = self.params.prior_gate_sigmas
         d = np.asarray(T, np.float64)[:3, 3] - np.asarray(prior, np.float64)[:3, 3]
-        n = float(np.linalg.norm(d))
-        if cov is None or k <= 0 or n == 0.0:
+        if cov is None or not np.any(d):
             return gate_m
-        u = d / n
-        sigma = float(np.sqrt(max(float(u @ np.asarray(cov, np.float64) @ u), 0.0)))
-        return min(gate_m, self.params.prior_gate_fused_m + k * sigma)
+        p = self.params
+        return narrowed_gate(gate_m, p.prior_gate_fused_m, p.prior_gate_sigmas, sigma_along(cov, d))
 
     def _within_gate(self, T: NDArray[np.float64], prior: NDArray[np.float64], gate_m: float,
                      cov: NDArray[np.float64] | None = None) -> bool:
@@ -332,28 +357,52 @@ class VisualLocalizer:
                                             timer, t_all, front_ms)
             return self._verify_confirmed(t_ns, q, sims, order, timer, t_all)
 
-        return self._with_map_depth_fallback(verify, q)
+        return self._with_second_passes(verify, q)
 
-    def _with_map_depth_fallback(self, verify: Callable[[], LocalizationResult], q: Query,
-                                 allowed: bool = True) -> LocalizationResult:
-        """`verify()`; where it is refused, `allowed` (LL: only from a fresh prior, whose gate
-        keeps a repeated place out) and `map_depth_fallback` is on (the map has keypoint depth,
-        `verify_map_depth` off), `verify()` again on the same features and matches with
-        `verify_map_depth` on for this query alone, GL's distinctiveness test on (map depth lets
-        a repeated place verify too): the refusal's attempts are kept in front."""
-        res = verify()
+    def _with_second_passes(self, verify: Callable[[], LocalizationResult], q: Query,
+                            allowed: bool = True) -> LocalizationResult:
+        """`verify()`; where it is refused, again on the same features and matches (no model
+        runs again), each later pass only where the earlier ones refused:
+
+        * with the map's depth (`map_depth_fallback`; the map has keypoint depth, `verify_map_depth`
+          off; `allowed`: LL only from a fresh prior, whose gate keeps a repeated place out), GL's
+          distinctiveness test on (map depth lets a repeated place verify too);
+        * with weak candidates pooled (`pooled_min_inliers` > 0, see `_pooled_short`), as the pass
+          before it.
+
+        A frame an earlier pass accepts is never verified again, so what it accepts is unchanged.
+        The refusals' attempts are kept in front."""
         p = self.params
-        if res.accepted or not allowed or not p.map_depth_fallback or p.verify_map_depth or not self._map_has_depth:
+        passes: list[tuple[LocalizationParams, str]] = [(replace(p, pooled_min_inliers=0), "")]
+        if allowed and p.map_depth_fallback and not p.verify_map_depth and self._map_has_depth:
+            passes.append((replace(passes[0][0], verify_map_depth=True,
+                                   gl_distinct_ratio=p.map_depth_fallback_distinct_ratio or p.gl_distinct_ratio),
+                           "verified again with the map's depth"))
+        if p.pooled_min_inliers > 0:
+            passes.append((replace(passes[-1][0], pooled_min_inliers=p.pooled_min_inliers),
+                           "verified again with weak candidates pooled"))
+        attempts: tuple[CandidateAttempt, ...] = ()
+        refusals: list[str] = []  # the reasons of the passes refused before the last one run
+        res: LocalizationResult | None = None
+        last_how = ""
+        for params, how in passes:
+            if res is not None:
+                if res.accepted or (params.pooled_min_inliers
+                                    and not any(_weak(a, params.pooled_min_inliers) for a in attempts)):
+                    break  # accepted, or no candidate that a weaker floor could let through
+                refusals.append(res.reason)
+                q.timer.ms.pop("total", None)  # the total is the whole query's, all passes
+            self.params = q.params = params
+            try:
+                res = verify()
+            finally:
+                self.params = q.params = p
+            attempts += res.attempts
+            last_how = how
+        assert res is not None
+        if not refusals:
             return res
-        self.params = q.params = replace(p, verify_map_depth=True,
-                                         gl_distinct_ratio=p.map_depth_fallback_distinct_ratio or p.gl_distinct_ratio)
-        q.timer.ms.pop("total", None)  # the total is the whole query's, both passes
-        try:
-            again = verify()
-        finally:
-            self.params = q.params = p
-        return replace(again, attempts=res.attempts + again.attempts,
-                       stop_reason=f"{again.stop_reason}; verified again with the map's depth ({res.reason})")
+        return replace(res, attempts=attempts, stop_reason=f"{res.stop_reason}; {last_how} ({'; '.join(refusals)})")
 
     def _retrieve(self, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64],
                   region: SearchRegion | None, timer: StageTimer, t_all: float
@@ -382,6 +431,7 @@ class VisualLocalizer:
         evidence: list[VerifiedPose] = []  # every candidate's PnP pose, for the distinctiveness test
         trusted = prior is not None and self._fresh(growth)
         gl_params = self._gl_params(trusted)
+        floor = gl_params.pnp.min_inliers  # a weaker candidate passes only pooled (see `_pooled_short`)
         budget = self.params.gl_time_budget_ms
         candidates_ms = 0.0  # verification time (match, PnP, joint refinement) of the candidates so far
         for k, node in enumerate(int(n) for n in order):
@@ -394,15 +444,20 @@ class VisualLocalizer:
                         f"{ahead:.0f} ms per candidate, after {k} of {len(order)} candidates")
                 break
             t_cand = self.clock()
-            res, att = self._verify_global(node, q, float(sims[node]), evidence, gl_params)
+            res, att = self._verify_global(node, q, float(sims[node]), evidence, self._pooled(gl_params))
             if res is None or not res.accepted or res.T_target_source is None:
                 attempts.append(att)
                 candidates_ms += (self.clock() - t_cand) * 1e3
                 continue
             T = self.map.T_map_camera[node] @ res.T_target_source
+            weak = res.n_inliers < floor
             joint = self._joint(node, T, q, [int(n) for n in order],
-                                self.params.refine.min_keyframes if self.params.gl_confirm else 1)
+                                self.params.refine.min_keyframes if self.params.gl_confirm or weak else 1)
             candidates_ms += (self.clock() - t_cand) * 1e3
+            short = self._pooled_short(res, joint, floor)
+            if short:
+                attempts.append(replace(att, reason=short))
+                continue
             if joint.accepted:
                 attempts.append(att)
                 best = (node, res, joint)
@@ -623,7 +678,7 @@ class VisualLocalizer:
         cands = self.local_candidates(prior, desc)
         growth = self._prior_growth_m(prior_age_s, fused_prior)
         gate_m = self._gate_m(growth, fused_prior)
-        return self._with_map_depth_fallback(
+        return self._with_second_passes(
             lambda: self._local_attempts(t_ns, q, cands, prior, (growth, gate_m, prior_cov), timer, t_all), q,
             allowed=self._fresh(growth))
 
@@ -637,8 +692,9 @@ class VisualLocalizer:
         attempts: list[CandidateAttempt] = []
         best: tuple[int, PnpResult, RefineResult | None] | None = None
         guided_first = self.params.ll_guided_min_matches > 0 and self._fresh(growth)
+        floor = self.params.pnp.min_inliers  # a weaker candidate passes only pooled (see `_pooled_short`)
         for node, sim in cands:
-            res, att = self._verify_local(node, q, sim, prior if guided_first else None)
+            res, att = self._verify_local(node, q, sim, prior if guided_first else None, self._pooled(self.params))
             if res is not None and res.accepted and res.T_target_source is not None:
                 T = self.map.T_map_camera[node] @ res.T_target_source
                 dt, dr = relative_pose_error(T, prior)
@@ -649,13 +705,14 @@ class VisualLocalizer:
                                            f"{dr:.0f} deg)")
                     attempts.append(att)
                     continue
+                weak = res.n_inliers < floor
                 close = (dt <= self.params.confirm_skip_within_m and dr <= self.params.confirm_skip_within_deg
-                         and self._fresh(growth))
+                         and self._fresh(growth) and not weak)
                 joint: RefineResult | None = None
                 if self.params.refine.enabled:
-                    need = self.params.refine.min_keyframes if self.params.ll_confirm and not close else 1
+                    need = self.params.refine.min_keyframes if (self.params.ll_confirm and not close) or weak else 1
                     joint = self._joint(node, T, q, [n for n, _ in cands], need)
-                    if not joint.accepted:
+                    if not joint.accepted and not weak:  # a weak one is refused below, saying so
                         attempts.append(CandidateAttempt(node, sim, att.matches, att.inliers,
                                                          f"joint refinement rejected: {joint.reason}"))
                         continue
@@ -665,6 +722,10 @@ class VisualLocalizer:
                         why = f"unconfirmed ({n_ok} consistent matches with a second keyframe)"
                         attempts.append(CandidateAttempt(node, sim, att.matches, att.inliers, why))
                         continue
+                short = self._pooled_short(res, joint, floor)
+                if short:
+                    attempts.append(replace(att, reason=short))
+                    continue
                 attempts.append(att)
                 best = (node, res, joint)
                 break

@@ -108,8 +108,8 @@ class FakeFusion:
     def add_odometry(self, o: Odometry) -> Fused | None:
         self.last = o
         self.odom[o.t_ns] = o.T_odom_base
-        if self.T_map_odom is None:
-            return Fused(o.t_ns, o.T_odom_base, np.eye(4), np.eye(6), False)
+        if self.T_map_odom is None:  # as the GTSAM fusion: no pose before its first fix
+            return None
         return Fused(o.t_ns, self.T_map_odom @ o.T_odom_base, self.T_map_odom, np.eye(6) * 0.01, True)
 
     def add_vloc(self, r: Result) -> Update:

@@ -89,6 +89,7 @@ def test_fusion_refusals_are_counted_and_named() -> None:
 
     core.odometry(Odometry(1 * MS, T_odom_base_at(1 * MS)), 0)
     core.vloc_result(fix(2 * MS))
+    core.odometry(Odometry(2 * MS + 1, T_odom_base_at(2 * MS + 1)), 0)  # fusion's first pose
     core.on_vloc = lambda r: Refusal()
     assert core.vloc_result(fix(3 * MS)) == []
     core.on_odometry = lambda o: None  # fusion refuses an odometry message

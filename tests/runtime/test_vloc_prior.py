@@ -7,9 +7,11 @@ import pytest
 
 from litevloc.base.geometry import relative_pose_error
 from litevloc.base.params.drift import T_BASE_CAMERA_OPTICAL
+from litevloc.base.params.fusion import FusionParams
 from litevloc.config.schema import RuntimeConfig
 from litevloc.hw.messages import Odometry, RgbdFrame
-from litevloc.runtime.service import Service
+from litevloc.pipelines.fusion.online import OnlineFusion
+from litevloc.runtime.service import Service, fusion_callables
 from litevloc.runtime.vloc_prior import OdometryHistory, prior_at
 from tests.runtime.fakes import MS, T_MAP_ODOM_TRUE, FakeFusion, FakePublisher, Result, T_odom_base_at, Update
 
@@ -81,18 +83,13 @@ def test_delayed_frame_gets_the_pose_at_its_stamp_and_its_true_age() -> None:
 
 
 def test_before_fusion_starts_the_first_fix_is_carried_by_odometry() -> None:
-    """Fusion waits for a second agreeing fix; meanwhile VLoc's prior is the first fix carried
-    to the frame's stamp by the odometry since, aged from the fix (not the pose where the robot
-    was, nor nothing); once fusion starts, fusion's prior again."""
-    fusion = FakeFusion()
-    fixes: list[int] = []
-
-    def add_vloc(r: Result) -> Update:  # the first fix only waits, as fusion's initialisation votes do
-        fixes.append(r.t_ns)
-        return fusion.add_vloc(r) if len(fixes) > 1 else Update(False, "awaiting_init")
-
-    svc = Service([], lambda f, p: None, fusion.add_odometry, add_vloc, FakePublisher(),
-                  RuntimeConfig(mode="sequential"))
+    """The real GTSAM fusion waits for a second agreeing fix and answers no odometry until
+    then; meanwhile VLoc's prior is the first fix carried to the frame's stamp by the odometry
+    since, aged from the fix (not the pose where the robot was, nor nothing); once fusion
+    starts, fusion's prior again."""
+    fusion = OnlineFusion(FusionParams(), T_BASE_CAMERA_OPTICAL)
+    on_odom, on_vloc = fusion_callables(fusion)
+    svc = Service([], lambda f, p: None, on_odom, on_vloc, FakePublisher(), RuntimeConfig(mode="sequential"))
     t_fix = 100 * MS
     for k in range(0, 201):  # odometry at 200 Hz for 1 s
         t = k * 5 * MS + 1
@@ -102,6 +99,7 @@ def test_before_fusion_starts_the_first_fix_is_carried_by_odometry() -> None:
         if k == 20:
             T = T_MAP_ODOM_TRUE @ T_odom_base_at(t_fix) @ T_BASE_CAMERA_OPTICAL
             svc._handle_result(Result(t_fix, True, "ok", T, np.eye(6) * 1e-4))
+    assert svc.core.last_fused is None  # fusion has not started
     t_frame = 800 * MS
     prior = svc.core.prior(t_frame)
     assert prior is not None and prior.cov_position is None and prior.age_s == pytest.approx(0.7)
@@ -109,7 +107,7 @@ def test_before_fusion_starts_the_first_fix_is_carried_by_odometry() -> None:
     dt, dr = relative_pose_error(prior.T_map_camera, truth)
     assert dt < 1e-3 and dr < 0.05
     assert relative_pose_error(prior.T_map_camera, T)[0] > 0.2  # the robot moved on since the fix
-    # a second fix starts fusion: its prior (with its covariance) from then on
+    # a second, agreeing fix starts fusion: its prior (with its covariance) from then on
     svc._handle_result(Result(900 * MS, True, "ok", T_MAP_ODOM_TRUE @ T_odom_base_at(900 * MS) @ T_BASE_CAMERA_OPTICAL,
                               np.eye(6) * 1e-4))
     svc._handle_odometry_item((0, Odometry(1006 * MS, T_odom_base_at(1006 * MS))))

@@ -48,7 +48,8 @@ def test_gl_verifies_and_confirms_with_map_depth_where_live_depth_is_missing() -
     assert len(on.keyframes) >= 2  # the second keyframe confirmed it through map-depth terms
     dt, dr = g.relative_pose_error(on.T_map_camera, T_true)
     assert dt < 0.01 and dr < 0.3
-    off = VisualLocalizer(m, replace(PARAMS, verify_map_depth=False), s.extract, s.describe, s.match)
+    off = VisualLocalizer(m, replace(PARAMS, verify_map_depth=False, map_depth_fallback=False), s.extract, s.describe,
+                          s.match)
     r = off.localize_global(0, IMG, depth, K)
     assert not r.accepted and all("too few matches with depth" in a.reason for a in r.attempts)
 
@@ -61,7 +62,7 @@ def test_the_map_depth_fallback_verifies_again_only_what_live_depth_refused() ->
     T_true = pose(0.7, 4.0)
     full = s.look(T_true, vpr_best=1)
     holes = _holes(full, 8)
-    loc = VisualLocalizer(m, replace(PARAMS, map_depth_fallback=True), s.extract, s.describe, s.match)
+    loc = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)  # the fallback is on by default
     for r in (loc.localize_global(0, IMG, holes, K), loc.localize_local(0, IMG, holes, K, pose(0.75))):
         assert r.accepted and "verified again with the map's depth" in r.stop_reason, (r.mode, r.reason)
         assert any("too few matches with depth" in a.reason for a in r.attempts)  # the first pass's refusal kept
@@ -71,7 +72,7 @@ def test_the_map_depth_fallback_verifies_again_only_what_live_depth_refused() ->
     assert not stale.accepted and "map's depth" not in stale.stop_reason
     r = loc.localize_global(0, IMG, full, K)
     assert r.accepted and "map's depth" not in r.stop_reason
-    off = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)
+    off = VisualLocalizer(m, replace(PARAMS, map_depth_fallback=False), s.extract, s.describe, s.match)
     assert not off.localize_global(0, IMG, holes, K).accepted
     assert not off.localize_local(0, IMG, holes, K, pose(0.75)).accepted
 

@@ -6,6 +6,8 @@ matcher that pairs equal descriptors is perfect; tests inject failures explicitl
 
 from __future__ import annotations
 
+import re
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -14,6 +16,7 @@ from numpy.typing import NDArray
 
 from litevloc.base import geometry as g
 from litevloc.base.params.localization import LocalizationParams, PnpParams
+from litevloc.pipelines.depth_lookup import depth_at
 from litevloc.pipelines.localization.query import Query, StageTimer
 from litevloc.pipelines.localization.tracking import TrackingState
 from litevloc.pipelines.localization.vloc import VisualLocalizer
@@ -526,3 +529,54 @@ def test_ll_pose_with_a_stale_fused_prior_is_held_until_repeated() -> None:
     r = loc.process(2 * sec, IMG, s.look(pose(1.5), 1), K, pose(1.6), prior_age_s=11.0)
     assert r.mode == "local" and r.accepted and "repeats the pose held 1.00 s" in r.stop_reason
     assert loc.process(3 * sec, IMG, s.look(pose(1.8), 2), K, pose(1.8), prior_age_s=0.2).accepted
+
+
+def _matching_25_with_depth(s: Scene, depth: NDArray[np.float32]) -> Callable[[Feats, NodeFeatures], tuple[
+        NDArray[np.int64], NDArray[np.int64]]]:
+    """The scene's matcher keeping its first 25 matches whose live keypoint has depth."""
+    def few(a: Feats, b: NodeFeatures) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        i, j = s.match(a, b)
+        z = depth_at(depth, np.asarray(a.keypoints, np.float64)[i], PARAMS.depth)
+        keep = np.nonzero(np.isfinite(z))[0][:25]
+        return i[keep], j[keep]
+    return few
+
+
+def test_a_weak_candidate_counts_only_when_its_keyframes_together_reach_the_inlier_floor() -> None:
+    """The matcher finds 25 matches per keyframe (a wide view angle), under PnP's floor of 30.
+    With `pooled_min_inliers` 20, a second pass lets the candidate reach the joint refinement,
+    whose keyframes together explain far more: GL and LL accept the true pose. Alone (a
+    one-keyframe map) it is refused, even beside an agreeing fresh prior, and never becomes a
+    provisional vote."""
+    m = make_map([0.0, 1.0, 2.0, 3.0])
+    s = Scene(m)
+    T_true = pose(1.3, 5.0)
+    depth = s.look(T_true, vpr_best=1)
+    few = _matching_25_with_depth(s, depth)
+    off = VisualLocalizer(m, replace(PARAMS, pooled_min_inliers=0), s.extract, s.describe, few)
+    assert not off.localize_global(0, IMG, depth, K).accepted
+    assert not off.localize_local(0, IMG, depth, K, prior_T_map_camera=pose(1.4, 5.0)).accepted
+    pooled = PARAMS  # pooled_min_inliers 20 by default
+    assert pooled.pooled_min_inliers == 20
+    on = VisualLocalizer(m, pooled, s.extract, s.describe, few)
+    for r in (on.localize_global(0, IMG, depth, K), on.localize_local(0, IMG, depth, K, pose(1.4, 5.0))):
+        assert r.accepted and len(r.keyframes) >= 2, r.reason
+        assert 20 <= r.attempts[-1].inliers < 30  # its own PnP: under the floor
+        assert "verified again with weak candidates pooled" in r.stop_reason
+        dt, dr = g.relative_pose_error(r.T_map_camera, T_true)
+        assert dt < 0.01 and dr < 0.5
+    # a frame the strong candidates localize is localized by them alone: the same pose either way
+    full = [VisualLocalizer(m, p, s.extract, s.describe, s.match).localize_global(0, IMG, depth, K)
+            for p in (replace(PARAMS, pooled_min_inliers=0), pooled)]
+    assert all(r.accepted for r in full) and np.array_equal(full[0].T_map_camera, full[1].T_map_camera)
+    assert "pooled" not in full[1].stop_reason
+    m1 = make_map([0.0])
+    s1 = Scene(m1)
+    depth1 = s1.look(pose(0.3, 5.0), vpr_best=0)
+    alone = VisualLocalizer(m1, pooled, s1.extract, s1.describe, _matching_25_with_depth(s1, depth1))
+    for r in (alone.localize_global(0, IMG, depth1, K, pose(0.4, 3.0), prior_age_s=0.1),
+              alone.localize_local(0, IMG, depth1, K, pose(0.4, 3.0), prior_age_s=0.1, fused_prior=True)):
+        assert not r.accepted and r.provisional is None
+        assert re.match(r"too few inliers \(2\d < 30; pooled", r.attempts[-1].reason), r.attempts
+    with pytest.raises(ValueError, match="pooled_min_inliers"):
+        LocalizationParams(pooled_min_inliers=2)
