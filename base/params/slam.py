@@ -137,7 +137,7 @@ class SlamGraphParams:
     # both bounds also grow by this many of the chain's own sigmas over the stretch (its edges' noise as a random walk)
     gate_sigmas: float = 3.0
     # the visual edges' covariance is multiplied by this in the optimisation (the refinement understates their error)
-    visual_covariance_scale: float = 1.0
+    visual_covariance_scale: float = 4.0
 
     def __post_init__(self) -> None:
         if not (0 < self.inlier_probability < 1) or not (0 < self.kept_weight < 1):

@@ -111,7 +111,12 @@ def test_odometry_gap_is_bridged_by_visual_odometry(scene: Scene) -> None:
 
 
 def test_camera_blackout_is_bridged_by_odometry(scene: Scene) -> None:
-    _, res = run_session(scene, drop_frames_s=(5.0, 10.0))
+    # this scene's visual edges err as their covariance says (no refinement bias to correct), so the
+    # visual covariance is not inflated here: the test is about the bridge, the bound about the scene
+    cfg = load_config("default")
+    cfg = dataclasses.replace(cfg, slam=dataclasses.replace(
+        cfg.slam, graph=dataclasses.replace(cfg.slam.graph, visual_covariance_scale=1.0)))
+    _, res = run_session(scene, cfg=cfg, drop_frames_s=(5.0, 10.0))
     rep = res.report
     assert rep["chains"] == 1 and rep["keyframes_left_out"] == 0 and rep["loops"]["kept"] > 0
     t = [kf.t_ns * 1e-9 for kf in res.keyframes]
