@@ -15,7 +15,7 @@ class GoalParams:
     # keyframes retrieved by VPR for a goal image and verified
     top_k: int = 5
     # essential-matrix inliers that verify a goal image's place
-    min_inliers: int = 40
+    min_inliers: int = 30
     # essential-matrix RANSAC threshold (pixels)
     ransac_px: float = 2.0
     # RANSAC seed

@@ -68,7 +68,7 @@ class LocalPlannerParams:
     # remembered obstacle points farther from the robot than this are dropped (m)
     memory_radius_m: float = 2.5
     # remembered obstacle points seen more than this much odometry ago are dropped (m; 0: no memory)
-    memory_travel_m: float = 1.5
+    memory_travel_m: float = 2.5
     # a radian of net heading change since a sighting counts as this many metres of odometry (m/rad)
     memory_m_per_rad: float = 0.1
     # obstacle points are thinned to one per voxel of this size (m)

@@ -9,6 +9,7 @@ from litevloc.base.params.sim_navigation import LocalPlannerParams
 from litevloc.sim.local_planner import LocalPlanner, arc_points, obstacle_points
 
 P = SimParams()
+LP = LocalPlannerParams()
 K = P.intrinsics.K
 T_BC = P.T_base_camera
 
@@ -107,17 +108,35 @@ def test_memory_outlasts_turning_in_place_and_ages_with_net_turning_and_travel()
         lp.command(np.array([4.0, 0.0]), empty, K, T_BC, T_odom_base=_yawed(yaw))
     pts = lp._remember(np.zeros((0, 2)), np.eye(4))
     assert len(pts) == n0 and np.median(pts[:, 0]) > 0.5  # still ahead of the (unturned) robot
-    for yaw in range(10, 361, 10):  # one full turn to the left: 2 pi x 0.1 m per rad < 1.5 m
+    for yaw in range(10, 361, 10):  # one full turn to the left: 2 pi x memory_m_per_rad < the budget
         lp.command(np.array([4.0, 0.0]), empty, K, T_BC, T_odom_base=_yawed(yaw))
     assert len(lp._remember(np.zeros((0, 2)), np.eye(4))) == n0
-    for yaw in range(370, 361 * 3, 10):  # two more: 6 pi x 0.1 m per rad > the 1.5 m budget
+    turns = int(np.ceil(LP.memory_travel_m / (2 * np.pi * LP.memory_m_per_rad))) + 1  # their age > the budget
+    for yaw in range(390, 360 * turns + 1, 30):
         lp.command(np.array([4.0, 0.0]), empty, K, T_BC, T_odom_base=_yawed(yaw))
     assert len(lp._remember(np.zeros((0, 2)), np.eye(4))) == 0
     lp2 = LocalPlanner()
     lp2.command(np.array([4.0, 0.0]), wall_depth(1.0, x_from=0.0), K, T_BC, T_odom_base=np.eye(4))
-    for x in np.arange(0.1, 1.7, 0.1):  # drive 1.6 m back: beyond the travel budget
+    back = LP.memory_travel_m + 0.1  # drive back beyond the travel budget
+    for x in np.arange(0.1, back + 0.05, 0.1):
         lp2.command(np.array([4.0, 0.0]), empty, K, T_BC, T_odom_base=_yawed(0.0, -x))
-    assert len(lp2._remember(np.zeros((0, 2)), _yawed(0.0, -1.6))) == 0
+    assert len(lp2._remember(np.zeros((0, 2)), _yawed(0.0, -back))) == 0
+
+
+def test_an_obstacle_seen_within_the_memory_radius_is_still_known_on_arrival() -> None:
+    """A door jamb seen once 2.2 m ahead (then at the image edge, or in a depth hole) is still
+    remembered when the robot has driven up to it: the travel budget covers the memory radius.
+    With a budget shorter than the distance, it was forgotten on the way and hit."""
+    assert LP.memory_travel_m >= LP.memory_radius_m
+    lp = LocalPlanner()
+    empty = np.full((P.height, P.width), np.nan, np.float32)
+    lp.command(np.array([4.0, 0.0]), wall_depth(2.2, x_from=0.0), K, T_BC, T_odom_base=np.eye(4))
+    n0 = len(lp._remember(np.zeros((0, 2)), np.eye(4)))
+    assert n0 > 10
+    for x in np.arange(0.1, 1.85, 0.1):  # 1.8 m driven towards it, blind
+        lp.command(np.array([4.0, 0.0]), empty, K, T_BC, T_odom_base=_yawed(0.0, x))
+    pts = lp._remember(np.zeros((0, 2)), _yawed(0.0, 1.8))
+    assert len(pts) == n0 and np.median(pts[:, 0]) < 0.8  # just ahead of the robot now
 
 
 def test_bumper_contacts_block_arcs_the_camera_cannot_see() -> None:
