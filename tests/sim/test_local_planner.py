@@ -117,10 +117,18 @@ def test_memory_outlasts_turning_in_place_and_ages_with_net_turning_and_travel()
     assert len(lp._remember(np.zeros((0, 2)), np.eye(4))) == 0
     lp2 = LocalPlanner()
     lp2.command(np.array([4.0, 0.0]), wall_depth(1.0, x_from=0.0), K, T_BC, T_odom_base=np.eye(4))
-    back = LP.memory_travel_m + 0.1  # drive back beyond the travel budget
-    for x in np.arange(0.1, back + 0.05, 0.1):
-        lp2.command(np.array([4.0, 0.0]), empty, K, T_BC, T_odom_base=_yawed(0.0, -x))
-    assert len(lp2._remember(np.zeros((0, 2)), _yawed(0.0, -back))) == 0
+    # drive back and forth sideways, staying within the memory radius of the wall: the travel
+    # budget alone forgets it, once the metres driven exceed it
+    steps = [0.1 * k for k in (*range(1, 6), *range(4, -6, -1), *range(-4, 1))] * 2  # 4 m driven in 0.1 m steps
+    n = int(np.ceil((LP.memory_travel_m + 0.1) / 0.1))
+    assert n < len(steps)
+    for k, y in enumerate(steps[:n]):
+        T = np.eye(4)
+        T[1, 3] = y
+        lp2.command(np.array([4.0, 0.0]), empty, K, T_BC, T_odom_base=T)
+        if k == n - 3:
+            assert len(lp2._remember(np.zeros((0, 2)), T)) > 10  # still known just under the budget
+    assert len(lp2._remember(np.zeros((0, 2)), T)) == 0
 
 
 def test_an_obstacle_seen_within_the_memory_radius_is_still_known_on_arrival() -> None:
