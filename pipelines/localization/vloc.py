@@ -67,7 +67,7 @@ from litevloc.pipelines.localization.results import (
 )
 from litevloc.pipelines.localization.search_region import SearchRegion, nodes_within
 from litevloc.pipelines.localization.tracking import TrackingState, Transition
-from litevloc.pipelines.pnp import PnpResult
+from litevloc.pipelines.pnp import PnpResult, Refusal
 from litevloc.pipelines.topomap.types import FeatureSet, TopoMap
 
 LL_COST_WINDOW = 50  # LL queries whose median wall time sets the bound on a recovering GL query
@@ -81,8 +81,8 @@ _CLOCK_JITTER_S = 1e-3  # timestamps that differ by less than this are the same 
 def _weak(attempt: CandidateAttempt, floor: int) -> bool:
     """Whether a refused candidate had `floor` inliers (or matches, where too few matches stopped it
     before PnP): one that pooling over keyframes could still let through."""
-    return ((attempt.reason.startswith("too few inliers") and attempt.inliers >= floor)
-            or (attempt.reason.startswith("too few matches (") and attempt.matches >= floor))
+    return ((attempt.refusal is Refusal.INLIERS and attempt.inliers >= floor)
+            or (attempt.refusal is Refusal.MATCHES and attempt.matches >= floor))
 
 
 class VisualLocalizer:
@@ -120,11 +120,11 @@ class VisualLocalizer:
                 params: LocalizationParams | None = None) -> tuple[PnpResult | None, CandidateAttempt]:
         """Match and PnP with `node` under `params` (default: the localizer's)."""
         q.matches(node)  # timed as "match" once; relative_pose then reads the cached matches
-        res, n_matches, reason = relative_pose(
+        res, n_matches, reason, refusal = relative_pose(
             q.feats, q.depth, q.K, self.map.features[node], self.map.K[node], lambda a, b: q.matches(node),
             params or self.params, q.timer, self.map.keypoint_depth(node),
         )
-        return res, CandidateAttempt(node, similarity, n_matches, res.n_inliers if res else 0, reason)
+        return res, CandidateAttempt(node, similarity, n_matches, res.n_inliers if res else 0, reason, refusal)
 
     def _verify_local(self, node: int, q: Query, similarity: float, guided_prior: NDArray[np.float64] | None,
                       params: LocalizationParams | None = None) -> tuple[PnpResult | None, CandidateAttempt]:
@@ -147,7 +147,7 @@ class VisualLocalizer:
         if verified is not None and res is not None and res.T_target_source is not None:
             verified.append(VerifiedPose(node, self.map.T_map_camera[node] @ res.T_target_source, res.n_inliers))
         flat = "" if res is None or not res.accepted else self._flat_support(node, res, q)
-        return (None, replace(att, reason=flat)) if flat else (res, att)
+        return (None, replace(att, reason=flat, refusal=Refusal.LATER)) if flat else (res, att)
 
     def support_height_spread(self, node: int, res: PnpResult, q: Query) -> float:
         """Extent (m) along the map's up vector of the points that support a verified pose
@@ -456,7 +456,7 @@ class VisualLocalizer:
             candidates_ms += (self.clock() - t_cand) * 1e3
             short = self._pooled_short(res, joint, floor)
             if short:
-                attempts.append(replace(att, reason=short))
+                attempts.append(replace(att, reason=short, refusal=Refusal.INLIERS))
                 continue
             if joint.accepted:
                 attempts.append(att)
@@ -470,7 +470,7 @@ class VisualLocalizer:
             single = self._single_keyframe(node, joint)
             if single is not None and self._agrees_with_prior(single, prior, growth, prior_cov):
                 attempts.append(CandidateAttempt(node, att.similarity, att.matches, att.inliers,
-                                                 "one keyframe only; agrees with the prior"))
+                                                 "one keyframe only; agrees with the prior", Refusal.NONE))
                 best = (node, res, replace(joint, accepted=True, reason="ok"))
                 stop = f"candidate {k + 1} of {len(order)}: one keyframe, agrees with the prior"
                 break
@@ -592,8 +592,8 @@ class VisualLocalizer:
         if pairs is None:
             return False
         t0 = self.clock()
-        res, _, _ = relative_pose(q.feats, q.depth, q.K, self.map.features[node], self.map.K[node],
-                                  lambda a, b: pairs, self.params, None, self.map.keypoint_depth(node))
+        res, _, _, _ = relative_pose(q.feats, q.depth, q.K, self.map.features[node], self.map.K[node],
+                                     lambda a, b: pairs, self.params, None, self.map.keypoint_depth(node))
         q.timer.add("distinct_screen", t0)
         if res is None or not res.accepted or res.T_target_source is None:
             return False
@@ -724,7 +724,7 @@ class VisualLocalizer:
                         continue
                 short = self._pooled_short(res, joint, floor)
                 if short:
-                    attempts.append(replace(att, reason=short))
+                    attempts.append(replace(att, reason=short, refusal=Refusal.INLIERS))
                     continue
                 attempts.append(att)
                 best = (node, res, joint)

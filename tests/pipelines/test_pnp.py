@@ -7,7 +7,7 @@ import pytest
 
 from litevloc.base import geometry as g
 from litevloc.base.params.localization import PnpParams
-from litevloc.pipelines.pnp import solve_pnp
+from litevloc.pipelines.pnp import Refusal, solve_pnp
 
 K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
 
@@ -44,10 +44,14 @@ def test_deterministic_given_seed() -> None:
 def test_acceptance_gates_reject() -> None:
     pts, pix, _, _ = scene(n=40, outlier_frac=0.0)
     res = solve_pnp(pts, pix, K, PnpParams(min_inliers=50))
-    assert not res.accepted and "too few" in res.reason
+    assert not res.accepted and "too few" in res.reason and res.refusal is Refusal.DEPTH
+    pts, pix, _, _ = scene(n=60, outlier_frac=0.5)
+    res = solve_pnp(pts, pix, K, PnpParams(min_inliers=40, min_inlier_ratio=0.0))
+    assert not res.accepted and res.refusal is Refusal.INLIERS and 25 <= res.n_inliers < 40, res.reason
     pts, pix, _, _ = scene(n=300, outlier_frac=0.85, seed=2)
     res = solve_pnp(pts, pix, K, PnpParams(min_inliers=10, min_inlier_ratio=0.3))
-    assert not res.accepted and "ratio" in res.reason
+    assert not res.accepted and "ratio" in res.reason and res.refusal is Refusal.INLIER_RATIO
+    assert solve_pnp(*scene()[:2], K, PnpParams()).refusal is Refusal.NONE
     rng = np.random.default_rng(1)
     junk = solve_pnp(rng.uniform(1, 5, (200, 3)), rng.uniform(0, 640, (200, 2)), K, PnpParams())
     assert not junk.accepted
