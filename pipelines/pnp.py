@@ -16,7 +16,7 @@ rotation vector second. When the source is the live camera this is the covarianc
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import Enum
 from typing import Any
 
@@ -129,9 +129,12 @@ def pose_covariance(
     return cov
 
 
+PnpFits = dict[tuple[bytes, PnpParams], PnpResult]  # RANSAC fits before the gates, by problem (see `solve_pnp`)
+
+
 def solve_pnp(
     points_source: NDArray[np.floating], pixels_target: NDArray[np.floating], K_target: NDArray[np.floating],
-    params: PnpParams = PnpParams(),
+    params: PnpParams = PnpParams(), fits: PnpFits | None = None,
 ) -> PnpResult:
     """Pose of the target camera from source-frame 3D points and their target pixels.
 
@@ -139,6 +142,9 @@ def solve_pnp(
         points_source: (N, 3) metres in the source frame (e.g. the live camera, from depth).
         pixels_target: (N, 2) pixels in the target image (same order).
         K_target: 3x3 intrinsics of the target image.
+        fits: where given, the fit (RANSAC, refinement, inliers, covariance) of a problem seen
+            before with the same points, pixels, intrinsics and fitting parameters is reused;
+            only the acceptance gates (`min_inliers`, ratio, median error) are applied again.
     Returns:
         PnpResult; `T_target_source` is set whenever RANSAC found a model, `accepted` only
         if inlier count, inlier ratio and median reprojection error pass the gates.
@@ -154,6 +160,20 @@ def solve_pnp(
         raise ValueError("points and pixels must be finite (filter invalid depth first)")
     if n < max(p_min := params.min_inliers, 4):
         return PnpResult(False, f"too few matches with depth ({n} < {p_min})", n_matches=n, refusal=Refusal.DEPTH)
+    if fits is None:
+        return _gated(_fit(obj, img, K, params), params)
+    # the gates do not enter the fit: problems that differ only in them share it
+    key = (obj.tobytes() + img.tobytes() + K.tobytes(),
+           replace(params, min_inliers=4, min_inlier_ratio=0.0, max_median_reprojection_px=float("inf")))
+    if key not in fits:
+        fits[key] = _fit(obj, img, K, params)
+    return _gated(fits[key], params)
+
+
+def _fit(obj: NDArray[np.float64], img: NDArray[np.float64], K: NDArray[np.float64], params: PnpParams) -> PnpResult:
+    """RANSAC + refinement + re-scored inliers and covariance; accepted (no gate applied yet)
+    when RANSAC found a pose."""
+    n = len(obj)
     try:
         ok, rvec, tvec, inl = _ransac(obj, img, K, params)
     except cv2.error as exc:
@@ -174,16 +194,24 @@ def solve_pnp(
     inliers = np.nonzero(err <= params.reprojection_px)[0]  # re-scored with the refined pose
     med = float(np.median(err[inliers])) if len(inliers) else float("inf")
     cov = pose_covariance(obj[inliers], img[inliers], K, T, params) if len(inliers) >= 6 else None
-    ratio = len(inliers) / n
+    return PnpResult(True, "ok", T, inliers, n, med, cov, idx)
+
+
+def _gated(fit: PnpResult, params: PnpParams) -> PnpResult:
+    """`fit` through the acceptance gates of `params` (inlier count, ratio, median error)."""
+    if not fit.accepted:
+        return fit
+    k, n, med = fit.n_inliers, fit.n_matches, fit.median_reprojection_px
+    ratio = k / n
     refusal, reason = Refusal.NONE, "ok"
-    if len(inliers) < params.min_inliers:
-        refusal, reason = Refusal.INLIERS, f"too few inliers ({len(inliers)} < {params.min_inliers})"
+    if k < params.min_inliers:
+        refusal, reason = Refusal.INLIERS, f"too few inliers ({k} < {params.min_inliers})"
     elif ratio < params.min_inlier_ratio:
         refusal, reason = Refusal.INLIER_RATIO, f"inlier ratio too low ({ratio:.2f} < {params.min_inlier_ratio})"
     elif med > params.max_median_reprojection_px:
         refusal, reason = (Refusal.REPROJECTION,
                            f"median reprojection error too high ({med:.2f} px > {params.max_median_reprojection_px})")
-    return PnpResult(refusal is Refusal.NONE, reason, T, inliers, n, med, cov, idx, refusal)
+    return replace(fit, accepted=refusal is Refusal.NONE, reason=reason, refusal=refusal)
 
 
 def inverse_result(res: PnpResult) -> PnpResult:

@@ -122,7 +122,7 @@ class VisualLocalizer:
         q.matches(node)  # timed as "match" once; relative_pose then reads the cached matches
         res, n_matches, reason, refusal = relative_pose(
             q.feats, q.depth, q.K, self.map.features[node], self.map.K[node], lambda a, b: q.matches(node),
-            params or self.params, q.timer, self.map.keypoint_depth(node),
+            params or self.params, q.timer, self.map.keypoint_depth(node), q.pnp_fits,
         )
         return res, CandidateAttempt(node, similarity, n_matches, res.n_inliers if res else 0, reason, refusal)
 

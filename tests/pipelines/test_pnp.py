@@ -89,3 +89,19 @@ def test_result_keeps_ransacs_consensus_set_apart_from_the_rescored_inliers() ->
     assert not np.array_equal(res.ransac_inliers, res.inliers)  # here the refined pose re-scores others
     assert np.count_nonzero(res.ransac_inliers < n_out) <= 2  # the gross outliers stay out
     assert np.array_equal(inverse_result(res).ransac_inliers, res.ransac_inliers)
+
+
+def test_a_fit_is_reused_where_only_the_gates_differ() -> None:
+    """`fits`: a problem solved again with another inlier floor reuses the fit (RANSAC does not see
+    the gates) and gives what a fresh solve gives; other points are a new problem."""
+    pts, pix, _, _ = scene(n=60, outlier_frac=0.5)
+    fits: dict = {}  # type: ignore[type-arg]
+    strict, loose = PnpParams(min_inliers=40, min_inlier_ratio=0.0), PnpParams(min_inliers=20, min_inlier_ratio=0.0)
+    a = solve_pnp(pts, pix, K, strict, fits)
+    b = solve_pnp(pts, pix, K, loose, fits)
+    assert len(fits) == 1
+    assert (a.accepted, a.refusal, b.accepted, b.refusal) == (False, Refusal.INLIERS, True, Refusal.NONE)
+    fresh = solve_pnp(pts, pix, K, loose)
+    assert np.array_equal(b.T_target_source, fresh.T_target_source) and np.array_equal(b.inliers, fresh.inliers)
+    solve_pnp(pts[1:], pix[1:], K, loose, fits)
+    assert len(fits) == 2
