@@ -139,7 +139,7 @@ def run_reloc(
                 raise ValueError(f"query frame {frame.index} has no depth")
             t0 = time.perf_counter()
             feats = extractor.extract(frame.color)
-            res, _, _ = relative_pose(feats, frame.depth, frame.K, ref_feats[ref], topomap.K[ref], match,
+            res, _, _, _ = relative_pose(feats, frame.depth, frame.K, ref_feats[ref], topomap.K[ref], match,
                                       cfg.localization)
             times.append((time.perf_counter() - t0) * 1e3)
             T_ref_gt = invert(topomap.T_map_camera[ref]) @ T_gt

@@ -16,7 +16,8 @@ rotation vector second. When the source is the live camera this is the covarianc
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from enum import Enum
 from typing import Any
 
 import cv2
@@ -27,6 +28,20 @@ from litevloc.base.geometry import invert, make_T, project, so3_exp
 from litevloc.base.params.localization import PnpParams
 
 _FLAGS = {"p3p": cv2.SOLVEPNP_P3P, "ap3p": cv2.SOLVEPNP_AP3P, "sqpnp": cv2.SOLVEPNP_SQPNP, "epnp": cv2.SOLVEPNP_EPNP}
+
+
+class Refusal(Enum):
+    """Why a candidate pose was refused, by kind (the result's reason says it in words, with numbers)."""
+
+    NONE = "none"  # accepted
+    MATCHES = "matches"  # the matcher found fewer matches than PnP could accept (PnP not run)
+    DEPTH = "depth"  # too few matches with depth for PnP
+    NO_POSE = "no pose"  # PnP / RANSAC found no pose
+    INLIERS = "inliers"  # fewer inliers than the floor
+    INLIER_RATIO = "inlier ratio"  # too small a share of the matches are inliers
+    REPROJECTION = "reprojection"  # median reprojection error over the gate
+    DISTANCE = "distance"  # the pose lies implausibly far from its reference keyframe
+    LATER = "later check"  # PnP passed; a later check refused it (floor plane, prior gate, second keyframe)
 
 
 @dataclass(frozen=True, eq=False)
@@ -42,6 +57,7 @@ class PnpResult:
     covariance: NDArray[np.float64] | None = None  # 6x6, right perturbation of T_target_source, (t, rotvec)
     # RANSAC's consensus set (match indices, sorted), before the refined pose re-scores `inliers`
     ransac_inliers: NDArray[np.intp] = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
+    refusal: Refusal = Refusal.NONE  # which gate refused it (NONE when accepted)
 
     @property
     def n_inliers(self) -> int:
@@ -113,9 +129,12 @@ def pose_covariance(
     return cov
 
 
+PnpFits = dict[tuple[bytes, PnpParams], PnpResult]  # RANSAC fits before the gates, by problem (see `solve_pnp`)
+
+
 def solve_pnp(
     points_source: NDArray[np.floating], pixels_target: NDArray[np.floating], K_target: NDArray[np.floating],
-    params: PnpParams = PnpParams(),
+    params: PnpParams = PnpParams(), fits: PnpFits | None = None,
 ) -> PnpResult:
     """Pose of the target camera from source-frame 3D points and their target pixels.
 
@@ -123,6 +142,9 @@ def solve_pnp(
         points_source: (N, 3) metres in the source frame (e.g. the live camera, from depth).
         pixels_target: (N, 2) pixels in the target image (same order).
         K_target: 3x3 intrinsics of the target image.
+        fits: where given, the fit (RANSAC, refinement, inliers, covariance) of a problem seen
+            before with the same points, pixels, intrinsics and fitting parameters is reused;
+            only the acceptance gates (`min_inliers`, ratio, median error) are applied again.
     Returns:
         PnpResult; `T_target_source` is set whenever RANSAC found a model, `accepted` only
         if inlier count, inlier ratio and median reprojection error pass the gates.
@@ -137,14 +159,29 @@ def solve_pnp(
     if not np.all(finite):
         raise ValueError("points and pixels must be finite (filter invalid depth first)")
     if n < max(p_min := params.min_inliers, 4):
-        return PnpResult(False, f"too few matches with depth ({n} < {p_min})", n_matches=n)
+        return PnpResult(False, f"too few matches with depth ({n} < {p_min})", n_matches=n, refusal=Refusal.DEPTH)
+    if fits is None:
+        return _gated(_fit(obj, img, K, params), params)
+    # the gates do not enter the fit: problems that differ only in them share it
+    key = (obj.tobytes() + img.tobytes() + K.tobytes(),
+           replace(params, min_inliers=4, min_inlier_ratio=0.0, max_median_reprojection_px=float("inf")))
+    if key not in fits:
+        fits[key] = _fit(obj, img, K, params)
+    return _gated(fits[key], params)
+
+
+def _fit(obj: NDArray[np.float64], img: NDArray[np.float64], K: NDArray[np.float64], params: PnpParams) -> PnpResult:
+    """RANSAC + refinement + re-scored inliers and covariance; accepted (no gate applied yet)
+    when RANSAC found a pose."""
+    n = len(obj)
     try:
         ok, rvec, tvec, inl = _ransac(obj, img, K, params)
     except cv2.error as exc:
-        return PnpResult(False, f"PnP failed: {exc.err}", n_matches=n)
+        return PnpResult(False, f"PnP failed: {exc.err}", n_matches=n, refusal=Refusal.NO_POSE)
     if not ok or inl is None or len(inl) < 4:
         consensus = np.zeros(0, np.intp) if inl is None else np.sort(np.asarray(inl, dtype=np.intp).reshape(-1))
-        return PnpResult(False, "RANSAC found no pose", n_matches=n, ransac_inliers=consensus)
+        return PnpResult(False, "RANSAC found no pose", n_matches=n, ransac_inliers=consensus,
+                         refusal=Refusal.NO_POSE)
     idx = np.sort(np.asarray(inl, dtype=np.intp).reshape(-1))
     if params.refine_lm:
         rvec, tvec = cv2.solvePnPRefineLM(obj[idx], img[idx], K, None, rvec, tvec)
@@ -157,16 +194,24 @@ def solve_pnp(
     inliers = np.nonzero(err <= params.reprojection_px)[0]  # re-scored with the refined pose
     med = float(np.median(err[inliers])) if len(inliers) else float("inf")
     cov = pose_covariance(obj[inliers], img[inliers], K, T, params) if len(inliers) >= 6 else None
-    ratio = len(inliers) / n
-    if len(inliers) < params.min_inliers:
-        reason = f"too few inliers ({len(inliers)} < {params.min_inliers})"
+    return PnpResult(True, "ok", T, inliers, n, med, cov, idx)
+
+
+def _gated(fit: PnpResult, params: PnpParams) -> PnpResult:
+    """`fit` through the acceptance gates of `params` (inlier count, ratio, median error)."""
+    if not fit.accepted:
+        return fit
+    k, n, med = fit.n_inliers, fit.n_matches, fit.median_reprojection_px
+    ratio = k / n
+    refusal, reason = Refusal.NONE, "ok"
+    if k < params.min_inliers:
+        refusal, reason = Refusal.INLIERS, f"too few inliers ({k} < {params.min_inliers})"
     elif ratio < params.min_inlier_ratio:
-        reason = f"inlier ratio too low ({ratio:.2f} < {params.min_inlier_ratio})"
+        refusal, reason = Refusal.INLIER_RATIO, f"inlier ratio too low ({ratio:.2f} < {params.min_inlier_ratio})"
     elif med > params.max_median_reprojection_px:
-        reason = f"median reprojection error too high ({med:.2f} px > {params.max_median_reprojection_px})"
-    else:
-        reason = "ok"
-    return PnpResult(reason == "ok", reason, T, inliers, n, med, cov, idx)
+        refusal, reason = (Refusal.REPROJECTION,
+                           f"median reprojection error too high ({med:.2f} px > {params.max_median_reprojection_px})")
+    return replace(fit, accepted=refusal is Refusal.NONE, reason=reason, refusal=refusal)
 
 
 def inverse_result(res: PnpResult) -> PnpResult:
@@ -184,4 +229,4 @@ def inverse_result(res: PnpResult) -> PnpResult:
         ad = np.block([[R, tx @ R], [np.zeros((3, 3)), R]])
         cov = ad @ res.covariance @ ad.T
     return PnpResult(res.accepted, res.reason, invert(A), res.inliers, res.n_matches, res.median_reprojection_px, cov,
-                     res.ransac_inliers)
+                     res.ransac_inliers, res.refusal)

@@ -13,7 +13,7 @@ from litevloc.base.geometry import backproject_pixels
 from litevloc.base.params.localization import LocalizationParams
 from litevloc.pipelines.depth_lookup import depth_at
 from litevloc.pipelines.localization.refine import KeyframeObservations, guided_matches
-from litevloc.pipelines.pnp import PnpResult, inverse_result, solve_pnp
+from litevloc.pipelines.pnp import PnpFits, PnpResult, Refusal, inverse_result, solve_pnp
 from litevloc.pipelines.topomap.types import FeatureSet, TopoMap
 
 MatchFn = Callable[[FeatureSet, FeatureSet], tuple[NDArray[np.int64], NDArray[np.int64]]]
@@ -36,8 +36,8 @@ class StageTimer:
 def relative_pose(
     live_feats: FeatureSet, live_depth: NDArray[np.float32], K_live: NDArray[np.float64],
     ref_feats: FeatureSet, K_ref: NDArray[np.float64], match: MatchFn, params: LocalizationParams,
-    timer: StageTimer | None = None, ref_depth: NDArray[np.float32] | None = None,
-) -> tuple[PnpResult | None, int, str]:
+    timer: StageTimer | None = None, ref_depth: NDArray[np.float32] | None = None, fits: PnpFits | None = None,
+) -> tuple[PnpResult | None, int, str, Refusal]:
     """Pose of the live camera relative to a reference image: `T_ref_live` in the result.
 
     Matches live vs reference features, lifts the matched live keypoints with the live
@@ -45,8 +45,9 @@ def relative_pose(
     acceptance gates plus the distance gate. With `ref_depth` ((N_ref,) metres at each
     reference keypoint, NaN = none: the map's depth) and `params.verify_map_depth`, it also
     solves PnP from the reference points into the live pixels and keeps the direction with
-    more inliers (see `LocalizationParams.verify_map_depth`). Returns (PnpResult or None if
-    too few matches, number of matches, reason).
+    more inliers (see `LocalizationParams.verify_map_depth`). `fits`: PnP fits to reuse (see
+    `solve_pnp`; a query verified again reuses its fits). Returns (PnpResult or None if
+    too few matches, number of matches, reason, which gate refused it: `Refusal.NONE` if none).
     """
     timer = timer if timer is not None else StageTimer()
     add = timer.add
@@ -54,7 +55,7 @@ def relative_pose(
     i_live, i_ref = match(live_feats, ref_feats)
     add("match", t0)
     if len(i_live) < max(params.min_matches, params.pnp.min_inliers):  # cheap rejection: PnP cannot pass
-        return None, len(i_live), f"too few matches ({len(i_live)})"
+        return None, len(i_live), f"too few matches ({len(i_live)})", Refusal.MATCHES
     t0 = timer.now()
     uv = np.asarray(live_feats.keypoints, dtype=np.float64)[i_live]
     kp_ref = np.asarray(ref_feats.keypoints, dtype=np.float64)[i_ref]
@@ -65,15 +66,15 @@ def relative_pose(
     ok_ref = np.isfinite(z_ref) & (z_ref > 0)
     add("lift", t0)
     if max(ok.sum(), ok_ref.sum()) < params.min_matches:
-        return None, len(i_live), f"too few matches with depth ({max(ok.sum(), ok_ref.sum())})"
+        return None, len(i_live), f"too few matches with depth ({max(ok.sum(), ok_ref.sum())})", Refusal.DEPTH
     t0 = timer.now()
     res: PnpResult | None = None
     if ok.sum() >= params.min_matches:
         pts = backproject_pixels(K_live, uv[ok], z[ok].astype(np.float64))
-        res = solve_pnp(pts, kp_ref[ok], K_ref, params.pnp)
+        res = solve_pnp(pts, kp_ref[ok], K_ref, params.pnp, fits)
     if ok_ref.sum() >= params.min_matches:
         rev = inverse_result(solve_pnp(backproject_pixels(K_ref, kp_ref[ok_ref], z_ref[ok_ref]), uv[ok_ref],
-                                       K_live, params.pnp))
+                                       K_live, params.pnp, fits))
         if res is None or (rev.accepted, rev.n_inliers) > (res.accepted, res.n_inliers):
             res = rev
     add("pnp", t0)
@@ -84,8 +85,8 @@ def relative_pose(
         if dist > params.max_distance_to_node_m:
             reason = f"pose {dist:.1f} m from its reference node (> {params.max_distance_to_node_m})"
             res = PnpResult(False, reason, res.T_target_source, res.inliers, res.n_matches,
-                            res.median_reprojection_px, res.covariance)
-    return res, len(i_live), res.reason
+                            res.median_reprojection_px, res.covariance, refusal=Refusal.DISTANCE)
+    return res, len(i_live), res.reason, res.refusal
 
 
 def reprojects(pts: NDArray[np.float64], T_target_source: NDArray[np.float64], K: NDArray[np.float64],
@@ -109,6 +110,7 @@ class Query:
         self.feats, self.depth, self.K, self.timer = feats, depth, K, timer
         self._matches: dict[int, tuple[NDArray[np.int64], NDArray[np.int64]]] = {}
         self._points: NDArray[np.float64] | None = None
+        self.pnp_fits: PnpFits = {}  # PnP fits, reused when a later pass verifies a keyframe again
         self.rerank_counts: dict[int, int] = {}  # GL: mutual-nearest-neighbour count per re-ranked node
         # GL: those mutual nearest neighbours, (live indices, keyframe indices) per re-ranked node
         self.rerank_pairs: dict[int, tuple[NDArray[np.int64], NDArray[np.int64]]] = {}

@@ -8,17 +8,20 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litevloc.pipelines.localization.tracking import TrackingState
+from litevloc.pipelines.pnp import Refusal
 
 
 @dataclass(frozen=True)
 class CandidateAttempt:
-    """One map node tried for a query, and why it was accepted or rejected."""
+    """One map node tried for a query, and why it was accepted or rejected (`reason` in words,
+    `refusal` by kind: which gate refused it, `Refusal.NONE` when accepted)."""
 
     node: int
     similarity: float
     matches: int
     inliers: int
     reason: str
+    refusal: Refusal = Refusal.LATER
 
 
 @dataclass(frozen=True, eq=False)

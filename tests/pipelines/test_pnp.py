@@ -7,7 +7,7 @@ import pytest
 
 from litevloc.base import geometry as g
 from litevloc.base.params.localization import PnpParams
-from litevloc.pipelines.pnp import solve_pnp
+from litevloc.pipelines.pnp import Refusal, solve_pnp
 
 K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
 
@@ -44,10 +44,14 @@ def test_deterministic_given_seed() -> None:
 def test_acceptance_gates_reject() -> None:
     pts, pix, _, _ = scene(n=40, outlier_frac=0.0)
     res = solve_pnp(pts, pix, K, PnpParams(min_inliers=50))
-    assert not res.accepted and "too few" in res.reason
+    assert not res.accepted and "too few" in res.reason and res.refusal is Refusal.DEPTH
+    pts, pix, _, _ = scene(n=60, outlier_frac=0.5)
+    res = solve_pnp(pts, pix, K, PnpParams(min_inliers=40, min_inlier_ratio=0.0))
+    assert not res.accepted and res.refusal is Refusal.INLIERS and 25 <= res.n_inliers < 40, res.reason
     pts, pix, _, _ = scene(n=300, outlier_frac=0.85, seed=2)
     res = solve_pnp(pts, pix, K, PnpParams(min_inliers=10, min_inlier_ratio=0.3))
-    assert not res.accepted and "ratio" in res.reason
+    assert not res.accepted and "ratio" in res.reason and res.refusal is Refusal.INLIER_RATIO
+    assert solve_pnp(*scene()[:2], K, PnpParams()).refusal is Refusal.NONE
     rng = np.random.default_rng(1)
     junk = solve_pnp(rng.uniform(1, 5, (200, 3)), rng.uniform(0, 640, (200, 2)), K, PnpParams())
     assert not junk.accepted
@@ -85,3 +89,19 @@ def test_result_keeps_ransacs_consensus_set_apart_from_the_rescored_inliers() ->
     assert not np.array_equal(res.ransac_inliers, res.inliers)  # here the refined pose re-scores others
     assert np.count_nonzero(res.ransac_inliers < n_out) <= 2  # the gross outliers stay out
     assert np.array_equal(inverse_result(res).ransac_inliers, res.ransac_inliers)
+
+
+def test_a_fit_is_reused_where_only_the_gates_differ() -> None:
+    """`fits`: a problem solved again with another inlier floor reuses the fit (RANSAC does not see
+    the gates) and gives what a fresh solve gives; other points are a new problem."""
+    pts, pix, _, _ = scene(n=60, outlier_frac=0.5)
+    fits: dict = {}  # type: ignore[type-arg]
+    strict, loose = PnpParams(min_inliers=40, min_inlier_ratio=0.0), PnpParams(min_inliers=20, min_inlier_ratio=0.0)
+    a = solve_pnp(pts, pix, K, strict, fits)
+    b = solve_pnp(pts, pix, K, loose, fits)
+    assert len(fits) == 1
+    assert (a.accepted, a.refusal, b.accepted, b.refusal) == (False, Refusal.INLIERS, True, Refusal.NONE)
+    fresh = solve_pnp(pts, pix, K, loose)
+    assert np.array_equal(b.T_target_source, fresh.T_target_source) and np.array_equal(b.inliers, fresh.inliers)
+    solve_pnp(pts[1:], pix[1:], K, loose, fits)
+    assert len(fits) == 2

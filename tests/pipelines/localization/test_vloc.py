@@ -18,8 +18,10 @@ from litevloc.base import geometry as g
 from litevloc.base.params.localization import LocalizationParams, PnpParams
 from litevloc.pipelines.depth_lookup import depth_at
 from litevloc.pipelines.localization.query import Query, StageTimer
+from litevloc.pipelines.localization.results import CandidateAttempt
 from litevloc.pipelines.localization.tracking import TrackingState
-from litevloc.pipelines.localization.vloc import VisualLocalizer
+from litevloc.pipelines.localization.vloc import VisualLocalizer, _weak
+from litevloc.pipelines.pnp import Refusal
 from litevloc.pipelines.topomap.types import NodeFeatures, OccupancyGrid, TopoMap
 
 W, H = 320, 240
@@ -578,5 +580,18 @@ def test_a_weak_candidate_counts_only_when_its_keyframes_together_reach_the_inli
               alone.localize_local(0, IMG, depth1, K, pose(0.4, 3.0), prior_age_s=0.1, fused_prior=True)):
         assert not r.accepted and r.provisional is None
         assert re.match(r"too few inliers \(2\d < 30; pooled", r.attempts[-1].reason), r.attempts
+        # first pass: 25 matches, under PnP's floor (PnP not run); pooled: its PnP under the floor
+        assert (r.attempts[0].refusal, r.attempts[0].matches) == (Refusal.MATCHES, 25)
+        assert r.attempts[-1].refusal is Refusal.INLIERS and 20 <= r.attempts[-1].inliers < 30
     with pytest.raises(ValueError, match="pooled_min_inliers"):
         LocalizationParams(pooled_min_inliers=2)
+
+
+def test_a_weak_candidate_is_known_by_its_refusal_kind_not_by_the_wording_of_its_reason() -> None:
+    """The pooled pass runs for candidates refused for too few inliers (or too few matches, PnP
+    not run) with `floor` of them; the reason's words do not decide it."""
+    assert _weak(CandidateAttempt(3, 0.5, 30, 25, "refused", Refusal.INLIERS), 20)
+    assert not _weak(CandidateAttempt(3, 0.5, 30, 25, "refused", Refusal.INLIERS), 26)
+    assert _weak(CandidateAttempt(3, 0.5, 25, 0, "refused", Refusal.MATCHES), 20)
+    assert not _weak(CandidateAttempt(3, 0.5, 30, 25, "too few inliers (25 < 40)", Refusal.LATER), 20)
+    assert not _weak(CandidateAttempt(3, 0.5, 25, 0, "too few matches (25)", Refusal.DEPTH), 20)
