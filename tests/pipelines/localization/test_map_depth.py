@@ -132,7 +132,7 @@ def test_a_candidate_too_weak_alone_is_verified_by_one_pnp_with_its_map_neighbou
     live keypoints: every candidate alone is under the pooled floor (20). One PnP over the
     candidate and its map neighbours (the map's depth) has 48 distinct inliers: the joint
     refinement then confirms the pose. Off (`pooled_neighbours` 0), it is refused."""
-    m = _with_map_depth(make_map([0.0, 0.5, 1.0]))
+    m = _with_map_depth(make_map([0.0, 0.5, 1.0, 1.5]))
     s = Scene(m)
     T_true = pose(0.7, 5.0)
     depth = s.look(T_true, vpr_best=1)
@@ -145,14 +145,13 @@ def test_a_candidate_too_weak_alone_is_verified_by_one_pnp_with_its_map_neighbou
         j[16:] = np.roll(j[16:], 3)  # 8 wrong matches
         return i, j
 
-    base = replace(PARAMS, gl_rerank=False)  # (the re-ranking's cost, not under test)
-    on = VisualLocalizer(m, replace(base, pooled_neighbours=2), s.extract, s.describe, weak)
-    assert base.pooled_min_inliers == 20
+    on = VisualLocalizer(m, replace(PARAMS, pooled_neighbours=2), s.extract, s.describe, weak)
+    assert PARAMS.pooled_min_inliers == 20
     r = on.localize_global(0, IMG, depth, K)
     assert r.accepted and len(r.keyframes) >= 2, (r.reason, r.attempts)
     assert "weak candidates pooled" in r.stop_reason
     assert all(a.inliers < 20 for a in r.attempts)  # no keyframe alone reached the pooled floor
     dt, dr = g.relative_pose_error(r.T_map_camera, T_true)
     assert dt < 0.01 and dr < 0.5
-    off = VisualLocalizer(m, base, s.extract, s.describe, weak)  # pooled_neighbours 0 by default
+    off = VisualLocalizer(m, PARAMS, s.extract, s.describe, weak)  # pooled_neighbours 0 by default
     assert not off.localize_global(0, IMG, depth, K).accepted
