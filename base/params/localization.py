@@ -219,12 +219,6 @@ class LocalizationParams:
     min_matches: int = 20
     # > 0: a candidate with this many PnP inliers (< pnp.min_inliers) passes if its joint keyframes reach that many
     pooled_min_inliers: int = 20
-    # that pass: a candidate under pnp.min_inliers is verified with up to this many map neighbours in one PnP (0 = off)
-    pooled_neighbours: int = 0
-    # ... its neighbours: keyframes within this distance of it (m)
-    pooled_neighbour_m: float = 1.0
-    # ... and within this rotation of it (degrees)
-    pooled_neighbour_deg: float = 30.0
     # verification and refinement also use the map's depth at keyframe keypoints (off: it verifies aliased places too)
     verify_map_depth: bool = False
     # a GL query that live depth cannot verify is verified again with the map's depth (verify_map_depth for it alone)
@@ -273,8 +267,6 @@ class LocalizationParams:
             raise ValueError("need gl_distinct_m > 0, gl_distinct_deg in (0, 180] and gl_distinct_max_rivals >= 0")
         if self.pooled_min_inliers < 0 or 0 < self.pooled_min_inliers < 4:
             raise ValueError("pooled_min_inliers must be 0 (off) or >= 4")
-        if self.pooled_neighbours < 0 or self.pooled_neighbour_m <= 0 or not 0 < self.pooled_neighbour_deg <= 180:
-            raise ValueError("pooled_neighbours must be >= 0, pooled_neighbour_m > 0, pooled_neighbour_deg in (0, 180]")
         if self.gl_distinct_min_inliers < 0 or 0 < self.gl_distinct_min_inliers < 4:
             raise ValueError("gl_distinct_min_inliers must be 0 (pnp.min_inliers) or >= 4")
         if self.gl_rerank_depth < 0:

@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
@@ -52,7 +52,6 @@ from litevloc.pipelines.localization.distinct import (
     same_place,
     strongest_rival,
 )
-from litevloc.pipelines.localization.neighbours import as_keyframe_result, map_neighbours, pooled_pnp
 from litevloc.pipelines.localization.prior_gate import narrowed_gate, sigma_along
 from litevloc.pipelines.localization.query import Clock, MatchFn, Query, StageTimer, relative_pose, reprojects
 from litevloc.pipelines.localization.refine import (
@@ -241,42 +240,18 @@ class VisualLocalizer:
         k = p.pooled_min_inliers
         return replace(p, pnp=replace(p.pnp, min_inliers=k)) if 0 < k < p.pnp.min_inliers else p
 
-    def _pooled_short(self, own_inliers: int, joint: RefineResult | None, floor: int) -> str:
-        """'' when the candidate's own PnP has `floor` inliers (`own_inliers`), or when it has fewer
-        and the joint refinement's keyframes (at least `refine.min_keyframes`) explain `floor`
-        inliers together; else the refusal reason."""
-        if own_inliers >= floor:
+    def _pooled_short(self, res: PnpResult, joint: RefineResult | None, floor: int) -> str:
+        """'' when the candidate's PnP has `floor` inliers, or when it has fewer and the joint
+        refinement's keyframes (at least `refine.min_keyframes`) explain `floor` inliers together;
+        else the refusal reason."""
+        if res.n_inliers >= floor:
             return ""
         if (joint is not None and joint.accepted and joint.consistent_keyframes >= self.params.refine.min_keyframes
                 and joint.n_inliers >= floor):
             return ""
         pooled = "no joint refinement" if joint is None else (
             f"{joint.n_inliers} over {joint.consistent_keyframes} keyframe(s): {joint.reason}")
-        return f"too few inliers ({own_inliers} < {floor}; pooled {pooled})"
-
-    def _with_neighbours(self, node: int, q: Query, res: PnpResult | None, att: CandidateAttempt,
-                         floor: int) -> tuple[PnpResult | None, list[int]]:
-        """In the pooled pass (`pooled_neighbours`), a candidate whose own PnP has fewer than
-        `floor` inliers (refused, or weak) is verified instead by one PnP of it and its map
-        neighbours (`neighbours.pooled_pnp`, the matcher's matches, the map's depth): that result
-        against `node` where it has `floor` inliers, and the neighbours (the joint refinement's
-        first keyframes); else `res` unchanged and no neighbours. The candidate stays weak: the
-        joint refinement must still find `refine.min_keyframes` consistent keyframes."""
-        p = self.params
-        own_ok = res is not None and res.accepted and res.n_inliers >= floor
-        if (p.pooled_min_inliers <= 0 or p.pooled_neighbours <= 0 or own_ok or not self._map_has_depth
-                or att.refusal in (Refusal.LATER, Refusal.DISTANCE) or att.matches < p.pooled_min_inliers):
-            return res, []
-        near = map_neighbours(self.map.T_map_camera, node, p.pooled_neighbour_m, p.pooled_neighbour_deg,
-                              p.pooled_neighbours)
-        if not near:
-            return res, []
-        t0 = self.clock()
-        pooled = pooled_pnp(q, [node, *near], replace(p.pnp, min_inliers=floor))
-        q.timer.add("pooled_pnp", t0)
-        if pooled is None or not pooled[0].accepted:
-            return res, []
-        return as_keyframe_result(pooled[0], self.map.T_map_camera[node]), near
+        return f"too few inliers ({res.n_inliers} < {floor}; pooled {pooled})"
 
     def _prior_growth_m(self, prior_age_s: float, fused: bool) -> float:
         """How far the prior may have wandered in `prior_age_s` (m): odometry drift for a fused
@@ -334,11 +309,11 @@ class VisualLocalizer:
         return feats, desc, depth
 
     def _joint(self, node: int, T_init: NDArray[np.float64], q: Query, fallback: list[int],
-               min_keyframes: int, first: Sequence[int] = ()) -> RefineResult:
+               min_keyframes: int) -> RefineResult:
         """Joint refinement over `node` and up to `refine.max_keyframes - 1` other keyframes
-        (`first`, then covisible neighbours of `node` by weight, then `fallback` nodes)."""
+        (covisible neighbours of `node` by weight first, then `fallback` nodes)."""
         rp = self.params.refine
-        others = [*first, *(n for n in self._neighbours[node] if n not in first)]
+        others = list(self._neighbours[node])
         others += [n for n in fallback if n != node and n not in others]
         extra = others[: rp.max_keyframes - 1]
         obs = [q.observations(node)]
@@ -470,17 +445,16 @@ class VisualLocalizer:
                 break
             t_cand = self.clock()
             res, att = self._verify_global(node, q, float(sims[node]), evidence, self._pooled(gl_params))
-            res, near = self._with_neighbours(node, q, res, att, floor)
             if res is None or not res.accepted or res.T_target_source is None:
                 attempts.append(att)
                 candidates_ms += (self.clock() - t_cand) * 1e3
                 continue
             T = self.map.T_map_camera[node] @ res.T_target_source
-            weak = att.inliers < floor
+            weak = res.n_inliers < floor
             joint = self._joint(node, T, q, [int(n) for n in order],
-                                self.params.refine.min_keyframes if self.params.gl_confirm or weak else 1, near)
+                                self.params.refine.min_keyframes if self.params.gl_confirm or weak else 1)
             candidates_ms += (self.clock() - t_cand) * 1e3
-            short = self._pooled_short(att.inliers, joint, floor)
+            short = self._pooled_short(res, joint, floor)
             if short:
                 attempts.append(replace(att, reason=short, refusal=Refusal.INLIERS))
                 continue
@@ -721,7 +695,6 @@ class VisualLocalizer:
         floor = self.params.pnp.min_inliers  # a weaker candidate passes only pooled (see `_pooled_short`)
         for node, sim in cands:
             res, att = self._verify_local(node, q, sim, prior if guided_first else None, self._pooled(self.params))
-            res, near = self._with_neighbours(node, q, res, att, floor)
             if res is not None and res.accepted and res.T_target_source is not None:
                 T = self.map.T_map_camera[node] @ res.T_target_source
                 dt, dr = relative_pose_error(T, prior)
@@ -732,13 +705,13 @@ class VisualLocalizer:
                                            f"{dr:.0f} deg)")
                     attempts.append(att)
                     continue
-                weak = att.inliers < floor
+                weak = res.n_inliers < floor
                 close = (dt <= self.params.confirm_skip_within_m and dr <= self.params.confirm_skip_within_deg
                          and self._fresh(growth) and not weak)
                 joint: RefineResult | None = None
                 if self.params.refine.enabled:
                     need = self.params.refine.min_keyframes if (self.params.ll_confirm and not close) or weak else 1
-                    joint = self._joint(node, T, q, [n for n, _ in cands], need, near)
+                    joint = self._joint(node, T, q, [n for n, _ in cands], need)
                     if not joint.accepted and not weak:  # a weak one is refused below, saying so
                         attempts.append(CandidateAttempt(node, sim, att.matches, att.inliers,
                                                          f"joint refinement rejected: {joint.reason}"))
@@ -749,7 +722,7 @@ class VisualLocalizer:
                         why = f"unconfirmed ({n_ok} consistent matches with a second keyframe)"
                         attempts.append(CandidateAttempt(node, sim, att.matches, att.inliers, why))
                         continue
-                short = self._pooled_short(att.inliers, joint, floor)
+                short = self._pooled_short(res, joint, floor)
                 if short:
                     attempts.append(replace(att, reason=short, refusal=Refusal.INLIERS))
                     continue

@@ -125,33 +125,3 @@ def test_inverse_result_inverts_the_pose_and_carries_the_covariance() -> None:
         J[:, i] = np.r_[E[:3, 3], g.so3_log(E[:3, :3])] / 1e-6
     np.testing.assert_allclose(res.covariance, J @ (L @ L.T) @ J.T, rtol=1e-4, atol=1e-12)
     assert (res.n_inliers, res.n_matches, res.accepted) == (50, 80, True)
-
-
-def test_a_candidate_too_weak_alone_is_verified_by_one_pnp_with_its_map_neighbours() -> None:
-    """The matcher finds 24 matches per keyframe, 16 right and 8 wrong, each keyframe with other
-    live keypoints: every candidate alone is under the pooled floor (20). One PnP over the
-    candidate and its map neighbours (the map's depth) has 48 distinct inliers: the joint
-    refinement then confirms the pose. Off (`pooled_neighbours` 0), it is refused."""
-    m = _with_map_depth(make_map([0.0, 0.5, 1.0, 1.5]))
-    s = Scene(m)
-    T_true = pose(0.7, 5.0)
-    depth = s.look(T_true, vpr_best=1)
-
-    def weak(a: object, b: NodeFeatures) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-        node = next(i for i, f in enumerate(m.features) if f is b)
-        i, j = s.match(a, b)  # type: ignore[arg-type]
-        mine = np.nonzero(b.descriptors[j, 0].astype(np.int64) % 4 == node)[0][:24]
-        i, j = i[mine], j[mine].copy()
-        j[16:] = np.roll(j[16:], 3)  # 8 wrong matches
-        return i, j
-
-    on = VisualLocalizer(m, replace(PARAMS, pooled_neighbours=2), s.extract, s.describe, weak)
-    assert PARAMS.pooled_min_inliers == 20
-    r = on.localize_global(0, IMG, depth, K)
-    assert r.accepted and len(r.keyframes) >= 2, (r.reason, r.attempts)
-    assert "weak candidates pooled" in r.stop_reason
-    assert all(a.inliers < 20 for a in r.attempts)  # no keyframe alone reached the pooled floor
-    dt, dr = g.relative_pose_error(r.T_map_camera, T_true)
-    assert dt < 0.01 and dr < 0.5
-    off = VisualLocalizer(m, PARAMS, s.extract, s.describe, weak)  # pooled_neighbours 0 by default
-    assert not off.localize_global(0, IMG, depth, K).accepted
