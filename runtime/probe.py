@@ -144,9 +144,14 @@ def main(argv: list[str] | None = None) -> int:
         while not bus.connectivity()["connected"] and time.monotonic() < t_end:
             time.sleep(0.01)
         print("READY" if bus.connectivity()["connected"] else "NOT-CONNECTED", flush=True)
-    while not done.is_set() and time.monotonic() < t_end:
+    ended = "timeout"  # what ended the probe: the counts asked for, the idle limit or the timeout
+    while time.monotonic() < t_end:
+        if done.is_set():
+            ended = "count"
+            break
         got_any = any(r["count"] or r["decode_errors"] for r in res.values())
         if args.idle > 0 and got_any and time.monotonic() - last_rx[0] > args.idle:
+            ended = "idle"
             break
         done.wait(0.05)
     for s in subs:
@@ -161,7 +166,7 @@ def main(argv: list[str] | None = None) -> int:
                 **({"data": r["data"]} if args.keep else {})}
             for t, r in res.items()
         }
-    text = json.dumps({"topics": out, "completed": done.is_set()}, default=float)
+    text = json.dumps({"topics": out, "completed": done.is_set(), "ended": ended}, default=float)
     if args.json:
         with open(args.json, "w") as f:
             f.write(text)

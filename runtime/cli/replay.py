@@ -80,8 +80,9 @@ def run_runtime(args: argparse.Namespace) -> int:
     rec = res["recorder"]
     status = res["status"]
     summary: dict = {"ok": res["ok"], "reason": res["reason"], "fused_poses": len(rec.fused_t)}
-    if args.output is not None and rec.fused_t:
-        write_tum(args.output, np.array(rec.fused_t) * 1e-9, np.stack(rec.fused_T))
+    if args.output is not None:  # written even when empty: an old file must not pass for this run's
+        poses = np.stack(rec.fused_T) if rec.fused_t else np.zeros((0, 4, 4))
+        write_tum(args.output, np.array(rec.fused_t, np.float64) * 1e-9, poses)
         summary["output"] = str(args.output)
     if rec.fused_t and rec.gt_t:
         T_bc = res["T_base_camera"]
@@ -95,6 +96,9 @@ def run_runtime(args: argparse.Namespace) -> int:
         if key in status:
             summary[key] = status[key]
     line = f"replay (runtime): {res['reason']}; {len(rec.fused_t)} fused poses"
+    if not rec.fused_t:  # say why: fusion starts only on agreeing VLoc fixes
+        line += (f" (fusion: {status.get('last_fusion_reason') or 'never started'}; "
+                 f"last VLoc answer: {status.get('last_vloc_reason') or 'none'})")
     if "ate_m" in summary:
         a = summary["ate_m"]
         line += f"; camera ATE (no alignment) RMSE {100 * a['rmse']:.1f} cm, median {100 * a['median']:.1f} cm"

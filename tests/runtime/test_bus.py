@@ -124,7 +124,6 @@ def test_probe_idle_counts_from_the_first_message(tmp_path: Path) -> None:
     idle limit only ends the probe once a stream has begun and stopped."""
     ep = f"tcp/127.0.0.1:{free_port()}"
     out = tmp_path / "probe.json"
-    t0 = time.monotonic()
     proc = start_probe(ep, out, "pose", {}, timeout=4.0, idle=0.5, listen=True)
     time.sleep(1.5)  # longer than idle: a probe counting from READY would be gone
     with Bus(ZenohConfig(connect=(ep,))) as bus:
@@ -134,4 +133,4 @@ def test_probe_idle_counts_from_the_first_message(tmp_path: Path) -> None:
             pub.publish_pose(1_000_000_000 + i, np.eye(4), np.eye(6) * 0.01)
         res = finish_probe(proc, out)
     assert res["topics"]["pose"]["count"] == 5
-    assert time.monotonic() - t0 < 3.9  # ended by idle after the stream, not by the timeout
+    assert res["ended"] == "idle"  # after the stream, not by the timeout

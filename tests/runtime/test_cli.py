@@ -37,3 +37,26 @@ def test_user_errors_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
     assert "--frames" in capsys.readouterr().err
     assert main(["replay", str(tmp_path), "--config", "nope"]) == 2
     assert "unknown config" in capsys.readouterr().err
+
+
+def test_a_replay_without_a_fused_pose_still_writes_its_output_and_says_why(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """A run where fusion never started (no two agreeing fixes) leaves an empty TUM file, not the
+    previous run's, and names the reasons."""
+    import argparse
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from litevloc.runtime.cli import replay
+
+    out = tmp_path / "fused.txt"
+    out.write_text("0.0 1 2 3 0 0 0 1\n")  # an earlier run's poses
+    rec = SimpleNamespace(fused_t=[], fused_T=[], gt_t=[], gt_T=[])
+    status = {"last_fusion_reason": None, "last_vloc_reason": "not localized: no VPR candidate verified"}
+    monkeypatch.setattr("litevloc.runtime.cli.run.run_service", lambda *a, **k: {
+        "ok": True, "reason": "end of source", "status": status, "recorder": rec, "T_base_camera": np.eye(4)})
+    assert replay.run_runtime(argparse.Namespace(rec=tmp_path / "r.mcap", rate=1.0, output=out, json=None)) == 0
+    assert [ln for ln in out.read_text().splitlines() if not ln.startswith("#")] == []
+    said = capsys.readouterr().out
+    assert "0 fused poses (fusion: never started; last VLoc answer: not localized: no VPR candidate verified)" in said
