@@ -1,7 +1,7 @@
 """The SLAM front end: keyframes and the edges between nearby ones, one frame at a time.
 
-* Keyframes are spaced by the mapping pre-filter's motion thresholds (`mapping.keyframes`:
-  translation or rotation since the last keyframe), measured with the odometry where the frame
+* Keyframes are spaced by `slam.keyframes` (translation or rotation since the last keyframe;
+  unset, the mapping pre-filter's thresholds `mapping.keyframes`), measured with the odometry where the frame
   and the last keyframe lie in one odometry segment; no image is touched for other frames.
 * Where the odometry cannot say (no odometry in the recording, a gap, a jump), every
   `visual.track_every`-th frame is tracked against the last keyframe (features, the cheap
@@ -32,10 +32,11 @@ import itertools
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 
 from litevloc.base.geometry import backproject_pixels, invert, rotation_angle
 from litevloc.base.params.localization import LocalizationParams, RefineParams
-from litevloc.base.params.mapping import MappingParams
+from litevloc.base.params.mapping import KeyframeParams, MappingParams
 from litevloc.base.params.slam import SlamParams
 from litevloc.pipelines.depth_lookup import depth_at
 from litevloc.pipelines.guided_matching import match_by_projection
@@ -74,6 +75,14 @@ def edge_refine_params(loc: RefineParams, floor_m: float, floor_deg: float, keyf
     return r if keyframes is None else dataclasses.replace(r, min_keyframes=keyframes, max_keyframes=keyframes)
 
 
+def keyframe_spacing(params: SlamParams, mapping: MappingParams) -> KeyframeParams:
+    """The motion steps that make a keyframe: `slam.keyframes` where set, else `mapping.keyframes`'."""
+    kp, sk = mapping.keyframes, params.keyframes
+    return dataclasses.replace(
+        kp, min_translation_m=kp.min_translation_m if sk.min_translation_m is None else sk.min_translation_m,
+        min_rotation_deg=kp.min_rotation_deg if sk.min_rotation_deg is None else sk.min_rotation_deg)
+
+
 def edge_error(T_a_b: F64, T_a_b_other: F64) -> tuple[float, float]:
     """Translation (m) and rotation (rad) of inv(T_a_b) @ T_a_b_other: how far two measurements
     of the same motion disagree."""
@@ -87,6 +96,7 @@ class FrontEnd:
     def __init__(self, params: SlamParams, mapping: MappingParams, localization: LocalizationParams,
                  models: SlamModels, T_base_camera: F64) -> None:
         self.params, self.mapping, self.models = params, mapping, models
+        self._spacing = keyframe_spacing(params, mapping)
         vp = params.visual.pnp
         self._refine = edge_refine_params(localization.refine, vp.min_sigma_trans_m,
                                           float(np.degrees(vp.min_sigma_rot_rad)), keyframes=1)
@@ -120,7 +130,7 @@ class FrontEnd:
             T_rel = invert(last.odom[1] @ self.T_base_camera) @ odom[1] @ self.T_base_camera
             rec.anchor, rec.T_anchor_frame, rec.how = last.id, T_rel, "odometry"
             self._since_track = self.params.visual.track_every - 1  # the first frame without odometry is tracked
-            if not moved(np.eye(4), T_rel, self.mapping.keyframes):
+            if not moved(np.eye(4), T_rel, self._spacing):
                 return None
             return self._keyframe(ref, rec, ref.load(), odom, None)
         self._since_track += 1
@@ -135,7 +145,7 @@ class FrontEnd:
             self.counts["tracking_failures"] += 1
             return self._keyframe(ref, rec, images, odom, (feats, points))
         rec.anchor, rec.T_anchor_frame, rec.how = last.id, res.T, "visual"
-        if moved(np.eye(4), res.T, self.mapping.keyframes) or res.inliers < self.params.visual.track_min_inliers:
+        if moved(np.eye(4), res.T, self._spacing) or res.inliers < self.params.visual.track_min_inliers:
             return self._keyframe(ref, rec, images, odom, (feats, points), tracked=res)
         return None
 
@@ -192,7 +202,7 @@ class FrontEnd:
         h, w = images.color.shape[:2]
         kf = Keyframe(
             id=len(self.keyframes), index=ref.index, t_ns=ref.t_ns, K=np.asarray(ref.K, np.float64), size=(w, h),
-            features=feats, points=points, vpr=np.asarray(self.models.describe(images.color), np.float32),
+            features=feats, points=points, vpr=self._place_descriptor(len(self.keyframes), images),
             jpeg=images.jpeg or encode_jpeg(images.color, self.mapping.jpeg_quality, f"frame {ref.index}"),
             cloud=candidate_points(images.depth, ref.K, self.mapping.keyframes).astype(np.float32),
             odom=odom, T_init=np.eye(4), chain=0)
@@ -205,6 +215,13 @@ class FrontEnd:
         self.keyframes.append(kf)
         self.edges.extend(new_edges)
         return kf
+
+    def _place_descriptor(self, kf_id: int, images: FrameImages) -> NDArray[np.float32] | None:
+        """The VPR descriptor of a loop-search keyframe (every `loops.search_every`-th), else None
+        (the map builder describes the keyframes it selects that lack one)."""
+        if kf_id % self.params.loops.search_every:
+            return None
+        return np.asarray(self.models.describe(images.color), np.float32)
 
     def _edges_to_previous(self, kf: Keyframe, tracked: Relative | None) -> list[Edge]:
         """Odometry and visual edges from the previous keyframes to `kf`, the agreeing set with most votes."""
