@@ -1,8 +1,8 @@
 """Parameters of the mapping pass's pose-graph SLAM (config section `slam`, used by
 `litevloc.pipelines.slam` when `litevloc map build --poses slam` poses a recording itself).
 
-Keyframes are spaced by `slam.keyframes` (by default the mapping pre-filter's motion
-thresholds, `mapping.keyframes`), and every map keyframe is a SLAM keyframe; loop
+Keyframes are spaced by the mapping pre-filter's motion thresholds (`mapping.keyframes`)
+times `slam.keyframe_step_scale`, and every map keyframe is a SLAM keyframe; loop
 verification uses the localizer's own geometry (`localization.pnp`, `localization.refine`,
 `localization.depth`).
 """
@@ -178,28 +178,11 @@ class SlamPlanarParams:
 
 
 @dataclass(frozen=True)
-class SlamKeyframeParams:
-    """Spacing of the SLAM's keyframes (the map's keyframe candidates): a frame becomes a keyframe
-    when it moved or turned this far from the last one (odometry or tracking)."""
-
-    # translation step (m; null: mapping.keyframes.min_translation_m)
-    min_translation_m: float | None = None
-    # rotation step (degrees; null: mapping.keyframes.min_rotation_deg)
-    min_rotation_deg: float | None = None
-
-    def __post_init__(self) -> None:
-        for name in ("min_translation_m", "min_rotation_deg"):
-            v = getattr(self, name)
-            if v is not None and not (np.isfinite(v) and v > 0):
-                raise ValueError(f"slam.keyframes.{name} must be a finite number > 0 or null, got {v}")
-
-
-@dataclass(frozen=True)
 class SlamParams:
     """The mapping pass's SLAM (see the module docstring), and external trajectories (`--poses FILE`)."""
 
-    # spacing of the SLAM's keyframes
-    keyframes: SlamKeyframeParams = field(default_factory=SlamKeyframeParams)
+    # SLAM keyframes (the map's keyframe candidates) every this many mapping.keyframes steps (translation, rotation)
+    keyframe_step_scale: float = 1.0
     # the robot's odometry as pose-graph edges
     odometry: SlamOdometryParams = field(default_factory=SlamOdometryParams)
     # visual edges between nearby keyframes, and visual odometry where odometry is missing
@@ -216,5 +199,7 @@ class SlamParams:
     file_max_gap_s: float = 1.0
 
     def __post_init__(self) -> None:
+        if not (np.isfinite(self.keyframe_step_scale) and self.keyframe_step_scale >= 1):
+            raise ValueError(f"slam.keyframe_step_scale must be a finite number >= 1, got {self.keyframe_step_scale}")
         if not (np.isfinite(self.file_max_gap_s) and self.file_max_gap_s > 0):
             raise ValueError(f"slam.file_max_gap_s must be a finite number > 0, got {self.file_max_gap_s}")

@@ -267,8 +267,8 @@ def test_sparser_keyframe_spacing_makes_fewer_keyframes(scene: Scene) -> None:
     from tests.pipelines.slam.synthetic import T_BASE_CAMERA
 
     cfg = load_config("default")
-    sparse = dataclasses.replace(cfg.slam, keyframes=dataclasses.replace(cfg.slam.keyframes, min_translation_m=0.6,
-                                                                         min_rotation_deg=30.0))
+    sparse = dataclasses.replace(cfg.slam, keyframe_step_scale=2.0)
+    kp = cfg.mapping.keyframes
     counts = []
     for params in (cfg.slam, sparse):
         front = FrontEnd(params, cfg.mapping, cfg.localization, scene.models(), T_BASE_CAMERA)
@@ -277,6 +277,7 @@ def test_sparser_keyframe_spacing_makes_fewer_keyframes(scene: Scene) -> None:
         counts.append(len(front.keyframes))
         for a, b in itertools.pairwise(front.keyframes):  # the frame before b had not moved a step from a
             Ta, Tb = scene.T_world_camera(a.index), scene.T_world_camera(b.index - 1)
-            assert np.linalg.norm(Tb[:3, 3] - Ta[:3, 3]) < max(params.keyframes.min_translation_m or 0.3, 0.3)
-            assert np.degrees(rotation_angle(Ta[:3, :3].T @ Tb[:3, :3])) < (params.keyframes.min_rotation_deg or 12)
+            k = params.keyframe_step_scale
+            assert np.linalg.norm(Tb[:3, 3] - Ta[:3, 3]) < k * kp.min_translation_m
+            assert np.degrees(rotation_angle(Ta[:3, :3].T @ Tb[:3, :3])) < k * kp.min_rotation_deg
     assert counts[1] < 0.7 * counts[0]
