@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from litevloc.config.schema import LiteVLocConfig
-from litevloc.hw.messages import GroundTruthPose, Message, Odometry, RgbdFrame, decode_color
+from litevloc.hw.messages import GroundTruthPose, Message, Odometry, RgbdFrame
 from litevloc.pipelines.slam.evaluate import evaluate
 from litevloc.pipelines.slam.level import LevelFloor
 from litevloc.pipelines.slam.session import SlamResult, SlamSession
@@ -97,8 +97,7 @@ def run_on_sim(session: SlamSession, src: Any, on_frame: Callable[[], None] | No
 def feed_builder(res: SlamResult, builder: MapBuilder) -> int:
     """Both passes of the map builder from the SLAM result: every posed frame (keyframes with
     their depth points, the others as trajectory), then the selected keyframes' features as
-    the SLAM computed them (a keyframe without a place descriptor, not a loop-search one, is
-    described from its stored JPEG). Returns the number of frames without a pose."""
+    the SLAM computed them. Returns the number of frames without a pose."""
     by_index = {kf.index: kf for kf in res.keyframes}
     unposed = 0
     for rec, T in zip(res.frames, res.frame_poses, strict=True):
@@ -112,8 +111,7 @@ def feed_builder(res: SlamResult, builder: MapBuilder) -> int:
             builder.add_points(rec.t_ns, kf.cloud.astype(np.float64), kf.size, kf.K, T, rec.index)
     for pos in builder.select():
         kf = by_index[builder.candidates[pos].index]
-        vpr = kf.vpr if kf.vpr is not None else builder.describe(decode_color(kf.jpeg, f"keyframe {kf.id}"))
-        builder.attach_features(pos, kf.features, kf.features.depth, np.asarray(vpr, np.float32), kf.jpeg, kf.size)
+        builder.attach_features(pos, kf.features, kf.features.depth, kf.vpr, kf.jpeg, kf.size)
     return unposed
 
 

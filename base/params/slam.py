@@ -99,7 +99,7 @@ class SlamLoopParams:
     min_similarity: float = 0.5
     # at most this many candidates are verified per keyframe (the cost bound: one matcher run each)
     max_verifications: int = 1
-    # the loop search (and the place descriptor it needs) runs on every n-th keyframe only
+    # the loop search runs on every n-th keyframe only (the loop-search keyframes; candidates are such keyframes)
     search_every: int = 2
     # a candidate within this many keyframes of a loop partner already verified for this keyframe is skipped
     partner_spacing: int = 3

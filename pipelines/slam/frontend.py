@@ -33,7 +33,6 @@ import itertools
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
 from litevloc.base.geometry import backproject_pixels, invert, rotation_angle
 from litevloc.base.params.localization import LocalizationParams, RefineParams
@@ -201,7 +200,7 @@ class FrontEnd:
         h, w = images.color.shape[:2]
         kf = Keyframe(
             id=len(self.keyframes), index=ref.index, t_ns=ref.t_ns, K=np.asarray(ref.K, np.float64), size=(w, h),
-            features=feats, points=points, vpr=self._place_descriptor(len(self.keyframes), images),
+            features=feats, points=points, vpr=np.asarray(self.models.describe(images.color), np.float32),
             jpeg=images.jpeg or encode_jpeg(images.color, self.mapping.jpeg_quality, f"frame {ref.index}"),
             cloud=candidate_points(images.depth, ref.K, self.mapping.keyframes).astype(np.float32),
             odom=odom, T_init=np.eye(4), chain=0)
@@ -214,13 +213,6 @@ class FrontEnd:
         self.keyframes.append(kf)
         self.edges.extend(new_edges)
         return kf
-
-    def _place_descriptor(self, kf_id: int, images: FrameImages) -> NDArray[np.float32] | None:
-        """The VPR descriptor of a loop-search keyframe (every `loops.search_every`-th), else None
-        (the map builder describes the keyframes it selects that lack one)."""
-        if kf_id % self.params.loops.search_every:
-            return None
-        return np.asarray(self.models.describe(images.color), np.float32)
 
     def _edges_to_previous(self, kf: Keyframe, tracked: Relative | None) -> list[Edge]:
         """Odometry and visual edges from the previous keyframes to `kf`, the agreeing set with most votes."""

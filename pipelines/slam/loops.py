@@ -4,9 +4,9 @@ Candidates (`LoopSearch.candidates`): the `top_k` keyframes most similar to the 
 (cosine of the VPR descriptors, at least `min_similarity`) among those older than
 `exclude_recent` keyframes; never all pairs, and at most `max_verifications` are verified
 per keyframe (each costs one run of the localizer's matcher). Only every `search_every`-th
-keyframe (the loop-search keyframes) gets a place descriptor, searches and is a candidate:
-consecutive keyframes overlap, so their neighbours' views still confirm a loop, and the
-descriptor and matcher runs drop by that factor. With `loops.chain_pregate`, a
+keyframe (the loop-search keyframes) searches and is a candidate: consecutive keyframes
+overlap, so their neighbours' views still confirm a loop, and the matcher runs drop by
+that factor. With `loops.chain_pregate`, a
 candidate of the new keyframe's chain is skipped before that bound when the chain places it
 farther away than the chain gate (`pipelines.slam.consistency`) could accept for any loop
 verification can return (a verified loop is at most `localization.max_distance_to_node_m`
@@ -151,13 +151,11 @@ def beyond_chain_gate(q: Keyframe, cand: Keyframe, gate: SlamGraphParams, max_lo
 def loop_closures(q: Keyframe, keyframes: list[Keyframe], search: LoopSearch, match: MatchFn,
                   loc: LocalizationParams, params: SlamLoopParams, counts: LoopCounts,
                   gate: SlamGraphParams | None = None) -> tuple[list[Edge], list[LoopAttempt]]:
-    """Loop edges for keyframe `q` (none unless it has a place descriptor): candidates (without those
+    """Loop edges for keyframe `q` (a loop-search keyframe): candidates (without those
     `beyond_chain_gate` of the chain `gate`, when given), then at most `max_verifications`
     verified, skipping candidates near a partner already found."""
     edges: list[Edge] = []
     attempts: list[LoopAttempt] = []
-    if q.vpr is None:
-        return edges, attempts
     cands = search.candidates(q.id, q.vpr)
     counts.candidates += len(cands)
     if gate is not None:

@@ -132,7 +132,7 @@ class SlamSession:
         self.timings.front_end += t1 - t0
         if kf is None:
             return
-        if kf.vpr is None:
+        if kf.id % self.params.loops.search_every:
             return
         self.search.add(kf.id, kf.vpr)
         pregate = self.params.loops.chain_pregate and self.params.graph.gate_loops
