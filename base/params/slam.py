@@ -1,9 +1,10 @@
 """Parameters of the mapping pass's pose-graph SLAM (config section `slam`, used by
 `litevloc.pipelines.slam` when `litevloc map build --poses slam` poses a recording itself).
 
-Keyframes are spaced by the mapping pre-filter's motion thresholds (`mapping.keyframes`), so
-every map keyframe is a SLAM keyframe; loop verification uses the localizer's own geometry
-(`localization.pnp`, `localization.refine`, `localization.depth`).
+Keyframes are spaced by the mapping pre-filter's motion thresholds (`mapping.keyframes`)
+times `slam.keyframe_step_scale`, and every map keyframe is a SLAM keyframe; loop
+verification uses the localizer's own geometry (`localization.pnp`, `localization.refine`,
+`localization.depth`).
 """
 
 from __future__ import annotations
@@ -97,7 +98,9 @@ class SlamLoopParams:
     # candidates less similar than this (cosine of the VPR descriptors) are not tried
     min_similarity: float = 0.5
     # at most this many candidates are verified per keyframe (the cost bound: one matcher run each)
-    max_verifications: int = 2
+    max_verifications: int = 1
+    # the loop search runs on every n-th keyframe only (the loop-search keyframes; candidates are such keyframes)
+    search_every: int = 2
     # a candidate within this many keyframes of a loop partner already verified for this keyframe is skipped
     partner_spacing: int = 3
     # skip unmatched a candidate the chain puts beyond the chain gate's bound + localization.max_distance_to_node_m
@@ -110,6 +113,8 @@ class SlamLoopParams:
     def __post_init__(self) -> None:
         if self.exclude_recent < 1 or self.top_k < 1 or self.max_verifications < 0 or self.partner_spacing < 0:
             raise ValueError("slam.loops: exclude_recent, top_k >= 1; max_verifications, partner_spacing >= 0")
+        if self.search_every < 1:
+            raise ValueError(f"slam.loops.search_every must be >= 1, got {self.search_every}")
         if not (-1 <= self.min_similarity <= 1):
             raise ValueError(f"slam.loops.min_similarity must be in [-1, 1], got {self.min_similarity}")
         if not (self.sigma_floor_m > 0 and self.sigma_floor_deg > 0):
@@ -176,6 +181,8 @@ class SlamPlanarParams:
 class SlamParams:
     """The mapping pass's SLAM (see the module docstring), and external trajectories (`--poses FILE`)."""
 
+    # SLAM keyframes (the map's keyframe candidates) every this many mapping.keyframes steps (translation, rotation)
+    keyframe_step_scale: float = 1.0
     # the robot's odometry as pose-graph edges
     odometry: SlamOdometryParams = field(default_factory=SlamOdometryParams)
     # visual edges between nearby keyframes, and visual odometry where odometry is missing
@@ -192,5 +199,7 @@ class SlamParams:
     file_max_gap_s: float = 1.0
 
     def __post_init__(self) -> None:
+        if not (np.isfinite(self.keyframe_step_scale) and self.keyframe_step_scale >= 1):
+            raise ValueError(f"slam.keyframe_step_scale must be a finite number >= 1, got {self.keyframe_step_scale}")
         if not (np.isfinite(self.file_max_gap_s) and self.file_max_gap_s > 0):
             raise ValueError(f"slam.file_max_gap_s must be a finite number > 0, got {self.file_max_gap_s}")

@@ -1,8 +1,9 @@
 """The SLAM front end: keyframes and the edges between nearby ones, one frame at a time.
 
-* Keyframes are spaced by the mapping pre-filter's motion thresholds (`mapping.keyframes`:
-  translation or rotation since the last keyframe), measured with the odometry where the frame
-  and the last keyframe lie in one odometry segment; no image is touched for other frames.
+* Keyframes are spaced by the mapping pre-filter's thresholds (`mapping.keyframes`:
+  translation or rotation since the last keyframe) times `slam.keyframe_step_scale`,
+  measured with the odometry where the frame and the last keyframe lie in one odometry
+  segment; no image is touched for other frames.
 * Where the odometry cannot say (no odometry in the recording, a gap, a jump), every
   `visual.track_every`-th frame is tracked against the last keyframe (features, the cheap
   matcher, PnP with the frame's depth); it becomes a keyframe when it moved enough, when its
@@ -35,7 +36,7 @@ import numpy as np
 
 from litevloc.base.geometry import backproject_pixels, invert, rotation_angle
 from litevloc.base.params.localization import LocalizationParams, RefineParams
-from litevloc.base.params.mapping import MappingParams
+from litevloc.base.params.mapping import KeyframeParams, MappingParams
 from litevloc.base.params.slam import SlamParams
 from litevloc.pipelines.depth_lookup import depth_at
 from litevloc.pipelines.guided_matching import match_by_projection
@@ -74,6 +75,12 @@ def edge_refine_params(loc: RefineParams, floor_m: float, floor_deg: float, keyf
     return r if keyframes is None else dataclasses.replace(r, min_keyframes=keyframes, max_keyframes=keyframes)
 
 
+def keyframe_spacing(params: SlamParams, mapping: MappingParams) -> KeyframeParams:
+    """The motion steps that make a keyframe: `mapping.keyframes`' times `slam.keyframe_step_scale`."""
+    kp, k = mapping.keyframes, params.keyframe_step_scale
+    return dataclasses.replace(kp, min_translation_m=k * kp.min_translation_m, min_rotation_deg=k * kp.min_rotation_deg)
+
+
 def edge_error(T_a_b: F64, T_a_b_other: F64) -> tuple[float, float]:
     """Translation (m) and rotation (rad) of inv(T_a_b) @ T_a_b_other: how far two measurements
     of the same motion disagree."""
@@ -87,6 +94,7 @@ class FrontEnd:
     def __init__(self, params: SlamParams, mapping: MappingParams, localization: LocalizationParams,
                  models: SlamModels, T_base_camera: F64) -> None:
         self.params, self.mapping, self.models = params, mapping, models
+        self._spacing = keyframe_spacing(params, mapping)
         vp = params.visual.pnp
         self._refine = edge_refine_params(localization.refine, vp.min_sigma_trans_m,
                                           float(np.degrees(vp.min_sigma_rot_rad)), keyframes=1)
@@ -120,7 +128,7 @@ class FrontEnd:
             T_rel = invert(last.odom[1] @ self.T_base_camera) @ odom[1] @ self.T_base_camera
             rec.anchor, rec.T_anchor_frame, rec.how = last.id, T_rel, "odometry"
             self._since_track = self.params.visual.track_every - 1  # the first frame without odometry is tracked
-            if not moved(np.eye(4), T_rel, self.mapping.keyframes):
+            if not moved(np.eye(4), T_rel, self._spacing):
                 return None
             return self._keyframe(ref, rec, ref.load(), odom, None)
         self._since_track += 1
@@ -135,7 +143,7 @@ class FrontEnd:
             self.counts["tracking_failures"] += 1
             return self._keyframe(ref, rec, images, odom, (feats, points))
         rec.anchor, rec.T_anchor_frame, rec.how = last.id, res.T, "visual"
-        if moved(np.eye(4), res.T, self.mapping.keyframes) or res.inliers < self.params.visual.track_min_inliers:
+        if moved(np.eye(4), res.T, self._spacing) or res.inliers < self.params.visual.track_min_inliers:
             return self._keyframe(ref, rec, images, odom, (feats, points), tracked=res)
         return None
 

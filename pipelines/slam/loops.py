@@ -3,7 +3,10 @@
 Candidates (`LoopSearch.candidates`): the `top_k` keyframes most similar to the new one
 (cosine of the VPR descriptors, at least `min_similarity`) among those older than
 `exclude_recent` keyframes; never all pairs, and at most `max_verifications` are verified
-per keyframe (each costs one run of the localizer's matcher). With `loops.chain_pregate`, a
+per keyframe (each costs one run of the localizer's matcher). Only every `search_every`-th
+keyframe (the loop-search keyframes) searches and is a candidate: consecutive keyframes
+overlap, so their neighbours' views still confirm a loop, and the matcher runs drop by
+that factor. With `loops.chain_pregate`, a
 candidate of the new keyframe's chain is skipped before that bound when the chain places it
 farther away than the chain gate (`pipelines.slam.consistency`) could accept for any loop
 verification can return (a verified loop is at most `localization.max_distance_to_node_m`
@@ -41,32 +44,36 @@ _RT = [3, 4, 5, 0, 1, 2]  # (t, rotvec) -> GTSAM's (rotvec, t)
 
 
 class LoopSearch:
-    """Place-descriptor candidates among older keyframes (see the module docstring)."""
+    """Place-descriptor candidates among older keyframes (see the module docstring); only the
+    loop-search keyframes (every `search_every`-th) are added and searched."""
 
     def __init__(self, params: SlamLoopParams) -> None:
         self.params = params
         self._vpr = np.zeros((0, 0), np.float32)
+        self._ids = np.zeros(0, np.int64)
         self._n = 0
 
-    def add(self, vpr: NDArray[np.float32]) -> None:
-        """Append the next keyframe's descriptor (keyframe ids in order)."""
+    def add(self, kf_id: int, vpr: NDArray[np.float32]) -> None:
+        """Append keyframe `kf_id`'s descriptor (ids increasing)."""
         v = np.asarray(vpr, np.float32).reshape(-1)
         if self._n == len(self._vpr):
             grown = np.zeros((max(64, 2 * self._n), len(v)), np.float32)
+            ids = np.zeros(len(grown), np.int64)
             if self._n:
-                grown[: self._n] = self._vpr[: self._n]
-            self._vpr = grown
-        self._vpr[self._n] = v
+                grown[: self._n], ids[: self._n] = self._vpr[: self._n], self._ids[: self._n]
+            self._vpr, self._ids = grown, ids
+        self._vpr[self._n], self._ids[self._n] = v, kf_id
         self._n += 1
 
-    def candidates(self, kf_id: int) -> list[tuple[int, float]]:
-        """(keyframe id, similarity) of the candidates for keyframe `kf_id`, most similar first."""
-        older = kf_id - self.params.exclude_recent
+    def candidates(self, kf_id: int, vpr: NDArray[np.float32]) -> list[tuple[int, float]]:
+        """(keyframe id, similarity) of the candidates for keyframe `kf_id` with descriptor `vpr`,
+        most similar first."""
+        older = int(np.searchsorted(self._ids[: self._n], kf_id - self.params.exclude_recent))
         if older <= 0:
             return []
-        sims = self._vpr[:older] @ self._vpr[kf_id]
+        sims = self._vpr[:older] @ np.asarray(vpr, np.float32).reshape(-1)
         order = np.argsort(-sims, kind="stable")[: self.params.top_k]
-        return [(int(j), float(sims[j])) for j in order if sims[j] >= self.params.min_similarity]
+        return [(int(self._ids[j]), float(sims[j])) for j in order if sims[j] >= self.params.min_similarity]
 
 
 def _observations(q: Keyframe, kf: Keyframe, i_q: NDArray[np.int64], i_k: NDArray[np.int64]) -> KeyframeObservations:
@@ -144,12 +151,12 @@ def beyond_chain_gate(q: Keyframe, cand: Keyframe, gate: SlamGraphParams, max_lo
 def loop_closures(q: Keyframe, keyframes: list[Keyframe], search: LoopSearch, match: MatchFn,
                   loc: LocalizationParams, params: SlamLoopParams, counts: LoopCounts,
                   gate: SlamGraphParams | None = None) -> tuple[list[Edge], list[LoopAttempt]]:
-    """Loop edges for keyframe `q` (already added to `search`): candidates (without those
+    """Loop edges for keyframe `q` (a loop-search keyframe): candidates (without those
     `beyond_chain_gate` of the chain `gate`, when given), then at most `max_verifications`
     verified, skipping candidates near a partner already found."""
     edges: list[Edge] = []
     attempts: list[LoopAttempt] = []
-    cands = search.candidates(q.id)
+    cands = search.candidates(q.id, q.vpr)
     counts.candidates += len(cands)
     if gate is not None:
         near = [(j, s) for j, s in cands if not beyond_chain_gate(q, keyframes[j], gate, loc.max_distance_to_node_m)]

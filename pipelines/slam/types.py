@@ -62,6 +62,7 @@ class Keyframe:
 
     features: its local features with `depth` (N,) at each keypoint (NaN = none);
     points: (N, 3) keypoints lifted with that depth (camera frame, NaN rows without depth);
+    vpr: place descriptor (of the raw colour image; the map keeps it for its keyframes);
     cloud: (M, 3) strided depth points (camera frame) for the map's occupancy and coverage;
     odom: (odometry segment, 4x4 T_odom_base) at its stamp, None where the odometry had none;
     T_init: 4x4 initial T_map_camera (chained edges); chain: id of its chain of odometry and

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -35,11 +37,12 @@ class _CountingMatcher:
 
 def _search(kfs: list[Keyframe], q: Keyframe, pregate: bool) -> tuple[LoopCounts, int]:
     cfg = load_config("default")
-    search = LoopSearch(cfg.slam.loops)
+    params = dataclasses.replace(cfg.slam.loops, max_verifications=2)
+    search = LoopSearch(params)
     for kf in kfs:
-        search.add(kf.vpr)
+        search.add(kf.id, kf.vpr)
     counts, match = LoopCounts(), _CountingMatcher()
-    loop_closures(q, kfs, search, match, cfg.localization, cfg.slam.loops, counts,
+    loop_closures(q, kfs, search, match, cfg.localization, params, counts,
                   cfg.slam.graph if pregate else None)
     return counts, match.pairs
 

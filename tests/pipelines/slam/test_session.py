@@ -250,3 +250,34 @@ def test_a_repetition_at_the_revisit_loses_to_the_true_loops(scene: Scene, base)
     assert g.loop_gate[:n] == [""] * n
     assert g.loop_gate[n:] == ["pairwise consistency"] * len(wrong)
     assert keyframe_ate_of(scene, res, g.poses) < 0.005
+
+
+def test_only_loop_search_keyframes_search_and_are_found(base) -> None:  # type: ignore[no-untyped-def]
+    # the loop search runs on every slam.loops.search_every-th keyframe only, among such keyframes
+    session, res = base
+    n = load_config("default").slam.loops.search_every
+    assert n > 1
+    assert res.loops and all(e.a % n == 0 and e.b % n == 0 for e in res.loops)
+    assert {a.query for a in session.attempts} <= {kf.id for kf in res.keyframes if kf.id % n == 0}
+
+
+def test_sparser_keyframe_spacing_makes_fewer_keyframes(scene: Scene) -> None:
+    from litevloc.base.geometry import rotation_angle
+    from litevloc.pipelines.slam.frontend import FrontEnd
+    from tests.pipelines.slam.synthetic import T_BASE_CAMERA
+
+    cfg = load_config("default")
+    sparse = dataclasses.replace(cfg.slam, keyframe_step_scale=2.0)
+    kp = cfg.mapping.keyframes
+    counts = []
+    for params in (cfg.slam, sparse):
+        front = FrontEnd(params, cfg.mapping, cfg.localization, scene.models(), T_BASE_CAMERA)
+        for i in range(60):
+            front.add(scene.frame_ref(i), (0, scene.T_world_base[i]))
+        counts.append(len(front.keyframes))
+        for a, b in itertools.pairwise(front.keyframes):  # the frame before b had not moved a step from a
+            Ta, Tb = scene.T_world_camera(a.index), scene.T_world_camera(b.index - 1)
+            k = params.keyframe_step_scale
+            assert np.linalg.norm(Tb[:3, 3] - Ta[:3, 3]) < k * kp.min_translation_m
+            assert np.degrees(rotation_angle(Ta[:3, :3].T @ Tb[:3, :3])) < k * kp.min_rotation_deg
+    assert counts[1] < 0.7 * counts[0]
