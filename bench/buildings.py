@@ -59,6 +59,8 @@ def main(argv: list[str] | None = None) -> int:
                          "each --alt-set variant")
     ap.add_argument("--alt-set", action="append", default=[], metavar="KEY=VALUE[,KEY=VALUE]",
                     help="a configuration variant for --placement-only (repeat for more)")
+    ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                    help="a configuration override for every run (repeat for more)")
     ap.add_argument("--render-frames", type=int, default=40,
                     help="frames per building of the rendering-cost comparison (first simulator's buildings vs these, "
                          "the first seed of each generator; 0: skip)")
@@ -66,7 +68,8 @@ def main(argv: list[str] | None = None) -> int:
     runs = [BuildingRun(g, s, args.appearance) for s in args.seeds for g in args.generators]
     variants = (("defaults", ()), *((v, tuple(v.split(","))) for v in args.alt_set)) if args.placement_only else ()
     settings = BenchSettings(goal_timeout_s=args.goal_timeout, out_dir=args.out_dir, keep_maps=not args.fresh_maps,
-                             max_goals=args.max_goals, placement_variants=variants)
+                             max_goals=args.max_goals, placement_variants=variants,
+                             overrides=tuple(args.overrides))
     render = render_cost([BuildingRun(g, args.seeds.start) for g in args.generators], load_config("default"),
                          args.render_frames) if args.render_frames else []
     if render:
@@ -93,7 +96,8 @@ def main(argv: list[str] | None = None) -> int:
                 table_rows(buildings))
     _print_totals(t)
     result = {"seeds": [args.seeds.start, args.seeds.stop], "generators": args.generators,
-              "appearance": args.appearance, "workers": args.workers, "render_cost": render,
+              "appearance": args.appearance, "workers": args.workers, "overrides": args.overrides,
+              "render_cost": render,
               "buildings": buildings, "totals": t}
     if args.json is None:
         write_json(args.name, result)
