@@ -355,7 +355,8 @@ def _voxel_firsts(pts: NDArray[np.float64], voxel_m: float) -> NDArray[np.intp]:
     """Indices (ascending) of the first of the (M, 2) points in each `voxel_m` cell."""
     if len(pts) == 0:
         return np.zeros(0, np.intp)
-    _, idx = np.unique(np.floor(pts / voxel_m).astype(np.int64), axis=0, return_index=True)
+    cell = np.floor(pts / voxel_m).astype(np.int64)
+    _, idx = np.unique((cell[:, 0] << 32) + (cell[:, 1] & 0xFFFFFFFF), return_index=True)  # one key per cell
     return np.sort(idx)
 
 
