@@ -10,7 +10,8 @@ same buildings with the first simulator's pictures (results named BUILDING-alias
 Maps are kept under out/bench/buildings/BUILDING/map and reused by a later run unless
 `--fresh-maps`. Prints a table per building and the totals, writes out/bench/NAME.json
 (keys: `buildings[*]` with `map`, `litevloc`, `ground-truth`, `other_set`, `figures`;
-`totals` with the acceptance checks) and out/bench/NAME.png.
+`totals` with the acceptance checks) and out/bench/NAME.png; each building's record is also appended to
+out/bench/NAME.partial.jsonl as it finishes, so a run stopped early keeps what it did.
 """
 
 from __future__ import annotations
@@ -78,9 +79,15 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     print(f"{len(runs)} buildings, {args.workers} workers", flush=True)
 
+    partial = (OUT / args.name if args.json is None else args.json).with_suffix(".partial.jsonl")
+    partial.parent.mkdir(parents=True, exist_ok=True)
+    partial.write_text("")
+
     def progress(rec: dict) -> None:
         for line in rec.get("log", []):
             print(line, flush=True)
+        with partial.open("a") as fh:  # each building's record as it finishes: a stopped run keeps them
+            fh.write(json.dumps(rec, default=float) + "\n")
         print(f"done {rec['building']} ({time.perf_counter() - t0:.0f} s since start)"
               + (f": ERROR {rec['error']}" if "error" in rec else ""), flush=True)
 
