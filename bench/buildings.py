@@ -10,7 +10,8 @@ same buildings with the first simulator's pictures (results named BUILDING-alias
 Maps are kept under out/bench/buildings/BUILDING/map and reused by a later run unless
 `--fresh-maps`. Prints a table per building and the totals, writes out/bench/NAME.json
 (keys: `buildings[*]` with `map`, `litevloc`, `ground-truth`, `other_set`, `figures`;
-`totals` with the acceptance checks) and out/bench/NAME.png.
+`totals` with the acceptance checks) and out/bench/NAME.png; each building's record is also appended to
+out/bench/NAME.partial.jsonl as it finishes, so a run stopped early keeps what it did.
 """
 
 from __future__ import annotations
@@ -59,6 +60,8 @@ def main(argv: list[str] | None = None) -> int:
                          "each --alt-set variant")
     ap.add_argument("--alt-set", action="append", default=[], metavar="KEY=VALUE[,KEY=VALUE]",
                     help="a configuration variant for --placement-only (repeat for more)")
+    ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                    help="a configuration override for every run (repeat for more)")
     ap.add_argument("--render-frames", type=int, default=40,
                     help="frames per building of the rendering-cost comparison (first simulator's buildings vs these, "
                          "the first seed of each generator; 0: skip)")
@@ -66,7 +69,8 @@ def main(argv: list[str] | None = None) -> int:
     runs = [BuildingRun(g, s, args.appearance) for s in args.seeds for g in args.generators]
     variants = (("defaults", ()), *((v, tuple(v.split(","))) for v in args.alt_set)) if args.placement_only else ()
     settings = BenchSettings(goal_timeout_s=args.goal_timeout, out_dir=args.out_dir, keep_maps=not args.fresh_maps,
-                             max_goals=args.max_goals, placement_variants=variants)
+                             max_goals=args.max_goals, placement_variants=variants,
+                             overrides=tuple(args.overrides))
     render = render_cost([BuildingRun(g, args.seeds.start) for g in args.generators], load_config("default"),
                          args.render_frames) if args.render_frames else []
     if render:
@@ -75,9 +79,15 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     print(f"{len(runs)} buildings, {args.workers} workers", flush=True)
 
+    partial = (OUT / args.name if args.json is None else args.json).with_suffix(".partial.jsonl")
+    partial.parent.mkdir(parents=True, exist_ok=True)
+    partial.write_text("")
+
     def progress(rec: dict) -> None:
         for line in rec.get("log", []):
             print(line, flush=True)
+        with partial.open("a") as fh:  # each building's record as it finishes: a stopped run keeps them
+            fh.write(json.dumps(rec, default=float) + "\n")
         print(f"done {rec['building']} ({time.perf_counter() - t0:.0f} s since start)"
               + (f": ERROR {rec['error']}" if "error" in rec else ""), flush=True)
 
@@ -93,7 +103,8 @@ def main(argv: list[str] | None = None) -> int:
                 table_rows(buildings))
     _print_totals(t)
     result = {"seeds": [args.seeds.start, args.seeds.stop], "generators": args.generators,
-              "appearance": args.appearance, "workers": args.workers, "render_cost": render,
+              "appearance": args.appearance, "workers": args.workers, "overrides": args.overrides,
+              "render_cost": render,
               "buildings": buildings, "totals": t}
     if args.json is None:
         write_json(args.name, result)

@@ -79,6 +79,8 @@ class BenchSettings:
     """Settings of one benchmark run (the defaults are the report's)."""
 
     config: str = "default"
+    # `key=value` overrides of the configuration for every run (e.g. a baseline with a rule off)
+    overrides: tuple[str, ...] = ()
     goal_timeout_s: float = 120.0
     vloc_hz: float = 1.0
     out_dir: Path = Path("out/bench/buildings")
@@ -270,8 +272,8 @@ def placement_run(run: BuildingRun, settings: BenchSettings, cfgs: dict[str, Lit
 _WORKER: dict[str, Any] = {}
 
 
-def _init_worker(config: str) -> None:
-    cfg = load_config(config)
+def _init_worker(config: str, overrides: tuple[str, ...] = ()) -> None:
+    cfg = load_config(config, overrides)
     models = dataclasses.replace(cfg.models, intra_op_threads=1)
     cfg = dataclasses.replace(cfg, models=models)
     _WORKER.update(cfg=cfg, bundles={"nav": load_bundle(models),
@@ -283,7 +285,8 @@ def _work(run: BuildingRun, settings: BenchSettings) -> dict[str, Any]:
     try:
         if settings.placement_variants:
             models = _WORKER["cfg"].models
-            cfgs = {name: dataclasses.replace(load_config(settings.config, list(sets)), models=models)
+            cfgs = {name: dataclasses.replace(load_config(settings.config, [*settings.overrides, *sets]),
+                                              models=models)
                     for name, sets in settings.placement_variants}
             rec = placement_run(run, settings, cfgs, _WORKER["bundles"], lines.append)
         else:
@@ -302,7 +305,7 @@ def run_buildings(runs: Iterable[BuildingRun], settings: BenchSettings, workers:
     results: list[dict[str, Any]] = []
     ctx = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_worker,
-                             initargs=(settings.config,)) as pool:
+                             initargs=(settings.config, settings.overrides)) as pool:
         futures = [pool.submit(_work, r, settings) for r in runs]
         for fut in as_completed(futures):
             rec = fut.result()

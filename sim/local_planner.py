@@ -28,6 +28,9 @@ the contact ahead is `contact_clear_m` beyond its radius, and no arc may come cl
 than the robot already is (nor within robot_radius + margin_m): a turn toward the next subgoal in
 a doorway otherwise picked an arc into the jamb it had just touched (seen obstacles may be
 approached 5 mm in a tight spot; contacts, stored on a ring just outside the robot, may not).
+Ground the camera looked at is remembered the same way (`seen_ground`), and no arc may sweep the
+footprint more than `unseen_overlap_m` over ground not seen: turning into a door from beside it,
+the robot's inner side otherwise swung into a jamb that never was in the 72-degree view.
 
 Frames: `base_link` x forward, y left, z up on the floor; the depth image is in the camera
 optical frame mounted at `T_base_camera`.
@@ -42,6 +45,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litevloc.base.params.sim_navigation import LocalPlannerParams
+from litevloc.sim.seen_ground import grid_lookup, seen_ray_points, unseen_distance
 
 
 @dataclass(frozen=True)
@@ -84,6 +88,30 @@ def arc_points(curvature: float, lengths: NDArray[np.floating]) -> NDArray[np.fl
     return np.stack([r * np.sin(s / r), r * (1 - np.cos(s / r))], 1)
 
 
+class _RecentPoints:
+    """(M, 2) points in the odometry frame, one per `voxel_m` cell (the newest sighting wins), each
+    with the odometry travel (m) and unwrapped heading (rad) at its sighting."""
+
+    def __init__(self, voxel_m: float) -> None:
+        self.voxel_m = voxel_m
+        self.pts = np.zeros((0, 2))
+        self.driven = np.zeros(0)
+        self.heading = np.zeros(0)
+
+    def merge(self, new: NDArray[np.float64], driven: float, heading: float, xy: NDArray[np.float64],
+              params: LocalPlannerParams) -> None:
+        """Add this frame's `new` (N, 2, odometry frame) seen at (`driven`, `heading`) and drop the
+        points farther than `memory_radius_m` from the robot at `xy` or older than `memory_travel_m`."""
+        p = params
+        pts = np.concatenate([new, self.pts])
+        drv = np.concatenate([np.full(len(new), driven), self.driven])
+        hdg = np.concatenate([np.full(len(new), heading), self.heading])
+        age = driven - drv + p.memory_m_per_rad * np.abs(heading - hdg)
+        keep = (np.hypot(*(pts - xy).T) <= p.memory_radius_m) & (age <= p.memory_travel_m)
+        idx = np.flatnonzero(keep)[_voxel_firsts(pts[keep], self.voxel_m)]  # this frame's points come first
+        self.pts, self.driven, self.heading = pts[idx], drv[idx], hdg[idx]
+
+
 class LocalPlanner:
     """Chooses (v, omega) toward a subgoal from one depth image (see module docstring)."""
 
@@ -95,9 +123,8 @@ class LocalPlanner:
         # 2 cm steps up to the second sample: where a contact is checked between the coarse samples
         fine = np.arange(0.02, self.s[min(1, p.samples - 1)], 0.02)
         self.fine_arcs = np.stack([arc_points(k, fine) for k in self.kappas])  # (A, f, 2)
-        self.memory = np.zeros((0, 2))  # (M, 2) obstacle points, odometry frame
-        self._mem_driven = np.zeros(0)  # (M,) `_driven` when each point was last seen
-        self._mem_heading = np.zeros(0)  # (M,) `_heading` when each point was last seen
+        self._obstacles = _RecentPoints(p.voxel_m)  # obstacle points, odometry frame
+        self._seen = _RecentPoints(p.grid_m)  # ground the camera looked at, odometry frame
         self._driven = 0.0  # metres driven so far (odometry)
         self._heading = 0.0  # unwrapped odometry heading (rad): net turning, full turns counted
         self._last_pose: NDArray[np.float64] | None = None  # x, y, yaw (odometry)
@@ -139,39 +166,46 @@ class LocalPlanner:
         self._backing = 0
         return None
 
-    def _remember(self, pts_base: NDArray[np.float64], T_odom_base: NDArray[np.floating]) -> NDArray[np.float64]:
-        """Merge this frame's (N, 2) points (base frame) into the rolling local map (odometry
-        frame); returns every remembered point in the base frame."""
+    @property
+    def memory(self) -> NDArray[np.float64]:
+        """(M, 2) remembered obstacle points, odometry frame (m)."""
+        return self._obstacles.pts
+
+    def _odom_pose(self, T_odom_base: NDArray[np.floating]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(R 2x2, xy) of the robot in the odometry frame; advances the travel and net heading."""
         T = np.asarray(T_odom_base, np.float64)
         c, s_ = T[0, 0], T[1, 0]
         R = np.array([[c, -s_], [s_, c]]) / max(float(np.hypot(c, s_)), 1e-12)
-        p = self.params
         xy = T[:2, 3].copy()
         yaw = float(np.arctan2(s_, c))
         if self._last_pose is not None:
             self._heading += float(np.angle(np.exp(1j * (yaw - self._last_pose[2]))))
             self._driven += float(np.hypot(*(xy - self._last_pose[:2])))
         self._last_pose = np.array([xy[0], xy[1], yaw])
-        cur = pts_base @ R.T + xy
-        pts = np.concatenate([cur, self.memory])
-        driven = np.concatenate([np.full(len(cur), self._driven), self._mem_driven])
-        heading = np.concatenate([np.full(len(cur), self._heading), self._mem_heading])
-        age = self._driven - driven + p.memory_m_per_rad * np.abs(self._heading - heading)
-        keep = (np.hypot(*(pts - xy).T) <= p.memory_radius_m) & (age <= p.memory_travel_m)
-        idx = np.flatnonzero(keep)[self._voxel_firsts(pts[keep])]  # this frame's points come first: they win
-        self.memory, self._mem_driven, self._mem_heading = pts[idx], driven[idx], heading[idx]
-        pts = self.memory
-        return np.asarray((pts - xy) @ R, dtype=np.float64)
+        return R, xy
 
-    def _voxel_firsts(self, pts: NDArray[np.float64]) -> NDArray[np.intp]:
-        """Indices (ascending) of the first of the (M, 2) points in each voxel_m cell."""
-        if len(pts) == 0:
-            return np.zeros(0, np.intp)
-        _, idx = np.unique(np.floor(pts / self.params.voxel_m).astype(np.int64), axis=0, return_index=True)
-        return np.sort(idx)
+    def _remember(self, pts_base: NDArray[np.float64], T_odom_base: NDArray[np.floating],
+                  seen_base: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+        """Merge this frame's (N, 2) obstacle points and (S, 2) seen ground points (base frame)
+        into the rolling local maps (odometry frame); returns every remembered obstacle point in
+        the base frame."""
+        R, xy = self._odom_pose(T_odom_base)
+        self._obstacles.merge(pts_base @ R.T + xy, self._driven, self._heading, xy, self.params)
+        if seen_base is not None:
+            self._seen.merge(seen_base @ R.T + xy, self._driven, self._heading, xy, self.params)
+        return np.asarray((self._obstacles.pts - xy) @ R, dtype=np.float64)
+
+    def seen_base(self, T_odom_base: NDArray[np.floating] | None) -> NDArray[np.float64] | None:
+        """(S, 2) remembered seen ground in the base frame (m); None without `T_odom_base` or
+        with the rule off (`unseen_overlap_m` >= robot_radius)."""
+        p = self.params
+        if T_odom_base is None or p.memory_travel_m <= 0 or p.unseen_overlap_m >= p.robot_radius:
+            return None
+        T = np.asarray(T_odom_base, np.float64)
+        return np.asarray((self._seen.pts - T[:2, 3]) @ T[:2, :2], np.float64)
 
     def _thin(self, pts: NDArray[np.float64]) -> NDArray[np.float64]:
-        return pts[self._voxel_firsts(pts)]
+        return pts[_voxel_firsts(pts, self.params.voxel_m)]
 
     def observe(
         self, depth: NDArray[np.floating] | None, K: NDArray[np.floating], T_base_camera: NDArray[np.floating],
@@ -184,7 +218,9 @@ class LocalPlanner:
         p = self.params
         pts = np.zeros((0, 2)) if depth is None else self._thin(obstacle_points(depth, K, T_base_camera, p))
         if T_odom_base is not None and p.memory_travel_m > 0:
-            pts = self._remember(pts, T_odom_base)
+            looked = None if depth is None or p.unseen_overlap_m >= p.robot_radius \
+                else seen_ray_points(depth, K, T_base_camera, p)
+            pts = self._remember(pts, T_odom_base, looked)
         return np.concatenate([pts, self.contacts_base(T_odom_base)])
 
     def command(
@@ -208,7 +244,9 @@ class LocalPlanner:
             self._reversing -= 1
             return Command(-p.min_speed, 0.0, "recover")
         g = self.carrot(g, pts)
-        cmd = self._choose(g, float(np.hypot(*g)), pts, contacts)
+        seen = self.seen_base(T_odom_base)
+        unseen = None if seen is None else unseen_distance(seen, p)
+        cmd = self._choose(g, float(np.hypot(*g)), pts, contacts, unseen)
         self._stuck = 0 if cmd.reason in ("arc", "squeeze") else self._stuck + 1
         if self._stuck >= p.recover_after:
             self._stuck, self._reversing, self._turn_sign = 0, p.recover_commands - 1, 0.0
@@ -254,10 +292,11 @@ class LocalPlanner:
         return np.asarray(path[k_min], np.float64)
 
     def _choose(self, g: NDArray[np.float64], dist: float, pts: NDArray[np.float64],
-                contacts: NDArray[np.float64] | None = None) -> Command:
+                contacts: NDArray[np.float64] | None = None, unseen: NDArray[np.float64] | None = None) -> Command:
         """Turn, an arc, a squeeze or blocked, from the subgoal `g` (base frame, `dist` m away),
-        the obstacle points `pts` (M, 2, base frame, contacts included) and the bumper
-        `contacts` (C, 2, base frame; none: no contact rule)."""
+        the obstacle points `pts` (M, 2, base frame, contacts included), the bumper
+        `contacts` (C, 2, base frame; none: no contact rule) and the local grid's distance to
+        ground not seen (`seen_ground.unseen_distance`; none: unknown ground counts as free)."""
         p = self.params
         bearing = float(np.arctan2(g[1], g[0]))
         if abs(bearing) > np.radians(p.turn_in_place_deg) and self._detour == 0:
@@ -279,6 +318,8 @@ class LocalPlanner:
             limit_c = min(here_c, p.robot_radius + p.margin_m) - 1e-6
             hit |= _nearest(arcs, contacts) < limit_c
             hit[:, 0] |= (_nearest(self.fine_arcs, contacts) < limit_c).any(axis=1)  # the next command's stretch
+        if unseen is not None:  # the footprint may not cover ground the camera never saw
+            hit |= grid_lookup(unseen, arcs, p.grid_m) < p.robot_radius - p.unseen_overlap_m
         first = np.where(hit.any(axis=1), hit.argmax(axis=1), n_need)  # first blocked sample
         free_len = np.where(first > 0, self.s[np.maximum(first - 1, 0)], 0.0)
         free_len = np.minimum(free_len, need)
@@ -308,6 +349,15 @@ class LocalPlanner:
             v *= p.max_omega / abs(w)
             w = float(np.sign(w) * p.max_omega)
         return Command(v, w, "arc", float(clear[a]))
+
+
+def _voxel_firsts(pts: NDArray[np.float64], voxel_m: float) -> NDArray[np.intp]:
+    """Indices (ascending) of the first of the (M, 2) points in each `voxel_m` cell."""
+    if len(pts) == 0:
+        return np.zeros(0, np.intp)
+    cell = np.floor(pts / voxel_m).astype(np.int64)
+    _, idx = np.unique((cell[:, 0] << 32) + (cell[:, 1] & 0xFFFFFFFF), return_index=True)  # one key per cell
+    return np.sort(idx)
 
 
 def _nearest(arcs: NDArray[np.float64], pts: NDArray[np.float64]) -> NDArray[np.float64]:

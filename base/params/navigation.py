@@ -36,6 +36,9 @@ class GoalParams:
     require_pose: bool = True
     # refuse a goal as ambiguous when another place has more than 1/this of the chosen place's support (0 = off)
     ambiguity_ratio: float = 2.0
+    # an ambiguous goal is placed after all where one place holds pose_min_inliers and ambiguity_ratio x any other's
+    # support points outside the densest horizontal band this high (floor or ceiling tiles) (m; 0: off)
+    ambiguity_band_m: float = 0.04
     # candidates' goal poses within this of each other are one place (m)
     agree_m: float = 0.5
     # ... and within this rotation (degrees)
@@ -62,6 +65,8 @@ class GoalParams:
             raise ValueError("pose_min_inliers >= 6, pose_px > 0 and pose_max_m > 0 required")
         if self.ambiguity_ratio < 0 or 0 < self.ambiguity_ratio < 1:
             raise ValueError("ambiguity_ratio must be 0 (off) or >= 1")
+        if self.ambiguity_band_m < 0:
+            raise ValueError("ambiguity_band_m must be >= 0 (0 = off)")
         if self.agree_m <= 0 or not 0 < self.agree_deg <= 180:
             raise ValueError("agree_m > 0 and 0 < agree_deg <= 180 required")
         if self.planar_rms_m < 0 or not self.planar_factor >= 1:

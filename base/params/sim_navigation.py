@@ -47,6 +47,8 @@ class LocalPlannerParams:
     robot_radius: float = 0.3
     # arcs closer to an obstacle than robot_radius + this are blocked (m; clearance_m is the soft term)
     margin_m: float = 0.03
+    # arcs may sweep the robot's footprint this far over ground its camera never saw (m; >= robot_radius: off)
+    unseen_overlap_m: float = 0.05
     # obstacle heights above the floor, [low, high] (m)
     height_band_m: tuple[float, float] = (0.08, 1.5)
     # depth farther than this is not an obstacle (m)

@@ -13,7 +13,10 @@
   pose, and a goal that verifies as well (within `ambiguity_ratio`) at another place is
   refused as ambiguous: the same poster hangs in two rooms, and guessing sends the robot
   to the wrong one. Candidates whose goal poses agree, or whose keyframes are covisible in
-  the map, are one place. A candidate whose PnP inliers all lie on one plane (`plane_rms`
+  the map, are one place. Where the PnP supports leave a goal ambiguous, the support points off
+  the densest horizontal band (floor or ceiling tiles, which repeat and fit a tile off) are counted
+  alone, and a place that holds enough of them and `ambiguity_ratio` times any other's is chosen
+  after all (`ambiguity_band_m`). A candidate whose PnP inliers all lie on one plane (`plane_rms`
   below `planar_rms_m`) matched a single flat patch -- a poster, a sign, one wall -- which
   can hang at several places, so it needs `planar_factor` x `min_inliers` to verify a place;
   otherwise the goal is refused and the reason says so. A goal that verifies at a node of a
@@ -262,28 +265,62 @@ def localize_goal(
                           f"within {params.pose_max_m:g} m of the keyframe): where it was taken, and whether another "
                           "place fits as well, cannot be checked", table, None, best.pose_inliers)
     if best.T_map_goal is not None and params.ambiguity_ratio > 0:
-        covis = topomap.covisibility_lists
-        places = _places(cands, params.agree_m, params.agree_deg, lambda a, b: b in covis[a])
-        support = [sum(c.pose_inliers for c in p) for p in places]
-        mine = next(i for i, p in enumerate(places) if best in p)
-        rivals = [(s, p[0]) for i, (s, p) in enumerate(zip(support, places, strict=True)) if i != mine]
-        if rivals:
-            s_rival, rival = max(rivals, key=lambda r: r[0])
-            if s_rival * params.ambiguity_ratio > support[mine]:
-                assert rival.T_map_goal is not None
-                apart = float(np.linalg.norm(rival.T_map_goal[:3, 3] - best.T_map_goal[:3, 3]))
-                why = ""
-                T_mn = topomap.T_map_camera[best.node]
-                flat = horizontal_share(best.support_points @ T_mn[:3, :3].T + T_mn[:3, 3], topomap.grid.up)
-                if flat >= 0.5:  # say what the image lacks, so the user can retake it
-                    why = (f"; {100 * flat:.0f} % of node {best.node}'s support lies on one "
-                           "horizontal surface (floor or ceiling tiles repeat): an image with more of the "
-                           "place in view would tell them apart")
-                return GoalResult(None, best.inliers,
-                                  f"goal image is ambiguous: it verifies at nodes {best.node} and {rival.node}, "
-                                  f"{apart:.1f} m apart (PnP support {support[mine]} vs {s_rival}, need "
-                                  f"x{params.ambiguity_ratio:g}){why}", table, None, best.pose_inliers)
+        best, refusal = _unambiguous(topomap, cands, verified, best, params, table)
+        if refusal is not None:
+            return refusal
     return GoalResult(best.node, best.inliers, "ok", table, best.T_map_goal, best.pose_inliers)
+
+
+def distinctive_support(points_map: NDArray[np.float64], up: NDArray[np.float64], band_m: float) -> int:
+    """PnP support points (N, 3, map frame) that say which place an image shows: all but those in
+    the densest horizontal band of `band_m` metres (floor or ceiling tiles, which repeat in every
+    room and, shifted by a tile, fit at several spots of one room); `band_m` 0: all of them."""
+    if band_m <= 0 or len(points_map) == 0:
+        return len(points_map)
+    return round(len(points_map) * (1.0 - horizontal_share(points_map, up, band_m)))
+
+
+def _unambiguous(topomap: TopoMap, cands: list[_Candidate], verified: list[_Candidate], best: _Candidate,
+                 params: GoalParams, table: tuple[tuple[int, float, int], ...]) -> tuple[_Candidate, GoalResult | None]:
+    """The ambiguity test of `localize_goal`: candidates grouped into places; the goal is ambiguous
+    when another place's PnP support exceeds 1/`ambiguity_ratio` of the chosen place's, unless
+    (`ambiguity_band_m` > 0) one place with a verified candidate holds at least `pose_min_inliers`
+    distinctive support points (not on floor or ceiling tiles) and `ambiguity_ratio` times any
+    other place's: then that place is chosen. (the chosen candidate, None) or (-, the refusal)."""
+    covis = topomap.covisibility_lists
+    places = _places(cands, params.agree_m, params.agree_deg, lambda a, b: b in covis[a])
+    support = [sum(c.pose_inliers for c in p) for p in places]
+    mine = next(i for i, p in enumerate(places) if best in p)
+    rivals = [(s, p[0]) for i, (s, p) in enumerate(zip(support, places, strict=True)) if i != mine]
+    if not rivals or max(r[0] for r in rivals) * params.ambiguity_ratio <= support[mine]:
+        return best, None
+    if params.ambiguity_band_m > 0:  # tiles say nothing about the place: does the rest single one out?
+        up = topomap.grid.up
+        distinct = [distinctive_support(_support_map(topomap, p), up, params.ambiguity_band_m) for p in places]
+        ok = [i for i, p in enumerate(places) if any(c in verified for c in p)]  # best's place is one
+        w = max(ok, key=lambda i: (distinct[i], best in places[i]))
+        other = max((d for i, d in enumerate(distinct) if i != w), default=0)
+        if distinct[w] >= params.pose_min_inliers and other * params.ambiguity_ratio <= distinct[w]:
+            return max((c for c in places[w] if c in verified), key=lambda c: (c.inliers, c.similarity)), None
+    s_rival, rival = max(rivals, key=lambda r: r[0])
+    assert rival.T_map_goal is not None and best.T_map_goal is not None
+    apart = float(np.linalg.norm(rival.T_map_goal[:3, 3] - best.T_map_goal[:3, 3]))
+    why = ""
+    flat = horizontal_share(_support_map(topomap, [best]), topomap.grid.up)
+    if flat >= 0.5:  # say what the image lacks, so the user can retake it
+        why = (f"; {100 * flat:.0f} % of node {best.node}'s support lies on one "
+               "horizontal surface (floor or ceiling tiles repeat): an image with more of the "
+               "place in view would tell them apart")
+    return best, GoalResult(None, best.inliers,
+                            f"goal image is ambiguous: it verifies at nodes {best.node} and {rival.node}, "
+                            f"{apart:.1f} m apart (PnP support {support[mine]} vs {s_rival}, need "
+                            f"x{params.ambiguity_ratio:g}){why}", table, None, best.pose_inliers)
+
+
+def _support_map(topomap: TopoMap, place: list[_Candidate]) -> NDArray[np.float64]:
+    """(N, 3) the PnP support points of a place's candidates in the map frame (metres)."""
+    return np.concatenate([c.support_points @ topomap.T_map_camera[c.node][:3, :3].T
+                           + topomap.T_map_camera[c.node][:3, 3] for c in place] + [np.zeros((0, 3))])
 
 
 def against_view_graph(topomap: TopoMap, cost: float, against_deg: float) -> Any:

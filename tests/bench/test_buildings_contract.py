@@ -36,6 +36,9 @@ def test_two_building_run_writes_the_json_contract(tmp_path: Path) -> None:
     res = json.loads(out.read_text())
     assert out.with_suffix(".png").is_file()
     assert [b["building"] for b in res["buildings"]] == ["tiny-1", "tiny-2"]
+    partial = [json.loads(line) for line in out.with_suffix(".partial.jsonl").read_text().splitlines()]
+    assert sorted(b["building"] for b in partial) == ["tiny-1", "tiny-2"]  # kept as each finished
+    assert all("litevloc" in b and "ground-truth" in b for b in partial)
     for b in res["buildings"]:
         assert "error" not in b, b.get("error")
         assert {"keyframes", "free_space_coverage", "rooms_entered", "unmapped_openings", "openings",

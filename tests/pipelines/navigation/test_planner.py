@@ -333,3 +333,40 @@ def test_default_bar_verifies_a_goal_with_35_inliers_spread_in_depth() -> None:
     np.testing.assert_allclose(res.T_map_goal, T_goal, atol=1e-5)
     few = localize_goal(goal, desc, K, _sparse_map(30), match_by_id, params)  # 24 inliers
     assert few.node is None and "matches no map place" in few.reason
+
+
+def test_floor_tiles_do_not_make_a_goal_ambiguous_where_the_rest_of_its_support_singles_out_one_place() -> None:
+    """Three places verify a goal image: node 1's and node 3's PnP support lies wholly on the floor
+    (tiles repeat, and shifted by a tile they fit 1-2 m off), node 2's spans the scene. By PnP
+    support node 1 (most essential inliers) has a rival within x2 (node 2): ambiguous. Counting
+    only support off the floor band, node 2's place alone holds any: it is chosen. With fewer than
+    `pose_min_inliers` such points, or the rule off (`ambiguity_band_m` 0), the goal stays refused."""
+    from litevloc.pipelines.navigation.planner import _Candidate, _unambiguous
+
+    m = make_vloc_map([0.0, 1.0, 2.0, 3.0])  # up = -y of the map; no keyframes covisible
+    m = dataclasses.replace(m, covis_edges=np.zeros((0, 2), np.int64), covis_inliers=np.zeros(0, np.int32),
+                            covis_weight=np.zeros(0, np.float32))
+    rng = np.random.default_rng(1)
+
+    def cand(node: int, x_goal: float, inliers: int, pts_map: np.ndarray) -> _Candidate:
+        T = m.T_map_camera[node]
+        return _Candidate(node, 0.5, inliers, pose(x_goal), len(pts_map), 0.0, (pts_map - T[:3, 3]) @ T[:3, :3])
+
+    def floor(n: int) -> np.ndarray:
+        return np.c_[rng.uniform(-3, 3, n), np.full(n, 1.2) + rng.uniform(-0.005, 0.005, n), rng.uniform(3, 8, n)]
+
+    def scene(n: int) -> np.ndarray:
+        return np.c_[rng.uniform(-3, 3, n), rng.uniform(-1.5, 1.2, n), rng.uniform(3, 8, n)]
+
+    tiles, place, tiles2 = cand(1, 1.0, 100, floor(90)), cand(2, 2.2, 90, scene(70)), cand(3, 3.5, 60, floor(40))
+    cands = [tiles, place, tiles2]
+    params = GoalParams()
+    best, refusal = _unambiguous(m, cands, cands, tiles, params, ())
+    assert refusal is None and best is place
+    off = dataclasses.replace(params, ambiguity_band_m=0.0)
+    assert _unambiguous(m, cands, cands, tiles, off, ())[1] is not None
+    thin = cand(2, 2.2, 90, np.vstack([floor(60), scene(params.pose_min_inliers - 2)]))
+    res = _unambiguous(m, [tiles, thin, tiles2], [tiles, thin, tiles2], tiles, params, ())[1]
+    assert res is not None and "ambiguous" in res.reason and "horizontal surface" in res.reason
+    # the singled-out place must hold a verified candidate
+    assert _unambiguous(m, cands, [tiles, tiles2], tiles, params, ())[1] is not None
