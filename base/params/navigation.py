@@ -36,8 +36,7 @@ class GoalParams:
     require_pose: bool = True
     # refuse a goal as ambiguous when another place has more than 1/this of the chosen place's support (0 = off)
     ambiguity_ratio: float = 2.0
-    # an ambiguous goal is placed after all where one place holds pose_min_inliers and ambiguity_ratio x any other's
-    # support points outside the densest horizontal band this high (floor or ceiling tiles) (m; 0: off)
+    # height of the floor/ceiling band whose support an ambiguous goal's second look ignores (m; 0 = off)
     ambiguity_band_m: float = 0.04
     # candidates' goal poses within this of each other are one place (m)
     agree_m: float = 0.5
