@@ -44,7 +44,13 @@ import numpy as np
 from _common import OUT, ROOT, SEVEN_SCENES, litevloc, print_table, require_7scenes, write_json
 
 from litevloc.config import load_config
-from litevloc.experiments.slam import case_figures, graph_errors, inject_wrong_loops, sim_reference
+from litevloc.experiments.slam import (
+    case_figures,
+    graph_errors,
+    inject_wrong_loops,
+    sim_reference,
+    without_ground_truth,
+)
 
 PASSES = {"office": "map", "floor": "map", "bland": "map", "loop": "loop"}
 HERE = OUT / "slam"
@@ -64,15 +70,6 @@ def inject(world: str, config: str) -> dict[str, Any]:
     return inject_wrong_loops(HERE / world / "graph.npz", ref, cfg.slam.graph, 0.1, 3.0, seed=0)
 
 
-def _without_ground_truth(src: Path, dst: Path) -> None:
-    """Copy a recording without its /ground_truth/camera_pose channel (what a robot records)."""
-    from litevloc.hw.messages import GroundTruthPose
-    from litevloc.hw.streams.mcap_io import McapSource, record_messages
-
-    record_messages((m for m in McapSource(src) if not isinstance(m, GroundTruthPose)), dst,
-                    {"source": str(src), "note": "ground truth removed"})
-
-
 def _reference(rec: Path) -> dict[int, np.ndarray]:
     from litevloc.hw.streams.mcap_io import McapSource
     from litevloc.runtime.posed import posed_frames
@@ -89,7 +86,7 @@ def sevenscenes_case(name: str, rate: float, pgt: Path | None) -> dict[str, Any]
         litevloc("convert", str(data), str(full), "--frames", "0:500", "--odometry-rate", str(rate), "--seed", "0",
                  "--config", "7scenes")
     if not rec.is_file():
-        _without_ground_truth(full, rec)
+        without_ground_truth(full, rec)
     js, npz = d / "build.json", d / "graph.npz"
     litevloc("map", "build", str(rec), "-o", str(d / "map"), "--force", "--poses", "slam", "--json", str(js),
              "--slam-graph", str(npz), "--config", "7scenes")

@@ -33,6 +33,16 @@ from litevloc.runtime.slam_build import SavedGraph, load_graph
 F64 = NDArray[np.float64]
 
 
+def without_ground_truth(src: Path, dst: Path) -> None:
+    """Copy the recording `src` to `dst` without its /ground_truth/camera_pose channel: what a
+    robot records (`litevloc record`), for building a map from the robot's own sensors."""
+    from litevloc.hw.messages import GroundTruthPose
+    from litevloc.hw.streams.mcap_io import McapSource, record_messages
+
+    record_messages((m for m in McapSource(src) if not isinstance(m, GroundTruthPose)), dst,
+                    {"source": str(src), "note": "ground truth removed"})
+
+
 def case_figures(build: dict[str, Any], world: str | None = None) -> dict[str, Any]:
     """The benchmark's keys from a `map build --poses slam` JSON summary."""
     s = build["slam"]

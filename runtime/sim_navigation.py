@@ -62,6 +62,7 @@ from litevloc.sim.realism import sample_lighting
 from litevloc.sim.render import Renderer
 from litevloc.sim.search import LocalizationSearch
 from litevloc.sim.simulator import Simulator, camera_pose, render_frame
+from litevloc.sim.trajectory import PlanningError, plan_path
 from litevloc.sim.world import World
 
 
@@ -92,6 +93,8 @@ class GoalRecord:
     placed_node: int | None = None  # where the planner put the goal image (None: refused)
     placed_xy: tuple[float, float] | None = None  # its metric goal pose, else its node's camera (map = world frame)
     placement_error_m: float | None = None  # horizontal, from where the image was taken (None: unknown)
+    shortest_path_m: float | None = None  # free-space path from where the goal became active to its place
+    timeout_s: float | None = None  # this goal's budget (see NavParams.goal_timeout_s_per_m)
     t_start_ns: int | None = None
 
 
@@ -122,6 +125,22 @@ class NavRun:
             "goals": [{k: v for k, v in dataclasses.asdict(g).items() if k != "t_start_ns"} for g in self.goals],
             **self.extra,
         }
+
+
+def goal_budget(world: World, start_xy: NDArray[np.floating], goal_xy: NDArray[np.floating], robot_radius: float,
+                params: NavParams) -> tuple[float, float | None]:
+    """A goal's time budget (simulated s) and its shortest free path (m; None where none is found)
+    from the robot's true position `start_xy` to the goal's place `goal_xy` (world frame, m):
+    `goal_timeout_s`, or `goal_timeout_s_per_m` x that path where longer (a far room of a large
+    floor needs more time than a near one)."""
+    if params.goal_timeout_s_per_m <= 0:
+        return params.goal_timeout_s, None
+    try:
+        path = plan_path(world, np.asarray(start_xy, np.float64), np.asarray(goal_xy, np.float64), robot_radius)
+    except PlanningError:  # no free path (a place within furniture's clearance): the base budget
+        return params.goal_timeout_s, None
+    length = round(float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum()), 2)
+    return max(params.goal_timeout_s, params.goal_timeout_s_per_m * length), length
 
 
 def free_port() -> int:
@@ -239,6 +258,11 @@ class _Driver:
             if st["state"] == "planned" and rec.t_start_ns is None:
                 rec.t_start_ns = int(st["pose_t_ns"] if st["pose_t_ns"] is not None else t_ns)
                 rec.goal_node = st.get("goal_node")
+                goal = next(g for g in self.goals if g.name == name)
+                if goal.T_world_base is not None:
+                    rec.timeout_s, rec.shortest_path_m = goal_budget(
+                        self.sim.world, self.sim.T_world_base[:2, 3], goal.T_world_base[:2, 3],
+                        self.sim.params.robot_radius, self.params)
             elif st["state"] in ("reached", "failed") and rec.outcome == "pending":
                 rec.planner_reached = st["state"] == "reached"
                 rec.outcome = "reached" if rec.planner_reached else ("timeout" if "cancelled" in st["reason"]
@@ -329,7 +353,7 @@ class _Driver:
                 return
             active = next((r for r in self._pending() if r.t_start_ns is not None), None)
             if active is not None and active.t_start_ns is not None and active.reason != "timeout" and \
-                    (self.sim._t_ns - active.t_start_ns) * 1e-9 > p.goal_timeout_s:
+                    (self.sim._t_ns - active.t_start_ns) * 1e-9 > (active.timeout_s or p.goal_timeout_s):
                 active.reason = "timeout"
                 self.cancel_pub.put(ros_msgs.typestore().types[ros_msgs.STRING](data="current"))
                 self._wait(lambda a=active: any(e.get("goal") == a.name and e["state"] == "failed"  # type: ignore[misc]

@@ -45,7 +45,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litevloc.base.params.sim_navigation import LocalPlannerParams
-from litevloc.sim.seen_ground import grid_lookup, seen_ray_points, unseen_distance
+from litevloc.sim.seen_ground import grid_lookup, local_grid_cells, seen_ray_points, unseen_distance
 
 
 @dataclass(frozen=True)
@@ -195,11 +195,16 @@ class LocalPlanner:
             self._seen.merge(seen_base @ R.T + xy, self._driven, self._heading, xy, self.params)
         return np.asarray((self._obstacles.pts - xy) @ R, dtype=np.float64)
 
+    @property
+    def _seen_rule_on(self) -> bool:
+        """Whether arcs keep off ground not seen: needs the memory, and an overlap under the radius."""
+        p = self.params
+        return p.memory_travel_m > 0 and p.unseen_overlap_m < p.robot_radius
+
     def seen_base(self, T_odom_base: NDArray[np.floating] | None) -> NDArray[np.float64] | None:
         """(S, 2) remembered seen ground in the base frame (m); None without `T_odom_base` or
         with the rule off (`unseen_overlap_m` >= robot_radius)."""
-        p = self.params
-        if T_odom_base is None or p.memory_travel_m <= 0 or p.unseen_overlap_m >= p.robot_radius:
+        if T_odom_base is None or not self._seen_rule_on:
             return None
         T = np.asarray(T_odom_base, np.float64)
         return np.asarray((self._seen.pts - T[:2, 3]) @ T[:2, :2], np.float64)
@@ -218,8 +223,7 @@ class LocalPlanner:
         p = self.params
         pts = np.zeros((0, 2)) if depth is None else self._thin(obstacle_points(depth, K, T_base_camera, p))
         if T_odom_base is not None and p.memory_travel_m > 0:
-            looked = None if depth is None or p.unseen_overlap_m >= p.robot_radius \
-                else seen_ray_points(depth, K, T_base_camera, p)
+            looked = seen_ray_points(depth, K, T_base_camera, p) if depth is not None and self._seen_rule_on else None
             pts = self._remember(pts, T_odom_base, looked)
         return np.concatenate([pts, self.contacts_base(T_odom_base)])
 
@@ -265,12 +269,10 @@ class LocalPlanner:
             return g
         from skimage.graph import route_through_array
 
-        c = round(p.grid_radius_m / p.grid_m)
-        n = 2 * c + 1
-        ij = np.round(pts[:, ::-1] / p.grid_m).astype(np.int64) + c
-        inside = np.all((ij >= 0) & (ij < n), axis=1)
+        ij, n = local_grid_cells(pts, p.grid_radius_m, p.grid_m)
+        c = n // 2
         free = np.full((n, n), 255, np.uint8)
-        free[ij[inside, 0], ij[inside, 1]] = 0
+        free[ij[:, 0], ij[:, 1]] = 0
         clear = cv2.distanceTransform(free, cv2.DIST_L2, 5) * p.grid_m
         cost = 1.0 + p.blocked_cost * (clear <= p.robot_radius + p.margin_m) \
             + 4.0 * np.clip(p.path_clear_m - clear, 0.0, None) / p.path_clear_m

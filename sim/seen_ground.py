@@ -50,17 +50,25 @@ def seen_ray_points(
     return np.asarray(pts[t[None, :] <= reach[:, None]], np.float64)
 
 
+def local_grid_cells(xy: NDArray[np.floating], grid_radius_m: float, grid_m: float) -> tuple[NDArray[np.int64], int]:
+    """Cells (K, 2; axis 0 = base y, axis 1 = base x) of the points `xy` (M, 2, base frame, m)
+    that fall on the robot-centred local grid, and the grid's side n (cells, odd; the robot at
+    cell (n // 2, n // 2))."""
+    c = round(grid_radius_m / grid_m)
+    n = 2 * c + 1
+    ij = np.round(np.asarray(xy, np.float64)[:, ::-1] / grid_m).astype(np.int64) + c
+    return ij[np.all((ij >= 0) & (ij < n), axis=1)], n
+
+
 def unseen_distance(seen_base: NDArray[np.floating], params: LocalPlannerParams) -> NDArray[np.float64]:
     """(n, n) distance (m) from each local-grid cell to the nearest cell of ground not seen, given
     the (M, 2) seen ground points (base frame, m). The robot's own footprint (radius + margin)
     counts as seen; seen cells are closed by one cell so the gaps between rays do not count."""
     p = params
-    c = round(p.grid_radius_m / p.grid_m)
-    n = 2 * c + 1
+    ij, n = local_grid_cells(seen_base, p.grid_radius_m, p.grid_m)
+    c = n // 2
     rays = np.zeros((n, n), np.uint8)
-    ij = np.round(np.asarray(seen_base, np.float64)[:, ::-1] / p.grid_m).astype(np.int64) + c
-    inside = np.all((ij >= 0) & (ij < n), axis=1)
-    rays[ij[inside, 0], ij[inside, 1]] = 255
+    rays[ij[:, 0], ij[:, 1]] = 255
     seen = np.ascontiguousarray(cv2.dilate(rays, np.ones((3, 3), np.uint8)))
     cv2.circle(seen, (c, c), int(np.ceil((p.robot_radius + p.margin_m) / p.grid_m)), 255, -1)
     return np.asarray(cv2.distanceTransform(seen, cv2.DIST_L2, 5), np.float64) * p.grid_m

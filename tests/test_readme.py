@@ -7,11 +7,12 @@ What a line needs and does not make itself is put in place first:
 * `out/7s/map` and `out/7s/query.mcap` are the suite's cached held-out inputs
   (`seven_scenes_held_out`, tests/conftest.py): they were made by running exactly the README's
   two lines that make them, which this test checks;
-* the robot lines run where there is no robot: `out/robot/map` is the 7-Scenes map, `goal.jpg` a
-  query frame, the Zenoh ports 7447 (the robot's service: a Zenoh peer of this test stands in)
-  and 7448 (the planner) free ports; the planner runs in the background until the goal line has
-  been answered, then gets SIGINT; the camera lines must fail as the README says they do,
-  naming the missing device.
+* the robot lines run where there is no robot: `out/robot/run.mcap` is the held-out query pass
+  without its ground truth (what `litevloc record` writes), so `map build` poses it with its own
+  SLAM and the robot lines after it use that map; `goal.jpg` is a query frame, the Zenoh ports
+  7447 (the robot's service: a Zenoh peer of this test stands in) and 7448 (the planner) free
+  ports; the planner runs in the background until the goal line has been answered, then gets
+  SIGINT; the camera lines must fail as the README says they do, naming the missing device.
 
 `make` lines are CI's own (`make test` runs this). A line this test does not know fails it.
 """
@@ -32,6 +33,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from litevloc.experiments.slam import without_ground_truth
 from tests.conftest import HELD_OUT_MAP_ARGS, HELD_OUT_QUERY_ARGS, HeldOut, litevloc_exe
 
 from .runtime.zenoh_helpers import free_port
@@ -84,7 +86,7 @@ def test_every_readme_usage_line_runs(seven_scenes_held_out: HeldOut, tmp_path: 
     env = {**os.environ, "D": str(held.data)}
     goal = tmp_path / "goal.jpg"
     shutil.copy(held.data / "frame-000700.color.jpg", goal)
-    os.symlink(held.map_dir, tmp_path / "out" / "robot" / "map")
+    without_ground_truth(held.queries, tmp_path / "out" / "robot" / "run.mcap")
     planner: list[subprocess.Popen[str]] = []
     robot: list[object] = []
 
@@ -132,6 +134,14 @@ def test_every_readme_usage_line_runs(seven_scenes_held_out: HeldOut, tmp_path: 
         assert len(t) > 50 and stamps[0] - 0.5 <= t.min() and t.max() <= stamps[19] + 0.5, (t.min(), t.max())
         assert "camera ATE" in r.stdout, r.stdout
 
+    def robot_map(line: str) -> None:
+        """The robot's recording (no ground truth) becomes a map posed by its own SLAM."""
+        r = _run(expand(line), tmp_path, env)
+        _ok(r)
+        build = json.loads((tmp_path / "out" / "robot" / "build.json").read_text())
+        assert build["poses"] == "slam" and build["nodes"] >= 3, build
+        assert "SLAM:" in r.stdout and "loops:" in r.stdout, r.stdout
+
     def no_camera(line: str) -> None:
         t0 = time.monotonic()
         r = _run(expand(line), tmp_path, env, timeout=120)
@@ -165,6 +175,7 @@ def test_every_readme_usage_line_runs(seven_scenes_held_out: HeldOut, tmp_path: 
         (r"^litevloc demo ", demo),
         (r"^litevloc map build \$D ", prepared_by_fixture),
         (r"^litevloc convert \$D ", prepared_by_fixture),
+        (r"^litevloc map build out/robot/run.mcap ", robot_map),
         (r"^litevloc map info ", map_info),
         (r"^litevloc localize ", localize),
         (r"^litevloc replay .* --frames ", replay),

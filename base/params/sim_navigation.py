@@ -164,6 +164,8 @@ class NavParams:
     vloc_hz: float = 1.0
     # simulated seconds per goal before it is cancelled (s)
     goal_timeout_s: float = 120.0
+    # and at least this per metre of the shortest free path from where the goal became active to its place (s/m; 0: off)
+    goal_timeout_s_per_m: float = 4.0
     # a goal is reached within this of its place; goals are localized to a map keyframe, often 1-2 m away (m)
     success_radius_m: float = 2.0
     # with no pose yet for this long, look for a place: turn, then move (simulated s)
@@ -184,3 +186,5 @@ class NavParams:
             raise ValueError("need 0 < vloc_hz <= control_hz <= 50")
         if self.goal_timeout_s <= 0 or self.success_radius_m <= 0 or self.answer_timeout_s <= 0:
             raise ValueError("goal_timeout_s, success_radius_m and answer_timeout_s must be > 0")
+        if self.goal_timeout_s_per_m < 0:
+            raise ValueError(f"goal_timeout_s_per_m must be >= 0, got {self.goal_timeout_s_per_m}")

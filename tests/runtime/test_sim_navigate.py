@@ -196,3 +196,21 @@ def test_sim_navigate_takes_the_loop_settings_from_the_config(tmp_path: Path,
     assert main(argv) == 0
     assert seen[0] == NavParams(vloc_hz=2.0, seed=3, local=dataclasses.replace(NavParams().local, max_speed=0.4))
     assert seen[1].vloc_hz == NavParams().vloc_hz and seen[1].local.max_speed == 0.4 and seen[1].seed == 3
+
+
+def test_a_far_goal_gets_time_for_its_path() -> None:
+    """A goal's budget grows with its shortest free path where that path is long (a far room of
+    the 15-room floor), and stays `goal_timeout_s` for a near one."""
+    from litevloc.base.params.sim_navigation import NavParams
+    from litevloc.runtime.sim_navigation import goal_budget
+    from litevloc.sim.world import load_world
+
+    world = load_world("floor", seed=10)
+    p = NavParams(goal_timeout_s=120.0, goal_timeout_s_per_m=4.0)
+    start, near, far = (world.goal_places[r][:2, 3] for r in ("room_00", "room_01", "room_10"))
+    t_near, d_near = goal_budget(world, start, near, 0.3, p)
+    t_far, d_far = goal_budget(world, start, far, 0.3, p)
+    assert d_near is not None and d_far is not None and d_far > max(d_near, 30.0), (d_near, d_far)
+    assert d_far >= float(np.linalg.norm(far - start))  # a path, not the straight line through walls
+    assert t_far == pytest.approx(4.0 * d_far) and t_near == max(120.0, 4.0 * d_near)
+    assert goal_budget(world, start, far, 0.3, dataclasses.replace(p, goal_timeout_s_per_m=0.0)) == (120.0, None)
