@@ -24,6 +24,8 @@
   Fusion may count it as an initialisation vote (several must agree over the odometry between
   them); in GLOBAL state with a prior (the fused pose), one that agrees with the prior within
   the LL prior gate is accepted (the prior is the independent second view).
+* Later passes (`passes.py`): a refused GL or LL query is verified again on the same features
+  and matches, with the map's depth and then with weak candidates pooled.
 * `VisualLocalizer.process` runs the state machine INIT -> GLOBAL -> TRACKING -> LOST ->
   GLOBAL (`tracking.TrackingState`), exposing each transition with its reason.
 
@@ -52,6 +54,7 @@ from litevloc.pipelines.localization.distinct import (
     same_place,
     strongest_rival,
 )
+from litevloc.pipelines.localization.passes import VerifyFn, pooled, pooled_short, with_second_passes
 from litevloc.pipelines.localization.prior_gate import narrowed_gate, sigma_along
 from litevloc.pipelines.localization.query import Clock, MatchFn, Query, StageTimer, relative_pose, reprojects
 from litevloc.pipelines.localization.refine import (
@@ -76,13 +79,6 @@ ExtractFn = Callable[[NDArray[np.uint8]], FeatureSet]
 DescribeFn = Callable[[NDArray[np.uint8]], NDArray[np.float32]]
 
 _CLOCK_JITTER_S = 1e-3  # timestamps that differ by less than this are the same instant for time windows
-
-
-def _weak(attempt: CandidateAttempt, floor: int) -> bool:
-    """Whether a refused candidate had `floor` inliers (or matches, where too few matches stopped it
-    before PnP): one that pooling over keyframes could still let through."""
-    return ((attempt.refusal is Refusal.INLIERS and attempt.inliers >= floor)
-            or (attempt.refusal is Refusal.MATCHES and attempt.matches >= floor))
 
 
 class VisualLocalizer:
@@ -233,26 +229,6 @@ class VisualLocalizer:
             return None
         return ProvisionalPose(joint.T_map_camera, joint.covariance, node, joint.inliers_per_keyframe[node])
 
-    @staticmethod
-    def _pooled(p: LocalizationParams) -> LocalizationParams:
-        """`p` with PnP's inlier floor lowered to `pooled_min_inliers` (a weak candidate then
-        reaches the joint refinement, see `_pooled_short`); `p` itself when that is off."""
-        k = p.pooled_min_inliers
-        return replace(p, pnp=replace(p.pnp, min_inliers=k)) if 0 < k < p.pnp.min_inliers else p
-
-    def _pooled_short(self, res: PnpResult, joint: RefineResult | None, floor: int) -> str:
-        """'' when the candidate's PnP has `floor` inliers, or when it has fewer and the joint
-        refinement's keyframes (at least `refine.min_keyframes`) explain `floor` inliers together;
-        else the refusal reason."""
-        if res.n_inliers >= floor:
-            return ""
-        if (joint is not None and joint.accepted and joint.consistent_keyframes >= self.params.refine.min_keyframes
-                and joint.n_inliers >= floor):
-            return ""
-        pooled = "no joint refinement" if joint is None else (
-            f"{joint.n_inliers} over {joint.consistent_keyframes} keyframe(s): {joint.reason}")
-        return f"too few inliers ({res.n_inliers} < {floor}; pooled {pooled})"
-
     def _prior_growth_m(self, prior_age_s: float, fused: bool) -> float:
         """How far the prior may have wandered in `prior_age_s` (m): odometry drift for a fused
         prior, the robot's top speed for the last VLoc pose."""
@@ -357,52 +333,19 @@ class VisualLocalizer:
                                             timer, t_all, front_ms)
             return self._verify_confirmed(t_ns, q, sims, order, timer, t_all)
 
-        return self._with_second_passes(verify, q)
+        return with_second_passes(self._under(verify, q), self.params, q.timer, self._map_has_depth)
 
-    def _with_second_passes(self, verify: Callable[[], LocalizationResult], q: Query,
-                            allowed: bool = True) -> LocalizationResult:
-        """`verify()`; where it is refused, again on the same features and matches (no model
-        runs again), each later pass only where the earlier ones refused:
-
-        * with the map's depth (`map_depth_fallback`; the map has keypoint depth, `verify_map_depth`
-          off; `allowed`: LL only from a fresh prior, whose gate keeps a repeated place out), GL's
-          distinctiveness test on (map depth lets a repeated place verify too);
-        * with weak candidates pooled (`pooled_min_inliers` > 0, see `_pooled_short`), as the pass
-          before it.
-
-        A frame an earlier pass accepts is never verified again, so what it accepts is unchanged.
-        The refusals' attempts are kept in front."""
-        p = self.params
-        passes: list[tuple[LocalizationParams, str]] = [(replace(p, pooled_min_inliers=0), "")]
-        if allowed and p.map_depth_fallback and not p.verify_map_depth and self._map_has_depth:
-            passes.append((replace(passes[0][0], verify_map_depth=True,
-                                   gl_distinct_ratio=p.map_depth_fallback_distinct_ratio or p.gl_distinct_ratio),
-                           "verified again with the map's depth"))
-        if p.pooled_min_inliers > 0:
-            passes.append((replace(passes[-1][0], pooled_min_inliers=p.pooled_min_inliers),
-                           "verified again with weak candidates pooled"))
-        attempts: tuple[CandidateAttempt, ...] = ()
-        refusals: list[str] = []  # the reasons of the passes refused before the last one run
-        res: LocalizationResult | None = None
-        last_how = ""
-        for params, how in passes:
-            if res is not None:
-                if res.accepted or (params.pooled_min_inliers
-                                    and not any(_weak(a, params.pooled_min_inliers) for a in attempts)):
-                    break  # accepted, or no candidate that a weaker floor could let through
-                refusals.append(res.reason)
-                q.timer.ms.pop("total", None)  # the total is the whole query's, all passes
+    def _under(self, verify: Callable[[], LocalizationResult], q: Query) -> VerifyFn:
+        """`verify` as a pass under given parameters: the localizer and the query read them
+        while it runs, its own restored after."""
+        def run(params: LocalizationParams) -> LocalizationResult:
+            p = self.params
             self.params = q.params = params
             try:
-                res = verify()
+                return verify()
             finally:
                 self.params = q.params = p
-            attempts += res.attempts
-            last_how = how
-        assert res is not None
-        if not refusals:
-            return res
-        return replace(res, attempts=attempts, stop_reason=f"{res.stop_reason}; {last_how} ({'; '.join(refusals)})")
+        return run
 
     def _retrieve(self, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64],
                   region: SearchRegion | None, timer: StageTimer, t_all: float
@@ -431,7 +374,7 @@ class VisualLocalizer:
         evidence: list[VerifiedPose] = []  # every candidate's PnP pose, for the distinctiveness test
         trusted = prior is not None and self._fresh(growth)
         gl_params = self._gl_params(trusted)
-        floor = gl_params.pnp.min_inliers  # a weaker candidate passes only pooled (see `_pooled_short`)
+        floor = gl_params.pnp.min_inliers  # a weaker candidate passes only pooled (see `passes.pooled_short`)
         budget = self.params.gl_time_budget_ms
         candidates_ms = 0.0  # verification time (match, PnP, joint refinement) of the candidates so far
         for k, node in enumerate(int(n) for n in order):
@@ -444,7 +387,7 @@ class VisualLocalizer:
                         f"{ahead:.0f} ms per candidate, after {k} of {len(order)} candidates")
                 break
             t_cand = self.clock()
-            res, att = self._verify_global(node, q, float(sims[node]), evidence, self._pooled(gl_params))
+            res, att = self._verify_global(node, q, float(sims[node]), evidence, pooled(gl_params))
             if res is None or not res.accepted or res.T_target_source is None:
                 attempts.append(att)
                 candidates_ms += (self.clock() - t_cand) * 1e3
@@ -454,7 +397,7 @@ class VisualLocalizer:
             joint = self._joint(node, T, q, [int(n) for n in order],
                                 self.params.refine.min_keyframes if self.params.gl_confirm or weak else 1)
             candidates_ms += (self.clock() - t_cand) * 1e3
-            short = self._pooled_short(res, joint, floor)
+            short = pooled_short(res, joint, floor, self.params.refine.min_keyframes)
             if short:
                 attempts.append(replace(att, reason=short, refusal=Refusal.INLIERS))
                 continue
@@ -678,9 +621,9 @@ class VisualLocalizer:
         cands = self.local_candidates(prior, desc)
         growth = self._prior_growth_m(prior_age_s, fused_prior)
         gate_m = self._gate_m(growth, fused_prior)
-        return self._with_second_passes(
-            lambda: self._local_attempts(t_ns, q, cands, prior, (growth, gate_m, prior_cov), timer, t_all), q,
-            allowed=self._fresh(growth))
+        verify = self._under(
+            lambda: self._local_attempts(t_ns, q, cands, prior, (growth, gate_m, prior_cov), timer, t_all), q)
+        return with_second_passes(verify, self.params, q.timer, self._map_has_depth, allowed=self._fresh(growth))
 
     def _local_attempts(self, t_ns: int, q: Query, cands: list[tuple[int, float]], prior: NDArray[np.float64],
                         gate: tuple[float, float, NDArray[np.float64] | None], timer: StageTimer,
@@ -692,9 +635,9 @@ class VisualLocalizer:
         attempts: list[CandidateAttempt] = []
         best: tuple[int, PnpResult, RefineResult | None] | None = None
         guided_first = self.params.ll_guided_min_matches > 0 and self._fresh(growth)
-        floor = self.params.pnp.min_inliers  # a weaker candidate passes only pooled (see `_pooled_short`)
+        floor = self.params.pnp.min_inliers  # a weaker candidate passes only pooled (see `passes.pooled_short`)
         for node, sim in cands:
-            res, att = self._verify_local(node, q, sim, prior if guided_first else None, self._pooled(self.params))
+            res, att = self._verify_local(node, q, sim, prior if guided_first else None, pooled(self.params))
             if res is not None and res.accepted and res.T_target_source is not None:
                 T = self.map.T_map_camera[node] @ res.T_target_source
                 dt, dr = relative_pose_error(T, prior)
@@ -722,7 +665,7 @@ class VisualLocalizer:
                         why = f"unconfirmed ({n_ok} consistent matches with a second keyframe)"
                         attempts.append(CandidateAttempt(node, sim, att.matches, att.inliers, why))
                         continue
-                short = self._pooled_short(res, joint, floor)
+                short = pooled_short(res, joint, floor, self.params.refine.min_keyframes)
                 if short:
                     attempts.append(replace(att, reason=short, refusal=Refusal.INLIERS))
                     continue

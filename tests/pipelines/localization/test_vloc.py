@@ -17,10 +17,11 @@ from numpy.typing import NDArray
 from litevloc.base import geometry as g
 from litevloc.base.params.localization import LocalizationParams, PnpParams
 from litevloc.pipelines.depth_lookup import depth_at
+from litevloc.pipelines.localization.passes import weak
 from litevloc.pipelines.localization.query import Query, StageTimer
 from litevloc.pipelines.localization.results import CandidateAttempt
 from litevloc.pipelines.localization.tracking import TrackingState
-from litevloc.pipelines.localization.vloc import VisualLocalizer, _weak
+from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.pnp import Refusal
 from litevloc.pipelines.topomap.types import NodeFeatures, OccupancyGrid, TopoMap
 
@@ -590,8 +591,8 @@ def test_a_weak_candidate_counts_only_when_its_keyframes_together_reach_the_inli
 def test_a_weak_candidate_is_known_by_its_refusal_kind_not_by_the_wording_of_its_reason() -> None:
     """The pooled pass runs for candidates refused for too few inliers (or too few matches, PnP
     not run) with `floor` of them; the reason's words do not decide it."""
-    assert _weak(CandidateAttempt(3, 0.5, 30, 25, "refused", Refusal.INLIERS), 20)
-    assert not _weak(CandidateAttempt(3, 0.5, 30, 25, "refused", Refusal.INLIERS), 26)
-    assert _weak(CandidateAttempt(3, 0.5, 25, 0, "refused", Refusal.MATCHES), 20)
-    assert not _weak(CandidateAttempt(3, 0.5, 30, 25, "too few inliers (25 < 40)", Refusal.LATER), 20)
-    assert not _weak(CandidateAttempt(3, 0.5, 25, 0, "too few matches (25)", Refusal.DEPTH), 20)
+    assert weak(CandidateAttempt(3, 0.5, 30, 25, "refused", Refusal.INLIERS), 20)
+    assert not weak(CandidateAttempt(3, 0.5, 30, 25, "refused", Refusal.INLIERS), 26)
+    assert weak(CandidateAttempt(3, 0.5, 25, 0, "refused", Refusal.MATCHES), 20)
+    assert not weak(CandidateAttempt(3, 0.5, 30, 25, "too few inliers (25 < 40)", Refusal.LATER), 20)
+    assert not weak(CandidateAttempt(3, 0.5, 25, 0, "too few matches (25)", Refusal.DEPTH), 20)

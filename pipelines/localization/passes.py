@@ -1,0 +1,96 @@
+"""Later verification passes of a refused localization query, on the same features and matches.
+
+A GL or LL query that every candidate refused is verified again, no model run again (the query's
+cached matches and PnP fits are reused), each later pass only where the earlier ones refused:
+
+* with the map's depth (`LocalizationParams.map_depth_fallback`), where the map has keypoint depth
+  and `verify_map_depth` is off;
+* with weak candidates pooled (`pooled_min_inliers` > 0): PnP's inlier floor is lowered to that
+  count (`pooled`) and a weak candidate passes only where the joint refinement's keyframes explain
+  the full floor together (`pooled_short`); run only when a refused candidate was weak (`weak`).
+
+A frame an earlier pass accepts is never verified again, so what it accepts is unchanged. This
+module decides the passes and their parameters; the localizer runs the verification itself.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import replace
+
+from litevloc.base.params.localization import LocalizationParams
+from litevloc.pipelines.localization.query import StageTimer
+from litevloc.pipelines.localization.refine import RefineResult
+from litevloc.pipelines.localization.results import CandidateAttempt, LocalizationResult
+from litevloc.pipelines.pnp import PnpResult, Refusal
+
+VerifyFn = Callable[[LocalizationParams], LocalizationResult]  # one verification pass under these parameters
+
+
+def weak(attempt: CandidateAttempt, floor: int) -> bool:
+    """Whether a refused candidate had `floor` inliers (or matches, where too few matches stopped it
+    before PnP): one that pooling over keyframes could still let through."""
+    return ((attempt.refusal is Refusal.INLIERS and attempt.inliers >= floor)
+            or (attempt.refusal is Refusal.MATCHES and attempt.matches >= floor))
+
+
+def pooled(p: LocalizationParams) -> LocalizationParams:
+    """`p` with PnP's inlier floor lowered to `pooled_min_inliers` (a weak candidate then
+    reaches the joint refinement, see `pooled_short`); `p` itself when that is off."""
+    k = p.pooled_min_inliers
+    return replace(p, pnp=replace(p.pnp, min_inliers=k)) if 0 < k < p.pnp.min_inliers else p
+
+
+def pooled_short(res: PnpResult, joint: RefineResult | None, floor: int, min_keyframes: int) -> str:
+    """'' when the candidate's PnP has `floor` inliers, or when it has fewer and the joint
+    refinement's keyframes (at least `min_keyframes`) explain `floor` inliers together;
+    else the refusal reason."""
+    if res.n_inliers >= floor:
+        return ""
+    if (joint is not None and joint.accepted and joint.consistent_keyframes >= min_keyframes
+            and joint.n_inliers >= floor):
+        return ""
+    how = "no joint refinement" if joint is None else (
+        f"{joint.n_inliers} over {joint.consistent_keyframes} keyframe(s): {joint.reason}")
+    return f"too few inliers ({res.n_inliers} < {floor}; pooled {how})"
+
+
+def passes(p: LocalizationParams, map_has_depth: bool, allowed: bool) -> list[tuple[LocalizationParams, str]]:
+    """The passes in order, each (its parameters, how the stop reason names it; '' for the first).
+    `allowed`: whether the map-depth pass may run (LL only from a fresh prior, whose gate keeps a
+    repeated place out); it turns GL's distinctiveness test on (map depth lets a repeated place
+    verify too)."""
+    out: list[tuple[LocalizationParams, str]] = [(replace(p, pooled_min_inliers=0), "")]
+    if allowed and p.map_depth_fallback and not p.verify_map_depth and map_has_depth:
+        out.append((replace(out[0][0], verify_map_depth=True,
+                            gl_distinct_ratio=p.map_depth_fallback_distinct_ratio or p.gl_distinct_ratio),
+                    "verified again with the map's depth"))
+    if p.pooled_min_inliers > 0:
+        out.append((replace(out[-1][0], pooled_min_inliers=p.pooled_min_inliers),
+                    "verified again with weak candidates pooled"))
+    return out
+
+
+def with_second_passes(verify: VerifyFn, p: LocalizationParams, timer: StageTimer, map_has_depth: bool,
+                       allowed: bool = True) -> LocalizationResult:
+    """`verify(params)` under each of `passes(p, ...)` until one accepts (a pooled pass only where
+    a refused candidate was `weak`). The refusals' attempts are kept in front and their reasons
+    named in the stop reason; `timer`'s total is the whole query's, all passes."""
+    attempts: tuple[CandidateAttempt, ...] = ()
+    refusals: list[str] = []  # the reasons of the passes refused before the last one run
+    res: LocalizationResult | None = None
+    last_how = ""
+    for params, how in passes(p, map_has_depth, allowed):
+        if res is not None:
+            if res.accepted or (params.pooled_min_inliers
+                                and not any(weak(a, params.pooled_min_inliers) for a in attempts)):
+                break  # accepted, or no candidate that a weaker floor could let through
+            refusals.append(res.reason)
+            timer.ms.pop("total", None)
+        res = verify(params)
+        attempts += res.attempts
+        last_how = how
+    assert res is not None
+    if not refusals:
+        return res
+    return replace(res, attempts=attempts, stop_reason=f"{res.stop_reason}; {last_how} ({'; '.join(refusals)})")
