@@ -1,8 +1,8 @@
 """The SLAM front end: keyframes and the edges between nearby ones, one frame at a time.
 
 * Keyframes are spaced by the mapping pre-filter's thresholds (`mapping.keyframes`:
-  translation or rotation since the last keyframe) times `slam.keyframe_step_scale`,
-  measured with the odometry where the frame and the last keyframe lie in one odometry
+  translation or rotation since the last keyframe) times `slam.keyframe_step_scale` (the
+  rotation step also times `slam.keyframe_rotation_scale`), measured with the odometry where the frame and the last keyframe lie in one odometry
   segment; no image is touched for other frames.
 * Where the odometry cannot say (no odometry in the recording, a gap, a jump), every
   `visual.track_every`-th frame is tracked against the last keyframe (features, the cheap
@@ -76,9 +76,12 @@ def edge_refine_params(loc: RefineParams, floor_m: float, floor_deg: float, keyf
 
 
 def keyframe_spacing(params: SlamParams, mapping: MappingParams) -> KeyframeParams:
-    """The motion steps that make a keyframe: `mapping.keyframes`' times `slam.keyframe_step_scale`."""
+    """The motion steps that make a keyframe: `mapping.keyframes`' times `slam.keyframe_step_scale`,
+    the rotation step also times `slam.keyframe_rotation_scale`."""
     kp, k = mapping.keyframes, params.keyframe_step_scale
-    return dataclasses.replace(kp, min_translation_m=k * kp.min_translation_m, min_rotation_deg=k * kp.min_rotation_deg)
+    k_rot = k * params.keyframe_rotation_scale
+    return dataclasses.replace(kp, min_translation_m=k * kp.min_translation_m,
+                               min_rotation_deg=k_rot * kp.min_rotation_deg)
 
 
 def edge_error(T_a_b: F64, T_a_b_other: F64) -> tuple[float, float]:
