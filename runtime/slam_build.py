@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from litevloc.config.schema import LiteVLocConfig
-from litevloc.hw.messages import GroundTruthPose, Message, Odometry, RgbdFrame
+from litevloc.hw.messages import EncodedRgbdFrame, GroundTruthPose, Odometry, RgbdFrame, SourceMessage
 from litevloc.pipelines.slam.evaluate import evaluate
 from litevloc.pipelines.slam.level import LevelFloor
 from litevloc.pipelines.slam.session import SlamResult, SlamSession
@@ -50,22 +50,32 @@ class SlamPass:
     ground_truth: dict[int, F64] = field(default_factory=dict)
 
 
-def run_on_messages(session: SlamSession, messages: Iterable[Message],
+def _decoded(frame: EncodedRgbdFrame) -> FrameImages:
+    """The images of a frame whose colour is decoded only now (StreamError naming it if it does not decode)."""
+    f = frame.decode()
+    assert f.depth is not None  # frames without depth are skipped before the SLAM
+    return FrameImages(f.color, f.depth, f.color_jpeg)
+
+
+def run_on_messages(session: SlamSession, messages: Iterable[SourceMessage],
                     on_frame: Callable[[], None] | None = None) -> SlamPass:
-    """Feed a time-ordered message stream to the SLAM; ground truth only set aside."""
+    """Feed a time-ordered message stream to the SLAM; ground truth only set aside. Frames
+    may come with their colour undecoded (`EncodedRgbdFrame`): only those the front end
+    loads are decoded."""
     skipped: dict[str, int] = {}
     gt: dict[int, F64] = {}
     for m in messages:
         if isinstance(m, Odometry):
             session.add_odometry(m.t_ns, m.T_odom_base)
-        elif isinstance(m, RgbdFrame):
+        elif isinstance(m, RgbdFrame | EncodedRgbdFrame):
             if on_frame is not None:
                 on_frame()
             if m.depth is None:
                 skipped["frame without depth"] = skipped.get("frame without depth", 0) + 1
                 continue
-            session.add_frame(FrameRef(m.t_ns, m.index, m.K, functools.partial(FrameImages, m.color, m.depth,
-                                                                                m.color_jpeg)))
+            load = functools.partial(_decoded, m) if isinstance(m, EncodedRgbdFrame) else \
+                functools.partial(FrameImages, m.color, m.depth, m.color_jpeg)
+            session.add_frame(FrameRef(m.t_ns, m.index, m.K, load))
         elif isinstance(m, GroundTruthPose):
             gt[m.t_ns] = m.T_world_camera
     return SlamPass(session.finish(), skipped, gt)
