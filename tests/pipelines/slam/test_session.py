@@ -297,18 +297,18 @@ def test_sparser_keyframe_spacing_makes_fewer_keyframes(scene: Scene) -> None:
         counts.append(len(keyframes))
         for a, b in itertools.pairwise(keyframes):  # the frame before b had not moved a step from a
             Ta, Tb = scene.T_world_camera(a.index), scene.T_world_camera(b.index - 1)
-            k = params.keyframe_step_scale
+            k, k_rot = params.keyframe_step_scale, params.keyframe_step_scale * params.keyframe_rotation_scale
             assert np.linalg.norm(Tb[:3, 3] - Ta[:3, 3]) < k * kp.min_translation_m
-            assert np.degrees(rotation_angle(Ta[:3, :3].T @ Tb[:3, :3])) < k * kp.min_rotation_deg
+            assert np.degrees(rotation_angle(Ta[:3, :3].T @ Tb[:3, :3])) < k_rot * kp.min_rotation_deg
     assert counts[1] < 0.7 * counts[0]
 
 
 def test_a_larger_rotation_step_spaces_only_turning_keyframes(scene: Scene) -> None:
     # slam.keyframe_rotation_scale: a robot turning on the spot makes fewer keyframes, driving ones are as before
     cfg = load_config("default")
-    turns = dataclasses.replace(cfg.slam, keyframe_rotation_scale=2.0)
+    same, turns = (dataclasses.replace(cfg.slam, keyframe_rotation_scale=k) for k in (1.0, 2.0))
     spinning = make_scene(n_frames=40, laps=0.4, radius=0.15)  # 0.3 m of arc is ~115 deg: turns make keyframes
-    n_spin = [len(_keyframes(spinning, p, 40)) for p in (cfg.slam, turns)]
+    n_spin = [len(_keyframes(spinning, p, 40)) for p in (same, turns)]
     assert n_spin[1] < 0.7 * n_spin[0]
-    driving = [[kf.index for kf in _keyframes(scene, p, 40)] for p in (cfg.slam, turns)]
+    driving = [[kf.index for kf in _keyframes(scene, p, 40)] for p in (same, turns)]
     assert driving[0] == driving[1] and len(driving[0]) > 3  # on the 1.8 m circle 0.3 m come before 12 deg
