@@ -188,7 +188,7 @@ class SlamParams:
     # SLAM keyframes (the map's keyframe candidates) every this many mapping.keyframes steps (translation, rotation)
     keyframe_step_scale: float = 1.0
     # ... and the rotation step alone a further this many times (a robot turning in place sees the same place)
-    keyframe_rotation_scale: float = 2.0
+    keyframe_rotation_scale: float = 1.0
     # the robot's odometry as pose-graph edges
     odometry: SlamOdometryParams = field(default_factory=SlamOdometryParams)
     # visual edges between nearby keyframes, and visual odometry where odometry is missing
