@@ -264,8 +264,11 @@ def slam_pass(req: MapBuildRequest, cfg: Any, bundle: Any, src: Any, builder: Ma
         try:
             if hasattr(src, "run"):
                 sp = run_on_sim(session, src, lambda: bar.update(1))
-            else:
-                sp = run_on_messages(session, src, lambda: bar.update(1))
+            else:  # a recording's colour is decoded only for the frames the SLAM loads
+                from litevloc.hw.streams.mcap_io import McapSource
+
+                msgs = src.messages(defer_color=True) if isinstance(src, McapSource) else src
+                sp = run_on_messages(session, msgs, lambda: bar.update(1))
         except SlamError as exc:
             raise MapBuildError(f"{req.src}: {exc}") from exc
     return session, sp, feed_builder(sp.result, builder)

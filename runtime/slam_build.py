@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from litevloc.config.schema import LiteVLocConfig
-from litevloc.hw.messages import GroundTruthPose, Message, Odometry, RgbdFrame
+from litevloc.hw.messages import EncodedRgbdFrame, GroundTruthPose, Odometry, RgbdFrame, SourceMessage
 from litevloc.pipelines.slam.evaluate import evaluate
 from litevloc.pipelines.slam.level import LevelFloor
 from litevloc.pipelines.slam.session import SlamResult, SlamSession
@@ -28,12 +28,15 @@ from litevloc.runtime.vloc_models import ModelBundle
 
 
 def slam_models(cfg: LiteVLocConfig, bundle: ModelBundle) -> SlamModels:
-    """The SLAM's callables: `bundle`'s extractor, place recognizer and matcher (the localizer's,
-    for loops) plus the configured cheap matcher for visual edges (`slam.vo_matcher`)."""
+    """The SLAM's callables: `bundle`'s extractor, place recognizer (and its input resize, where
+    it has one) and matcher (the localizer's, for loops) plus the configured cheap matcher for
+    visual edges (`slam.vo_matcher`)."""
     from litevloc.models.registry import load_matcher
+    from litevloc.models.vpr import OnnxPlaceRecognizer
 
     vo = dataclasses.replace(bundle, matcher=load_matcher(cfg.slam.vo_matcher, cfg.models))
-    return SlamModels(bundle.extract, bundle.describe, vo.match, bundle.match)
+    shrink = bundle.vpr.network_image if isinstance(bundle.vpr, OnnxPlaceRecognizer) else None
+    return SlamModels(bundle.extract, bundle.describe, vo.match, bundle.match, shrink)
 
 
 def new_session(cfg: LiteVLocConfig, models: SlamModels, has_odometry: bool) -> SlamSession:
@@ -50,22 +53,32 @@ class SlamPass:
     ground_truth: dict[int, F64] = field(default_factory=dict)
 
 
-def run_on_messages(session: SlamSession, messages: Iterable[Message],
+def _decoded(frame: EncodedRgbdFrame) -> FrameImages:
+    """The images of a frame whose colour is decoded only now (StreamError naming it if it does not decode)."""
+    f = frame.decode()
+    assert f.depth is not None  # frames without depth are skipped before the SLAM
+    return FrameImages(f.color, f.depth, f.color_jpeg)
+
+
+def run_on_messages(session: SlamSession, messages: Iterable[SourceMessage],
                     on_frame: Callable[[], None] | None = None) -> SlamPass:
-    """Feed a time-ordered message stream to the SLAM; ground truth only set aside."""
+    """Feed a time-ordered message stream to the SLAM; ground truth only set aside. Frames
+    may come with their colour undecoded (`EncodedRgbdFrame`): only those the front end
+    loads are decoded."""
     skipped: dict[str, int] = {}
     gt: dict[int, F64] = {}
     for m in messages:
         if isinstance(m, Odometry):
             session.add_odometry(m.t_ns, m.T_odom_base)
-        elif isinstance(m, RgbdFrame):
+        elif isinstance(m, RgbdFrame | EncodedRgbdFrame):
             if on_frame is not None:
                 on_frame()
             if m.depth is None:
                 skipped["frame without depth"] = skipped.get("frame without depth", 0) + 1
                 continue
-            session.add_frame(FrameRef(m.t_ns, m.index, m.K, functools.partial(FrameImages, m.color, m.depth,
-                                                                                m.color_jpeg)))
+            load = functools.partial(_decoded, m) if isinstance(m, EncodedRgbdFrame) else \
+                functools.partial(FrameImages, m.color, m.depth, m.color_jpeg)
+            session.add_frame(FrameRef(m.t_ns, m.index, m.K, load))
         elif isinstance(m, GroundTruthPose):
             gt[m.t_ns] = m.T_world_camera
     return SlamPass(session.finish(), skipped, gt)
@@ -111,7 +124,8 @@ def feed_builder(res: SlamResult, builder: MapBuilder) -> int:
             builder.add_points(rec.t_ns, kf.cloud.astype(np.float64), kf.size, kf.K, T, rec.index)
     for pos in builder.select():
         kf = by_index[builder.candidates[pos].index]
-        builder.attach_features(pos, kf.features, kf.features.depth, kf.vpr, kf.jpeg, kf.size)
+        vpr = kf.place_descriptor(builder.describe)
+        builder.attach_features(pos, kf.features, kf.features.depth, vpr, kf.jpeg, kf.size)
     return unposed
 
 

@@ -2,9 +2,9 @@
 `litevloc.pipelines.slam` when `litevloc map build --poses slam` poses a recording itself).
 
 Keyframes are spaced by the mapping pre-filter's motion thresholds (`mapping.keyframes`)
-times `slam.keyframe_step_scale`, and every map keyframe is a SLAM keyframe; loop
-verification uses the localizer's own geometry (`localization.pnp`, `localization.refine`,
-`localization.depth`).
+times `slam.keyframe_step_scale` (the rotation step also times `slam.keyframe_rotation_scale`),
+and every map keyframe is a SLAM keyframe; loop verification uses the localizer's own
+geometry (`localization.pnp`, `localization.refine`, `localization.depth`).
 """
 
 from __future__ import annotations
@@ -120,6 +120,10 @@ class SlamLoopParams:
         if not (self.sigma_floor_m > 0 and self.sigma_floor_deg > 0):
             raise ValueError("slam.loops.sigma_floor_m and sigma_floor_deg must be > 0")
 
+    def searches(self, keyframe_id: int) -> bool:
+        """Whether keyframe `keyframe_id` is a loop-search keyframe (every `search_every`-th)."""
+        return keyframe_id % self.search_every == 0
+
 
 @dataclass(frozen=True)
 class SlamGraphParams:
@@ -183,6 +187,8 @@ class SlamParams:
 
     # SLAM keyframes (the map's keyframe candidates) every this many mapping.keyframes steps (translation, rotation)
     keyframe_step_scale: float = 1.0
+    # ... and the rotation step alone a further this many times (a robot turning in place sees the same place)
+    keyframe_rotation_scale: float = 1.0
     # the robot's odometry as pose-graph edges
     odometry: SlamOdometryParams = field(default_factory=SlamOdometryParams)
     # visual edges between nearby keyframes, and visual odometry where odometry is missing
@@ -201,5 +207,8 @@ class SlamParams:
     def __post_init__(self) -> None:
         if not (np.isfinite(self.keyframe_step_scale) and self.keyframe_step_scale >= 1):
             raise ValueError(f"slam.keyframe_step_scale must be a finite number >= 1, got {self.keyframe_step_scale}")
+        if not (np.isfinite(self.keyframe_rotation_scale) and self.keyframe_rotation_scale >= 1):
+            raise ValueError("slam.keyframe_rotation_scale must be a finite number >= 1, "
+                             f"got {self.keyframe_rotation_scale}")
         if not (np.isfinite(self.file_max_gap_s) and self.file_max_gap_s > 0):
             raise ValueError(f"slam.file_max_gap_s must be a finite number > 0, got {self.file_max_gap_s}")

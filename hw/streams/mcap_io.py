@@ -184,10 +184,10 @@ class McapSource:
     `strict=True` (offline tools): any malformed message or time going backwards raises
     `StreamError` naming the file, topic and time. `strict=False` (live/replay into a
     running service): such messages are counted in `stats.skipped` and dropped.
-    `messages(defer_color=True)` (the service's source; only with `strict=False`): frames
+    `messages(defer_color=True)` (the service's source, and the SLAM's in `map build`): frames
     come as `EncodedRgbdFrame`, their colour decoded by whoever takes them (`decode()`), so
-    frames a consumer drops are never decompressed; a colour that does not decode is then
-    the consumer's to count.
+    frames a consumer drops are never decompressed; a colour that does not decode then raises
+    StreamError at `decode()` (strict: the consumer stops) or is the consumer's to count.
     """
 
     def __init__(self, path: str | Path, frames: slice = slice(None), strict: bool = True) -> None:
@@ -248,9 +248,8 @@ class McapSource:
             yield m
 
     def messages(self, defer_color: bool = False) -> Iterator[SourceMessage]:
-        """The recording's messages; with `defer_color`, frames as `EncodedRgbdFrame`."""
-        if defer_color and self.strict:
-            raise ValueError("defer_color needs strict=False: a strict read checks every frame as it reads it")
+        """The recording's messages; with `defer_color`, frames as `EncodedRgbdFrame` (the
+        colour is checked where it is decoded, the rest as `strict` says)."""
         return self._read(defer_color)
 
     def _read(self, defer_color: bool) -> Iterator[SourceMessage]:

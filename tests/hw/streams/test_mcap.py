@@ -164,12 +164,14 @@ def test_deferred_colour_decodes_to_the_same_frames(tmp_path: Path) -> None:
         else:
             assert type(a) is type(b) and a.t_ns == b.t_ns
     assert n_frames == 6
-    with pytest.raises(ValueError, match="strict=False"):
-        McapSource(tmp_path / "a.mcap").messages(defer_color=True)
+    strict = list(McapSource(tmp_path / "a.mcap").messages(defer_color=True))  # map build's read
+    assert [type(m) for m in strict] == [type(m) for m in lazy]
 
 
 def test_deferred_corrupt_colour_fails_at_decode_naming_the_frame(tmp_path: Path) -> None:
     import dataclasses
+
+    from litevloc.hw.messages import EncodedRgbdFrame
 
     msgs = synthetic_messages(2)
     frames = [i for i, m in enumerate(msgs) if isinstance(m, RgbdFrame)]
@@ -181,6 +183,10 @@ def test_deferred_corrupt_colour_fails_at_decode_naming_the_frame(tmp_path: Path
     lazy[0].decode()
     with pytest.raises(StreamError, match=r"truncated.*c\.mcap colour at"):
         lazy[1].decode()
+    # read strictly but deferred (map build), the frame comes and its decode raises
+    strict = [m for m in McapSource(tmp_path / "c.mcap").messages(defer_color=True) if isinstance(m, EncodedRgbdFrame)]
+    with pytest.raises(StreamError, match="truncated"):
+        strict[1].decode()
     # read eagerly, the same frame is counted and skipped by the reader
     live = McapSource(tmp_path / "c.mcap", strict=False)
     assert sum(isinstance(m, RgbdFrame) for m in live) == 1 and live.stats.skipped == {"bad frame": 1}

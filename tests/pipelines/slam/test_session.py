@@ -261,23 +261,54 @@ def test_only_loop_search_keyframes_search_and_are_found(base) -> None:  # type:
     assert {a.query for a in session.attempts} <= {kf.id for kf in res.keyframes if kf.id % n == 0}
 
 
-def test_sparser_keyframe_spacing_makes_fewer_keyframes(scene: Scene) -> None:
-    from litevloc.base.geometry import rotation_angle
+def test_place_descriptors_of_other_keyframes_wait_until_asked(scene: Scene, base) -> None:  # type: ignore[no-untyped-def]
+    # the loop search's keyframes are described at once; the others keep the image until the map asks
+    session, res = base
+    deferred = [kf for kf in res.keyframes if not session.params.loops.searches(kf.id)]
+    assert deferred and all(kf.vpr is None and kf.vpr_input is not None for kf in deferred)
+    assert all(kf.vpr is not None for kf in res.keyframes if session.params.loops.searches(kf.id))
+    describe = scene.models().describe
+    kf = deferred[0]
+    assert np.array_equal(kf.place_descriptor(describe), describe(scene.frame_ref(kf.index).load().color))
+    assert kf.vpr_input is None and kf.place_descriptor(describe) is kf.vpr
+
+
+def _keyframes(scene: Scene, params: Any, n: int = 60) -> list[Any]:
+    """The front end's keyframes over the scene's first `n` frames with exact odometry."""
     from litevloc.pipelines.slam.frontend import FrontEnd
     from tests.pipelines.slam.synthetic import T_BASE_CAMERA
+
+    cfg = load_config("default")
+    front = FrontEnd(params, cfg.mapping, cfg.localization, scene.models(), T_BASE_CAMERA)
+    for i in range(n):
+        front.add(scene.frame_ref(i), (0, scene.T_world_base[i]))
+    return front.keyframes
+
+
+def test_sparser_keyframe_spacing_makes_fewer_keyframes(scene: Scene) -> None:
+    from litevloc.base.geometry import rotation_angle
 
     cfg = load_config("default")
     sparse = dataclasses.replace(cfg.slam, keyframe_step_scale=2.0)
     kp = cfg.mapping.keyframes
     counts = []
     for params in (cfg.slam, sparse):
-        front = FrontEnd(params, cfg.mapping, cfg.localization, scene.models(), T_BASE_CAMERA)
-        for i in range(60):
-            front.add(scene.frame_ref(i), (0, scene.T_world_base[i]))
-        counts.append(len(front.keyframes))
-        for a, b in itertools.pairwise(front.keyframes):  # the frame before b had not moved a step from a
+        keyframes = _keyframes(scene, params)
+        counts.append(len(keyframes))
+        for a, b in itertools.pairwise(keyframes):  # the frame before b had not moved a step from a
             Ta, Tb = scene.T_world_camera(a.index), scene.T_world_camera(b.index - 1)
-            k = params.keyframe_step_scale
+            k, k_rot = params.keyframe_step_scale, params.keyframe_step_scale * params.keyframe_rotation_scale
             assert np.linalg.norm(Tb[:3, 3] - Ta[:3, 3]) < k * kp.min_translation_m
-            assert np.degrees(rotation_angle(Ta[:3, :3].T @ Tb[:3, :3])) < k * kp.min_rotation_deg
+            assert np.degrees(rotation_angle(Ta[:3, :3].T @ Tb[:3, :3])) < k_rot * kp.min_rotation_deg
     assert counts[1] < 0.7 * counts[0]
+
+
+def test_a_larger_rotation_step_spaces_only_turning_keyframes(scene: Scene) -> None:
+    # slam.keyframe_rotation_scale: a robot turning on the spot makes fewer keyframes, driving ones are as before
+    cfg = load_config("default")
+    same, turns = (dataclasses.replace(cfg.slam, keyframe_rotation_scale=k) for k in (1.0, 2.0))
+    spinning = make_scene(n_frames=40, laps=0.4, radius=0.15)  # 0.3 m of arc is ~115 deg: turns make keyframes
+    n_spin = [len(_keyframes(spinning, p, 40)) for p in (same, turns)]
+    assert n_spin[1] < 0.7 * n_spin[0]
+    driving = [[kf.index for kf in _keyframes(scene, p, 40)] for p in (same, turns)]
+    assert driving[0] == driving[1] and len(driving[0]) > 3  # on the 1.8 m circle 0.3 m come before 12 deg
