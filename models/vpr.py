@@ -10,7 +10,7 @@ from numpy.typing import NDArray
 
 from litevloc.models.catalog import VPR_NORMALIZATION
 from litevloc.models.ort import make_session
-from litevloc.models.preprocess import prepare_image, resize_image
+from litevloc.models.preprocess import prepare_image
 
 
 class OnnxPlaceRecognizer:
@@ -31,10 +31,6 @@ class OnnxPlaceRecognizer:
         self.size_hw = (int(size_hw[0]), int(size_hw[1]))
         self.session = make_session(path, providers, intra_op_threads)
         self.dim = int(self.session.get_outputs()[0].shape[-1])
-
-    def network_image(self, image_rgb: NDArray[np.uint8]) -> NDArray[np.uint8]:
-        """The image resized to the network's input (`size_hw`): `describe` of it gives the same descriptor."""
-        return resize_image(image_rgb, self.size_hw)
 
     def describe(self, image_rgb: NDArray[np.uint8]) -> NDArray[np.float32]:
         x = prepare_image(image_rgb, self.size_hw, self.mean, self.std)

@@ -28,15 +28,12 @@ from litevloc.runtime.vloc_models import ModelBundle
 
 
 def slam_models(cfg: LiteVLocConfig, bundle: ModelBundle) -> SlamModels:
-    """The SLAM's callables: `bundle`'s extractor, place recognizer (and its input resize, where
-    it has one) and matcher (the localizer's, for loops) plus the configured cheap matcher for
-    visual edges (`slam.vo_matcher`)."""
+    """The SLAM's callables: `bundle`'s extractor, place recognizer and matcher (the localizer's,
+    for loops) plus the configured cheap matcher for visual edges (`slam.vo_matcher`)."""
     from litevloc.models.registry import load_matcher
-    from litevloc.models.vpr import OnnxPlaceRecognizer
 
     vo = dataclasses.replace(bundle, matcher=load_matcher(cfg.slam.vo_matcher, cfg.models))
-    shrink = bundle.vpr.network_image if isinstance(bundle.vpr, OnnxPlaceRecognizer) else None
-    return SlamModels(bundle.extract, bundle.describe, vo.match, bundle.match, shrink)
+    return SlamModels(bundle.extract, bundle.describe, vo.match, bundle.match)
 
 
 def new_session(cfg: LiteVLocConfig, models: SlamModels, has_odometry: bool) -> SlamSession:
@@ -124,8 +121,7 @@ def feed_builder(res: SlamResult, builder: MapBuilder) -> int:
             builder.add_points(rec.t_ns, kf.cloud.astype(np.float64), kf.size, kf.K, T, rec.index)
     for pos in builder.select():
         kf = by_index[builder.candidates[pos].index]
-        vpr = kf.place_descriptor(builder.describe)
-        builder.attach_features(pos, kf.features, kf.features.depth, vpr, kf.jpeg, kf.size)
+        builder.attach_features(pos, kf.features, kf.features.depth, kf.vpr, kf.jpeg, kf.size)
     return unposed
 
 

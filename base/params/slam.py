@@ -120,10 +120,6 @@ class SlamLoopParams:
         if not (self.sigma_floor_m > 0 and self.sigma_floor_deg > 0):
             raise ValueError("slam.loops.sigma_floor_m and sigma_floor_deg must be > 0")
 
-    def searches(self, keyframe_id: int) -> bool:
-        """Whether keyframe `keyframe_id` is a loop-search keyframe (every `search_every`-th)."""
-        return keyframe_id % self.search_every == 0
-
 
 @dataclass(frozen=True)
 class SlamGraphParams:

@@ -2,11 +2,8 @@
 
 * Keyframes are spaced by the mapping pre-filter's thresholds (`mapping.keyframes`:
   translation or rotation since the last keyframe) times `slam.keyframe_step_scale` (the
-  rotation step also times `slam.keyframe_rotation_scale`), measured with the odometry where
-  the frame and the last keyframe lie in one odometry segment; no image is touched for other
-  frames. A keyframe's place descriptor is computed at once only on the loop search's
-  keyframes (`slam.loops.search_every`); the others keep the recognizer's input image until
-  the map asks (`Keyframe.place_descriptor`).
+  rotation step also times `slam.keyframe_rotation_scale`), measured with the odometry where the frame and the last keyframe lie in one odometry
+  segment; no image is touched for other frames.
 * Where the odometry cannot say (no odometry in the recording, a gap, a jump), every
   `visual.track_every`-th frame is tracked against the last keyframe (features, the cheap
   matcher, PnP with the frame's depth); it becomes a keyframe when it moved enough, when its
@@ -204,16 +201,9 @@ class FrontEnd:
                   computed: tuple[NodeFeatures, F64] | None, tracked: Relative | None = None) -> Keyframe:
         feats, points = computed if computed is not None else self._features(images, ref.K)
         h, w = images.color.shape[:2]
-        kf_id = len(self.keyframes)
-        vpr, vpr_input = None, None  # described now where the loop search needs it, else if it becomes a map keyframe
-        if self.params.loops.searches(kf_id):
-            vpr = np.asarray(self.models.describe(images.color), np.float32)
-        else:
-            shrink = self.models.describe_input
-            vpr_input = images.color.copy() if shrink is None else shrink(images.color)
         kf = Keyframe(
-            id=kf_id, index=ref.index, t_ns=ref.t_ns, K=np.asarray(ref.K, np.float64), size=(w, h),
-            features=feats, points=points, vpr=vpr, vpr_input=vpr_input,
+            id=len(self.keyframes), index=ref.index, t_ns=ref.t_ns, K=np.asarray(ref.K, np.float64), size=(w, h),
+            features=feats, points=points, vpr=np.asarray(self.models.describe(images.color), np.float32),
             jpeg=images.jpeg or encode_jpeg(images.color, self.mapping.jpeg_quality, f"frame {ref.index}"),
             cloud=candidate_points(images.depth, ref.K, self.mapping.keyframes).astype(np.float32),
             odom=odom, T_init=np.eye(4), chain=0)

@@ -156,7 +156,6 @@ def loop_closures(q: Keyframe, keyframes: list[Keyframe], search: LoopSearch, ma
     verified, skipping candidates near a partner already found."""
     edges: list[Edge] = []
     attempts: list[LoopAttempt] = []
-    assert q.vpr is not None, f"keyframe {q.id} is not a loop-search keyframe"
     cands = search.candidates(q.id, q.vpr)
     counts.candidates += len(cands)
     if gate is not None:

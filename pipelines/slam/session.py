@@ -132,9 +132,9 @@ class SlamSession:
         self.timings.front_end += t1 - t0
         if kf is None:
             return
-        if not self.params.loops.searches(kf.id):
+        if kf.id % self.params.loops.search_every:
             return
-        self.search.add(kf.id, kf.place_descriptor(self.models.describe))
+        self.search.add(kf.id, kf.vpr)
         pregate = self.params.loops.chain_pregate and self.params.graph.gate_loops
         edges, attempts = loop_closures(kf, self.front.keyframes, self.search, self.models.match_loop,
                                         self.localization, self.params.loops, self.loop_counts,

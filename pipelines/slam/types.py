@@ -19,7 +19,6 @@ from litevloc.pipelines.topomap.types import FeatureSet
 F64 = NDArray[np.float64]
 ExtractFn = Callable[[NDArray[np.uint8]], FeatureSet]
 DescribeFn = Callable[[NDArray[np.uint8]], NDArray[np.float32]]
-ImageFn = Callable[[NDArray[np.uint8]], NDArray[np.uint8]]
 MatchFn = Callable[[FeatureSet, FeatureSet], tuple[NDArray[np.int64], NDArray[np.int64]]]
 EdgeKind = Literal["odometry", "visual", "loop", "planar"]
 
@@ -49,15 +48,12 @@ class FrameRef:
 @dataclass(frozen=True)
 class SlamModels:
     """The model callables the SLAM runs: local features, place descriptor, the cheap matcher
-    of visual edges and tracking, and the localizer's matcher that verifies loops;
-    `describe_input`: the place recognizer's own input resize (describing its output gives the
-    same descriptor), kept by keyframes described later (None: they keep the full image)."""
+    of visual edges and tracking, and the localizer's matcher that verifies loops."""
 
     extract: ExtractFn
     describe: DescribeFn
     match_vo: MatchFn
     match_loop: MatchFn
-    describe_input: ImageFn | None = None
 
 
 @dataclass(eq=False)
@@ -66,8 +62,7 @@ class Keyframe:
 
     features: its local features with `depth` (N,) at each keypoint (NaN = none);
     points: (N, 3) keypoints lifted with that depth (camera frame, NaN rows without depth);
-    vpr: place descriptor (of the raw colour image; the map keeps it for its keyframes), None
-    until `place_descriptor` describes `vpr_input` (the loop search's keyframes have it at once);
+    vpr: place descriptor (of the raw colour image; the map keeps it for its keyframes);
     cloud: (M, 3) strided depth points (camera frame) for the map's occupancy and coverage;
     odom: (odometry segment, 4x4 T_odom_base) at its stamp, None where the odometry had none;
     T_init: 4x4 initial T_map_camera (chained edges); chain: id of its chain of odometry and
@@ -84,7 +79,7 @@ class Keyframe:
     size: tuple[int, int]
     features: Any
     points: F64
-    vpr: NDArray[np.float32] | None
+    vpr: NDArray[np.float32]
     jpeg: bytes
     cloud: NDArray[np.float32]
     odom: tuple[int, F64] | None
@@ -92,14 +87,6 @@ class Keyframe:
     chain: int
     path_m: float = 0.0
     path_var_t: float = 0.0
-    vpr_input: NDArray[np.uint8] | None = None
-
-    def place_descriptor(self, describe: DescribeFn) -> NDArray[np.float32]:
-        """`vpr`, described from `vpr_input` the first time it is asked for where it was deferred."""
-        if self.vpr is None:
-            assert self.vpr_input is not None, f"keyframe {self.id} has neither a place descriptor nor its input"
-            self.vpr, self.vpr_input = np.asarray(describe(self.vpr_input), np.float32), None
-        return self.vpr
 
 
 @dataclass(frozen=True, eq=False)

@@ -19,7 +19,6 @@ from litevloc.models.export.exporter import export_models, package_file  # noqa:
 from litevloc.models.export.vpr import CosPlaceR18, load_cosplace, load_effnet_gem  # noqa: E402
 from litevloc.models.preprocess import IMAGENET_MEAN, IMAGENET_STD, prepare_image  # noqa: E402
 from litevloc.models.registry import ModelError, load_place_recognizer  # noqa: E402
-from litevloc.models.vpr import OnnxPlaceRecognizer  # noqa: E402
 
 
 def test_effnet_gem_torch_vs_onnx(models_cfg: ModelsConfig, frame_rgb) -> None:  # type: ignore[no-untyped-def]
@@ -36,8 +35,6 @@ def test_effnet_gem_torch_vs_onnx(models_cfg: ModelsConfig, frame_rgb) -> None: 
     assert d_o.shape == (1280,) and d_o.dtype == np.float32
     np.testing.assert_allclose(d_o, d_t, atol=1e-4)
     assert abs(np.linalg.norm(d_o) - 1) < 1e-5
-    assert isinstance(vpr, OnnxPlaceRecognizer)  # the SLAM keeps its input image to describe a keyframe later
-    assert np.array_equal(vpr.describe(vpr.network_image(img)), d_o) and vpr.network_image(img).shape == (240, 320, 3)
     # nearby frames are more similar than far ones (frame 400 is another part of the kitchen)
     assert d_o @ vpr.describe(frame_rgb(10)) > d_o @ vpr.describe(frame_rgb(400))
 

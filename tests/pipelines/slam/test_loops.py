@@ -40,7 +40,6 @@ def _search(kfs: list[Keyframe], q: Keyframe, pregate: bool) -> tuple[LoopCounts
     params = dataclasses.replace(cfg.slam.loops, max_verifications=2)
     search = LoopSearch(params)
     for kf in kfs:
-        assert kf.vpr is not None
         search.add(kf.id, kf.vpr)
     counts, match = LoopCounts(), _CountingMatcher()
     loop_closures(q, kfs, search, match, cfg.localization, params, counts,

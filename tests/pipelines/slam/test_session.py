@@ -261,18 +261,6 @@ def test_only_loop_search_keyframes_search_and_are_found(base) -> None:  # type:
     assert {a.query for a in session.attempts} <= {kf.id for kf in res.keyframes if kf.id % n == 0}
 
 
-def test_place_descriptors_of_other_keyframes_wait_until_asked(scene: Scene, base) -> None:  # type: ignore[no-untyped-def]
-    # the loop search's keyframes are described at once; the others keep the image until the map asks
-    session, res = base
-    deferred = [kf for kf in res.keyframes if not session.params.loops.searches(kf.id)]
-    assert deferred and all(kf.vpr is None and kf.vpr_input is not None for kf in deferred)
-    assert all(kf.vpr is not None for kf in res.keyframes if session.params.loops.searches(kf.id))
-    describe = scene.models().describe
-    kf = deferred[0]
-    assert np.array_equal(kf.place_descriptor(describe), describe(scene.frame_ref(kf.index).load().color))
-    assert kf.vpr_input is None and kf.place_descriptor(describe) is kf.vpr
-
-
 def _keyframes(scene: Scene, params: Any, n: int = 60) -> list[Any]:
     """The front end's keyframes over the scene's first `n` frames with exact odometry."""
     from litevloc.pipelines.slam.frontend import FrontEnd
