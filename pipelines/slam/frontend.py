@@ -2,8 +2,9 @@
 
 * Keyframes are spaced by the mapping pre-filter's thresholds (`mapping.keyframes`:
   translation or rotation since the last keyframe) times `slam.keyframe_step_scale` (the
-  rotation step also times `slam.keyframe_rotation_scale`), measured with the odometry where the frame and the last keyframe lie in one odometry
-  segment; no image is touched for other frames.
+  rotation step also times `slam.keyframe_rotation_scale`), measured with the odometry where
+  the frame and the last keyframe lie in one odometry segment; no image is touched for other
+  frames.
 * Where the odometry cannot say (no odometry in the recording, a gap, a jump), every
   `visual.track_every`-th frame is tracked against the last keyframe (features, the cheap
   matcher, PnP with the frame's depth); it becomes a keyframe when it moved enough, when its
