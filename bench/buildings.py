@@ -12,6 +12,8 @@ Maps are kept under out/bench/buildings/BUILDING/map and reused by a later run u
 (keys: `buildings[*]` with `map`, `litevloc`, `ground-truth`, `other_set`, `figures`;
 `totals` with the acceptance checks) and out/bench/NAME.png; each building's record is also appended to
 out/bench/NAME.partial.jsonl as it finishes, so a run stopped early keeps what it did.
+`--combine A.json B.partial.jsonl ...` runs nothing: it reports the buildings of earlier runs
+together (a report set run in parts), each with its own run's record.
 """
 
 from __future__ import annotations
@@ -65,7 +67,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--render-frames", type=int, default=40,
                     help="frames per building of the rendering-cost comparison (first simulator's buildings vs these, "
                          "the first seed of each generator; 0: skip)")
+    ap.add_argument("--combine", type=Path, nargs="+", default=None, metavar="FILE",
+                    help="no run: report the buildings of earlier runs together (their NAME.json or "
+                         "NAME.partial.jsonl; each building keeps its own run's record)")
     args = ap.parse_args(argv)
+    if args.combine:
+        return _combined_report(args)
     runs = [BuildingRun(g, s, args.appearance) for s in args.seeds for g in args.generators]
     variants = (("defaults", ()), *((v, tuple(v.split(","))) for v in args.alt_set)) if args.placement_only else ()
     settings = BenchSettings(goal_timeout_s=args.goal_timeout, out_dir=args.out_dir, keep_maps=not args.fresh_maps,
@@ -94,26 +101,53 @@ def main(argv: list[str] | None = None) -> int:
     buildings = run_buildings(runs, settings, args.workers, progress)
     if args.placement_only:
         return _placement_report(buildings, args)
+    return _report(buildings, args, {"seeds": [args.seeds.start, args.seeds.stop], "generators": args.generators,
+                                     "appearance": args.appearance, "workers": args.workers,
+                                     "overrides": args.overrides, "render_cost": render},
+                   round(time.perf_counter() - t0, 1))
+
+
+def _report(buildings: list[dict], args: argparse.Namespace, head: dict, run_wall_s: float | None) -> int:
+    """Figures per building, totals, the table, NAME.json and NAME.png."""
     for b in buildings:
         if "error" not in b:
             b["figures"] = building_figures(b)
     t = totals(buildings)
-    t["run_wall_s"] = round(time.perf_counter() - t0, 1)
+    t["run_wall_s"] = run_wall_s
     print_table("Image-goal navigation per building (LiteVLoc; GT = ground-truth localization)", HEADER,
                 table_rows(buildings))
     _print_totals(t)
-    result = {"seeds": [args.seeds.start, args.seeds.stop], "generators": args.generators,
-              "appearance": args.appearance, "workers": args.workers, "overrides": args.overrides,
-              "render_cost": render,
-              "buildings": buildings, "totals": t}
+    result = {**head, "buildings": buildings, "totals": t}
     if args.json is None:
         write_json(args.name, result)
     else:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(result, indent=2, default=float) + "\n")
     png = (OUT / args.name if args.json is None else args.json).with_suffix(".png")
-    print(f"plot: {plot(buildings, png, f'{args.name}: {len(runs)} buildings')}")
+    print(f"plot: {plot(buildings, png, f'{args.name}: {len(buildings)} buildings')}")
     return 0
+
+
+def _combined_report(args: argparse.Namespace) -> int:
+    """`--combine`: the buildings of earlier runs' JSON / partial JSONL files in one report; a
+    building named twice is an error (which record would count is not ours to choose)."""
+    buildings: list[dict] = []
+    for f in args.combine:
+        if not f.is_file():
+            raise SystemExit(f"--combine: {f} not found")
+        text = f.read_text()
+        recs = [json.loads(line) for line in text.splitlines() if line.strip()] if f.suffix == ".jsonl" \
+            else json.loads(text)["buildings"]
+        for r in recs:
+            r.setdefault("source", str(f))
+        buildings += recs
+    names = [b["building"] for b in buildings]
+    if len(set(names)) < len(names):
+        raise SystemExit(f"--combine: buildings named twice: {sorted({n for n in names if names.count(n) > 1})}")
+    head = {"combined_from": [str(f) for f in args.combine],
+            "generators": sorted({b["generator"] for b in buildings}),
+            "seeds": sorted({int(b["seed"]) for b in buildings})}
+    return _report(buildings, args, head, None)
 
 
 def _placement_report(results: list[dict], args: argparse.Namespace) -> int:
@@ -137,7 +171,8 @@ def _print_totals(t: dict) -> None:
              x["buildings_without_collision"], x["lost_max_s"], x["never_fixed"], x["failures"]]
             for mode, x in (("LiteVLoc", lv), ("ground truth", gt))]
     print_table(f"Totals over {t['buildings']} buildings ({t['errors']} errors); path ratio {t['path_ratio']}, time "
-                f"ratio {t['time_ratio']}; {t['run_wall_s']} s wall for the run",
+                f"ratio {t['time_ratio']}"
+                + (f"; {t['run_wall_s']} s wall for the run" if t["run_wall_s"] is not None else ""),
                 ["localization", "reached", "refused", "wrong", "collisions", "buildings w/o collision",
                  "lost max s", "never fixed", "not reached, by reason"], rows)
     cams = t["by_camera"]

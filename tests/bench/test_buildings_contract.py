@@ -64,3 +64,10 @@ def test_two_building_run_writes_the_json_contract(tmp_path: Path) -> None:
     assert set(t["by_camera"]) == {"robot", "hand"}
     assert set(t["acceptance"]) == {"reached_share", "reached_vs_ground_truth", "wrong_placements",
                                     "buildings_without_collision", "lost_max_s"}
+    # the same buildings reported again from the partial record: the same totals; named twice: an error
+    again = tmp_path / "again.json"
+    assert bench.main(["--combine", str(out.with_suffix(".partial.jsonl")), "--json", str(again)]) == 0
+    c = json.loads(again.read_text())
+    assert c["totals"]["litevloc"] == t["litevloc"] and c["totals"]["acceptance"] == t["acceptance"]
+    with pytest.raises(SystemExit, match="named twice"):
+        bench.main(["--combine", str(out), str(again), "--json", str(tmp_path / "twice.json")])
