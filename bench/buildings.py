@@ -26,7 +26,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _common import OUT, print_table, write_json
+from _common import OUT, print_table, run_meta, write_json
 
 from litevloc.config import load_config
 from litevloc.experiments.buildings import GENERATORS, BenchSettings, BuildingRun, render_cost, run_buildings
@@ -132,19 +132,24 @@ def _combined_report(args: argparse.Namespace) -> int:
     """`--combine`: the buildings of earlier runs' JSON / partial JSONL files in one report; a
     building named twice is an error (which record would count is not ours to choose)."""
     buildings: list[dict] = []
+    loads: list[float] = []  # the parts' own (a combination's machine load says nothing about the runs)
     for f in args.combine:
         if not f.is_file():
             raise SystemExit(f"--combine: {f} not found")
         text = f.read_text()
-        recs = [json.loads(line) for line in text.splitlines() if line.strip()] if f.suffix == ".jsonl" \
-            else json.loads(text)["buildings"]
+        if f.suffix == ".jsonl":
+            recs = [json.loads(line) for line in text.splitlines() if line.strip()]
+        else:
+            recs = json.loads(text)["buildings"]
+            loads += [json.loads(text).get("meta", {}).get("load_avg") or 0.0]
         for r in recs:
             r.setdefault("source", str(f))
         buildings += recs
     names = [b["building"] for b in buildings]
     if len(set(names)) < len(names):
         raise SystemExit(f"--combine: buildings named twice: {sorted({n for n in names if names.count(n) > 1})}")
-    head = {"combined_from": [str(f) for f in args.combine],
+    head = {"meta": {**run_meta(), "load_avg": max(loads) if loads else None},
+            "combined_from": [str(f) for f in args.combine],
             "generators": sorted({b["generator"] for b in buildings}),
             "seeds": sorted({int(b["seed"]) for b in buildings})}
     return _report(buildings, args, head, None)

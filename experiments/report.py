@@ -110,10 +110,12 @@ def _buildings(d: Json) -> str:
     lv, gt = t["litevloc"], t["ground-truth"]
     gens = sorted({b["generator"] for b in d["buildings"]})
     seeds = sorted({int(b["seed"]) for b in d["buildings"]})
+    wrong = lv["wrong_placements"]
     return (f"{lv['reached']}/{lv['goals']} goal images reached in {t['buildings']} buildings "
             f"({'/'.join(gens)}, seeds {seeds[0]}-{seeds[-1]}) "
-            f"vs {gt['reached']}/{gt['goals']} with ground-truth localization, {lv['wrong_placements']} wrong "
-            f"placements, {lv['buildings_without_collision']}/{t['buildings']} buildings without collision")
+            f"vs {gt['reached']}/{gt['goals']} with ground-truth localization, {wrong} wrong "
+            f"placement{'' if wrong == 1 else 's'}, {lv['buildings_without_collision']}/{t['buildings']} "
+            "buildings without collision")
 
 
 HEADLINES: tuple[Headline, ...] = (
