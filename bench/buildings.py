@@ -140,8 +140,9 @@ def _combined_report(args: argparse.Namespace) -> int:
         if f.suffix == ".jsonl":
             recs = [json.loads(line) for line in text.splitlines() if line.strip()]
         else:
-            recs = json.loads(text)["buildings"]
-            loads += [json.loads(text).get("meta", {}).get("load_avg") or 0.0]
+            part = json.loads(text)
+            recs = part["buildings"]
+            loads += [part.get("meta", {}).get("load_avg") or 0.0]
         for r in recs:
             r.setdefault("source", str(f))
         buildings += recs
