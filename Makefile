@@ -127,6 +127,7 @@ bench: $(VENV)/.dev-installed models $(BENCH_7S_MAP)/manifest.json $(BENCH_7S_SP
 	$(VENV)/bin/python bench/goal_placement.py
 	$(VENV)/bin/python bench/buildings.py
 	$(VENV)/bin/python bench/slam.py --inject --queries
+	$(VENV)/bin/python bench/vo_bias.py
 	$(VENV)/bin/python bench/runtime_queues.py
 	$(VENV)/bin/python bench/global_loc.py $(BENCH_7S_MAP) --config 7scenes
 	$(VENV)/bin/python bench/splits.py
