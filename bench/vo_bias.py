@@ -45,8 +45,8 @@ from litevloc.sim.source import open_sim_source
 PASSES = {"office": "map", "floor": "map", "bland": "map", "loop": "loop"}
 
 
-def world_case(world: str, seed: int, step: float, pairs: int, realism: bool) -> dict[str, Any]:
-    cfg = load_config("default")
+def world_case(world: str, seed: int, step: float, pairs: int, realism: bool, overrides: list[str]) -> dict[str, Any]:
+    cfg = load_config("default", overrides)
     if not realism:
         cfg = dataclasses.replace(cfg, sim=dataclasses.replace(
             cfg.sim, realism=dataclasses.replace(cfg.sim.realism, enabled=False)))
@@ -81,18 +81,22 @@ def main() -> int:
     ap.add_argument("--pairs", type=int, default=40)
     ap.add_argument("--realism", action="store_true", help="the simulator's noisy images and depth")
     ap.add_argument("--name", default="vo_bias")
+    ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                    help="a configuration override (repeat for more)")
     args = ap.parse_args()
-    cases = [world_case(w, args.seed, args.step, args.pairs, args.realism) for w in args.worlds]
+    cases = [world_case(w, args.seed, args.step, args.pairs, args.realism, args.overrides) for w in args.worlds]
     print_table("Visual edges: error along the true motion (median over pairs; + = measured long)",
-                ["world", "pairs", "step m", "all mm", "all %", "floor %", "off-floor %", "gross (all)"],
+                ["world", "pairs", "step m", "all mm", "all %", "all % per m", "floor %", "off-floor %",
+                 "gross (all)"],
                 [[c["world"], c["pairs"], c["step_median_m"], c["all"]["along_error_median_mm"],
-                  c["all"]["along_error_median_pct"], c["floor"]["along_error_median_pct"],
-                  c["off-floor"]["along_error_median_pct"], c["all"]["gross"]] for c in cases])
+                  c["all"]["along_error_median_pct"], c["all"]["along_error_per_m_pct"],
+                  c["floor"]["along_error_median_pct"], c["off-floor"]["along_error_median_pct"], c["all"]["gross"]]
+                 for c in cases])
     print_table("Depth disagreement of matched features (nearer frame's point in the farther frame; - = nearer)",
                 ["world", "surface", "range m", "features", "median mm", "median %"],
                 [[c["world"], r["surface"], f"{r['range_m'][0]:g}-{r['range_m'][1]:g}", r["features"],
                   r["median_mm"], r["median_pct"]] for c in cases for r in c["depth_disagreement"]])
-    write_json(args.name, {"step_m": args.step, "cases": cases})
+    write_json(args.name, {"step_m": args.step, "overrides": args.overrides, "cases": cases})
     return 0
 
 

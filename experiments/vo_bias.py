@@ -111,8 +111,9 @@ def depth_disagreement(fe: FrontEnd, far: FramePoints, near: FramePoints, T_far_
 
 def summary(errors: list[dict[str, float]], steps: list[float], disagreement: F64,
             gross_m: float = 0.05) -> dict[str, Any]:
-    """Medians over the pairs (gross errors, > `gross_m`, counted apart: a texture repeating
-    about one step along the path) and the depth disagreement by surface and range."""
+    """Medians over the pairs and the error per metre (their sum over the steps': what a chain
+    of edges accumulates), gross errors (> `gross_m`: a texture repeating about one step along
+    the path) counted apart; the depth disagreement by surface and range."""
     out: dict[str, Any] = {"pairs": len(errors), "step_median_m": float(np.median(steps)) if steps else None}
     st = np.asarray(steps, np.float64)
     for subset in SUBSETS:
@@ -120,7 +121,9 @@ def summary(errors: list[dict[str, float]], steps: list[float], disagreement: F6
         ok = np.isfinite(e) & (np.abs(e) <= gross_m)
         out[subset] = {"edges": int(np.isfinite(e).sum()), "gross": int((np.abs(e) > gross_m).sum()),
                        "along_error_median_mm": float(1e3 * np.median(e[ok])) if ok.any() else None,
-                       "along_error_median_pct": float(100 * np.median(e[ok] / st[ok])) if ok.any() else None}
+                       "along_error_median_pct": float(100 * np.median(e[ok] / st[ok])) if ok.any() else None,
+                       # what a chain of edges adds up: the error per metre travelled over the pairs
+                       "along_error_per_m_pct": float(100 * e[ok].sum() / st[ok].sum()) if ok.any() else None}
     rows = []
     for subset in ("floor", "off-floor"):
         m = subset_mask(disagreement[:, 2], subset) & (np.abs(disagreement[:, 1]) < 0.2)

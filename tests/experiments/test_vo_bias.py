@@ -48,6 +48,7 @@ def test_summary_keeps_gross_errors_apart_and_bands_the_disagreement() -> None:
     s = summary(errs, [0.3] * 10, d)
     assert s["all"]["gross"] == 1 and s["all"]["along_error_median_mm"] == pytest.approx(3.0)
     assert s["all"]["along_error_median_pct"] == pytest.approx(1.0)
+    assert s["all"]["along_error_per_m_pct"] == pytest.approx(1.0)  # the gross one left out
     assert s["floor"]["edges"] == 9
     floor = [r for r in s["depth_disagreement"] if r["surface"] == "floor"]
     assert floor and all(r["median_pct"] == pytest.approx(-0.3) for r in floor)
