@@ -59,14 +59,18 @@ class FusionParams:
     init_max_trans_m: float = 0.5
     # ... and this (degrees)
     init_max_rot_deg: float = 10.0
-    # initialisation votes must be captured within this of the newest (s)
+    # initialisation votes must be captured within this of the newest (s) ...
     init_window_s: float = 5.0
+    # ... or, if older (a slow first fix), the odometry between them travelled less than this (m) ...
+    init_window_m: float = 2.5
+    # ... and turned less than this in all (degrees)
+    init_window_deg: float = 45.0
     # consecutive agreeing gated rejections that re-initialise the filter (0 = never)
     reinit_after_rejects: int = 5
     # at most one marginal covariance per this much sensor time (s)
     covariance_period_s: float = 1.0
-    # odometry kept for late VLoc poses (s, >= lag_s)
-    odom_buffer_s: float = 5.0
+    # odometry kept for late VLoc poses (s, >= lag_s): a vote captured longer ago is refused as too old
+    odom_buffer_s: float = 60.0
     # a VLoc pose up to this much newer than the newest odometry is extrapolated (s)
     max_future_s: float = 0.05
 
@@ -84,6 +88,8 @@ class FusionParams:
             "init_max_trans_m",
             "init_max_rot_deg",
             "init_window_s",
+            "init_window_m",
+            "init_window_deg",
             "covariance_period_s",
             "odom_buffer_s",
         )

@@ -25,8 +25,12 @@ Model
 * **Initialisation**: once `init_votes` consecutive VLoc poses captured within
   `init_window_s` of each other agree (their `T_map_odom`
   within `init_max_trans_m` / `init_max_rot_deg`; `init_votes = 1` takes the very first
-  one), the first state is put at the oldest vote's capture time with its prior, the
-  buffered odometry since becomes keyframes, and the other votes are added as priors.
+  one; votes captured farther apart still combine where the odometry between them travelled
+  less than `init_window_m` and turned less than `init_window_deg` in all: a global
+  localization slower than the window, under load, on a robot waiting for its first fix;
+  an alias seen again after the robot turned or drove on does not), the first state is put at
+  the oldest vote's capture time with its prior, the buffered odometry since becomes
+  keyframes, and the other votes are added as priors.
   Before that, `add_odometry` returns None (the message is still buffered and counted).
   After `reinit_after_rejects` consecutive gated rejections that agree among themselves,
   the filter re-initialises from them (recovers from a wrong start or a kidnapping).
@@ -53,6 +57,7 @@ All GTSAM calls hold the GIL; each update touches a bounded window (tens of stat
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 from collections import Counter, deque
@@ -568,9 +573,29 @@ class OnlineFusion:
             for c in cands
         )
 
+    def _odometry_travel(self, t_a: int, t_b: int) -> tuple[float, float]:
+        """Path length (m) and total turn (rad) of the buffered odometry between two times
+        (t_a <= t_b; the messages between them, no interpolation at the ends)."""
+        steps = [T for t, T in self._odom if t_a <= t <= t_b]
+        dist = turn = 0.0
+        for T0, T1 in itertools.pairwise(steps):
+            D = _inv(T0) @ T1
+            dist += math.sqrt(float(D[:3, 3] @ D[:3, 3]))
+            turn += _angle(D[:3, :3])
+        return dist, turn
+
+    def _combines(self, old: _Candidate, new: _Candidate) -> bool:
+        """Whether an earlier vote may combine with a new one (see the module docstring)."""
+        p = self.params
+        if new.t_ns - old.t_ns <= p.init_window_s * 1e9:
+            return True
+        if old.t_ns < self._odom[0][0]:  # its odometry has left the buffer
+            return False
+        dist, turn = self._odometry_travel(old.t_ns, new.t_ns)
+        return dist < p.init_window_m and turn < math.radians(p.init_window_deg)
+
     def _try_init(self, cand: _Candidate) -> VlocUpdate:
-        oldest = cand.t_ns - int(self.params.init_window_s * 1e9)
-        kept = [c for c in self._candidates if c.t_ns >= oldest]  # votes too far apart do not combine
+        kept = [c for c in self._candidates if self._combines(c, cand)]  # votes too far apart do not combine
         self._candidates.clear()
         self._candidates.extend(kept)
         self._candidates.append(cand)

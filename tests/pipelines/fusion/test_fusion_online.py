@@ -229,23 +229,51 @@ def test_votes_only_initialise_and_are_ignored_afterwards() -> None:
 
 
 def test_votes_farther_apart_than_the_window_do_not_combine() -> None:
-    """Initialisation votes combine only within `init_window_s` (capture stamps): the same
-    pose voted again after a long gap (an alias seen again after a turn) does not initialise,
-    two consecutive ones do."""
+    """Initialisation votes combine within `init_window_s` (capture stamps); farther apart only
+    where the odometry between them stayed within `init_window_m` / `init_window_deg`: the same
+    pose voted again after the robot turned (an alias seen again at one heading) does not
+    initialise, two consecutive ones do."""
     f = OnlineFusion(FusionParams(init_votes=2, init_window_s=5.0), np.eye(4))
     t_odom = 0
 
+    def odom(t_ns: int) -> np.ndarray:  # turning in place at 0.5 rad/s
+        return make_T(so3_exp(np.array([0.0, 0.0, 0.5 * t_ns * 1e-9])), [0, 0, 0])
+
     def vote(t_ns: int, x: float) -> str:
         nonlocal t_odom
-        while t_odom <= t_ns + 10_000_000:  # odometry (at rest) up to just after the capture
-            f.add_odometry(t_odom, np.eye(4))
+        while t_odom <= t_ns + 10_000_000:  # odometry up to just after the capture
+            f.add_odometry(t_odom, odom(t_odom))
             t_odom += 10_000_000
-        return f.add_vloc(t_ns, make_T(np.eye(3), [x, 0, 0]), vote_only=True).reason
+        T_map_odom = make_T(np.eye(3), [x, 0, 0])  # every vote claims (nearly) the same T_map_odom
+        return f.add_vloc(t_ns, T_map_odom @ odom(t_ns), vote_only=True).reason
 
     assert vote(100_000_000, 0.0) == "awaiting_init"
-    assert vote(6_100_000_000, 0.01) == "awaiting_init"  # 6 s later: the first vote has expired
+    assert vote(6_100_000_000, 0.01) == "awaiting_init"  # 6 s and 172 deg later: the first vote has expired
     assert not f.initialised
     assert vote(9_000_000_000, 0.02) == "initialised" and f.initialised  # 2.9 s after the second
+
+
+def test_a_first_fix_slower_than_the_window_still_initialises_a_robot_at_rest() -> None:
+    """A global localization that takes 30 s per try under load: its votes are captured 30 s
+    apart. At rest they combine (and 30 s of buffered odometry are there to place them); the
+    same votes 30 s apart while the robot drives 6 m do not; older than the odometry buffer,
+    a vote is refused as too old."""
+    def run(speed: float, buffer_s: float = 60.0) -> list[str]:
+        f = OnlineFusion(FusionParams(init_votes=2, odom_buffer_s=buffer_s), np.eye(4))
+        out, t_odom = [], 0
+        for capture, arrive in ((1_000_000_000, 31_000_000_000), (31_000_000_000, 61_000_000_000)):
+            while t_odom <= arrive:
+                f.add_odometry(t_odom, make_T(np.eye(3), [speed * t_odom * 1e-9, 0, 0]))
+                t_odom += 10_000_000
+            T_map_base = make_T(np.eye(3), [5.0 + speed * capture * 1e-9, 0, 0])  # T_map_odom = x + 5 m
+            out.append(f.add_vloc(capture, T_map_base, vote_only=True).reason)
+        return out
+
+    assert run(0.0) == ["awaiting_init", "initialised"]
+    assert run(0.2) == ["awaiting_init", "awaiting_init"]  # 6 m driven between the captures
+    assert run(0.0, buffer_s=20.0) == ["too_old", "too_old"]
+    with pytest.raises(ValueError, match="init_window_m"):
+        FusionParams(init_window_m=0.0)
     with pytest.raises(ValueError, match="init_window_s"):
         FusionParams(init_window_s=0.0)
 
