@@ -157,7 +157,9 @@ def test_service_over_zenoh_to_another_process(tmp_path: Path) -> None:
         pub = LiteVLocPublisher(bus)
         out = tmp_path / "probe.json"
         n_pose = src.n_odometry() - 1
-        proc = start_probe(ep, out, "pose,vloc,map_to_odom,status", {"pose": n_pose, "vloc": src.frame_count()})
+        # the probe stops once it has every count: map_to_odom's too, or its last ones can still be in flight
+        proc = start_probe(ep, out, "pose,vloc,map_to_odom,status",
+                           {"pose": n_pose, "vloc": src.frame_count(), "map_to_odom": 10})
         time.sleep(0.3)
         svc, _, _, _ = make("deterministic", pub=pub, src=src)
         res = svc.run(timeout_s=30)
