@@ -45,28 +45,29 @@ from _common import OUT, ROOT, SEVEN_SCENES, litevloc, print_table, require_7sce
 
 from litevloc.config import load_config
 from litevloc.experiments.slam import (
+    MAPPING_PASSES,
     case_figures,
     graph_errors,
     inject_wrong_loops,
+    mapping_pass_uri,
     sim_reference,
     without_ground_truth,
 )
 
-PASSES = {"office": "map", "floor": "map", "bland": "map", "loop": "loop"}
 HERE = OUT / "slam"
 
 
 def sim_case(world: str, config: str) -> dict[str, Any]:
     d = HERE / world
     js, npz = d / "build.json", d / "graph.npz"
-    litevloc("map", "build", f"sim:{world}?pass={PASSES[world]}&seed=0", "-o", str(d / "map"), "--force",
+    litevloc("map", "build", mapping_pass_uri(world), "-o", str(d / "map"), "--force",
              "--poses", "slam", "--json", str(js), "--slam-graph", str(npz), "--config", config)
     return case_figures(json.loads(js.read_text()), world)
 
 
 def inject(world: str, config: str) -> dict[str, Any]:
     cfg = load_config(config)
-    ref = sim_reference(f"sim:{world}?pass={PASSES[world]}&seed=0", cfg.sim)
+    ref = sim_reference(mapping_pass_uri(world), cfg.sim)
     return inject_wrong_loops(HERE / world / "graph.npz", ref, cfg.slam.graph, 0.1, 3.0, seed=0)
 
 
@@ -196,7 +197,7 @@ def main() -> int:
     prev = OUT / f"{args.json}.json"
     res: dict[str, Any] = json.loads(prev.read_text()) if prev.is_file() else {}  # cases not rerun are kept
     for c in args.cases:
-        if c in PASSES:
+        if c in MAPPING_PASSES:
             res[c] = sim_case(c, args.config)
         elif c in ("7s", "7s-camera"):
             res[c] = sevenscenes_case(c, 100.0 if c == "7s" else 0.0, args.pgt if args.pgt.is_file() else None)

@@ -26,7 +26,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _common import print_table, write_json
 
+from litevloc.base.geometry import invert
 from litevloc.config import load_config
+from litevloc.experiments.slam import MAPPING_PASSES, mapping_pass_uri
 from litevloc.experiments.vo_bias import (
     FramePoints,
     depth_disagreement,
@@ -34,7 +36,6 @@ from litevloc.experiments.vo_bias import (
     edge_pairs,
     frame_points,
     summary,
-    true_motion,
 )
 from litevloc.pipelines.slam.frontend import FrontEnd
 from litevloc.pipelines.slam.types import FrameImages
@@ -42,15 +43,13 @@ from litevloc.runtime.slam_build import slam_models
 from litevloc.runtime.vloc_models import load_bundle
 from litevloc.sim.source import open_sim_source
 
-PASSES = {"office": "map", "floor": "map", "bland": "map", "loop": "loop"}
-
 
 def world_case(world: str, seed: int, step: float, pairs: int, realism: bool, overrides: list[str]) -> dict[str, Any]:
     cfg = load_config("default", overrides)
     if not realism:
         cfg = dataclasses.replace(cfg, sim=dataclasses.replace(
             cfg.sim, realism=dataclasses.replace(cfg.sim.realism, enabled=False)))
-    src = open_sim_source(f"sim:{world}?pass={PASSES[world]}&seed={seed}", cfg.sim)
+    src = open_sim_source(mapping_pass_uri(world, seed), cfg.sim)
     P = src.camera_poses()
     fe = FrontEnd(cfg.slam, cfg.mapping, cfg.localization, slam_models(cfg, load_bundle(cfg.models)),
                   cfg.fusion.T_base_camera())
@@ -62,7 +61,7 @@ def world_case(world: str, seed: int, step: float, pairs: int, realism: bool, ov
 
     errors, steps, disagreement = [], [], []
     for n, (i, j) in enumerate(edge_pairs(P, step, pairs), 1):
-        T = true_motion(P, i, j)
+        T = invert(P[i]) @ P[j]  # T_i_j: frame j's camera in frame i's
         a, b = points(i), points(j)
         errors.append(edge_errors(fe, a, b, T))
         steps.append(float(np.linalg.norm(T[:3, 3])))
@@ -75,7 +74,7 @@ def world_case(world: str, seed: int, step: float, pairs: int, realism: bool, ov
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--worlds", nargs="+", default=["loop", "office"], choices=sorted(PASSES))
+    ap.add_argument("--worlds", nargs="+", default=["loop", "office"], choices=sorted(MAPPING_PASSES))
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--step", type=float, default=0.3, help="metres between the frames of a pair (SLAM keyframes: 0.3)")
     ap.add_argument("--pairs", type=int, default=40)

@@ -8,7 +8,8 @@
 * `graph_errors`: a saved graph against reference poses by frame index (the 7-Scenes ground
   truth read from the dataset after the build, or the SfM pseudo ground truth with a
   similarity alignment: that reference has its own scale).
-* `sim_reference`: the simulator's ground-truth camera poses of a pass, by frame index.
+* `sim_reference`: the simulator's ground-truth camera poses of a pass, by frame index;
+  `mapping_pass_uri`: a world's mapping pass as a source URI.
 * `regraph`: a saved graph re-optimised with other graph parameters (the loop gate's, chosen
   on tuning passes), against reference poses: keyframe ATE, loops kept, wrong loops kept,
   how many loops each gate rejected and how many of those were true ones.
@@ -31,6 +32,14 @@ from litevloc.pipelines.slam.types import Edge
 from litevloc.runtime.slam_build import SavedGraph, load_graph
 
 F64 = NDArray[np.float64]
+
+# the simulator worlds' mapping passes (what `sim navigate` and `bench/loop.py` map with)
+MAPPING_PASSES = {"office": "map", "floor": "map", "bland": "map", "loop": "loop"}
+
+
+def mapping_pass_uri(world: str, seed: int = 0) -> str:
+    """The simulator source URI of a world's mapping pass (`MAPPING_PASSES`) with its seed."""
+    return f"sim:{world}?pass={MAPPING_PASSES[world]}&seed={seed}"
 
 
 def without_ground_truth(src: Path, dst: Path) -> None:

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.base.geometry import invert
+from litevloc.base.geometry import transform_points
 from litevloc.pipelines.guided_matching import match_by_projection
 from litevloc.pipelines.slam.frontend import FrontEnd
 from litevloc.pipelines.slam.types import FrameImages, Keyframe
@@ -63,7 +63,7 @@ def frame_points(fe: FrontEnd, images: FrameImages, K: F64, T_world_camera: F64,
     kf = Keyframe(id=index, index=index, t_ns=0, K=np.asarray(K, np.float64), size=(w, h), features=feats,
                   points=pts, vpr=np.zeros(1, np.float32), jpeg=b"", cloud=np.zeros((0, 3), np.float32), odom=None,
                   T_init=np.eye(4), chain=0)
-    return FramePoints(kf, (pts @ T_world_camera[:3, :3].T + T_world_camera[:3, 3])[:, 2])
+    return FramePoints(kf, transform_points(T_world_camera, pts)[:, 2])
 
 
 def subset_mask(height_m: F64, subset: str) -> NDArray[np.bool_]:
@@ -103,7 +103,7 @@ def depth_disagreement(fe: FrontEnd, far: FramePoints, near: FramePoints, T_far_
     i_s, i_t = match_by_projection(near.keyframe.points, near.keyframe.features.descriptors, T_far_near,
                                    far.keyframe.features.keypoints, far.keyframe.features.descriptors,
                                    far.keyframe.K, np.eye(4), vp.guided_radius_px, vp.guided_min_similarity, True)
-    a = near.keyframe.points[i_s] @ T_far_near[:3, :3].T + T_far_near[:3, 3]
+    a = transform_points(T_far_near, near.keyframe.points[i_s])
     b = far.keyframe.points[i_t]
     ok = np.all(np.isfinite(a), axis=1) & np.all(np.isfinite(b), axis=1)
     return np.column_stack([b[ok, 2], a[ok, 2] - b[ok, 2], near.height_m[i_s][ok]])
@@ -137,7 +137,3 @@ def summary(errors: list[dict[str, float]], steps: list[float], disagreement: F6
     out["depth_disagreement"] = rows
     return out
 
-
-def true_motion(T_world_camera: F64, i: int, j: int) -> F64:
-    """T_i_j: frame j's camera in frame i's (4x4)."""
-    return invert(T_world_camera[i]) @ T_world_camera[j]
