@@ -199,6 +199,8 @@ class LocalizationParams:
     prior_gate_sigmas: float = 3.0
     # a pose outside a fused prior's gate (or with a stale prior) waits this long for a repeat (s; 0 = off)
     repeat_within_s: float = 5.0
+    # ... or for any time while the prior moved less than this since the held pose (m: a robot at rest, slow GL)
+    repeat_within_m: float = 0.1
     # a held pose is repeated when the two agree within this rotation (degrees)
     repeat_deg: float = 5.0
     # LL candidates: keyframes within this distance of the prior (m)
@@ -273,8 +275,8 @@ class LocalizationParams:
             raise ValueError("gl_rerank_depth must be >= 0")
         if not -1 <= self.gl_rerank_min_similarity <= 1:
             raise ValueError("gl_rerank_min_similarity must be in [-1, 1]")
-        if self.repeat_within_s < 0 or not 0 < self.repeat_deg <= 180:
-            raise ValueError("repeat_within_s must be >= 0 (0 = off) and repeat_deg in (0, 180]")
+        if self.repeat_within_s < 0 or self.repeat_within_m < 0 or not 0 < self.repeat_deg <= 180:
+            raise ValueError("repeat_within_s and repeat_within_m must be >= 0 (0 = off) and repeat_deg in (0, 180]")
         if self.prior_gate_sigmas < 0:
             raise ValueError("prior_gate_sigmas must be >= 0 (0 = off)")
         if self.prior_gate_rate_fused_mps < 0 or self.prior_gate_fused_m <= 0:

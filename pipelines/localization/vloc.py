@@ -703,11 +703,15 @@ class VisualLocalizer:
             # of a simulated or camera clock came 5.000000025 s apart, and a repeat 5 frames on
             # was refused (loop world navigation, seed 1: held poses right to 0.2 m, the robot
             # drove on odometry into the corridor wall)
-            if 0 < dt_s <= p.repeat_within_s + _CLOCK_JITTER_S:
-                # where the held pose is now: carried by the prior's motion since then (odometry)
-                expected = held.T_map_camera @ np.linalg.inv(held.prior_T_map_camera) @ prior
+            # the prior's motion since then (odometry): where the held pose is now
+            carried = np.linalg.inv(held.prior_T_map_camera) @ prior
+            # a robot that stayed put may wait any time for the repeat (GL takes 20 s on a loaded
+            # computer); the odometry's drift grows with its motion then, not with the time
+            still = float(np.linalg.norm(carried[:3, 3])) <= p.repeat_within_m
+            if 0 < dt_s <= p.repeat_within_s + _CLOCK_JITTER_S or (dt_s > 0 and still):
+                expected = held.T_map_camera @ carried
                 et, er = relative_pose_error(T, expected)
-                tol = p.prior_gate_fused_m + p.prior_gate_rate_fused_mps * dt_s
+                tol = p.prior_gate_fused_m + p.prior_gate_rate_fused_mps * min(dt_s, p.repeat_within_s)
                 if et <= tol and er <= p.repeat_deg:
                     self.held = None
                     return replace(res, stop_reason=f"{res.stop_reason}; repeats the pose held {dt_s:.2f} s "

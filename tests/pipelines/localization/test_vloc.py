@@ -505,10 +505,19 @@ def test_gl_pose_outside_the_prior_gate_is_held_until_a_later_frame_repeats_it()
     assert not edge.process(0, IMG, s.look(pose(1.0), 1), K, pose(3.0)).accepted
     r = edge.process(5 * sec + 25, IMG, s.look(pose(1.0), 1), K, pose(3.0))
     assert r.accepted and "repeats the pose held 5.00 s" in r.stop_reason
-    # too late for a repeat: held again instead
+    # too late for a repeat after the robot moved (0.3 m, and so did the prior): held again instead
     late = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)
     assert not late.process(0, IMG, s.look(pose(1.0), 1), K, pose(3.0)).accepted
-    assert not late.process(6 * sec, IMG, s.look(pose(1.0), 1), K, pose(3.0)).accepted
+    assert not late.process(6 * sec, IMG, s.look(pose(1.3), 1), K, pose(3.3)).accepted
+    # a robot at rest (the prior still, up to its 0.1 m) may wait any time for the repeat (slow GL under load)
+    rest = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)
+    assert not rest.process(0, IMG, s.look(pose(1.0), 1), K, pose(3.0)).accepted
+    r = rest.process(40 * sec, IMG, s.look(pose(1.05), 1), K, pose(3.05))
+    assert r.accepted and "repeats the pose held 40.00 s" in r.stop_reason
+    # ... but not a pose that moved where the prior did not
+    rest = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)
+    assert not rest.process(0, IMG, s.look(pose(1.0), 1), K, pose(3.0)).accepted
+    assert not rest.process(40 * sec, IMG, s.look(pose(1.8), 1), K, pose(3.0)).accepted
     # off: accepted at once, as before
     off = VisualLocalizer(m, replace(PARAMS, repeat_within_s=0.0), s.extract, s.describe, s.match)
     assert off.process(0, IMG, s.look(pose(1.0), 1), K, pose(3.0)).accepted
@@ -516,6 +525,8 @@ def test_gl_pose_outside_the_prior_gate_is_held_until_a_later_frame_repeats_it()
         LocalizationParams(repeat_within_s=-1.0)
     with pytest.raises(ValueError, match="repeat_"):
         LocalizationParams(repeat_deg=0.0)
+    with pytest.raises(ValueError, match="repeat_"):
+        LocalizationParams(repeat_within_m=-0.1)
 
 
 def test_ll_pose_with_a_stale_fused_prior_is_held_until_repeated() -> None:
