@@ -62,7 +62,7 @@ def frame_points(fe: FrontEnd, images: FrameImages, K: F64, T_world_camera: F64,
     h, w = images.color.shape[:2]
     kf = Keyframe(id=index, index=index, t_ns=0, K=np.asarray(K, np.float64), size=(w, h), features=feats,
                   points=pts, vpr=np.zeros(1, np.float32), jpeg=b"", cloud=np.zeros((0, 3), np.float32), odom=None,
-                  T_init=np.eye(4), chain=0)
+                  T_init=np.eye(4), chain=0, view=fe._view(images, K))
     return FramePoints(kf, transform_points(T_world_camera, pts)[:, 2])
 
 
@@ -90,7 +90,8 @@ def edge_errors(fe: FrontEnd, target: FramePoints, source: FramePoints, T_target
     for subset in SUBSETS:
         pts = source.keyframe.points.copy()
         pts[~subset_mask(source.height_m, subset)] = np.nan  # the edge uses lifted points only
-        res = fe._relative(pts, source.keyframe.features, target.keyframe, T_target_source, True)
+        res = fe._relative(pts, source.keyframe.features, target.keyframe, T_target_source, True,
+                           source.keyframe.view)
         out[subset] = float("nan") if res is None else along_motion_error(res.T, T_target_source)
     return out
 

@@ -52,6 +52,39 @@ class SlamOdometryParams:
 
 
 @dataclass(frozen=True)
+class KeypointAlignmentParams:
+    """A visual edge's matched keypoints moved onto the same surface point (`pipelines.keypoint_alignment`):
+    the source patch warped by its surface plane, the target position refined by Lucas-Kanade."""
+
+    # align the target keypoints of a visual edge before its joint refinement (False: the detector's keypoints)
+    enabled: bool = True
+    # half size of the aligned patch (pixels; the patch is 2r+1 square)
+    patch_radius_px: int = 5
+    # half size of the depth window the surface plane is fitted in (pixels)
+    normal_radius_px: int = 4
+    # a plane fit with an RMS residual above this fraction of the depth is a depth edge (no alignment)
+    max_plane_rms: float = 0.01
+    # Lucas-Kanade iterations (translation only)
+    iterations: int = 6
+    # an alignment moving a keypoint farther than this failed (pixels; the keypoint stays as detected)
+    max_shift_px: float = 3.0
+    # ... as does one whose aligned patches correlate less than this (zero-mean NCC)
+    min_ncc: float = 0.8
+    # ... or whose patch has less gradient than this in its weaker direction (grey levels per pixel, RMS)
+    min_gradient: float = 0.3
+
+    def __post_init__(self) -> None:
+        if self.patch_radius_px < 1 or self.normal_radius_px < 1 or self.iterations < 1:
+            raise ValueError("slam.visual.align: patch_radius_px, normal_radius_px and iterations must be >= 1")
+        for name in ("max_plane_rms", "max_shift_px", "min_gradient"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"slam.visual.align.{name} must be a finite number > 0, got {v}")
+        if not -1 <= self.min_ncc <= 1:
+            raise ValueError(f"slam.visual.align.min_ncc must be in [-1, 1], got {self.min_ncc}")
+
+
+@dataclass(frozen=True)
 class SlamVisualParams:
     """Visual edges between nearby keyframes, and visual odometry where the odometry is missing."""
 
@@ -75,6 +108,8 @@ class SlamVisualParams:
     track_every: int = 2
     # without odometry, a tracked frame with fewer PnP inliers than this becomes a keyframe
     track_min_inliers: int = 60
+    # matched keypoints moved onto the same surface point before the edge's refinement
+    align: KeypointAlignmentParams = field(default_factory=KeypointAlignmentParams)
 
     def __post_init__(self) -> None:
         if self.neighbours < 1 or self.track_every < 1:

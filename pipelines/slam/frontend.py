@@ -41,6 +41,7 @@ from litevloc.base.params.mapping import KeyframeParams, MappingParams
 from litevloc.base.params.slam import SlamParams
 from litevloc.pipelines.depth_lookup import depth_at
 from litevloc.pipelines.guided_matching import match_by_projection
+from litevloc.pipelines.keypoint_alignment import AlignmentView, align_keypoints, alignment_view
 from litevloc.pipelines.localization.refine import KeyframeObservations, refine_pose
 from litevloc.pipelines.pnp import solve_pnp
 from litevloc.pipelines.slam.disputes import ODOMETRY_DROPPED, Dispute, dispute_faults, vision_wins
@@ -142,7 +143,7 @@ class FrontEnd:
         images = ref.load()
         feats, points = self._features(images, ref.K)
         self.counts["frames_tracked"] += 1
-        res = self._relative(points, feats, last)
+        res = self._relative(points, feats, last, view=self._view(images, ref.K))
         if res is None:
             self.counts["tracking_failures"] += 1
             return self._keyframe(ref, rec, images, odom, (feats, points))
@@ -165,13 +166,18 @@ class FrontEnd:
         pts[ok] = backproject_pixels(K, kp[ok].astype(np.float64), z[ok].astype(np.float64))
         return feats, pts
 
-    def _relative(self, points: F64, feats: NodeFeatures, target: Keyframe,
-                  prior: F64 | None = None, guided_only: bool = False) -> Relative | None:
+    def _view(self, images: FrameImages, K: F64) -> AlignmentView | None:
+        """A frame's images for keypoint alignment (None when `slam.visual.align` is off)."""
+        return alignment_view(images.color, images.depth, K) if self.params.visual.align.enabled else None
+
+    def _relative(self, points: F64, feats: NodeFeatures, target: Keyframe, prior: F64 | None = None,
+                  guided_only: bool = False, view: AlignmentView | None = None) -> Relative | None:
         """Pose of a frame relative to `target` (T_target_frame, see `Relative`) from its lifted
         points: matches (by projection with a predicted `prior`, else the cheap matcher; never the
-        matcher when `guided_only`), PnP into the target's image, then the joint refinement with
-        both images' depth (3D residuals pin the motion along the optical axis that reprojections
-        leave loose). None when a gate fails."""
+        matcher when `guided_only`), PnP into the target's image, the target's keypoints moved
+        onto the frame's surface points where both have a `view` (`pipelines.keypoint_alignment`),
+        then the joint refinement with both images' depth (3D residuals pin the motion along the
+        optical axis that reprojections leave loose). None when a gate fails."""
         vp = self.params.visual
         i_s = i_t = np.zeros(0, np.int64)
         if prior is not None:
@@ -190,9 +196,13 @@ class FrontEnd:
         res = solve_pnp(pts[ok], kps, target.K, vp.pnp)
         if not res.accepted or res.T_target_source is None:
             return None
-        z = target.features.depth
-        obs = KeyframeObservations(target.id, pts[ok], kps, target.K, np.eye(4),
-                                   None if z is None else np.asarray(z, np.float64)[i_t[ok]])
+        z = None if target.features.depth is None else np.asarray(target.features.depth, np.float64)[i_t[ok]]
+        if view is not None and target.view is not None:
+            uv_s = np.asarray(feats.keypoints, np.float64)[i_s[ok]]
+            kps, moved_ = align_keypoints(view, target.view, uv_s, pts[ok], kps, res.T_target_source, vp.align)
+            if z is not None and moved_.any():
+                z[moved_] = depth_at(target.view.depth, kps[moved_], self.mapping.depth)
+        obs = KeyframeObservations(target.id, pts[ok], kps, target.K, np.eye(4), z)
         joint = refine_pose(res.T_target_source, [obs], self._refine)
         if not joint.accepted or joint.covariance is None:
             return None
@@ -207,7 +217,7 @@ class FrontEnd:
             features=feats, points=points, vpr=np.asarray(self.models.describe(images.color), np.float32),
             jpeg=images.jpeg or encode_jpeg(images.color, self.mapping.jpeg_quality, f"frame {ref.index}"),
             cloud=candidate_points(images.depth, ref.K, self.mapping.keyframes).astype(np.float32),
-            odom=odom, T_init=np.eye(4), chain=0)
+            odom=odom, T_init=np.eye(4), chain=0, view=self._view(images, ref.K))
         if odom is not None:
             self.counts["keyframes_with_odometry"] += 1
         rec.keyframe = kf.id
@@ -216,6 +226,9 @@ class FrontEnd:
         self._advance_path(kf, new_edges)
         self.keyframes.append(kf)
         self.edges.extend(new_edges)
+        keep = max(self.params.visual.neighbours, 2)  # visual edges and the skip edge reach this far back
+        if len(self.keyframes) > keep:
+            self.keyframes[-keep - 1].view = None  # its images are not needed again (memory)
         return kf
 
     def _edges_to_previous(self, kf: Keyframe, tracked: Relative | None) -> list[Edge]:
@@ -233,7 +246,7 @@ class FrontEnd:
         for other in reversed(self.keyframes[-self.params.visual.neighbours:]):
             prior = None if predicted is None else invert(other.T_init) @ prev.T_init @ predicted
             res = tracked if (other is prev and tracked is not None) else \
-                self._relative(kf.points, kf.features, other, prior, odo is not None and vp.guided_only)
+                self._relative(kf.points, kf.features, other, prior, odo is not None and vp.guided_only, kf.view)
             if res is None:
                 self.counts["visual_edge_failures"] += 1
                 continue
@@ -264,7 +277,8 @@ class FrontEnd:
         skip = next((e for e in visual if e.a == before.id), None)
         if skip is None:
             step = odo.T_a_b if visual_next is None else visual_next.T_a_b
-            res = self._relative(kf.points, kf.features, before, invert(before.T_init) @ T_vision @ step, True)
+            res = self._relative(kf.points, kf.features, before, invert(before.T_init) @ T_vision @ step, True,
+                                 kf.view)
             if res is None:
                 return
             skip = Edge(before.id, kf.id, res.T, res.covariance, "visual", inliers=res.inliers)

@@ -14,6 +14,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.pipelines.keypoint_alignment import AlignmentView
 from litevloc.pipelines.topomap.types import FeatureSet
 
 F64 = NDArray[np.float64]
@@ -69,7 +70,8 @@ class Keyframe:
     visual edges (a new chain starts where neither reaches the previous keyframe);
     path_m: distance travelled along its chain from the chain's first keyframe (metres, from the
     initial poses); path_var_t: its edges' translation variances accumulated along the chain
-    from there (m^2, per step the most certain edge into the keyframe, its largest axis).
+    from there (m^2, per step the most certain edge into the keyframe, its largest axis);
+    view: its images for keypoint alignment while visual edges can still reach it, else None.
     """
 
     id: int
@@ -87,6 +89,7 @@ class Keyframe:
     chain: int
     path_m: float = 0.0
     path_var_t: float = 0.0
+    view: AlignmentView | None = None
 
 
 @dataclass(frozen=True, eq=False)
