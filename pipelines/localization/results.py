@@ -82,7 +82,7 @@ class LocalizationResult:
 @dataclass(frozen=True)
 class HeldPose:
     """A GL or LL pose that its fused prior could not confirm (outside its gate, or the prior
-    too stale), held until a later frame repeats it (`LocalizationParams.repeat_within_s`):
+    too stale), held until a later frame repeats it (`LocalizationParams.repeat_within_s`, `repeat_within_m`):
     both 4x4 `T_map_camera`, stamp in ns."""
 
     t_ns: int
