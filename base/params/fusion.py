@@ -73,6 +73,11 @@ class FusionParams:
     odom_buffer_s: float = 60.0
     # a VLoc pose up to this much newer than the newest odometry is extrapolated (s)
     max_future_s: float = 0.05
+    # a VLoc pose older than the smoother's window is carried to its oldest state by the odometry if that moved
+    # less than this since the capture (m; a slow VLoc on a robot at rest; 0 = refuse every such pose as too old) ...
+    late_max_travel_m: float = 0.5
+    # ... and turned less than this (degrees)
+    late_max_turn_deg: float = 10.0
 
     def __post_init__(self) -> None:
         positive = (
@@ -103,6 +108,8 @@ class FusionParams:
             "odom_sigma_rot_per_rad",
             "gate_chi2",
             "max_future_s",
+            "late_max_travel_m",
+            "late_max_turn_deg",
         ):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):

@@ -14,7 +14,9 @@ Model
   |t_k - t_ns| <= keyframe period / 2) transports it to a `PriorFactorPose3` on `x_k`:
   `T_map_base(t_k) = T_map_base(t_ns) @ inv(T_odom_base(t_ns)) @ T_odom_base(t_k)`, with
   that short gap's odometry noise added to its covariance. A result older than the
-  smoother window is rejected (`too_old`), never applied to the newest state.
+  smoother window is carried the same way to the window's oldest state where the odometry
+  since its capture moved less than `late_max_travel_m` / `late_max_turn_deg` (a VLoc that
+  took 20 s on a robot at rest), else rejected (`too_old`), never applied to the newest state.
 * **Outliers**: chi-square gating of the Mahalanobis distance between the measurement and
   the predicted state (`S = P_pred + R`, 6 dof), then a robust kernel (Huber or Cauchy)
   on the accepted prior. `P_pred` is the marginal covariance of the newest state, computed
@@ -534,7 +536,8 @@ class OnlineFusion:
         t_ns, T_mb, T_ob, cov = cand.t_ns, cand.T_map_base, cand.T_odom_base, cand.cov
         # Target: the window keyframe nearest in time to the capture time.
         horizon = self._keys[-1][1] - int((p.lag_s - p.keyframe_period_s) * 1e9)
-        if t_ns < max(self._keys[0][1], horizon) - int(p.keyframe_period_s * 0.5e9):
+        oldest = max(self._keys[0][1], horizon)
+        if t_ns < oldest - int(p.keyframe_period_s * 0.5e9) and not self._carried_late(t_ns, oldest):
             return VlocUpdate(False, "too_old")
         key, _, T_key_odom = min(
             (k for k in self._keys if k[1] >= horizon), key=lambda k: abs(k[1] - t_ns)
@@ -564,6 +567,17 @@ class OnlineFusion:
             return VlocUpdate(False, "solver_error", m2)
         self._counts["priors"] += 1
         return VlocUpdate(True, "accepted", m2)
+
+    def _carried_late(self, t_ns: int, oldest_ns: int) -> bool:
+        """Whether a pose captured before the window (at `t_ns`) may be carried to its oldest
+        state (at `oldest_ns`) by the buffered odometry: it moved less than `late_max_travel_m`
+        and turned less than `late_max_turn_deg` in between (the carrying adds that odometry's
+        noise to the pose's covariance, see `_attach_prior`)."""
+        p = self.params
+        if p.late_max_travel_m <= 0:
+            return False
+        dist, turn = self._odometry_travel(t_ns, oldest_ns)
+        return dist < p.late_max_travel_m and turn < math.radians(p.late_max_turn_deg)
 
     def _agree(self, cands: list[_Candidate]) -> bool:
         p = self.params

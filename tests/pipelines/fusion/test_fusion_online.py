@@ -317,3 +317,31 @@ def test_deferred_keyframe_update_answers_first_and_changes_nothing_else(session
     print(f"deferred vs immediate: diff p50 {np.median(d):.4f} p99 {np.percentile(d, 99):.4f} max {d.max():.4f} m; "
           f"ATE {ate_b:.4f} vs {ate_a:.4f} m")
     assert ate_b < 1.02 * ate_a
+
+
+def test_a_fix_older_than_the_window_is_carried_by_the_odometry_of_a_robot_at_rest() -> None:
+    """After initialisation, a VLoc pose that took 20 s (a loaded computer) is older than the
+    smoother's 3 s window: at rest the odometry carries it to the window's oldest state and it
+    corrects the fused pose; after 2 m of driving it is refused as too old, as is every such pose
+    with `late_max_travel_m` 0."""
+    def run(speed: float, **kw: float) -> tuple[str, float]:
+        f = OnlineFusion(FusionParams(init_votes=1, **kw), np.eye(4))
+        f.add_odometry(0, np.eye(4))
+        assert f.add_vloc(0, np.eye(4)).reason == "initialised"  # T_map_odom = identity
+        out = None
+        for k in range(1, 2101):  # 21 s of odometry at 100 Hz
+            out = f.add_odometry(k * 10_000_000, make_T(np.eye(3), [speed * k * 0.01, 0, 0]))
+        # captured at 1 s: the robot was 0.2 m further along than the start's fix said
+        capture = 1_000_000_000
+        r = f.add_vloc(capture, make_T(np.eye(3), [speed * 1.0 + 0.2, 0, 0]))
+        out = f.add_odometry(2101 * 10_000_000, make_T(np.eye(3), [speed * 21.01, 0, 0]))
+        assert out is not None
+        return r.reason, float(out.T_map_base[0, 3] - speed * 21.01)
+
+    reason, shift = run(0.0)
+    assert reason == "accepted" and shift > 0.03  # the fused pose moved toward the late fix's 0.2 m
+    assert run(0.1)[0] == "too_old"  # 2 m driven since the capture
+    reason, shift = run(0.0, late_max_travel_m=0.0)
+    assert reason == "too_old" and abs(shift) < 1e-3
+    with pytest.raises(ValueError, match="late_max_travel_m"):
+        FusionParams(late_max_travel_m=-1.0)
