@@ -73,8 +73,7 @@ class FusionParams:
     odom_buffer_s: float = 60.0
     # a VLoc pose up to this much newer than the newest odometry is extrapolated (s)
     max_future_s: float = 0.05
-    # a VLoc pose older than the smoother's window is carried to its oldest state by the odometry if that moved
-    # less than this since the capture (m; a slow VLoc on a robot at rest; 0 = refuse every such pose as too old) ...
+    # a VLoc pose older than the window is carried to it by odometry that moved less than this since (m; 0 = off) ...
     late_max_travel_m: float = 0.5
     # ... and turned less than this (degrees)
     late_max_turn_deg: float = 10.0
