@@ -574,10 +574,8 @@ class OnlineFusion:
         and turned less than `late_max_turn_deg` in between (the carrying adds that odometry's
         noise to the pose's covariance, see `_attach_prior`)."""
         p = self.params
-        if p.late_max_travel_m <= 0:
-            return False
-        dist, turn = self._odometry_travel(t_ns, oldest_ns)
-        return dist < p.late_max_travel_m and turn < math.radians(p.late_max_turn_deg)
+        return p.late_max_travel_m > 0 and self._odometry_within(t_ns, oldest_ns, p.late_max_travel_m,
+                                                                 p.late_max_turn_deg)
 
     def _agree(self, cands: list[_Candidate]) -> bool:
         p = self.params
@@ -587,16 +585,17 @@ class OnlineFusion:
             for c in cands
         )
 
-    def _odometry_travel(self, t_a: int, t_b: int) -> tuple[float, float]:
-        """Path length (m) and total turn (rad) of the buffered odometry between two times
-        (t_a <= t_b; the messages between them, no interpolation at the ends)."""
+    def _odometry_within(self, t_a: int, t_b: int, max_m: float, max_deg: float) -> bool:
+        """Whether the buffered odometry between two times (t_a <= t_b; the messages between
+        them, no interpolation at the ends) travelled less than `max_m` metres and turned less
+        than `max_deg` degrees in all."""
         steps = [T for t, T in self._odom if t_a <= t <= t_b]
         dist = turn = 0.0
         for T0, T1 in itertools.pairwise(steps):
             D = _inv(T0) @ T1
             dist += math.sqrt(float(D[:3, 3] @ D[:3, 3]))
             turn += _angle(D[:3, :3])
-        return dist, turn
+        return dist < max_m and turn < math.radians(max_deg)
 
     def _combines(self, old: _Candidate, new: _Candidate) -> bool:
         """Whether an earlier vote may combine with a new one (see the module docstring)."""
@@ -605,8 +604,7 @@ class OnlineFusion:
             return True
         if old.t_ns < self._odom[0][0]:  # its odometry has left the buffer
             return False
-        dist, turn = self._odometry_travel(old.t_ns, new.t_ns)
-        return dist < p.init_window_m and turn < math.radians(p.init_window_deg)
+        return self._odometry_within(old.t_ns, new.t_ns, p.init_window_m, p.init_window_deg)
 
     def _try_init(self, cand: _Candidate) -> VlocUpdate:
         kept = [c for c in self._candidates if self._combines(c, cand)]  # votes too far apart do not combine

@@ -142,14 +142,15 @@ class FrontEnd:
         self._since_track = 0
         images = ref.load()
         feats, points = self._features(images, ref.K)
+        view = self._view(images, ref.K)
         self.counts["frames_tracked"] += 1
-        res = self._relative(points, feats, last, view=self._view(images, ref.K))
+        res = self._relative(points, feats, last, view=view)
         if res is None:
             self.counts["tracking_failures"] += 1
-            return self._keyframe(ref, rec, images, odom, (feats, points))
+            return self._keyframe(ref, rec, images, odom, (feats, points, view))
         rec.anchor, rec.T_anchor_frame, rec.how = last.id, res.T, "visual"
         if moved(np.eye(4), res.T, self._spacing) or res.inliers < self.params.visual.track_min_inliers:
-            return self._keyframe(ref, rec, images, odom, (feats, points), tracked=res)
+            return self._keyframe(ref, rec, images, odom, (feats, points, view), tracked=res)
         return None
 
     # ---------------------------------------------------------------- building blocks
@@ -209,15 +210,19 @@ class FrontEnd:
         return Relative(joint.T_map_camera, joint.covariance[np.ix_(_RT, _RT)], joint.n_inliers)
 
     def _keyframe(self, ref: FrameRef, rec: FrameRecord, images: FrameImages, odom: tuple[int, F64] | None,
-                  computed: tuple[NodeFeatures, F64] | None, tracked: Relative | None = None) -> Keyframe:
-        feats, points = computed if computed is not None else self._features(images, ref.K)
+                  computed: tuple[NodeFeatures, F64, AlignmentView | None] | None,
+                  tracked: Relative | None = None) -> Keyframe:
+        """A new keyframe from a frame (`computed`: its features, lifted points and alignment view
+        where tracking made them already), its edges to the previous keyframes, and its place."""
+        feats, points, view = computed if computed is not None else (*self._features(images, ref.K),
+                                                                     self._view(images, ref.K))
         h, w = images.color.shape[:2]
         kf = Keyframe(
             id=len(self.keyframes), index=ref.index, t_ns=ref.t_ns, K=np.asarray(ref.K, np.float64), size=(w, h),
             features=feats, points=points, vpr=np.asarray(self.models.describe(images.color), np.float32),
             jpeg=images.jpeg or encode_jpeg(images.color, self.mapping.jpeg_quality, f"frame {ref.index}"),
             cloud=candidate_points(images.depth, ref.K, self.mapping.keyframes).astype(np.float32),
-            odom=odom, T_init=np.eye(4), chain=0, view=self._view(images, ref.K))
+            odom=odom, T_init=np.eye(4), chain=0, view=view)
         if odom is not None:
             self.counts["keyframes_with_odometry"] += 1
         rec.keyframe = kf.id

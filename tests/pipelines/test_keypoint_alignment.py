@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from litevloc.base.geometry import transform_points
+from litevloc.base.geometry import backproject_pixels, transform_points
 from litevloc.base.params.slam import KeypointAlignmentParams
 from litevloc.pipelines.depth_lookup import depth_at
 from litevloc.pipelines.keypoint_alignment import (
@@ -63,7 +63,7 @@ def test_aligned_keypoints_land_on_the_source_surface_point(floor_pair: dict[str
     tgt = alignment_view(floor_pair["ct"], floor_pair["dt"], K)
     uv_s = floor_views.keypoints(floor_pair["ds"], 150, 0)
     z = depth_at(floor_pair["ds"], uv_s).astype(np.float64)  # lifted as the front end lifts them
-    P = np.column_stack([(uv_s[:, 0] - K[0, 2]) * z / K[0, 0], (uv_s[:, 1] - K[1, 2]) * z / K[1, 1], z])
+    P = backproject_pixels(K, uv_s, z)
     X = transform_points(floor_pair["T_t_s"], P)
     truth = (K @ X.T).T
     truth = truth[:, :2] / truth[:, 2:3]
@@ -89,7 +89,7 @@ def test_textureless_patches_are_left_alone(floor_pair: dict[str, np.ndarray]) -
     tgt = alignment_view(blank, floor_pair["dt"], K)
     uv_s = floor_views.keypoints(floor_pair["ds"], 20, 3)
     z = floor_pair["ds"][np.rint(uv_s[:, 1]).astype(int), np.rint(uv_s[:, 0]).astype(int)].astype(np.float64)
-    P = np.column_stack([(uv_s[:, 0] - K[0, 2]) * z / K[0, 0], (uv_s[:, 1] - K[1, 2]) * z / K[1, 1], z])
+    P = backproject_pixels(K, uv_s, z)
     start = uv_s + 1.0
     out, done = align_keypoints(src, tgt, uv_s, P, start, floor_pair["T_t_s"], KeypointAlignmentParams())
     assert not done.any() and np.array_equal(out, start)
