@@ -593,7 +593,8 @@ def localizer_callable(localizer: VisualLocalizer) -> VlocFn:
             res = localizer.process(frame.t_ns, frame.color, frame.depth, frame.K, None, region=prior.region)
         else:
             res = localizer.process(frame.t_ns, frame.color, frame.depth, frame.K, prior.T_map_camera,
-                                    prior_age_s=prior.age_s, prior_cov=prior.cov_position)
+                                    prior_age_s=prior.age_s, prior_cov=prior.cov_position,
+                                    prior_travel_m=prior.travel_m)
         return dataclasses.replace(res, tracking_state=localizer.state)
 
     return vloc

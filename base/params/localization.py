@@ -193,6 +193,8 @@ class LocalizationParams:
     prior_gate_deg: float = 30.0
     # a fused prior's gate grows at this rate per second since the last fix (m/s: odometry drift)
     prior_gate_rate_fused_mps: float = 0.1
+    # ... but no more than this fraction of the odometry's path since that fix, where known (at rest: no growth)
+    prior_gate_drift_fused: float = 0.2
     # a fused prior's gate starts from this radius (m)
     prior_gate_fused_m: float = 0.25
     # with fusion's covariance, a fused prior's gate toward a pose is at most its start + this many sigmas (0 = off)
@@ -279,7 +281,7 @@ class LocalizationParams:
             raise ValueError("repeat_within_s and repeat_within_m must be >= 0 (0 = off) and repeat_deg in (0, 180]")
         if self.prior_gate_sigmas < 0:
             raise ValueError("prior_gate_sigmas must be >= 0 (0 = off)")
-        if self.prior_gate_rate_fused_mps < 0 or self.prior_gate_fused_m <= 0:
-            raise ValueError("prior_gate_rate_fused_mps must be >= 0 and prior_gate_fused_m > 0")
+        if self.prior_gate_rate_fused_mps < 0 or self.prior_gate_drift_fused < 0 or self.prior_gate_fused_m <= 0:
+            raise ValueError("prior_gate_rate_fused_mps, prior_gate_drift_fused >= 0, prior_gate_fused_m > 0 required")
         if self.prior_gate_m <= 0 or self.prior_gate_rate_mps < 0 or not (0 < self.prior_gate_deg <= 180):
             raise ValueError("prior_gate_m > 0, prior_gate_rate_mps >= 0 and prior_gate_deg in (0, 180] required")

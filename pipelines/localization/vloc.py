@@ -229,11 +229,16 @@ class VisualLocalizer:
             return None
         return ProvisionalPose(joint.T_map_camera, joint.covariance, node, joint.inliers_per_keyframe[node])
 
-    def _prior_growth_m(self, prior_age_s: float, fused: bool) -> float:
+    def _prior_growth_m(self, prior_age_s: float, fused: bool, travel_m: float | None = None) -> float:
         """How far the prior may have wandered in `prior_age_s` (m): odometry drift for a fused
-        prior, the robot's top speed for the last VLoc pose."""
+        prior (no more than `prior_gate_drift_fused` of the odometry's path `travel_m` since the
+        fix where that is known: a robot at rest keeps its prior), the robot's top speed for the
+        last VLoc pose."""
         p = self.params
-        return (p.prior_gate_rate_fused_mps if fused else p.prior_gate_rate_mps) * max(prior_age_s, 0.0)
+        if not fused:
+            return p.prior_gate_rate_mps * max(prior_age_s, 0.0)
+        growth = p.prior_gate_rate_fused_mps * max(prior_age_s, 0.0)
+        return growth if travel_m is None else min(growth, p.prior_gate_drift_fused * max(travel_m, 0.0))
 
     def _fresh(self, growth_m: float) -> bool:
         """A prior fresh enough to stand in for a second keyframe (see `confirm_skip_*`)."""
@@ -309,6 +314,7 @@ class VisualLocalizer:
         self, t_ns: int, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64],
         prior_T_map_camera: NDArray[np.float64] | None = None, prior_age_s: float = 0.0,
         recovering: bool = False, region: SearchRegion | None = None, prior_cov: NDArray[np.float64] | None = None,
+        prior_travel_m: float | None = None,
     ) -> LocalizationResult:
         """VPR top-k + geometric verification; the best accepted candidate wins (after the
         joint refinement / confirmation by a second keyframe, see `LocalizationParams`).
@@ -317,10 +323,10 @@ class VisualLocalizer:
 
         With joint refinement on, a candidate that only its own keyframe confirms becomes the
         result's `provisional` pose (most inliers first), or is accepted when it agrees with the
-        fused prior `prior_T_map_camera` (`prior_age_s` s since its last fix; only while fresh,
-        see `_fresh`) within the prior gate (`prior_cov`: fusion's 3x3 camera position covariance,
-        m^2, map frame, see `_gate_toward`). `region` (an initial pose) restricts the candidates to
-        keyframes within it before the top-k cut."""
+        fused prior `prior_T_map_camera` (`prior_age_s` s and `prior_travel_m` m of odometry since
+        its last fix; only while fresh, see `_fresh`) within the prior gate (`prior_cov`: fusion's
+        3x3 camera position covariance, m^2, map frame, see `_gate_toward`). `region` (an initial
+        pose) restricts the candidates to keyframes within it before the top-k cut."""
         prior = None if prior_T_map_camera is None else check_rigid(prior_T_map_camera, "prior T_map_camera",
                                                                       atol=1e-4)
         timer = StageTimer(self.clock)
@@ -329,7 +335,8 @@ class VisualLocalizer:
 
         def verify() -> LocalizationResult:
             if self.params.refine.enabled:
-                return self._verify_refined(t_ns, q, sims, order, (prior, prior_age_s, prior_cov), recovering,
+                return self._verify_refined(t_ns, q, sims, order, (prior, prior_age_s, prior_travel_m, prior_cov),
+                                            recovering,
                                             timer, t_all, front_ms)
             return self._verify_confirmed(t_ns, q, sims, order, timer, t_all)
 
@@ -358,19 +365,19 @@ class VisualLocalizer:
         return q, sims, self.global_candidates(sims, q, region), front_ms
 
     def _verify_refined(self, t_ns: int, q: Query, sims: NDArray[np.float32], order: NDArray[np.int64],
-                        fused: tuple[NDArray[np.float64] | None, float, NDArray[np.float64] | None],
+                        fused: tuple[NDArray[np.float64] | None, float, float | None, NDArray[np.float64] | None],
                         recovering: bool, timer: StageTimer, t_all: float, front_ms: float) -> LocalizationResult:
         """Verification with joint refinement: candidates in VPR order, each verified and jointly
         refined at once; the first that passes the joint check wins (then the opt-in
         distinctiveness test), or one that agrees with a fresh prior; the time budget stops the
-        search (bounded cost). `fused`: the fused prior, its age (s) and position covariance."""
-        prior, prior_age_s, prior_cov = fused
+        search (bounded cost). `fused`: the fused prior, its age (s), odometry travel (m) and position covariance."""
+        prior, prior_age_s, prior_travel_m, prior_cov = fused
         attempts: list[CandidateAttempt] = []
         best: tuple[int, PnpResult, RefineResult | None] | None = None
         reason = "not localized: no VPR candidate verified"
         stop = f"all {len(order)} VPR candidates tried"
         provisional: ProvisionalPose | None = None
-        growth = self._prior_growth_m(prior_age_s, fused=True)
+        growth = self._prior_growth_m(prior_age_s, True, prior_travel_m)
         evidence: list[VerifiedPose] = []  # every candidate's PnP pose, for the distinctiveness test
         trusted = prior is not None and self._fresh(growth)
         gl_params = self._gl_params(trusted)
@@ -606,20 +613,21 @@ class VisualLocalizer:
     def localize_local(
         self, t_ns: int, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64],
         prior_T_map_camera: NDArray[np.float64], prior_age_s: float = 0.0, fused_prior: bool = False,
-        prior_cov: NDArray[np.float64] | None = None,
+        prior_cov: NDArray[np.float64] | None = None, prior_travel_m: float | None = None,
     ) -> LocalizationResult:
         """LL from a prior pose; candidates tried in similarity order until one is accepted.
 
         A candidate's pose must also pass the prior gate (see `LocalizationParams`), which grows
-        with `prior_age_s` at the fused-prior rate (`fused_prior`: odometry since the last fix)
-        or at the robot's top speed (the last VLoc pose); a fused prior's `prior_cov` (3x3
-        position covariance, m^2, map frame) narrows it where fusion knows better (`_gate_toward`)."""
+        with `prior_age_s` at the fused-prior rate (`fused_prior`: odometry since the last fix,
+        no more than its drift over `prior_travel_m`) or at the robot's top speed (the last VLoc
+        pose); a fused prior's `prior_cov` (3x3 position covariance, m^2, map frame) narrows it
+        where fusion knows better (`_gate_toward`)."""
         prior = check_rigid(prior_T_map_camera, "prior T_map_camera", atol=1e-4)
         timer = StageTimer(self.clock)
         t_all = self.clock()
         q, desc = self._query(color, depth, K, timer)
         cands = self.local_candidates(prior, desc)
-        growth = self._prior_growth_m(prior_age_s, fused_prior)
+        growth = self._prior_growth_m(prior_age_s, fused_prior, prior_travel_m)
         gate_m = self._gate_m(growth, fused_prior)
         verify = self._under(
             lambda: self._local_attempts(t_ns, q, cands, prior, (growth, gate_m, prior_cov), timer, t_all), q)
@@ -679,7 +687,8 @@ class VisualLocalizer:
 
     # ---------------------------------------------------------------- state machine
     def _hold_unless_repeated(self, res: LocalizationResult, prior_T_map_camera: NDArray[np.float64],
-                              prior_age_s: float, prior_cov: NDArray[np.float64] | None) -> LocalizationResult:
+                              prior_age_s: float, prior_travel_m: float | None,
+                              prior_cov: NDArray[np.float64] | None) -> LocalizationResult:
         """An accepted result (GL, or LL with a fused prior) as it is when it lies inside the
         gate of a fresh fused prior (see `_fresh`) or repeats the held pose (see
         `LocalizationParams.repeat_within_s`); otherwise it is held and the result says so
@@ -689,7 +698,7 @@ class VisualLocalizer:
             return res
         T = np.asarray(res.T_map_camera, np.float64)
         prior = np.asarray(prior_T_map_camera, np.float64)
-        growth = self._prior_growth_m(prior_age_s, fused=True)
+        growth = self._prior_growth_m(prior_age_s, True, prior_travel_m)
         gate = self._gate_toward(T, prior, self._gate_m(growth, fused=True), prior_cov)
         dt, dr = relative_pose_error(T, prior)
         inside, fresh = dt <= gate and dr <= p.prior_gate_deg, self._fresh(growth)
@@ -718,7 +727,9 @@ class VisualLocalizer:
                                    f"before ({et:.2f} m, {er:.1f} deg), {gate:.2f} m gate of the prior")
         self.held = HeldPose(res.t_ns, T, prior)
         why = (f"{dt:.2f} m / {dr:.0f} deg from the prior, outside its gate ({gate:.2f} m, {p.prior_gate_deg:g} deg)"
-               if not inside else f"the prior is {prior_age_s:.1f} s past its last fix, too old to confirm it")
+               if not inside else f"the prior is {prior_age_s:.1f} s past its last fix"
+               + ("" if prior_travel_m is None else f" and {prior_travel_m:.1f} m of odometry")
+               + ", too old to confirm it")
         return replace(res, accepted=False, T_map_camera=None, covariance=None, matches=None,
                        reason=f"not localized: {'GL' if res.mode == 'global' else 'LL'} pose held until a later frame "
                               f"repeats it ({why})")
@@ -732,11 +743,13 @@ class VisualLocalizer:
         self, t_ns: int, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64],
         prior_T_map_camera: NDArray[np.float64] | None = None, prior_age_s: float = 0.0,
         region: SearchRegion | None = None, prior_cov: NDArray[np.float64] | None = None,
+        prior_travel_m: float | None = None,
     ) -> LocalizationResult:
         """One frame through the state machine. The prior (e.g. the fused pose at `t_ns`,
-        `prior_age_s` old, `prior_cov` its 3x3 camera position covariance in m^2, map frame) is
-        used in TRACKING; without one, the last accepted VLoc pose is the prior. In GLOBAL state
-        it can accept a single-keyframe GL pose that agrees with it.
+        `prior_age_s` old, `prior_travel_m` metres of odometry since its fix, `prior_cov` its 3x3
+        camera position covariance in m^2, map frame) is used in TRACKING; without one, the last
+        accepted VLoc pose is the prior. In GLOBAL state it can accept a single-keyframe GL pose
+        that agrees with it.
         `region` (an initial pose given by the user): GL within it, whatever the state, the prior ignored."""
         if prior_cov is not None:
             prior_cov = np.asarray(prior_cov, np.float64)
@@ -756,11 +769,12 @@ class VisualLocalizer:
                 assert self.last_pose is not None
                 prior, age = self.last_pose, (t_ns - self.last_pose_t_ns) * 1e-9
             res = self.localize_local(t_ns, color, depth, K, prior, prior_age_s=age, fused_prior=fused,
-                                      prior_cov=prior_cov if fused else None)
+                                      prior_cov=prior_cov if fused else None,
+                                      prior_travel_m=prior_travel_m if fused else None)
             if "total" in res.timings_ms:
                 self.ll_wall_ms.append(res.timings_ms["total"])
             if res.accepted and fused:  # a stale fused prior cannot confirm an LL pose either
-                res = self._hold_unless_repeated(res, prior, age, prior_cov)
+                res = self._hold_unless_repeated(res, prior, age, prior_travel_m, prior_cov)
             if res.accepted:
                 self.failures = 0
                 self.last_pose, self.last_pose_t_ns = res.T_map_camera, t_ns
@@ -774,9 +788,10 @@ class VisualLocalizer:
                     self.failures = 0
                 return res
         res = self.localize_global(t_ns, color, depth, K, prior_T_map_camera, prior_age_s,  # recovering: it has tracked
-                                   recovering=self.last_pose is not None, region=region, prior_cov=prior_cov)
+                                   recovering=self.last_pose is not None, region=region, prior_cov=prior_cov,
+                                   prior_travel_m=prior_travel_m)
         if res.accepted and prior_T_map_camera is not None:
-            res = self._hold_unless_repeated(res, prior_T_map_camera, prior_age_s, prior_cov)
+            res = self._hold_unless_repeated(res, prior_T_map_camera, prior_age_s, prior_travel_m, prior_cov)
         if res.accepted:
             self.failures = 0
             self.last_pose, self.last_pose_t_ns = res.T_map_camera, t_ns

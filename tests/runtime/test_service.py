@@ -307,7 +307,7 @@ def test_adapters_for_localizer_and_fusion() -> None:
     class Loc:
         state = "TRACKING"
 
-        def process(self, t_ns, color, depth, K, prior, prior_age_s=0.0, prior_cov=None):
+        def process(self, t_ns, color, depth, K, prior, prior_age_s=0.0, prior_cov=None, prior_travel_m=None):
             calls.append(("process", t_ns))
             return FakeVloc()(type("F", (), {"t_ns": t_ns, "index": 0})(), prior)
 

@@ -36,6 +36,27 @@ def test_history_interpolates_and_clamps_at_the_ends() -> None:
     assert p.age_s == pytest.approx(4.0 + (5000 - 1190) * 1e-3)  # since the fix, plus the gap
 
 
+def test_history_odometer_measures_the_path_between_two_stamps() -> None:
+    """The path, not the displacement: 1 m out and 1 m back is 2 m; a stamp outside the kept
+    history gives None (the path there is unknown), and so does a prior whose fix is that old."""
+    h = OdometryHistory(capacity=300)
+    for k in range(201):  # 0.01 m per 10 ms out along x for 1 s, then back
+        x = k * 0.01 if k <= 100 else (200 - k) * 0.01
+        h.add(k * 10 * MS, np.array([[1, 0, 0, x], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1.0]]))
+    assert h.travel(0, 2000 * MS) == pytest.approx(2.0)
+    assert h.travel(500 * MS, 1505 * MS) == pytest.approx(1.005)
+    assert h.travel(1000 * MS, 1000 * MS) == 0.0
+    assert h.travel(0, 2001 * MS) is None
+    p = prior_at(1500 * MS, np.eye(4), h, np.eye(4), last_fix_ns=500 * MS)
+    assert p is not None and p.travel_m == pytest.approx(1.0) and p.age_s == pytest.approx(1.0)
+    for k in range(201, 500):  # at rest; the first samples leave the ring
+        h.add(k * 10 * MS, np.eye(4))
+    assert h.travel(100 * MS, 4000 * MS) is None
+    p = prior_at(4900 * MS, np.eye(4), h, np.eye(4), last_fix_ns=2500 * MS)
+    assert p is not None and p.travel_m == pytest.approx(0.0) and p.age_s == pytest.approx(2.4)
+    assert prior_at(4900 * MS, np.eye(4), h, np.eye(4), last_fix_ns=100 * MS).travel_m is None  # type: ignore[union-attr]
+
+
 def test_delayed_frame_gets_the_pose_at_its_stamp_and_its_true_age() -> None:
     """The frame VLoc takes is 0.5 s older than the newest odometry: its prior is where the
     robot was then (the latest fused pose is 0.25 m and 9 deg further on), and its age counts
@@ -62,20 +83,22 @@ def test_delayed_frame_gets_the_pose_at_its_stamp_and_its_true_age() -> None:
     dt, dr = relative_pose_error(latest.T_map_camera, truth)
     assert dt > 0.2 and dr > 5.0
     # the localizer adapter hands both on
-    seen: list[tuple[np.ndarray | None, float, np.ndarray | None]] = []
+    seen: list[tuple[np.ndarray | None, float, np.ndarray | None, float | None]] = []
 
     class Loc:
         state = "LOCAL"
 
         def process(self, t_ns: int, color: object, depth: object, K: object, prior: np.ndarray | None,
-                    prior_age_s: float = 0.0, prior_cov: np.ndarray | None = None) -> Result:
-            seen.append((prior, prior_age_s, prior_cov))
+                    prior_age_s: float = 0.0, prior_cov: np.ndarray | None = None,
+                    prior_travel_m: float | None = None) -> Result:
+            seen.append((prior, prior_age_s, prior_cov, prior_travel_m))
             return Result(t_ns, False, "too few inliers")
 
     from litevloc.runtime.service import localizer_callable
     frame = RgbdFrame(t_frame, np.zeros((8, 8, 3), np.uint8), None, np.eye(3))
     out = localizer_callable(Loc())(frame, prior)
     assert seen[0][0] is prior.T_map_camera and seen[0][1] == pytest.approx(0.4)
+    assert seen[0][3] is not None and seen[0][3] == prior.travel_m and prior.travel_m > 0.1  # the odometry's path
     # fusion's covariance (0.01 m^2 / rad^2 per axis) reaches the camera's position over the lever arm
     assert seen[0][2] is prior.cov_position and prior.cov_position is not None
     assert np.all(np.linalg.eigvalsh(prior.cov_position) >= 0.01 - 1e-9)

@@ -544,6 +544,17 @@ def test_ll_pose_with_a_stale_fused_prior_is_held_until_repeated() -> None:
     assert r.mode == "local" and r.accepted and "repeats the pose held 1.00 s" in r.stop_reason
     assert loc.process(3 * sec, IMG, s.look(pose(1.8), 2), K, pose(1.8), prior_age_s=0.2).accepted
 
+    # the prior's drift grows with the odometry's path, not the time: a robot that has hardly moved since
+    # its fix 10 s ago (5 cm, a slow GL on a loaded computer) keeps a fresh prior; 4 m driven does not
+    rest = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)
+    assert rest.process(0, IMG, s.look(pose(1.0), 1), K).accepted
+    r = rest.process(1 * sec, IMG, s.look(pose(1.2), 1), K, pose(1.3), prior_age_s=10.0, prior_travel_m=0.05)
+    assert r.accepted
+    moved = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)
+    assert moved.process(0, IMG, s.look(pose(1.0), 1), K).accepted
+    r = moved.process(1 * sec, IMG, s.look(pose(1.2), 1), K, pose(1.3), prior_age_s=10.0, prior_travel_m=4.0)
+    assert not r.accepted and "10.0 s past its last fix and 4.0 m of odometry, too old" in r.reason
+
 
 def _matching_25_with_depth(s: Scene, depth: NDArray[np.float32]) -> Callable[[Feats, NodeFeatures], tuple[
         NDArray[np.int64], NDArray[np.int64]]]:
