@@ -96,7 +96,7 @@ VlocFn = Callable[[RgbdFrame, VlocPrior | None], VlocOutcome]
 #: counters the shell owns (the core's are in `localization_core.CORE_COUNTERS`)
 SHELL_COUNTERS = ("frames_in", "odometry_in", "odometry_ignored", "ground_truth_in", "vloc_calls", "poses_published",
                   "poses_withheld", "map_to_odom_published", "vloc_published", "status_published",
-                  "frames_decoded", "frames_undecodable")
+                  "frames_decoded", "frames_undecodable", "odometry_left_at_stop")
 
 
 class PublisherLike(Protocol):
@@ -301,6 +301,8 @@ class Service:
         for st in (self.vloc_stage, self.fusion_stage, self.publish_stage):
             st.wake()
         stuck = [st.name for st in self.stages if not st.join(p.stage_join_timeout_s)]
+        # a stop ends the fusion promptly: odometry that arrived in its last moments is counted, not fused
+        self.shell_counters["odometry_left_at_stop"] = len(self.odometry)
         if "source" not in stuck:
             self._close_source()
         self.status_stage.stop_event.set()

@@ -186,12 +186,14 @@ def test_realtime_run_on_held_out_queries(inputs: tuple[Path, Path], tmp_path: P
     st = res["status"]
     assert res["ok"] and res["reason"] == "SIGTERM", res["reason"]
     assert all(s["state"] in ("STOPPED", "DONE") and not s["alive"] for s in st["stages"].values()), st["stages"]
-    # odometry came over Zenoh from this process (the recording's own was ignored); none lost: all that was
-    # sent up to SIGTERM arrived (but the last 0.1 s in flight) and all that arrived was fused
+    # odometry came over Zenoh from this process (the recording's own was ignored); none lost silently: all
+    # that was sent up to SIGTERM arrived (but the last 0.1 s in flight) and all that arrived was fused, but for
+    # what arrived as the service stopped (counted: left in its queue, or refused by the closed queue)
     c, odo = st["counters"], st["odometry"]
     assert c["odometry_ignored"] > 0 and odo["skipped_total"] == 0 and odo["gaps"] == 0, odo
     assert sent_at_stop - 2 <= odo["accepted"] <= robot.sent and sent_at_stop > 900, (sent_at_stop, odo["accepted"])
-    assert c["odometry_fused"] == odo["accepted"] and c["odometry_rejected"] == 0, c
+    at_stop = c["odometry_left_at_stop"] + odo["sink_errors"]
+    assert c["odometry_fused"] + at_stop == odo["accepted"] and at_stop <= 5 and c["odometry_rejected"] == 0, (c, odo)
     # the real localizer: fixes accepted (first, before and after the window); frames withheld in it
     print("counters:", c, "vloc latency:", st["stages"]["vloc"]["latency"])
     assert c["vloc_accepted"] >= 3 and st["faults"]["changed"]["camera_dropout"] >= 10, (c, st["faults"])
