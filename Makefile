@@ -49,8 +49,11 @@ browser:
 	    echo "make: could not install chromium: the live-view browser test will skip"; \
 	  else echo "make: chromium missing and not root/apt-get: the live-view browser test will skip"; fi; }
 
+# The suite on TEST_WORKERS parallel workers (pytest-xdist; a test file's tests stay on one
+# worker, so its module fixtures are built once). TEST_WORKERS=0: one process.
+TEST_WORKERS ?= 2
 test: $(VENV)/.dev-installed models browser
-	$(VENV)/bin/python -m pytest -q
+	$(VENV)/bin/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 # The property tests with a fresh random seed (the suite's own run is derandomized, so it always
 # tries the same examples); the seed is printed, and `make fuzz SEED=N` replays a failure.

@@ -4,9 +4,12 @@ cached under out/test_cache/)."""
 
 from __future__ import annotations
 
+import fcntl
 import json
 import subprocess
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,18 +31,32 @@ def litevloc_exe() -> str:
     return str(Path(sys.executable).with_name("litevloc"))
 
 
+@contextmanager
+def exclusive(lock: Path) -> Iterator[None]:
+    """Hold an exclusive lock on the file `lock` (made if absent): the suite's parallel workers
+    (pytest-xdist) build a shared cache once, the others wait for it."""
+    lock.parent.mkdir(parents=True, exist_ok=True)
+    with lock.open("a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
 def cached_cli(args: tuple[str, ...], out: Path, done: Path, subs: dict[str, str], timeout: float = 900) -> None:
     """Run `litevloc ARGS` (with `subs` substituted) unless `done` exists from the same recipe."""
     stamp = out.parent / f"{out.name}.recipe.json"
     recipe = list(args)
-    if stamp.is_file() and json.loads(stamp.read_text()) == recipe and done.exists():
-        return
-    out.parent.mkdir(parents=True, exist_ok=True)
-    stamp.unlink(missing_ok=True)
-    argv = [a for arg in args for a in [_sub(arg, subs)]]
-    r = subprocess.run([litevloc_exe(), *argv], capture_output=True, text=True, timeout=timeout)
-    assert r.returncode == 0, r.stderr[-3000:]
-    stamp.write_text(json.dumps(recipe))
+    with exclusive(out.parent / f"{out.name}.lock"):
+        if stamp.is_file() and json.loads(stamp.read_text()) == recipe and done.exists():
+            return
+        out.parent.mkdir(parents=True, exist_ok=True)
+        stamp.unlink(missing_ok=True)
+        argv = [a for arg in args for a in [_sub(arg, subs)]]
+        r = subprocess.run([litevloc_exe(), *argv], capture_output=True, text=True, timeout=timeout)
+        assert r.returncode == 0, r.stderr[-3000:]
+        stamp.write_text(json.dumps(recipe))
 
 
 def _sub(arg: str, subs: dict[str, str]) -> str:
