@@ -335,9 +335,8 @@ class VisualLocalizer:
 
         def verify() -> LocalizationResult:
             if self.params.refine.enabled:
-                return self._verify_refined(t_ns, q, sims, order, (prior, prior_age_s, prior_travel_m, prior_cov),
-                                            recovering,
-                                            timer, t_all, front_ms)
+                fused = (prior, prior_age_s, prior_travel_m, prior_cov)
+                return self._verify_refined(t_ns, q, sims, order, fused, recovering, timer, t_all, front_ms)
             return self._verify_confirmed(t_ns, q, sims, order, timer, t_all)
 
         return with_second_passes(self._under(verify, q), self.params, q.timer, self._map_has_depth)
