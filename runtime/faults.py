@@ -15,6 +15,8 @@ Kinds (what is changed, where):
   position moved `offset_m` (2 m) in a random horizontal direction (seeded: `seed`).
 * `slow_consumer`: publishing a fused pose takes `delay_ms` (20 ms) longer in the window,
   as with a blocking transport to a slow subscriber (publisher).
+* `slow_vloc`: localizing a frame of the window takes `delay_ms` longer, as on an onboard
+  computer loaded by other work (VLoc); in real time the frames meanwhile are dropped.
 
 `FaultInjector(specs).apply(service)` wraps a `runtime.service.Service`'s source, VLoc
 callable and publisher before `run()`; `counts` says how many messages each fault changed.
@@ -37,9 +39,9 @@ from litevloc.base.errors import LiteVLocError
 from litevloc.hw.messages import EncodedRgbdFrame, Odometry, RgbdFrame, SourceMessage
 
 FaultKind = Literal["camera_dropout", "depth_invalid", "odometry_gap", "odometry_backwards", "vloc_outliers",
-                    "slow_consumer"]
+                    "slow_consumer", "slow_vloc"]
 FAULT_KINDS: tuple[str, ...] = ("camera_dropout", "depth_invalid", "odometry_gap", "odometry_backwards",
-                                "vloc_outliers", "slow_consumer")
+                                "vloc_outliers", "slow_consumer", "slow_vloc")
 
 
 class FaultSpecError(LiteVLocError, ValueError):
@@ -56,7 +58,7 @@ class FaultSpec:
     fraction: float = 0.1  # vloc_outliers
     offset_m: float = 2.0  # vloc_outliers
     jump_s: float = 0.0  # odometry_backwards; 0 = duration_s
-    delay_ms: float = 20.0  # slow_consumer
+    delay_ms: float = 20.0  # slow_consumer, slow_vloc
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -153,10 +155,14 @@ class FaultInjector:
 
     # ------------------------------------------------------------------ VLoc
     def vloc(self, fn: Any) -> Any:
-        """Wrap `vloc(frame, prior) -> result`: outliers replace some accepted results."""
+        """Wrap `vloc(frame, prior) -> result`: slow calls take longer; outliers replace some
+        accepted results."""
 
         def faulty(frame: RgbdFrame, prior: Any) -> Any:
             res = fn(frame, prior)
+            for s in self._active("slow_vloc", frame.t_ns):
+                self._count("slow_vloc")
+                time.sleep(s.delay_ms * 1e-3)
             for s in self._active("vloc_outliers", frame.t_ns):
                 rng = self._rngs[id(s)]
                 hit = rng.random() < s.fraction

@@ -102,7 +102,7 @@ class ScenarioResult:
 
 
 def run_scenario(faults: list[str], seconds: float = 30.0, frame_hz: float = 5.0, lost_after_s: float = 3.0,
-                 seed: int = 1, mode: str = "deterministic") -> ScenarioResult:
+                 seed: int = 1, mode: str = "deterministic", rate: float = 0.0) -> ScenarioResult:
     cfg = load_config("default", [f"runtime.mode={mode}", f"runtime.lost_after_s={lost_after_s}"])
     T_bc = cfg.fusion.T_base_camera()
     fusion = OnlineFusion(cfg.fusion.params, T_bc)
@@ -127,7 +127,7 @@ def run_scenario(faults: list[str], seconds: float = 30.0, frame_hz: float = 5.0
             states.append((inj.rel_s(int(f.t_ns)), st["state"], list(st["reasons"])))
 
     svc = Service(messages(seconds, frame_hz, seed), OracleVloc(seconds, seed), on_odom, on_vloc, None, cfg.runtime,
-                  rate=0.0, T_base_camera=T_bc, on_fused=on_fused,
+                  rate=rate, T_base_camera=T_bc, on_fused=on_fused,
                   configure_thread_counts=False)
     holder["svc"] = svc
     inj.apply(svc)

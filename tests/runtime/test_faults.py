@@ -101,6 +101,20 @@ def test_ten_percent_vloc_outliers_2m_off() -> None:
 
 
 @pytest.mark.timeout(60)
+def test_slow_vloc_drops_frames_not_odometry() -> None:
+    """In real time, localizing takes 1 s longer for 3 s of sensor time (a loaded computer): the
+    frames meanwhile are dropped (latest only), not queued; every odometry message is fused and
+    the fused pose stays bounded on odometry; VLoc is back at its rate after the window."""
+    r = run_scenario(["slow_vloc@2:3,delay_ms=1000"], seconds=8.0, mode="realtime", rate=1.0)
+    assert r.ok, r.reason
+    c = r.status["counters"]
+    assert 2 <= r.changed["slow_vloc"] <= 4  # ~one slow call per second of the window
+    assert r.status["queues"]["frames"]["drops"] >= 10  # 5 Hz frames through 3 s of 1 s calls
+    assert c["odometry_fused"] == c["odometry_in"]
+    assert r.err_m.max() < 0.10 and r.error_between(6.5, 1e9).max() < NORMAL_M
+
+
+@pytest.mark.timeout(60)
 def test_slow_consumer_backs_up_outbox_not_fusion() -> None:
     """Publishing slows to 20 ms per pose for 1 s of sensor time: the outbox absorbs it, fusion
     is not held up, no odometry is lost, and the backlog drains. (The outbox path: `publish_inline`
