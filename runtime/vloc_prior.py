@@ -70,12 +70,12 @@ class OdometryHistory:
             self._T[self._n % cap] = T
             self._n += 1
 
-    def _snapshot(self) -> tuple[NDArray[np.int64], F64, F64]:
-        """(stamps, poses, odometer) of the kept poses, oldest first (copies)."""
+    def _snapshot(self, values: NDArray[np.floating]) -> tuple[NDArray[np.int64], NDArray[np.floating]]:
+        """(stamps, `values` — the poses or the odometer) of the kept poses, oldest first (copies)."""
         with self._lock:
             n, cap = self._n, len(self._t)
             order = np.arange(n - min(n, cap), n) % cap
-            return self._t[order].copy(), self._T[order].copy(), self._odometer[order].copy()
+            return self._t[order].copy(), values[order].copy()
 
     def __len__(self) -> int:
         return min(self._n, len(self._t))
@@ -83,7 +83,7 @@ class OdometryHistory:
     def at(self, t_ns: int) -> tuple[F64, int] | None:
         """(T_odom_base at `t_ns`, stamp used): interpolated inside the history; outside it,
         the nearest end's pose and stamp. None while empty."""
-        times, poses, _ = self._snapshot()
+        times, poses = self._snapshot(self._T)
         if len(times) == 0:
             return None
         if t_ns <= times[0]:
@@ -96,7 +96,7 @@ class OdometryHistory:
     def travel(self, t0_ns: int, t1_ns: int) -> float | None:
         """base_link's path length from `t0_ns` to `t1_ns` (metres, >= 0; linear between
         samples); None where either stamp lies outside the history (the path there is unknown)."""
-        times, _, odometer = self._snapshot()
+        times, odometer = self._snapshot(self._odometer)
         lo, hi = min(t0_ns, t1_ns), max(t0_ns, t1_ns)
         if len(times) == 0 or lo < times[0] or hi > times[-1]:
             return None

@@ -54,7 +54,8 @@ def test_history_odometer_measures_the_path_between_two_stamps() -> None:
     assert h.travel(100 * MS, 4000 * MS) is None
     p = prior_at(4900 * MS, np.eye(4), h, np.eye(4), last_fix_ns=2500 * MS)
     assert p is not None and p.travel_m == pytest.approx(0.0) and p.age_s == pytest.approx(2.4)
-    assert prior_at(4900 * MS, np.eye(4), h, np.eye(4), last_fix_ns=100 * MS).travel_m is None  # type: ignore[union-attr]
+    p = prior_at(4900 * MS, np.eye(4), h, np.eye(4), last_fix_ns=100 * MS)
+    assert p is not None and p.travel_m is None
 
 
 def test_delayed_frame_gets_the_pose_at_its_stamp_and_its_true_age() -> None:
