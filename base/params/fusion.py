@@ -74,9 +74,9 @@ class FusionParams:
     # a VLoc pose up to this much newer than the newest odometry is extrapolated (s)
     max_future_s: float = 0.05
     # a VLoc pose older than the window is carried to it by odometry that moved less than this since (m; 0 = off) ...
-    late_max_travel_m: float = 0.5
+    late_max_travel_m: float = 5.0
     # ... and turned less than this (degrees)
-    late_max_turn_deg: float = 10.0
+    late_max_turn_deg: float = 360.0
 
     def __post_init__(self) -> None:
         positive = (

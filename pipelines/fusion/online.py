@@ -16,7 +16,10 @@ Model
   that short gap's odometry noise added to its covariance. A result older than the
   smoother window is carried the same way to the window's oldest state where the odometry
   since its capture moved less than `late_max_travel_m` / `late_max_turn_deg` (a VLoc that
-  took 20 s on a robot at rest), else rejected (`too_old`), never applied to the newest state.
+  took 20 s on a robot at rest, or 4-8 s on a moving one), else rejected (`too_old`), never
+  applied to the newest state. The carrying noise is the odometry model's over the path
+  driven (its length and the turns summed), not the net motion alone, so a pose carried
+  through a turn on the spot or a long drive weighs what that odometry is worth.
 * **Outliers**: chi-square gating of the Mahalanobis distance between the measurement and
   the predicted state (`S = P_pred + R`, 6 dof), then a robust kernel (Huber or Cauchy)
   on the accepted prior. `P_pred` is the marginal covariance of the newest state, computed
@@ -539,12 +542,12 @@ class OnlineFusion:
         oldest = max(self._keys[0][1], horizon)
         if t_ns < oldest - int(p.keyframe_period_s * 0.5e9) and not self._carried_late(t_ns, oldest):
             return VlocUpdate(False, "too_old")
-        key, _, T_key_odom = min(
+        key, t_key, T_key_odom = min(
             (k for k in self._keys if k[1] >= horizon), key=lambda k: abs(k[1] - t_ns)
         )
         D = invert(T_ob) @ T_key_odom  # odometry from capture time to keyframe time
         meas = T_mb @ D
-        cov_meas = cov + self._odom_cov(T_ob, T_key_odom)
+        cov_meas = cov + self._carried_cov(t_ns, t_key, T_ob, T_key_odom)
         pred = self._smoother.calculateEstimatePose3(key)
         xi = gtsam.Pose3.Logmap(pred.between(_pose3(meas)))
         S = self._cov_state + self._odom_cov(self._cov_key_T_odom, self._keys[-1][2]) + cov_meas
@@ -585,17 +588,34 @@ class OnlineFusion:
             for c in cands
         )
 
-    def _odometry_within(self, t_a: int, t_b: int, max_m: float, max_deg: float) -> bool:
-        """Whether the buffered odometry between two times (t_a <= t_b; the messages between
-        them, no interpolation at the ends) travelled less than `max_m` metres and turned less
-        than `max_deg` degrees in all."""
-        steps = [T for t, T in self._odom if t_a <= t <= t_b]
+    def _odometry_path(self, t_a: int, t_b: int) -> tuple[float, float]:
+        """(metres travelled, radians turned) by the buffered odometry between two times (the
+        messages between them, either order, no interpolation at the ends): the path, not the
+        net motion, so driving out and back or a turn on the spot counts in full."""
+        lo, hi = min(t_a, t_b), max(t_a, t_b)
+        steps = [T for t, T in self._odom if lo <= t <= hi]
         dist = turn = 0.0
         for T0, T1 in itertools.pairwise(steps):
             D = _inv(T0) @ T1
             dist += math.sqrt(float(D[:3, 3] @ D[:3, 3]))
             turn += _angle(D[:3, :3])
+        return dist, turn
+
+    def _odometry_within(self, t_a: int, t_b: int, max_m: float, max_deg: float) -> bool:
+        """Whether the buffered odometry between two times travelled less than `max_m` metres
+        and turned less than `max_deg` degrees in all (`_odometry_path`)."""
+        dist, turn = self._odometry_path(t_a, t_b)
         return dist < max_m and turn < math.radians(max_deg)
+
+    def _carried_cov(self, t_ns: int, t_key: int, T_ob: F64, T_key_odom: F64) -> F64:
+        """Noise (GTSAM order) of the odometry that carries a VLoc pose from its capture time to
+        its keyframe's: the odometry model over the larger of the net motion and the path (a
+        pose carried through a full turn on the spot, or out and back, is as uncertain as the
+        turn or the drive made it)."""
+        D = _inv(T_ob) @ T_key_odom
+        net_m, net_rad = math.sqrt(float(D[:3, 3] @ D[:3, 3])), _angle(D[:3, :3])
+        path_m, path_rad = self._odometry_path(t_ns, t_key)
+        return np.diag(self.params.odom_sigmas(max(net_m, path_m), max(net_rad, path_rad)) ** 2)
 
     def _combines(self, old: _Candidate, new: _Candidate) -> bool:
         """Whether an earlier vote may combine with a new one (see the module docstring)."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -319,29 +320,35 @@ def test_deferred_keyframe_update_answers_first_and_changes_nothing_else(session
     assert ate_b < 1.02 * ate_a
 
 
-def test_a_fix_older_than_the_window_is_carried_by_the_odometry_of_a_robot_at_rest() -> None:
+def test_a_fix_older_than_the_window_is_carried_by_the_odometry_since_its_capture() -> None:
     """After initialisation, a VLoc pose that took 20 s (a loaded computer) is older than the
-    smoother's 3 s window: at rest the odometry carries it to the window's oldest state and it
-    corrects the fused pose; after 2 m of driving it is refused as too old, as is every such pose
-    with `late_max_travel_m` 0."""
-    def run(speed: float, **kw: float) -> tuple[str, float]:
+    smoother's 3 s window: the odometry carries it to the window's oldest state and it corrects
+    the fused pose, at rest fully, after 2 m of driving less (the carrying adds that odometry's
+    noise); driven out 2 m and back, the noise is the 4 m path's, not the net motion's; past
+    `late_max_travel_m` (5 m) it is refused as too old, as is every such pose with it 0."""
+    def run(x_at: Callable[[float], float], **kw: float) -> tuple[str, float]:
         f = OnlineFusion(FusionParams(init_votes=1, **kw), np.eye(4))
         f.add_odometry(0, np.eye(4))
         assert f.add_vloc(0, np.eye(4)).reason == "initialised"  # T_map_odom = identity
-        out = None
         for k in range(1, 2101):  # 21 s of odometry at 100 Hz
-            out = f.add_odometry(k * 10_000_000, make_T(np.eye(3), [speed * k * 0.01, 0, 0]))
+            f.add_odometry(k * 10_000_000, make_T(np.eye(3), [x_at(k * 0.01), 0, 0]))
         # captured at 1 s: the robot was 0.2 m further along than the start's fix said
-        capture = 1_000_000_000
-        r = f.add_vloc(capture, make_T(np.eye(3), [speed * 1.0 + 0.2, 0, 0]))
-        out = f.add_odometry(2101 * 10_000_000, make_T(np.eye(3), [speed * 21.01, 0, 0]))
+        r = f.add_vloc(1_000_000_000, make_T(np.eye(3), [x_at(1.0) + 0.2, 0, 0]))
+        out = f.add_odometry(2101 * 10_000_000, make_T(np.eye(3), [x_at(21.01), 0, 0]))
         assert out is not None
-        return r.reason, float(out.T_map_base[0, 3] - speed * 21.01)
+        return r.reason, float(out.T_map_base[0, 3] - x_at(21.01))
 
-    reason, shift = run(0.0)
-    assert reason == "accepted" and shift > 0.03  # the fused pose moved toward the late fix's 0.2 m
-    assert run(0.1)[0] == "too_old"  # 2 m driven since the capture
-    reason, shift = run(0.0, late_max_travel_m=0.0)
+    def out_and_back(t: float) -> float:  # 2 m out from 1 s to 11 s, back by 21 s
+        return 0.2 * float(np.clip(t - 1.0, 0.0, 10.0)) - 0.2 * float(np.clip(t - 11.0, 0.0, 10.0))
+
+    reason, at_rest = run(lambda t: 0.0)
+    assert reason == "accepted" and at_rest > 0.03  # the fused pose moved toward the late fix's 0.2 m
+    reason, driven = run(lambda t: 0.1 * t)  # 2 m since the capture
+    assert reason == "accepted" and 0.005 < driven < 0.8 * at_rest
+    reason, there_and_back = run(out_and_back)  # net 0 m, 4 m driven
+    assert reason == "accepted" and there_and_back < 0.5 * at_rest
+    assert run(lambda t: 0.3 * t)[0] == "too_old"  # 6 m driven since the capture
+    reason, shift = run(lambda t: 0.0, late_max_travel_m=0.0)
     assert reason == "too_old" and abs(shift) < 1e-3
     with pytest.raises(ValueError, match="late_max_travel_m"):
         FusionParams(late_max_travel_m=-1.0)
