@@ -2,6 +2,7 @@
 another lane through the full runtime, then navigate to goal images along it.
 
     .venv/bin/python bench/loop.py [--json out/bench/loop.json] [--goals 5] [--skip-nav] [--set K=V ...]
+        [--fault SPEC ...]
 
 1. Map: `litevloc map build sim:loop?pass=loop&seed=0` (one lap of the ~200 m ring, the
    default preset; depth-only pass 1, colour for the keyframes only). Map size in total and
@@ -70,18 +71,21 @@ def build_map(out: Path, config: str) -> dict[str, Any]:
 
 
 def query(map_dir: Path, config: str, pass_name: str = "loop-lane", rate: float = 1.0,
-          overrides: tuple[str, ...] = ()) -> dict[str, Any]:
+          overrides: tuple[str, ...] = (), faults: tuple[str, ...] = ()) -> dict[str, Any]:
     """The query lap through the threaded runtime (as `litevloc replay --map`), the
-    configuration `config` with `overrides` (key=value)."""
+    configuration `config` with `overrides` (key=value) and `faults` injected (as `--fault`)."""
     from litevloc.base.geometry import invert
     from litevloc.config import load_config
     from litevloc.runtime.app import build_app, with_endpoints
+    from litevloc.runtime.faults import FaultInjector
     from litevloc.sim.source import SimSequenceSource
     from litevloc.sim.world import load_world
 
     cfg = with_endpoints(load_config(config, overrides), [f"tcp/127.0.0.1:{_free_port()}"], [], None)
     src = SimSequenceSource(load_world("loop"), pass_name, 1, params=cfg.sim)
+    injector = FaultInjector(list(faults))  # parsed before the (slow) model loading
     app = build_app(cfg, map_dir, src, rate)
+    injector.apply(app.service)
     vloc: list[tuple[int, bool, np.ndarray | None]] = []
     how: list[str] = []  # per accepted result: "local", "global" or "global+prior" (one keyframe + the prior)
     detail: list[dict[str, Any]] = []  # per accepted result: what accepted it, and the prior it had
@@ -141,6 +145,8 @@ def query(map_dir: Path, config: str, pass_name: str = "loop-lane", rate: float 
         **_time_without_fix(np.array([t for t, _, _ in vloc]) * 1e-9, np.array([t for t, _ in acc]) * 1e-9),
         "counters": {k: c[k] for k in ("frames_in", "odometry_in", "vloc_calls", "vloc_accepted",
                                        "fusion_accepted", "poses_published") if k in c},
+        "faults": list(faults), "faults_applied": dict(injector.counts),
+        "fusion_vloc_by_reason": app.fusion.stats()["vloc_by_reason"],
     }
 
 
@@ -216,6 +222,8 @@ def main() -> int:
     ap.add_argument("--config", default="default")
     ap.add_argument("--set", dest="overrides", action="append", default=[], help="KEY=VALUE (query and navigation)")
     ap.add_argument("--goals", type=int, default=5)
+    ap.add_argument("--fault", action="append", default=[], metavar="SPEC",
+                    help="fault injected into the query lap, as `replay --fault` (e.g. slow_vloc@30:300,delay_ms=4000)")
     ap.add_argument("--skip-nav", action="store_true", help="map and query pass only")
     ap.add_argument("--no-baseline", action="store_true",
                     help="navigation with LiteVLoc only (no ground-truth localization run to compare)")
@@ -254,7 +262,7 @@ def main() -> int:
           f"{res['map_split_bytes_per_100m']['features'] / 1e6:.2f}, graph+descriptors "
           f"{res['map_split_bytes_per_100m']['graph_descriptors'] / 1e6:.3f}, other "
           f"{res['map_split_bytes_per_100m']['other'] / 1e6:.3f})", flush=True)
-    q = query(map_dir, args.config, args.query_pass, args.rate, tuple(args.overrides))
+    q = query(map_dir, args.config, args.query_pass, args.rate, tuple(args.overrides), tuple(args.fault))
     q["pass"], q["rate"], q["overrides"] = args.query_pass, args.rate, list(args.overrides)
     res["query"] = q
     for k in ("vloc_ate_m", "fused_ate_m", "odometry_ate_m", "localized_fraction"):

@@ -1,7 +1,7 @@
 """Maps from the robot's own sensors (issue 41): `map build --poses slam`, measured.
 
     .venv/bin/python bench/slam.py [--json out/bench/slam.json] [--cases office floor loop bland 7s 7s-camera]
-        [--inject] [--queries] [--navigation] [--loop-query] [--config default]
+        [--inject] [--queries] [--navigation] [--loop-query] [--no-build] [--config default]
 
 Cases (each `map build` runs in its own process: its peak RSS and seconds are its own):
 
@@ -17,10 +17,13 @@ Cases (each `map build` runs in its own process: its peak RSS and seconds are it
 * `--queries`: 7-Scenes frames 500-999 localized (bench/accuracy.py, `joint`) against each 7-Scenes
   SLAM map moved into the ground truth's frame (SE(3) over its keyframes) and against the
   ground-truth-posed map;
-* `--navigation`: `litevloc sim navigate WORLD --map-poses slam|ground-truth` for office, floor and
-  loop (long: 10-30 min each);
+* `--navigation`: office, floor: `litevloc sim navigate WORLD --localization litevloc` on the
+  case's SLAM map (its build, moved into the world frame) and on the same mapping pass posed by
+  ground truth (built once); loop: bench/loop.py's query lap and its goal images along the route,
+  on both maps. `--no-build` reuses the cases' builds (`--cases floor loop --navigation
+  --no-build`; long: 10-40 min per map);
 * `--loop-query`: the loop world's query lap through the runtime (bench/loop.py --skip-nav) on the
-  SLAM map moved into the world frame.
+  SLAM map moved into the world frame and on the ground-truth-posed map.
 
 Writes one object per case with `keyframe_ate_m`, `odometry_ate_m`, `rpe_per_m`, `loops_kept`,
 `wrong_loops_kept`, `s_per_keyframe`, `peak_rss_mb` (and for the worlds with --navigation
@@ -154,33 +157,67 @@ def queries(name: str, T: list[list[float]]) -> dict[str, Any]:
 
 
 def navigation(world: str, config: str) -> dict[str, Any]:
+    """Image-goal navigation (`sim navigate --localization litevloc`) on the case's SLAM map, moved
+    into the world frame (SE(3) over its keyframes, from its build report), and on the same mapping
+    pass posed by ground truth: the same pass, so only the poses differ. Reuses the case's build."""
+    build = HERE / world / "build.json"
+    if not build.is_file():
+        raise SystemExit(f"--navigation {world}: no SLAM build in {HERE / world}; run --cases {world} first")
+    T = json.loads(build.read_text())["slam"]["evaluation"]["T_reference_map"]
+    gt_map = HERE / f"{world}-gt-map"
+    if not (gt_map / "manifest.json").is_file():
+        litevloc("map", "build", mapping_pass_uri(world), "-o", str(gt_map), "--force", "--poses", "ground-truth",
+                 "--config", config)
+    maps = {"slam": moved_map(HERE / world / "map", HERE / f"{world}-map-in-world-frame", T), "ground-truth": gt_map}
     out: dict[str, Any] = {}
-    for poses in ("slam", "ground-truth"):
+    for poses, m in maps.items():
         js = HERE / f"nav-{world}-{poses}.json"
-        subprocess.run([sys.executable, "-m", "litevloc.runtime.cli.main", "sim", "navigate", world, "--map-poses",
-                        poses, "--localization", "litevloc", "--json", str(js), "--config", config])
+        subprocess.run([sys.executable, "-m", "litevloc.runtime.cli.main", "sim", "navigate", world, "--map", str(m),
+                        "--out-dir", str(HERE / f"nav-{world}-{poses}"), "--localization", "litevloc", "--json",
+                        str(js), "--config", config])
         out[poses] = json.loads(js.read_text())
     s, g = out["slam"], out["ground-truth"]
     from litevloc.runtime.sim_navigation import goal_ratios
 
     return {"goals_reached_slam_map": s["goals_reached"], "goals_reached_gt_map": g["goals_reached"],
             "goals_total": s["goals_total"], "path_ratio_slam_vs_gt_map": goal_ratios(s["goals"], g["goals"]),
+            "mapping_pass": mapping_pass_uri(world),
             "runs": {k: {kk: v[kk] for kk in ("goals_reached", "goals_total", "time_s", "path_length_m",
                                                "collisions")} for k, v in out.items()}}
 
 
-def loop_query(T: list[list[float]]) -> dict[str, Any]:
-    d = HERE / "loop-query"
-    d.mkdir(parents=True, exist_ok=True)
-    shutil.rmtree(d / "map", ignore_errors=True)
-    moved_map(HERE / "loop" / "map", d / "map", T)
-    js = d / "loop.json"
-    r = subprocess.run([sys.executable, str(ROOT / "bench" / "loop.py"), "--out-dir", str(d), "--reuse-map",
-                        "--skip-nav", "--json", str(js)])
-    if r.returncode != 0:
-        raise SystemExit("bench/loop.py failed")
-    q = json.loads(js.read_text())
-    return {k: q[k] for k in ("vloc_ate_m", "fused_ate_m", "odometry_ate_m", "localized_fraction")}
+def loop_query(T: list[list[float]], nav: bool) -> dict[str, Any]:
+    """The loop's query lap through the runtime (bench/loop.py) on the SLAM map moved into the world
+    frame and on the same pass posed by ground truth (bench/loop.py's own map, built once); with
+    `nav`, also its navigation to goal images along the route, LiteVLoc localization on each map."""
+    out: dict[str, Any] = {}
+    for tag, d in (("slam_map", HERE / "loop-query"), ("gt_map", HERE / "loop-gt")):
+        d.mkdir(parents=True, exist_ok=True)
+        if tag == "slam_map":
+            shutil.rmtree(d / "map", ignore_errors=True)
+            moved_map(HERE / "loop" / "map", d / "map", T)
+        js = d / "loop.json"
+        cmd = [sys.executable, str(ROOT / "bench" / "loop.py"), "--out-dir", str(d), "--reuse-map", "--json", str(js)]
+        r = subprocess.run(cmd + (["--no-baseline"] if nav else ["--skip-nav"]))
+        if r.returncode != 0:
+            raise SystemExit(f"bench/loop.py failed on {d / 'map'}")
+        q = json.loads(js.read_text())
+        out[tag] = {k: q[k] for k in ("vloc_ate_m", "fused_ate_m", "odometry_ate_m", "localized_fraction",
+                                      "goals_reached", "goals_total")}
+        if nav:
+            out[tag]["navigation"] = q["navigation"]
+    if nav:
+        from litevloc.runtime.sim_navigation import goal_ratios
+
+        s, g = out["slam_map"]["navigation"], out["gt_map"]["navigation"]
+        out.update({"goals_reached_slam_map": s["goals_reached"], "goals_reached_gt_map": g["goals_reached"],
+                    "goals_total": s["goals_total"], "path_ratio_slam_vs_gt_map": goal_ratios(s["goals"], g["goals"]),
+                    "goals": "bench/loop.py's goal images along the mapping route"})
+        for tag in ("slam_map", "gt_map"):
+            nv = out[tag].pop("navigation")
+            out[tag]["navigation"] = {k: nv[k] for k in ("goals_reached", "goals_total", "time_s", "path_length_m",
+                                                          "collisions")}
+    return out
 
 
 def main() -> int:
@@ -190,13 +227,14 @@ def main() -> int:
     ap.add_argument("--inject", action="store_true")
     ap.add_argument("--queries", action="store_true")
     ap.add_argument("--navigation", action="store_true")
+    ap.add_argument("--no-build", action="store_true", help="reuse the cases' earlier builds (their figures kept)")
     ap.add_argument("--loop-query", action="store_true")
     ap.add_argument("--pgt", type=Path, default=SEVEN_SCENES / "pgt-sfm-seq-01.txt")
     ap.add_argument("--json", default="slam", help="name of the JSON under out/bench/")
     args = ap.parse_args()
     prev = OUT / f"{args.json}.json"
     res: dict[str, Any] = json.loads(prev.read_text()) if prev.is_file() else {}  # cases not rerun are kept
-    for c in args.cases:
+    for c in [] if args.no_build else args.cases:
         if c in MAPPING_PASSES:
             res[c] = sim_case(c, args.config)
         elif c in ("7s", "7s-camera"):
@@ -218,12 +256,16 @@ def main() -> int:
                 res[c]["queries"] = queries(c, res[c]["T_reference_map"])
                 write_json(args.json, res)
     if args.navigation:
-        for w in ("office", "floor", "loop"):
+        for w in [c for c in args.cases if c in ("office", "floor")]:
             res.setdefault(w, {}).update(navigation(w, args.config))
             write_json(args.json, res)
-    if args.loop_query and "loop" in res:
+    nav_loop = args.navigation and "loop" in args.cases
+    if (args.loop_query or nav_loop) and "loop" in res:
         ev = json.loads((HERE / "loop" / "build.json").read_text())["slam"]["evaluation"]
-        res["loop"]["query_lap"] = loop_query(ev["T_reference_map"])
+        res["loop"]["query_lap"] = loop_query(ev["T_reference_map"], nav_loop)
+        if nav_loop:
+            res["loop"].update({k: res["loop"]["query_lap"][k] for k in (
+                "goals_reached_slam_map", "goals_reached_gt_map", "goals_total", "path_ratio_slam_vs_gt_map")})
         write_json(args.json, res)
     rows = [[c, r.get("keyframe_ate_m"), r.get("odometry_ate_m"), r.get("rpe_per_m"), r.get("loops_kept"),
              r.get("wrong_loops_kept"), sum((r.get("loops_rejected_by_gate") or {}).values()), r.get("loops_tried"),
