@@ -191,6 +191,7 @@ def loop_query(T: list[list[float]], nav: bool) -> dict[str, Any]:
     frame and on the same pass posed by ground truth (bench/loop.py's own map, built once); with
     `nav`, also its navigation to goal images along the route, LiteVLoc localization on each map."""
     out: dict[str, Any] = {}
+    goals: dict[str, list[dict[str, Any]]] = {}  # per map, bench/loop.py's per-goal records (for the ratios)
     for tag, d in (("slam_map", HERE / "loop-query"), ("gt_map", HERE / "loop-gt")):
         d.mkdir(parents=True, exist_ok=True)
         if tag == "slam_map":
@@ -205,18 +206,16 @@ def loop_query(T: list[list[float]], nav: bool) -> dict[str, Any]:
         out[tag] = {k: q[k] for k in ("vloc_ate_m", "fused_ate_m", "odometry_ate_m", "localized_fraction",
                                       "goals_reached", "goals_total")}
         if nav:
-            out[tag]["navigation"] = q["navigation"]
+            goals[tag] = q["navigation"]["goals"]
+            out[tag]["navigation"] = {k: q["navigation"][k] for k in ("goals_reached", "goals_total", "time_s",
+                                                                       "path_length_m", "collisions")}
     if nav:
         from litevloc.runtime.sim_navigation import goal_ratios
 
-        s, g = out["slam_map"]["navigation"], out["gt_map"]["navigation"]
-        out.update({"goals_reached_slam_map": s["goals_reached"], "goals_reached_gt_map": g["goals_reached"],
-                    "goals_total": s["goals_total"], "path_ratio_slam_vs_gt_map": goal_ratios(s["goals"], g["goals"]),
+        out.update({"goals_reached_slam_map": out["slam_map"]["goals_reached"],
+                    "goals_reached_gt_map": out["gt_map"]["goals_reached"], "goals_total": out["gt_map"]["goals_total"],
+                    "path_ratio_slam_vs_gt_map": goal_ratios(goals["slam_map"], goals["gt_map"]),
                     "goals": "bench/loop.py's goal images along the mapping route"})
-        for tag in ("slam_map", "gt_map"):
-            nv = out[tag].pop("navigation")
-            out[tag]["navigation"] = {k: nv[k] for k in ("goals_reached", "goals_total", "time_s", "path_length_m",
-                                                          "collisions")}
     return out
 
 

@@ -540,14 +540,17 @@ class OnlineFusion:
         # Target: the window keyframe nearest in time to the capture time.
         horizon = self._keys[-1][1] - int((p.lag_s - p.keyframe_period_s) * 1e9)
         oldest = max(self._keys[0][1], horizon)
-        if t_ns < oldest - int(p.keyframe_period_s * 0.5e9) and not self._carried_late(t_ns, oldest):
-            return VlocUpdate(False, "too_old")
-        key, t_key, T_key_odom = min(
+        path = None  # (m, rad) driven since a late capture; a pose inside the window: its short gap's net motion
+        if t_ns < oldest - int(p.keyframe_period_s * 0.5e9):
+            path = self._odometry_path(t_ns, oldest)
+            if not self._carried_late(*path):
+                return VlocUpdate(False, "too_old")
+        key, _, T_key_odom = min(
             (k for k in self._keys if k[1] >= horizon), key=lambda k: abs(k[1] - t_ns)
         )
         D = invert(T_ob) @ T_key_odom  # odometry from capture time to keyframe time
         meas = T_mb @ D
-        cov_meas = cov + self._carried_cov(t_ns, t_key, T_ob, T_key_odom)
+        cov_meas = cov + self._carried_cov(D, path)
         pred = self._smoother.calculateEstimatePose3(key)
         xi = gtsam.Pose3.Logmap(pred.between(_pose3(meas)))
         S = self._cov_state + self._odom_cov(self._cov_key_T_odom, self._keys[-1][2]) + cov_meas
@@ -571,14 +574,14 @@ class OnlineFusion:
         self._counts["priors"] += 1
         return VlocUpdate(True, "accepted", m2)
 
-    def _carried_late(self, t_ns: int, oldest_ns: int) -> bool:
-        """Whether a pose captured before the window (at `t_ns`) may be carried to its oldest
-        state (at `oldest_ns`) by the buffered odometry: it moved less than `late_max_travel_m`
-        and turned less than `late_max_turn_deg` in between (the carrying adds that odometry's
-        noise to the pose's covariance, see `_attach_prior`)."""
+    def _carried_late(self, path_m: float, path_rad: float) -> bool:
+        """Whether a pose captured before the window may be carried to its oldest state by the
+        buffered odometry, which drove `path_m` and turned `path_rad` since the capture: less
+        than `late_max_travel_m` and `late_max_turn_deg` (the carrying adds that odometry's
+        noise to the pose's covariance, `_carried_cov`)."""
         p = self.params
-        return p.late_max_travel_m > 0 and self._odometry_within(t_ns, oldest_ns, p.late_max_travel_m,
-                                                                 p.late_max_turn_deg)
+        return p.late_max_travel_m > 0 and path_m < p.late_max_travel_m and path_rad < math.radians(
+            p.late_max_turn_deg)
 
     def _agree(self, cands: list[_Candidate]) -> bool:
         p = self.params
@@ -589,11 +592,10 @@ class OnlineFusion:
         )
 
     def _odometry_path(self, t_a: int, t_b: int) -> tuple[float, float]:
-        """(metres travelled, radians turned) by the buffered odometry between two times (the
-        messages between them, either order, no interpolation at the ends): the path, not the
-        net motion, so driving out and back or a turn on the spot counts in full."""
-        lo, hi = min(t_a, t_b), max(t_a, t_b)
-        steps = [T for t, T in self._odom if lo <= t <= hi]
+        """(metres travelled, radians turned) by the buffered odometry between two times (t_a <= t_b;
+        the messages between them, no interpolation at the ends): the path, not the net motion,
+        so driving out and back or a turn on the spot counts in full."""
+        steps = [T for t, T in self._odom if t_a <= t <= t_b]
         dist = turn = 0.0
         for T0, T1 in itertools.pairwise(steps):
             D = _inv(T0) @ T1
@@ -607,14 +609,13 @@ class OnlineFusion:
         dist, turn = self._odometry_path(t_a, t_b)
         return dist < max_m and turn < math.radians(max_deg)
 
-    def _carried_cov(self, t_ns: int, t_key: int, T_ob: F64, T_key_odom: F64) -> F64:
-        """Noise (GTSAM order) of the odometry that carries a VLoc pose from its capture time to
-        its keyframe's: the odometry model over the larger of the net motion and the path (a
-        pose carried through a full turn on the spot, or out and back, is as uncertain as the
-        turn or the drive made it)."""
-        D = _inv(T_ob) @ T_key_odom
+    def _carried_cov(self, D: F64, path: tuple[float, float] | None) -> F64:
+        """Noise (GTSAM order) of the odometry `D` that carries a VLoc pose from its capture time to
+        its keyframe's: the odometry model over the larger of the net motion and, for a late pose,
+        the `path` (m, rad) driven since its capture (a pose carried through a turn on the spot, or
+        out and back, is as uncertain as the turn or the drive made it)."""
         net_m, net_rad = math.sqrt(float(D[:3, 3] @ D[:3, 3])), _angle(D[:3, :3])
-        path_m, path_rad = self._odometry_path(t_ns, t_key)
+        path_m, path_rad = path if path is not None else (0.0, 0.0)
         return np.diag(self.params.odom_sigmas(max(net_m, path_m), max(net_rad, path_rad)) ** 2)
 
     def _combines(self, old: _Candidate, new: _Candidate) -> bool:

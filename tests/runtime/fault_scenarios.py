@@ -102,11 +102,8 @@ class ScenarioResult:
 
 
 def run_scenario(faults: list[str], seconds: float = 30.0, frame_hz: float = 5.0, lost_after_s: float = 3.0,
-                 seed: int = 1, mode: str = "deterministic", rate: float = 0.0,
-                 overrides: tuple[str, ...] = ()) -> ScenarioResult:
-    """The service + fusion through `seconds` of the office pass with `faults` injected; `overrides`:
-    config `KEY=VALUE`s (as `--set`)."""
-    cfg = load_config("default", [f"runtime.mode={mode}", f"runtime.lost_after_s={lost_after_s}", *overrides])
+                 seed: int = 1, mode: str = "deterministic", rate: float = 0.0) -> ScenarioResult:
+    cfg = load_config("default", [f"runtime.mode={mode}", f"runtime.lost_after_s={lost_after_s}"])
     T_bc = cfg.fusion.T_base_camera()
     fusion = OnlineFusion(cfg.fusion.params, T_bc)
     on_odom, on_vloc = fusion_callables(fusion)
