@@ -77,6 +77,10 @@ class FusionParams:
     late_max_travel_m: float = 5.0
     # ... and turned less than this (degrees)
     late_max_turn_deg: float = 360.0
+    # odometry heading drift its random-walk noise misses, 1 sigma per metre since the last accepted VLoc pose (deg/m)
+    odom_drift_yaw_deg_per_m: float = 0.5
+    # ... and its scale drift, along the track (m per m driven, 1 sigma)
+    odom_drift_trans_per_m: float = 0.02
 
     def __post_init__(self) -> None:
         positive = (
@@ -109,6 +113,8 @@ class FusionParams:
             "max_future_s",
             "late_max_travel_m",
             "late_max_turn_deg",
+            "odom_drift_yaw_deg_per_m",
+            "odom_drift_trans_per_m",
         ):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
@@ -136,6 +142,14 @@ class FusionParams:
         rot += self.odom_sigma_rot_per_rad * angle_rad
         trans = self.odom_sigma_trans_floor + self.odom_sigma_trans_per_m * dist_m
         return np.array([rot, rot, rot, trans, trans, trans])
+
+    def drift_sigmas(self, path_m: float) -> tuple[float, float, float]:
+        """(heading rad, along-track m, sideways m) 1-sigma error that the odometry's systematic
+        drift builds over `path_m` metres driven: a scale drift s gives s * L along the track, a
+        constant heading drift rate b gives b * L of heading and b * L^2 / 2 sideways, so it
+        outgrows the random-walk model (square root of L) on a long stretch."""
+        b = math.radians(self.odom_drift_yaw_deg_per_m)
+        return b * path_m, self.odom_drift_trans_per_m * path_m, 0.5 * b * path_m**2
 
     def vloc_cov_gtsam(self) -> F64:
         """Default VLoc covariance, GTSAM order."""

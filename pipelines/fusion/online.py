@@ -21,15 +21,22 @@ Model
   driven (its length and the turns summed), not the net motion alone, so a pose carried
   through a turn on the spot or a long drive weighs what that odometry is worth.
 * **Outliers**: chi-square gating of the Mahalanobis distance between the measurement and
-  the predicted state (`S = P_pred + R`, 6 dof), then a robust kernel (Huber or Cauchy)
-  on the accepted prior. `P_pred` is the marginal covariance of the newest state, computed
-  at most every `covariance_period_s` (never per update) and propagated with the
-  odometry noise since.
+  the predicted state (`S = P_pred + R + Q_drift`, 6 dof), then a robust kernel (Huber or
+  Cauchy) on the accepted prior. `P_pred` is the marginal covariance of the newest state,
+  computed at most every `covariance_period_s` (never per update) and propagated with the
+  odometry noise since. `Q_drift` is the odometry's systematic drift over the path since the
+  last accepted pose (`odom_drift_*`: heading error and along-track error linear in the path,
+  sideways error quadratic), which the graph's random-walk odometry noise (growing with its square root)
+  misses: negligible between fixes a few tenths of a second apart, metres after a 30 m outage.
+* **Re-anchoring**: a pose that passes the gate only thanks to `Q_drift` says the graph is
+  overconfident (a robust prior would barely move it); it is a vote, and `init_votes`
+  consecutive agreeing votes restart the filter from them (`reanchored`).
 * **Bounded graph**: GTSAM's `IncrementalFixedLagSmoother` (iSAM2 that marginalises
   states older than `lag_s`): states in the graph ~ lag_s / keyframe_period_s.
 * **Initialisation**: once `init_votes` consecutive VLoc poses captured within
-  `init_window_s` of each other agree (their `T_map_odom`
-  within `init_max_trans_m` / `init_max_rot_deg`; `init_votes = 1` takes the very first
+  `init_window_s` of each other agree (each, carried by the odometry to the newest's capture,
+  within `init_max_trans_m` / `init_max_rot_deg` of it, plus three sigmas of the odometry's
+  drift over the path between them; `init_votes = 1` takes the very first
   one; votes captured farther apart still combine where the odometry between them travelled
   less than `init_window_m` and turned less than `init_window_deg` in all: a global
   localization slower than the window, under load, on a robot waiting for its first fix;
@@ -46,7 +53,8 @@ Model
   uninitialised, so a numerical failure never kills the fusion stage.
 * **Output** at every odometry message: the newest optimised state composed with the
   odometry increments since (`T_map_base`), and the REP-105 correction
-  `T_map_odom = T_map_base @ inv(T_odom_base)`.
+  `T_map_odom = T_map_base @ inv(T_odom_base)`; its covariance holds `Q_drift` too, so it
+  grows as the odometry's error does while no VLoc pose is accepted.
 
 Frames and orders
 -----------------
@@ -93,6 +101,7 @@ __all__ = [
 ]
 
 _I3 = np.eye(3)
+_AGREE_SIGMAS = 3.0  # how far two VLoc poses may differ by the odometry's drift between them
 _ROW3 = np.array([0.0, 0.0, 0.0, 1.0])
 
 
@@ -182,14 +191,6 @@ def vloc_noise_model(cov_gtsam: F64, params: FusionParams) -> gtsam.noiseModel.B
     return gauss
 
 
-def _map_odom_close(A: F64, B: F64, max_trans: float, max_rot_rad: float) -> bool:
-    D = invert(A) @ B
-    return (
-        float(np.linalg.norm(A[:3, 3] - B[:3, 3])) <= max_trans
-        and rotation_angle(D[:3, :3]) <= max_rot_rad
-    )
-
-
 @dataclass
 class _Candidate:
     t_ns: int
@@ -197,9 +198,9 @@ class _Candidate:
     T_odom_base: F64
     cov: F64  # gtsam order
 
-    @property
-    def T_map_odom(self) -> F64:
-        return self.T_map_base @ invert(self.T_odom_base)
+    def carried_to(self, other: _Candidate) -> F64:
+        """This pose carried by the odometry to `other`'s capture time (T_map_base)."""
+        return self.T_map_base @ invert(self.T_odom_base) @ other.T_odom_base
 
 
 class OnlineFusion:
@@ -225,6 +226,7 @@ class OnlineFusion:
         self._update_ms: deque[float] = deque(maxlen=20000)
         self._candidates: deque[_Candidate] = deque(maxlen=max(params.init_votes, 1))
         self._rejected: deque[_Candidate] = deque(maxlen=max(params.reinit_after_rejects, 1))
+        self._reanchor: deque[_Candidate] = deque(maxlen=max(params.init_votes, 1))
         self._consecutive_rejects = 0
         self._reset_graph()
 
@@ -244,6 +246,7 @@ class OnlineFusion:
         self._cov_t: int | None = None
         self._cov_key_T_odom: F64 = np.eye(4)
         self._pending_keyframe: tuple[int, F64, F64] | None = None  # (t, T_odom_base, D): defer_update=True
+        self._since_fix_m = 0.0  # keyframe path from the newest accepted VLoc pose's state to the newest state
 
     def _stamp(self, t_ns: int) -> float:
         assert self._t0_ns is not None
@@ -321,6 +324,7 @@ class OnlineFusion:
             return VlocUpdate(False, "solver_error")
         self._candidates.clear()
         self._rejected.clear()
+        self._reanchor.clear()
         self._consecutive_rejects = 0
         self._counts[reason] += 1
         return VlocUpdate(True, reason, None)
@@ -363,6 +367,7 @@ class OnlineFusion:
         assert self._last_est is not None
         values.insert(key, _pose3(self._last_est @ D))
         self._keys.append((key, t_ns, T_odom_base))
+        self._since_fix_m += math.sqrt(float(D[:3, 3] @ D[:3, 3]))
         self._counts["keyframes"] += 1
         if not self._update(graph, values, {key: self._stamp(t_ns)}):
             return
@@ -465,7 +470,7 @@ class OnlineFusion:
         _, _, T_key_odom = self._keys[-1]
         T_map_odom = self._last_est @ _inv(T_key_odom)
         T_map_base = T_map_odom @ T_odom_base
-        cov = self._cov_state + self._odom_cov(self._cov_key_T_odom, T_odom_base)
+        cov = self._cov_state + self._odom_cov(self._cov_key_T_odom, T_odom_base) + self._drift_cov(self._since_fix_m)
         return FusedPose(t_ns, T_map_base, T_map_odom, gtsam_to_ros_covariance(cov), True)
 
     def current(self) -> FusedPose | None:
@@ -554,7 +559,8 @@ class OnlineFusion:
         pred = self._smoother.calculateEstimatePose3(key)
         xi = gtsam.Pose3.Logmap(pred.between(_pose3(meas)))
         S = self._cov_state + self._odom_cov(self._cov_key_T_odom, self._keys[-1][2]) + cov_meas
-        m2 = float(xi @ np.linalg.solve(S, xi))
+        m2_walk = float(xi @ np.linalg.solve(S, xi))  # the graph's own (random-walk) uncertainty
+        m2 = float(xi @ np.linalg.solve(S + self._drift_cov(self._since_fix_m), xi))
         if gate and p.gate_chi2 > 0 and m2 > p.gate_chi2:
             self._consecutive_rejects += 1
             self._rejected.append(cand)
@@ -565,8 +571,17 @@ class OnlineFusion:
             ):
                 return self._initialise(list(self._rejected), "reinitialised")
             return VlocUpdate(False, "gated", m2)
+        if gate and p.gate_chi2 > 0 and m2_walk > p.gate_chi2:
+            # Only the drift since the last fix explains it: the graph is overconfident, and a
+            # robust prior would barely move it. Agreeing such poses restart it where they say.
+            self._reanchor.append(cand)
+            if len(self._reanchor) >= p.init_votes and self._agree(list(self._reanchor)):
+                return self._initialise(list(self._reanchor), "reanchored")
+            return VlocUpdate(False, "reanchor_vote", m2)
         self._consecutive_rejects = 0
         self._rejected.clear()
+        self._reanchor.clear()
+        self._since_fix_m = min(self._since_fix_m, self._path_after(key))
         graph = gtsam.NonlinearFactorGraph()
         graph.add(gtsam.PriorFactorPose3(key, _pose3(meas), vloc_noise_model(cov_meas, self.params)))
         if not self._update(graph, gtsam.Values(), {}):
@@ -584,11 +599,40 @@ class OnlineFusion:
             p.late_max_turn_deg)
 
     def _agree(self, cands: list[_Candidate]) -> bool:
+        """Whether every pose, carried by the odometry to the newest one's capture time, lies
+        within `init_max_trans_m` / `init_max_rot_deg` of it, widened by three sigmas of the
+        odometry's drift over the path between them (`FusionParams.drift_sigmas`). Compared
+        where the robot is, not as T_map_odom: a small heading difference moves T_map_odom's
+        origin by the robot's distance from it."""
         p = self.params
-        ref = cands[-1].T_map_odom
-        return all(
-            _map_odom_close(ref, c.T_map_odom, p.init_max_trans_m, math.radians(p.init_max_rot_deg))
-            for c in cands
+        ref = cands[-1]
+        for c in cands[:-1]:
+            if c.t_ns < self._odom[0][0]:  # the odometry between them has left the buffer
+                return False
+            yaw, along, side = p.drift_sigmas(self._odometry_path(c.t_ns, ref.t_ns)[0])
+            pos = along + side
+            E = invert(ref.T_map_base) @ c.carried_to(ref)
+            if (
+                float(np.linalg.norm(E[:3, 3])) > p.init_max_trans_m + _AGREE_SIGMAS * pos
+                or rotation_angle(E[:3, :3]) > math.radians(p.init_max_rot_deg) + _AGREE_SIGMAS * yaw
+            ):
+                return False
+        return True
+
+    def _drift_cov(self, path_m: float) -> F64:
+        """Covariance (GTSAM order, base_link frame of a ground robot) of the odometry's systematic
+        drift over `path_m` metres: heading on rot_z, scale along x (forward), heading's share on y
+        (a straight drive's; after turns it is split between x and y, which this ignores, so that
+        along the camera's axis the gate stays as narrow as the scale drift allows)."""
+        yaw, along, side = self.params.drift_sigmas(path_m)
+        return np.diag([0.0, 0.0, yaw**2, along**2, side**2, 0.0])
+
+    def _path_after(self, key: int) -> float:
+        """Metres the window's keyframes moved from state `key` to the newest state."""
+        Ts = [T for k, _, T in itertools.dropwhile(lambda e: e[0] != key, self._keys)]
+        return sum(
+            math.sqrt(float(D[:3, 3] @ D[:3, 3]))
+            for D in (_inv(A) @ B for A, B in itertools.pairwise(Ts))
         )
 
     def _odometry_path(self, t_a: int, t_b: int) -> tuple[float, float]:

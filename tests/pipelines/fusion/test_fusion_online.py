@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable
 
 import numpy as np
@@ -352,3 +353,61 @@ def test_a_fix_older_than_the_window_is_carried_by_the_odometry_since_its_captur
     assert reason == "too_old" and abs(shift) < 1e-3
     with pytest.raises(ValueError, match="late_max_travel_m"):
         FusionParams(late_max_travel_m=-1.0)
+
+
+def _biased_drive(t: float, speed: float, yaw_bias_deg_per_m: float) -> np.ndarray:
+    """T_odom_base at `t` s of a straight drive along x at `speed` m/s, as an odometry whose
+    heading drifts by `yaw_bias_deg_per_m` per metre reports it (an arc)."""
+    s, b = speed * t, math.radians(yaw_bias_deg_per_m)
+    x, y = (math.sin(b * s) / b, (1 - math.cos(b * s)) / b) if b else (s, 0.0)
+    return make_T(so3_exp(np.array([0.0, 0.0, b * s])), [x, y, 0.0])
+
+
+def test_after_a_long_outage_agreeing_fixes_reanchor_a_drifted_filter() -> None:
+    """VLoc corrects a straight 0.5 m/s drive every 0.5 s for 10 s, then is out for 60 s (30 m)
+    while the odometry's heading drifts 0.5 deg/m: the fused pose ends ~4 m off, far beyond what
+    the graph's random-walk odometry noise allows, so every correct fix used to be gated for
+    good. With the drift since the last fix in the gate, the first correct fix votes and the
+    next, agreeing, restarts the filter where they say; an alias among them (inside the gate that
+    30 m of drift opens) agrees with neither neighbour, so it only delays the restart by a fix."""
+    def true_x(t: float) -> float:
+        return 0.5 * t
+
+    f = OnlineFusion(FusionParams(), np.eye(4))
+    reasons: list[str] = []
+    t_fixes = [0.5 * k for k in range(1, 21)] + [72.0, 73.0, 75.0, 77.0, 78.0]
+    alias_at = 73.0  # 2 m to the left of the truth
+    fix = iter(t_fixes)
+    t_next = next(fix)
+    sigma_xy: dict[float, float] = {}  # the fused pose's horizontal sigma (m) at some times
+    for k in range(1, 8001):  # 80 s at 100 Hz
+        t = k * 0.01
+        out = f.add_odometry(k * 10_000_000, _biased_drive(t, 0.5, 0.5))
+        if k in (1000, 7100, 8000):
+            assert out is not None
+            sigma_xy[t] = math.sqrt(float(out.covariance[:2, :2].trace()) / 2)
+        if abs(t - t_next) < 1e-6:
+            y = 2.0 if t == alias_at else 0.0
+            reasons.append(f.add_vloc(k * 10_000_000, make_T(np.eye(3), [true_x(t), y, 0.0])).reason)
+            t_next = next(fix, math.inf)
+    assert out is not None
+    assert reasons[:20].count("accepted") >= 18
+    assert reasons[20:] == ["reanchor_vote"] * 3 + ["reanchored", "accepted"], reasons[20:]
+    err = out.T_map_base[:3, 3] - [true_x(80.0), 0.0, 0.0]
+    assert float(np.linalg.norm(err)) < 0.15, err
+    assert f.stats()["vloc_by_reason"]["reanchored"] == 1
+    # the reported uncertainty grows with the odometry's drift during the outage (30 m: metres)
+    assert sigma_xy[10.0] < 0.1 and sigma_xy[71.0] > 2.0 and sigma_xy[80.0] < 0.2, sigma_xy
+
+
+def test_votes_agree_where_the_robot_is_however_far_the_odometry_origin() -> None:
+    """Two fixes 1 deg apart in heading, 0.1 s apart, 100 m from where the odometry started:
+    their T_map_odom differ by 1.7 m (the heading difference times 100 m), yet they are the
+    same pose within 0.5 m and 10 deg where the robot is, so they initialise the filter."""
+    f = OnlineFusion(FusionParams(init_votes=2), np.eye(4))
+    for k in range(1, 101):
+        f.add_odometry(k * 10_000_000, make_T(np.eye(3), [100.0, 0.0, 0.0]))
+    at = make_T(np.eye(3), [3.0, 1.0, 0.0])
+    assert f.add_vloc(900_000_000, at).reason == "awaiting_init"
+    turned = make_T(so3_exp(np.array([0.0, 0.0, math.radians(1.0)])), [3.0, 1.0, 0.0])
+    assert f.add_vloc(1_000_000_000, turned).reason == "initialised"
