@@ -22,7 +22,10 @@ another lane through the full runtime, then navigate to goal images along it.
    * `odometry_ate_m`: RMSE of the odometry alone (anchored at the true start pose);
    * `localized_fraction`: accepted VLoc poses / frames VLoc processed (and of all frames).
    * `first_fix_s`, `longest_without_fix_s`: sensor seconds to the first accepted VLoc pose, and
-     the longest stretch without one (the robot on odometry alone).
+     the longest stretch without one (the robot on odometry alone), `longest_without_fix_at_s`
+     where that stretch starts (sensor seconds from the lap's start);
+   * `fused_err_p90_m`, `fused_err_max_m`, `fused_err_max_at_s`: the fused error's tail and
+     when its maximum was.
 3. Navigation: `--goals` goal images rendered at equal arc length along the mapping route
    (facing along it), driven to in order from the route's start with LiteVLoc localization
    (`runtime.sim_navigation.run_navigation`, as `sim navigate`), and again with ground-truth
@@ -140,9 +143,14 @@ def query(map_dir: Path, config: str, pass_name: str = "loop-lane", rate: float 
         "vloc_outliers": [{"err_m": round(float(e), 3), "mode": h, **d}
                           for e, h, d in zip(v_err, how, detail, strict=True) if e > 0.5],
         "fused_ate_m": _rmse(f_err), "fused_err_median_m": float(np.median(f_err)) if len(f_err) else None,
+        "fused_err_p90_m": float(np.percentile(f_err, 90)) if len(f_err) else None,
+        "fused_err_max_m": float(f_err.max()) if len(f_err) else None,
+        "fused_err_max_at_s": float((rec.fused_t[int(f_err.argmax())] - int(run.t_ns[0])) * 1e-9)
+        if len(f_err) else None,
         "fused_poses": len(f_err), "odometry_ate_m": _rmse(o_err), "odometry_final_error_m": float(o_err[-1]),
         "odometry_max_error_m": float(o_err.max()),
-        **_time_without_fix(np.array([t for t, _, _ in vloc]) * 1e-9, np.array([t for t, _ in acc]) * 1e-9),
+        **_time_without_fix(np.array([t for t, _, _ in vloc]) * 1e-9, np.array([t for t, _ in acc]) * 1e-9,
+                            int(run.t_ns[0]) * 1e-9),
         "counters": {k: c[k] for k in ("frames_in", "odometry_in", "vloc_calls", "vloc_accepted",
                                        "fusion_accepted", "poses_published") if k in c},
         "faults": list(faults), "faults_applied": dict(injector.counts),
@@ -150,15 +158,17 @@ def query(map_dir: Path, config: str, pass_name: str = "loop-lane", rate: float 
     }
 
 
-def _time_without_fix(t_calls_s: np.ndarray, t_fixes_s: np.ndarray) -> dict[str, float | None]:
+def _time_without_fix(t_calls_s: np.ndarray, t_fixes_s: np.ndarray, t0_s: float) -> dict[str, float | None]:
     """Sensor seconds from the first VLoc call to the first accepted pose, and the longest
     stretch between VLoc calls `t_calls_s` without an accepted pose (`t_fixes_s`, the lap's
-    end included): the time a robot runs on odometry alone."""
+    end included): the time a robot runs on odometry alone, and when it started (after `t0_s`)."""
     if len(t_calls_s) == 0:
-        return {"first_fix_s": None, "longest_without_fix_s": None}
+        return {"first_fix_s": None, "longest_without_fix_s": None, "longest_without_fix_at_s": None}
     edges = np.concatenate([[t_calls_s[0]], np.sort(t_fixes_s), [t_calls_s[-1]]])
+    i = int(np.argmax(np.diff(edges)))
     return {"first_fix_s": float(t_fixes_s.min() - t_calls_s[0]) if len(t_fixes_s) else None,
-            "longest_without_fix_s": float(np.diff(edges).max())}
+            "longest_without_fix_s": float(edges[i + 1] - edges[i]),
+            "longest_without_fix_at_s": float(edges[i] - t0_s)}
 
 
 def loop_goals(world: Any, cfg: Any, n_goals: int) -> tuple[list[Any], Any, list[float]]:
