@@ -79,7 +79,7 @@ class FusionParams:
     late_max_turn_deg: float = 360.0
     # odometry heading drift its random-walk noise misses, 1 sigma per metre since the last accepted VLoc pose (deg/m)
     odom_drift_yaw_deg_per_m: float = 0.5
-    # ... and its scale drift, along the track (m per m driven, 1 sigma)
+    # ... and its scale drift, along the net displacement since that pose (m per m, 1 sigma)
     odom_drift_trans_per_m: float = 0.02
 
     def __post_init__(self) -> None:
@@ -145,9 +145,11 @@ class FusionParams:
 
     def drift_sigmas(self, path_m: float) -> tuple[float, float, float]:
         """(heading rad, along-track m, sideways m) 1-sigma error that the odometry's systematic
-        drift builds over `path_m` metres driven: a scale drift s gives s * L along the track, a
-        constant heading drift rate b gives b * L of heading and b * L^2 / 2 sideways, so it
-        outgrows the random-walk model (square root of L) on a long stretch."""
+        drift builds at most over `path_m` metres driven (a straight drive: a scale drift s gives
+        s * L along the track, a constant heading drift rate b gives b * L of heading and
+        b * L^2 / 2 sideways), so it outgrows the random-walk model (square root of L) on a long
+        stretch. A bound for comparing two poses; the fusion's gate uses the path's own shape
+        (`pipelines/fusion/drift.py`)."""
         b = math.radians(self.odom_drift_yaw_deg_per_m)
         return b * path_m, self.odom_drift_trans_per_m * path_m, 0.5 * b * path_m**2
 

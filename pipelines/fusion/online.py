@@ -24,10 +24,13 @@ Model
   the predicted state (`S = P_pred + R + Q_drift`, 6 dof), then a robust kernel (Huber or
   Cauchy) on the accepted prior. `P_pred` is the marginal covariance of the newest state,
   computed at most every `covariance_period_s` (never per update) and propagated with the
-  odometry noise since. `Q_drift` is the odometry's systematic drift over the path since the
-  last accepted pose (`odom_drift_*`: heading error and along-track error linear in the path,
-  sideways error quadratic), which the graph's random-walk odometry noise (growing with its square root)
-  misses: negligible between fixes a few tenths of a second apart, metres after a 30 m outage.
+  odometry noise since. `Q_drift` is the odometry's systematic drift over the keyframe path
+  since the last accepted pose (`odom_drift_*`, `drift.drift_covariance`: a heading bias turns
+  every later step, a scale error stretches the net displacement; each along the direction the
+  path itself gives in the odometry frame, so what a turn moves from sideways to along the track
+  stays allowed for), which the graph's random-walk odometry noise (growing with the square root
+  of the path) misses: negligible between fixes a few tenths of a second apart, metres after a
+  30 m outage.
 * **Re-anchoring**: a pose that passes the gate only thanks to `Q_drift` says the graph is
   overconfident (a robust prior would barely move it); it is a vote, and `init_votes`
   consecutive agreeing votes restart the filter from them (`reanchored`).
@@ -90,6 +93,7 @@ from litevloc.base.geometry import (
 )
 from litevloc.base.params.fusion import FusionParams
 from litevloc.base.stats import percentile
+from litevloc.pipelines.fusion.drift import PathMoments, drift_covariance
 
 F64 = NDArray[np.float64]
 
@@ -246,7 +250,10 @@ class OnlineFusion:
         self._cov_t: int | None = None
         self._cov_key_T_odom: F64 = np.eye(4)
         self._pending_keyframe: tuple[int, F64, F64] | None = None  # (t, T_odom_base, D): defer_update=True
-        self._since_fix_m = 0.0  # keyframe path from the newest accepted VLoc pose's state to the newest state
+        # Keyframe path sums from the filter's start, per window state, and at the newest accepted
+        # VLoc pose's state (the drift's origin; kept when that state leaves the window).
+        self._moments: dict[int, PathMoments] = {}
+        self._fix: tuple[PathMoments, F64] = (PathMoments.zero(), np.zeros(3))
 
     def _stamp(self, t_ns: int) -> float:
         assert self._t0_ns is not None
@@ -271,7 +278,7 @@ class OnlineFusion:
         self._update_ms.append((time.perf_counter() - t0) * 1e3)
         horizon = self._keys[-1][1] - int(self.params.lag_s * 1e9)
         while self._keys and self._keys[0][1] < horizon:  # mirror what the smoother marginalised
-            self._keys.popleft()
+            self._moments.pop(self._keys.popleft()[0], None)
         return True
 
     def _odom_cov(self, T_a: F64, T_b: F64) -> F64:
@@ -299,6 +306,8 @@ class OnlineFusion:
         key = gtsam.symbol("x", self._next_index)
         self._next_index += 1
         self._keys.append((key, c.t_ns, c.T_odom_base))
+        self._moments[key] = PathMoments.zero()
+        self._fix = (PathMoments.zero(), c.T_odom_base[:3, 3].copy())
         graph = gtsam.NonlinearFactorGraph()
         graph.add(
             gtsam.PriorFactorPose3(
@@ -367,7 +376,7 @@ class OnlineFusion:
         assert self._last_est is not None
         values.insert(key, _pose3(self._last_est @ D))
         self._keys.append((key, t_ns, T_odom_base))
-        self._since_fix_m += math.sqrt(float(D[:3, 3] @ D[:3, 3]))
+        self._moments[key] = self._moments[key_prev].step(T_prev[:3, 3], T_odom_base[:3, 3])
         self._counts["keyframes"] += 1
         if not self._update(graph, values, {key: self._stamp(t_ns)}):
             return
@@ -467,10 +476,16 @@ class OnlineFusion:
 
     def _output(self, t_ns: int, T_odom_base: F64) -> FusedPose:
         assert self._last_est is not None
-        _, _, T_key_odom = self._keys[-1]
+        key, _, T_key_odom = self._keys[-1]
         T_map_odom = self._last_est @ _inv(T_key_odom)
         T_map_base = T_map_odom @ T_odom_base
-        cov = self._cov_state + self._odom_cov(self._cov_key_T_odom, T_odom_base) + self._drift_cov(self._since_fix_m)
+        # The drift up to the newest keyframe, in the frame of the base now.
+        T_drift = np.vstack([np.hstack([T_odom_base[:3, :3], T_key_odom[:3, 3:4]]), _ROW3])
+        cov = (
+            self._cov_state
+            + self._odom_cov(self._cov_key_T_odom, T_odom_base)
+            + self._drift_cov(key, T_drift)
+        )
         return FusedPose(t_ns, T_map_base, T_map_odom, gtsam_to_ros_covariance(cov), True)
 
     def current(self) -> FusedPose | None:
@@ -560,7 +575,7 @@ class OnlineFusion:
         xi = gtsam.Pose3.Logmap(pred.between(_pose3(meas)))
         S = self._cov_state + self._odom_cov(self._cov_key_T_odom, self._keys[-1][2]) + cov_meas
         m2_walk = float(xi @ np.linalg.solve(S, xi))  # the graph's own (random-walk) uncertainty
-        m2 = float(xi @ np.linalg.solve(S + self._drift_cov(self._since_fix_m), xi))
+        m2 = float(xi @ np.linalg.solve(S + self._drift_cov(key, T_key_odom), xi))
         if gate and p.gate_chi2 > 0 and m2 > p.gate_chi2:
             self._consecutive_rejects += 1
             self._rejected.append(cand)
@@ -581,7 +596,8 @@ class OnlineFusion:
         self._consecutive_rejects = 0
         self._rejected.clear()
         self._reanchor.clear()
-        self._since_fix_m = min(self._since_fix_m, self._path_after(key))
+        if key in self._moments and self._moments[key].length_m > self._fix[0].length_m:
+            self._fix = (self._moments[key], T_key_odom[:3, 3].copy())  # the drift restarts here
         graph = gtsam.NonlinearFactorGraph()
         graph.add(gtsam.PriorFactorPose3(key, _pose3(meas), vloc_noise_model(cov_meas, self.params)))
         if not self._update(graph, gtsam.Values(), {}):
@@ -619,20 +635,20 @@ class OnlineFusion:
                 return False
         return True
 
-    def _drift_cov(self, path_m: float) -> F64:
-        """Covariance (GTSAM order, base_link frame of a ground robot) of the odometry's systematic
-        drift over `path_m` metres: heading on rot_z, scale along x (forward), heading's share on y
-        (a straight drive's; after turns it is split between x and y, which this ignores, so that
-        along the camera's axis the gate stays as narrow as the scale drift allows)."""
-        yaw, along, side = self.params.drift_sigmas(path_m)
-        return np.diag([0.0, 0.0, yaw**2, along**2, side**2, 0.0])
-
-    def _path_after(self, key: int) -> float:
-        """Metres the window's keyframes moved from state `key` to the newest state."""
-        Ts = [T for k, _, T in itertools.dropwhile(lambda e: e[0] != key, self._keys)]
-        return sum(
-            math.sqrt(float(D[:3, 3] @ D[:3, 3]))
-            for D in (_inv(A) @ B for A, B in itertools.pairwise(Ts))
+    def _drift_cov(self, key: int, T_odom_base: F64) -> F64:
+        """Covariance (GTSAM order, body frame of `T_odom_base`) of the odometry's systematic drift
+        over the keyframe path from the newest accepted VLoc pose's state to state `key`
+        (`drift.drift_covariance`; zero for a state before that one)."""
+        moments, p_fix = self._fix
+        if self._moments[key].length_m <= moments.length_m:
+            return np.zeros((6, 6))
+        p = self.params
+        return drift_covariance(
+            self._moments[key].since(moments),
+            p_fix,
+            T_odom_base,
+            math.radians(p.odom_drift_yaw_deg_per_m),
+            p.odom_drift_trans_per_m,
         )
 
     def _odometry_path(self, t_a: int, t_b: int) -> tuple[float, float]:

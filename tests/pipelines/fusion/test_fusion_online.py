@@ -411,3 +411,36 @@ def test_votes_agree_where_the_robot_is_however_far_the_odometry_origin() -> Non
     assert f.add_vloc(900_000_000, at).reason == "awaiting_init"
     turned = make_T(so3_exp(np.array([0.0, 0.0, math.radians(1.0)])), [3.0, 1.0, 0.0])
     assert f.add_vloc(1_000_000_000, turned).reason == "initialised"
+
+
+def test_after_an_outage_with_a_turn_fixes_reanchor_where_the_drift_lies_along_the_track() -> None:
+    """Fixes every 0.5 s for 10 s of a 1 m/s drive along x, then none while it drives 60 m on,
+    turns left on the spot and drives 6 m along y, the odometry's heading drifting 0.5 deg per
+    metre: the first leg's sideways error (~16 m) now lies along the track, where a drift model
+    in base_link (sideways b L^2 / 2, along-track only the 2 % scale) gated every correct fix.
+    Counted in the odometry frame, the drift is where the path put it: the first correct fix
+    votes, the second re-anchors, the third is accepted."""
+    b = math.radians(0.5)
+    true_pose, odo_pose = np.zeros(3), np.zeros(3)  # (x, y, heading)
+    f = OnlineFusion(FusionParams(), np.eye(4))
+    fixes = [0.5 * k for k in range(1, 21)] + [80.0, 81.0, 82.0]
+    reasons: list[str] = []
+    out = None
+    for k in range(1, 8301):  # 83 s at 100 Hz
+        t = k * 0.01
+        ds = 0.01 if t <= 70.0 or 72.0 < t <= 78.0 else 0.0  # 70 m along x, 6 m along y, stop
+        dth = math.radians(45.0) * 0.01 if 70.0 < t <= 72.0 else 0.0  # 90 deg on the spot
+        for pose, bias in ((true_pose, 0.0), (odo_pose, b)):
+            pose[2] += dth + bias * ds
+            pose[:2] += ds * np.array([math.cos(pose[2]), math.sin(pose[2])])
+        out = f.add_odometry(
+            k * 10_000_000, make_T(so3_exp(np.array([0.0, 0.0, odo_pose[2]])), [*odo_pose[:2], 0.0])
+        )
+        if any(abs(t - tf) < 1e-6 for tf in fixes):
+            T_true = make_T(so3_exp(np.array([0.0, 0.0, true_pose[2]])), [*true_pose[:2], 0.0])
+            reasons.append(f.add_vloc(k * 10_000_000, T_true).reason)
+    assert out is not None
+    assert reasons[:20].count("accepted") >= 18
+    assert reasons[20:] == ["reanchor_vote", "reanchored", "accepted"], reasons[20:]
+    np.testing.assert_allclose(true_pose, [70.0, 6.0, math.pi / 2], atol=1e-6)
+    assert float(np.linalg.norm(out.T_map_base[:2, 3] - true_pose[:2])) < 0.15
