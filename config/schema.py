@@ -11,6 +11,7 @@ module. Each field carries its description as the one `#` line above it
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -311,6 +312,8 @@ class RuntimeConfig:
     odometry_queue_capacity: int = 4096
     # VLoc result FIFO capacity (results)
     result_queue_capacity: int = 64
+    # realtime: before a frame's VLoc, wait at most this long for fusion to take the previous result (ms; 0 = no wait)
+    prior_wait_ms: float = 100.0
     # outbox FIFO capacity (messages)
     publish_queue_capacity: int = 4096
     # the fusion thread serialises and puts on Zenoh itself (false: through the outbox to a publisher thread)
@@ -371,6 +374,8 @@ class RuntimeConfig:
                 raise ValueError(f"runtime.{name} must be >= 1, got {getattr(self, name)}")
         if self.stage_max_restarts < 0:
             raise ValueError("runtime.stage_max_restarts must be >= 0")
+        if not (math.isfinite(self.prior_wait_ms) and self.prior_wait_ms >= 0):
+            raise ValueError(f"runtime.prior_wait_ms must be a finite number >= 0, got {self.prior_wait_ms}")
         if not 0 <= self.fusion_rt_priority <= 99:
             raise ValueError(f"runtime.fusion_rt_priority must be in [0, 99], got {self.fusion_rt_priority}")
         if not 0 <= self.vloc_nice <= 19:

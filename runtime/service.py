@@ -96,7 +96,7 @@ VlocFn = Callable[[RgbdFrame, VlocPrior | None], VlocOutcome]
 #: counters the shell owns (the core's are in `localization_core.CORE_COUNTERS`)
 SHELL_COUNTERS = ("frames_in", "odometry_in", "odometry_ignored", "ground_truth_in", "vloc_calls", "poses_published",
                   "poses_withheld", "map_to_odom_published", "vloc_published", "status_published",
-                  "frames_decoded", "frames_undecodable", "odometry_left_at_stop")
+                  "frames_decoded", "frames_undecodable", "odometry_left_at_stop", "prior_waits_timed_out")
 
 
 class PublisherLike(Protocol):
@@ -175,7 +175,7 @@ class Service:
 
         self._stop = threading.Event()
         self._stop_reason: str | None = None
-        self._progress = threading.Condition()  # deterministic lockstep only
+        self._progress = threading.Condition()  # deterministic lockstep; realtime: results taken by fusion
         det = p.mode == "deterministic"
         w = p.latency_window
         self.frames: QueueBase[RgbdFrame | EncodedRgbdFrame] = (
@@ -194,6 +194,10 @@ class Service:
         self._odom_done = 0
         self._frames_pushed = 0
         self._vloc_done = 0
+        self._results_put = 0  # vloc thread
+        self._fix_in_flight = False  # vloc thread: the last result it put was an accepted fix
+        self._prior_waiting = False  # vloc thread: waits in `_await_previous_fix`
+        self._odom_at_result = 0  # fusion thread: odometry messages handled when it took the last result
         self._last_odom_wall: float | None = None
         self._last_frame_wall: float | None = None
         self.e2e = LatencyWindow(w)  # odometry into the FIFO -> pose handed to Zenoh (ms)
@@ -385,8 +389,9 @@ class Service:
                 if self.on_ground_truth is not None:
                     self.on_ground_truth(msg)
 
-    def _notify_progress(self) -> None:
-        if self.params.mode == "deterministic":
+    def _notify_progress(self, waiter: bool = False) -> None:
+        """Wake the source (deterministic mode) or a `waiter` (the VLoc thread, `_await_previous_fix`)."""
+        if self.params.mode == "deterministic" or waiter:
             with self._progress:
                 self._progress.notify_all()
 
@@ -395,6 +400,8 @@ class Service:
         res = self._vloc(frame)
         try:
             self.results.put(res)
+            self._results_put += 1
+            self._fix_in_flight = bool(res.accepted)
         except QueueClosed:  # shutdown closed the queue while this frame was in VLoc: not a stage failure
             if not self._stop.is_set():
                 raise
@@ -410,9 +417,33 @@ class Service:
                 self.shell_counters["frames_undecodable"] += 1
                 return RejectedFrame(frame.t_ns, False, f"bad frame: {exc}")
             self.shell_counters["frames_decoded"] += 1
+        self._await_previous_fix()
         res = self.vloc_fn(frame, self.core.prior(frame.t_ns))
         self.core.note_fix(res)  # before the next frame's prior, whenever the fusion thread takes it
         return res
+
+    def _await_previous_fix(self) -> None:
+        """Realtime, after a frame whose result was an accepted fix: wait at most `prior_wait_ms`
+        until fusion took that result and a fused pose followed it (the next odometry message),
+        so the next frame's prior holds the fix. Without it the prior lagged one VLoc call (the
+        result went into the queue as the next frame asked for its prior): a 4 s VLoc's prior
+        was always two calls old, too old to confirm a pose. Timeouts are counted."""
+        wait_ms = self.params.prior_wait_ms
+        if self.params.mode != "realtime" or wait_ms <= 0 or not self._fix_in_flight:
+            return
+        n = self._results_put
+
+        def fused_after() -> bool:
+            taken = self._vloc_done + self._errors() >= n
+            return (taken and self._odom_done > self._odom_at_result) or self._stop.is_set()
+
+        self._prior_waiting = True
+        try:
+            with self._progress:
+                if not self._progress.wait_for(fused_after, wait_ms * 1e-3):
+                    self.shell_counters["prior_waits_timed_out"] += 1
+        finally:
+            self._prior_waiting = False
 
     # ------------------------------------------------------------------ fusion thread
     def _handle_odometry_item(self, item: tuple[int, Odometry]) -> None:
@@ -425,15 +456,16 @@ class Service:
                 self.after_odometry()
         finally:
             self._odom_done += 1
-            self._notify_progress()
+            self._notify_progress(waiter=self._prior_waiting)
 
     def _handle_result(self, res: VlocOutcome) -> None:
         try:
             for out in self.core.vloc_result(res):
                 self._out(out)
         finally:
+            self._odom_at_result = self._odom_done
             self._vloc_done += 1
-            self._notify_progress()
+            self._notify_progress(waiter=True)
 
     # ------------------------------------------------------------------ publisher thread
     def _handle_publish(self, out: CoreOutput) -> None:

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import threading
+import time
+
 import numpy as np
 import pytest
 
@@ -12,7 +15,7 @@ from litevloc.config.schema import RuntimeConfig
 from litevloc.hw.messages import Odometry, RgbdFrame
 from litevloc.pipelines.fusion.online import OnlineFusion
 from litevloc.runtime.service import Service, fusion_callables
-from litevloc.runtime.vloc_prior import OdometryHistory, prior_at
+from litevloc.runtime.vloc_prior import OdometryHistory, VlocPrior, prior_at
 from tests.runtime.fakes import MS, T_MAP_ODOM_TRUE, FakeFusion, FakePublisher, Result, T_odom_base_at, Update
 
 
@@ -157,3 +160,55 @@ def test_the_next_frames_prior_has_the_fix_before_the_fusion_thread_takes_it() -
     assert prior is not None and prior.age_s == pytest.approx(0.7)
     truth = T_MAP_ODOM_TRUE @ T_odom_base_at(800 * MS) @ T_BASE_CAMERA_OPTICAL
     assert relative_pose_error(prior.T_map_camera, truth)[0] < 1e-3
+
+
+@pytest.mark.timeout(30)
+@pytest.mark.parametrize("wait_ms", [100.0, 0.0])
+def test_realtime_next_frames_prior_holds_the_fix_fusion_takes_meanwhile(wait_ms: float) -> None:
+    """Realtime: VLoc puts an accepted fix (captured at 0.6 s) in the results queue and takes the
+    next frame (1.0 s) at once, while the fusion thread takes that result 30 ms later. The next
+    frame's prior waits for it (and for the fused pose after it) and is 0.4 s old, not 0.9 s:
+    without the wait (`prior_wait_ms` 0) it is the fix before, and a VLoc slower than the
+    robot's prior gate (4 s per call) never had a prior fresh enough to confirm a pose."""
+    fusion = FakeFusion()
+    on_odom, on_vloc = fusion.add_odometry, fusion.add_vloc
+    priors: list[VlocPrior | None] = []
+    shifted = np.eye(4)
+    shifted[0, 3] = 0.1  # the fix at 0.6 s says the map is 0.1 m off from where the first one put it
+
+    def vloc_fn(frame: RgbdFrame, prior: VlocPrior | None) -> Result:
+        priors.append(prior)
+        T = T_MAP_ODOM_TRUE @ T_odom_base_at(frame.t_ns) @ T_BASE_CAMERA_OPTICAL
+        return Result(frame.t_ns, True, "ok", shifted @ T if frame.t_ns == 600 * MS else T, np.eye(6) * 1e-4)
+
+    svc = Service([], vloc_fn, on_odom, on_vloc, FakePublisher(),
+                  RuntimeConfig(mode="realtime", prior_wait_ms=wait_ms))
+    for k in range(0, 201):  # odometry at 200 Hz for 1 s, the first fix at 0.1 s
+        t = k * 5 * MS + 1
+        svc._handle_odometry_item((0, Odometry(t, T_odom_base_at(t))))
+        if k == 20:  # through the results queue, as the VLoc thread hands on every result
+            svc._handle_frame(RgbdFrame(100 * MS, np.zeros((8, 8, 3), np.uint8), None, np.eye(3)))
+            svc._handle_result(svc.results.get(1.0))
+    priors.clear()
+    svc._handle_frame(RgbdFrame(600 * MS, np.zeros((8, 8, 3), np.uint8), None, np.eye(3)))
+
+    def fusion_thread() -> None:
+        time.sleep(0.03)
+        svc._handle_result(svc.results.get(1.0))
+        time.sleep(0.01)
+        svc._handle_odometry_item((0, Odometry(1005 * MS, T_odom_base_at(1005 * MS))))
+
+    th = threading.Thread(target=fusion_thread)
+    th.start()
+    svc._vloc(RgbdFrame(1000 * MS, np.zeros((8, 8, 3), np.uint8), None, np.eye(3)))
+    th.join()
+    assert priors[0] is not None and priors[1] is not None
+    ages = [p.age_s for p in priors if p is not None]
+    truth = T_MAP_ODOM_TRUE @ T_odom_base_at(1000 * MS) @ T_BASE_CAMERA_OPTICAL
+    off = relative_pose_error(priors[1].T_map_camera, truth)[0]
+    assert ages[0] == pytest.approx(0.5)  # the frame at 0.6 s: the fix at 0.1 s
+    if wait_ms:  # the fix at 0.6 s, its age and its correction
+        assert ages[1] == pytest.approx(0.4) and off == pytest.approx(0.1)
+        assert svc.shell_counters["prior_waits_timed_out"] == 0
+    else:
+        assert ages[1] == pytest.approx(0.9) and off < 1e-6
