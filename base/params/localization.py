@@ -209,7 +209,7 @@ class LocalizationParams:
     candidate_radius_m: float = 3.0
     # LL candidates: keyframes looking within this angle of the prior (degrees)
     max_view_angle_deg: float = 90.0
-    # LL candidates verified per query at most
+    # LL candidates by place descriptor per query (then the nearest, where they leave it out)
     ll_max_candidates: int = 3
     # LL with a fresh prior: guided matches stand in for the matcher's when at least this many (0 = off)
     ll_guided_min_matches: int = 60

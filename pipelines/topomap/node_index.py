@@ -74,8 +74,9 @@ class NodeIndex:
         than `trigger_m`; else the nearest node, its covisible `neighbours` and every node
         within `radius_m`, keeping those within max(radius_m, distance to the nearest node)
         whose optical axis is within `max_view_angle_deg` of the prior's; ranked by
-        similarity of `vpr` (N, D) rows to `desc` (D,), ties by node id; at most
-        `max_candidates`. `T_map_camera` (N, 4, 4) are the node poses of this index."""
+        similarity of `vpr` (N, D) rows to `desc` (D,), ties by node id; the first
+        `max_candidates`, then the nearest kept node where they leave it out.
+        `T_map_camera` (N, 4, 4) are the node poses of this index."""
         prior = np.asarray(prior_T_map_camera, dtype=np.float64)
         p = prior[:3, 3]
         nearest, d_near = self.nearest(p)
@@ -92,7 +93,13 @@ class NodeIndex:
             return []
         sims = vpr[keep] @ np.asarray(desc, dtype=np.float32)
         ranked = sorted(zip(keep.tolist(), sims.tolist(), strict=True), key=lambda x: (-x[1], x[0]))
-        return ranked[:max_candidates]
+        top = ranked[:max_candidates]
+        # The nearest kept node is always tried, last where VPR ranks it lower: along a repeating
+        # texture place descriptors rank the neighbours alike, and the nearest is the one a good prior verifies.
+        i = int(np.argmin(np.linalg.norm(self.positions[keep] - p, axis=1)))
+        if all(n != int(keep[i]) for n, _ in top):
+            top.append((int(keep[i]), float(sims[i])))
+        return top
 
 
 def neighbour_lists(edges: NDArray[np.integer], weights: NDArray[np.floating], n: int) -> list[list[int]]:

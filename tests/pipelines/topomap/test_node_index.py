@@ -21,8 +21,30 @@ def brute_local_candidates(pos, T, vpr, neighbours, prior, desc, radius, trigger
     cand = {nearest} | set(neighbours[nearest])
     cand |= {int(i) for i in np.nonzero(d <= radius)[0]}
     keep = [i for i in cand if d[i] <= max(radius, d[nearest]) and float(T[i][:3, 2] @ prior[:3, 2]) >= cos_max]
-    sims = vpr[keep] @ desc if keep else np.zeros(0)
-    return sorted(zip(keep, sims.tolist(), strict=True), key=lambda x: (-x[1], x[0]))[:k]
+    if not keep:
+        return []
+    sims = vpr[keep] @ desc
+    top = sorted(zip(keep, sims.tolist(), strict=True), key=lambda x: (-x[1], x[0]))[:k]
+    near = min(keep, key=lambda i: (d[i], i))  # the nearest kept node is always tried
+    return top if any(n == near for n, _ in top) else [*top, (near, float(vpr[near] @ desc))]
+
+
+def test_the_nearest_node_is_tried_where_place_descriptors_rank_it_out() -> None:
+    """A corridor of 6 nodes 0.6 m apart looking the same way; the descriptors (as along a
+    repeating texture) rank the farther ones first: the nearest comes last, after the top 3."""
+    pos = np.array([[0.6 * i, 0.0, 0.0] for i in range(6)])
+    T = np.tile(np.eye(4), (6, 1, 1))
+    T[:, :3, 3] = pos
+    vpr = np.eye(6, dtype=np.float32)
+    desc = np.array([0.1, 0.2, 0.9, 0.8, 0.7, 0.6], dtype=np.float32)  # node 0 least alike
+    idx = NodeIndex(pos)
+    prior = np.eye(4)
+    prior[0, 3] = 0.05  # at node 0
+    got = idx.local_candidates(prior, desc, vpr, T, [[] for _ in range(6)], 3.0, 5.0, 90.0, 3)
+    assert [n for n, _ in got] == [2, 3, 4, 0]
+    prior[0, 3] = 1.8  # at node 3, already among the top 3: nothing added
+    got = idx.local_candidates(prior, desc, vpr, T, [[] for _ in range(6)], 3.0, 5.0, 90.0, 3)
+    assert [n for n, _ in got] == [2, 3, 4]
 
 
 def random_map(n: int, rng: np.random.Generator, extent: float = 30.0):  # type: ignore[no-untyped-def]
