@@ -152,7 +152,7 @@ def query(map_dir: Path, config: str, pass_name: str = "loop-lane", rate: float 
         **_time_without_fix(np.array([t for t, _, _ in vloc]) * 1e-9, np.array([t for t, _ in acc]) * 1e-9,
                             int(run.t_ns[0]) * 1e-9),
         "counters": {k: c[k] for k in ("frames_in", "odometry_in", "vloc_calls", "vloc_accepted",
-                                       "fusion_accepted", "poses_published") if k in c},
+                                       "fusion_accepted", "poses_published", "prior_waits_timed_out") if k in c},
         "faults": list(faults), "faults_applied": dict(injector.counts),
         "fusion_vloc_by_reason": app.fusion.stats()["vloc_by_reason"],
     }

@@ -433,9 +433,8 @@ class Service:
             return
         n = self._results_put
 
-        def fused_after() -> bool:
-            taken = self._vloc_done + self._errors() >= n
-            return (taken and self._odom_done > self._odom_at_result) or self._stop.is_set()
+        def fused_after() -> bool:  # `_vloc_done` counts every result taken, a failed one too
+            return (self._vloc_done >= n and self._odom_done > self._odom_at_result) or self._stop.is_set()
 
         self._prior_waiting = True
         try:
@@ -465,7 +464,7 @@ class Service:
         finally:
             self._odom_at_result = self._odom_done
             self._vloc_done += 1
-            self._notify_progress(waiter=True)
+            self._notify_progress(waiter=self._prior_waiting)
 
     # ------------------------------------------------------------------ publisher thread
     def _handle_publish(self, out: CoreOutput) -> None:

@@ -68,8 +68,11 @@ def drift_covariance(
 
     `yaw_rate_sigma`: heading bias, rad per metre (1 sigma); `scale_sigma`: scale error, m per
     m (1 sigma). Rank two: the heading bias moves heading and position together (correlated),
-    the scale error moves the position along the net displacement.
+    the scale error moves the position along the net displacement. Zero for an empty path (the
+    end is not after the fix).
     """
+    if path.length_m <= 0:
+        return np.zeros((6, 6))
     R = T_odom_base[:3, :3]
     p_end = T_odom_base[:3, 3]
     L = path.length_m

@@ -640,8 +640,6 @@ class OnlineFusion:
         over the keyframe path from the newest accepted VLoc pose's state to state `key`
         (`drift.drift_covariance`; zero for a state before that one)."""
         moments, p_fix = self._fix
-        if self._moments[key].length_m <= moments.length_m:
-            return np.zeros((6, 6))
         p = self.params
         return drift_covariance(
             self._moments[key].since(moments),

@@ -88,7 +88,8 @@ class NodeIndex:
         d = np.linalg.norm(self.positions[cand] - p, axis=1)
         cos_max = np.cos(np.radians(max_view_angle_deg))
         view = np.asarray(T_map_camera, dtype=np.float64)[cand, :3, 2] @ prior[:3, 2]
-        keep = cand[(d <= max(radius_m, d_near)) & (view >= cos_max)]
+        kept = (d <= max(radius_m, d_near)) & (view >= cos_max)
+        keep = cand[kept]
         if len(keep) == 0:
             return []
         sims = vpr[keep] @ np.asarray(desc, dtype=np.float32)
@@ -96,7 +97,7 @@ class NodeIndex:
         top = ranked[:max_candidates]
         # The nearest kept node is always tried, last where VPR ranks it lower: along a repeating
         # texture place descriptors rank the neighbours alike, and the nearest is the one a good prior verifies.
-        i = int(np.argmin(np.linalg.norm(self.positions[keep] - p, axis=1)))
+        i = int(np.argmin(d[kept]))
         if all(n != int(keep[i]) for n, _ in top):
             top.append((int(keep[i]), float(sims[i])))
         return top
