@@ -14,6 +14,10 @@ class GoalParams:
 
     # keyframes retrieved by VPR for a goal image and verified
     top_k: int = 5
+    # this many keyframes most similar by VPR re-ordered by mutual-nearest-neighbour count before the top_k (0 = off)
+    rerank_depth: int = 0
+    # cosine similarity of the descriptors a mutual nearest neighbour of that count needs
+    rerank_min_similarity: float = 0.7
     # essential-matrix inliers that verify a goal image's place
     min_inliers: int = 30
     # essential-matrix RANSAC threshold (pixels)
@@ -60,6 +64,8 @@ class GoalParams:
     def __post_init__(self) -> None:
         if self.top_k < 1 or self.min_inliers < 8 or self.ransac_px <= 0:
             raise ValueError("top_k >= 1, min_inliers >= 8 and ransac_px > 0 required")
+        if self.rerank_depth < 0 or not -1 <= self.rerank_min_similarity <= 1:
+            raise ValueError("rerank_depth >= 0 and rerank_min_similarity in [-1, 1] required")
         if self.pose_min_inliers < 6 or self.pose_px <= 0 or self.pose_max_m <= 0:
             raise ValueError("pose_min_inliers >= 6, pose_px > 0 and pose_max_m > 0 required")
         if self.ambiguity_ratio < 0 or 0 < self.ambiguity_ratio < 1:

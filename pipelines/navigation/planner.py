@@ -2,8 +2,10 @@
 
 * `localize_goal`: the goal image is placed on a map node by VPR top-k retrieval **plus
   geometric verification** (the published research code takes VPR top-1 unchecked): the
-  goal's features are matched to each candidate keyframe's cached features and an
-  essential matrix is fitted with RANSAC; the keyframes near the strongest candidates (in
+  first `top_k` keyframes by place descriptor (with `rerank_depth` > 0, the first that many
+  re-ordered by their count of mutual nearest neighbours with the goal's local descriptors,
+  `rerank`) are the candidates; the goal's features are matched to each candidate keyframe's cached
+  features and an essential matrix is fitted with RANSAC; the keyframes near the strongest candidates (in
   place and viewing direction) are verified too, since the one that saw the goal's view
   best often ranks far down in retrieval; the candidate with most inliers wins if it has
   at least `min_inliers`. A goal that matches no place is reported as such. Where the map
@@ -50,6 +52,7 @@ from scipy.sparse.csgraph import dijkstra
 from litevloc.base.errors import LiteVLocError
 from litevloc.base.geometry import backproject_pixels, invert
 from litevloc.base.params.navigation import GoalParams, TrackerParams
+from litevloc.pipelines.guided_matching import mutual_nn_pairs
 from litevloc.pipelines.pnp import solve_pnp
 from litevloc.pipelines.topomap.node_index import ZERO_EDGE_M, NodeIndex
 from litevloc.pipelines.topomap.types import FeatureSet, TopoMap
@@ -224,6 +227,22 @@ def _neighbours(topomap: TopoMap, cands: list[_Candidate], params: GoalParams) -
     return out
 
 
+def rerank(goal_feats: FeatureSet, topomap: TopoMap, ranked: NDArray[np.int64],
+           params: GoalParams) -> NDArray[np.int64]:
+    """The first `rerank_depth` nodes of `ranked` (VPR order, best first) re-ordered by their
+    mutual-nearest-neighbour count with the goal's descriptors (VPR order breaking ties), then
+    the rest; `ranked` unchanged with `rerank_depth` 0. The place descriptor ranks the keyframe
+    that saw the goal's view far down where the view is plain or seen from a new height; the
+    local descriptors, compared without a model, still find it."""
+    head = ranked[: params.rerank_depth]
+    if len(head) < 2:
+        return ranked
+    goal = np.asarray(goal_feats.descriptors)
+    counts = [len(mutual_nn_pairs(goal, topomap.features[int(n)].descriptors, params.rerank_min_similarity)[0])
+              for n in head]
+    return np.concatenate([head[np.argsort(-np.asarray(counts), kind="stable")], ranked[len(head):]])
+
+
 def localize_goal(
     goal_feats: FeatureSet, goal_desc: NDArray[np.float32], K_goal: NDArray[np.float64], topomap: TopoMap,
     match: MatchFn, params: GoalParams = GoalParams(),
@@ -233,7 +252,7 @@ def localize_goal(
     place's PnP support exceeds 1/`ambiguity_ratio` of the chosen one's). One match per
     top-k candidate serves both the essential matrix and the PnP."""
     sims = topomap.vpr @ np.asarray(goal_desc, np.float32)
-    order = np.argsort(-sims, kind="stable")[: params.top_k]
+    order = rerank(goal_feats, topomap, np.argsort(-sims, kind="stable"), params)[: params.top_k]
 
     def verify(node: int) -> _Candidate:
         feats, K_node = topomap.features[node], topomap.K[node]

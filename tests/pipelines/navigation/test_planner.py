@@ -148,12 +148,13 @@ def test_goal_that_verifies_at_two_places_is_refused_as_ambiguous() -> None:
     goal, _ = observe(T_goal)
     desc = np.zeros(4, np.float32)
     desc[2] = 1.0
-    res = localize_goal(goal, desc, K, twin, match_by_id, GoalParams(top_k=2, expand_k=0))
+    res = localize_goal(goal, desc, K, twin, match_by_id, GoalParams(rerank_depth=0, top_k=2, expand_k=0))
     assert res.node is None and res.T_map_goal is None
     assert "ambiguous" in res.reason and "0" in res.reason and "2" in res.reason and "2.0 m apart" in res.reason
     assert "horizontal surface" not in res.reason  # the support spans heights: no floor-tile hint
     # the veto off: a node is chosen as before
-    res_off = localize_goal(goal, desc, K, twin, match_by_id, GoalParams(top_k=2, ambiguity_ratio=0, expand_k=0))
+    res_off = localize_goal(goal, desc, K, twin, match_by_id,
+                            GoalParams(rerank_depth=0, top_k=2, ambiguity_ratio=0, expand_k=0))
     assert res_off.node in (0, 2) and res_off.reason == "ok"
     # a weak copy: node 0 keeps every third keypoint of node 2's view
     f2 = feats[2]
@@ -162,7 +163,7 @@ def test_goal_that_verifies_at_two_places_is_refused_as_ambiguous() -> None:
                                scores=f2.scores[keep], depth=f2.depth[keep])
     feats[0] = weak
     res_weak = localize_goal(goal, desc, K, dataclasses.replace(md, features=feats), match_by_id,
-                             GoalParams(top_k=2, expand_k=0))
+                             GoalParams(rerank_depth=0, top_k=2, expand_k=0))
     assert res_weak.node == 2 and res_weak.reason == "ok" and res_weak.T_map_goal is not None
     np.testing.assert_allclose(res_weak.T_map_goal, T_goal, atol=1e-6)
 
@@ -181,9 +182,9 @@ def test_covisible_keyframes_are_one_place_not_a_rival() -> None:
     goal, _ = observe(T_goal)
     desc = np.zeros(4, np.float32)
     desc[2] = 1.0
-    alone = GoalParams(top_k=2, expand_k=0)
+    alone = GoalParams(rerank_depth=0, top_k=2, expand_k=0)
     assert localize_goal(goal, desc, K, twin, match_by_id, alone).node is None  # not linked: refused
-    res = localize_goal(goal, desc, K, linked, match_by_id, GoalParams(top_k=2, expand_k=0))
+    res = localize_goal(goal, desc, K, linked, match_by_id, GoalParams(rerank_depth=0, top_k=2, expand_k=0))
     assert res.node in (0, 2) and res.reason == "ok" and res.T_map_goal is not None
 
 
@@ -263,7 +264,7 @@ def test_goal_supported_by_one_flat_patch_needs_more_inliers(monkeypatch: pytest
     T_goal = pose(2.3, yaw_deg=10.0)
     desc = np.zeros(4, np.float32)
     desc[2] = 1.0
-    params = GoalParams(top_k=1, min_inliers=40, planar_rms_m=0.03, planar_factor=2.0, expand_k=0)
+    params = GoalParams(rerank_depth=0, top_k=1, min_inliers=40, planar_rms_m=0.03, planar_factor=2.0, expand_k=0)
     # a scene spread in depth: 60 keypoints per keyframe verify (40 <= inliers < 80)
     goal, _ = observe(T_goal)
     res = localize_goal(goal, desc, K, _sparse_map(60), match_by_id, params)
@@ -310,9 +311,11 @@ def test_keyframes_near_the_strongest_candidate_are_verified_too() -> None:
     feats, _ = observe(pose(2.1))
     desc = np.zeros(4, np.float32)
     desc[0] = 1.0
-    alone = localize_goal(feats, desc, K, m, match_by_id, GoalParams(top_k=1, min_inliers=8, expand_k=0))
+    alone = localize_goal(feats, desc, K, m, match_by_id,
+                          GoalParams(rerank_depth=0, top_k=1, min_inliers=8, expand_k=0))
     assert [c[0] for c in alone.candidates] == [0]
-    res = localize_goal(feats, desc, K, m, match_by_id, GoalParams(top_k=1, min_inliers=8, expand_m=2.5))
+    res = localize_goal(feats, desc, K, m, match_by_id,
+                        GoalParams(rerank_depth=0, top_k=1, min_inliers=8, expand_m=2.5))
     assert [c[0] for c in res.candidates] == [0, 1, 2]  # node 3 is 3 m away: not within expand_m
     assert res.node == 2 and res.reason == "ok"
     with pytest.raises(ValueError, match="expand"):
@@ -370,3 +373,28 @@ def test_floor_tiles_do_not_make_a_goal_ambiguous_where_the_rest_of_its_support_
     assert res is not None and "ambiguous" in res.reason and "horizontal surface" in res.reason
     # the singled-out place must hold a verified candidate
     assert _unambiguous(m, cands, [tiles, tiles2], tiles, params, ())[1] is not None
+
+
+def test_goal_retrieval_reorders_the_place_descriptors_candidates_by_local_matches() -> None:
+    """The place descriptor ranks node 2, the keyframe that shares the goal's view, last; the
+    others keep 20 keypoints each (too few to verify). With `top_k` 1 the VPR order (the default,
+    `rerank_depth` 0) verifies node 0 only and refuses the goal; re-ranked by mutual nearest
+    neighbours node 2 comes first and the goal is placed there, at its metric pose."""
+    md = _depth_map()
+    feats = [f if k == 2 else dataclasses.replace(f, keypoints=f.keypoints[:20], descriptors=f.descriptors[:20],
+                                                  scores=f.scores[:20], depth=f.depth[:20])
+             for k, f in enumerate(md.features)]
+    sparse = dataclasses.replace(md, features=feats)
+    T_goal = pose(2.3, yaw_deg=10.0)
+    goal, _ = observe(T_goal)
+    desc = np.array([1.0, 0.8, 0.1, 0.6], np.float32)  # VPR order 0, 1, 3, 2
+    params = GoalParams(top_k=1, expand_k=0, rerank_depth=20)
+    res = localize_goal(goal, desc, K, sparse, match_by_id, params)
+    assert [c[0] for c in res.candidates] == [2] and res.node == 2 and res.reason == "ok"
+    np.testing.assert_allclose(res.T_map_goal, T_goal, atol=1e-5)
+    off = localize_goal(goal, desc, K, sparse, match_by_id, dataclasses.replace(params, rerank_depth=0))
+    assert [c[0] for c in off.candidates] == [0] and off.node is None and "no map place" in off.reason
+    shallow = localize_goal(goal, desc, K, sparse, match_by_id, dataclasses.replace(params, rerank_depth=3))
+    assert [c[0] for c in shallow.candidates] == [0]  # node 2 is 4th by VPR: beyond the re-ranked depth
+    with pytest.raises(ValueError, match="rerank"):
+        GoalParams(rerank_depth=-1)
