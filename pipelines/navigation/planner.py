@@ -4,10 +4,10 @@
   geometric verification** (the published research code takes VPR top-1 unchecked): the
   first `top_k` keyframes by place descriptor (with `rerank_depth` > 0, the first that many
   re-ordered by their count of mutual nearest neighbours with the goal's local descriptors,
-  `rerank`) are the candidates; the goal's features are matched to each candidate keyframe's cached
-  features and an essential matrix is fitted with RANSAC; the keyframes near the strongest candidates (in
-  place and viewing direction) are verified too, since the one that saw the goal's view
-  best often ranks far down in retrieval; the candidate with most inliers wins if it has
+  `rerank`) are the candidates; the goal's features are matched to each candidate keyframe's
+  cached features and an essential matrix is fitted with RANSAC; the keyframes near the
+  strongest candidates (in place and viewing direction) are verified too, since the one that
+  saw the goal's view best often ranks far down in retrieval; the candidate with most inliers wins if it has
   at least `min_inliers`. A goal that matches no place is reported as such. Where the map
   stores keypoint depth, `goal_pose` then gives the goal camera's metric pose (PnP against
   the keyframe's depth-lifted keypoints), so the robot can drive to where the image was
@@ -52,7 +52,7 @@ from scipy.sparse.csgraph import dijkstra
 from litevloc.base.errors import LiteVLocError
 from litevloc.base.geometry import backproject_pixels, invert
 from litevloc.base.params.navigation import GoalParams, TrackerParams
-from litevloc.pipelines.guided_matching import mutual_nn_pairs
+from litevloc.pipelines.guided_matching import mutual_nn_count
 from litevloc.pipelines.pnp import solve_pnp
 from litevloc.pipelines.topomap.node_index import ZERO_EDGE_M, NodeIndex
 from litevloc.pipelines.topomap.types import FeatureSet, TopoMap
@@ -238,7 +238,7 @@ def rerank(goal_feats: FeatureSet, topomap: TopoMap, ranked: NDArray[np.int64],
     if len(head) < 2:
         return ranked
     goal = np.asarray(goal_feats.descriptors)
-    counts = [len(mutual_nn_pairs(goal, topomap.features[int(n)].descriptors, params.rerank_min_similarity)[0])
+    counts = [mutual_nn_count(goal, topomap.features[int(n)].descriptors, params.rerank_min_similarity)
               for n in head]
     return np.concatenate([head[np.argsort(-np.asarray(counts), kind="stable")], ranked[len(head):]])
 
