@@ -152,7 +152,7 @@ class GoalPlanner:
         self.pose: tuple[int, NDArray[np.float64]] | None = None
         self.status: dict[str, Any] = self._status("idle", "no goal", None)
         self._last_pub_t: int | None = None
-        self._last_sub_node: int | None = None
+        self._last_sub: tuple[int | None, tuple[float, float, float] | None] | None = None  # (node, via)
         self._nav: NavStatus | None = None
         self._goal_base: NDArray[np.float64] | None = None  # metric goal of the active goal (map frame)
         self._final = False  # driving from the goal node to the goal image's own place
@@ -183,11 +183,16 @@ class GoalPlanner:
         """Base position of the robot in the map (compared with `node_base` positions)."""
         return np.asarray(T_map_base, np.float64)[:3, 3]
 
-    def subgoal_of(self, node: int, t_ns: int, T_map_base: NDArray[np.float64]) -> Subgoal:
+    def subgoal_of(self, node: int, t_ns: int, T_map_base: NDArray[np.float64],
+                   via: tuple[float, float, float] | None = None) -> Subgoal:
+        """The subgoal to publish: `node`'s base pose, or on the way there the grid path's next
+        turn `via` (map frame, metres), or on the final approach its next turn or end."""
         final = self._final and self._goal_base is not None
         T_map_sub = (self._goal_base if final and self._goal_base is not None else self.node_base[node]).copy()
         if final and self._waypoints:  # the final approach's next turn or its end, with the place's heading
             T_map_sub[:3, 3] = self._waypoints[0]
+        elif not final and via is not None:
+            T_map_sub[:3, 3] = via
         return Subgoal(t_ns, node, T_map_sub, invert(T_map_base) @ T_map_sub)
 
     def goal_base_pose(self, res: GoalResult) -> NDArray[np.float64] | None:
@@ -290,7 +295,7 @@ class GoalPlanner:
             self.active, self._nav = name, nav
             self._goal_base, self._approach, self._final, self._progress = goal_base, approach, False, None
             self._waypoints = []
-            self._last_sub_node = None
+            self._last_sub = None
             self._emit(out, "planned", f"goal {name!r}: {nav.reason}", name, nav, node)
             self._publish_subgoal(out, nav, force=True)
 
@@ -298,11 +303,11 @@ class GoalPlanner:
         assert self.pose is not None and nav.subgoal is not None
         t_ns, T = self.pose
         period_ns = round(self.params.publish_period_s * 1e9)
-        due = (force or self._last_pub_t is None or nav.subgoal != self._last_sub_node
+        due = (force or self._last_pub_t is None or (nav.subgoal, nav.via) != self._last_sub
                or t_ns - self._last_pub_t >= period_ns)
         if due:
-            self._last_pub_t, self._last_sub_node = t_ns, nav.subgoal
-            out.append(("subgoal", self.subgoal_of(nav.subgoal, t_ns, T)))
+            self._last_pub_t, self._last_sub = t_ns, (nav.subgoal, nav.via)
+            out.append(("subgoal", self.subgoal_of(nav.subgoal, t_ns, T, nav.via)))
 
     def on_pose(self, t_ns: int, T_map_base: NDArray[np.floating]) -> list[Output]:
         """A fused pose: advance / replan / reach; returns what to publish."""

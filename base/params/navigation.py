@@ -109,6 +109,9 @@ class TrackerParams:
     approach_detour_m: float = 2.0
     # advance past a reached node only when the way on is clear for a robot of this radius (m; 0 = off)
     clearance_m: float = 0.45
+    # a subgoal node whose straight way is blocked on the map's grid is driven to along the grid path's
+    # turns when that path is at most this much longer than the straight line (m; 0 = off)
+    leg_detour_m: float = 6.0
     # a goal fails ("no progress") when not stall_progress_m closer within this (s of sensor time; 0 = off)
     stall_s: float = 30.0
     # progress that resets the stall clock (m)
@@ -119,8 +122,8 @@ class TrackerParams:
     against_view_deg: float = 120.0
 
     def __post_init__(self) -> None:
-        if self.reach_m <= 0 or self.stray_m <= self.reach_m or self.clearance_m < 0:
-            raise ValueError("need 0 < reach_m < stray_m and clearance_m >= 0")
+        if self.reach_m <= 0 or self.stray_m <= self.reach_m or self.clearance_m < 0 or self.leg_detour_m < 0:
+            raise ValueError("need 0 < reach_m < stray_m, clearance_m >= 0 and leg_detour_m >= 0")
         if self.approach_radius_m < 0 or self.approach_snap_m < 0 or self.approach_detour_m <= 0:
             raise ValueError("need approach_radius_m >= 0, approach_snap_m >= 0 and approach_detour_m > 0")
         if not (1.0 <= self.against_view_cost < float("inf")) or not 0 < self.against_view_deg <= 180:

@@ -34,13 +34,15 @@
   `reach_m` of the current subgoal, replanning from the nearest node when the robot strays
   farther than `stray_m` from the path segment it is on (last reached node or start ->
   current subgoal), and reporting idle/planned/reached/failed. The nearest node comes
-  from a KD-tree (`topomap.node_index.NodeIndex`) over the tracker's node positions.
+  from a KD-tree (`topomap.node_index.NodeIndex`) over the tracker's node positions. Where
+  the straight way to the subgoal node is blocked on the occupancy grid, `NavStatus.via`
+  is the next turn of the grid path there (`approach.plan_approach`, `leg_detour_m`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import cv2
@@ -53,6 +55,7 @@ from litevloc.base.errors import LiteVLocError
 from litevloc.base.geometry import backproject_pixels, invert
 from litevloc.base.params.navigation import GoalParams, TrackerParams
 from litevloc.pipelines.guided_matching import mutual_nn_count
+from litevloc.pipelines.navigation.approach import plan_approach
 from litevloc.pipelines.pnp import solve_pnp
 from litevloc.pipelines.topomap.node_index import ZERO_EDGE_M, NodeIndex
 from litevloc.pipelines.topomap.types import FeatureSet, TopoMap
@@ -419,6 +422,9 @@ class NavStatus:
     subgoal: int | None = None
     path: tuple[int, ...] = ()
     remaining_m: float = 0.0
+    # (3,) map-frame point to drive to first: the next turn of the grid path to the subgoal node
+    # where the straight way there is blocked; None: drive to the node
+    via: tuple[float, float, float] | None = None
 
 
 class SubgoalTracker:
@@ -441,6 +447,8 @@ class SubgoalTracker:
         self.status = NavStatus("idle", "no goal")
         self.replans = 0
         self._seg_start: NDArray[np.float64] | None = None  # where the current path segment starts
+        self._via: list[NDArray[np.float64]] = []  # grid-path turns still to drive to before path[0]
+        self._via_node: int | None = None  # the subgoal node `_via` leads to
 
     def nearest_node(self, position: NDArray[np.floating]) -> int:
         return self.index.nearest(np.asarray(position, np.float64)[:3])[0]
@@ -449,6 +457,7 @@ class SubgoalTracker:
         assert self.goal is not None
         start = self.nearest_node(position)
         self._seg_start = np.asarray(position, dtype=np.float64)[:3].copy()
+        self._via_node = None
         try:
             self.path, length = shortest_path(self.map, start, self.goal, self.graph)
         except NavigationError as exc:
@@ -479,12 +488,39 @@ class SubgoalTracker:
         if not self.path:
             self.status = NavStatus("reached", f"within {self.params.reach_m} m of goal node {self.goal}")
             return self.status
-        if segment_distance(p, p if self._seg_start is None else self._seg_start, pos[self.path[0]]) \
-                > self.params.stray_m:
+        via = self._leg_via(p)
+        target = pos[self.path[0]] if via is None else via
+        if segment_distance(p, p if self._seg_start is None else self._seg_start, target) > self.params.stray_m:
             self.replans += 1
             return self._plan(p)
-        rem = float(np.linalg.norm(pos[self.path[0]] - p)) + float(
-            sum(np.linalg.norm(pos[a] - pos[b]) for a, b in zip(self.path[:-1], self.path[1:], strict=True))
-        )
-        self.status = NavStatus("planned", "following", self.path[0], tuple(self.path), rem)
+        legs = np.vstack([p, *self._via, pos[self.path]])  # (K, 3) the way on, through the grid turns
+        rem = float(np.linalg.norm(np.diff(legs, axis=0), axis=1).sum())
+        self.status = NavStatus("planned", "following", self.path[0], tuple(self.path), rem,
+                                None if via is None else (float(via[0]), float(via[1]), float(via[2])))
         return self.status
+
+    def _leg_via(self, p: NDArray[np.float64]) -> NDArray[np.float64] | None:
+        """The next turn (3,) of the grid path to the subgoal node `path[0]` from the robot at `p`
+        when the straight way there is blocked on the map's grid, else None. Planned once per
+        subgoal node (and after a replan); turns within `reach_m` are passed."""
+        node = self.path[0]
+        if node != self._via_node:
+            self._via_node, self._via = node, self._grid_turns(p, self.positions[node])
+        while self._via and np.linalg.norm(self._via[0] - p) <= self.params.reach_m:
+            self._seg_start = self._via.pop(0)
+        return self._via[0] if self._via else None
+
+    def _grid_turns(self, p: NDArray[np.float64], node_xyz: NDArray[np.float64]) -> list[NDArray[np.float64]]:
+        """Turns (map frame, at the robot's height) of the grid path from `p` to a node whose
+        straight segment a robot of `clearance_m` cannot drive (a wall's corner, a door to go
+        out of first: a local planner that sees only what is ahead takes the straight line into
+        the wall); [] where the way is clear, the grid has no path within `leg_detour_m` more
+        than the straight line, or the option is off."""
+        prm = self.params
+        if prm.leg_detour_m <= 0 or self.map.grid.cells.size == 0 or \
+                np.linalg.norm(node_xyz - p) <= prm.reach_m or segment_clear(self.map, p, node_xyz, prm.clearance_m):
+            return []
+        way = plan_approach(self.map.grid, p, node_xyz, replace(prm, approach_detour_m=prm.leg_detour_m))
+        if way.waypoints is None:
+            return []
+        return [w.copy() for w in way.waypoints[:-1]]

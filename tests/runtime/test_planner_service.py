@@ -170,6 +170,22 @@ def test_the_final_approach_goes_round_an_obstacle_and_is_reached_only_at_the_pl
     assert kinds(outs) == ["status:reached"] and "goal image's place" in outs[0][1]["reason"]
 
 
+def test_a_subgoal_node_behind_a_wall_is_published_as_the_turns_round_its_end() -> None:
+    p = planner({1: 3})
+    p.map.grid.cells[:round((0.6 + 4.0) / 0.1), 35] = OccupancyGrid.OCCUPIED  # wall x = 1.5 m, y < 0.6 m
+    p.on_pose(0, pose(0.0))
+    p.add_goal("behind", img(1))
+    p.on_pose(1, pose(0.05))
+    outs = p.on_pose(2, pose(1.0))  # node 1 reached: node 2 lies behind the wall
+    sub = [o[1] for o in outs if o[0] == "subgoal"][-1]
+    assert sub.node == 2 and sub.T_map_subgoal[1, 3] > 0.6  # the turn past the wall's end, not the node
+    np.testing.assert_allclose(sub.T_base_subgoal[:3, 3], sub.T_map_subgoal[:3, 3] - [1.0, 0.0, 0.0], atol=1e-9)
+    at = pose(float(sub.T_map_subgoal[0, 3]))
+    at[1, 3] = sub.T_map_subgoal[1, 3]
+    subs = [o[1] for o in p.on_pose(3, at) if o[0] == "subgoal"]  # that turn reached: the next one at once
+    assert subs and subs[-1].node == 2 and not np.allclose(subs[-1].T_map_subgoal[:3, 3], sub.T_map_subgoal[:3, 3])
+
+
 def test_replan_when_strayed_and_cancel() -> None:
     p = planner({1: 3})
     p.on_pose(1, pose(0.0))

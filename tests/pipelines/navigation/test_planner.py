@@ -398,3 +398,42 @@ def test_goal_retrieval_reorders_the_place_descriptors_candidates_by_local_match
     assert [c[0] for c in shallow.candidates] == [0]  # node 2 is 4th by VPR: beyond the re-ranked depth
     with pytest.raises(ValueError, match="rerank"):
         GoalParams(rerank_depth=-1)
+
+
+def test_tracker_leads_round_a_wall_to_a_node_it_cannot_reach_straight() -> None:
+    """Two nodes 3 m apart on either side of a wall that ends 1 m above them (a door to go out
+    of first): the subgoal stays the node, but the robot is sent along the grid path's turns
+    past the wall's end, one after the other, then to the node itself."""
+    from litevloc.pipelines.topomap.types import OccupancyGrid
+
+    r = 0.1
+    cells = np.full((60, 60), OccupancyGrid.FREE, np.uint8)  # 6 x 6 m, cell (i, j) at x = j r, y = i r
+    cells[0, :] = cells[-1, :] = cells[:, 0] = cells[:, -1] = OccupancyGrid.OCCUPIED
+    cells[:30, 29:31] = OccupancyGrid.OCCUPIED  # wall x = 2.9-3.1 m from y = 0 to 3 m
+    grid = OccupancyGrid(cells, np.zeros(2), r, np.array([0, 0, 1.0]), np.eye(3)[:2])
+    m = dataclasses.replace(grid_map([(0, 1, 3.0)], 2), grid=grid)
+    pos = np.array([[1.5, 2.0, 0.3], [4.5, 2.0, 0.3]])
+    tr = SubgoalTracker(m, TrackerParams(reach_m=0.3, stray_m=1.5), positions=pos)
+    tr.set_goal(1, pos[0])
+    st = tr.update(pos[0])  # node 0 reached: on to node 1, behind the wall
+    assert st.subgoal == 1 and st.via is not None and st.via[1] > 3.0  # first up past the wall's end
+    assert st.remaining_m > 3.0 + 0.8  # measured along the turns (2 x 1.9 m and the way across)
+    turns = []
+    while st.via is not None and len(turns) < 10:
+        turns.append(st.via)
+        st = tr.update(np.array(st.via))  # the robot arrives at each turn in turn
+    assert st.state == "planned" and st.via is None and st.subgoal == 1 and tr.replans == 0
+    assert 2 <= len(turns) < 10 and all(t[1] > 3.0 for t in turns)
+    assert tr.update(pos[1]).state == "reached"
+    # off, or a wall with no way round within leg_detour_m: the node itself
+    off = SubgoalTracker(m, TrackerParams(reach_m=0.3, stray_m=1.5, leg_detour_m=0.0), positions=pos)
+    off.set_goal(1, pos[0])
+    assert off.update(pos[0]).via is None
+    cells[:, 29:31] = OccupancyGrid.OCCUPIED
+    sealed = SubgoalTracker(dataclasses.replace(m, grid=dataclasses.replace(grid, cells=cells)),
+                            TrackerParams(reach_m=0.3, stray_m=1.5), positions=pos)
+    sealed.set_goal(1, pos[0])
+    st = sealed.update(pos[0])
+    assert st.subgoal == 1 and st.via is None
+    with pytest.raises(ValueError, match="leg_detour_m"):
+        TrackerParams(leg_detour_m=-1.0)
