@@ -35,7 +35,7 @@
   farther than `stray_m` from the path segment it is on (last reached node or start ->
   current subgoal), and reporting idle/planned/reached/failed. The nearest node comes
   from a KD-tree (`topomap.node_index.NodeIndex`) over the tracker's node positions. Where
-  the straight way to the subgoal node is blocked on the occupancy grid, `NavStatus.via`
+  the straight line to the subgoal node crosses a wall on the occupancy grid, `NavStatus.via`
   is the next turn of the grid path there (`approach.plan_approach`, `leg_detour_m`).
 """
 
@@ -512,13 +512,15 @@ class SubgoalTracker:
 
     def _grid_turns(self, p: NDArray[np.float64], node_xyz: NDArray[np.float64]) -> list[NDArray[np.float64]]:
         """Turns (map frame, at the robot's height) of the grid path from `p` to a node whose
-        straight segment a robot of `clearance_m` cannot drive (a wall's corner, a door to go
-        out of first: a local planner that sees only what is ahead takes the straight line into
-        the wall); [] where the way is clear, the grid has no path within `leg_detour_m` more
-        than the straight line, or the option is off."""
+        straight line crosses an occupied cell (a wall, with the door to go out of first beside
+        it: a local planner that sees only what is ahead drives into the wall); [] where the line
+        is clear, the grid has no path within `leg_detour_m` more than the straight line, or the
+        option is off. Only a line through a wall counts: a corner or a desk the line passes
+        within the robot's radius the local planner steers round itself, and grid turns that
+        keep just the robot's radius from it would lead it closer."""
         prm = self.params
         if prm.leg_detour_m <= 0 or self.map.grid.cells.size == 0 or \
-                np.linalg.norm(node_xyz - p) <= prm.reach_m or segment_clear(self.map, p, node_xyz, prm.clearance_m):
+                np.linalg.norm(node_xyz - p) <= prm.reach_m or segment_clear(self.map, p, node_xyz, 0.0):
             return []
         way = plan_approach(self.map.grid, p, node_xyz, replace(prm, approach_detour_m=prm.leg_detour_m))
         if way.waypoints is None:

@@ -425,6 +425,15 @@ def test_tracker_leads_round_a_wall_to_a_node_it_cannot_reach_straight() -> None
     assert st.state == "planned" and st.via is None and st.subgoal == 1 and tr.replans == 0
     assert 2 <= len(turns) < 10 and all(t[1] > 3.0 for t in turns)
     assert tr.update(pos[1]).state == "reached"
+    # a desk corner 0.2 m beside the straight line (within the robot's radius, not on the line):
+    # left to the local planner, no turns
+    desk = cells.copy()
+    desk[:30, 29:31] = OccupancyGrid.FREE
+    desk[21:26, 28:31] = OccupancyGrid.OCCUPIED  # y = 2.1-2.6 m, the line runs at y = 2.0 m
+    near = SubgoalTracker(dataclasses.replace(m, grid=dataclasses.replace(grid, cells=desk)),
+                          TrackerParams(reach_m=0.3, stray_m=1.5), positions=pos)
+    near.set_goal(1, pos[0])
+    assert near.update(pos[0]).via is None
     # off, or a wall with no way round within leg_detour_m: the node itself
     off = SubgoalTracker(m, TrackerParams(reach_m=0.3, stray_m=1.5, leg_detour_m=0.0), positions=pos)
     off.set_goal(1, pos[0])
