@@ -423,7 +423,7 @@ class NavStatus:
     path: tuple[int, ...] = ()
     remaining_m: float = 0.0
     # (3,) map-frame point to drive to first: the next turn of the grid path to the subgoal node
-    # where the straight way there is blocked; None: drive to the node
+    # where the straight line there crosses a wall; None: drive to the node
     via: tuple[float, float, float] | None = None
 
 
@@ -501,7 +501,7 @@ class SubgoalTracker:
 
     def _leg_via(self, p: NDArray[np.float64]) -> NDArray[np.float64] | None:
         """The next turn (3,) of the grid path to the subgoal node `path[0]` from the robot at `p`
-        when the straight way there is blocked on the map's grid, else None. Planned once per
+        when the straight line there crosses a wall on the map's grid, else None. Planned once per
         subgoal node (and after a replan); turns within `reach_m` are passed."""
         node = self.path[0]
         if node != self._via_node:
@@ -519,8 +519,8 @@ class SubgoalTracker:
         within the robot's radius the local planner steers round itself, and grid turns that
         keep just the robot's radius from it would lead it closer."""
         prm = self.params
-        if prm.leg_detour_m <= 0 or self.map.grid.cells.size == 0 or \
-                np.linalg.norm(node_xyz - p) <= prm.reach_m or segment_clear(self.map, p, node_xyz, 0.0):
+        if prm.leg_detour_m <= 0 or np.linalg.norm(node_xyz - p) <= prm.reach_m or \
+                segment_clear(self.map, p, node_xyz, 0.0):  # also True on a map without a grid
             return []
         way = plan_approach(self.map.grid, p, node_xyz, replace(prm, approach_detour_m=prm.leg_detour_m))
         if way.waypoints is None:
