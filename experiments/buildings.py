@@ -58,7 +58,9 @@ REFUSAL_CLASSES = (("matches no map place", "no map place"), ("ambiguous", "ambi
                    ("only a flat patch", "flat patch only"), ("rejected", "bad image"),
                    ("behind a wall from its node", "place behind a wall"),
                    ("not reachable on the map's grid", "place unreachable"),
-                   ("lies in an obstacle", "place in obstacle"), ("no metric pose", "no metric pose"))
+                   ("lies in an obstacle", "place in obstacle"),
+                   ("pose lies inside an obstacle", "pose inside an obstacle"),
+                   ("repeating texture fitted", "pose at keyframe unexplained"), ("no metric pose", "no metric pose"))
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,7 @@ class GoalParams:
     # keyframes retrieved by VPR for a goal image and verified
     top_k: int = 5
     # this many keyframes most similar by VPR re-ordered by mutual-nearest-neighbour count before the top_k (0 = off)
-    rerank_depth: int = 0
+    rerank_depth: int = 20
     # cosine similarity of the descriptors a mutual nearest neighbour of that count needs
     rerank_min_similarity: float = 0.7
     # essential-matrix inliers that verify a goal image's place
@@ -36,6 +36,10 @@ class GoalParams:
     pose_iterations: int = 1000
     # metric goal pose: PnP RANSAC confidence
     pose_confidence: float = 0.999
+    # a goal pose within agree_m / agree_deg of its keyframe must explain this share of the keyframe's keypoints in view
+    pose_min_explained: float = 0.2
+    # drop a goal pose whose camera lies in an occupied cell of the map's grid (inside a wall)
+    pose_outside_obstacles: bool = True
     # in a map with keypoint depth, refuse a goal verified at a node without a metric pose (its place cannot be checked)
     require_pose: bool = True
     # refuse a goal as ambiguous when another place has more than 1/this of the chosen place's support (0 = off)
@@ -68,6 +72,8 @@ class GoalParams:
             raise ValueError("rerank_depth >= 0 and rerank_min_similarity in [-1, 1] required")
         if self.pose_min_inliers < 6 or self.pose_px <= 0 or self.pose_max_m <= 0:
             raise ValueError("pose_min_inliers >= 6, pose_px > 0 and pose_max_m > 0 required")
+        if not 0 <= self.pose_min_explained <= 1:
+            raise ValueError("pose_min_explained must be in [0, 1] (0 = off)")
         if self.ambiguity_ratio < 0 or 0 < self.ambiguity_ratio < 1:
             raise ValueError("ambiguity_ratio must be 0 (off) or >= 1")
         if self.ambiguity_band_m < 0:

@@ -25,6 +25,8 @@
   map with depth but gives no metric pose there is refused too (`require_pose`): it has no
   place to check against rival places or the occupancy grid, and the node alone can be metres
   from where the image was taken (a keyframe that saw the goal's scene from across a room).
+  A candidate's pose is dropped where it cannot be where the image was taken (`pose_doubt`):
+  inside an obstacle of the grid, or at the keyframe's own view while explaining little of it.
 * `shortest_path`: Dijkstra on the connectivity graph (edge weights in metres) with
   `scipy.sparse.csgraph.dijkstra` on the map's CSR matrix (built once per map); ~1 ms at
   10,000 nodes where the former pure-Python heap took tens (`bench/scale.py`).
@@ -178,6 +180,7 @@ class _Candidate:
     pose_inliers: int
     plane_rms_m: float = float("nan")
     support_points: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3)))  # GoalPose's, node frame
+    pose_doubt: str = ""  # why its PnP pose was dropped (`pose_doubt`), "" if it was not
 
     def planar(self, params: GoalParams) -> bool:
         """True when the candidate's PnP support is one flat patch (see `GoalParams.planar_rms_m`)."""
@@ -186,6 +189,39 @@ class _Candidate:
     def needed(self, params: GoalParams) -> float:
         """Essential-matrix inliers this candidate needs to verify a place."""
         return params.min_inliers * (params.planar_factor if self.planar(params) else 1.0)
+
+
+def pose_doubt(topomap: TopoMap, node: int, T_map_goal: NDArray[np.float64], K_goal: NDArray[np.float64],
+               pose_inliers: int, params: GoalParams) -> str:
+    """Why a candidate's metric goal pose (4x4, map frame) cannot be where the goal image was
+    taken, or "": (`pose_outside_obstacles`) its camera lies in an OCCUPIED cell of the map's
+    grid, inside a wall; or (`pose_min_explained`) it lies within `agree_m` / `agree_deg` of the
+    keyframe, so the image sees what the keyframe saw, yet the PnP explains less than that share
+    of the keyframe's depth keypoints that project into the goal image (taken as 2 cx x 2 cy
+    pixels): a repeating texture (floor tiles, striped wallpaper) fitted to the keyframe's own
+    view. Goal images that close to their keyframe match a third or more of them."""
+    g = topomap.grid
+    if params.pose_outside_obstacles and g.cells.size:
+        r, c = g.cell_of(g.to_plane(T_map_goal[None, :3, 3]))[0]
+        if 0 <= r < g.cells.shape[0] and 0 <= c < g.cells.shape[1] and g.cells[r, c] == g.OCCUPIED:
+            return "its pose lies inside an obstacle of the map's occupancy grid"
+    T_kf = topomap.T_map_camera[node]
+    depth = topomap.keypoint_depth(node)
+    if params.pose_min_explained <= 0 or depth is None \
+            or np.linalg.norm(T_map_goal[:3, 3] - T_kf[:3, 3]) > params.agree_m \
+            or float(T_map_goal[:3, 2] @ T_kf[:3, 2]) < np.cos(np.radians(params.agree_deg)):
+        return ""
+    ok = np.isfinite(depth)
+    pts = backproject_pixels(topomap.K[node], np.asarray(topomap.features[node].keypoints, np.float64)[ok], depth[ok])
+    T_goal_kf = invert(T_map_goal) @ T_kf
+    pc = pts @ T_goal_kf[:3, :3].T + T_goal_kf[:3, 3]
+    front = pc[:, 2] > 1e-3
+    uv = pc[front, :2] / pc[front, 2:] * np.diag(K_goal)[:2] + K_goal[:2, 2]
+    seen = int(np.all((uv >= 0) & (uv < 2 * K_goal[:2, 2]), axis=1).sum())
+    if seen and pose_inliers < params.pose_min_explained * seen:
+        return (f"its pose lies at keyframe {node}'s own view yet explains {pose_inliers} of the {seen} keypoints "
+                f"the keyframe sees there (< {params.pose_min_explained:g}: a repeating texture fitted to its view)")
+    return ""
 
 
 def _places(cands: list[_Candidate], agree_m: float, agree_deg: float,
@@ -263,6 +299,9 @@ def localize_goal(
         n_e = essential_inliers(goal_feats, K_goal, feats, K_node, match, params, pairs)
         gp = goal_pose(goal_feats, K_goal, feats, topomap.keypoint_depth(node), K_node, match, params, pairs)
         T_map_goal = None if gp.T_node_goal is None else topomap.T_map_camera[node] @ gp.T_node_goal
+        doubt = "" if T_map_goal is None else pose_doubt(topomap, node, T_map_goal, K_goal, gp.inliers, params)
+        if doubt:
+            return _Candidate(node, float(sims[node]), n_e, None, gp.inliers, pose_doubt=doubt)
         return _Candidate(node, float(sims[node]), n_e, T_map_goal, gp.inliers, gp.plane_rms_m, gp.support_points)
 
     cands = [verify(int(n)) for n in order]
@@ -280,6 +319,10 @@ def localize_goal(
         return GoalResult(None, strongest.inliers, f"goal image matches no map place (best {strongest.inliers} "
                           f"inliers < {params.min_inliers})", table)
     best = max(verified, key=lambda c: (c.inliers, c.similarity))
+    if best.T_map_goal is None and params.require_pose and best.pose_doubt:
+        return GoalResult(None, best.inliers,
+                          f"goal image verifies at node {best.node} ({best.inliers} inliers) but gives no metric "
+                          f"pose there: {best.pose_doubt}", table, None, best.pose_inliers)
     if best.T_map_goal is None and params.require_pose and topomap.keypoint_depth(best.node) is not None:
         return GoalResult(None, best.inliers,
                           f"goal image verifies at node {best.node} ({best.inliers} inliers) but gives no metric "

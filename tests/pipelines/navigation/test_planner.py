@@ -135,6 +135,45 @@ def test_goal_pose_from_keypoint_depth_is_metric() -> None:
     assert node_only.node is not None and node_only.T_map_goal is None and node_only.reason == "ok"
 
 
+def test_a_goal_pose_inside_a_wall_or_unexplained_at_its_keyframe_is_not_trusted() -> None:
+    """A goal 0.3 m / 10 deg from node 2 whose image shares a tenth of the view's keypoints (a
+    repeating texture matched, the rest of the scene not): PnP still puts it at node 2's view
+    but explains far under a fifth of what node 2 sees there, so the goal is refused; the same
+    sparse image 0.7 m and 30 deg from node 2 is placed (the share is only asked of a view at the
+    keyframe's own). A full image whose pose falls in an occupied grid cell is refused too."""
+    from tests.pipelines.localization.test_vloc import Feats
+
+    md = _depth_map()
+    desc = np.zeros(4, np.float32)
+    desc[2] = 1.0
+    prm = GoalParams(top_k=1, expand_k=0)  # node 2 alone (VPR top)
+
+    def sparse(T: np.ndarray) -> Feats:
+        f, _ = observe(T)
+        k = np.arange(0, len(f.keypoints), 10)
+        return Feats(f.keypoints[k], f.descriptors[k], f.scores[k], f.ids[k])
+
+    near = localize_goal(sparse(pose(2.3, yaw_deg=10.0)), desc, K, md, match_by_id, prm)
+    assert near.node is None and near.T_map_goal is None
+    assert "no metric pose" in near.reason and "repeating texture" in near.reason and "keyframe 2" in near.reason
+    off = localize_goal(sparse(pose(2.3, yaw_deg=10.0)), desc, K, md, match_by_id,
+                        dataclasses.replace(prm, pose_min_explained=0.0))
+    assert off.node == 2 and off.T_map_goal is not None
+    between = localize_goal(sparse(pose(1.3, yaw_deg=30.0)), desc, K, md, match_by_id, prm)
+    assert between.reason == "ok" and between.T_map_goal is not None
+    np.testing.assert_allclose(between.T_map_goal, pose(1.3, yaw_deg=30.0), atol=1e-6)
+
+    goal, _ = observe(pose(2.3, yaw_deg=10.0))
+    cells = np.zeros((4, 4), np.uint8)
+    cells[0, 2] = 2  # plane (x, z) = (2.3, 0) lies in row 0, column 2 of a 1 m grid at the origin
+    walled = dataclasses.replace(md, grid=dataclasses.replace(md.grid, cells=cells))
+    res = localize_goal(goal, desc, K, walled, match_by_id, prm)
+    assert res.node is None and "inside an obstacle" in res.reason
+    assert localize_goal(goal, desc, K, md, match_by_id, prm).reason == "ok"
+    assert localize_goal(goal, desc, K, walled, match_by_id,
+                         dataclasses.replace(prm, pose_outside_obstacles=False)).reason == "ok"
+
+
 def test_goal_that_verifies_at_two_places_is_refused_as_ambiguous() -> None:
     """Node 0 sees a copy of node 2's view (the same poster hung 2 m away): both verify, their
     metric goal poses lie 2 m apart with equal support (top_k=2: VPR ranks node 2, then node 0),
