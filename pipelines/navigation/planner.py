@@ -54,7 +54,7 @@ from numpy.typing import NDArray
 from scipy.sparse.csgraph import dijkstra
 
 from litevloc.base.errors import LiteVLocError
-from litevloc.base.geometry import backproject_pixels, invert
+from litevloc.base.geometry import backproject_pixels, invert, project, transform_points
 from litevloc.base.params.navigation import GoalParams, TrackerParams
 from litevloc.pipelines.guided_matching import mutual_nn_count
 from litevloc.pipelines.navigation.approach import plan_approach
@@ -199,24 +199,20 @@ def pose_doubt(topomap: TopoMap, node: int, T_map_goal: NDArray[np.float64], K_g
     keyframe, so the image sees what the keyframe saw, yet the PnP explains less than that share
     of the keyframe's depth keypoints that project into the goal image (taken as 2 cx x 2 cy
     pixels): a repeating texture (floor tiles, striped wallpaper) fitted to the keyframe's own
-    view. Goal images that close to their keyframe match a third or more of them."""
-    g = topomap.grid
-    if params.pose_outside_obstacles and g.cells.size:
-        r, c = g.cell_of(g.to_plane(T_map_goal[None, :3, 3]))[0]
-        if 0 <= r < g.cells.shape[0] and 0 <= c < g.cells.shape[1] and g.cells[r, c] == g.OCCUPIED:
-            return "its pose lies inside an obstacle of the map's occupancy grid"
+    view. Goal images that close to their keyframe match over a quarter of them."""
+    p = T_map_goal[:3, 3]
+    if params.pose_outside_obstacles and not segment_clear(topomap, p, p, 0.0):  # the camera's own cell
+        return "its pose lies inside an obstacle of the map's occupancy grid"
     T_kf = topomap.T_map_camera[node]
     depth = topomap.keypoint_depth(node)
     if params.pose_min_explained <= 0 or depth is None \
-            or np.linalg.norm(T_map_goal[:3, 3] - T_kf[:3, 3]) > params.agree_m \
+            or np.linalg.norm(p - T_kf[:3, 3]) > params.agree_m \
             or float(T_map_goal[:3, 2] @ T_kf[:3, 2]) < np.cos(np.radians(params.agree_deg)):
         return ""
     ok = np.isfinite(depth)
     pts = backproject_pixels(topomap.K[node], np.asarray(topomap.features[node].keypoints, np.float64)[ok], depth[ok])
-    T_goal_kf = invert(T_map_goal) @ T_kf
-    pc = pts @ T_goal_kf[:3, :3].T + T_goal_kf[:3, 3]
-    front = pc[:, 2] > 1e-3
-    uv = pc[front, :2] / pc[front, 2:] * np.diag(K_goal)[:2] + K_goal[:2, 2]
+    pc = transform_points(invert(T_map_goal) @ T_kf, pts)
+    uv = project(K_goal, pc[pc[:, 2] > 1e-3])
     seen = int(np.all((uv >= 0) & (uv < 2 * K_goal[:2, 2]), axis=1).sum())
     if seen and pose_inliers < params.pose_min_explained * seen:
         return (f"its pose lies at keyframe {node}'s own view yet explains {pose_inliers} of the {seen} keypoints "
@@ -319,16 +315,14 @@ def localize_goal(
         return GoalResult(None, strongest.inliers, f"goal image matches no map place (best {strongest.inliers} "
                           f"inliers < {params.min_inliers})", table)
     best = max(verified, key=lambda c: (c.inliers, c.similarity))
-    if best.T_map_goal is None and params.require_pose and best.pose_doubt:
-        return GoalResult(None, best.inliers,
-                          f"goal image verifies at node {best.node} ({best.inliers} inliers) but gives no metric "
-                          f"pose there: {best.pose_doubt}", table, None, best.pose_inliers)
-    if best.T_map_goal is None and params.require_pose and topomap.keypoint_depth(best.node) is not None:
-        return GoalResult(None, best.inliers,
-                          f"goal image verifies at node {best.node} ({best.inliers} inliers) but gives no metric "
-                          f"pose there (PnP: {best.pose_inliers} inliers, need {params.pose_min_inliers} and a pose "
-                          f"within {params.pose_max_m:g} m of the keyframe): where it was taken, and whether another "
-                          "place fits as well, cannot be checked", table, None, best.pose_inliers)
+    if best.T_map_goal is None and params.require_pose and (best.pose_doubt
+                                                             or topomap.keypoint_depth(best.node) is not None):
+        why = (f": {best.pose_doubt}" if best.pose_doubt else
+               f" (PnP: {best.pose_inliers} inliers, need {params.pose_min_inliers} and a pose within "
+               f"{params.pose_max_m:g} m of the keyframe): where it was taken, and whether another place fits as "
+               "well, cannot be checked")
+        return GoalResult(None, best.inliers, f"goal image verifies at node {best.node} ({best.inliers} inliers) but "
+                          f"gives no metric pose there{why}", table, None, best.pose_inliers)
     if best.T_map_goal is not None and params.ambiguity_ratio > 0:
         best, refusal = _unambiguous(topomap, cands, verified, best, params, table)
         if refusal is not None:
