@@ -55,7 +55,8 @@ from litevloc.sim.world import World, load_world
 GENERATORS = ("office", "floor", "bland")
 WRONG_PLACEMENT_M = 2.0
 REFUSAL_CLASSES = (("matches no map place", "no map place"), ("ambiguous", "ambiguous"),
-                   ("only a flat patch", "flat patch only"), ("rejected", "bad image"),
+                   ("only a flat patch", "flat patch only"),
+                   ("only floor or ceiling tiles", "tiles only"), ("rejected", "bad image"),
                    ("behind a wall from its node", "place behind a wall"),
                    ("not reachable on the map's grid", "place unreachable"),
                    ("lies in an obstacle", "place in obstacle"),

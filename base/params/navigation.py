@@ -38,6 +38,8 @@ class GoalParams:
     pose_confidence: float = 0.999
     # a goal pose within agree_m / agree_deg of its keyframe must explain this share of the keyframe's keypoints in view
     pose_min_explained: float = 0.2
+    # a candidate verifies a place only with this many PnP support points off the floor/ceiling band (0 = off)
+    pose_min_distinct: int = 10
     # drop a goal pose whose camera lies in an occupied cell of the map's grid (inside a wall)
     pose_outside_obstacles: bool = True
     # in a map with keypoint depth, refuse a goal verified at a node without a metric pose (its place cannot be checked)
@@ -76,6 +78,8 @@ class GoalParams:
             raise ValueError("pose_min_explained must be in [0, 1] (0 = off)")
         if self.ambiguity_ratio < 0 or 0 < self.ambiguity_ratio < 1:
             raise ValueError("ambiguity_ratio must be 0 (off) or >= 1")
+        if self.pose_min_distinct < 0:
+            raise ValueError("pose_min_distinct must be >= 0 (0 = off)")
         if self.ambiguity_band_m < 0:
             raise ValueError("ambiguity_band_m must be >= 0 (0 = off)")
         if self.agree_m <= 0 or not 0 < self.agree_deg <= 180:

@@ -27,6 +27,8 @@
   from where the image was taken (a keyframe that saw the goal's scene from across a room).
   A candidate's pose is dropped where it cannot be where the image was taken (`pose_doubt`):
   inside an obstacle of the grid, or at the keyframe's own view while explaining little of it.
+  A candidate whose PnP support holds fewer than `pose_min_distinct` points off the floor and
+  ceiling band matched tiles alone and verifies no place.
 * `shortest_path`: Dijkstra on the connectivity graph (edge weights in metres) with
   `scipy.sparse.csgraph.dijkstra` on the map's CSR matrix (built once per map); ~1 ms at
   10,000 nodes where the former pure-Python heap took tens (`bench/scale.py`).
@@ -181,13 +183,17 @@ class _Candidate:
     plane_rms_m: float = float("nan")
     support_points: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3)))  # GoalPose's, node frame
     pose_doubt: str = ""  # why its PnP pose was dropped (`pose_doubt`), "" if it was not
+    tiles: tuple[int, int] | None = None  # (distinctive, all) PnP support where it rests on floor/ceiling tiles
 
     def planar(self, params: GoalParams) -> bool:
         """True when the candidate's PnP support is one flat patch (see `GoalParams.planar_rms_m`)."""
         return params.planar_rms_m > 0 and bool(self.plane_rms_m < params.planar_rms_m)
 
     def needed(self, params: GoalParams) -> float:
-        """Essential-matrix inliers this candidate needs to verify a place."""
+        """Essential-matrix inliers this candidate needs to verify a place (none suffice for a
+        match on floor or ceiling tiles alone)."""
+        if self.tiles is not None:
+            return float("inf")
         return params.min_inliers * (params.planar_factor if self.planar(params) else 1.0)
 
 
@@ -295,6 +301,12 @@ def localize_goal(
         n_e = essential_inliers(goal_feats, K_goal, feats, K_node, match, params, pairs)
         gp = goal_pose(goal_feats, K_goal, feats, topomap.keypoint_depth(node), K_node, match, params, pairs)
         T_map_goal = None if gp.T_node_goal is None else topomap.T_map_camera[node] @ gp.T_node_goal
+        if T_map_goal is not None and params.pose_min_distinct > 0:
+            T_kf = topomap.T_map_camera[node]
+            distinct = distinctive_support(gp.support_points @ T_kf[:3, :3].T + T_kf[:3, 3], topomap.grid.up,
+                                           params.ambiguity_band_m)
+            if distinct < params.pose_min_distinct:  # tiles repeat in every room: they verify no place
+                return _Candidate(node, float(sims[node]), n_e, None, gp.inliers, tiles=(distinct, gp.inliers))
         doubt = "" if T_map_goal is None else pose_doubt(topomap, node, T_map_goal, K_goal, gp.inliers, params)
         if doubt:
             return _Candidate(node, float(sims[node]), n_e, None, gp.inliers, pose_doubt=doubt)
@@ -306,6 +318,12 @@ def localize_goal(
     strongest = max(cands, key=lambda c: (c.inliers, c.similarity))
     verified = [c for c in cands if c.inliers >= c.needed(params)]
     if not verified:
+        if strongest.inliers >= params.min_inliers and strongest.tiles is not None:
+            return GoalResult(None, strongest.inliers,
+                              f"goal image matches only floor or ceiling tiles at node {strongest.node}: "
+                              f"{strongest.inliers} inliers, of its PnP support {strongest.tiles[0]} of "
+                              f"{strongest.tiles[1]} points off the tiles < {params.pose_min_distinct} (tiles repeat "
+                              "in every room; an image with more of the place in view would tell it)", table)
         if strongest.inliers >= params.min_inliers:  # only flat support reached the bar
             return GoalResult(None, strongest.inliers,
                               f"goal image matches only a flat patch (a poster, a sign, one wall) at node "

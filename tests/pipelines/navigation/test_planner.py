@@ -326,6 +326,38 @@ def test_goal_supported_by_one_flat_patch_needs_more_inliers(monkeypatch: pytest
             GoalParams(**bad)  # type: ignore[arg-type]
 
 
+def test_a_goal_matched_on_floor_tiles_alone_verifies_no_place(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every scene point on the floor (1.2 m below the cameras; tiles repeat in every room): the
+    goal image gets plenty of essential-matrix and PnP inliers at node 2, yet none of its PnP
+    support lies off the floor band, so it verifies no place and is refused naming the tiles
+    (`pose_min_distinct`); with the rule off it is placed. The same scene with a third of the
+    points lifted onto walls keeps enough support off the floor and is placed at its pose."""
+    import tests.pipelines.localization.test_vloc as tv
+
+    T_goal = pose(2.3, yaw_deg=10.0)
+    desc = np.zeros(4, np.float32)
+    desc[2] = 1.0
+    params = GoalParams(rerank_depth=0, top_k=1, expand_k=0)  # pose_min_distinct 10
+    floor = tv.POINTS.copy()
+    floor[:, 1] = 1.2
+    monkeypatch.setattr(tv, "POINTS", floor)
+    goal, _ = observe(T_goal)
+    res = localize_goal(goal, desc, K, _sparse_map(200), match_by_id, params)
+    assert res.node is None and res.T_map_goal is None and res.inliers >= 2 * params.min_inliers
+    assert "only floor or ceiling tiles at node 2" in res.reason and "0 of" in res.reason
+    off = localize_goal(goal, desc, K, _sparse_map(200), match_by_id, dataclasses.replace(params, pose_min_distinct=0))
+    assert off.node == 2 and off.reason == "ok"
+    walls = floor.copy()
+    walls[::3, 1] = np.random.default_rng(3).uniform(-1.5, 1.0, len(walls[::3]))
+    monkeypatch.setattr(tv, "POINTS", walls)
+    goal, _ = observe(T_goal)
+    res = localize_goal(goal, desc, K, _sparse_map(200), match_by_id, params)
+    assert res.node == 2 and res.reason == "ok"
+    np.testing.assert_allclose(res.T_map_goal, T_goal, atol=1e-5)
+    with pytest.raises(ValueError, match="pose_min_distinct"):
+        GoalParams(pose_min_distinct=-1)
+
+
 def test_horizontal_share_is_the_part_of_a_support_on_one_horizontal_surface() -> None:
     """A corridor view's support: 80 points on the floor (heights within 1 cm), 20 on a wall
     (heights spread over 2 m) -> 0.8 along the map's up; the same points with up along x
