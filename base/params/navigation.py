@@ -48,7 +48,7 @@ class GoalParams:
     ambiguity_ratio: float = 2.0
     # height of the floor/ceiling band whose support an ambiguous goal's second look ignores (m; 0 = off)
     ambiguity_band_m: float = 0.04
-    # candidates' goal poses within this of each other are one place (m)
+    # goal poses within this of each other along the floor are one place; within this of a keyframe, at its view (m)
     agree_m: float = 0.5
     # ... and within this rotation (degrees)
     agree_deg: float = 20.0

@@ -226,21 +226,25 @@ def pose_doubt(topomap: TopoMap, node: int, T_map_goal: NDArray[np.float64], K_g
     return ""
 
 
-def _places(cands: list[_Candidate], agree_m: float, agree_deg: float,
+def _places(cands: list[_Candidate], agree_m: float, agree_deg: float, up: NDArray[np.float64],
             covisible: Callable[[int, int], bool] = lambda a, b: False) -> list[list[_Candidate]]:
     """Candidates with a metric goal pose grouped into places: greedy, strongest PnP first; a
-    candidate joins the first place whose seed pose lies within agree_m and agree_deg (angle
-    between the optical axes) of its own, or whose seed's keyframe is covisible with its own
-    (the map verified that the two keyframes see the same scene: in a long corridor the
-    goal poses of neighbouring keyframes can differ by a metre, and that is one place)."""
+    candidate joins the first place whose seed pose lies within agree_m along the floor (the
+    plane normal to `up`, unit 3-vector: a goal is a spot to drive to, and PnP's height is its
+    least certain part) and agree_deg (angle between the optical axes) of its own, or whose
+    seed's keyframe is covisible with its own (the map verified that the two keyframes see the
+    same scene: in a long corridor the goal poses of neighbouring keyframes can differ by a
+    metre, and that is one place)."""
     cos_max = float(np.cos(np.radians(agree_deg)))
+    up = np.asarray(up, np.float64)
     places: list[list[_Candidate]] = []
     for c in sorted((c for c in cands if c.T_map_goal is not None), key=lambda c: -c.pose_inliers):
         assert c.T_map_goal is not None
         for place in places:
             seed = place[0].T_map_goal
             assert seed is not None
-            if covisible(place[0].node, c.node) or (np.linalg.norm(seed[:3, 3] - c.T_map_goal[:3, 3]) <= agree_m
+            d = seed[:3, 3] - c.T_map_goal[:3, 3]
+            if covisible(place[0].node, c.node) or (np.linalg.norm(d - (d @ up) * up) <= agree_m
                                                     and float(seed[:3, 2] @ c.T_map_goal[:3, 2]) >= cos_max):
                 place.append(c)
                 break
@@ -365,12 +369,19 @@ def _unambiguous(topomap: TopoMap, cands: list[_Candidate], verified: list[_Cand
     distinctive support points (not on floor or ceiling tiles) and `ambiguity_ratio` times any
     other place's: then that place is chosen. (the chosen candidate, None) or (-, the refusal)."""
     covis = topomap.covisibility_lists
-    places = _places(cands, params.agree_m, params.agree_deg, lambda a, b: b in covis[a])
+    places = _places(cands, params.agree_m, params.agree_deg, topomap.grid.up, lambda a, b: b in covis[a])
     support = [sum(c.pose_inliers for c in p) for p in places]
     mine = next(i for i, p in enumerate(places) if best in p)
     rivals = [(s, p[0]) for i, (s, p) in enumerate(zip(support, places, strict=True)) if i != mine]
     if not rivals or max(r[0] for r in rivals) * params.ambiguity_ratio <= support[mine]:
-        return best, None
+        # the place's pose is its best-supported one (a member joined by covisibility can sit metres
+        # off); the robot drives to the place's keyframe nearest that pose
+        seed = places[mine][0]
+        assert seed.T_map_goal is not None
+        at = seed.T_map_goal[:3, 3]
+        pos = np.asarray(topomap.positions, np.float64)
+        near = min(places[mine], key=lambda c: float(np.linalg.norm(pos[c.node] - at)))
+        return replace(seed, node=near.node), None
     if params.ambiguity_band_m > 0:  # tiles say nothing about the place: does the rest single one out?
         up = topomap.grid.up
         distinct = [distinctive_support(_support_map(topomap, p), up, params.ambiguity_band_m) for p in places]

@@ -119,11 +119,12 @@ def test_goal_pose_from_keypoint_depth_is_metric() -> None:
     desc = np.zeros(4, np.float32)
     desc[2] = 1.0
     res = localize_goal(goal, desc, K, md, match_by_id, GoalParams(top_k=4))
-    assert res.node is not None and res.T_map_goal is not None and res.pose_inliers > 100
+    assert res.node == 2 and res.T_map_goal is not None and res.pose_inliers > 100  # the keyframe nearest the pose
     np.testing.assert_allclose(res.T_map_goal, T_goal, atol=1e-6)
     # a map without keypoint depth (format 1, or features converted in memory): the node only
     res2 = localize_goal(goal, desc, K, m, match_by_id, GoalParams(top_k=4))
-    assert res2.node == res.node and res2.T_map_goal is None and res2.reason == "ok"
+    assert res2.node == max(res2.candidates, key=lambda c: c[2])[0] and res2.T_map_goal is None
+    assert res2.reason == "ok"
     # a pose beyond pose_max_m of its keyframe is not trusted: in a map with depth the goal is
     # refused (its node alone can be metres from where the image was taken), not placed on the node
     res3 = localize_goal(goal, desc, K, md, match_by_id, GoalParams(top_k=4, pose_max_m=0.1))
@@ -444,6 +445,40 @@ def test_floor_tiles_do_not_make_a_goal_ambiguous_where_the_rest_of_its_support_
     assert res is not None and "ambiguous" in res.reason and "horizontal surface" in res.reason
     # the singled-out place must hold a verified candidate
     assert _unambiguous(m, cands, [tiles, tiles2], tiles, params, ())[1] is not None
+
+
+def test_a_place_gives_the_goal_its_best_supported_pose() -> None:
+    """Node 1 verifies the goal (35 essential inliers) with a weak PnP pose 2 m off; node 2, its
+    covisible neighbour (one place), did not verify (a flat support needs more) but its pose has
+    three times the PnP support and lies where the image was taken: the goal gets node 2's pose,
+    and node 2, the place's keyframe nearest that pose, as its node."""
+    from litevloc.pipelines.navigation.planner import _Candidate, _unambiguous
+
+    m = make_vloc_map([0.0, 1.0, 2.0, 3.0])  # consecutive keyframes covisible
+    weak = _Candidate(1, 0.5, 35, pose(4.0), 20)
+    strong = _Candidate(2, 0.5, 30, pose(2.0), 60)
+    chosen, refusal = _unambiguous(m, [weak, strong], [weak], weak, GoalParams(), ())
+    assert refusal is None and chosen.node == 2 and chosen.T_map_goal is strong.T_map_goal
+    # node 1's pose is the best supported; node 2's keyframe stands nearer to it: pose 1's, node 2
+    far_kf = _Candidate(1, 0.5, 30, pose(2.1), 60)
+    near_kf = _Candidate(2, 0.5, 35, pose(4.0), 20)
+    chosen, _ = _unambiguous(m, [near_kf, far_kf], [near_kf], near_kf, GoalParams(), ())
+    assert chosen.node == 2 and chosen.T_map_goal is far_kf.T_map_goal
+
+
+def test_candidate_poses_agree_along_the_floor() -> None:
+    """Two goal poses 0.3 m apart on the floor and 0.5 m apart in height (PnP's least certain
+    axis; the map's up is -y) are one spot to drive to; 0.6 m apart on the floor they are two."""
+    from litevloc.pipelines.navigation.planner import _Candidate, _places
+
+    up = np.array([0.0, -1.0, 0.0])
+    a = _Candidate(0, 0.5, 40, pose(1.0), 40)
+    high = pose(1.3)
+    high[1, 3] = -0.5
+    b = _Candidate(1, 0.5, 35, high, 30)
+    assert len(_places([a, b], 0.5, 20.0, up)) == 1
+    c = _Candidate(1, 0.5, 35, pose(1.6), 30)
+    assert len(_places([a, c], 0.5, 20.0, up)) == 2
 
 
 def test_goal_retrieval_reorders_the_place_descriptors_candidates_by_local_matches() -> None:
