@@ -226,25 +226,25 @@ def pose_doubt(topomap: TopoMap, node: int, T_map_goal: NDArray[np.float64], K_g
     return ""
 
 
-def _places(cands: list[_Candidate], agree_m: float, agree_deg: float, up: NDArray[np.float64],
+def _places(cands: list[_Candidate], agree_m: float, agree_deg: float,
+            to_plane: Callable[[NDArray[np.float64]], NDArray[np.float64]],
             covisible: Callable[[int, int], bool] = lambda a, b: False) -> list[list[_Candidate]]:
     """Candidates with a metric goal pose grouped into places: greedy, strongest PnP first; a
     candidate joins the first place whose seed pose lies within agree_m along the floor (the
-    plane normal to `up`, unit 3-vector: a goal is a spot to drive to, and PnP's height is its
-    least certain part) and agree_deg (angle between the optical axes) of its own, or whose
+    map grid's `to_plane`: a goal is a spot to drive to, and PnP's height is its least certain
+    part) and agree_deg (angle between the optical axes) of its own, or whose
     seed's keyframe is covisible with its own (the map verified that the two keyframes see the
     same scene: in a long corridor the goal poses of neighbouring keyframes can differ by a
     metre, and that is one place)."""
     cos_max = float(np.cos(np.radians(agree_deg)))
-    up = np.asarray(up, np.float64)
     places: list[list[_Candidate]] = []
     for c in sorted((c for c in cands if c.T_map_goal is not None), key=lambda c: -c.pose_inliers):
         assert c.T_map_goal is not None
         for place in places:
             seed = place[0].T_map_goal
             assert seed is not None
-            d = seed[:3, 3] - c.T_map_goal[:3, 3]
-            if covisible(place[0].node, c.node) or (np.linalg.norm(d - (d @ up) * up) <= agree_m
+            apart = float(np.linalg.norm(np.diff(to_plane(np.stack([seed[:3, 3], c.T_map_goal[:3, 3]])), axis=0)))
+            if covisible(place[0].node, c.node) or (apart <= agree_m
                                                     and float(seed[:3, 2] @ c.T_map_goal[:3, 2]) >= cos_max):
                 place.append(c)
                 break
@@ -306,9 +306,8 @@ def localize_goal(
         gp = goal_pose(goal_feats, K_goal, feats, topomap.keypoint_depth(node), K_node, match, params, pairs)
         T_map_goal = None if gp.T_node_goal is None else topomap.T_map_camera[node] @ gp.T_node_goal
         if T_map_goal is not None and params.pose_min_distinct > 0:
-            T_kf = topomap.T_map_camera[node]
-            distinct = distinctive_support(gp.support_points @ T_kf[:3, :3].T + T_kf[:3, 3], topomap.grid.up,
-                                           params.ambiguity_band_m)
+            distinct = distinctive_support(transform_points(topomap.T_map_camera[node], gp.support_points),
+                                           topomap.grid.up, params.ambiguity_band_m)
             if distinct < params.pose_min_distinct:  # tiles repeat in every room: they verify no place
                 return _Candidate(node, float(sims[node]), n_e, None, gp.inliers, tiles=(distinct, gp.inliers))
         doubt = "" if T_map_goal is None else pose_doubt(topomap, node, T_map_goal, K_goal, gp.inliers, params)
@@ -367,9 +366,11 @@ def _unambiguous(topomap: TopoMap, cands: list[_Candidate], verified: list[_Cand
     when another place's PnP support exceeds 1/`ambiguity_ratio` of the chosen place's, unless
     (`ambiguity_band_m` > 0) one place with a verified candidate holds at least `pose_min_inliers`
     distinctive support points (not on floor or ceiling tiles) and `ambiguity_ratio` times any
-    other place's: then that place is chosen. (the chosen candidate, None) or (-, the refusal)."""
+    other place's: then that place is chosen. (the chosen candidate, None) or (-, the refusal); where
+    the PnP supports single out the place, the candidate is its best-supported pose (inliers and
+    support its own) with `node` set to the place's keyframe nearest that pose."""
     covis = topomap.covisibility_lists
-    places = _places(cands, params.agree_m, params.agree_deg, topomap.grid.up, lambda a, b: b in covis[a])
+    places = _places(cands, params.agree_m, params.agree_deg, topomap.grid.to_plane, lambda a, b: b in covis[a])
     support = [sum(c.pose_inliers for c in p) for p in places]
     mine = next(i for i, p in enumerate(places) if best in p)
     rivals = [(s, p[0]) for i, (s, p) in enumerate(zip(support, places, strict=True)) if i != mine]

@@ -471,14 +471,14 @@ def test_candidate_poses_agree_along_the_floor() -> None:
     axis; the map's up is -y) are one spot to drive to; 0.6 m apart on the floor they are two."""
     from litevloc.pipelines.navigation.planner import _Candidate, _places
 
-    up = np.array([0.0, -1.0, 0.0])
+    to_plane = make_vloc_map([0.0, 1.0]).grid.to_plane  # the floor: x, z
     a = _Candidate(0, 0.5, 40, pose(1.0), 40)
     high = pose(1.3)
     high[1, 3] = -0.5
     b = _Candidate(1, 0.5, 35, high, 30)
-    assert len(_places([a, b], 0.5, 20.0, up)) == 1
+    assert len(_places([a, b], 0.5, 20.0, to_plane)) == 1
     c = _Candidate(1, 0.5, 35, pose(1.6), 30)
-    assert len(_places([a, c], 0.5, 20.0, up)) == 2
+    assert len(_places([a, c], 0.5, 20.0, to_plane)) == 2
 
 
 def test_goal_retrieval_reorders_the_place_descriptors_candidates_by_local_matches() -> None:
