@@ -40,6 +40,8 @@ class GoalParams:
     pose_min_explained: float = 0.2
     # a candidate verifies a place only with this many PnP support points off the floor/ceiling band (0 = off)
     pose_min_distinct: int = 10
+    # a candidate whose own keyframe gives no pose is posed from its and its covisible candidates' depth points together
+    pose_pool_covisible: bool = True
     # drop a goal pose whose camera lies in an occupied cell of the map's grid (inside a wall)
     pose_outside_obstacles: bool = True
     # in a map with keypoint depth, refuse a goal verified at a node without a metric pose (its place cannot be checked)

@@ -28,7 +28,9 @@
   A candidate's pose is dropped where it cannot be where the image was taken (`pose_doubt`):
   inside an obstacle of the grid, or at the keyframe's own view while explaining little of it.
   A candidate whose PnP support holds fewer than `pose_min_distinct` points off the floor and
-  ceiling band matched tiles alone and verifies no place.
+  ceiling band matched tiles alone and verifies no place. Where the candidate the decision rests
+  on gets no pose from its own keyframe's depth points (too few PnP inliers, too far, tiles alone),
+  it is posed from its and its covisible candidates' depth points together (`pose_pool_covisible`).
 * `shortest_path`: Dijkstra on the connectivity graph (edge weights in metres) with
   `scipy.sparse.csgraph.dijkstra` on the map's CSR matrix (built once per map); ~1 ms at
   10,000 nodes where the former pure-Python heap took tens (`bench/scale.py`).
@@ -125,23 +127,46 @@ def goal_pose(
     node indices): already computed, else `match`."""
     if node_depth is None:
         return GoalPose(None, 0)
-    depth = node_depth
-    i_goal, i_node = match(goal_feats, node_feats) if matches is None else matches
-    z = np.asarray(depth, np.float64)[i_node]
+    i_goal, pts = lift_matches(node_feats, node_depth, K_node, match(goal_feats, node_feats) if matches is None
+                               else matches)
+    return _within_reach(_pnp_pose(goal_feats, K_goal, i_goal, pts, params), params)
+
+
+def _within_reach(gp: GoalPose, params: GoalParams) -> GoalPose:
+    """`gp` (in its keyframe's camera frame) without its pose where that lies farther than
+    `pose_max_m` from the keyframe."""
+    if gp.T_node_goal is not None and np.linalg.norm(gp.T_node_goal[:3, 3]) > params.pose_max_m:
+        return GoalPose(None, gp.inliers)
+    return gp
+
+
+def lift_matches(node_feats: FeatureSet, node_depth: NDArray[np.float32], K_node: NDArray[np.float64],
+                 matches: tuple[NDArray[np.int64], NDArray[np.int64]]) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """The matches (goal indices, node indices) whose keyframe keypoint has mapping depth
+    (`node_depth` (N_node,) metres, NaN = none): their goal keypoint indices (M,) and the
+    keyframe keypoints lifted to 3D, (M, 3) metres in the keyframe camera frame."""
+    i_goal, i_node = matches
+    z = np.asarray(node_depth, np.float64)[i_node]
     ok = np.isfinite(z) & (z > 0)
-    if int(ok.sum()) < params.pose_min_inliers:
-        return GoalPose(None, int(ok.sum()))
     pts = backproject_pixels(K_node, np.asarray(node_feats.keypoints, np.float64)[i_node[ok]], z[ok])
-    uv = np.asarray(goal_feats.keypoints, np.float64)[i_goal[ok]]
-    res = solve_pnp(pts, uv, K_goal, params.pose_pnp())
+    return np.asarray(i_goal, np.int64)[ok], pts.reshape(-1, 3)
+
+
+def _pnp_pose(goal_feats: FeatureSet, K_goal: NDArray[np.float64], i_goal: NDArray[np.int64],
+              points: NDArray[np.float64], params: GoalParams) -> GoalPose:
+    """PnP + RANSAC of the goal keypoints `i_goal` (M,) against their 3D points (M, 3, metres, in
+    one frame F): the goal camera's `GoalPose` in F, with the `goal_pose` gates."""
+    if len(i_goal) < params.pose_min_inliers:
+        return GoalPose(None, len(i_goal))
+    res = solve_pnp(points, np.asarray(goal_feats.keypoints, np.float64)[i_goal], K_goal, params.pose_pnp())
     n = res.n_ransac_inliers  # the support: RANSAC's consensus, not the refined pose's re-scored inliers
     if res.T_target_source is None or n < params.pose_min_inliers:
         return GoalPose(None, n)
     idx = res.ransac_inliers
-    T_node_goal = invert(res.T_target_source)
-    if not np.all(np.isfinite(T_node_goal)) or np.linalg.norm(T_node_goal[:3, 3]) > params.pose_max_m:
+    T_f_goal = invert(res.T_target_source)
+    if not np.all(np.isfinite(T_f_goal)):
         return GoalPose(None, n)
-    return GoalPose(T_node_goal, n, plane_rms(pts[idx]), pts[idx])
+    return GoalPose(T_f_goal, n, plane_rms(points[idx]), points[idx])
 
 
 def horizontal_share(points_map: NDArray[np.float64], up: NDArray[np.float64], band_m: float = 0.04) -> float:
@@ -299,11 +324,9 @@ def localize_goal(
     sims = topomap.vpr @ np.asarray(goal_desc, np.float32)
     order = rerank(goal_feats, topomap, np.argsort(-sims, kind="stable"), params)[: params.top_k]
 
-    def verify(node: int) -> _Candidate:
-        feats, K_node = topomap.features[node], topomap.K[node]
-        pairs = match(goal_feats, feats)
-        n_e = essential_inliers(goal_feats, K_goal, feats, K_node, match, params, pairs)
-        gp = goal_pose(goal_feats, K_goal, feats, topomap.keypoint_depth(node), K_node, match, params, pairs)
+    lifted: dict[int, tuple[int, NDArray[np.int64], NDArray[np.float64]]] = {}  # node: (E inliers, goal idx, map pts)
+
+    def judge(node: int, n_e: int, gp: GoalPose) -> _Candidate:
         T_map_goal = None if gp.T_node_goal is None else topomap.T_map_camera[node] @ gp.T_node_goal
         if T_map_goal is not None and params.pose_min_distinct > 0:
             distinct = distinctive_support(transform_points(topomap.T_map_camera[node], gp.support_points),
@@ -315,8 +338,40 @@ def localize_goal(
             return _Candidate(node, float(sims[node]), n_e, None, gp.inliers, pose_doubt=doubt)
         return _Candidate(node, float(sims[node]), n_e, T_map_goal, gp.inliers, gp.plane_rms_m, gp.support_points)
 
+    def verify(node: int) -> _Candidate:
+        feats, K_node = topomap.features[node], topomap.K[node]
+        pairs = match(goal_feats, feats)
+        n_e = essential_inliers(goal_feats, K_goal, feats, K_node, match, params, pairs)
+        depth = topomap.keypoint_depth(node)
+        if depth is None:
+            return judge(node, n_e, GoalPose(None, 0))
+        i_goal, pts = lift_matches(feats, depth, K_node, pairs)
+        lifted[node] = (n_e, i_goal, transform_points(topomap.T_map_camera[node], pts))
+        return judge(node, n_e, _within_reach(_pnp_pose(goal_feats, K_goal, i_goal, pts, params), params))
+
+    def pooled(c: _Candidate) -> _Candidate:
+        """`c` posed from its own and its covisible candidates' depth points together, where its
+        own keyframe's gave no pose (too few PnP inliers, too far, tiles alone)."""
+        if c.T_map_goal is not None or c.pose_doubt or c.node not in lifted:
+            return c
+        others = sorted((n for n in topomap.covisibility_lists[c.node] if n in lifted), key=lambda n: -lifted[n][0])
+        pool = [c.node, *others]
+        if len(pool) < 2:
+            return c
+        i_goal, pts = _unique_goal_points([lifted[n][1:] for n in pool])
+        T_node_map = invert(topomap.T_map_camera[c.node])
+        gp = _pnp_pose(goal_feats, K_goal, i_goal, transform_points(T_node_map, pts), params)
+        if gp.T_node_goal is None:
+            return c
+        at = (topomap.T_map_camera[c.node] @ gp.T_node_goal)[:3, 3]  # within reach of a keyframe of the pool
+        reach = min(float(np.linalg.norm(topomap.positions[n] - at)) for n in pool)
+        return judge(c.node, c.inliers, gp) if reach <= params.pose_max_m else c
+
     cands = [verify(int(n)) for n in order]
     cands += [verify(n) for n in _neighbours(topomap, cands, params)]
+    if params.pose_pool_covisible:  # the candidate the decision rests on lacks a pose: pose it from its place
+        first = _decisive(cands, params)
+        cands = [pooled(c) if c is first else c for c in cands]
     table = tuple((c.node, c.similarity, c.inliers) for c in cands)
     strongest = max(cands, key=lambda c: (c.inliers, c.similarity))
     verified = [c for c in cands if c.inliers >= c.needed(params)]
@@ -349,6 +404,24 @@ def localize_goal(
         if refusal is not None:
             return refusal
     return GoalResult(best.node, best.inliers, "ok", table, best.T_map_goal, best.pose_inliers)
+
+
+def _decisive(cands: list[_Candidate], params: GoalParams) -> _Candidate:
+    """The candidate `localize_goal`'s decision rests on: the verified one with most essential-matrix
+    inliers, else the strongest of all."""
+    verified = [c for c in cands if c.inliers >= c.needed(params)]
+    return max(verified or cands, key=lambda c: (c.inliers, c.similarity))
+
+
+def _unique_goal_points(parts: list[tuple[NDArray[np.int64], NDArray[np.float64]]]
+                        ) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """(goal keypoint indices (M,), 3D points (M, 3)) pooled from several keyframes' lifted
+    matches, one point per goal keypoint: the first part's where several keyframes matched it
+    (one keypoint is one ray; two points on it would count one observation twice)."""
+    i_goal = np.concatenate([p[0] for p in parts])
+    pts = np.concatenate([p[1] for p in parts]).reshape(-1, 3)
+    _, first = np.unique(i_goal, return_index=True)
+    return i_goal[first], pts[first]
 
 
 def distinctive_support(points_map: NDArray[np.float64], up: NDArray[np.float64], band_m: float) -> int:

@@ -359,6 +359,35 @@ def test_a_goal_matched_on_floor_tiles_alone_verifies_no_place(monkeypatch: pyte
         GoalParams(pose_min_distinct=-1)
 
 
+def test_a_keyframe_with_too_little_depth_is_posed_with_its_covisible_ones() -> None:
+    """Each keyframe keeps mapping depth for a disjoint fortieth of its keypoints, so no single
+    keyframe gives the goal image `pose_min_inliers` PnP inliers: the goal verifies best at node 3
+    (most essential-matrix inliers) but gets no metric pose there and is refused. Posed from node
+    3's and its covisible keyframe's (2) depth points together (`pose_pool_covisible`), it is placed
+    at its true pose; nodes 0 and 1, not covisible with node 3, add nothing (cut node 1 and 3's
+    depth and it is refused again, though nodes 0 and 2 together would hold enough)."""
+    T_goal = pose(2.3, yaw_deg=10.0)
+    goal, _ = observe(T_goal)
+    desc = np.zeros(4, np.float32)
+    desc[2] = 1.0
+    md = _depth_map()
+    ids = [f.descriptors[:, 0].astype(np.int64) for f in md.features]
+    feats = [dataclasses.replace(f, depth=np.where(i % 40 == n, f.depth, np.nan).astype(np.float32))
+             for n, (f, i) in enumerate(zip(md.features, ids, strict=True))]
+    sparse = dataclasses.replace(md, features=feats)
+    params = GoalParams(rerank_depth=0, top_k=4, expand_k=0, pose_min_inliers=60)  # pose_pool_covisible on
+    alone = localize_goal(goal, desc, K, sparse, match_by_id, dataclasses.replace(params, pose_pool_covisible=False))
+    assert alone.node is None and "no metric pose" in alone.reason
+    assert 0 < alone.pose_inliers < params.pose_min_inliers
+    pooled = localize_goal(goal, desc, K, sparse, match_by_id, params)
+    assert pooled.node == 3 and pooled.reason == "ok" and pooled.pose_inliers >= params.pose_min_inliers
+    np.testing.assert_allclose(pooled.T_map_goal, T_goal, atol=1e-5)
+    cut = [f if n in (0, 2) else dataclasses.replace(f, depth=np.full_like(f.depth, np.nan))
+           for n, f in enumerate(feats)]
+    res = localize_goal(goal, desc, K, dataclasses.replace(sparse, features=cut), match_by_id, params)
+    assert res.node is None and "no metric pose" in res.reason
+
+
 def test_horizontal_share_is_the_part_of_a_support_on_one_horizontal_surface() -> None:
     """A corridor view's support: 80 points on the floor (heights within 1 cm), 20 on a wall
     (heights spread over 2 m) -> 0.8 along the map's up; the same points with up along x
