@@ -42,6 +42,8 @@ class GoalParams:
     pose_min_distinct: int = 10
     # a candidate whose own keyframe gives no pose is posed from its and its covisible candidates' depth points together
     pose_pool_covisible: bool = True
+    # a verified candidate without a pose is stood for by the strongest posed verified one within this (m; 0 = off)
+    pose_fallback_m: float = 5.0
     # drop a goal pose whose camera lies in an occupied cell of the map's grid (inside a wall)
     pose_outside_obstacles: bool = True
     # in a map with keypoint depth, refuse a goal verified at a node without a metric pose (its place cannot be checked)
@@ -80,6 +82,8 @@ class GoalParams:
             raise ValueError("pose_min_explained must be in [0, 1] (0 = off)")
         if self.ambiguity_ratio < 0 or 0 < self.ambiguity_ratio < 1:
             raise ValueError("ambiguity_ratio must be 0 (off) or >= 1")
+        if not self.pose_fallback_m >= 0:
+            raise ValueError("pose_fallback_m must be >= 0 (0 = off)")
         if self.pose_min_distinct < 0:
             raise ValueError("pose_min_distinct must be >= 0 (0 = off)")
         if self.ambiguity_band_m < 0:

@@ -30,7 +30,9 @@
   A candidate whose PnP support holds fewer than `pose_min_distinct` points off the floor and
   ceiling band matched tiles alone and verifies no place. Where the candidate the decision rests
   on gets no pose from its own keyframe's depth points (too few PnP inliers, too far, tiles alone),
-  it is posed from its and its covisible candidates' depth points together (`pose_pool_covisible`).
+  it is posed from its and its covisible candidates' depth points together (`pose_pool_covisible`);
+  failing that, the strongest posed verified candidate whose keyframe lies within `pose_fallback_m`
+  of its keyframe stands for it.
 * `shortest_path`: Dijkstra on the connectivity graph (edge weights in metres) with
   `scipy.sparse.csgraph.dijkstra` on the map's CSR matrix (built once per map); ~1 ms at
   10,000 nodes where the former pure-Python heap took tens (`bench/scale.py`).
@@ -391,6 +393,8 @@ def localize_goal(
         return GoalResult(None, strongest.inliers, f"goal image matches no map place (best {strongest.inliers} "
                           f"inliers < {params.min_inliers})", table)
     best = max(verified, key=lambda c: (c.inliers, c.similarity))
+    if best.T_map_goal is None and not best.pose_doubt and params.pose_fallback_m > 0:
+        best = _posed_neighbour(topomap, verified, best, params.pose_fallback_m)
     if best.T_map_goal is None and params.require_pose and (best.pose_doubt
                                                              or topomap.keypoint_depth(best.node) is not None):
         why = (f": {best.pose_doubt}" if best.pose_doubt else
@@ -404,6 +408,15 @@ def localize_goal(
         if refusal is not None:
             return refusal
     return GoalResult(best.node, best.inliers, "ok", table, best.T_map_goal, best.pose_inliers)
+
+
+def _posed_neighbour(topomap: TopoMap, verified: list[_Candidate], best: _Candidate, radius_m: float) -> _Candidate:
+    """The verified candidate with a metric pose and most essential-matrix inliers whose keyframe lies
+    within `radius_m` of `best`'s (the same place seen from nearby), else `best`."""
+    pos = np.asarray(topomap.positions, np.float64)
+    near = [c for c in verified if c.T_map_goal is not None
+            and float(np.linalg.norm(pos[c.node] - pos[best.node])) <= radius_m]
+    return max(near, key=lambda c: (c.inliers, c.similarity)) if near else best
 
 
 def _decisive(cands: list[_Candidate], params: GoalParams) -> _Candidate:

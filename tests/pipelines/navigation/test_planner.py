@@ -388,6 +388,31 @@ def test_a_keyframe_with_too_little_depth_is_posed_with_its_covisible_ones() -> 
     assert res.node is None and "no metric pose" in res.reason
 
 
+def test_a_verified_keyframe_without_a_pose_is_stood_for_by_a_posed_one_nearby() -> None:
+    """Node 3 holds the most essential-matrix inliers but no mapping depth, so it gives no pose and
+    the goal is refused (`pose_fallback_m` 0); with 1.5 the strongest posed candidate within 1.5 m of
+    node 3 (node 2, 1 m away) stands for it and the goal is placed at its true pose; within 0.5 m
+    there is none and the goal is refused as before."""
+    T_goal = pose(2.3, yaw_deg=10.0)
+    goal, _ = observe(T_goal)
+    desc = np.zeros(4, np.float32)
+    desc[2] = 1.0
+    md = _depth_map()
+    feats = [dataclasses.replace(f, depth=np.full_like(f.depth, np.nan)) if n == 3 else f
+             for n, f in enumerate(md.features)]
+    m = dataclasses.replace(md, features=feats)
+    params = GoalParams(rerank_depth=0, top_k=4, expand_k=0, pose_pool_covisible=False)
+    off = localize_goal(goal, desc, K, m, match_by_id, dataclasses.replace(params, pose_fallback_m=0.0))
+    assert off.node is None and "verifies at node 3" in off.reason and "no metric pose" in off.reason
+    res = localize_goal(goal, desc, K, m, match_by_id, dataclasses.replace(params, pose_fallback_m=1.5))
+    assert res.node == 2 and res.reason == "ok"
+    np.testing.assert_allclose(res.T_map_goal, T_goal, atol=1e-5)
+    near = localize_goal(goal, desc, K, m, match_by_id, dataclasses.replace(params, pose_fallback_m=0.5))
+    assert near.node is None and "no metric pose" in near.reason
+    with pytest.raises(ValueError, match="pose_fallback_m"):
+        GoalParams(pose_fallback_m=-1.0)
+
+
 def test_horizontal_share_is_the_part_of_a_support_on_one_horizontal_surface() -> None:
     """A corridor view's support: 80 points on the floor (heights within 1 cm), 20 on a wall
     (heights spread over 2 m) -> 0.8 along the map's up; the same points with up along x
