@@ -19,7 +19,7 @@ class GoalParams:
     # cosine similarity of the descriptors a mutual nearest neighbour of that count needs
     rerank_min_similarity: float = 0.7
     # essential-matrix inliers that verify a goal image's place
-    min_inliers: int = 30
+    min_inliers: int = 25
     # essential-matrix RANSAC threshold (pixels)
     ransac_px: float = 2.0
     # RANSAC seed
