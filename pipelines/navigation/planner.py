@@ -28,11 +28,11 @@
   A candidate's pose is dropped where it cannot be where the image was taken (`pose_doubt`):
   inside an obstacle of the grid, or at the keyframe's own view while explaining little of it.
   A candidate whose PnP support holds fewer than `pose_min_distinct` points off the floor and
-  ceiling band matched tiles alone and verifies no place. Where the candidate the decision rests
-  on gets no pose from its own keyframe's depth points (too few PnP inliers, too far, tiles alone),
-  it is posed from its and its covisible candidates' depth points together (`pose_pool_covisible`);
-  failing that, the strongest posed verified candidate whose keyframe lies within `pose_fallback_m`
-  of its keyframe stands for it.
+  ceiling band matched tiles alone and verifies no place. Where the best verified candidate gets
+  no pose from its own keyframe's depth points (too few PnP inliers, too far), it is posed from
+  its and its covisible candidates' depth points together (`pose_pool_covisible`); failing that,
+  the strongest posed verified candidate whose keyframe lies within `pose_fallback_m` of its
+  keyframe stands for it.
 * `shortest_path`: Dijkstra on the connectivity graph (edge weights in metres) with
   `scipy.sparse.csgraph.dijkstra` on the map's CSR matrix (built once per map); ~1 ms at
   10,000 nodes where the former pure-Python heap took tens (`bench/scale.py`).
@@ -157,7 +157,8 @@ def lift_matches(node_feats: FeatureSet, node_depth: NDArray[np.float32], K_node
 def _pnp_pose(goal_feats: FeatureSet, K_goal: NDArray[np.float64], i_goal: NDArray[np.int64],
               points: NDArray[np.float64], params: GoalParams) -> GoalPose:
     """PnP + RANSAC of the goal keypoints `i_goal` (M,) against their 3D points (M, 3, metres, in
-    one frame F): the goal camera's `GoalPose` in F, with the `goal_pose` gates."""
+    one frame F): the goal camera's `GoalPose` in F; no pose below `pose_min_inliers` (the
+    callers apply `pose_max_m`, measured from their keyframes)."""
     if len(i_goal) < params.pose_min_inliers:
         return GoalPose(None, len(i_goal))
     res = solve_pnp(points, np.asarray(goal_feats.keypoints, np.float64)[i_goal], K_goal, params.pose_pnp())
@@ -353,8 +354,9 @@ def localize_goal(
 
     def pooled(c: _Candidate) -> _Candidate:
         """`c` posed from its own and its covisible candidates' depth points together, where its
-        own keyframe's gave no pose (too few PnP inliers, too far, tiles alone)."""
-        if c.T_map_goal is not None or c.pose_doubt or c.node not in lifted:
+        own keyframe's gave no pose (too few PnP inliers, too far). Not where its own support was
+        tiles alone: its tile matches, a tile off, would lead the pool to a pose in the wrong room."""
+        if c.T_map_goal is not None or c.pose_doubt or c.tiles is not None or c.node not in lifted:
             return c
         others = sorted((n for n in topomap.covisibility_lists[c.node] if n in lifted), key=lambda n: -lifted[n][0])
         pool = [c.node, *others]
@@ -371,12 +373,13 @@ def localize_goal(
 
     cands = [verify(int(n)) for n in order]
     cands += [verify(n) for n in _neighbours(topomap, cands, params)]
-    if params.pose_pool_covisible:  # the candidate the decision rests on lacks a pose: pose it from its place
-        first = _decisive(cands, params)
+    verified = [c for c in cands if c.inliers >= c.needed(params)]
+    if params.pose_pool_covisible and verified:  # the best verified candidate lacks a pose: pose it from its place
+        first = max(verified, key=lambda c: (c.inliers, c.similarity))
         cands = [pooled(c) if c is first else c for c in cands]
+        verified = [c for c in cands if c.inliers >= c.needed(params)]
     table = tuple((c.node, c.similarity, c.inliers) for c in cands)
     strongest = max(cands, key=lambda c: (c.inliers, c.similarity))
-    verified = [c for c in cands if c.inliers >= c.needed(params)]
     if not verified:
         if strongest.inliers >= params.min_inliers and strongest.tiles is not None:
             return GoalResult(None, strongest.inliers,
@@ -417,13 +420,6 @@ def _posed_neighbour(topomap: TopoMap, verified: list[_Candidate], best: _Candid
     near = [c for c in verified if c.T_map_goal is not None
             and float(np.linalg.norm(pos[c.node] - pos[best.node])) <= radius_m]
     return max(near, key=lambda c: (c.inliers, c.similarity)) if near else best
-
-
-def _decisive(cands: list[_Candidate], params: GoalParams) -> _Candidate:
-    """The candidate `localize_goal`'s decision rests on: the verified one with most essential-matrix
-    inliers, else the strongest of all."""
-    verified = [c for c in cands if c.inliers >= c.needed(params)]
-    return max(verified or cands, key=lambda c: (c.inliers, c.similarity))
 
 
 def _unique_goal_points(parts: list[tuple[NDArray[np.int64], NDArray[np.float64]]]
