@@ -388,6 +388,38 @@ def test_a_keyframe_with_too_little_depth_is_posed_with_its_covisible_ones() -> 
     assert res.node is None and "no metric pose" in res.reason
 
 
+def test_a_tiles_only_candidate_is_not_posed_from_its_covisible_ones(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A third of the scene on walls, the rest on the floor. Node 2 matches the goal best but keeps
+    mapping depth for its floor points only (its own support: tiles alone); its covisible nodes 1
+    and 3 hold wall points but too few matches to verify. Pooling node 2 with them would give it a
+    pose; its tile matches, a tile off in a real building, must not lead the pool, so the goal is
+    refused as matching only tiles."""
+    import tests.pipelines.localization.test_vloc as tv
+
+    scene = tv.POINTS.copy()
+    scene[:, 1] = 1.2
+    scene[::3, 1] = np.random.default_rng(3).uniform(-1.5, 1.0, len(scene[::3]))
+    monkeypatch.setattr(tv, "POINTS", scene)
+    T_goal = pose(2.3, yaw_deg=10.0)
+    goal, _ = observe(T_goal)
+    desc = np.zeros(4, np.float32)
+    desc[2] = 1.0
+    md = _depth_map()
+    feats = []
+    for n, f in enumerate(md.features):
+        wall = f.descriptors[:, 0].astype(np.int64) % 3 == 0
+        if n == 2:
+            feats.append(dataclasses.replace(f, depth=np.where(wall, np.nan, f.depth).astype(np.float32)))
+        else:  # 20 wall keypoints each: too few matches to verify
+            k = np.flatnonzero(wall)[20 * (n % 2): 20 * (n % 2) + 20]
+            feats.append(dataclasses.replace(f, keypoints=f.keypoints[k], descriptors=f.descriptors[k],
+                                             scores=f.scores[k], depth=f.depth[k]))
+    res = localize_goal(goal, desc, K, dataclasses.replace(md, features=feats), match_by_id,
+                        GoalParams(rerank_depth=0, top_k=4, expand_k=0))
+    assert res.node is None and res.T_map_goal is None
+    assert "only floor or ceiling tiles at node 2" in res.reason
+
+
 def test_a_verified_keyframe_without_a_pose_is_stood_for_by_a_posed_one_nearby() -> None:
     """Node 3 holds the most essential-matrix inliers but no mapping depth, so it gives no pose and
     the goal is refused (`pose_fallback_m` 0); with 1.5 the strongest posed candidate within 1.5 m of
