@@ -117,7 +117,7 @@ def _report(buildings: list[dict], args: argparse.Namespace, head: dict, run_wal
     print_table("Image-goal navigation per building (LiteVLoc; GT = ground-truth localization)", HEADER,
                 table_rows(buildings))
     _print_totals(t)
-    result = {**head, "buildings": buildings, "totals": t}
+    result = {"meta": run_meta(), **head, "buildings": buildings, "totals": t}  # --json keeps the machine too
     if args.json is None:
         write_json(args.name, result)
     else:
@@ -162,8 +162,8 @@ def _placement_report(results: list[dict], args: argparse.Namespace) -> int:
             for v, cams in pt.items() for cam, x in cams.items()]
     print_table(f"Goal placement only, {len(results)} buildings (wrong: placed > 2 m from where the image was taken)",
                 ["variant", "camera", "images", "right", "wrong", "refused", "refusals"], rows)
-    result = {"seeds": [args.seeds.start, args.seeds.stop], "generators": args.generators, "placement": pt,
-              "buildings": results}
+    result = {"meta": run_meta(), "seeds": [args.seeds.start, args.seeds.stop], "generators": args.generators,
+              "placement": pt, "buildings": results}
     if args.json is None:
         write_json(args.name, result)
     else:
