@@ -40,7 +40,7 @@ class GoalParams:
     pose_min_explained: float = 0.2
     # a candidate verifies a place only with this many PnP support points off the floor/ceiling band (0 = off)
     pose_min_distinct: int = 10
-    # a candidate whose own keyframe gives no pose is posed from its and its covisible candidates' depth points together
+    # the best verified candidate, where its own keyframe gives no pose, is posed with its covisible candidates' points
     pose_pool_covisible: bool = True
     # a verified candidate without a pose is stood for by the strongest posed verified one within this (m; 0 = off)
     pose_fallback_m: float = 5.0

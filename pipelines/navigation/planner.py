@@ -117,26 +117,13 @@ def plane_rms(points: NDArray[np.float64]) -> float:
     return float(np.linalg.svd(c, compute_uv=False)[-1] / np.sqrt(len(points)))
 
 
-def goal_pose(
-    goal_feats: FeatureSet, K_goal: NDArray[np.float64], node_feats: FeatureSet,
-    node_depth: NDArray[np.float32] | None, K_node: NDArray[np.float64], match: MatchFn, params: GoalParams,
-    matches: tuple[NDArray[np.int64], NDArray[np.int64]] | None = None,
-) -> GoalPose:
-    """The goal camera's pose in the keyframe camera's frame by PnP + RANSAC of the goal's
-    keypoints against the keyframe's keypoints lifted with their mapping depth (`node_depth`
-    (N_node,) metres, NaN = none); no pose when there is no depth, too few inliers
-    (< `pose_min_inliers`) or the pose is farther than `pose_max_m`. `matches` (goal indices,
-    node indices): already computed, else `match`."""
-    if node_depth is None:
-        return GoalPose(None, 0)
-    i_goal, pts = lift_matches(node_feats, node_depth, K_node, match(goal_feats, node_feats) if matches is None
-                               else matches)
-    return _within_reach(_pnp_pose(goal_feats, K_goal, i_goal, pts, params), params)
-
-
-def _within_reach(gp: GoalPose, params: GoalParams) -> GoalPose:
-    """`gp` (in its keyframe's camera frame) without its pose where that lies farther than
-    `pose_max_m` from the keyframe."""
+def goal_pose(goal_feats: FeatureSet, K_goal: NDArray[np.float64], i_goal: NDArray[np.int64],
+              points_node: NDArray[np.float64], params: GoalParams) -> GoalPose:
+    """The goal camera's pose in a keyframe camera's frame by PnP + RANSAC of the goal keypoints
+    `i_goal` (M,) against the keyframe's matched keypoints lifted with their mapping depth
+    (`points_node` (M, 3) metres, `lift_matches`); no pose with too few inliers
+    (< `pose_min_inliers`) or farther than `pose_max_m` from the keyframe."""
+    gp = _pnp_pose(goal_feats, K_goal, i_goal, points_node, params)
     if gp.T_node_goal is not None and np.linalg.norm(gp.T_node_goal[:3, 3]) > params.pose_max_m:
         return GoalPose(None, gp.inliers)
     return gp
@@ -157,8 +144,8 @@ def lift_matches(node_feats: FeatureSet, node_depth: NDArray[np.float32], K_node
 def _pnp_pose(goal_feats: FeatureSet, K_goal: NDArray[np.float64], i_goal: NDArray[np.int64],
               points: NDArray[np.float64], params: GoalParams) -> GoalPose:
     """PnP + RANSAC of the goal keypoints `i_goal` (M,) against their 3D points (M, 3, metres, in
-    one frame F): the goal camera's `GoalPose` in F; no pose below `pose_min_inliers` (the
-    callers apply `pose_max_m`, measured from their keyframes)."""
+    one frame F): the goal camera's `GoalPose` in F; no pose below `pose_min_inliers` (`pose_max_m`
+    is the caller's: from one keyframe, or from the nearest of a pool)."""
     if len(i_goal) < params.pose_min_inliers:
         return GoalPose(None, len(i_goal))
     res = solve_pnp(points, np.asarray(goal_feats.keypoints, np.float64)[i_goal], K_goal, params.pose_pnp())
@@ -350,13 +337,13 @@ def localize_goal(
             return judge(node, n_e, GoalPose(None, 0))
         i_goal, pts = lift_matches(feats, depth, K_node, pairs)
         lifted[node] = (n_e, i_goal, transform_points(topomap.T_map_camera[node], pts))
-        return judge(node, n_e, _within_reach(_pnp_pose(goal_feats, K_goal, i_goal, pts, params), params))
+        return judge(node, n_e, goal_pose(goal_feats, K_goal, i_goal, pts, params))
 
     def pooled(c: _Candidate) -> _Candidate:
         """`c` posed from its own and its covisible candidates' depth points together, where its
-        own keyframe's gave no pose (too few PnP inliers, too far). Not where its own support was
-        tiles alone: its tile matches, a tile off, would lead the pool to a pose in the wrong room."""
-        if c.T_map_goal is not None or c.pose_doubt or c.tiles is not None or c.node not in lifted:
+        own keyframe's gave no pose (too few PnP inliers, too far). Only ever a verified candidate,
+        never a tiles-only one: its tile matches, a tile off, would lead the pool to the wrong room."""
+        if c.T_map_goal is not None or c.pose_doubt or c.node not in lifted:
             return c
         others = sorted((n for n in topomap.covisibility_lists[c.node] if n in lifted), key=lambda n: -lifted[n][0])
         pool = [c.node, *others]
