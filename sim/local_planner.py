@@ -28,6 +28,11 @@ the contact ahead is `contact_clear_m` beyond its radius, and no arc may come cl
 than the robot already is (nor within robot_radius + margin_m): a turn toward the next subgoal in
 a doorway otherwise picked an arc into the jamb it had just touched (seen obstacles may be
 approached 5 mm in a tight spot; contacts, stored on a ring just outside the robot, may not).
+Backing up (after a bump, or to recover when no arc is drivable) is blind: the camera looks
+ahead. Each backing-up command is given only while the footprint's path `rear_check_m` straight
+back keeps off the known obstacles and contacts (by the arcs' rule) and off ground not seen;
+otherwise the robot turns in place instead: backing into a wall it had seen beside it, and on
+into it for the rest of the recovery, was every ground-truth run's collision in the buildings.
 Ground the camera looked at is remembered the same way (`seen_ground`), and no arc may sweep the
 footprint more than `unseen_overlap_m` over ground not seen: turning into a door from beside it,
 the robot's inner side otherwise swung into a jamb that never was in the 72-degree view.
@@ -123,6 +128,7 @@ class LocalPlanner:
         # 2 cm steps up to the second sample: where a contact is checked between the coarse samples
         fine = np.arange(0.02, self.s[min(1, p.samples - 1)], 0.02)
         self.fine_arcs = np.stack([arc_points(k, fine) for k in self.kappas])  # (A, f, 2)
+        self.rear = arc_points(0.0, -np.arange(0.02, p.rear_check_m + 1e-9, 0.02))  # (r, 2) straight back
         self._obstacles = _RecentPoints(p.voxel_m)  # obstacle points, odometry frame
         self._seen = _RecentPoints(p.grid_m)  # ground the camera looked at, odometry frame
         self._driven = 0.0  # metres driven so far (odometry)
@@ -152,14 +158,15 @@ class LocalPlanner:
         T = np.asarray(T_odom_base, np.float64)
         return np.asarray((self.contacts - T[:2, 3]) @ T[:2, :2], np.float64)
 
-    def back_off(self, contacts: NDArray[np.float64]) -> Command | None:
+    def back_off(self, contacts: NDArray[np.float64], rear_clear: bool = True) -> Command | None:
         """After a bump: back straight up at `min_speed` while one of the `contacts` (C, 2, base
         frame) ahead of the robot's centre lies nearer than `contact_clear_m` beyond its radius,
         for at most `backoff_commands` commands (every forward arc would come closer to a
-        contact ahead); None: clear, or nothing to back off from."""
+        contact ahead), and while the way back is clear (`rear_clear`); None: clear, blocked
+        behind, or nothing to back off from."""
         p = self.params
         ahead = contacts[contacts[:, 0] > 0]
-        if self._backing > 0 and len(ahead) and \
+        if self._backing > 0 and rear_clear and len(ahead) and \
                 float(np.sqrt(np.min((ahead**2).sum(1)))) < p.robot_radius + p.contact_clear_m:
             self._backing -= 1
             return Command(-p.min_speed, 0.0, "back off")
@@ -241,21 +248,44 @@ class LocalPlanner:
             self._stuck = self._reversing = 0
             return Command(0.0, 0.0, "arrived")
         contacts = self.contacts_base(T_odom_base)
-        backing = self.back_off(contacts)
-        if backing is not None:
-            return backing
-        if self._reversing > 0:
-            self._reversing -= 1
-            return Command(-p.min_speed, 0.0, "recover")
-        g = self.carrot(g, pts)
         seen = self.seen_base(T_odom_base)
         unseen = None if seen is None else unseen_distance(seen, p)
+        rear_clear = self.rear_clear(pts, unseen)
+        backing = self.back_off(contacts, rear_clear)
+        if backing is not None:
+            return backing
+        if self._reversing > 0 and rear_clear:
+            self._reversing -= 1
+            return Command(-p.min_speed, 0.0, "recover")
+        self._reversing = 0  # done, or blocked behind: what the arcs say (a turn in place at worst)
+        g = self.carrot(g, pts)
         cmd = self._choose(g, float(np.hypot(*g)), pts, contacts, unseen)
         self._stuck = 0 if cmd.reason in ("arc", "squeeze") else self._stuck + 1
         if self._stuck >= p.recover_after:
-            self._stuck, self._reversing, self._turn_sign = 0, p.recover_commands - 1, 0.0
-            return Command(-p.min_speed, 0.0, "recover")
+            self._stuck, self._turn_sign = 0, 0.0
+            if rear_clear:
+                self._reversing = p.recover_commands - 1
+                return Command(-p.min_speed, 0.0, "recover")
         return cmd
+
+    def rear_clear(self, pts: NDArray[np.float64], unseen: NDArray[np.float64] | None = None) -> bool:
+        """Whether backing straight up `rear_check_m` keeps the footprint off the obstacle points
+        `pts` (M, 2, base frame, contacts included; by the arcs' rule, `_limit`) and, with the
+        local grid's distance to ground not seen (`unseen`), off that ground as an arc must."""
+        p = self.params
+        if len(pts) and bool((_nearest(self.rear[None], pts) <= self._limit(pts)).any()):
+            return False
+        return unseen is None or \
+            bool((grid_lookup(unseen, self.rear, p.grid_m) >= p.robot_radius - p.unseen_overlap_m).all())
+
+    def _limit(self, pts: NDArray[np.float64]) -> float:
+        """How near (m) a driven path may come to the obstacle points `pts` (M, 2, base frame):
+        robot_radius + margin_m, or from a tight spot (a doorway) 5 mm closer than the robot
+        already is, but never within the radius + 5 mm (obstacle points are thinned to voxels: a
+        tighter arc clipped a door jamb on the floor world)."""
+        p = self.params
+        here = float(np.sqrt(np.min((pts**2).sum(1)))) if len(pts) else np.inf
+        return min(p.robot_radius + p.margin_m, max(here - 0.005, p.robot_radius + 0.005))
 
     def carrot(self, g: NDArray[np.float64], pts: NDArray[np.float64]) -> NDArray[np.float64]:
         """Where the arcs should steer (2,): the farthest point of the cheapest local-grid path
@@ -308,13 +338,7 @@ class LocalPlanner:
         n_need = int(np.searchsorted(self.s, need - 1e-9)) + 1  # samples up to the subgoal
         arcs = self.arcs[:, :n_need]
         dmin = _nearest(arcs, pts)  # (A, n)
-        # blocked where an arc comes within radius + margin of an obstacle; from a tight spot
-        # (a doorway) arcs that get at most 5 mm closer than the robot already is are allowed,
-        # but never within the radius + 5 mm (obstacle points are thinned to voxels: a tighter
-        # arc clipped a door jamb on the floor world)
-        here = float(np.sqrt(np.min((pts**2).sum(1)))) if len(pts) else np.inf
-        limit = min(p.robot_radius + p.margin_m, max(here - 0.005, p.robot_radius + 0.005))
-        hit = dmin <= limit
+        hit = dmin <= self._limit(pts)  # blocked where an arc comes too near an obstacle
         if contacts is not None and len(contacts):  # a contact: never closer than the robot is now
             here_c = float(np.sqrt(np.min((contacts**2).sum(1))))
             limit_c = min(here_c, p.robot_radius + p.margin_m) - 1e-6

@@ -18,7 +18,8 @@ class LocalPlannerParams:
     since, plus `memory_m_per_rad` per radian of net heading change since: turning back and
     forth in place keeps them), so odometry drift cannot move them far.
     Recovery: after `recover_after` commands without a drivable arc (e.g. diagonally in a
-    doorway) the robot backs up along the way it came for `recover_commands` commands.
+    doorway) the robot backs straight up for `recover_commands` commands, each only while the
+    `rear_check_m` behind it is clear of known obstacles and of ground not seen (as arcs are).
     Detour: after a blocked command, arcs are tried for `detour_commands` commands even when the
     subgoal is far to the side, so an obstacle in front of a subgoal is driven around.
     Local path: known obstacle points are rasterised on a `grid_m` grid out to `grid_radius_m`;
@@ -83,8 +84,10 @@ class LocalPlannerParams:
     backoff_commands: int = 8
     # consecutive commands without a drivable arc before backing up
     recover_after: int = 15
-    # commands spent backing up along the way the robot came
+    # commands spent backing up
     recover_commands: int = 8
+    # before each backing-up command the footprint's path this far straight back is checked (m)
+    rear_check_m: float = 0.1
     # commands after a blocked one during which arcs are tried even towards a subgoal far to the side
     detour_commands: int = 10
     # cell of the local path grid (m)
@@ -115,6 +118,8 @@ class LocalPlannerParams:
             raise ValueError("need grid_m > 0, grid_radius_m >= 0, carrot_m > 0 and blocked_cost >= 0")
         if self.contact_clear_m < 0 or self.backoff_commands < 0:
             raise ValueError("need contact_clear_m >= 0 and backoff_commands >= 0")
+        if self.rear_check_m <= 0:
+            raise ValueError("need rear_check_m > 0")
 
 
 @dataclass(frozen=True)

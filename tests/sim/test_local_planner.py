@@ -179,6 +179,7 @@ def test_after_a_bump_the_robot_backs_up_until_the_contact_ahead_is_clear() -> N
     p = lp.params
     empty = np.full((P.height, P.width), np.nan, np.float32)
     T = np.eye(4)
+    lp.observe(floor_depth(), K, T_BC, _pose(1.0, np.pi))  # it came this way: the floor behind was seen
     lp.add_contacts(_bumper_ring(np.arange(-50.0, -19.0, 10.0)), T)
     goal = np.array([2.0, -1.0])
     reasons = []
@@ -196,6 +197,7 @@ def test_after_a_bump_the_robot_backs_up_until_the_contact_ahead_is_clear() -> N
     assert np.min(np.hypot(*ahead.T)) >= p.robot_radius + p.contact_clear_m
     # a bump in a corner that backing up cannot clear: at most backoff_commands commands
     lp2 = LocalPlanner()
+    lp2.observe(floor_depth(), K, T_BC, _pose(1.0, np.pi))
     lp2.add_contacts(_bumper_ring(np.array([0.0])), np.eye(4))
     backs = [lp2.command(goal, empty, K, T_BC, T_odom_base=np.eye(4)).reason for _ in range(p.backoff_commands + 3)]
     n = p.backoff_commands
@@ -231,6 +233,7 @@ def test_no_arc_comes_closer_to_a_contact_than_the_robot_is() -> None:
         assert np.min(np.linalg.norm(path - contact, axis=1)) >= here - 1e-3, touched
     lp = LocalPlanner()
     T = np.eye(4)
+    lp.observe(floor_depth(), K, T_BC, _pose(1.0, np.pi))  # it came this way: the floor behind was seen
     lp.add_contacts(contact, T)
     empty = np.full((P.height, P.width), np.nan, np.float32)
     nearest, reasons = here, []
@@ -291,3 +294,43 @@ def test_after_being_blocked_arcs_are_tried_before_facing_the_subgoal_again() ->
     for _ in range(LocalPlannerParams().detour_commands):  # the detour ends: the subgoal is faced again
         c = lp._choose(side_goal, float(np.hypot(*side_goal)), box)
     assert c.reason == "turn"
+
+
+def floor_depth(wall_m: float = np.inf) -> np.ndarray:
+    """Depth of the floor (z = 0 in the base frame) seen by the camera, cut by a vertical wall
+    `wall_m` ahead of the camera (optical z) where that is nearer; NaN above the horizon."""
+    h, w = P.height, P.width
+    v, u = np.mgrid[0:h, 0:w]
+    rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones((h, w))], -1)  # optical, z = 1
+    R, t = T_BC[:3, :3], T_BC[:3, 3]
+    down = (rays @ R.T)[..., 2]  # base-frame z per unit of optical depth
+    d = np.where(down < -1e-6, -t[2] / np.minimum(down, -1e-6), np.nan)
+    return np.fmin(d, wall_m).astype(np.float32)
+
+
+def _pose(x: float, yaw: float) -> np.ndarray:
+    T = np.eye(4)
+    T[:2, :2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
+    T[0, 3] = x
+    return T
+
+
+def _recover_after_looking_back(behind: np.ndarray) -> list:
+    """The robot looked back from 1 m ahead (seeing `behind`), then stands at the origin facing
+    +x with a wall right in front everywhere: its commands while stuck."""
+    lp = LocalPlanner(LocalPlannerParams(recover_after=5, recover_commands=3))
+    lp.observe(behind, K, T_BC, _pose(1.0, np.pi))
+    return [lp.command(np.array([4.0, 0.1]), wall_depth(0.2), K, T_BC, _pose(0.0, 0.0)) for _ in range(10)]
+
+
+def test_backing_up_needs_the_way_back_seen_and_clear() -> None:
+    """Recovery backs up only where nothing known lies behind: with a wall seen 0.35 m behind the robot it
+    turns in place instead (a blind reversal into a wall seen beside the robot, and on into it,
+    was every ground-truth collision of the building runs); over seen floor it backs up."""
+    free = _recover_after_looking_back(floor_depth())
+    assert [c.reason for c in free[4:7]] == ["recover"] * 3 and all(c.v < 0 for c in free[4:7])
+    walled = _recover_after_looking_back(floor_depth(wall_m=1.1))  # 1 - 0.25 - 1.1: 0.35 m behind
+    assert all(c.v >= 0 for c in walled), [c.reason for c in walled]
+    assert {c.reason for c in walled} <= {"blocked", "turn"}  # turning in place: always collision-free
+    lp = LocalPlanner()
+    assert lp.rear_clear(np.array([[0.5, 0.0], [0.0, 0.4]])) and not lp.rear_clear(np.array([[-0.38, 0.05]]))
