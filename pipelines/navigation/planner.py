@@ -585,6 +585,10 @@ class SubgoalTracker:
         self._seg_start: NDArray[np.float64] | None = None  # where the current path segment starts
         self._via: list[NDArray[np.float64]] = []  # grid-path turns still to drive to before path[0]
         self._via_node: int | None = None  # the subgoal node `_via` leads to
+        self._prev_node: int | None = None  # the node last passed (the start node after a plan)
+        # metres of each connectivity edge: what the mapping pass drove between consecutive keyframes
+        self._edge_m = {(min(i, j), max(i, j)): float(m)
+                        for (i, j), m in zip(topomap.conn_edges.tolist(), topomap.conn_metres.tolist(), strict=True)}
 
     def nearest_node(self, position: NDArray[np.floating]) -> int:
         return self.index.nearest(np.asarray(position, np.float64)[:3])[0]
@@ -594,6 +598,7 @@ class SubgoalTracker:
         start = self.nearest_node(position)
         self._seg_start = np.asarray(position, dtype=np.float64)[:3].copy()
         self._via_node = None
+        self._prev_node = None
         try:
             self.path, length = shortest_path(self.map, start, self.goal, self.graph)
         except NavigationError as exc:
@@ -620,7 +625,8 @@ class SubgoalTracker:
                     np.linalg.norm(pos[self.path[0]] - p) > self.params.reach_m / 3 and \
                     not segment_clear(self.map, p, pos[self.path[1]], self.params.clearance_m):
                 break  # the way on is blocked from here: get closer to this node first
-            self._seg_start = pos[self.path.pop(0)].copy()
+            self._prev_node = self.path.pop(0)
+            self._seg_start = pos[self._prev_node].copy()
         if not self.path:
             self.status = NavStatus("reached", f"within {self.params.reach_m} m of goal node {self.goal}")
             return self.status
@@ -641,24 +647,32 @@ class SubgoalTracker:
         subgoal node (and after a replan); turns within `reach_m` are passed."""
         node = self.path[0]
         if node != self._via_node:
-            self._via_node, self._via = node, self._grid_turns(p, self.positions[node])
+            leg_m = self._edge_m.get((min(node, self._prev_node), max(node, self._prev_node)), 0.0) \
+                if self._prev_node is not None else 0.0
+            self._via_node, self._via = node, self._grid_turns(p, self.positions[node], leg_m)
         while self._via and np.linalg.norm(self._via[0] - p) <= self.params.reach_m:
             self._seg_start = self._via.pop(0)
         return self._via[0] if self._via else None
 
-    def _grid_turns(self, p: NDArray[np.float64], node_xyz: NDArray[np.float64]) -> list[NDArray[np.float64]]:
+    def _grid_turns(self, p: NDArray[np.float64], node_xyz: NDArray[np.float64],
+                    leg_m: float = 0.0) -> list[NDArray[np.float64]]:
         """Turns (map frame, at the robot's height) of the grid path from `p` to a node whose
         straight line crosses an occupied cell (a wall, with the door to go out of first beside
         it: a local planner that sees only what is ahead drives into the wall); [] where the line
-        is clear, the grid has no path within `leg_detour_m` more than the straight line, or the
-        option is off. Only a line through a wall counts: a corner or a desk the line passes
-        within the robot's radius the local planner steers round itself, and grid turns that
-        keep just the robot's radius from it would lead it closer."""
+        is clear, the grid has no path within `leg_detour_m` more than the leg, or the option is
+        off. The leg is the straight line, or `leg_m` (m) where longer: the metres the mapping pass
+        drove along the edge to the node (consecutive keyframes far apart, the rooms between
+        covered by other keyframes: the straight line runs through walls, and the way is the
+        long one the mapping robot took). Only a line through a wall counts: a corner or a desk
+        the line passes within the robot's radius the local planner steers round itself, and
+        grid turns that keep just the robot's radius from it would lead it closer."""
         prm = self.params
-        if prm.leg_detour_m <= 0 or np.linalg.norm(node_xyz - p) <= prm.reach_m or \
+        straight = float(np.linalg.norm(node_xyz - p))
+        if prm.leg_detour_m <= 0 or straight <= prm.reach_m or \
                 segment_clear(self.map, p, node_xyz, 0.0):  # also True on a map without a grid
             return []
-        way = plan_approach(self.map.grid, p, node_xyz, replace(prm, approach_detour_m=prm.leg_detour_m))
+        detour = prm.leg_detour_m + max(0.0, leg_m - straight)
+        way = plan_approach(self.map.grid, p, node_xyz, replace(prm, approach_detour_m=detour))
         if way.waypoints is None:
             return []
         return [w.copy() for w in way.waypoints[:-1]]

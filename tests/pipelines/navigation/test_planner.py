@@ -592,6 +592,30 @@ def test_goal_retrieval_reorders_the_place_descriptors_candidates_by_local_match
         GoalParams(rerank_depth=-1)
 
 
+def test_tracker_leads_the_long_way_the_mapping_pass_drove_between_consecutive_keyframes() -> None:
+    """Consecutive keyframes 3 m apart on either side of a wall 7 m long (the rooms between them
+    covered by other keyframes): their edge holds the 14 m the mapping pass drove. The way round
+    the wall's end, ~10 m longer than the straight line, is beyond `leg_detour_m` of the straight
+    line but not of the edge's own length: the robot is sent round, not at the wall (a floor
+    building's robot dithered 30 s in front of it and gave up)."""
+    from litevloc.pipelines.topomap.types import OccupancyGrid
+
+    r = 0.1
+    cells = np.full((80, 80), OccupancyGrid.FREE, np.uint8)  # 8 x 8 m, cell (i, j) at x = j r, y = i r
+    cells[0, :] = cells[-1, :] = cells[:, 0] = cells[:, -1] = OccupancyGrid.OCCUPIED
+    cells[:70, 39:41] = OccupancyGrid.OCCUPIED  # wall x = 3.9-4.1 m from y = 0 to 7 m
+    grid = OccupancyGrid(cells, np.zeros(2), r, np.array([0, 0, 1.0]), np.eye(3)[:2])
+    pos = np.array([[2.5, 1.0, 0.3], [5.5, 1.0, 0.3]])
+    for driven, expect_turns in ((14.0, True), (3.0, False)):
+        m = dataclasses.replace(grid_map([(0, 1, driven)], 2), grid=grid)
+        tr = SubgoalTracker(m, TrackerParams(reach_m=0.3, stray_m=1.5), positions=pos)
+        tr.set_goal(1, pos[0])
+        st = tr.update(pos[0])
+        assert st.subgoal == 1 and (st.via is not None) == expect_turns, (driven, st)
+        if expect_turns:
+            assert st.via is not None and st.via[1] > 5.0 and st.remaining_m > 12.0  # up towards the wall's end
+
+
 def test_tracker_leads_round_a_wall_to_a_node_it_cannot_reach_straight() -> None:
     """Two nodes 3 m apart on either side of a wall that ends 1 m above them (a door to go out
     of first): the subgoal stays the node, but the robot is sent along the grid path's turns
