@@ -563,6 +563,10 @@ class NavStatus:
     via: tuple[float, float, float] | None = None
 
 
+# nearest nodes tried for a plan's start in clear line from the robot (`SubgoalTracker.start_node`)
+_START_CANDIDATES = 16
+
+
 class SubgoalTracker:
     """Follow a node path on the map from fused robot positions (map frame).
 
@@ -593,9 +597,26 @@ class SubgoalTracker:
     def nearest_node(self, position: NDArray[np.floating]) -> int:
         return self.index.nearest(np.asarray(position, np.float64)[:3])[0]
 
+    def start_node(self, position: NDArray[np.floating]) -> int:
+        """Where a plan from `position` (map frame, m) starts: the nearest of the `_START_CANDIDATES`
+        nearest nodes whose straight line from the robot crosses no wall on the map's grid, else
+        the nearest node. The nearest node alone can lie behind a wall: a robot that had reached
+        a goal in a room 1.9 m from a corridor keyframe was planned from the corridor and sent at
+        the wall."""
+        p = np.asarray(position, np.float64)[:3]
+        nearest = self.nearest_node(p)
+        if self.map.grid.cells.size == 0 or segment_clear(self.map, p, self.positions[nearest], 0.0):
+            return nearest
+        k = min(_START_CANDIDATES, len(self.index))
+        _, ids = self.index.tree.query(p, k=k)
+        for i in np.atleast_1d(ids):
+            if segment_clear(self.map, p, self.positions[int(i)], 0.0):
+                return int(i)
+        return nearest
+
     def _plan(self, position: NDArray[np.floating]) -> NavStatus:
         assert self.goal is not None
-        start = self.nearest_node(position)
+        start = self.start_node(position)
         self._seg_start = np.asarray(position, dtype=np.float64)[:3].copy()
         self._via_node = None
         self._prev_node = None

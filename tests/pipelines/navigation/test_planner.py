@@ -616,6 +616,26 @@ def test_tracker_leads_the_long_way_the_mapping_pass_drove_between_consecutive_k
             assert st.via is not None and st.via[1] > 5.0 and st.remaining_m > 12.0  # up towards the wall's end
 
 
+def test_tracker_plans_from_the_nearest_node_not_behind_a_wall() -> None:
+    """The robot 0.3 m before a wall, a node 0.5 m beyond it and one 1.1 m back in its own room:
+    the plan starts from its room's node (from the node behind the wall, a robot that had reached
+    a goal in a room was sent at the wall and gave up)."""
+    from litevloc.pipelines.topomap.types import OccupancyGrid
+
+    r = 0.1
+    cells = np.full((60, 60), OccupancyGrid.FREE, np.uint8)  # 6 x 6 m, cell (i, j) at x = j r, y = i r
+    cells[:30, 29:31] = OccupancyGrid.OCCUPIED  # wall x = 2.9-3.1 m from y = 0 to 3 m
+    grid = OccupancyGrid(cells, np.zeros(2), r, np.array([0, 0, 1.0]), np.eye(3)[:2])
+    pos = np.array([[3.1, 1.0, 0.3], [1.5, 1.0, 0.3], [1.5, 4.0, 0.3]])
+    m = dataclasses.replace(grid_map([(0, 2, 4.0), (1, 2, 3.0)], 3), grid=grid)
+    tr = SubgoalTracker(m, TrackerParams(reach_m=0.3, stray_m=1.5), positions=pos)
+    robot = np.array([2.6, 1.0, 0.3])
+    assert tr.nearest_node(robot) == 0 and tr.start_node(robot) == 1
+    assert tr.set_goal(2, robot).path[0] == 1
+    open_grid = dataclasses.replace(m, grid=dataclasses.replace(grid, cells=np.full_like(cells, OccupancyGrid.FREE)))
+    assert SubgoalTracker(open_grid, TrackerParams(reach_m=0.3, stray_m=1.5), positions=pos).start_node(robot) == 0
+
+
 def test_tracker_leads_round_a_wall_to_a_node_it_cannot_reach_straight() -> None:
     """Two nodes 3 m apart on either side of a wall that ends 1 m above them (a door to go out
     of first): the subgoal stays the node, but the robot is sent along the grid path's turns
