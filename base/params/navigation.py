@@ -109,7 +109,9 @@ class GoalParams:
 
 @dataclass(frozen=True)
 class TrackerParams:
-    """Subgoal tracking along the planned node path (metres, seconds, degrees)."""
+    """Subgoal tracking along the planned node path (metres, seconds, degrees). A leg is the way to
+    the next node: the straight line, or the metres the mapping pass drove along that edge where
+    longer (consecutive keyframes rooms apart)."""
 
     # a node is reached within this distance (m)
     reach_m: float = 0.5
@@ -125,8 +127,7 @@ class TrackerParams:
     approach_detour_m: float = 2.0
     # advance past a reached node only when the way on is clear for a robot of this radius (m; 0 = off)
     clearance_m: float = 0.45
-    # a node whose straight line crosses a wall on the grid is reached along grid turns up to this longer than the
-    # leg: the straight line, or the metres the mapping pass drove along the edge where longer (m; 0 = off)
+    # a node behind a wall on the grid is reached along grid turns this much longer than the leg at most (m; 0 = off)
     leg_detour_m: float = 6.0
     # a goal fails ("no progress") when not stall_progress_m closer within this (s of sensor time; 0 = off)
     stall_s: float = 30.0
