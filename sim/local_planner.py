@@ -32,7 +32,7 @@ Backing up (after a bump, or to recover when no arc is drivable) is blind: the c
 ahead. Each backing-up command is given only while the footprint's path `rear_check_m` straight
 back keeps off the known obstacles and contacts (by the arcs' rule) and off ground not seen;
 otherwise the robot turns in place instead: backing into a wall it had seen beside it, and on
-into it for the rest of the recovery, was every ground-truth run's collision in the buildings.
+into it for the rest of the recovery, were a building's 4 collisions with ground-truth localization.
 Ground the camera looked at is remembered the same way (`seen_ground`), and no arc may sweep the
 footprint more than `unseen_overlap_m` over ground not seen: turning into a door from beside it,
 the robot's inner side otherwise swung into a jamb that never was in the 72-degree view.

@@ -323,7 +323,7 @@ def _recover_after_looking_back(behind: np.ndarray) -> list:
     return [lp.command(np.array([4.0, 0.1]), wall_depth(0.2), K, T_BC, _pose(0.0, 0.0)) for _ in range(10)]
 
 
-def test_backing_up_needs_the_way_back_seen_and_clear() -> None:
+def test_backing_up_needs_the_way_back_clear() -> None:
     """Recovery backs up only where nothing known lies behind: with a wall seen 0.35 m behind the robot it
     turns in place instead (a blind reversal into a wall seen beside the robot, and on into it,
     was every ground-truth collision of the building runs); over seen floor it backs up."""
