@@ -15,7 +15,7 @@ class GoalParams:
     # keyframes retrieved by VPR for a goal image and verified
     top_k: int = 5
     # this many keyframes most similar by VPR re-ordered by mutual-nearest-neighbour count before the top_k (0 = off)
-    rerank_depth: int = 20
+    rerank_depth: int = 40
     # cosine similarity of the descriptors a mutual nearest neighbour of that count needs
     rerank_min_similarity: float = 0.7
     # essential-matrix inliers that verify a goal image's place
