@@ -334,3 +334,15 @@ def test_backing_up_needs_the_way_back_clear() -> None:
     assert {c.reason for c in walled} <= {"blocked", "turn"}  # turning in place: always collision-free
     lp = LocalPlanner()
     assert lp.rear_clear(np.array([[0.5, 0.0], [0.0, 0.4]])) and not lp.rear_clear(np.array([[-0.38, 0.05]]))
+
+
+def test_after_backing_up_to_recover_the_robot_faces_the_subgoal_before_driving() -> None:
+    """Blocked (a wall everywhere ahead), the robot backs up; then, with the subgoal 70 deg to the
+    side, it turns in place to face it. Arcs tried at once (the detour that follows a blocked
+    command) drove a robot wedged beside a door straight back into the same spot for 30 s."""
+    lp = LocalPlanner(LocalPlannerParams(grid_radius_m=0, recover_after=3, recover_commands=2))
+    reasons = [lp.command(np.array([4.0, 0.1]), wall_depth(0.2), K, T_BC).reason for _ in range(4)]
+    assert reasons == ["blocked", "blocked", "recover", "recover"], reasons
+    side = np.array([np.cos(np.radians(70.0)), np.sin(np.radians(70.0))]) * 2.0
+    c = lp.command(side, None, K, T_BC)
+    assert c.reason == "turn" and c.v == 0.0 and c.omega > 0, c
