@@ -326,7 +326,7 @@ def _recover_after_looking_back(behind: np.ndarray) -> list:
 def test_backing_up_needs_the_way_back_clear() -> None:
     """Recovery backs up only where nothing known lies behind: with a wall seen 0.35 m behind the robot it
     turns in place instead (a blind reversal into a wall seen beside the robot, and on into it,
-    was every ground-truth collision of the building runs); over seen floor it backs up."""
+    was a building's 4 ground-truth collisions); over seen floor it backs up."""
     free = _recover_after_looking_back(floor_depth())
     assert [c.reason for c in free[4:7]] == ["recover"] * 3 and all(c.v < 0 for c in free[4:7])
     walled = _recover_after_looking_back(floor_depth(wall_m=1.1))  # 1 - 0.25 - 1.1: 0.35 m behind
