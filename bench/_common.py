@@ -84,9 +84,15 @@ def run_meta() -> dict[str, Any]:
             "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]])}
 
 
+def json_path(name: str) -> Path:
+    """out/bench/NAME.json, or NAME itself where it ends in .json (a path, relative to the working directory)."""
+    return Path(name) if name.endswith(".json") else OUT / f"{name}.json"
+
+
 def write_json(name: str, data: dict[str, Any]) -> Path:
-    OUT.mkdir(parents=True, exist_ok=True)
-    path = OUT / f"{name}.json"
+    """Write `data` with the run's metadata to `json_path(name)`."""
+    path = json_path(name)
+    path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps({"meta": run_meta(), **data}, indent=2, default=float) + "\n")
     print(f"\nwrote {path}")
     return path

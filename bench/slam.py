@@ -1,6 +1,6 @@
 """Maps from the robot's own sensors (issue 41): `map build --poses slam`, measured.
 
-    .venv/bin/python bench/slam.py [--json out/bench/slam.json] [--cases office floor loop bland 7s 7s-camera]
+    .venv/bin/python bench/slam.py [--json PATH.json | NAME] [--cases office floor loop bland 7s 7s-camera]
         [--inject] [--queries] [--navigation] [--loop-query] [--no-build] [--config default]
 
 Cases (each `map build` runs in its own process: its peak RSS and seconds are its own):
@@ -44,7 +44,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import numpy as np
-from _common import OUT, ROOT, SEVEN_SCENES, litevloc, print_table, require_7scenes, write_json
+from _common import OUT, ROOT, SEVEN_SCENES, json_path, litevloc, print_table, require_7scenes, write_json
 
 from litevloc.config import load_config
 from litevloc.experiments.slam import (
@@ -229,9 +229,9 @@ def main() -> int:
     ap.add_argument("--no-build", action="store_true", help="reuse the cases' earlier builds (their figures kept)")
     ap.add_argument("--loop-query", action="store_true")
     ap.add_argument("--pgt", type=Path, default=SEVEN_SCENES / "pgt-sfm-seq-01.txt")
-    ap.add_argument("--json", default="slam", help="name of the JSON under out/bench/")
+    ap.add_argument("--json", default="slam", help="the JSON: a path ending in .json, or a name under out/bench/")
     args = ap.parse_args()
-    prev = OUT / f"{args.json}.json"
+    prev = json_path(args.json)
     res: dict[str, Any] = json.loads(prev.read_text()) if prev.is_file() else {}  # cases not rerun are kept
     for c in [] if args.no_build else args.cases:
         if c in MAPPING_PASSES:
