@@ -102,11 +102,12 @@ def _slam(d: Json) -> str:
     o = d["office"]
     text = (f"office mapping pass posed by its own SLAM: keyframe ATE {100 * o['keyframe_ate_m']:.1f} cm "
             f"(odometry alone {100 * o['odometry_ate_m']:.0f} cm), {o['loops_kept']} loops kept, "
-            f"{o['wrong_loops_kept']} wrong; {o['cpu_s_per_keyframe']:.1f} CPU-s per map keyframe")
+            f"{o['wrong_loops_kept']} wrong; {o['s_per_keyframe']:.2f} s ({o['cpu_s_per_keyframe']:.1f} CPU-s) per map "
+            "keyframe")
     f = d.get("floor")
     if f is not None:  # the 15-room floor: the pass whose corridors have no loop between their ends
         text += (f"; 15-room floor: {100 * f['keyframe_ate_m']:.1f} cm, {f['wrong_loops_kept']} wrong loops, "
-                 f"{f['cpu_s_per_keyframe']:.1f} CPU-s")
+                 f"{f['s_per_keyframe']:.2f} s ({f['cpu_s_per_keyframe']:.1f} CPU-s)")
     return text
 
 
