@@ -61,7 +61,7 @@ def require_7scenes() -> Path:
 
 def print_table(title: str, header: list[str], rows: list[list[Any]]) -> None:
     cells = [[str(c) if not isinstance(c, float) else f"{c:.3g}" for c in r] for r in rows]
-    widths = [max(len(h), *(len(r[i]) for r in cells)) for i, h in enumerate(header)]
+    widths = [max([len(h), *(len(r[i]) for r in cells)]) for i, h in enumerate(header)]
     print(f"\n{title}")
     print("  ".join(h.ljust(w) for h, w in zip(header, widths, strict=True)))
     print("  ".join("-" * w for w in widths))

@@ -259,9 +259,12 @@ def main() -> int:
             res.setdefault(w, {}).update(navigation(w, args.config))
             write_json(args.json, res)
     nav_loop = args.navigation and "loop" in args.cases
-    if (args.loop_query or nav_loop) and "loop" in res:
-        ev = json.loads((HERE / "loop" / "build.json").read_text())["slam"]["evaluation"]
-        res["loop"]["query_lap"] = loop_query(ev["T_reference_map"], nav_loop)
+    if args.loop_query or nav_loop:
+        build = HERE / "loop" / "build.json"
+        if not build.is_file():
+            raise SystemExit(f"no loop build at {build}: run with --cases loop (without --no-build) first")
+        ev = json.loads(build.read_text())["slam"]["evaluation"]
+        res.setdefault("loop", {})["query_lap"] = loop_query(ev["T_reference_map"], nav_loop)
         if nav_loop:
             res["loop"].update({k: res["loop"]["query_lap"][k] for k in (
                 "goals_reached_slam_map", "goals_reached_gt_map", "goals_total", "path_ratio_slam_vs_gt_map")})

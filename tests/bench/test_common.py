@@ -19,3 +19,9 @@ def test_write_json_takes_a_name_under_out_bench_or_a_path(tmp_path: Path, monke
     by_path = common.write_json(str(target), {"x": 2})
     assert by_path == target and json.loads(target.read_text())["x"] == 2
     assert not (tmp_path / "out" / f"{target}.json").exists()
+
+
+def test_a_table_without_rows_prints_its_header(capsys: pytest.CaptureFixture[str]) -> None:
+    load_bench("_common").print_table("nothing measured", ["case", "ATE m"], [])
+    out = capsys.readouterr().out
+    assert "nothing measured" in out and "case  ATE m" in out
