@@ -71,7 +71,7 @@ def sim_case(world: str, config: str) -> dict[str, Any]:
 def inject(world: str, config: str) -> dict[str, Any]:
     cfg = load_config(config)
     ref = sim_reference(mapping_pass_uri(world), cfg.sim)
-    return inject_wrong_loops(HERE / world / "graph.npz", ref, cfg.slam.graph, 0.1, 3.0, seed=0)
+    return inject_wrong_loops(HERE / world / "graph.npz", ref, cfg.slam, 0.1, 3.0, seed=0)
 
 
 def _reference(rec: Path) -> dict[int, np.ndarray]:

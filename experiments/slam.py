@@ -4,15 +4,17 @@
 * `inject_wrong_loops`: a saved pose graph (`map build --slam-graph`) with `fraction` x its
   loop count of wrong loop factors added between keyframes more than `min_apart_m` apart in
   the reference (each claims the two views are at the same place, 10 cm apart, with a real
-  loop's noise), re-optimised; how far the keyframes move and how many wrong loops were kept.
+  loop's noise), re-optimised as the build did (GNC over the loops, then the build's wall
+  factors); how far the keyframes move and how many wrong loops were kept.
 * `graph_errors`: a saved graph against reference poses by frame index (the 7-Scenes ground
   truth read from the dataset after the build, or the SfM pseudo ground truth with a
   similarity alignment: that reference has its own scale).
 * `sim_reference`: the simulator's ground-truth camera poses of a pass, by frame index;
   `mapping_pass_uri`: a world's mapping pass as a source URI.
 * `regraph`: a saved graph re-optimised with other graph parameters (the loop gate's, chosen
-  on tuning passes), against reference poses: keyframe ATE, loops kept, wrong loops kept,
-  how many loops each gate rejected and how many of those were true ones.
+  on tuning passes; the loop stage alone, without the build's walls), against reference
+  poses: keyframe ATE, loops kept, wrong loops kept, how many loops each gate rejected and how
+  many of those were true ones.
 """
 
 from __future__ import annotations
@@ -24,12 +26,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litevloc.base.geometry import make_T
-from litevloc.base.params.slam import SlamGraphParams
+from litevloc.base.params.slam import SlamGraphParams, SlamParams
 from litevloc.pipelines.evaluation.trajectory import ate
 from litevloc.pipelines.slam.evaluate import WRONG_LOOP_DEG, WRONG_LOOP_M, loop_errors, trajectory_errors
 from litevloc.pipelines.slam.graph import optimise
 from litevloc.pipelines.slam.types import Edge
-from litevloc.runtime.slam_build import SavedGraph, load_graph
+from litevloc.runtime.slam_build import SavedGraph, load_graph, solve_saved
 
 F64 = NDArray[np.float64]
 
@@ -81,14 +83,15 @@ def _ref_by_id(g: SavedGraph, ref_by_frame: dict[int, F64]) -> dict[int, F64]:
     return {k.id: ref_by_frame[k.index] for k in g.keyframes if k.index in ref_by_frame}
 
 
-def inject_wrong_loops(graph_npz: Path, ref_by_frame: dict[int, F64], params: SlamGraphParams,
+def inject_wrong_loops(graph_npz: Path, ref_by_frame: dict[int, F64], slam: SlamParams,
                        fraction: float = 0.1, min_apart_m: float = 3.0, seed: int = 0) -> dict[str, Any]:
     """See the module docstring."""
+    params = slam.graph
     g = load_graph(graph_npz)
     ref = _ref_by_id(g, ref_by_frame)
     loops = [e for e in g.edges if e.kind == "loop"]
     kept = [e for e, w in zip(loops, g.loop_weights, strict=True) if w > params.kept_weight]
-    base = optimise(g.keyframes, g.edges, g.T_map_first, params, g.level)
+    base = solve_saved(g, slam)
     cov = np.median(np.stack([e.covariance for e in kept]), axis=0) if kept else np.diag([1e-4] * 6)
     rng = np.random.default_rng(seed)
     ids = sorted(ref)
@@ -98,7 +101,7 @@ def inject_wrong_loops(graph_npz: Path, ref_by_frame: dict[int, F64], params: Sl
         a, b = sorted(int(x) for x in rng.choice(ids, 2, replace=False))
         if np.linalg.norm(ref[a][:3, 3] - ref[b][:3, 3]) > min_apart_m:
             wrong.append(Edge(a, b, make_T(np.eye(3), np.array([0.1, 0.0, 0.0])), cov, "loop"))
-    res = optimise(g.keyframes, g.edges + wrong, g.T_map_first, params, g.level)
+    res = solve_saved(g, slam, wrong)
     common = sorted(set(base.poses) & set(res.poses))
     moved = np.array([np.linalg.norm(res.poses[k][:3, 3] - base.poses[k][:3, 3]) for k in common])
     w_wrong = res.loop_weights[len(loops):]

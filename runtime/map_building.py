@@ -413,6 +413,10 @@ def print_slam_report(rep: dict[str, Any]) -> None:
           f"{sum(lp['rejected_by_gate'].values())} rejected by the consistency gate "
           f"({', '.join(f'{k} {v}' for k, v in lp['rejected_by_gate'].items()) or 'none'}), "
           f"{lp['rejected_by_optimiser']} by the optimiser")
+    wl = rep.get("walls")
+    if isinstance(wl, dict):
+        print(f"  walls: {wl['observations']} planes seen, {wl['walls']} walls seen from several keyframes, "
+              f"{wl['factors']} plane factors ({wl['outliers_dropped']} dropped as outliers)")
     print(f"  time: front end {sec['front_end']:.1f} s, loop search {sec['loop_search']:.1f} s, optimisation "
           f"{sec['optimisation']:.1f} s, map (graphs + write) {sec['map_write']:.1f} s")
     for f in rep["faults"]:

@@ -10,17 +10,20 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from litevloc.base.params.slam import SlamParams
 from litevloc.config.schema import LiteVLocConfig
 from litevloc.hw.messages import EncodedRgbdFrame, GroundTruthPose, Odometry, RgbdFrame, SourceMessage
 from litevloc.pipelines.slam.evaluate import evaluate
+from litevloc.pipelines.slam.graph import GraphResult, optimise
 from litevloc.pipelines.slam.level import LevelFloor
+from litevloc.pipelines.slam.planes import WallFactors, resolve_with_walls
 from litevloc.pipelines.slam.session import SlamResult, SlamSession
 from litevloc.pipelines.slam.types import F64, Edge, EdgeKind, FrameImages, FrameRef, SlamModels
 from litevloc.pipelines.topomap.build import MapBuilder
@@ -161,6 +164,17 @@ class SavedGraph:
     poses: F64
     T_map_first: F64
     level: LevelFloor | None = None
+    walls: WallFactors | None = None
+
+
+def solve_saved(g: SavedGraph, params: SlamParams, extra: Sequence[Edge] = ()) -> GraphResult:
+    """A saved graph optimised as the build did (loops decided by GNC, then the build's wall
+    factors), with `extra` edges added (the saved poses again when there are none)."""
+    edges = g.edges + list(extra)
+    res = optimise(g.keyframes, edges, g.T_map_first, params.graph, g.level)
+    if g.walls is None:
+        return res
+    return resolve_with_walls(g.keyframes, edges, res, g.T_map_first, params.graph, params.planes, g.walls, g.level)
 
 
 def save_graph(path: Path, res: SlamResult) -> None:
@@ -172,9 +186,11 @@ def save_graph(path: Path, res: SlamResult) -> None:
     E = res.edges
     path.parent.mkdir(parents=True, exist_ok=True)
     lv = res.level
-    level: dict[str, Any] = {} if lv is None else {"level_up": lv.up, "level_T_base_camera": lv.T_base_camera,
+    extra: dict[str, Any] = {} if lv is None else {"level_up": lv.up, "level_T_base_camera": lv.T_base_camera,
                                    "level_sigmas": np.array([lv.height_m, lv.sigma_height_m, lv.sigma_tilt_rad])}
-    np.savez(path, **level, kf_id=np.array([k.id for k in res.keyframes], np.int64),
+    if res.walls is not None:
+        extra.update(wall_observations=res.walls.factors.observations, wall_planes=res.walls.factors.walls)
+    np.savez(path, **extra, kf_id=np.array([k.id for k in res.keyframes], np.int64),
              kf_chain=np.array([k.chain for k in res.keyframes], np.int64),
              kf_T_init=np.stack([k.T_init for k in res.keyframes]), kf_index=np.array([k.index for k in res.keyframes]),
              kf_t_ns=np.array([k.t_ns for k in res.keyframes], np.int64), kf_pose=poses,
@@ -198,5 +214,7 @@ def load_graph(path: Path) -> SavedGraph:
         if "level_up" in z:
             h, s_h, s_t = (float(x) for x in z["level_sigmas"])
             level = LevelFloor(np.asarray(z["level_up"]), np.asarray(z["level_T_base_camera"]), h, s_h, s_t)
+        walls = WallFactors(np.asarray(z["wall_observations"]), np.asarray(z["wall_planes"])) \
+            if "wall_observations" in z else None
         return SavedGraph(kfs, edges, [float(w) for w in z["loop_weights"]], np.asarray(z["kf_pose"]),
-                          np.asarray(z["T_map_first"]), level)
+                          np.asarray(z["T_map_first"]), level, walls)

@@ -213,6 +213,61 @@ class SlamPlanarParams:
 
 
 @dataclass(frozen=True)
+class SlamPlaneParams:
+    """Walls as landmarks: vertical planes fitted to each keyframe's depth, one landmark per
+    wall seen from several keyframes, holding the keyframes that see it to one plane."""
+
+    # fit walls in each keyframe's depth and hold the keyframes that see one wall to that plane
+    enabled: bool = True
+    # points farther than this are not used for planes (their depth noise grows with range squared; metres)
+    max_depth_m: float = 5.0
+    # at most this many planes per keyframe (the largest first)
+    max_per_keyframe: int = 4
+    # RANSAC hypotheses per plane (pairs of points with the up direction)
+    ransac_iterations: int = 150
+    # a point lies on a plane within this plus `inlier_per_m2` times its depth squared (metres)
+    inlier_m: float = 0.01
+    # ... the depth-squared term of that bound (metres per square metre of depth)
+    inlier_per_m2: float = 0.004
+    # a plane needs this many of the keyframe's depth points (`mapping.keyframes.pixel_stride` grid)
+    min_points: int = 30
+    # a plane's points span at least this along the floor (metres)
+    min_width_m: float = 1.0
+    # ... and at least this along up (metres)
+    min_height_m: float = 0.4
+    # a wall's normal is within this of horizontal (degrees)
+    max_tilt_deg: float = 8.0
+    # an observation joins a wall within this angle of its normal (degrees) ...
+    match_angle_deg: float = 6.0
+    # ... this offset from its plane at the observation's centre (metres) ...
+    match_offset_m: float = 0.15
+    # ... and overlapping it along the floor or within this gap (metres)
+    match_gap_m: float = 0.5
+    # a wall becomes a landmark when this many keyframes see it
+    min_keyframes: int = 3
+    # one sigma of an observed plane's normal (radians)
+    sigma_normal_rad: float = 0.01
+    # one sigma of an observed plane's distance from the camera (metres)
+    sigma_offset_m: float = 0.01
+    # observations whose factor error (half the squared whitened error) exceeds this are dropped, then solved again
+    outlier_error: float = 5.67
+
+    def __post_init__(self) -> None:
+        for name in ("max_depth_m", "inlier_m", "min_width_m", "min_height_m", "max_tilt_deg", "match_angle_deg",
+                     "match_offset_m", "sigma_normal_rad", "sigma_offset_m", "outlier_error"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"slam.planes.{name} must be a finite number > 0, got {v}")
+        for name in ("inlier_per_m2", "match_gap_m"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0):
+                raise ValueError(f"slam.planes.{name} must be a finite number >= 0, got {v}")
+        for name in ("max_per_keyframe", "ransac_iterations", "min_points", "min_keyframes"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"slam.planes.{name} must be >= 1, got {getattr(self, name)}")
+
+
+@dataclass(frozen=True)
 class SlamParams:
     """The mapping pass's SLAM (see the module docstring), and external trajectories (`--poses FILE`)."""
 
@@ -230,6 +285,8 @@ class SlamParams:
     graph: SlamGraphParams = field(default_factory=SlamGraphParams)
     # planar motion of a ground robot's base between consecutive keyframes
     planar: SlamPlanarParams = field(default_factory=SlamPlanarParams)
+    # walls as plane landmarks in the final optimisation
+    planes: SlamPlaneParams = field(default_factory=SlamPlaneParams)
     # matcher of visual edges and tracking (loops use models.matcher); PnP with depth verifies its matches
     vo_matcher: Literal["lightglue", "lightglue-int8", "lightglue-adaptive", "mnn", "nn-ratio"] = "mnn"
     # --poses FILE: frames in a gap of the trajectory longer than this get no pose (s; lost tracking)

@@ -23,6 +23,9 @@ chain solution is solved without them (each chain in its own frame).
 The visual edges' covariance (the two-keyframe refinement's) is multiplied by
 `graph.visual_covariance_scale` in the optimisation: compared with a simulator's truth their
 errors exceed it (whitened errors, `docs/mapping.md`); the chain gate keeps their own.
+
+`reoptimise` solves a result again with the loops it kept and extra factors and variables
+(the walls of `pipelines.slam.planes`).
 """
 
 from __future__ import annotations
@@ -72,7 +75,7 @@ class GraphResult:
     loop_gate: list[str] = field(default_factory=list)
 
 
-def _key(i: int) -> int:
+def pose_key(i: int) -> int:
     return int(gtsam.symbol("x", i))
 
 
@@ -117,7 +120,7 @@ def _initial(keyframes: Sequence[GraphNode], align: dict[int, F64], T0: F64) -> 
     init = gtsam.Values()
     for kf in keyframes:
         if kf.chain in align:
-            init.insert(_key(kf.id), _pose3(T0 @ align[kf.chain] @ kf.T_init))
+            init.insert(pose_key(kf.id), _pose3(T0 @ align[kf.chain] @ kf.T_init))
     return init
 
 
@@ -125,14 +128,14 @@ def _priors(keyframes: Sequence[GraphNode], chains: list[int], init: gtsam.Value
             T0: F64) -> gtsam.NonlinearFactorGraph:
     """The first keyframe fixed; a weak prior on the first keyframe of every other chain."""
     graph = gtsam.NonlinearFactorGraph()
-    graph.add(gtsam.PriorFactorPose3(_key(keyframes[0].id), _pose3(T0 @ keyframes[0].T_init),
+    graph.add(gtsam.PriorFactorPose3(pose_key(keyframes[0].id), _pose3(T0 @ keyframes[0].T_init),
                                      gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)))
     firsts: dict[int, GraphNode] = {}
     for kf in keyframes:
         firsts.setdefault(kf.chain, kf)
     for c in chains[1:]:
         kf = firsts[c]
-        graph.add(gtsam.PriorFactorPose3(_key(kf.id), init.atPose3(_key(kf.id)),
+        graph.add(gtsam.PriorFactorPose3(pose_key(kf.id), init.atPose3(pose_key(kf.id)),
                                          gtsam.noiseModel.Isotropic.Sigma(6, _WEAK_PRIOR_SIGMA)))
     return graph
 
@@ -140,7 +143,7 @@ def _priors(keyframes: Sequence[GraphNode], chains: list[int], init: gtsam.Value
 def _between(e: Edge, visual_scale: float = 1.0) -> gtsam.BetweenFactorPose3:
     scale = visual_scale if e.kind == "visual" else 1.0
     noise = gtsam.noiseModel.Gaussian.Covariance(scale * np.asarray(e.covariance, float))
-    return gtsam.BetweenFactorPose3(_key(e.a), _key(e.b), _pose3(e.T_a_b), noise)
+    return gtsam.BetweenFactorPose3(pose_key(e.a), pose_key(e.b), _pose3(e.T_a_b), noise)
 
 
 def _gnc_weights(graph: gtsam.NonlinearFactorGraph, init: gtsam.Values, robust: list[int],
@@ -164,15 +167,16 @@ def chain_solution(keyframes: Sequence[GraphNode], edges: list[Edge]) -> dict[in
     graph = gtsam.NonlinearFactorGraph()
     first: set[int] = set()
     for kf in keyframes:
-        init.insert(_key(kf.id), _pose3(kf.T_init))
+        init.insert(pose_key(kf.id), _pose3(kf.T_init))
         if kf.chain not in first:
             first.add(kf.chain)
-            graph.add(gtsam.PriorFactorPose3(_key(kf.id), _pose3(kf.T_init), gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)))
+            graph.add(gtsam.PriorFactorPose3(pose_key(kf.id), _pose3(kf.T_init),
+                                             gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)))
     for e in edges:
         if e.kind != "loop":
             graph.add(_between(e))
     values = gtsam.LevenbergMarquardtOptimizer(graph, init).optimize()
-    return {kf.id: np.asarray(values.atPose3(_key(kf.id)).matrix(), np.float64) for kf in keyframes}
+    return {kf.id: np.asarray(values.atPose3(pose_key(kf.id)).matrix(), np.float64) for kf in keyframes}
 
 
 def _gate(keyframes: Sequence[GraphNode], edges: list[Edge], loops: list[Edge], params: SlamGraphParams) -> list[str]:
@@ -220,7 +224,7 @@ def _optimise(keyframes: Sequence[GraphNode], edges: list[Edge], T_map_first: F6
         if usable:
             graph.add(_between(e, params.visual_covariance_scale))
     if level is not None:
-        floor = level_factors(level, [(_key(kf.id), init.atPose3(_key(kf.id)).matrix()) for kf in keyframes
+        floor = level_factors(level, [(pose_key(kf.id), init.atPose3(pose_key(kf.id)).matrix()) for kf in keyframes
                                       if kf.id in in_map])
         graph.push_back(floor)
         kept.push_back(floor)
@@ -235,7 +239,7 @@ def _optimise(keyframes: Sequence[GraphNode], edges: list[Edge], T_map_first: F6
             final.add(_between(e))
     values = gtsam.LevenbergMarquardtOptimizer(final, init).optimize()
     kept_chains = _joined(keyframes[0].chain, set(align), loops, loop_weights, keyframes, params)
-    poses = {kf.id: np.asarray(values.atPose3(_key(kf.id)).matrix(), np.float64)
+    poses = {kf.id: np.asarray(values.atPose3(pose_key(kf.id)).matrix(), np.float64)
              for kf in keyframes if kf.id in in_map and kf.chain in kept_chains}
     dropped = [kf.id for kf in keyframes if kf.id not in poses]
     return GraphResult(poses, loop_weights, dropped)
@@ -261,3 +265,34 @@ def _joined(main: int, candidates: set[int], loops: list[Edge], weights: list[fl
                 seen.add(o)
                 todo.append(o)
     return seen
+
+
+def reoptimise(keyframes: Sequence[GraphNode], edges: list[Edge], result: GraphResult, T_map_first: F64,
+               params: SlamGraphParams, level: LevelFloor | None, extra: gtsam.NonlinearFactorGraph,
+               extra_values: gtsam.Values) -> tuple[GraphResult, gtsam.Values]:
+    """The least-squares solution of `optimise`'s result again (same keyframes in the map, the
+    loops it kept), from its poses, with `extra` factors over the poses (`pose_key`) and the
+    variables `extra_values` (their initial values). Returns the result with the new poses and
+    the solved values (the extra variables' included)."""
+    in_map = result.poses
+    loops = [e for e in edges if e.kind == "loop"]
+    kept_loops = {id(e) for e, w in zip(loops, result.loop_weights, strict=True) if w > params.kept_weight}
+    init = gtsam.Values()
+    for kid, T in in_map.items():
+        init.insert(pose_key(kid), _pose3(T))
+    chains: list[int] = []
+    for kf in keyframes:
+        if kf.id in in_map and kf.chain not in chains:
+            chains.append(kf.chain)
+    T0 = np.asarray(T_map_first, np.float64) @ invert(keyframes[0].T_init)
+    graph = _priors(keyframes, chains, init, T0)
+    for e in edges:
+        if e.a in in_map and e.b in in_map and (e.kind != "loop" or id(e) in kept_loops):
+            graph.add(_between(e, params.visual_covariance_scale if e.kind != "loop" else 1.0))
+    if level is not None:
+        graph.push_back(level_factors(level, [(pose_key(k), T) for k, T in in_map.items()]))
+    graph.push_back(extra)
+    init.insert(extra_values)
+    values = gtsam.LevenbergMarquardtOptimizer(graph, init).optimize()
+    poses = {k: np.asarray(values.atPose3(pose_key(k)).matrix(), np.float64) for k in in_map}
+    return GraphResult(poses, list(result.loop_weights), list(result.dropped), list(result.loop_gate)), values

@@ -12,6 +12,10 @@ gravity up. Gravity comes from the odometry frame's z where the first keyframe h
 heading), otherwise the first keyframe's base_link is taken as level (the camera mount of
 the configuration on a level robot). The map frame is then turned so that gravity lies along
 `mapping.up`. The report says which applied.
+
+After the optimisation the walls in the keyframes' depth hold the keyframes that see them
+(`pipelines.slam.planes`), where the map's up is measured (odometry at the first keyframe) or
+the platform is a ground robot (`slam.planar`).
 """
 
 from __future__ import annotations
@@ -35,6 +39,7 @@ from litevloc.pipelines.slam.level import LevelFloor, floor_of
 from litevloc.pipelines.slam.loops import LoopCounts, LoopSearch, loop_closures
 from litevloc.pipelines.slam.odometry import OdometryTrack
 from litevloc.pipelines.slam.planar import planar_edges
+from litevloc.pipelines.slam.planes import WallResult, optimise_with_walls
 from litevloc.pipelines.slam.types import F64, Edge, FrameRecord, FrameRef, Keyframe, LoopAttempt, SlamModels, Timings
 
 
@@ -55,6 +60,7 @@ class SlamResult:
     T_map_first: F64
     report: dict[str, Any] = field(default_factory=dict)
     level: LevelFloor | None = None
+    walls: WallResult | None = None
 
     @property
     def loops(self) -> list[Edge]:
@@ -157,9 +163,17 @@ class SlamSession:
         level = floor_of(T_first, self.T_base_camera, self.mapping.up, pl.sigma_height_m,
                          float(np.radians(pl.sigma_tilt_deg))) if pl.enabled and pl.level_floor else None
         graph = optimise(kfs, edges, T_first, self.params.graph, level)
+        walls = None
+        # a wall is told by its horizontal normal: only where the map's up is measured (the odometry's level
+        # frame) or the platform is a ground robot (slam.planar), not where it is the camera mount's guess
+        up_known = kfs[0].odom is not None or self.params.planar.enabled
+        if self.params.planes.enabled and up_known:
+            graph, walls = optimise_with_walls(kfs, {kf.id: kf.cloud for kf in kfs}, edges, graph, T_first,
+                                               np.asarray(self.mapping.up, np.float64), self.params.graph,
+                                               self.params.planes, level)
         poses = frame_poses(self.front.frames, graph.poses)
         self.timings.optimisation += time.perf_counter() - t0
-        res = SlamResult(kfs, edges, graph, self.front.frames, poses, T_first, level=level)
+        res = SlamResult(kfs, edges, graph, self.front.frames, poses, T_first, level=level, walls=walls)
         res.report = self._report(res, up_note)
         return res
 
@@ -220,6 +234,9 @@ class SlamSession:
             "odometry": {"samples": self.track.samples, "segments": self.track.segments,
                          "out_of_order": self.track.out_of_order},
             "faults": faults,
+            "walls": res.walls.as_dict() if res.walls is not None else (
+                "off: the map's up is the camera mount's guess (no odometry at the first keyframe, slam.planar off)"
+                if self.params.planes.enabled else "off (slam.planes.enabled)"),
             "seconds": {"front_end": round(self.timings.front_end, 2),
                         "loop_search": round(self.timings.loop_search, 2),
                         "optimisation": round(self.timings.optimisation, 2)},

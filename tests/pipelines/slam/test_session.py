@@ -13,6 +13,7 @@ import pytest
 from litevloc.base.geometry import invert, make_T
 from litevloc.config import load_config
 from litevloc.pipelines.slam.graph import optimise
+from litevloc.pipelines.slam.planes import resolve_with_walls
 from litevloc.pipelines.slam.types import Edge
 from tests.pipelines.slam.synthetic import Scene, keyframe_ate, keyframe_ate_of, make_scene, run_session
 
@@ -60,14 +61,14 @@ def test_keyframes_know_their_path_along_the_chain(scene: Scene, base) -> None: 
 
 def test_saved_graph_reoptimises_to_the_same_map(base, tmp_path) -> None:  # type: ignore[no-untyped-def]
     # the simulator's preset holds the base on one level floor: the saved graph keeps that too
-    from litevloc.runtime.slam_build import load_graph, save_graph
+    from litevloc.runtime.slam_build import load_graph, save_graph, solve_saved
 
     _, res = base
     assert res.level is not None
     save_graph(tmp_path / "g.npz", res)
     g = load_graph(tmp_path / "g.npz")
     assert g.level is not None and abs(g.level.height_m - res.level.height_m) < 1e-12
-    again = optimise(g.keyframes, g.edges, g.T_map_first, load_config("default").slam.graph, g.level)
+    again = solve_saved(g, load_config("default").slam)
     assert max(float(np.abs(again.poses[i] - T).max()) for i, T in res.graph.poses.items()) < 1e-6
 
 
@@ -92,6 +93,9 @@ def test_wrong_loops_cannot_bend_the_map(scene: Scene, base) -> None:  # type: i
         if np.linalg.norm(P[a][:3, 3] - P[b][:3, 3]) > 2.5:  # claim they are 10 cm apart
             wrong.append(Edge(a, b, make_T(np.eye(3), np.array([0.1, 0.0, 0.0])), res.loops[0].covariance, "loop"))
     g = optimise(kfs, res.edges + wrong, res.T_map_first, cfg.slam.graph, res.level)
+    assert res.walls is not None and res.walls.factors.count > 0  # the scene's walls are in the final solve
+    g = resolve_with_walls(kfs, res.edges + wrong, g, res.T_map_first, cfg.slam.graph, cfg.slam.planes,
+                           res.walls.factors, res.level)
     moved = max(np.linalg.norm(g.poses[i][:3, 3] - P[i][:3, 3]) for i in P)
     assert moved < 1e-4  # the kept loops are the same: the same least-squares solution
     n = len(res.loops)
@@ -209,6 +213,17 @@ def test_camera_only_is_visual_odometry(scene: Scene) -> None:
     assert any("no odometry" in w for w in rep["warnings"])
     assert "camera mount" in rep["up"]
     assert keyframe_ate(scene, res) < 0.005
+
+
+def test_walls_only_where_the_up_is_measured(scene: Scene) -> None:
+    # no odometry and no planar robot: the map's up is the camera mount's guess, walls cannot be told
+    cfg = load_config("default")
+    cfg = dataclasses.replace(cfg, slam=dataclasses.replace(
+        cfg.slam, planar=dataclasses.replace(cfg.slam.planar, enabled=False, level_floor=False)))
+    _, res = run_session(scene, cfg, odometry=False)
+    assert res.walls is None and res.report["walls"].startswith("off: the map's up")
+    _, res = run_session(scene, odometry=False)  # the same camera on a ground robot (slam.planar)
+    assert res.walls is not None and res.walls.factors.count > 0
 
 
 def _shifted_loops(scene: Scene, res, pairs: list[tuple[int, int]], shift_m: float) -> list[Edge]:  # type: ignore[no-untyped-def]
