@@ -108,6 +108,9 @@ def _slam(d: Json) -> str:
     if f is not None:  # the 15-room floor: the pass whose corridors have no loop between their ends
         text += (f"; 15-room floor: {100 * f['keyframe_ate_m']:.1f} cm, {f['wrong_loops_kept']} wrong loops, "
                  f"{f['s_per_keyframe']:.2f} s ({f['cpu_s_per_keyframe']:.1f} CPU-s)")
+    lp = d.get("loop")
+    if lp is not None and lp.get("keyframe_ate_m") is not None:
+        text += f"; 200 m ring corridor: {100 * lp['keyframe_ate_m']:.1f} cm, {lp['wrong_loops_kept']} wrong loops"
     return text
 
 
