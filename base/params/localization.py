@@ -199,6 +199,8 @@ class LocalizationParams:
     prior_gate_fused_m: float = 0.25
     # with fusion's covariance, a fused prior's gate toward a pose is at most its start + this many sigmas (0 = off)
     prior_gate_sigmas: float = 3.0
+    # a GL pose outside a fused prior's gate gives way to a pose LL verifies at the prior's place (repeating places)
+    gl_check_prior_place: bool = True
     # a pose outside a fused prior's gate (or with a stale prior) waits this long for a repeat (s; 0 = off)
     repeat_within_s: float = 5.0
     # ... or for any time while the prior moved less than this since the held pose (m: a robot at rest, slow GL)

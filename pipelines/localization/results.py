@@ -83,8 +83,9 @@ class LocalizationResult:
 class HeldPose:
     """A GL or LL pose that its fused prior could not confirm (outside its gate, or the prior
     too stale), held until a later frame repeats it (`LocalizationParams.repeat_within_s`, `repeat_within_m`):
-    both 4x4 `T_map_camera`, stamp in ns."""
+    both 4x4 `T_map_camera`, stamp in ns; `inside_gate`: the pose lay inside the prior's gate."""
 
     t_ns: int
     T_map_camera: NDArray[np.float64]
     prior_T_map_camera: NDArray[np.float64]
+    inside_gate: bool = False

@@ -24,6 +24,8 @@
   Fusion may count it as an initialisation vote (several must agree over the odometry between
   them); in GLOBAL state with a prior (the fused pose), one that agrees with the prior within
   the LL prior gate is accepted (the prior is the independent second view).
+* A GL pose outside a fused prior's gate gives way to a pose LL verifies at the prior's place
+  (`gl_check_prior_place`): in a repeating corridor both verify, the odometry tells them apart.
 * Later passes (`passes.py`): a refused GL or LL query is verified again on the same features
   and matches, with the map's depth and then with weak candidates pooled.
 * `VisualLocalizer.process` runs the state machine INIT -> GLOBAL -> TRACKING -> LOST ->
@@ -79,6 +81,11 @@ ExtractFn = Callable[[NDArray[np.uint8]], FeatureSet]
 DescribeFn = Callable[[NDArray[np.uint8]], NDArray[np.float32]]
 
 _CLOCK_JITTER_S = 1e-3  # timestamps that differ by less than this are the same instant for time windows
+
+
+def _refused(res: LocalizationResult, reason: str) -> LocalizationResult:
+    """`res` not accepted, for `reason`: its pose, covariance and matches removed."""
+    return replace(res, accepted=False, T_map_camera=None, covariance=None, matches=None, reason=reason)
 
 
 class VisualLocalizer:
@@ -326,12 +333,14 @@ class VisualLocalizer:
         fused prior `prior_T_map_camera` (`prior_age_s` s and `prior_travel_m` m of odometry since
         its last fix; only while fresh, see `_fresh`) within the prior gate (`prior_cov`: fusion's
         3x3 camera position covariance, m^2, map frame, see `_gate_toward`). `region` (an initial
-        pose) restricts the candidates to keyframes within it before the top-k cut."""
+        pose) restricts the candidates to keyframes within it before the top-k cut. An accepted
+        pose outside a given prior's gate is measured against the prior's place
+        (`_against_the_priors_place`)."""
         prior = None if prior_T_map_camera is None else check_rigid(prior_T_map_camera, "prior T_map_camera",
                                                                       atol=1e-4)
         timer = StageTimer(self.clock)
         t_all = self.clock()
-        q, sims, order, front_ms = self._retrieve(color, depth, K, region, timer, t_all)
+        q, desc, sims, order, front_ms = self._retrieve(color, depth, K, region, timer, t_all)
 
         def verify() -> LocalizationResult:
             if self.params.refine.enabled:
@@ -339,7 +348,38 @@ class VisualLocalizer:
                 return self._verify_refined(t_ns, q, sims, order, fused, recovering, timer, t_all, front_ms)
             return self._verify_confirmed(t_ns, q, sims, order, timer, t_all)
 
-        return with_second_passes(self._under(verify, q), self.params, q.timer, self._map_has_depth)
+        res = with_second_passes(self._under(verify, q), self.params, q.timer, self._map_has_depth)
+        if not res.accepted or prior is None or not self.params.gl_check_prior_place:
+            return res
+        return self._against_the_priors_place(res, q, desc, (prior, prior_age_s, prior_travel_m, prior_cov), t_all)
+
+    def _against_the_priors_place(
+        self, res: LocalizationResult, q: Query, desc: NDArray[np.float32],
+        fused: tuple[NDArray[np.float64], float, float | None, NDArray[np.float64] | None], t_all: float,
+    ) -> LocalizationResult:
+        """The accepted GL result `res` measured against the fused prior (`fused`: its pose, age
+        in s, odometry travel in m, position covariance): where the GL pose lies outside the
+        prior's gate, LL's candidates at the prior are verified on the same query; a pose they
+        give inside that gate (after LL's joint check) is the result instead, since the images
+        verify both places and only the odometry tells them apart (a repeating corridor). Else
+        `res`, its stop reason saying that the prior's place did not verify."""
+        prior, age_s, travel_m, cov = fused
+        assert res.T_map_camera is not None
+        growth = self._prior_growth_m(age_s, True, travel_m)
+        gate_m = self._gate_m(growth, fused=True)
+        if self._within_gate(res.T_map_camera, prior, gate_m, cov):
+            return res
+        dt, _ = relative_pose_error(res.T_map_camera, prior)
+        q.timer.ms.pop("total", None)  # the whole query's, measured again below
+        local = self._local_attempts(res.t_ns, q, self.local_candidates(prior, desc), prior, (growth, gate_m, cov),
+                                     q.timer, t_all)
+        why = f"GL's pose (node {res.ref_node}) lay {dt:.2f} m from the prior, outside its gate"
+        attempts = res.attempts + local.attempts
+        if not local.accepted:
+            return replace(res, attempts=attempts, timings_ms=q.timer.ms,
+                           stop_reason=f"{res.stop_reason}; {why}; the prior's place did not verify")
+        return replace(local, attempts=attempts, stop_reason=f"{why}; the prior's place verified (node "
+                       f"{local.ref_node}): the images verify both, the odometry tells them apart")
 
     def _under(self, verify: Callable[[], LocalizationResult], q: Query) -> VerifyFn:
         """`verify` as a pass under given parameters: the localizer and the query read them
@@ -355,13 +395,13 @@ class VisualLocalizer:
 
     def _retrieve(self, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64],
                   region: SearchRegion | None, timer: StageTimer, t_all: float
-                  ) -> tuple[Query, NDArray[np.float32], NDArray[np.int64], float]:
-        """Retrieval: the query's features and VPR descriptor, its (N,) similarity to every
+                  ) -> tuple[Query, NDArray[np.float32], NDArray[np.float32], NDArray[np.int64], float]:
+        """Retrieval: the query's features, its (D,) VPR descriptor and (N,) similarity to every
         keyframe, the candidate keyframes in VPR order and the front end's milliseconds."""
         q, desc = self._query(color, depth, K, timer)
         front_ms = (self.clock() - t_all) * 1e3  # feature extraction and VPR, as in an LL query
         sims = self.map.vpr @ desc
-        return q, sims, self.global_candidates(sims, q, region), front_ms
+        return q, desc, sims, self.global_candidates(sims, q, region), front_ms
 
     def _verify_refined(self, t_ns: int, q: Query, sims: NDArray[np.float32], order: NDArray[np.int64],
                         fused: tuple[NDArray[np.float64] | None, float, float | None, NDArray[np.float64] | None],
@@ -716,7 +756,8 @@ class VisualLocalizer:
             # a robot that stayed put may wait any time for the repeat (GL takes 20 s on a loaded
             # computer); the odometry's drift grows with its motion then, not with the time
             still = float(np.linalg.norm(carried[:3, 3])) <= p.repeat_within_m
-            if 0 < dt_s <= p.repeat_within_s + _CLOCK_JITTER_S or (dt_s > 0 and still):
+            in_window = 0 < dt_s <= p.repeat_within_s + _CLOCK_JITTER_S
+            if in_window or (dt_s > 0 and still):
                 expected = held.T_map_camera @ carried
                 et, er = relative_pose_error(T, expected)
                 tol = p.prior_gate_fused_m + p.prior_gate_rate_fused_mps * min(dt_s, p.repeat_within_s)
@@ -724,14 +765,19 @@ class VisualLocalizer:
                     self.held = None
                     return replace(res, stop_reason=f"{res.stop_reason}; repeats the pose held {dt_s:.2f} s "
                                    f"before ({et:.2f} m, {er:.1f} deg), {gate:.2f} m gate of the prior")
-        self.held = HeldPose(res.t_ns, T, prior)
+            # in a repeating place the copy outside the gate and the pose inside it come by turns: the
+            # copy must not displace the held pose that agrees with the prior, or neither is ever repeated
+            if in_window and held.inside_gate and not inside:
+                return _refused(res, f"not localized: {dt:.2f} m / {dr:.0f} deg from the prior, outside its gate "
+                                     f"({gate:.2f} m), while a pose inside it held {dt_s:.2f} s before awaits "
+                                     "its repeat")
+        self.held = HeldPose(res.t_ns, T, prior, inside)
         why = (f"{dt:.2f} m / {dr:.0f} deg from the prior, outside its gate ({gate:.2f} m, {p.prior_gate_deg:g} deg)"
                if not inside else f"the prior is {prior_age_s:.1f} s past its last fix"
                + ("" if prior_travel_m is None else f" and {prior_travel_m:.1f} m of odometry")
                + ", too old to confirm it")
-        return replace(res, accepted=False, T_map_camera=None, covariance=None, matches=None,
-                       reason=f"not localized: {'GL' if res.mode == 'global' else 'LL'} pose held until a later frame "
-                              f"repeats it ({why})")
+        return _refused(res, f"not localized: {'GL' if res.mode == 'global' else 'LL'} pose held until a later frame "
+                             f"repeats it ({why})")
 
     def _go(self, t_ns: int, to: TrackingState, reason: str) -> None:
         if to != self.state:

@@ -529,6 +529,78 @@ def test_gl_pose_outside_the_prior_gate_is_held_until_a_later_frame_repeats_it()
         LocalizationParams(repeat_within_m=-0.1)
 
 
+def _aliased_map() -> TopoMap:
+    """Keyframes at x = 0, 1, 2, 10, 11 whose last two see exactly what the first two see:
+    a corridor that repeats itself 10 m on (the copies' features are the originals')."""
+    m = make_map([0.0, 1.0, 2.0, 10.0, 11.0])
+    for copy, original in ((3, 0), (4, 1)):
+        f = m.features[original]
+        m.features[copy] = NodeFeatures(f.keypoints.copy(), f.descriptors.copy(), f.scores.copy(), f.image_size)
+    return m
+
+
+def test_gl_pose_at_a_copy_of_the_place_gives_way_to_the_priors_place() -> None:
+    """In a place that repeats 10 m on, GL verifies the copy first (its VPR is best); with a
+    stale fused prior at the true place, LL at the prior's place verifies too and wins (held,
+    then repeated, as any pose with a stale prior); without the check the copy is accepted
+    once repeated, 10 m off. A prior whose place does not verify leaves GL's pose held."""
+    sec = 1_000_000_000
+    m = _aliased_map()
+    s = Scene(m)
+
+    def look_copies_first(T: NDArray[np.float64]) -> NDArray[np.float32]:
+        depth = s.look(T, vpr_best=3)
+        s.vpr[[3, 4, 0, 1]] = [1.0, 1.0, 0.5, 0.5]  # the copies retrieved first, the originals next
+        return depth
+
+    truth = [pose(0.3), pose(0.6)]
+    for check, want_x in ((True, 0.0), (False, 10.0)):
+        loc = VisualLocalizer(m, replace(PARAMS, gl_check_prior_place=check), s.extract, s.describe, s.match)
+        first = loc.process(1 * sec, IMG, look_copies_first(truth[0]), K, pose(0.35), prior_age_s=10.0)
+        assert not first.accepted and "held until a later frame repeats it" in first.reason
+        r = loc.process(2 * sec, IMG, look_copies_first(truth[1]), K, pose(0.65), prior_age_s=11.0)
+        assert r.accepted and "repeats the pose held" in r.stop_reason
+        dt, _ = g.relative_pose_error(r.T_map_camera, g.make_T(np.eye(3), [want_x, 0, 0]) @ truth[1])
+        assert dt < 0.01, (check, r.T_map_camera[:3, 3])
+        if check:
+            assert r.mode == "local" and r.ref_node in (0, 1)
+            assert "lay 9.95 m from the prior" in r.stop_reason and "the prior's place verified" in r.stop_reason
+    # the prior at x = 2 (its place, node 2, sees the live view from a pose outside the gate): GL's pose held
+    loc = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)
+    r = loc.process(1 * sec, IMG, look_copies_first(pose(0.3)), K, pose(2.0), prior_age_s=10.0)
+    assert not r.accepted and loc.held is not None and loc.held.T_map_camera[0, 3] > 9.0
+
+
+def test_a_copy_outside_the_gate_does_not_displace_a_held_pose_inside_it() -> None:
+    """In the repeating place, frames alternate: one where the prior's place verifies (a pose
+    inside the gate, held: the prior is stale), one where only the copy 10 m on does. The copy
+    is refused while the held pose awaits its repeat, so the third frame repeats it; after the
+    repeat window a copy is held as any pose outside the gate."""
+    sec = 1_000_000_000
+    m = _aliased_map()
+    s = Scene(m)
+
+    def look(x: float, originals_fail: bool) -> NDArray[np.float32]:
+        depth = s.look(pose(x), vpr_best=3)
+        s.vpr[[3, 4, 0, 1]] = [1.0, 1.0, 0.5, 0.5]
+        s.broken_nodes = {0, 1, 2} if originals_fail else set()
+        return depth
+
+    loc = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)
+    r = loc.process(1 * sec, IMG, look(0.3, False), K, pose(0.35), prior_age_s=10.0)
+    assert not r.accepted and loc.held is not None and loc.held.inside_gate
+    r = loc.process(2 * sec, IMG, look(0.6, True), K, pose(0.65), prior_age_s=11.0)
+    assert not r.accepted and "while a pose inside it held 1.00 s before awaits its repeat" in r.reason
+    assert loc.held is not None and loc.held.t_ns == 1 * sec
+    r = loc.process(3 * sec, IMG, look(0.9, False), K, pose(0.95), prior_age_s=12.0)
+    assert r.accepted and "repeats the pose held 2.00 s" in r.stop_reason
+    assert g.relative_pose_error(r.T_map_camera, pose(0.9))[0] < 0.01
+    late = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)
+    assert not late.process(1 * sec, IMG, look(0.3, False), K, pose(0.35), prior_age_s=10.0).accepted
+    assert not late.process(7 * sec, IMG, look(0.6, True), K, pose(0.65), prior_age_s=16.0).accepted
+    assert late.held is not None and late.held.t_ns == 7 * sec and not late.held.inside_gate
+
+
 def test_ll_pose_with_a_stale_fused_prior_is_held_until_repeated() -> None:
     """In TRACKING, an LL pose whose fused prior is too old to confirm it (10 s past its fix)
     waits for the next frame's pose to repeat it; with a fresh prior it is accepted at once."""
