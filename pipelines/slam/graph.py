@@ -31,7 +31,7 @@ errors exceed it (whitened errors, `docs/mapping.md`); the chain gate keeps thei
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Container, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -76,6 +76,7 @@ class GraphResult:
 
 
 def pose_key(i: int) -> int:
+    """The GTSAM key of keyframe `i`'s pose (symbol x_i): other factors on the graph's poses use it."""
     return int(gtsam.symbol("x", i))
 
 
@@ -203,6 +204,22 @@ def optimise(keyframes: Sequence[GraphNode], edges: list[Edge], T_map_first: F64
     return res
 
 
+def _least_squares_graph(priors: gtsam.NonlinearFactorGraph, edges: list[Edge], in_map: Container[int],
+                         kept_loops: list[Edge], params: SlamGraphParams,
+                         floor: gtsam.NonlinearFactorGraph | None) -> gtsam.NonlinearFactorGraph:
+    """The final least-squares graph: `priors`, the odometry and visual edges between keyframes
+    in the map (visual covariances scaled), the level `floor`'s factors, then the loops kept."""
+    graph = priors
+    for e in edges:
+        if e.kind != "loop" and e.a in in_map and e.b in in_map:
+            graph.add(_between(e, params.visual_covariance_scale))
+    if floor is not None:
+        graph.push_back(floor)
+    for e in kept_loops:
+        graph.add(_between(e))
+    return graph
+
+
 def _optimise(keyframes: Sequence[GraphNode], edges: list[Edge], T_map_first: F64,
               params: SlamGraphParams, warm: bool, level: LevelFloor | None = None) -> GraphResult:
     """GNC over the loops in `edges`, then least squares over the kept ones; `warm`: GNC starts
@@ -214,29 +231,22 @@ def _optimise(keyframes: Sequence[GraphNode], edges: list[Edge], T_map_first: F6
     init = _initial(keyframes, align, T0)
     graph = _priors(keyframes, chains, init, T0)
     loop_rows: list[int | None] = []
-    kept = gtsam.NonlinearFactorGraph()
     for e in edges:
         usable = e.a in in_map and e.b in in_map
         if e.kind == "loop":
             loop_rows.append(graph.size() if usable else None)
-        elif usable:
-            kept.add(_between(e, params.visual_covariance_scale))
         if usable:
             graph.add(_between(e, params.visual_covariance_scale))
-    if level is not None:
-        floor = level_factors(level, [(pose_key(kf.id), init.atPose3(pose_key(kf.id)).matrix()) for kf in keyframes
-                                      if kf.id in in_map])
+    floor = None if level is None else level_factors(
+        level, [(pose_key(kf.id), init.atPose3(pose_key(kf.id)).matrix()) for kf in keyframes if kf.id in in_map])
+    if floor is not None:
         graph.push_back(floor)
-        kept.push_back(floor)
     robust = [r for r in loop_rows if r is not None]
     start = gtsam.LevenbergMarquardtOptimizer(graph, init).optimize() if (warm and robust) else init
     weights = _gnc_weights(graph, start, robust, params) if robust else np.ones(graph.size())
     loop_weights = [float(weights[r]) if r is not None else 0.0 for r in loop_rows]
-    final = _priors(keyframes, chains, init, T0)
-    final.push_back(kept)
-    for e, w in zip(loops, loop_weights, strict=True):
-        if w > params.kept_weight:
-            final.add(_between(e))
+    kept_loops = [e for e, w in zip(loops, loop_weights, strict=True) if w > params.kept_weight]
+    final = _least_squares_graph(_priors(keyframes, chains, init, T0), edges, in_map, kept_loops, params, floor)
     values = gtsam.LevenbergMarquardtOptimizer(final, init).optimize()
     kept_chains = _joined(keyframes[0].chain, set(align), loops, loop_weights, keyframes, params)
     poses = {kf.id: np.asarray(values.atPose3(pose_key(kf.id)).matrix(), np.float64)
@@ -276,7 +286,7 @@ def reoptimise(keyframes: Sequence[GraphNode], edges: list[Edge], result: GraphR
     the solved values (the extra variables' included)."""
     in_map = result.poses
     loops = [e for e in edges if e.kind == "loop"]
-    kept_loops = {id(e) for e, w in zip(loops, result.loop_weights, strict=True) if w > params.kept_weight}
+    kept_loops = [e for e, w in zip(loops, result.loop_weights, strict=True) if w > params.kept_weight]
     init = gtsam.Values()
     for kid, T in in_map.items():
         init.insert(pose_key(kid), _pose3(T))
@@ -285,12 +295,9 @@ def reoptimise(keyframes: Sequence[GraphNode], edges: list[Edge], result: GraphR
         if kf.id in in_map and kf.chain not in chains:
             chains.append(kf.chain)
     T0 = np.asarray(T_map_first, np.float64) @ invert(keyframes[0].T_init)
-    graph = _priors(keyframes, chains, init, T0)
-    for e in edges:
-        if e.a in in_map and e.b in in_map and (e.kind != "loop" or id(e) in kept_loops):
-            graph.add(_between(e, params.visual_covariance_scale if e.kind != "loop" else 1.0))
-    if level is not None:
-        graph.push_back(level_factors(level, [(pose_key(k), T) for k, T in in_map.items()]))
+    floor = None if level is None else level_factors(level, [(pose_key(k), T) for k, T in in_map.items()])
+    graph = _least_squares_graph(_priors(keyframes, chains, init, T0), edges, in_map.keys(), kept_loops, params,
+                                 floor)
     graph.push_back(extra)
     init.insert(extra_values)
     values = gtsam.LevenbergMarquardtOptimizer(graph, init).optimize()

@@ -27,7 +27,7 @@ the second solve.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import gtsam
@@ -59,14 +59,15 @@ class PlaneObservation:
 @dataclass
 class Wall:
     """A plane landmark: `n` (3,) and `d` of `n . p + d = 0` in the map frame, its extent
-    [s0, s1] along the floor direction `up x n` (metres), and its (keyframe id, observation)s."""
+    [s0, s1] along the floor direction `up x n` (metres), its (keyframe id, observation)s and
+    the sum of their centres (3,), map frame: `d` passes through their mean."""
 
     n: F64
     d: float
     s0: float
     s1: float
-    members: list[tuple[int, PlaneObservation]] = field(default_factory=list)
-    centres: list[F64] = field(default_factory=list)
+    members: list[tuple[int, PlaneObservation]]
+    centre_sum: F64
 
 
 def _normal(q: F64, c: F64) -> F64:
@@ -171,17 +172,17 @@ def associate(observations: Mapping[int, Sequence[PlaneObservation]], poses: Map
                   & (s + o.hi >= geo[:, 1] - params.match_gap_m) & (s + o.lo <= geo[:, 2] + params.match_gap_m))
             if not ok.any():
                 s_own = float(c @ np.cross(u, n))
-                walls.append(Wall(n, float(-n @ c), s_own + o.lo, s_own + o.hi, [(kid, o)], [c]))
+                walls.append(Wall(n, float(-n @ c), s_own + o.lo, s_own + o.hi, [(kid, o)], c.copy()))
                 normals = np.vstack([normals, n])
                 geo = np.vstack([geo, [walls[-1].d, walls[-1].s0, walls[-1].s1]])
                 continue
             j = int(np.flatnonzero(ok)[np.argmin(off[ok])])
             w = walls[j]
             w.members.append((kid, o))
-            w.centres.append(c)
+            w.centre_sum = w.centre_sum + c
             m = w.n * (len(w.members) - 1) + n  # running mean of the normals
             w.n = m / np.linalg.norm(m)
-            w.d = float(-np.mean(np.asarray(w.centres) @ w.n))
+            w.d = float(-(w.centre_sum / len(w.members)) @ w.n)
             sw = float(c @ np.cross(u, w.n))
             w.s0, w.s1 = min(w.s0, sw + o.lo), max(w.s1, sw + o.hi)
             normals[j], geo[j] = w.n, (w.d, w.s0, w.s1)

@@ -53,12 +53,11 @@ def test_association_joins_one_wall_and_keeps_others_apart() -> None:
     params = SlamPlaneParams(min_keyframes=1)
     n_left = R_MAP_CAMERA.T @ np.array([0.0, -1.0, 0.0])  # the wall at map y = +1 seen from y = 0
     poses = {0: _camera_at(0.0), 1: _camera_at(1.5), 2: _camera_at(1.5, y=0.9), 3: _camera_at(9.0)}
-    ahead = np.array([0.0, 0.0, 2.0])
     obs = {
         0: [_obs(n_left, 1.0, np.array([-1.0, 0.0, 2.0]))],
         1: [_obs(n_left, 1.0, np.array([-1.0, 0.0, 2.0]))],  # the same wall 1.5 m on
-        2: [_obs(n_left, 0.1, np.array([-0.1, 0.0, 2.0]))],  # a plane 0.9 m... the same wall seen from near it
-        3: [_obs(n_left, 1.0, ahead + np.array([-1.0, 0.0, 0.0]))],  # in line with it, 6 m past its end
+        2: [_obs(n_left, 0.1, np.array([-0.1, 0.0, 2.0]))],  # the same wall seen from 0.1 m (the camera at y 0.9)
+        3: [_obs(n_left, 1.0, np.array([-1.0, 0.0, 2.0]))],  # in line with it, 6 m past its end
     }
     walls = associate(obs, poses, UP, params)
     members = sorted(sorted(k for k, _ in w.members) for w in walls)
