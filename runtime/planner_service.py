@@ -346,6 +346,10 @@ class GoalPlanner:
             self._start_next(out)
         else:
             changed = self.tracker.replans != before or nav.subgoal != self.status["subgoal_node"]
+            if changed and self._progress is not None and nav.remaining_m > self._progress[0]:
+                # a new plan (a replan, or a leg's detour round a wall) made the way longer: progress
+                # counts on it from here, or a robot driving the detour is failed as stalled
+                self._progress = None
             if changed:
                 why = "replanned (strayed from the path)" if self.tracker.replans != before else "next subgoal"
                 self._emit(out, "planned", f"goal {self.active!r}: {why}", self.active, nav, self.tracker.goal)

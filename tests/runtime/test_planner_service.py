@@ -23,12 +23,13 @@ T_BC = np.eye(4)  # camera at the base: node base positions = node camera positi
 
 
 def planner(locate_nodes: dict[int, int | None], goal_places: dict[int, np.ndarray] | None = None,
-            **tracker: float) -> GoalPlanner:
+            cells: np.ndarray | None = None, **tracker: float) -> GoalPlanner:
     """Nodes 0..3 on a line 1 m apart (x = 0..3 m); goal image k (first byte) -> node (and,
-    in `goal_places`, the goal camera's metric pose in the map)."""
+    in `goal_places`, the goal camera's metric pose in the map); `cells`: the grid's (80, 80)
+    cells (default all free)."""
     m = grid_map([(0, 1, 1.0), (1, 2, 1.0), (2, 3, 1.0)], 4)
-    # z up, as the service's level poses assume: 8 x 8 m of free floor around the nodes
-    free = np.full((80, 80), OccupancyGrid.FREE, np.uint8)
+    # z up, as the service's level poses assume: 8 x 8 m of floor around the nodes, 0.1 m cells
+    free = np.full((80, 80), OccupancyGrid.FREE, np.uint8) if cells is None else cells
     m = dataclasses.replace(m, grid=OccupancyGrid(free, np.array([-2.0, -4.0]), 0.1, np.array([0, 0, 1.0]),
                                                   np.eye(3)[:2]))
 
@@ -227,6 +228,33 @@ def test_a_goal_without_progress_fails_with_its_reason_and_the_next_starts() -> 
     off.on_pose(0, pose(0.0))
     off.add_goal("patient", img(1))
     assert all("status:failed" not in kinds(off.on_pose(k * s, pose(1.0))) for k in range(1, 200))
+
+
+def test_a_detour_round_a_wall_is_progress_not_a_stall() -> None:
+    """The leg from node 1 to node 2 crosses a wall whose door is 3 m aside: the grid detour
+    makes the way left 6 m longer than it was at node 1. A robot driving it at 0.3 m/s comes
+    closer along the detour, not to the shortest way left before it: it reaches the goal."""
+    s = 1_000_000_000
+    wall = np.full((80, 80), OccupancyGrid.FREE, np.uint8)
+    wall[:65, 35] = OccupancyGrid.OCCUPIED  # x = 1.5 m, from y = -4 m to 2.5 m: the door is at y 2.5-4 m
+    p = planner({1: 3}, cells=wall, stall_s=5.0, leg_detour_m=10.0)
+    xy = target = np.array([0.0, 0.0])
+    p.on_pose(0, pose(0.0))
+    p.add_goal("round", img(1))
+    states = []
+    for k in range(1, 200):
+        T = pose(0.0)
+        T[:2, 3] = xy
+        outs = p.on_pose(k * s, T)
+        states += [o[1]["state"] for o in outs if o[0] == "status"]
+        if "reached" in states or "failed" in states:
+            break
+        sub = [o[1] for o in outs if o[0] == "subgoal"]
+        if sub:  # drive toward the latest subgoal (a node, or a turn of the detour)
+            target = np.asarray(sub[-1].T_map_subgoal[:2, 3])
+        step = target - xy
+        xy = xy + step * min(1.0, 0.3 / max(float(np.linalg.norm(step)), 1e-9))
+    assert "reached" in states and "failed" not in states, states
 
 
 def test_undecodable_goal_bytes_fail_with_reason() -> None:
