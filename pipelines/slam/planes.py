@@ -108,7 +108,7 @@ def wall_planes(points: NDArray[np.floating[Any]], up_camera: F64, params: SlamP
         inl = support[:, best]
         if inl.sum() < params.min_points:
             break
-        plane = _fit(p[inl], up, params, max_tilt, p)
+        plane = _fit(p[inl], up, max_tilt, p, bound, params)
         if plane is None:
             p = p[~inl]
             continue
@@ -119,10 +119,11 @@ def wall_planes(points: NDArray[np.floating[Any]], up_camera: F64, params: SlamP
     return out
 
 
-def _fit(q: F64, up: F64, params: SlamPlaneParams, max_tilt: float,
-         p: F64) -> tuple[PlaneObservation | None, NDArray[np.bool_]] | None:
+def _fit(q: F64, up: F64, max_tilt: float, p: F64, bound_p: F64,
+         params: SlamPlaneParams) -> tuple[PlaneObservation | None, NDArray[np.bool_]] | None:
     """The least-squares plane of a hypothesis' inliers `q`; None if it is not vertical. Else the
-    observation (None when too small) and the mask of `p`'s points it explains."""
+    observation (None when too small) and the mask of `p`'s points it explains (`bound_p`: each
+    point's inlier distance, m)."""
     c = q.mean(axis=0)
     n = _normal(q, c)
     if abs(float(n @ up)) > max_tilt:
@@ -130,7 +131,6 @@ def _fit(q: F64, up: F64, params: SlamPlaneParams, max_tilt: float,
     if float(n @ c) > 0:  # toward the camera: d = -n . c > 0
         n = -n
     dist = np.abs(p @ n - float(n @ c))
-    bound_p = _inlier_bound(p, params)
     q = p[dist < bound_p]
     # the wall's noisier points go with it, or they come back as a second, tilted copy of it
     used = dist < 3 * bound_p
@@ -203,9 +203,9 @@ class WallFactors:
         return len(self.observations)
 
 
-def wall_factors(walls: Sequence[Wall], in_map: Mapping[int, object]) -> WallFactors:
-    """The observations of `walls` whose keyframe is in `in_map` (keyframe id keys), as arrays."""
-    rows = [[kid, i, *o.n, o.d] for i, w in enumerate(walls) for kid, o in w.members if kid in in_map]
+def wall_factors(walls: Sequence[Wall]) -> WallFactors:
+    """The observations of `walls` (each keyframe posed: `associate` skips the others), as arrays."""
+    rows = [[kid, i, *o.n, o.d] for i, w in enumerate(walls) for kid, o in w.members]
     return WallFactors(np.asarray(rows, np.float64).reshape(-1, 6),
                        np.asarray([[*w.n, w.d] for w in walls], np.float64).reshape(-1, 4))
 
@@ -253,7 +253,7 @@ def optimise_with_walls(keyframes: Sequence[GraphNode], clouds: Mapping[int, NDA
                     for kid, T in result.poses.items() if kid in clouds}
     n_obs = sum(len(v) for v in observations.values())
     walls = associate(observations, result.poses, u, params)
-    factors = wall_factors(walls, result.poses)
+    factors = wall_factors(walls)
     if factors.count == 0:
         return result, WallResult(n_obs, len(walls), factors, 0)
     graph, values = wall_graph(factors, params)
