@@ -105,9 +105,47 @@ def outcome(res: Any, topomap: Any, T_true: NDArray[np.float64], right_m: float)
     return ("right" if err <= 2 * right_m else "wrong"), err
 
 
+def place_images(items: list[tuple[str, NDArray[np.uint8], NDArray[np.float64]]], topomap: Any, bundle: Any,
+                 params: dict[str, Any], right_m: float, label: str) -> dict[str, list[dict[str, Any]]]:
+    """Every image of `items` (`goal_images`) placed in `topomap` with `localize_goal` under each
+    of `params` (variant name -> `GoalParams`), on the same features and matches: per variant, one
+    record per image (outcome, error in metres, node, reason). Progress every 20 images."""
+    from litevloc.pipelines.navigation.planner import localize_goal
+
+    K = np.asarray(topomap.K[0], np.float64)
+    per: dict[str, list[dict[str, Any]]] = {v: [] for v in params}
+    t0 = time.perf_counter()
+    for n, (name, rgb, T_true) in enumerate(items):
+        feats, desc = bundle.extract(rgb), bundle.describe(rgb)
+        cache: dict[int, Any] = {}
+
+        def match(a: Any, b: Any, cache: dict[int, Any] = cache) -> Any:
+            key = hash(np.asarray(b.keypoints).tobytes())  # a map node's features, decoded per access
+            if key not in cache:
+                cache[key] = bundle.match(a, b)
+            return cache[key]
+
+        for v, goal_params in params.items():
+            res = localize_goal(feats, desc, K, topomap, match, goal_params)
+            o, err = outcome(res, topomap, T_true, right_m)
+            per[v].append({"image": name, "outcome": o, "error_m": err, "node": res.node, "reason": res.reason})
+        if (n + 1) % 20 == 0:
+            print(f"  {label}: {n + 1}/{len(items)} images ({time.perf_counter() - t0:.0f} s)", flush=True)
+    return per
+
+
+def placement_counts(records: list[dict[str, Any]]) -> dict[str, int]:
+    """Outcome counts of `place_images` records, and how many of the world's goal places (the
+    images not named frame_*) were placed right."""
+    goals = [r for r in records if not r["image"].startswith("frame_")]
+    c = {o: sum(r["outcome"] == o for r in records) for o in OUTCOMES}
+    c["goal_places_right"] = sum(r["outcome"] == "right" for r in goals)
+    c["goal_places"] = len(goals)
+    return c
+
+
 def main() -> int:
     from litevloc.config import load_config
-    from litevloc.pipelines.navigation.planner import localize_goal
     from litevloc.pipelines.topomap.io import load_map
     from litevloc.runtime.vloc_models import check_map_models, load_bundle
 
@@ -137,34 +175,13 @@ def main() -> int:
     rows = []
     for world in args.worlds:
         topomap = check_map_models(load_map(world_map(world, args.config, args.maps_dir, tuple(args.map_set))), bundle)
-        K = np.asarray(topomap.K[0], np.float64)
         t0 = time.perf_counter()
         items = goal_images(world, cfg, args.extra)
-        per: dict[str, list[dict[str, Any]]] = {v: [] for v in variants}
-        for n, (name, rgb, T_true) in enumerate(items):
-            feats, desc = bundle.extract(rgb), bundle.describe(rgb)
-            cache: dict[int, Any] = {}
-
-            def match(a: Any, b: Any, cache: dict[int, Any] = cache) -> Any:
-                key = hash(np.asarray(b.keypoints).tobytes())  # a map node's features, decoded per access
-                if key not in cache:
-                    cache[key] = bundle.match(a, b)
-                return cache[key]
-
-            for v, vcfg in variants.items():
-                res = localize_goal(feats, desc, K, topomap, match, vcfg.planner.goal)
-                o, err = outcome(res, topomap, T_true, args.right_m)
-                per[v].append({"image": name, "outcome": o, "error_m": err, "node": res.node, "reason": res.reason})
-            if (n + 1) % 20 == 0:
-                print(f"  {world}: {n + 1}/{len(items)} images ({time.perf_counter() - t0:.0f} s)", flush=True)
-        counts = {}
-        for v, recs in per.items():
-            goals = [r for r in recs if not r["image"].startswith("frame_")]
-            c = {o: sum(r["outcome"] == o for r in recs) for o in OUTCOMES}
-            c["goal_places_right"] = sum(r["outcome"] == "right" for r in goals)
-            c["goal_places"] = len(goals)
-            counts[v] = c
-            rows.append([world, v, len(recs), c["right"], c["wrong"], c["refused"],
+        per = place_images(items, topomap, bundle, {v: c.planner.goal for v, c in variants.items()}, args.right_m,
+                           world)
+        counts = {v: placement_counts(recs) for v, recs in per.items()}
+        for v, c in counts.items():
+            rows.append([world, v, len(items), c["right"], c["wrong"], c["refused"],
                          f"{c['goal_places_right']}/{c['goal_places']}"])
         out["worlds"][world] = {"images": len(items), "counts": counts, "per_image": per,
                                 "seconds": round(time.perf_counter() - t0, 1)}

@@ -1,7 +1,7 @@
 """Maps from the robot's own sensors (issue 41): `map build --poses slam`, measured.
 
     .venv/bin/python bench/slam.py [--json PATH.json | NAME] [--cases office floor loop bland 7s 7s-camera]
-        [--inject] [--queries] [--navigation] [--loop-query] [--no-build] [--config default]
+        [--inject] [--queries] [--navigation] [--loop-query] [--placement] [--no-build] [--config default]
 
 Cases (each `map build` runs in its own process: its peak RSS and seconds are its own):
 
@@ -23,7 +23,12 @@ Cases (each `map build` runs in its own process: its peak RSS and seconds are it
   on both maps. `--no-build` reuses the cases' builds (`--cases floor loop --navigation
   --no-build`; long: 10-40 min per map);
 * `--loop-query`: the loop world's query lap through the runtime (bench/loop.py --skip-nav) on the
-  SLAM map moved into the world frame and on the ground-truth-posed map.
+  SLAM map moved into the world frame and on the ground-truth-posed map;
+* `--placement`: office, floor, loop: where the world's goal images and `--extra` (120) frames of
+  its second pass are placed (bench/goal_placement.py) on the SLAM map, on the ground-truth-posed
+  map of the same pass, and on a control: the mapping pass of seed 1 posed by ground truth. The
+  images placed differently by the SLAM and ground-truth maps are counted beside those placed
+  differently by the two ground-truth maps (`--cases floor --placement --no-build`; ~15 min a world).
 
 Writes one object per case with `keyframe_ate_m`, `odometry_ate_m`, `rpe_per_m`, `loops_kept`,
 `wrong_loops_kept`, `s_per_keyframe`, `peak_rss_mb` (and for the worlds with --navigation
@@ -156,6 +161,57 @@ def queries(name: str, T: list[list[float]]) -> dict[str, Any]:
     return out
 
 
+def gt_map(world: str, seed: int, config: str) -> Path:
+    """The world's mapping pass with `seed` posed by ground truth (`map build --poses
+    ground-truth`), built once under HERE."""
+    d = HERE / (f"{world}-gt-map" if seed == 0 else f"{world}-gt-map-seed{seed}")
+    if not (d / "manifest.json").is_file():
+        litevloc("map", "build", mapping_pass_uri(world, seed), "-o", str(d), "--force", "--poses", "ground-truth",
+                 "--config", config)
+    return d
+
+
+def placement(world: str, config: str, extra: int) -> dict[str, Any]:
+    """Where the goal images land (bench/goal_placement.py: the world's goal images and `extra`
+    frames of its second pass, right within 1.5 m of the true pose, wrong, or refused) on three
+    maps: the case's SLAM map (moved into the world frame), the same mapping pass posed by ground
+    truth, and a control, the mapping pass of seed 1 posed by ground truth (the building mapped
+    again). The images on which the SLAM and ground-truth maps differ are set beside those on
+    which the two ground-truth maps differ: a goal near the refusal line (ambiguous, too few PnP
+    inliers for a metric pose) flips with the map's keyframes, whatever posed them."""
+    from goal_placement import goal_images, place_images, placement_counts
+
+    from litevloc.pipelines.topomap.io import load_map
+    from litevloc.runtime.vloc_models import check_map_models, load_bundle
+
+    build = HERE / world / "build.json"
+    if not build.is_file():
+        raise SystemExit(f"--placement {world}: no SLAM build in {HERE / world}; run --cases {world} first")
+    T = json.loads(build.read_text())["slam"]["evaluation"]["T_reference_map"]
+    maps = {"slam_map": moved_map(HERE / world / "map", HERE / f"{world}-map-in-world-frame", T),
+            "gt_map": gt_map(world, 0, config), "gt_map_seed1": gt_map(world, 1, config)}
+    cfg = load_config(config)
+    bundle = load_bundle(cfg.models)
+    items = goal_images(world, cfg, extra)
+    per: dict[str, list[dict[str, Any]]] = {}
+    out: dict[str, Any] = {"images": len(items), "right_m": 1.5, "control": mapping_pass_uri(world, 1)}
+    for tag, m in maps.items():
+        topomap = check_map_models(load_map(m), bundle)
+        per[tag] = place_images(items, topomap, bundle, {"defaults": cfg.planner.goal}, 1.5, f"{world} {tag}")[
+            "defaults"]
+        out[tag] = {"keyframes": topomap.n_nodes, **placement_counts(per[tag]),
+                    "goal_places_refused": [r["image"] for r in per[tag]
+                                            if not r["image"].startswith("frame_") and r["outcome"] != "right"]}
+
+    def differ(a: str, b: str) -> int:
+        return sum(x["outcome"] != y["outcome"] for x, y in zip(per[a], per[b], strict=True))
+
+    out.update({"differ_slam_vs_gt": differ("slam_map", "gt_map"),
+                "differ_gt_vs_gt_seed1": differ("gt_map", "gt_map_seed1"),
+                "differ_slam_vs_gt_seed1": differ("slam_map", "gt_map_seed1")})
+    return out
+
+
 def navigation(world: str, config: str) -> dict[str, Any]:
     """Image-goal navigation (`sim navigate --localization litevloc`) on the case's SLAM map, moved
     into the world frame (SE(3) over its keyframes, from its build report), and on the same mapping
@@ -164,11 +220,8 @@ def navigation(world: str, config: str) -> dict[str, Any]:
     if not build.is_file():
         raise SystemExit(f"--navigation {world}: no SLAM build in {HERE / world}; run --cases {world} first")
     T = json.loads(build.read_text())["slam"]["evaluation"]["T_reference_map"]
-    gt_map = HERE / f"{world}-gt-map"
-    if not (gt_map / "manifest.json").is_file():
-        litevloc("map", "build", mapping_pass_uri(world), "-o", str(gt_map), "--force", "--poses", "ground-truth",
-                 "--config", config)
-    maps = {"slam": moved_map(HERE / world / "map", HERE / f"{world}-map-in-world-frame", T), "ground-truth": gt_map}
+    maps = {"slam": moved_map(HERE / world / "map", HERE / f"{world}-map-in-world-frame", T),
+            "ground-truth": gt_map(world, 0, config)}
     out: dict[str, Any] = {}
     for poses, m in maps.items():
         js = HERE / f"nav-{world}-{poses}.json"
@@ -228,6 +281,8 @@ def main() -> int:
     ap.add_argument("--navigation", action="store_true")
     ap.add_argument("--no-build", action="store_true", help="reuse the cases' earlier builds (their figures kept)")
     ap.add_argument("--loop-query", action="store_true")
+    ap.add_argument("--placement", action="store_true")
+    ap.add_argument("--extra", type=int, default=120, help="--placement: second-pass frames as more goal images")
     ap.add_argument("--pgt", type=Path, default=SEVEN_SCENES / "pgt-sfm-seq-01.txt")
     ap.add_argument("--json", default="slam", help="the JSON: a path ending in .json, or a name under out/bench/")
     args = ap.parse_args()
@@ -257,6 +312,10 @@ def main() -> int:
     if args.navigation:
         for w in [c for c in args.cases if c in ("office", "floor")]:
             res.setdefault(w, {}).update(navigation(w, args.config))
+            write_json(args.json, res)
+    if args.placement:
+        for w in [c for c in args.cases if c in ("office", "floor", "loop")]:
+            res.setdefault(w, {})["goal_placement"] = placement(w, args.config, args.extra)
             write_json(args.json, res)
     nav_loop = args.navigation and "loop" in args.cases
     if args.loop_query or nav_loop:

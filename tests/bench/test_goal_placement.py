@@ -26,3 +26,11 @@ def test_a_placement_is_right_wrong_or_refused_by_its_distance_from_the_truth() 
     # no metric goal pose: the node's keyframe counts, within twice the radius
     assert b.outcome(SimpleNamespace(node=1, T_map_goal=None), topomap, T_true, 1.5) == ("right", 2.0)
     assert b.outcome(SimpleNamespace(node=1, T_map_goal=None), topomap, T_true, 0.9)[0] == "wrong"
+
+
+def test_counts_tell_the_goal_places_from_the_extra_frames() -> None:
+    b = load_bench("goal_placement")
+    recs = [{"image": "room_01", "outcome": "right"}, {"image": "room_02", "outcome": "refused"},
+            {"image": "frame_17", "outcome": "right"}, {"image": "frame_90", "outcome": "wrong"}]
+    assert b.placement_counts(recs) == {"right": 2, "wrong": 1, "refused": 1, "goal_places_right": 1,
+                                        "goal_places": 2}
