@@ -28,12 +28,14 @@ Cases (each `map build` runs in its own process: its peak RSS and seconds are it
   its second pass are placed (bench/goal_placement.py) on the SLAM map, on the ground-truth-posed
   map of the same pass, and on a control: the mapping pass of seed 1 posed by ground truth. The
   images placed differently by the SLAM and ground-truth maps are counted beside those placed
-  differently by the two ground-truth maps (`--cases floor --placement --no-build`; ~15 min a world).
+  differently by the two ground-truth maps (`--cases floor --placement --no-build`; 5-8 min a world,
+  quiet, with the seed-1 map's build).
 
 Writes one object per case with `keyframe_ate_m`, `odometry_ate_m`, `rpe_per_m`, `loops_kept`,
 `wrong_loops_kept`, `s_per_keyframe`, `peak_rss_mb` (and for the worlds with --navigation
-`goals_reached_slam_map`, `goals_reached_gt_map`, `goals_total`). Timings come from a shared
-2-core machine unless stated.
+`goals_reached_slam_map`, `goals_reached_gt_map`, `goals_total`; with --placement `goal_placement`:
+per map `right`, `wrong`, `refused`, `keyframes`, and `differ_slam_vs_gt`, `differ_gt_vs_gt_seed1`).
+Timings come from a shared 2-core machine unless stated.
 """
 
 from __future__ import annotations
