@@ -44,6 +44,7 @@ from _common import ROOT, print_table, write_json
 from numpy.typing import NDArray
 
 OUTCOMES = ("right", "wrong", "refused")
+RIGHT_M = 1.5  # a placement within this of the true goal pose is right (m)
 
 
 def world_map(world: str, config: str, maps_dir: Path | None = None, map_set: tuple[str, ...] = ()) -> Path:
@@ -134,10 +135,15 @@ def place_images(items: list[tuple[str, NDArray[np.uint8], NDArray[np.float64]]]
     return per
 
 
+def is_goal_place(record: dict[str, Any]) -> bool:
+    """Whether a `place_images` record is one of the world's goal places (not an extra frame_*)."""
+    return not record["image"].startswith("frame_")
+
+
 def placement_counts(records: list[dict[str, Any]]) -> dict[str, int]:
-    """Outcome counts of `place_images` records, and how many of the world's goal places (the
-    images not named frame_*) were placed right."""
-    goals = [r for r in records if not r["image"].startswith("frame_")]
+    """Outcome counts of `place_images` records, and how many of the world's goal places were
+    placed right."""
+    goals = [r for r in records if is_goal_place(r)]
     c = {o: sum(r["outcome"] == o for r in records) for o in OUTCOMES}
     c["goal_places_right"] = sum(r["outcome"] == "right" for r in goals)
     c["goal_places"] = len(goals)
@@ -155,7 +161,7 @@ def main() -> int:
     ap.add_argument("--config", default="default")
     ap.add_argument("--alt-set", action="append", default=[], metavar="KEY=VALUE",
                     help="a variant compared with the defaults (one override each; repeat for more variants)")
-    ap.add_argument("--right-m", type=float, default=1.5, help="a placement within this of the truth is right")
+    ap.add_argument("--right-m", type=float, default=RIGHT_M, help="a placement within this of the truth is right")
     ap.add_argument("--name", default="goal_placement")
     ap.add_argument("--maps-dir", type=Path, default=None,
                     help="use (and build where absent) the maps under DIR/WORLD instead of sim navigate's")

@@ -175,13 +175,13 @@ def gt_map(world: str, seed: int, config: str) -> Path:
 
 def placement(world: str, config: str, extra: int) -> dict[str, Any]:
     """Where the goal images land (bench/goal_placement.py: the world's goal images and `extra`
-    frames of its second pass, right within 1.5 m of the true pose, wrong, or refused) on three
+    frames of its second pass, right within `RIGHT_M` of the true pose, wrong, or refused) on three
     maps: the case's SLAM map (moved into the world frame), the same mapping pass posed by ground
     truth, and a control, the mapping pass of seed 1 posed by ground truth (the building mapped
     again). The images on which the SLAM and ground-truth maps differ are set beside those on
     which the two ground-truth maps differ: a goal near the refusal line (ambiguous, too few PnP
     inliers for a metric pose) flips with the map's keyframes, whatever posed them."""
-    from goal_placement import goal_images, place_images, placement_counts
+    from goal_placement import RIGHT_M, goal_images, is_goal_place, place_images, placement_counts
 
     from litevloc.pipelines.topomap.io import load_map
     from litevloc.runtime.vloc_models import check_map_models, load_bundle
@@ -196,14 +196,13 @@ def placement(world: str, config: str, extra: int) -> dict[str, Any]:
     bundle = load_bundle(cfg.models)
     items = goal_images(world, cfg, extra)
     per: dict[str, list[dict[str, Any]]] = {}
-    out: dict[str, Any] = {"images": len(items), "right_m": 1.5, "control": mapping_pass_uri(world, 1)}
+    out: dict[str, Any] = {"images": len(items), "right_m": RIGHT_M, "control": mapping_pass_uri(world, 1)}
     for tag, m in maps.items():
         topomap = check_map_models(load_map(m), bundle)
-        per[tag] = place_images(items, topomap, bundle, {"defaults": cfg.planner.goal}, 1.5, f"{world} {tag}")[
-            "defaults"]
-        out[tag] = {"keyframes": topomap.n_nodes, **placement_counts(per[tag]),
-                    "goal_places_refused": [r["image"] for r in per[tag]
-                                            if not r["image"].startswith("frame_") and r["outcome"] != "right"]}
+        recs = place_images(items, topomap, bundle, {"defaults": cfg.planner.goal}, RIGHT_M, f"{world} {tag}")
+        per[tag] = recs["defaults"]
+        missed = [r["image"] for r in per[tag] if is_goal_place(r) and r["outcome"] != "right"]
+        out[tag] = {"keyframes": topomap.n_nodes, **placement_counts(per[tag]), "goal_places_not_right": missed}
 
     def differ(a: str, b: str) -> int:
         return sum(x["outcome"] != y["outcome"] for x, y in zip(per[a], per[b], strict=True))
