@@ -243,6 +243,12 @@ class LocalizationParams:
     gl_distinct_screen: bool = True
     # > 0: where that test judges a GL pose, its PnP needs this many inliers instead of pnp.min_inliers
     gl_distinct_min_inliers: int = 0
+    # GL refused by every pass: re-verify this many refused candidates at models.second_look_size (0 = off; opt-in)
+    second_look_candidates: int = 0
+    # ... only candidates whose first look found at least this many PnP inliers (the cost goes where a pose may be)
+    second_look_from_inliers: int = 10
+    # PnP's inlier floor in the second look (its denser features let a wrong pose collect more; no pooled pass there)
+    second_look_min_inliers: int = 80
     # PnP + RANSAC of live keypoints (with live depth) against a keyframe
     pnp: PnpParams = field(default_factory=PnpParams)
     # validity gates of the live depth at keypoints
@@ -277,6 +283,10 @@ class LocalizationParams:
             raise ValueError("gl_distinct_min_inliers must be 0 (pnp.min_inliers) or >= 4")
         if self.gl_rerank_depth < 0:
             raise ValueError("gl_rerank_depth must be >= 0")
+        if self.second_look_candidates < 0 or self.second_look_from_inliers < 0:
+            raise ValueError("second_look_candidates and second_look_from_inliers must be >= 0")
+        if self.second_look_min_inliers < 4:
+            raise ValueError(f"second_look_min_inliers must be >= 4, got {self.second_look_min_inliers}")
         if not -1 <= self.gl_rerank_min_similarity <= 1:
             raise ValueError("gl_rerank_min_similarity must be in [-1, 1]")
         if self.repeat_within_s < 0 or self.repeat_within_m < 0 or not 0 < self.repeat_deg <= 180:

@@ -33,6 +33,10 @@ class ModelsConfig:
     max_keypoints: int = 512
     # matcher; lightglue-adaptive: the reference's early stopping + point pruning
     matcher: Literal["lightglue", "lightglue-int8", "lightglue-adaptive", "mnn", "nn-ratio"] = "lightglue-adaptive"
+    # GL's second look (localization.second_look_candidates): extractor input size (h, w pixels) ...
+    second_look_size: tuple[int, int] = (480, 640)
+    # ... and keypoints per image, for the query and the keyframes' stored images (all matched)
+    second_look_keypoints: int = 2048
     # LightGlue match score threshold
     match_threshold: float = 0.1
     # lightglue-adaptive: early-stopping confidence (<= 0 = off)
@@ -53,12 +57,13 @@ class ModelsConfig:
     def __post_init__(self) -> None:
         if not 1 <= self.intra_op_threads <= 64:
             raise ValueError(f"intra_op_threads must be in [1, 64], got {self.intra_op_threads}")
-        for key in ("extractor_size", "vpr_size"):
+        for key in ("extractor_size", "vpr_size", "second_look_size"):
             h, w = getattr(self, key)
             if not (32 <= h <= 4096 and 32 <= w <= 4096):
                 raise ValueError(f"{key} must be (h, w) within [32, 4096], got {(h, w)}")
-        if not 16 <= self.max_keypoints <= 16384:
-            raise ValueError(f"max_keypoints must be in [16, 16384], got {self.max_keypoints}")
+        for key in ("max_keypoints", "second_look_keypoints"):
+            if not 16 <= getattr(self, key) <= 16384:
+                raise ValueError(f"{key} must be in [16, 16384], got {getattr(self, key)}")
         if self.match_max_keypoints < 0:
             raise ValueError(f"match_max_keypoints must be >= 0, got {self.match_max_keypoints}")
         if not 0.0 <= self.match_threshold < 1.0:

@@ -11,6 +11,8 @@ cached matches and PnP fits are reused), each later pass only where the earlier 
 
 A frame an earlier pass accepts is never verified again, so what it accepts is unchanged. This
 module decides the passes and their parameters; the localizer runs the verification itself.
+A GL query every pass refused may then be looked at again at full resolution
+(`pipelines.localization.second_look`), on the candidates `second_look_nodes` picks.
 """
 
 from __future__ import annotations
@@ -94,3 +96,16 @@ def with_second_passes(verify: VerifyFn, p: LocalizationParams, timer: StageTime
     if not refusals:
         return res
     return replace(res, attempts=attempts, stop_reason=f"{res.stop_reason}; {last_how} ({'; '.join(refusals)})")
+
+
+def second_look_nodes(attempts: tuple[CandidateAttempt, ...], n: int, min_inliers: int) -> list[int]:
+    """The refused candidates a full-resolution second look verifies again: at most `n` nodes whose
+    PnP found at least `min_inliers` inliers in any pass (their most; 0: every candidate), most
+    inliers first, then most matches; [] when none did (a frame where nothing came close costs no
+    second look)."""
+    best: dict[int, tuple[int, int]] = {}
+    for a in attempts:
+        best[a.node] = max(best.get(a.node, (0, 0)), (a.inliers, a.matches))
+    strong = [(node, ab) for node, ab in best.items() if ab[0] >= min_inliers]
+    strong.sort(key=lambda v: (-v[1][0], -v[1][1], v[0]))
+    return [node for node, _ in strong[:n]]

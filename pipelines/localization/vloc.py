@@ -40,8 +40,9 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import replace
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -56,7 +57,13 @@ from litevloc.pipelines.localization.distinct import (
     same_place,
     strongest_rival,
 )
-from litevloc.pipelines.localization.passes import VerifyFn, pooled, pooled_short, with_second_passes
+from litevloc.pipelines.localization.passes import (
+    VerifyFn,
+    pooled,
+    pooled_short,
+    second_look_nodes,
+    with_second_passes,
+)
 from litevloc.pipelines.localization.prior_gate import narrowed_gate, sigma_along
 from litevloc.pipelines.localization.query import Clock, MatchFn, Query, StageTimer, relative_pose, reprojects
 from litevloc.pipelines.localization.refine import (
@@ -80,6 +87,19 @@ LL_COST_WINDOW = 50  # LL queries whose median wall time sets the bound on a rec
 ExtractFn = Callable[[NDArray[np.uint8]], FeatureSet]
 DescribeFn = Callable[[NDArray[np.uint8]], NDArray[np.float32]]
 
+
+
+class SecondLookFn(Protocol):
+    """GL verification of `nodes` only, on other features of the same query and map
+    (`pipelines.localization.second_look.SecondLook`); None where it does not apply."""
+
+    def __call__(
+        self, t_ns: int, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64],
+        nodes: Sequence[int], prior_T_map_camera: NDArray[np.float64] | None = None, prior_age_s: float = 0.0,
+        prior_cov: NDArray[np.float64] | None = None, prior_travel_m: float | None = None,
+    ) -> LocalizationResult | None: ...
+
+
 _CLOCK_JITTER_S = 1e-3  # timestamps that differ by less than this are the same instant for time windows
 
 
@@ -93,8 +113,12 @@ class VisualLocalizer:
 
     def __init__(
         self, topomap: TopoMap, params: LocalizationParams, extract: ExtractFn, describe: DescribeFn, match: MatchFn,
-        clock: Clock = time.perf_counter,
+        clock: Clock = time.perf_counter, second_look: SecondLookFn | None = None,
     ) -> None:
+        if params.second_look_candidates > 0 and second_look is None:
+            raise ValueError("localization.second_look_candidates > 0 needs the second look's models; this command "
+                             "does not load them: set it to 0 here")
+        self.second_look = second_look if params.second_look_candidates > 0 else None
         self.map = topomap
         self.clock = clock  # wall time of stages and time budgets (see `StageTimer`)
         self.params = params
@@ -321,7 +345,7 @@ class VisualLocalizer:
         self, t_ns: int, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64],
         prior_T_map_camera: NDArray[np.float64] | None = None, prior_age_s: float = 0.0,
         recovering: bool = False, region: SearchRegion | None = None, prior_cov: NDArray[np.float64] | None = None,
-        prior_travel_m: float | None = None,
+        prior_travel_m: float | None = None, only: Sequence[int] | None = None,
     ) -> LocalizationResult:
         """VPR top-k + geometric verification; the best accepted candidate wins (after the
         joint refinement / confirmation by a second keyframe, see `LocalizationParams`).
@@ -335,12 +359,14 @@ class VisualLocalizer:
         3x3 camera position covariance, m^2, map frame, see `_gate_toward`). `region` (an initial
         pose) restricts the candidates to keyframes within it before the top-k cut. An accepted
         pose outside a given prior's gate is measured against the prior's place
-        (`_against_the_priors_place`)."""
+        (`_against_the_priors_place`). `only`: verify these nodes, in this order, instead of
+        the retrieved candidates. A query every pass refused is looked at again at full
+        resolution where that is configured (`_look_again`)."""
         prior = None if prior_T_map_camera is None else check_rigid(prior_T_map_camera, "prior T_map_camera",
                                                                       atol=1e-4)
         timer = StageTimer(self.clock)
         t_all = self.clock()
-        q, desc, sims, order, front_ms = self._retrieve(color, depth, K, region, timer, t_all)
+        q, desc, sims, order, front_ms = self._retrieve(color, depth, K, region, timer, t_all, only)
 
         def verify() -> LocalizationResult:
             if self.params.refine.enabled:
@@ -349,9 +375,38 @@ class VisualLocalizer:
             return self._verify_confirmed(t_ns, q, sims, order, timer, t_all)
 
         res = with_second_passes(self._under(verify, q), self.params, q.timer, self._map_has_depth)
+        if not res.accepted and self.second_look is not None:
+            res = self._look_again(res, (color, depth, K), (prior, prior_age_s, prior_travel_m, prior_cov))
         if not res.accepted or prior is None or not self.params.gl_check_prior_place:
             return res
         return self._against_the_priors_place(res, q, desc, (prior, prior_age_s, prior_travel_m, prior_cov), t_all)
+
+    def _look_again(
+        self, res: LocalizationResult, frame: tuple[NDArray[np.uint8], NDArray[np.float32] | None, NDArray[np.float64]],
+        fused: tuple[NDArray[np.float64] | None, float, float | None, NDArray[np.float64] | None],
+    ) -> LocalizationResult:
+        """The refused GL result `res` after the second look (`self.second_look`) at the
+        candidates `passes.second_look_nodes` picks from its attempts (`frame`: colour, depth,
+        K; `fused`: the prior as in `localize_global`): its result where it accepts, else `res`;
+        either way with both looks' attempts and time ("second_look" ms, in "total")."""
+        p = self.params
+        nodes = second_look_nodes(res.attempts, p.second_look_candidates, p.second_look_from_inliers)
+        if not nodes or self.second_look is None:
+            return res
+        prior, age_s, travel_m, cov = fused
+        look = self.second_look(res.t_ns, *frame, nodes, prior, age_s, prior_cov=cov, prior_travel_m=travel_m)
+        if look is None:
+            return res
+        ms = dict(res.timings_ms)
+        ms["second_look"] = look.timings_ms.get("total", 0.0)
+        ms["total"] = ms.get("total", 0.0) + ms["second_look"]
+        attempts = res.attempts + look.attempts
+        if look.accepted:
+            return replace(look, attempts=attempts, timings_ms=ms, stop_reason=(
+                f"looked at again at full resolution (nodes {nodes}): {look.stop_reason}; first look: "
+                f"{res.stop_reason}"))
+        return replace(res, attempts=attempts, timings_ms=ms, stop_reason=(
+            f"{res.stop_reason}; looked at again at full resolution (nodes {nodes}): {look.reason}"))
 
     def _against_the_priors_place(
         self, res: LocalizationResult, q: Query, desc: NDArray[np.float32],
@@ -394,13 +449,16 @@ class VisualLocalizer:
         return run
 
     def _retrieve(self, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64],
-                  region: SearchRegion | None, timer: StageTimer, t_all: float
+                  region: SearchRegion | None, timer: StageTimer, t_all: float, only: Sequence[int] | None = None
                   ) -> tuple[Query, NDArray[np.float32], NDArray[np.float32], NDArray[np.int64], float]:
         """Retrieval: the query's features, its (D,) VPR descriptor and (N,) similarity to every
-        keyframe, the candidate keyframes in VPR order and the front end's milliseconds."""
+        keyframe, the candidate keyframes in VPR order (`only` instead, where given) and the
+        front end's milliseconds."""
         q, desc = self._query(color, depth, K, timer)
         front_ms = (self.clock() - t_all) * 1e3  # feature extraction and VPR, as in an LL query
         sims = self.map.vpr @ desc
+        if only is not None:
+            return q, desc, sims, np.asarray(list(only), dtype=np.int64), front_ms
         return q, desc, sims, self.global_candidates(sims, q, region), front_ms
 
     def _verify_refined(self, t_ns: int, q: Query, sims: NDArray[np.float32], order: NDArray[np.int64],

@@ -243,6 +243,8 @@ class TopoMap:
                 return None
             z = np.asarray(f.depth[int(f.offsets[node]):int(f.offsets[node + 1])], np.float32)
             return np.where(z > 0, z, np.float32(np.nan))
+        if not getattr(f, "has_keypoint_depth", True):  # a lazy sequence that says so: no node made to find out
+            return None
         d = getattr(f[node], "depth", None)
         return None if d is None else np.asarray(d, np.float32)
 

@@ -628,7 +628,7 @@ def test_ll_pose_with_a_stale_fused_prior_is_held_until_repeated() -> None:
     assert not r.accepted and "10.0 s past its last fix and 4.0 m of odometry, too old" in r.reason
 
 
-def _matching_25_with_depth(s: Scene, depth: NDArray[np.float32]) -> Callable[[Feats, NodeFeatures], tuple[
+def matching_25_with_depth(s: Scene, depth: NDArray[np.float32]) -> Callable[[Feats, NodeFeatures], tuple[
         NDArray[np.int64], NDArray[np.int64]]]:
     """The scene's matcher keeping its first 25 matches whose live keypoint has depth."""
     def few(a: Feats, b: NodeFeatures) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
@@ -649,7 +649,7 @@ def test_a_weak_candidate_counts_only_when_its_keyframes_together_reach_the_inli
     s = Scene(m)
     T_true = pose(1.3, 5.0)
     depth = s.look(T_true, vpr_best=1)
-    few = _matching_25_with_depth(s, depth)
+    few = matching_25_with_depth(s, depth)
     off = VisualLocalizer(m, replace(PARAMS, pooled_min_inliers=0), s.extract, s.describe, few)
     assert not off.localize_global(0, IMG, depth, K).accepted
     assert not off.localize_local(0, IMG, depth, K, prior_T_map_camera=pose(1.4, 5.0)).accepted
@@ -670,7 +670,7 @@ def test_a_weak_candidate_counts_only_when_its_keyframes_together_reach_the_inli
     m1 = make_map([0.0])
     s1 = Scene(m1)
     depth1 = s1.look(pose(0.3, 5.0), vpr_best=0)
-    alone = VisualLocalizer(m1, pooled, s1.extract, s1.describe, _matching_25_with_depth(s1, depth1))
+    alone = VisualLocalizer(m1, pooled, s1.extract, s1.describe, matching_25_with_depth(s1, depth1))
     for r in (alone.localize_global(0, IMG, depth1, K, pose(0.4, 3.0), prior_age_s=0.1),
               alone.localize_local(0, IMG, depth1, K, pose(0.4, 3.0), prior_age_s=0.1, fused_prior=True)):
         assert not r.accepted and r.provisional is None

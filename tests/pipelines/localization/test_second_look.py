@@ -1,0 +1,168 @@
+"""GL's full-resolution second look (`pipelines.localization.second_look`, `passes.second_look_nodes`):
+which refused candidates it looks at again, the keyframe features it extracts from the stored
+images, and a GL query the first look refuses that the second accepts, on the synthetic scene of
+test_vloc (exact truth)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import cv2
+import numpy as np
+import pytest
+from numpy.typing import NDArray
+
+from litevloc.base import geometry as g
+from litevloc.pipelines.localization.passes import second_look_nodes
+from litevloc.pipelines.localization.results import CandidateAttempt
+from litevloc.pipelines.localization.second_look import SecondLook, StoredImageFeatures
+from litevloc.pipelines.localization.vloc import VisualLocalizer
+from litevloc.pipelines.pnp import Refusal
+from litevloc.pipelines.topomap.types import NodeFeatures, TopoMap
+from tests.pipelines.localization.test_vloc import (
+    IMG,
+    PARAMS,
+    Feats,
+    K,
+    Scene,
+    make_map,
+    match_by_id,
+    matching_25_with_depth,
+    pose,
+)
+
+SMALLER = (120, 160)  # the first look's extractor input (h, w): IMG (240x320) is larger
+
+
+def _jpeg(level: int) -> bytes:
+    ok, buf = cv2.imencode(".jpg", np.full((24, 32, 3), level, np.uint8))
+    assert ok
+    return buf.tobytes()
+
+
+def _level(node: int) -> int:
+    return 40 + 40 * node  # a keyframe's stored image: one grey level per node (IMG, the query, is 0)
+
+
+def _with_images(m: TopoMap) -> TopoMap:
+    return replace(m, images_jpeg=[_jpeg(_level(i)) for i in range(m.n_nodes)])
+
+
+class FullResolution:
+    """The 'higher resolution' extractor: the query's or a keyframe's full feature set, told apart
+    by the image's grey level; counts its calls per node."""
+
+    def __init__(self, s: Scene, m: TopoMap) -> None:
+        self.s, self.feats = s, list(m.features)
+        self.calls: list[int] = []
+
+    def extract(self, img: NDArray[np.uint8]) -> Feats | NodeFeatures:
+        level = float(img.mean())
+        if level < 20:
+            assert self.s.current is not None
+            return self.s.current
+        node = round((level - 40) / 40)
+        self.calls.append(node)
+        return self.feats[node]
+
+
+def test_second_look_nodes_are_the_refused_candidates_with_most_inliers_above_the_gate() -> None:
+    att = (CandidateAttempt(3, 0.9, 60, 12, "too few inliers", Refusal.INLIERS),
+           CandidateAttempt(5, 0.8, 90, 25, "too few inliers", Refusal.INLIERS),
+           CandidateAttempt(7, 0.7, 30, 0, "too few matches", Refusal.MATCHES),
+           CandidateAttempt(3, 0.9, 60, 31, "pooled: too few", Refusal.INLIERS),  # a later pass, more inliers
+           CandidateAttempt(9, 0.6, 80, 25, "too few inliers", Refusal.INLIERS))
+    assert second_look_nodes(att, 2, 10) == [3, 5]  # 31 inliers; then of two with 25, the one with more matches
+    assert second_look_nodes(att, 5, 10) == [3, 5, 9]
+    assert second_look_nodes(att, 5, 0) == [3, 5, 9, 7]
+    assert second_look_nodes(att, 5, 40) == []
+
+
+def test_stored_image_features_are_extracted_once_and_the_cache_is_bounded() -> None:
+    seen: list[float] = []
+
+    def extract(img: NDArray[np.uint8]) -> str:  # type: ignore[return-value]
+        assert img.shape == (24, 32, 3) and img.dtype == np.uint8
+        seen.append(float(img.mean()))
+        return f"node at {round(float(img.mean()))}"
+
+    f = StoredImageFeatures([_jpeg(_level(i)) for i in range(3)], extract, capacity=2)  # type: ignore[arg-type]
+    assert len(f) == 3 and f[1] == f[1] == "node at 80" and f.extracted == 1
+    f[0], f[2]
+    f[1]
+    assert f.extracted == 4 and [round(v) for v in seen] == [80, 40, 120, 80]
+    with pytest.raises(IndexError):
+        f[3]
+    bad = StoredImageFeatures([b"not a jpeg"], extract)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="keyframe 0's stored image does not decode"):
+        bad[0]
+
+
+def test_a_gl_query_the_first_look_refuses_is_accepted_by_the_second() -> None:
+    """The first look's matcher finds 25 matches with depth per keyframe (a wide view change), under
+    PnP's floor of 30 with pooling off: refused. The second look's features match fully: GL
+    accepts the true pose, says so, keeps both looks' attempts and times the second."""
+    m = _with_images(make_map([0.0, 1.0, 2.0, 3.0]))
+    s = Scene(m)
+    T_true = pose(1.3, 5.0)
+    depth = s.look(T_true, vpr_best=1)
+    few = matching_25_with_depth(s, depth)
+    p = replace(PARAMS, pooled_min_inliers=0, second_look_candidates=2, second_look_from_inliers=0,
+                second_look_min_inliers=30)
+    full = FullResolution(s, m)
+    look = SecondLook(m, p, full.extract, s.describe, match_by_id, SMALLER)
+    loc = VisualLocalizer(m, p, s.extract, s.describe, few, second_look=look)
+    off = VisualLocalizer(m, replace(p, second_look_candidates=0), s.extract, s.describe, few, second_look=look)
+    refused = off.localize_global(0, IMG, depth, K)
+    assert not refused.accepted and "full resolution" not in refused.stop_reason
+    r = loc.localize_global(0, IMG, depth, K)
+    assert r.accepted, r.stop_reason
+    assert r.stop_reason.startswith("looked at again at full resolution (nodes [")
+    dt, dr = g.relative_pose_error(r.T_map_camera, T_true)
+    assert dt < 0.005 and dr < 0.2
+    assert len(r.attempts) > len(refused.attempts) and r.timings_ms["second_look"] > 0
+    assert r.timings_ms["total"] >= r.timings_ms["second_look"]
+    assert set(full.calls) <= {0, 1, 2, 3}
+    # a query the first look accepts never looks again
+    n_calls = len(full.calls)
+    plain = VisualLocalizer(m, p, s.extract, s.describe, s.match, second_look=look).localize_global(0, IMG, depth, K)
+    assert plain.accepted and "second_look" not in plain.timings_ms and len(full.calls) == n_calls
+    # an image no larger than what the first look's extractor sees has nothing finer to show
+    same = SecondLook(m, p, full.extract, s.describe, match_by_id, (240, 320))
+    r3 = VisualLocalizer(m, p, s.extract, s.describe, few, second_look=same).localize_global(0, IMG, depth, K)
+    assert not r3.accepted and "second_look" not in r3.timings_ms and len(full.calls) == n_calls
+
+
+def test_the_second_look_refuses_what_its_features_do_not_verify_and_a_gate_skips_it() -> None:
+    m = _with_images(make_map([0.0, 1.0, 2.0]))
+    s = Scene(m)
+    depth = s.look(pose(1.0), 1)
+    s.broken_nodes = {0, 1, 2}
+    p = replace(PARAMS, pooled_min_inliers=0, second_look_candidates=3, second_look_from_inliers=0)
+    full = FullResolution(s, m)
+
+    def garbage(a: Feats, b: NodeFeatures) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        rng = np.random.default_rng(len(b.keypoints))
+        return rng.integers(0, len(a.keypoints), 200), rng.integers(0, len(b.keypoints), 200)
+
+    loc = VisualLocalizer(m, p, s.extract, s.describe, s.match,
+                          second_look=SecondLook(m, p, full.extract, s.describe, garbage, SMALLER))
+    r = loc.localize_global(0, IMG, depth, K)
+    assert not r.accepted and r.T_map_camera is None
+    assert "looked at again at full resolution (nodes [" in r.stop_reason and "second_look" in r.timings_ms
+    gated = VisualLocalizer(m, replace(p, second_look_from_inliers=30), s.extract, s.describe, s.match,
+                            second_look=SecondLook(m, p, full.extract, s.describe, garbage, SMALLER))
+    r2 = gated.localize_global(0, IMG, depth, K)
+    assert not r2.accepted and "second_look" not in r2.timings_ms  # no candidate reached the gate
+
+
+def test_second_look_needs_its_models_and_the_maps_images() -> None:
+    m = make_map([0.0, 1.0])
+    s = Scene(m)
+    p = replace(PARAMS, second_look_candidates=1)
+    with pytest.raises(ValueError, match="second_look_candidates > 0 needs the second look's models"):
+        VisualLocalizer(m, p, s.extract, s.describe, s.match)
+    with pytest.raises(ValueError, match="second look needs every keyframe's stored image"):
+        SecondLook(replace(m, images_jpeg=[]), p, s.extract, s.describe, s.match, SMALLER)
+    with pytest.raises(ValueError, match="second_look_candidates"):
+        replace(PARAMS, second_look_candidates=-1)
