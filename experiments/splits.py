@@ -41,7 +41,7 @@ from litevloc.pipelines.topomap.io import load_map
 from litevloc.pipelines.topomap.types import TopoMap
 from litevloc.runtime.posed import posed_frames
 from litevloc.runtime.sources import open_source
-from litevloc.runtime.vloc_models import check_map_models, load_bundle
+from litevloc.runtime.vloc_models import check_map_models, load_bundle, second_look_for
 
 BLOCK = 250
 COVER = ((0.5, 30.0), (1.0, 45.0))  # (metres, degrees): "covered", and the looser "near"
@@ -136,8 +136,10 @@ def run_split(split: Split, map_dir: Path, data: Path, config: str, overrides: S
     bundle = load_bundle(cfg.models)
     topomap = check_map_models(load_map(map_dir), bundle)
     models = ReplayedModels(cache_dir, bundle, topomap, map_dir)
+    # the second look's models are called live (its features are not recorded)
     loc = VisualLocalizer(topomap, cfg.localization, models.extract, models.describe, models.match,
-                          clock=models.clock)
+                          clock=models.clock,
+                          second_look=second_look_for(topomap, cfg.models, cfg.localization, bundle, models.clock))
     lp = cfg.localization
     shortlist = max(lp.gl_top_k, lp.gl_rerank_depth if lp.gl_rerank else 0)
     a, b = split.query_frames

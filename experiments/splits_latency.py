@@ -23,7 +23,7 @@ from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map
 from litevloc.runtime.posed import posed_frames
 from litevloc.runtime.sources import open_source
-from litevloc.runtime.vloc_models import check_map_models, load_bundle
+from litevloc.runtime.vloc_models import check_map_models, load_bundle, second_look_for
 
 
 def gl_latency(split: Split, map_dir: Path, data: Path, config: str, overrides: Sequence[str],
@@ -36,10 +36,12 @@ def gl_latency(split: Split, map_dir: Path, data: Path, config: str, overrides: 
     a, b = split.query_frames
     src = open_source(data, slice(a, b, step), strict=True, rgbd_calibration=cfgs["base"].rgbd_calibration)
     ms: dict[str, list[float]] = {"base": [], "new": []}
+    looks = {k: second_look_for(topomap, c.models, c.localization, bundle) for k, c in cfgs.items()}
     load = [os.getloadavg()[0]]
     for frame, _ in posed_frames(src):
         for name, cfg in cfgs.items():
-            loc = VisualLocalizer(topomap, cfg.localization, bundle.extract, bundle.describe, bundle.match)
+            loc = VisualLocalizer(topomap, cfg.localization, bundle.extract, bundle.describe, bundle.match,
+                                  second_look=looks[name])
             t0 = time.perf_counter()
             loc.localize_global(frame.t_ns, frame.color, frame.depth, frame.K)
             ms[name].append((time.perf_counter() - t0) * 1e3)

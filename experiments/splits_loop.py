@@ -24,7 +24,7 @@ from litevloc.config import load_config
 from litevloc.experiments.model_replay import ReplayedModels
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map
-from litevloc.runtime.vloc_models import check_map_models, load_bundle
+from litevloc.runtime.vloc_models import check_map_models, load_bundle, second_look_for
 from litevloc.sim.source import open_sim_source
 
 LOOP_QUERY = "sim:loop?pass=loop-lane&seed=1"
@@ -59,6 +59,7 @@ def run_loop_probe(map_dir: Path, frames_dir: Path, overrides: Sequence[str], ca
     bundle = load_bundle(cfg.models)
     topomap = check_map_models(load_map(map_dir), bundle)
     models = ReplayedModels(cache_dir, bundle, topomap, map_dir)
+    look = second_look_for(topomap, cfg.models, cfg.localization, bundle, models.clock)  # one cache for all frames
     indices = list(range(0, last + 1, every))
     record_loop_frames(frames_dir, indices)
     records: list[dict[str, Any]] = []
@@ -68,7 +69,7 @@ def run_loop_probe(map_dir: Path, frames_dir: Path, overrides: Sequence[str], ca
             color, depth, K, t_ns, T_gt = z["color"], z["depth"], z["K"], int(z["t_ns"]), z["T_world_camera"]
         models.start(i)
         loc = VisualLocalizer(topomap, cfg.localization, models.extract, models.describe, models.match,
-                              clock=models.clock)
+                              clock=models.clock, second_look=look)
         res = loc.localize_global(t_ns, color, depth, K)
         rec: dict[str, Any] = {"frame": i, "accepted": bool(res.accepted), "reason": res.reason,
                                "keyframes": list(res.keyframes), "n_inliers": res.n_inliers,

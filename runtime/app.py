@@ -30,7 +30,7 @@ from litevloc.runtime.frame_guard import FrameGuard
 from litevloc.runtime.ros_inputs import InitialPoseInput
 from litevloc.runtime.service import Service, VlocFn, fusion_callables, localizer_callable
 from litevloc.runtime.stages import call_in_low_priority_thread
-from litevloc.runtime.vloc_models import check_map_models, load_bundle
+from litevloc.runtime.vloc_models import check_map_models, load_bundle, second_look_for
 from litevloc.runtime.vloc_process import VlocProcess, VlocWorkerSpec
 
 
@@ -123,7 +123,8 @@ def build_app(
         # Sessions made in a low-priority thread: their intra-op threads inherit the VLoc thread's nice.
         bundle = call_in_low_priority_thread(lambda: load_bundle(models), cfg.runtime.vloc_nice)
         topomap = check_map_models(load_map(map_path), bundle)
-        localizer = VisualLocalizer(topomap, cfg.localization, bundle.extract, bundle.describe, bundle.match)
+        localizer = VisualLocalizer(topomap, cfg.localization, bundle.extract, bundle.describe, bundle.match,
+                                    second_look=second_look_for(topomap, models, cfg.localization, bundle))
         inner_vloc = localizer_callable(localizer)
     T_base_camera = cfg.fusion.T_base_camera()
     fusion = OnlineFusion(cfg.fusion.params, T_base_camera)

@@ -8,14 +8,18 @@ recognizer from the `models` config and exposes `extract`, `match` (index arrays
 from __future__ import annotations
 
 import dataclasses
+import time
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.base.params.localization import LocalizationParams
 from litevloc.base.params.models import ModelsConfig
 from litevloc.models.registry import ModelError, load_extractor, load_matcher, load_place_recognizer
 from litevloc.models.types import FeatureExtractor, Features, Matcher, PlaceRecognizer
+from litevloc.pipelines.localization.query import Clock
+from litevloc.pipelines.localization.second_look import SecondLook
 from litevloc.pipelines.topomap.types import FeatureSet, FeatureStore, TopoMap
 
 
@@ -93,3 +97,17 @@ def check_map_models(topomap: TopoMap, bundle: ModelBundle) -> TopoMap:
     if isinstance(feats, FeatureStore):  # a loaded map: stay lazy (float16 on disk, converted per node on access)
         return dataclasses.replace(topomap, features=feats.mapped(as_features))
     return dataclasses.replace(topomap, features=[as_features(f) for f in feats])
+
+
+def second_look_for(topomap: TopoMap, models: ModelsConfig, params: LocalizationParams, bundle: ModelBundle,
+                    clock: Clock = time.perf_counter) -> SecondLook | None:
+    """GL's full-resolution second look on `topomap` where `params.second_look_candidates` > 0
+    (its extractor at `models.second_look_size` / `second_look_keypoints`, the bundle's matcher
+    over all keypoints; ModelError naming the export command when that extractor is missing),
+    else None."""
+    if params.second_look_candidates <= 0:
+        return None
+    full = dataclasses.replace(models, extractor_size=models.second_look_size,
+                               max_keypoints=models.second_look_keypoints)
+    looks = ModelBundle(load_extractor(bundle.extractor.name, full), bundle.matcher, bundle.vpr, 0)
+    return SecondLook(topomap, params, looks.extract, bundle.describe, looks.match, models.extractor_size, clock)

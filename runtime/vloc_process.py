@@ -82,7 +82,7 @@ def _worker_main(spec: VlocWorkerSpec, conn: Connection) -> None:
         from litevloc.pipelines.topomap.io import load_map
         from litevloc.runtime.service import localizer_callable
         from litevloc.runtime.stages import configure_threads, lower_thread_priority, traceback_summary
-        from litevloc.runtime.vloc_models import check_map_models, load_bundle
+        from litevloc.runtime.vloc_models import check_map_models, load_bundle, second_look_for
 
         rt = spec.config.runtime
         nice = lower_thread_priority(rt.vloc_nice)  # the main thread, before any other starts: they inherit it
@@ -90,7 +90,9 @@ def _worker_main(spec: VlocWorkerSpec, conn: Connection) -> None:
         models = dataclasses.replace(spec.config.models, intra_op_threads=rt.ort_intra_op_threads)
         bundle = load_bundle(models)
         topomap = check_map_models(load_map(spec.map_path), bundle)
-        localizer = VisualLocalizer(topomap, spec.config.localization, bundle.extract, bundle.describe, bundle.match)
+        lp = spec.config.localization
+        localizer = VisualLocalizer(topomap, lp, bundle.extract, bundle.describe, bundle.match,
+                                    second_look=second_look_for(topomap, models, lp, bundle))
         vloc = localizer_callable(localizer)
     except BaseException as exc:  # reported to the parent, which raises it as a user error
         conn.send(("error", type(exc).__name__, str(exc), isinstance(exc, LiteVLocError)))

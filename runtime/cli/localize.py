@@ -37,12 +37,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from litevloc.pipelines.evaluation.reloc import inside_95_ellipsoids
     from litevloc.pipelines.evaluation.trajectory import write_tum
-    from litevloc.runtime.vloc_models import check_map_models, load_bundle
+    from litevloc.runtime.vloc_models import check_map_models, load_bundle, second_look_for
 
     cfg = config_of(args)
     bundle = load_bundle(cfg.models)
     topomap = check_map_models(load_map(args.map), bundle)
-    loc = VisualLocalizer(topomap, cfg.localization, bundle.extract, bundle.describe, bundle.match)
+    loc = VisualLocalizer(topomap, cfg.localization, bundle.extract, bundle.describe, bundle.match,
+                          second_look=second_look_for(topomap, cfg.models, cfg.localization, bundle))
     src = source_of(args, cfg)
     from litevloc.runtime.cli.run import make_view
 

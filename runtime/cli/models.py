@@ -79,10 +79,12 @@ def _models_cfg(args: argparse.Namespace) -> ModelsConfig:
 
 
 def configured_ids(cfg: ModelsConfig) -> list[str]:
-    """The ONNX models the configuration needs (extractor, matcher, VPR)."""
+    """The ONNX models the configuration needs (extractor, matcher, VPR) or may need (GL's second
+    look's extractor: `localization.second_look_candidates` turns it on, in another section)."""
     ids: list[str] = []
     if cfg.extractor.startswith("aliked"):
         ids.append(aliked_id(cfg.extractor, cfg.extractor_size, cfg.max_keypoints))
+        ids.append(aliked_id(cfg.extractor, cfg.second_look_size, cfg.second_look_keypoints))
     if cfg.matcher == "lightglue":
         ids.append("lightglue-aliked")
     elif cfg.matcher == "lightglue-int8":

@@ -1,9 +1,15 @@
 from __future__ import annotations
 
-import numpy as np
+from pathlib import Path
 
+import numpy as np
+import pytest
+
+from litevloc.base.params.localization import LocalizationParams
+from litevloc.base.params.models import ModelsConfig
+from litevloc.models.registry import ModelError
 from litevloc.models.types import Features, Matches
-from litevloc.runtime.vloc_models import ModelBundle
+from litevloc.runtime.vloc_models import ModelBundle, second_look_for
 
 
 class EchoMatcher:
@@ -30,3 +36,20 @@ def test_top_n_matching_returns_indices_into_the_full_sets() -> None:
     b.max_keypoints = 0
     i0, _ = b.match(feats([0.1, 0.9, 0.5]), feats([0.7, 0.2, 0.95]))
     assert i0.tolist() == [0, 1, 2]
+
+
+def test_the_second_look_is_built_only_when_on_and_a_missing_model_names_its_export(tmp_path: Path) -> None:
+    from litevloc.runtime.cli.models import configured_ids
+
+    models = ModelsConfig(cache_dir=str(tmp_path))  # an empty model cache
+    topomap = None  # never read when the second look is off, nor before its model is found
+    assert second_look_for(topomap, models, LocalizationParams(), None) is None  # type: ignore[arg-type]
+    on = LocalizationParams(second_look_candidates=2)
+    with pytest.raises(ModelError, match=r"aliked-n16-480x640-k2048.*litevloc models export|litevloc models export.*"
+                                         r"aliked-n16-480x640-k2048"):
+        second_look_for(topomap, models, on, ModelBundle(EchoExtractor(), EchoMatcher(), None))  # type: ignore[arg-type]
+    assert "aliked-n16-480x640-k2048" in configured_ids(models)  # `litevloc models export` builds it
+
+
+class EchoExtractor:
+    name = "aliked-n16"
