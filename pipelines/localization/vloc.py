@@ -48,6 +48,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litevloc.base.geometry import backproject_pixels, check_rigid, relative_pose_error
+from litevloc.base.loader import ConfigError
 from litevloc.base.params.localization import LocalizationParams
 from litevloc.pipelines.guided_matching import mutual_nn_pairs
 from litevloc.pipelines.localization.distinct import (
@@ -116,8 +117,8 @@ class VisualLocalizer:
         clock: Clock = time.perf_counter, second_look: SecondLookFn | None = None,
     ) -> None:
         if params.second_look_candidates > 0 and second_look is None:
-            raise ValueError("localization.second_look_candidates > 0 needs the second look's models; this command "
-                             "does not load them: set it to 0 here")
+            raise ConfigError("localization.second_look_candidates > 0 needs the second look's models; this command "
+                              "does not load them: set it to 0 here")
         self.second_look = second_look if params.second_look_candidates > 0 else None
         self.map = topomap
         self.clock = clock  # wall time of stages and time budgets (see `StageTimer`)
