@@ -247,8 +247,8 @@ class LocalizationParams:
     second_look_candidates: int = 0
     # ... only candidates whose first look found at least this many PnP inliers (the cost goes where a pose may be)
     second_look_from_inliers: int = 10
-    # PnP's inlier floor in the second look (its denser features let a wrong pose collect more; no pooled pass there)
-    second_look_min_inliers: int = 80
+    # it refuses a pose putting more than this share of its keyframes' map points in view in front of the live depth
+    second_look_max_see_through: float = 0.3
     # PnP + RANSAC of live keypoints (with live depth) against a keyframe
     pnp: PnpParams = field(default_factory=PnpParams)
     # validity gates of the live depth at keypoints
@@ -285,8 +285,9 @@ class LocalizationParams:
             raise ValueError("gl_rerank_depth must be >= 0")
         if self.second_look_candidates < 0 or self.second_look_from_inliers < 0:
             raise ValueError("second_look_candidates and second_look_from_inliers must be >= 0")
-        if self.second_look_min_inliers < 4:
-            raise ValueError(f"second_look_min_inliers must be >= 4, got {self.second_look_min_inliers}")
+        if not 0.0 <= self.second_look_max_see_through <= 1.0:
+            raise ValueError(f"second_look_max_see_through must be in [0, 1] (1 = off), got "
+                             f"{self.second_look_max_see_through}")
         if not -1 <= self.gl_rerank_min_similarity <= 1:
             raise ValueError("gl_rerank_min_similarity must be in [-1, 1]")
         if self.repeat_within_s < 0 or self.repeat_within_m < 0 or not 0 < self.repeat_deg <= 180:

@@ -5,9 +5,10 @@ Across a 25-30 deg view change the default features (the map's stored keypoints,
 The second look extracts features at a higher resolution (`models.second_look_size`,
 `second_look_keypoints`) from the query and from the candidate keyframes' stored images, and
 runs GL's own verification on them (PnP gates, joint refinement, distinctiveness, prior checks):
-a `VisualLocalizer` over a view of the map whose features are these, with PnP's inlier floor at
-`second_look_min_inliers` and no pooled pass (denser features let a wrong pose, e.g. at a
-repeated poster, collect more inliers). The view has no keypoint
+a `VisualLocalizer` over a view of the map whose features are these, without the pooled pass.
+Denser features also let a wrong pose collect more inliers (a band of repeated leaflets): a pose
+the second look accepts must not see through the map (`see_through`: the keyframes' stored
+points with map depth against the live depth image). The view has no keypoint
 depth (the map's depth belongs to its stored keypoints), so only the live depth lifts points.
 Keyframe features are extracted on first use and kept in a bounded cache.
 """
@@ -27,8 +28,11 @@ from numpy.typing import NDArray
 from litevloc.base.params.localization import LocalizationParams
 from litevloc.pipelines.localization.query import Clock, MatchFn
 from litevloc.pipelines.localization.results import LocalizationResult
+from litevloc.pipelines.localization.see_through import keyframe_points, see_through
 from litevloc.pipelines.localization.vloc import DescribeFn, ExtractFn, VisualLocalizer
 from litevloc.pipelines.topomap.types import FeatureSet, TopoMap
+
+MIN_CHECKED_POINTS = 20  # map points in view with live depth, below which the see-through check cannot tell
 
 
 class StoredImageFeatures(Sequence[FeatureSet]):
@@ -93,11 +97,11 @@ class SecondLook:
         if len(topomap.images_jpeg) != topomap.n_nodes:
             raise ValueError(f"the second look needs every keyframe's stored image: the map has "
                              f"{len(topomap.images_jpeg)} for {topomap.n_nodes} keyframes")
+        self.map = topomap  # its stored keypoints and their map depth: the see-through check
         self.first_size = first_size  # (h, w) pixels the first look's extractor sees
         self.features = StoredImageFeatures(topomap.images_jpeg, extract, capacity)
         view = replace(topomap, features=self.features)
-        inner = replace(params, second_look_candidates=0, pooled_min_inliers=0,
-                        pnp=replace(params.pnp, min_inliers=params.second_look_min_inliers))
+        inner = replace(params, second_look_candidates=0, pooled_min_inliers=0)
         self.localizer = VisualLocalizer(view, inner, extract, describe, match, clock)
 
     def __call__(
@@ -109,5 +113,26 @@ class SecondLook:
         `VisualLocalizer.localize_global`); None for an image no larger than `first_size`."""
         if color.shape[0] <= self.first_size[0] and color.shape[1] <= self.first_size[1]:
             return None
-        return self.localizer.localize_global(t_ns, color, depth, K, prior_T_map_camera, prior_age_s,
-                                              prior_cov=prior_cov, prior_travel_m=prior_travel_m, only=nodes)
+        res = self.localizer.localize_global(t_ns, color, depth, K, prior_T_map_camera, prior_age_s,
+                                             prior_cov=prior_cov, prior_travel_m=prior_travel_m, only=nodes)
+        if not res.accepted or res.T_map_camera is None or depth is None:
+            return res
+        why = self._sees_through(res.T_map_camera, K, depth, list(res.keyframes))
+        return res if not why else replace(res, accepted=False, T_map_camera=None, covariance=None, matches=None,
+                                           reason=f"not localized: {why}", stop_reason=f"{res.stop_reason}; {why}")
+
+    def _sees_through(self, T_map_live: NDArray[np.float64], K: NDArray[np.float64], depth: NDArray[np.float32],
+                      nodes: list[int]) -> str:
+        """'' when the pose keeps the keyframes' map points off the live free space (see
+        `see_through`), else the refusal reason; a pose it cannot check is refused."""
+        limit = self.localizer.params.second_look_max_see_through
+        if limit >= 1.0:
+            return ""
+        n, share = see_through(keyframe_points(self.map, nodes), T_map_live, K, depth)
+        if n < MIN_CHECKED_POINTS:
+            return (f"the pose puts {n} of its keyframes' map points in the live depth's view "
+                    f"(< {MIN_CHECKED_POINTS}): cannot check it against the live depth")
+        if share > limit:
+            return (f"the pose sees through the map: {share:.0%} of {n} keyframe points in view lie in front of "
+                    f"the live depth (> {limit:.0%})")
+        return ""

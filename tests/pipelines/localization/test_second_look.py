@@ -6,6 +6,7 @@ test_vloc (exact truth)."""
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any
 
 import cv2
 import numpy as np
@@ -14,14 +15,16 @@ from numpy.typing import NDArray
 
 from litevloc.base import geometry as g
 from litevloc.pipelines.localization.passes import second_look_nodes
-from litevloc.pipelines.localization.results import CandidateAttempt
+from litevloc.pipelines.localization.results import CandidateAttempt, LocalizationResult
 from litevloc.pipelines.localization.second_look import SecondLook, StoredImageFeatures
+from litevloc.pipelines.localization.see_through import see_through
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.pnp import Refusal
 from litevloc.pipelines.topomap.types import NodeFeatures, TopoMap
 from tests.pipelines.localization.test_vloc import (
     IMG,
     PARAMS,
+    POINTS,
     Feats,
     K,
     Scene,
@@ -45,7 +48,13 @@ def _level(node: int) -> int:
 
 
 def _with_images(m: TopoMap) -> TopoMap:
-    return replace(m, images_jpeg=[_jpeg(_level(i)) for i in range(m.n_nodes)])
+    """`m` with a stored image per keyframe and its keypoints' map depth (the see-through check)."""
+    feats = []
+    for k, f in enumerate(m.features):
+        ids = np.asarray(f.descriptors[:, 0], np.int64)
+        z = g.transform_points(g.invert(m.T_map_camera[k]), POINTS[ids])[:, 2]
+        feats.append(replace(f, depth=z.astype(np.float32)))
+    return replace(m, features=feats, images_jpeg=[_jpeg(_level(i)) for i in range(m.n_nodes)])
 
 
 class FullResolution:
@@ -107,8 +116,7 @@ def test_a_gl_query_the_first_look_refuses_is_accepted_by_the_second() -> None:
     T_true = pose(1.3, 5.0)
     depth = s.look(T_true, vpr_best=1)
     few = matching_25_with_depth(s, depth)
-    p = replace(PARAMS, pooled_min_inliers=0, second_look_candidates=2, second_look_from_inliers=0,
-                second_look_min_inliers=30)
+    p = replace(PARAMS, pooled_min_inliers=0, second_look_candidates=2, second_look_from_inliers=0)
     full = FullResolution(s, m)
     look = SecondLook(m, p, full.extract, s.describe, match_by_id, SMALLER)
     loc = VisualLocalizer(m, p, s.extract, s.describe, few, second_look=look)
@@ -127,7 +135,21 @@ def test_a_gl_query_the_first_look_refuses_is_accepted_by_the_second() -> None:
     n_calls = len(full.calls)
     plain = VisualLocalizer(m, p, s.extract, s.describe, s.match, second_look=look).localize_global(0, IMG, depth, K)
     assert plain.accepted and "second_look" not in plain.timings_ms and len(full.calls) == n_calls
+    # the same look, its pose moved 1 m ahead: the keyframes' points then lie in front of the live
+    # depth (it sees through the map) and it is refused, saying so
+    ahead = SecondLook(m, p, full.extract, s.describe, match_by_id, SMALLER)
+    verify = ahead.localizer.localize_global
+
+    def moved(*args: Any, **kwargs: Any) -> LocalizationResult:
+        res = verify(*args, **kwargs)
+        assert res.T_map_camera is not None
+        return replace(res, T_map_camera=res.T_map_camera @ g.make_T(np.eye(3), [0, 0, 1.0]))
+
+    ahead.localizer.localize_global = moved  # type: ignore[method-assign]
+    r4 = VisualLocalizer(m, p, s.extract, s.describe, few, second_look=ahead).localize_global(0, IMG, depth, K)
+    assert not r4.accepted and "sees through the map" in r4.stop_reason, r4.stop_reason
     # an image no larger than what the first look's extractor sees has nothing finer to show
+    n_calls = len(full.calls)
     same = SecondLook(m, p, full.extract, s.describe, match_by_id, (240, 320))
     r3 = VisualLocalizer(m, p, s.extract, s.describe, few, second_look=same).localize_global(0, IMG, depth, K)
     assert not r3.accepted and "second_look" not in r3.timings_ms and len(full.calls) == n_calls
@@ -166,3 +188,21 @@ def test_second_look_needs_its_models_and_the_maps_images() -> None:
         SecondLook(replace(m, images_jpeg=[]), p, s.extract, s.describe, s.match, SMALLER)
     with pytest.raises(ValueError, match="second_look_candidates"):
         replace(PARAMS, second_look_candidates=-1)
+
+
+def test_a_pose_that_puts_the_maps_points_in_front_of_the_live_surface_sees_through_it() -> None:
+    """A wall of map points 5 m ahead, the live depth 5 m everywhere: the true pose sees none of
+    them in front of the surface; a pose 1 m nearer puts all of them there (a camera that would
+    see the wall at 4 m sees it at 5 m); 1 m farther puts them behind it (occluded: allowed).
+    Points without live depth are not counted."""
+    xy = np.stack(np.meshgrid(np.linspace(-1, 1, 10), np.linspace(-0.6, 0.6, 6)), -1).reshape(-1, 2)
+    wall = np.column_stack([xy, np.full(len(xy), 5.0)])
+    depth = np.full((240, 320), 5.0, np.float32)
+    assert see_through(wall, np.eye(4), K, depth) == (60, 0.0)
+    n, share = see_through(wall, g.make_T(np.eye(3), [0, 0, 1.0]), K, depth)
+    assert n > 0 and share == 1.0
+    n, share = see_through(wall, g.make_T(np.eye(3), [0, 0, -1.0]), K, depth)
+    assert n == 60 and share == 0.0
+    depth[:, :160] = np.nan  # the left half has no live depth
+    n, _ = see_through(wall, np.eye(4), K, depth)
+    assert 0 < n < 60
