@@ -1,10 +1,11 @@
-"""GL's full-resolution second look: a refused GL query verified again on denser features.
+"""The full-resolution second look: a refused GL or LL query verified again on denser features.
 
 Across a 25-30 deg view change the default features (the map's stored keypoints, extracted at
 240x320) leave too few correspondences for PnP's inlier floor, or weak ones whose pose is off.
 The second look extracts features at a higher resolution (`models.second_look_size`,
 `second_look_keypoints`) from the query and from the candidate keyframes' stored images, and
-runs GL's own verification on them (PnP gates, joint refinement, distinctiveness, prior checks):
+runs the same verification on them (GL's or LL's: PnP gates, joint refinement, distinctiveness,
+the prior's gate):
 a `VisualLocalizer` over a view of the map whose features are these, without the pooled pass.
 Denser features also let a wrong pose collect more inliers (a band of repeated leaflets): a pose
 the second look accepts must not see through the map (`see_through`: the keyframes' stored
@@ -108,13 +109,21 @@ class SecondLook:
         self, t_ns: int, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64],
         nodes: Sequence[int], prior_T_map_camera: NDArray[np.float64] | None = None, prior_age_s: float = 0.0,
         prior_cov: NDArray[np.float64] | None = None, prior_travel_m: float | None = None,
+        local_fused: bool | None = None,
     ) -> LocalizationResult | None:
         """GL on `nodes` only, in that order, at the higher resolution (prior as for
-        `VisualLocalizer.localize_global`); None for an image no larger than `first_size`."""
+        `VisualLocalizer.localize_global`), or LL from the prior where `local_fused` says whether
+        it is fusion's (`localize_local`); None for an image no larger than `first_size`."""
         if color.shape[0] <= self.first_size[0] and color.shape[1] <= self.first_size[1]:
             return None
-        res = self.localizer.localize_global(t_ns, color, depth, K, prior_T_map_camera, prior_age_s,
-                                             prior_cov=prior_cov, prior_travel_m=prior_travel_m, only=nodes)
+        if local_fused is None:
+            res = self.localizer.localize_global(t_ns, color, depth, K, prior_T_map_camera, prior_age_s,
+                                                 prior_cov=prior_cov, prior_travel_m=prior_travel_m, only=nodes)
+        else:
+            if prior_T_map_camera is None:
+                raise ValueError("a local second look needs the prior")
+            res = self.localizer.localize_local(t_ns, color, depth, K, prior_T_map_camera, prior_age_s, local_fused,
+                                                prior_cov, prior_travel_m, only=nodes)
         if not res.accepted or res.T_map_camera is None or depth is None:
             return res
         why = self._sees_through(res.T_map_camera, K, depth, list(res.keyframes))

@@ -91,13 +91,15 @@ DescribeFn = Callable[[NDArray[np.uint8]], NDArray[np.float32]]
 
 
 class SecondLookFn(Protocol):
-    """GL verification of `nodes` only, on other features of the same query and map
+    """GL (`local_fused` None) or LL from the prior (`local_fused`: whether it is fusion's)
+    verification of `nodes` only, on other features of the same query and map
     (`pipelines.localization.second_look.SecondLook`); None where it does not apply."""
 
     def __call__(
         self, t_ns: int, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64],
         nodes: Sequence[int], prior_T_map_camera: NDArray[np.float64] | None = None, prior_age_s: float = 0.0,
         prior_cov: NDArray[np.float64] | None = None, prior_travel_m: float | None = None,
+        local_fused: bool | None = None,
     ) -> LocalizationResult | None: ...
 
 
@@ -385,17 +387,20 @@ class VisualLocalizer:
     def _look_again(
         self, res: LocalizationResult, frame: tuple[NDArray[np.uint8], NDArray[np.float32] | None, NDArray[np.float64]],
         fused: tuple[NDArray[np.float64] | None, float, float | None, NDArray[np.float64] | None],
+        local_fused: bool | None = None,
     ) -> LocalizationResult:
-        """The refused GL result `res` after the second look (`self.second_look`) at the
-        candidates `passes.second_look_nodes` picks from its attempts (`frame`: colour, depth,
-        K; `fused`: the prior as in `localize_global`): its result where it accepts, else `res`;
-        either way with both looks' attempts and time ("second_look" ms, in "total")."""
+        """The refused GL (or LL: `local_fused` not None, see `SecondLookFn`) result `res` after
+        the second look (`self.second_look`) at the candidates `passes.second_look_nodes` picks
+        from its attempts (`frame`: colour, depth, K; `fused`: the prior, its age in s, odometry
+        travel in m, position covariance): its result where it accepts, else `res`; either way
+        with both looks' attempts and time ("second_look" ms, in "total")."""
         p = self.params
         nodes = second_look_nodes(res.attempts, p.second_look_candidates, p.second_look_from_inliers)
         if not nodes or self.second_look is None:
             return res
         prior, age_s, travel_m, cov = fused
-        look = self.second_look(res.t_ns, *frame, nodes, prior, age_s, prior_cov=cov, prior_travel_m=travel_m)
+        look = self.second_look(res.t_ns, *frame, nodes, prior, age_s, prior_cov=cov, prior_travel_m=travel_m,
+                                local_fused=local_fused)
         if look is None:
             return res
         ms = dict(res.timings_ms)
@@ -712,24 +717,35 @@ class VisualLocalizer:
         self, t_ns: int, color: NDArray[np.uint8], depth: NDArray[np.float32] | None, K: NDArray[np.float64],
         prior_T_map_camera: NDArray[np.float64], prior_age_s: float = 0.0, fused_prior: bool = False,
         prior_cov: NDArray[np.float64] | None = None, prior_travel_m: float | None = None,
+        only: Sequence[int] | None = None,
     ) -> LocalizationResult:
-        """LL from a prior pose; candidates tried in similarity order until one is accepted.
+        """LL from a prior pose; candidates tried in similarity order until one is accepted
+        (`only`: these nodes, in this order, instead of the prior's candidates).
 
         A candidate's pose must also pass the prior gate (see `LocalizationParams`), which grows
         with `prior_age_s` at the fused-prior rate (`fused_prior`: odometry since the last fix,
         no more than its drift over `prior_travel_m`) or at the robot's top speed (the last VLoc
         pose); a fused prior's `prior_cov` (3x3 position covariance, m^2, map frame) narrows it
-        where fusion knows better (`_gate_toward`)."""
+        where fusion knows better (`_gate_toward`). A query every pass refused is looked at
+        again at full resolution where that is configured (`second_look_local`, `_look_again`)."""
         prior = check_rigid(prior_T_map_camera, "prior T_map_camera", atol=1e-4)
         timer = StageTimer(self.clock)
         t_all = self.clock()
         q, desc = self._query(color, depth, K, timer)
-        cands = self.local_candidates(prior, desc)
+        if only is None:
+            cands = self.local_candidates(prior, desc)
+        else:
+            sims = self.map.vpr @ desc
+            cands = [(int(n), float(sims[int(n)])) for n in only]
         growth = self._prior_growth_m(prior_age_s, fused_prior, prior_travel_m)
         gate_m = self._gate_m(growth, fused_prior)
         verify = self._under(
             lambda: self._local_attempts(t_ns, q, cands, prior, (growth, gate_m, prior_cov), timer, t_all), q)
-        return with_second_passes(verify, self.params, q.timer, self._map_has_depth, allowed=self._fresh(growth))
+        res = with_second_passes(verify, self.params, q.timer, self._map_has_depth, allowed=self._fresh(growth))
+        if not res.accepted and self.second_look is not None and self.params.second_look_local:
+            res = self._look_again(res, (color, depth, K), (prior, prior_age_s, prior_travel_m, prior_cov),
+                                   local_fused=fused_prior)
+        return res
 
     def _local_attempts(self, t_ns: int, q: Query, cands: list[tuple[int, float]], prior: NDArray[np.float64],
                         gate: tuple[float, float, NDArray[np.float64] | None], timer: StageTimer,

@@ -206,3 +206,30 @@ def test_a_pose_that_puts_the_maps_points_in_front_of_the_live_surface_sees_thro
     depth[:, :160] = np.nan  # the left half has no live depth
     n, _ = see_through(wall, np.eye(4), K, depth)
     assert 0 < n < 60
+
+
+def test_an_ll_query_the_first_look_refuses_is_accepted_by_the_second_within_the_priors_gate() -> None:
+    """LL from a prior near the truth: refused on 25 matches per keyframe, accepted by the second
+    look where `second_look_local` is on; from a prior 2 m away the second look's pose is outside
+    the prior's gate: refused."""
+    m = _with_images(make_map([0.0, 1.0, 2.0, 3.0]))
+    s = Scene(m)
+    T_true = pose(1.3, 5.0)
+    depth = s.look(T_true, vpr_best=1)
+    few = matching_25_with_depth(s, depth)
+    p = replace(PARAMS, pooled_min_inliers=0, second_look_candidates=2, second_look_from_inliers=0,
+                second_look_local=True)
+    full = FullResolution(s, m)
+    look = SecondLook(m, p, full.extract, s.describe, match_by_id, SMALLER)
+    loc = VisualLocalizer(m, p, s.extract, s.describe, few, second_look=look)
+    off = VisualLocalizer(m, replace(p, second_look_candidates=0), s.extract, s.describe, few)
+    assert not off.localize_local(0, IMG, depth, K, pose(1.4, 5.0)).accepted
+    gl_only = VisualLocalizer(m, replace(p, second_look_local=False), s.extract, s.describe, few, second_look=look)
+    assert not gl_only.localize_local(0, IMG, depth, K, pose(1.4, 5.0)).accepted  # LL's look is its own switch
+    r = loc.localize_local(0, IMG, depth, K, pose(1.4, 5.0))
+    assert r.accepted and r.mode == "local", r.stop_reason
+    assert r.stop_reason.startswith("looked at again at full resolution (nodes [")
+    dt, dr = g.relative_pose_error(r.T_map_camera, T_true)
+    assert dt < 0.005 and dr < 0.2
+    far = loc.localize_local(0, IMG, depth, K, pose(3.3, 5.0))
+    assert not far.accepted and any("inconsistent with the prior" in a.reason for a in far.attempts)
