@@ -3,15 +3,15 @@
 Across a 25-30 deg view change the default features (the map's stored keypoints, extracted at
 240x320) leave too few correspondences for PnP's inlier floor, or weak ones whose pose is off.
 The second look extracts features at a higher resolution (`models.second_look_size`,
-`second_look_keypoints`) from the query and from the candidate keyframes' stored images, and
-runs the same verification on them (GL's or LL's: PnP gates, joint refinement, distinctiveness,
-the prior's gate):
-a `VisualLocalizer` over a view of the map whose features are these, without the pooled pass.
+`second_look_keypoints`) from the query and from the candidate keyframes' stored images (on first
+use, kept in a bounded cache) and runs the same verification on them, GL's or LL's (PnP gates,
+joint refinement, distinctiveness, the prior's gate): a `VisualLocalizer` over a view of the map
+whose features are these, without the pooled pass. The view has no keypoint depth (the map's
+depth belongs to its stored keypoints), so only the live depth lifts points.
+
 Denser features also let a wrong pose collect more inliers (a band of repeated leaflets): a pose
 the second look accepts must not see through the map (`see_through`: the keyframes' stored
-points with map depth against the live depth image). The view has no keypoint
-depth (the map's depth belongs to its stored keypoints), so only the live depth lifts points.
-Keyframe features are extracted on first use and kept in a bounded cache.
+points with map depth against the live depth image).
 """
 
 from __future__ import annotations
