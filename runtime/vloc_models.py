@@ -101,7 +101,7 @@ def check_map_models(topomap: TopoMap, bundle: ModelBundle) -> TopoMap:
 
 def second_look_for(topomap: TopoMap, models: ModelsConfig, params: LocalizationParams, bundle: ModelBundle,
                     clock: Clock = time.perf_counter) -> SecondLook | None:
-    """GL's full-resolution second look on `topomap` where `params.second_look_candidates` > 0
+    """The full-resolution second look on `topomap` where `params.second_look_candidates` > 0
     (its extractor at `models.second_look_size` / `second_look_keypoints`, the bundle's matcher
     over all keypoints; ModelError naming the export command when that extractor is missing),
     else None."""

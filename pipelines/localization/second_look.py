@@ -85,7 +85,7 @@ class StoredImageFeatures(Sequence[FeatureSet]):
 
 
 class SecondLook:
-    """GL's verification of chosen nodes on features at a higher resolution (see the module).
+    """GL's or LL's verification of chosen nodes on features at a higher resolution (see the module).
 
     `extract` and `match` are the higher-resolution extractor and a matcher over all its
     keypoints; `describe` the map's place recognizer (the attempts' similarities);

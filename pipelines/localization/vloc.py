@@ -89,7 +89,6 @@ ExtractFn = Callable[[NDArray[np.uint8]], FeatureSet]
 DescribeFn = Callable[[NDArray[np.uint8]], NDArray[np.float32]]
 
 
-
 class SecondLookFn(Protocol):
     """GL (`local_fused` None) or LL from the prior (`local_fused`: whether it is fusion's)
     verification of `nodes` only, on other features of the same query and map
@@ -386,19 +385,19 @@ class VisualLocalizer:
 
     def _look_again(
         self, res: LocalizationResult, frame: tuple[NDArray[np.uint8], NDArray[np.float32] | None, NDArray[np.float64]],
-        fused: tuple[NDArray[np.float64] | None, float, float | None, NDArray[np.float64] | None],
+        prior_state: tuple[NDArray[np.float64] | None, float, float | None, NDArray[np.float64] | None],
         local_fused: bool | None = None,
     ) -> LocalizationResult:
         """The refused GL (or LL: `local_fused` not None, see `SecondLookFn`) result `res` after
         the second look (`self.second_look`) at the candidates `passes.second_look_nodes` picks
-        from its attempts (`frame`: colour, depth, K; `fused`: the prior, its age in s, odometry
+        from its attempts (`frame`: colour, depth, K; `prior_state`: the prior, its age in s, odometry
         travel in m, position covariance): its result where it accepts, else `res`; either way
         with both looks' attempts and time ("second_look" ms, in "total")."""
         p = self.params
         nodes = second_look_nodes(res.attempts, p.second_look_candidates, p.second_look_from_inliers)
         if not nodes or self.second_look is None:
             return res
-        prior, age_s, travel_m, cov = fused
+        prior, age_s, travel_m, cov = prior_state
         look = self.second_look(res.t_ns, *frame, nodes, prior, age_s, prior_cov=cov, prior_travel_m=travel_m,
                                 local_fused=local_fused)
         if look is None:

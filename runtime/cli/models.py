@@ -79,7 +79,7 @@ def _models_cfg(args: argparse.Namespace) -> ModelsConfig:
 
 
 def configured_ids(cfg: ModelsConfig) -> list[str]:
-    """The ONNX models the configuration needs (extractor, matcher, VPR) or may need (GL's second
+    """The ONNX models the configuration needs (extractor, matcher, VPR) or may need (the second
     look's extractor: `localization.second_look_candidates` turns it on, in another section)."""
     ids: list[str] = []
     if cfg.extractor.startswith("aliked"):
