@@ -251,6 +251,8 @@ class LocalizationParams:
     second_look_from_inliers: int = 10
     # it refuses a pose putting more than this share of its keyframes' map points in view in front of the live depth
     second_look_max_see_through: float = 0.3
+    # LL's look: its pose must lie this close to a last-VLoc-pose prior (m, for prior_gate_m; the rate still adds)
+    second_look_prior_gate_m: float = 0.25
     # PnP + RANSAC of live keypoints (with live depth) against a keyframe
     pnp: PnpParams = field(default_factory=PnpParams)
     # validity gates of the live depth at keypoints
@@ -287,6 +289,8 @@ class LocalizationParams:
             raise ValueError("gl_rerank_depth must be >= 0")
         if self.second_look_candidates < 0 or self.second_look_from_inliers < 0:
             raise ValueError("second_look_candidates and second_look_from_inliers must be >= 0")
+        if self.second_look_prior_gate_m <= 0:
+            raise ValueError(f"second_look_prior_gate_m must be > 0, got {self.second_look_prior_gate_m}")
         if not 0.0 <= self.second_look_max_see_through <= 1.0:
             raise ValueError(f"second_look_max_see_through must be in [0, 1] (1 = off), got "
                              f"{self.second_look_max_see_through}")

@@ -102,7 +102,9 @@ class SecondLook:
         self.first_size = first_size  # (h, w) pixels the first look's extractor sees
         self.features = StoredImageFeatures(topomap.images_jpeg, extract, capacity)
         view = replace(topomap, features=self.features)
-        inner = replace(params, second_look_candidates=0, pooled_min_inliers=0)
+        # denser features also make wrong poses near a tracked one: LL's look stays closer to its prior
+        inner = replace(params, second_look_candidates=0, pooled_min_inliers=0,
+                        prior_gate_m=min(params.prior_gate_m, params.second_look_prior_gate_m))
         self.localizer = VisualLocalizer(view, inner, extract, describe, match, clock)
 
     def __call__(

@@ -233,3 +233,26 @@ def test_an_ll_query_the_first_look_refuses_is_accepted_by_the_second_within_the
     assert dt < 0.005 and dr < 0.2
     far = loc.localize_local(0, IMG, depth, K, pose(3.3, 5.0))
     assert not far.accepted and any("inconsistent with the prior" in a.reason for a in far.attempts)
+
+
+def test_the_ll_look_keeps_closer_to_a_last_pose_prior_than_ll_does() -> None:
+    """A prior 0.5 m from the truth lies inside LL's own gate (`prior_gate_m` 0.75 m) but outside
+    its look's (`second_look_prior_gate_m` 0.25 m): the look's pose is refused; with the look's
+    gate as wide as LL's it is accepted."""
+    m = _with_images(make_map([0.0, 1.0, 2.0, 3.0]))
+    s = Scene(m)
+    depth = s.look(pose(1.3, 5.0), vpr_best=1)
+    few = matching_25_with_depth(s, depth)
+    p = replace(PARAMS, pooled_min_inliers=0, second_look_candidates=2, second_look_from_inliers=0,
+                second_look_local=True)
+    assert p.prior_gate_m == 0.75 and p.second_look_prior_gate_m == 0.25
+    full = FullResolution(s, m)
+
+    def local(params: Any) -> LocalizationResult:
+        look = SecondLook(m, params, full.extract, s.describe, match_by_id, SMALLER)
+        loc = VisualLocalizer(m, params, s.extract, s.describe, few, second_look=look)
+        return loc.localize_local(0, IMG, depth, K, pose(1.8, 5.0))
+
+    tight = local(p)
+    assert not tight.accepted and any("inconsistent with the prior" in a.reason for a in tight.attempts)
+    assert local(replace(p, second_look_prior_gate_m=0.75)).accepted
