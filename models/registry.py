@@ -16,6 +16,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -154,6 +155,17 @@ def load_extractor(name: str, cfg: ModelsConfig | None = None) -> FeatureExtract
     raise ModelError(
         f"unknown feature extractor {name!r}; known: aliked-t16, aliked-n16, sift, orb"
     )
+
+
+def extractor_loader(name: str, cfg: ModelsConfig | None = None) -> Callable[[], FeatureExtractor]:
+    """`load_extractor(name, cfg)` for later: the exported model is found and checked now
+    (ModelError if missing), loaded when the returned function is called."""
+    cfg = cfg or ModelsConfig()
+    if name in ("aliked-t16", "aliked-n16"):
+        locate(aliked_id(name, cfg.extractor_size, cfg.max_keypoints), cfg)
+    elif name not in ("sift", "orb"):
+        load_extractor(name, cfg)  # the unknown-name error
+    return lambda: load_extractor(name, cfg)
 
 
 def load_matcher(name: str, cfg: ModelsConfig | None = None) -> Matcher:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -16,7 +17,13 @@ from numpy.typing import NDArray
 
 from litevloc.base.params.localization import LocalizationParams
 from litevloc.base.params.models import ModelsConfig
-from litevloc.models.registry import ModelError, load_extractor, load_matcher, load_place_recognizer
+from litevloc.models.registry import (
+    ModelError,
+    extractor_loader,
+    load_extractor,
+    load_matcher,
+    load_place_recognizer,
+)
 from litevloc.models.types import FeatureExtractor, Features, Matcher, PlaceRecognizer
 from litevloc.pipelines.localization.query import Clock
 from litevloc.pipelines.localization.second_look import SecondLook
@@ -99,15 +106,30 @@ def check_map_models(topomap: TopoMap, bundle: ModelBundle) -> TopoMap:
     return dataclasses.replace(topomap, features=[as_features(f) for f in feats])
 
 
+class ExtractOnFirstCall:
+    """An extract function whose model `load` builds on its first call: the second look's extractor
+    (about 70 MB resident) stays unloaded for a camera no larger than the first look's input."""
+
+    def __init__(self, load: Callable[[], FeatureExtractor]) -> None:
+        self._load = load
+        self._model: FeatureExtractor | None = None
+
+    def __call__(self, image_rgb: NDArray[np.uint8]) -> Features:
+        if self._model is None:
+            self._model = self._load()
+        return self._model.extract(image_rgb)
+
+
 def second_look_for(topomap: TopoMap, models: ModelsConfig, params: LocalizationParams, bundle: ModelBundle,
                     clock: Clock = time.perf_counter) -> SecondLook | None:
     """The full-resolution second look on `topomap` where `params.second_look_candidates` > 0
-    (its extractor at `models.second_look_size` / `second_look_keypoints`, the bundle's matcher
-    over all keypoints; ModelError naming the export command when that extractor is missing),
-    else None."""
+    (its extractor at `models.second_look_size` / `second_look_keypoints`, loaded on the first
+    look, the bundle's matcher over all keypoints; ModelError naming the export command when that
+    extractor is missing), else None."""
     if params.second_look_candidates <= 0:
         return None
     full = dataclasses.replace(models, extractor_size=models.second_look_size,
                                max_keypoints=models.second_look_keypoints)
-    looks = ModelBundle(load_extractor(bundle.extractor.name, full), bundle.matcher, bundle.vpr, 0)
-    return SecondLook(topomap, params, looks.extract, bundle.describe, looks.match, models.extractor_size, clock)
+    extract = ExtractOnFirstCall(extractor_loader(bundle.extractor.name, full))
+    every_keypoint = dataclasses.replace(bundle, max_keypoints=0)
+    return SecondLook(topomap, params, extract, bundle.describe, every_keypoint.match, models.extractor_size, clock)

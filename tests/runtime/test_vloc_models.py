@@ -9,7 +9,7 @@ from litevloc.base.params.localization import LocalizationParams
 from litevloc.base.params.models import ModelsConfig
 from litevloc.models.registry import ModelError
 from litevloc.models.types import Features, Matches
-from litevloc.runtime.vloc_models import ModelBundle, second_look_for
+from litevloc.runtime.vloc_models import ExtractOnFirstCall, ModelBundle, second_look_for
 
 
 class EchoMatcher:
@@ -43,7 +43,8 @@ def test_the_second_look_is_built_only_when_on_and_a_missing_model_names_its_exp
 
     models = ModelsConfig(cache_dir=str(tmp_path))  # an empty model cache
     topomap = None  # never read when the second look is off, nor before its model is found
-    assert second_look_for(topomap, models, LocalizationParams(), None) is None  # type: ignore[arg-type]
+    off = LocalizationParams(second_look_candidates=0)
+    assert second_look_for(topomap, models, off, None) is None  # type: ignore[arg-type]
     on = LocalizationParams(second_look_candidates=2)
     with pytest.raises(ModelError, match=r"aliked-n16-480x640-k2048.*litevloc models export|litevloc models export.*"
                                          r"aliked-n16-480x640-k2048"):
@@ -53,3 +54,21 @@ def test_the_second_look_is_built_only_when_on_and_a_missing_model_names_its_exp
 
 class EchoExtractor:
     name = "aliked-n16"
+
+    def extract(self, image_rgb: np.ndarray) -> Features:
+        return feats([float(image_rgb.mean())])
+
+
+def test_the_second_look_s_extractor_is_loaded_on_its_first_call_only() -> None:
+    loads: list[int] = []
+
+    def load() -> EchoExtractor:
+        loads.append(1)
+        return EchoExtractor()
+
+    extract = ExtractOnFirstCall(load)  # type: ignore[arg-type]
+    assert loads == []
+    image = np.zeros((4, 4, 3), np.uint8)
+    extract(image)
+    extract(image)
+    assert loads == [1]
