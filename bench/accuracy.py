@@ -56,12 +56,13 @@ from litevloc.pipelines.topomap.io import load_map
 from litevloc.pipelines.topomap.types import NodeFeatures
 from litevloc.runtime.posed import posed_frames
 from litevloc.runtime.sources import open_source
-from litevloc.runtime.vloc_models import check_map_models, load_bundle
+from litevloc.runtime.vloc_models import check_map_models, load_bundle, second_look_for
 
 # The `localization:` block of config/presets/7scenes.yaml before issue #16 (tuned on the query pass).
 # With the colour calibration the preset carried then (frames 0:500:3, pairs 3-9 frames apart).
 START = ["localization.refine.enabled=false", "localization.gl_top_k=10", "localization.confirm_min_inliers=15",
-         "localization.confirm_max_nodes=3", "localization.pnp.min_inliers=30"]
+         "localization.confirm_max_nodes=3", "localization.pnp.min_inliers=30",
+         "localization.second_look_candidates=0"]  # the second look came later (issue #43)
 START_MAP_FORMAT = ["mapping.descriptor_bytes=0"]
 START_CALIBRATION = ["rgbd_calibration.color_fx=515.1845", "rgbd_calibration.color_fy=518.5869",
                      "rgbd_calibration.color_cx=318.7434", "rgbd_calibration.color_cy=226.2822",
@@ -158,7 +159,9 @@ def run_config(name: str, overrides: list[str], args: argparse.Namespace, data: 
                topomap: Any) -> dict[str, Any]:
     """`overrides`: the configuration's, including the calibration its map was built with."""
     cfg = load_config(args.config, overrides + args.overrides)
-    loc = VisualLocalizer(topomap, cfg.localization, cache.extract, cache.describe, cache.match)
+    # the second look's model calls are live (not in the cache)
+    loc = VisualLocalizer(topomap, cfg.localization, cache.extract, cache.describe, cache.match,
+                          second_look=second_look_for(topomap, cfg.models, cfg.localization, cache.bundle))
     src = open_source(data, parse_frames(args.frames), strict=True, rgbd_calibration=cfg.rgbd_calibration)
     rows: list[dict[str, Any]] = []
     t_start = time.perf_counter()

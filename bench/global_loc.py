@@ -29,7 +29,7 @@ from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map
 from litevloc.runtime.posed import posed_frames
 from litevloc.runtime.sources import open_source
-from litevloc.runtime.vloc_models import check_map_models, load_bundle
+from litevloc.runtime.vloc_models import check_map_models, load_bundle, second_look_for
 
 
 def main() -> None:
@@ -44,7 +44,8 @@ def main() -> None:
     cfg = load_config(args.config, args.overrides)
     bundle = load_bundle(cfg.models)
     topomap = check_map_models(load_map(args.map), bundle)
-    loc = VisualLocalizer(topomap, cfg.localization, bundle.extract, bundle.describe, bundle.match)
+    loc = VisualLocalizer(topomap, cfg.localization, bundle.extract, bundle.describe, bundle.match,
+                          second_look=second_look_for(topomap, cfg.models, cfg.localization, bundle))
     rows, failures, errs, times = [], [], [], []
     vpr_hit = 0
     src = open_source(data, parse_frames(args.frames), strict=True, rgbd_calibration=cfg.rgbd_calibration)

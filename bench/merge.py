@@ -57,7 +57,7 @@ from litevloc.pipelines.topomap.merge import Link, align, find_links, join_maps,
 from litevloc.pipelines.topomap.types import TopoMap
 from litevloc.runtime.posed import posed_frames
 from litevloc.runtime.sources import open_source
-from litevloc.runtime.vloc_models import ModelBundle, check_map_models, load_bundle
+from litevloc.runtime.vloc_models import ModelBundle, check_map_models, load_bundle, second_look_for
 from litevloc.sim.world import World, load_world
 
 MAPS = ROOT / "out" / "maps"
@@ -98,7 +98,8 @@ def localize_queries(m: TopoMap, bundle: ModelBundle, cfg_name: str, data: Path,
     """GL from no prior on every posed query frame: (N, 3) true camera positions and (N, 2)
     errors (metres, degrees; NaN where no pose was accepted)."""
     cfg = load_config(cfg_name)
-    loc = VisualLocalizer(m, cfg.localization, bundle.extract, bundle.describe, bundle.match)
+    loc = VisualLocalizer(m, cfg.localization, bundle.extract, bundle.describe, bundle.match,
+                          second_look=second_look_for(m, cfg.models, cfg.localization, bundle))
     where, errs = [], []
     src = open_source(data, parse_frames(frames), strict=True, rgbd_calibration=cfg.rgbd_calibration)
     for frame, T in posed_frames(src):

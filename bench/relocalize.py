@@ -81,13 +81,14 @@ def run_world(world: str, args: argparse.Namespace) -> dict[str, Any]:
     from litevloc.pipelines.topomap.io import load_map
     from litevloc.runtime.posed import posed_frames
     from litevloc.runtime.sources import open_source
-    from litevloc.runtime.vloc_models import check_map_models, load_bundle
+    from litevloc.runtime.vloc_models import check_map_models, load_bundle, second_look_for
 
     mp, q = prepare(world, args.out, args.query_seed)
     cfg = load_config("default", args.overrides)
     bundle = load_bundle(cfg.models)
     topomap = check_map_models(load_map(mp), bundle)
-    loc = VisualLocalizer(topomap, cfg.localization, bundle.extract, bundle.describe, bundle.match)
+    loc = VisualLocalizer(topomap, cfg.localization, bundle.extract, bundle.describe, bundle.match,
+                          second_look=second_look_for(topomap, cfg.models, cfg.localization, bundle))
     src = open_source(q, strict=True)
     frames = []  # (t_s, frame, T_gt) at the VLoc rate
     next_t = None

@@ -244,9 +244,9 @@ class LocalizationParams:
     # > 0: where that test judges a GL pose, its PnP needs this many inliers instead of pnp.min_inliers
     gl_distinct_min_inliers: int = 0
     # GL refused by every pass: re-verify this many refused candidates at models.second_look_size (0 = off)
-    second_look_candidates: int = 0
+    second_look_candidates: int = 2
     # ... LL too (keeps tracking where the first look loses it; its poses are only as good as the prior's gate)
-    second_look_local: bool = False
+    second_look_local: bool = True
     # ... only candidates whose first look found at least this many PnP inliers (the cost goes where a pose may be)
     second_look_from_inliers: int = 10
     # it refuses a pose putting more than this share of its keyframes' map points in view in front of the live depth

@@ -47,7 +47,7 @@ def add_update_parser(msub: argparse._SubParsersAction) -> None:
 
 
 def update(args: argparse.Namespace) -> int:
-    from litevloc.runtime.vloc_models import check_map_models, load_bundle
+    from litevloc.runtime.vloc_models import check_map_models, load_bundle, second_look_for
 
     if args.output.resolve() == args.map.resolve():
         raise UserError(f"{args.output}: the new version must go to another folder (the map is never modified)")
@@ -59,7 +59,8 @@ def update(args: argparse.Namespace) -> int:
     bundle = load_bundle(cfg.models)
     topomap = check_map_models(load_map(args.map), bundle)
     extract, describe = OncePerImage(bundle.extract), OncePerImage(bundle.describe)
-    loc = VisualLocalizer(topomap, cfg.localization, extract, describe, bundle.match)
+    loc = VisualLocalizer(topomap, cfg.localization, extract, describe, bundle.match,
+                          second_look=second_look_for(topomap, cfg.models, cfg.localization, bundle))
 
     def frames() -> Iterator[SessionFrame]:
         for f, T in posed_frames(source_of(args, cfg)):

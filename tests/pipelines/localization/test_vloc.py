@@ -121,7 +121,9 @@ class Scene:
 IMG = np.zeros((H, W, 3), np.uint8)
 # (a broken node is modelled by the matcher's output: LL matching guided by a fresh prior,
 # which would not call it, is off here and tested on its own below)
-PARAMS = LocalizationParams(pnp=PnpParams(min_inliers=30), gl_top_k=3, ll_guided_min_matches=0)
+# no full-resolution second look here (tests/pipelines/localization/test_second_look.py)
+PARAMS = LocalizationParams(pnp=PnpParams(min_inliers=30), gl_top_k=3, ll_guided_min_matches=0,
+                            second_look_candidates=0)
 
 
 def test_global_localization_exact() -> None:
@@ -223,7 +225,7 @@ def test_gl_time_budget_stops_the_search_and_says_so() -> None:
     m = make_map([0.0, 1.0, 2.0])
     s = Scene(m)
     s.broken_nodes = {0, 1, 2}
-    slow = LocalizationParams(pnp=PnpParams(min_inliers=30), gl_top_k=3, gl_time_budget_ms=1e-6)
+    slow = replace(PARAMS, ll_guided_min_matches=60, gl_time_budget_ms=1e-6)
     loc = VisualLocalizer(m, slow, s.extract, s.describe, s.match)
     r = loc.localize_global(0, IMG, s.look(pose(1.0), 1), K)
     # one candidate is always verified; the next would overrun the budget
@@ -426,7 +428,7 @@ def test_gl_refuses_a_pose_resting_on_the_floor_alone(monkeypatch: pytest.Monkey
     res = loc.localize_global(0, IMG, depth, K)
     assert not res.accepted and res.provisional is None
     assert any("one horizontal plane" in a.reason for a in res.attempts), res.attempts
-    off = VisualLocalizer(m, LocalizationParams(pnp=PnpParams(min_inliers=30), gl_top_k=3, gl_min_support_height_m=0.0),
+    off = VisualLocalizer(m, replace(PARAMS, ll_guided_min_matches=60, gl_min_support_height_m=0.0),
                           s.extract, s.describe, s.match)
     res = off.localize_global(0, IMG, depth, K)
     assert res.accepted and res.T_map_camera is not None
@@ -449,7 +451,7 @@ def test_local_matching_guided_by_a_fresh_prior() -> None:
         calls[0] += 1
         return s.match(a, b)
 
-    guided = LocalizationParams(pnp=PnpParams(min_inliers=30), gl_top_k=3, ll_guided_min_matches=60)
+    guided = replace(PARAMS, ll_guided_min_matches=60)
     loc = VisualLocalizer(m, guided, s.extract, s.describe, counting)
     T_true = pose(2.1, 3.0)
     depth = s.look(T_true, vpr_best=2)

@@ -167,7 +167,7 @@ def test_local_candidates_equal_the_localizer_on_a_topomap() -> None:
         grid=OccupancyGrid(np.zeros((0, 0), np.uint8), np.zeros(2), 0.1, np.array([0.0, 0, 1]),
                            np.array([[1.0, 0, 0], [0, 1, 0]])),
     )
-    p = LocalizationParams()
+    p = LocalizationParams(second_look_candidates=0)  # its candidates only, no look
     loc = VisualLocalizer(m, p, lambda im: f, lambda im: np.zeros(16, np.float32),
                           lambda a, b: (np.zeros(0, np.int64), np.zeros(0, np.int64)))
     for _ in range(200):
