@@ -48,6 +48,18 @@ def _global_loc(d: Json) -> str:
             f"{100 * d['max_m']:.0f} cm, median {d['time_median_ms']:.0f} ms per query")
 
 
+def _splits(d: Json) -> str:
+    rows = [(r["split"], r["summary"]) for r in d["splits"]]
+    short = [f"{name} {s['accepted_of_covered_pct']:.1f} %" for name, s in rows if s["accepted_of_covered_pct"] < 95]
+    wrong = sum(s["wrong_over_0.5m"] for _, s in rows)
+    pub = next((s for name, s in rows if name == "published"), None)
+    out = (f"covered frames accepted >= 95 % on {len(rows) - len(short)} of {len(rows)} splits"
+           + (f" ({', '.join(short)})" if short else "") + f", {wrong} pose{'' if wrong == 1 else 's'} > 0.5 m off")
+    if pub is not None:
+        out += f"; published split {pub['accepted_pct']:.1f} % accepted, GL median {pub['gl_latency_median_ms']:.0f} ms"
+    return out
+
+
 def _navigation(demo: Json) -> str:
     d = demo["navigation"]
     out = f"{d['goals_reached']}/{d['goals_total']} goal images reached"
@@ -132,6 +144,7 @@ HEADLINES: tuple[Headline, ...] = (
              "python bench/accuracy.py --map out/bench/inputs/7scenes/map", _accuracy),
     Headline("7-Scenes global localization", "bench/global_loc.json",
              "python bench/global_loc.py out/bench/inputs/7scenes/map --config 7scenes", _global_loc),
+    Headline("7-Scenes cross-split localization, 8 splits", "bench/splits.json", "python bench/splits.py", _splits),
     Headline("image-goal navigation, simulated office", "demo/demo.json", "make demo", _navigation),
     Headline("image-goal navigation, generated buildings", "bench/buildings.json", "python bench/buildings.py",
              _buildings),

@@ -66,3 +66,16 @@ def test_the_committed_tables_have_every_headline_and_agree() -> None:
     assert set(readme) == {h.what for h in HEADLINES} and readme == docs
     for row in readme.values():
         assert len(row) == 5 and all(len(c) <= MAX_CELL for c in row) and row[2], row
+
+
+def test_the_splits_row_names_the_splits_under_95_percent_of_covered(tmp_path: Path) -> None:
+    def split(name: str, of_covered: float, wrong: int) -> dict:
+        return {"split": name, "summary": {"accepted_of_covered_pct": of_covered, "wrong_over_0.5m": wrong,
+                                           "accepted_pct": 99.2, "gl_latency_median_ms": 383.4}}
+
+    _write(tmp_path, "bench/splits.json", {"meta": {"time": "2031-02-03T04:05:06"}, "splits": [
+        split("B1>B0", 93.79, 0), split("published", 100.0, 1), split("reverse", 97.7, 0)]})
+    rows = committed_rows(f"{BEGIN}\n{build_table(tmp_path, {}, lambda _m: None)}\n{END}")
+    assert rows["7-Scenes cross-split localization, 8 splits"][1] == (
+        "covered frames accepted >= 95 % on 2 of 3 splits (B1>B0 93.8 %), 1 pose > 0.5 m off; "
+        "published split 99.2 % accepted, GL median 383 ms")
