@@ -251,21 +251,39 @@ def _places(cands: list[_Candidate], agree_m: float, agree_deg: float,
     seed's keyframe is covisible with its own (the map verified that the two keyframes see the
     same scene: in a long corridor the goal poses of neighbouring keyframes can differ by a
     metre, and that is one place)."""
-    cos_max = float(np.cos(np.radians(agree_deg)))
     places: list[list[_Candidate]] = []
     for c in sorted((c for c in cands if c.T_map_goal is not None), key=lambda c: -c.pose_inliers):
         assert c.T_map_goal is not None
         for place in places:
             seed = place[0].T_map_goal
             assert seed is not None
-            apart = float(np.linalg.norm(np.diff(to_plane(np.stack([seed[:3, 3], c.T_map_goal[:3, 3]])), axis=0)))
-            if covisible(place[0].node, c.node) or (apart <= agree_m
-                                                    and float(seed[:3, 2] @ c.T_map_goal[:3, 2]) >= cos_max):
+            if covisible(place[0].node, c.node) or _agree(seed, c.T_map_goal, agree_m, agree_deg, to_plane):
                 place.append(c)
                 break
         else:
             places.append([c])
     return places
+
+
+def _agree(T_a: NDArray[np.float64], T_b: NDArray[np.float64], agree_m: float, agree_deg: float,
+           to_plane: Callable[[NDArray[np.float64]], NDArray[np.float64]]) -> bool:
+    """Whether two goal poses (4x4 T_map_goal) are one spot: within `agree_m` along the floor
+    (`to_plane`) and `agree_deg` between their optical axes."""
+    apart = float(np.linalg.norm(np.diff(to_plane(np.stack([T_a[:3, 3], T_b[:3, 3]])), axis=0)))
+    return apart <= agree_m and float(T_a[:3, 2] @ T_b[:3, 2]) >= float(np.cos(np.radians(agree_deg)))
+
+
+def _consensus(place: list[_Candidate], agree_m: float, agree_deg: float,
+               to_plane: Callable[[NDArray[np.float64]], NDArray[np.float64]]) -> _Candidate:
+    """The place member whose goal pose the most PnP support agrees with (its own and that of the
+    members whose poses agree with it, `_agree`), most PnP inliers of its own breaking ties: a
+    member joined by covisibility can sit metres off, and so can the strongest one."""
+    def agreeing(c: _Candidate) -> int:
+        assert c.T_map_goal is not None
+        return sum(o.pose_inliers for o in place
+                   if o.T_map_goal is not None and _agree(c.T_map_goal, o.T_map_goal, agree_m, agree_deg, to_plane))
+
+    return max(place, key=lambda c: (agreeing(c), c.pose_inliers))
 
 
 def _neighbours(topomap: TopoMap, cands: list[_Candidate], params: GoalParams) -> list[int]:
@@ -436,17 +454,18 @@ def _unambiguous(topomap: TopoMap, cands: list[_Candidate], verified: list[_Cand
     (`ambiguity_band_m` > 0) one place with a verified candidate holds at least `pose_min_inliers`
     distinctive support points (not on floor or ceiling tiles) and `ambiguity_ratio` times any
     other place's: then that place is chosen. (the chosen candidate, None) or (-, the refusal); where
-    the PnP supports single out the place, the candidate is its best-supported pose (inliers and
-    support its own) with `node` set to the place's keyframe nearest that pose."""
+    the PnP supports single out the place, the candidate is the pose most of the place's support
+    agrees with (`_consensus`; inliers and support its own) with `node` set to the place's keyframe
+    nearest that pose."""
     covis = topomap.covisibility_lists
     places = _places(cands, params.agree_m, params.agree_deg, topomap.grid.to_plane, lambda a, b: b in covis[a])
     support = [sum(c.pose_inliers for c in p) for p in places]
     mine = next(i for i, p in enumerate(places) if best in p)
     rivals = [(s, p[0]) for i, (s, p) in enumerate(zip(support, places, strict=True)) if i != mine]
     if not rivals or max(r[0] for r in rivals) * params.ambiguity_ratio <= support[mine]:
-        # the place's pose is its best-supported one (a member joined by covisibility can sit metres
-        # off); the robot drives to the place's keyframe nearest that pose
-        seed = places[mine][0]
+        # the place's pose is the one most of its support agrees with; the robot drives to the
+        # place's keyframe nearest that pose
+        seed = _consensus(places[mine], params.agree_m, params.agree_deg, topomap.grid.to_plane)
         assert seed.T_map_goal is not None
         at = seed.T_map_goal[:3, 3]
         pos = np.asarray(topomap.positions, np.float64)

@@ -552,6 +552,20 @@ def test_a_place_gives_the_goal_its_best_supported_pose() -> None:
     assert chosen.node == 2 and chosen.T_map_goal is far_kf.T_map_goal
 
 
+def test_a_place_gives_the_goal_the_pose_most_of_its_support_agrees_with() -> None:
+    """Three covisible keyframes are one place: the strongest PnP (47 inliers) puts the goal 2 m
+    off, the two others (39 and 30) agree where the image was taken: the goal gets the pose of
+    the stronger of the two (office room_03: 3.8 m off on the strongest, 4-8 cm on the others)."""
+    from litevloc.pipelines.navigation.planner import _Candidate, _unambiguous
+
+    m = make_vloc_map([0.0, 1.0, 2.0, 3.0])  # consecutive keyframes covisible
+    off = _Candidate(1, 0.5, 56, pose(4.0), 47)
+    right = _Candidate(2, 0.5, 52, pose(2.0), 39)
+    also = _Candidate(0, 0.5, 43, pose(2.05), 30)
+    chosen, refusal = _unambiguous(m, [off, right, also], [off, right, also], off, GoalParams(), ())
+    assert refusal is None and chosen.T_map_goal is right.T_map_goal and chosen.node == 2
+
+
 def test_candidate_poses_agree_along_the_floor() -> None:
     """Two goal poses 0.3 m apart on the floor and 0.5 m apart in height (PnP's least certain
     axis; the map's up is -y) are one spot to drive to; 0.6 m apart on the floor they are two."""
