@@ -275,15 +275,16 @@ def _agree(T_a: NDArray[np.float64], T_b: NDArray[np.float64], agree_m: float, a
 
 def _consensus(place: list[_Candidate], agree_m: float, agree_deg: float,
                to_plane: Callable[[NDArray[np.float64]], NDArray[np.float64]]) -> _Candidate:
-    """The place member whose goal pose the most PnP support agrees with (its own and that of the
-    members whose poses agree with it, `_agree`), most PnP inliers of its own breaking ties: a
-    member joined by covisibility can sit metres off, and so can the strongest one."""
-    def agreeing(c: _Candidate) -> int:
+    """The strongest place member (most PnP inliers) among those whose goal poses agree (`_agree`)
+    with the pose the most PnP support agrees with: a member joined by covisibility can sit metres
+    off, and so can the strongest one."""
+    def agreeing(c: _Candidate) -> list[_Candidate]:
         assert c.T_map_goal is not None
-        return sum(o.pose_inliers for o in place
-                   if o.T_map_goal is not None and _agree(c.T_map_goal, o.T_map_goal, agree_m, agree_deg, to_plane))
+        return [o for o in place
+                if o.T_map_goal is not None and _agree(c.T_map_goal, o.T_map_goal, agree_m, agree_deg, to_plane)]
 
-    return max(place, key=lambda c: (agreeing(c), c.pose_inliers))
+    centre = max(place, key=lambda c: (sum(o.pose_inliers for o in agreeing(c)), c.pose_inliers))
+    return max(agreeing(centre), key=lambda c: c.pose_inliers)
 
 
 def _neighbours(topomap: TopoMap, cands: list[_Candidate], params: GoalParams) -> list[int]:

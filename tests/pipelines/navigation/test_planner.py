@@ -564,6 +564,13 @@ def test_a_place_gives_the_goal_the_pose_most_of_its_support_agrees_with() -> No
     also = _Candidate(0, 0.5, 43, pose(2.05), 30)
     chosen, refusal = _unambiguous(m, [off, right, also], [off, right, also], off, GoalParams(), ())
     assert refusal is None and chosen.T_map_goal is right.T_map_goal and chosen.node == 2
+    # the pose with most agreeing support (2.3: agrees with 2.0 and 2.6) stands for its group; the
+    # goal gets that group's strongest pose (2.0), not the middle one
+    middle = _Candidate(2, 0.5, 52, pose(2.3), 25)
+    strong = _Candidate(1, 0.5, 56, pose(2.0), 40)
+    far = _Candidate(0, 0.5, 43, pose(2.6), 30)
+    chosen, _ = _unambiguous(m, [strong, middle, far], [strong, middle, far], strong, GoalParams(), ())
+    assert chosen.T_map_goal is strong.T_map_goal
 
 
 def test_candidate_poses_agree_along_the_floor() -> None:
