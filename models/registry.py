@@ -16,7 +16,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -157,15 +156,12 @@ def load_extractor(name: str, cfg: ModelsConfig | None = None) -> FeatureExtract
     )
 
 
-def extractor_loader(name: str, cfg: ModelsConfig | None = None) -> Callable[[], FeatureExtractor]:
-    """`load_extractor(name, cfg)` for later: the exported model is found and checked now
-    (ModelError if missing), loaded when the returned function is called."""
+def check_extractor(name: str, cfg: ModelsConfig | None = None) -> None:
+    """ModelError where `load_extractor(name, cfg)` would find its exported model missing or stale;
+    nothing is loaded (OpenCV extractors need no file)."""
     cfg = cfg or ModelsConfig()
     if name in ("aliked-t16", "aliked-n16"):
         locate(aliked_id(name, cfg.extractor_size, cfg.max_keypoints), cfg)
-    elif name not in ("sift", "orb"):
-        load_extractor(name, cfg)  # the unknown-name error
-    return lambda: load_extractor(name, cfg)
 
 
 def load_matcher(name: str, cfg: ModelsConfig | None = None) -> Matcher:

@@ -19,7 +19,7 @@ from litevloc.base.params.localization import LocalizationParams
 from litevloc.base.params.models import ModelsConfig
 from litevloc.models.registry import (
     ModelError,
-    extractor_loader,
+    check_extractor,
     load_extractor,
     load_matcher,
     load_place_recognizer,
@@ -130,6 +130,8 @@ def second_look_for(topomap: TopoMap, models: ModelsConfig, params: Localization
         return None
     full = dataclasses.replace(models, extractor_size=models.second_look_size,
                                max_keypoints=models.second_look_keypoints)
-    extract = ExtractOnFirstCall(extractor_loader(bundle.extractor.name, full))
+    name = bundle.extractor.name
+    check_extractor(name, full)  # a missing model fails here, not at the first look
+    extract = ExtractOnFirstCall(lambda: load_extractor(name, full))
     every_keypoint = dataclasses.replace(bundle, max_keypoints=0)
     return SecondLook(topomap, params, extract, bundle.describe, every_keypoint.match, models.extractor_size, clock)

@@ -455,17 +455,17 @@ def _unambiguous(topomap: TopoMap, cands: list[_Candidate], verified: list[_Cand
     (`ambiguity_band_m` > 0) one place with a verified candidate holds at least `pose_min_inliers`
     distinctive support points (not on floor or ceiling tiles) and `ambiguity_ratio` times any
     other place's: then that place is chosen. (the chosen candidate, None) or (-, the refusal); where
-    the PnP supports single out the place, the candidate is the pose most of the place's support
-    agrees with (`_consensus`; inliers and support its own) with `node` set to the place's keyframe
-    nearest that pose."""
+    the PnP supports single out the place, the candidate is the strongest pose of the group most of
+    the place's support agrees with (`_consensus`; inliers and support its own) with `node` set to
+    the place's keyframe nearest that pose."""
     covis = topomap.covisibility_lists
     places = _places(cands, params.agree_m, params.agree_deg, topomap.grid.to_plane, lambda a, b: b in covis[a])
     support = [sum(c.pose_inliers for c in p) for p in places]
     mine = next(i for i, p in enumerate(places) if best in p)
     rivals = [(s, p[0]) for i, (s, p) in enumerate(zip(support, places, strict=True)) if i != mine]
     if not rivals or max(r[0] for r in rivals) * params.ambiguity_ratio <= support[mine]:
-        # the place's pose is the one most of its support agrees with; the robot drives to the
-        # place's keyframe nearest that pose
+        # the place's pose comes from the poses most of its support agrees with; the robot drives
+        # to the place's keyframe nearest that pose
         seed = _consensus(places[mine], params.agree_m, params.agree_deg, topomap.grid.to_plane)
         assert seed.T_map_goal is not None
         at = seed.T_map_goal[:3, 3]
