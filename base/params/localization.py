@@ -251,6 +251,11 @@ class LocalizationParams:
     second_look_from_inliers: int = 10
     # it refuses a pose putting more than this share of its keyframes' map points in view in front of the live depth
     second_look_max_see_through: float = 0.3
+    # ... a pose over it is moved onto the live depth (ICP of those points) and accepted if the moved pose keeps under
+    # half that share and the move is at most this far (m; 0 = no move)
+    second_look_align_m: float = 0.3
+    # ... and turns it at most this much (degrees)
+    second_look_align_deg: float = 6.0
     # LL's look: its pose must lie this close to a last-VLoc-pose prior (m, for prior_gate_m; the rate still adds)
     second_look_prior_gate_m: float = 0.25
     # PnP + RANSAC of live keypoints (with live depth) against a keyframe
@@ -289,6 +294,8 @@ class LocalizationParams:
             raise ValueError("gl_rerank_depth must be >= 0")
         if self.second_look_candidates < 0 or self.second_look_from_inliers < 0:
             raise ValueError("second_look_candidates and second_look_from_inliers must be >= 0")
+        if self.second_look_align_m < 0 or self.second_look_align_deg < 0:
+            raise ValueError("second_look_align_m and second_look_align_deg must be >= 0")
         if self.second_look_prior_gate_m <= 0:
             raise ValueError(f"second_look_prior_gate_m must be > 0, got {self.second_look_prior_gate_m}")
         if not 0.0 <= self.second_look_max_see_through <= 1.0:

@@ -11,7 +11,11 @@ depth belongs to its stored keypoints), so only the live depth lifts points.
 
 Denser features also let a wrong pose collect more inliers (a band of repeated leaflets): a pose
 the second look accepts must not see through the map (`see_through`: the keyframes' stored
-points with map depth against the live depth image).
+points with map depth against the live depth image). Across a wide view change a right pose can
+miss by 10-15 cm along the view and see through too: a pose that does is moved onto the live
+depth (`depth_align`) and accepted where the moved pose holds and the move is small
+(`second_look_align_m`, `second_look_align_deg`) and the moved pose keeps under half the
+see-through limit; its covariance grows by the move.
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litevloc.base.params.localization import LocalizationParams
+from litevloc.pipelines.localization.depth_align import align_to_live_depth
 from litevloc.pipelines.localization.query import Clock, MatchFn
 from litevloc.pipelines.localization.results import LocalizationResult
 from litevloc.pipelines.localization.see_through import keyframe_points, see_through
@@ -128,22 +133,50 @@ class SecondLook:
                                                 prior_cov, prior_travel_m, only=nodes)
         if not res.accepted or res.T_map_camera is None or depth is None:
             return res
-        why = self._sees_through(res.T_map_camera, K, depth, list(res.keyframes))
+        p = self.localizer.params
+        points = keyframe_points(self.map, list(res.keyframes))
+        why = sees_through_reason(points, res.T_map_camera, K, depth, p.second_look_max_see_through)
+        if why and (moved := moved_onto_live_depth(res, points, K, depth, p)) is not None:
+            return moved
         return res if not why else replace(res, accepted=False, T_map_camera=None, covariance=None, matches=None,
                                            reason=f"not localized: {why}", stop_reason=f"{res.stop_reason}; {why}")
 
-    def _sees_through(self, T_map_live: NDArray[np.float64], K: NDArray[np.float64], depth: NDArray[np.float32],
-                      nodes: list[int]) -> str:
-        """'' when the pose keeps the keyframes' map points off the live free space (see
-        `see_through`), else the refusal reason; a pose it cannot check is refused."""
-        limit = self.localizer.params.second_look_max_see_through
-        if limit >= 1.0:
-            return ""
-        n, share = see_through(keyframe_points(self.map, nodes), T_map_live, K, depth)
-        if n < MIN_CHECKED_POINTS:
-            return (f"the pose puts {n} of its keyframes' map points in the live depth's view "
-                    f"(< {MIN_CHECKED_POINTS}): cannot check it against the live depth")
-        if share > limit:
-            return (f"the pose sees through the map: {share:.0%} of {n} keyframe points in view lie in front of "
-                    f"the live depth (> {limit:.0%})")
+
+def sees_through_reason(points_map: NDArray[np.float64], T_map_live: NDArray[np.float64], K: NDArray[np.float64],
+                        depth: NDArray[np.floating], limit: float) -> str:
+    """'' when the pose keeps more than `1 - limit` of the (N, 3) map points in view off the
+    live free space (see `see_through`), else the refusal reason; a pose it cannot check is
+    refused; `limit` >= 1 checks nothing."""
+    if limit >= 1.0:
         return ""
+    n, share = see_through(points_map, T_map_live, K, depth)
+    if n < MIN_CHECKED_POINTS:
+        return (f"the pose puts {n} of its keyframes' map points in the live depth's view "
+                f"(< {MIN_CHECKED_POINTS}): cannot check it against the live depth")
+    if share > limit:
+        return (f"the pose sees through the map: {share:.0%} of {n} keyframe points in view lie in front of "
+                f"the live depth (> {limit:.0%})")
+    return ""
+
+
+def moved_onto_live_depth(res: LocalizationResult, points_map: NDArray[np.float64], K: NDArray[np.float64],
+                          depth: NDArray[np.floating], p: LocalizationParams) -> LocalizationResult | None:
+    """`res` with its pose moved onto the live depth (`align_to_live_depth` of its keyframes'
+    (N, 3) map points) where the move is within `second_look_align_m` / `_deg` and the moved
+    pose keeps under half of `second_look_max_see_through` in front of the live depth (it was
+    fitted to that depth: what still lies in front counts against it), its covariance grown by
+    the move; None otherwise."""
+    if p.second_look_align_m <= 0 or res.T_map_camera is None:
+        return None
+    a = align_to_live_depth(points_map, res.T_map_camera, K, depth)
+    if a is None or a.shift_m > p.second_look_align_m or a.shift_deg > p.second_look_align_deg:
+        return None
+    if sees_through_reason(points_map, a.T_map_live, K, depth, p.second_look_max_see_through / 2):
+        return None
+    cov = res.covariance
+    if cov is not None:  # the pose is known no better than the move the live depth asked for
+        cov = cov.copy()
+        cov[:3, :3] += a.shift_m**2 * np.eye(3)
+        cov[3:, 3:] += np.radians(a.shift_deg) ** 2 * np.eye(3)
+    note = f"moved {a.shift_m:.2f} m / {a.shift_deg:.1f} deg onto the live depth ({a.pairs} points)"
+    return replace(res, T_map_camera=a.T_map_live, covariance=cov, stop_reason=f"{res.stop_reason}; {note}")

@@ -16,11 +16,13 @@ from numpy.typing import NDArray
 from litevloc.base import geometry as g
 from litevloc.pipelines.localization.passes import second_look_nodes
 from litevloc.pipelines.localization.results import CandidateAttempt, LocalizationResult
-from litevloc.pipelines.localization.second_look import SecondLook, StoredImageFeatures
+from litevloc.pipelines.localization.second_look import SecondLook, StoredImageFeatures, moved_onto_live_depth
 from litevloc.pipelines.localization.see_through import see_through
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.pnp import Refusal
 from litevloc.pipelines.topomap.types import NodeFeatures, TopoMap
+from tests.pipelines.localization.test_depth_align import K as CORNER_K
+from tests.pipelines.localization.test_depth_align import corner_depth, corner_points
 from tests.pipelines.localization.test_vloc import (
     IMG,
     PARAMS,
@@ -256,3 +258,37 @@ def test_the_ll_look_keeps_closer_to_a_last_pose_prior_than_ll_does() -> None:
     tight = local(p)
     assert not tight.accepted and any("inconsistent with the prior" in a.reason for a in tight.attempts)
     assert local(replace(p, second_look_prior_gate_m=0.75)).accepted
+
+
+def test_a_look_pose_that_sees_through_by_a_small_miss_is_moved_onto_the_live_depth() -> None:
+    """A room corner, the look's pose 17 cm and 2 deg off towards it: the map points it puts in front of
+    the live depth make it see through; moved onto the live depth it is accepted, close to the
+    truth, its covariance grown by the move. A miss of 0.45 m is beyond `second_look_align_m`, one
+    turned 8 deg beyond `second_look_align_deg`: they stay refused; so does the small miss where
+    moving is off (`second_look_align_m` 0)."""
+    T_true = g.make_T(g.so3_exp(np.array([0.1, 0.35, 0.02])), np.array([0.1, 0.0, 0.2]))
+    depth = corner_depth(T_true)
+    points = corner_points(g.make_T(g.so3_exp(np.array([0.05, 0.52, 0.0])), np.array([-0.3, -0.1, 0.0])))
+    p = replace(PARAMS, second_look_candidates=2)
+    assert p.second_look_align_m == 0.3 and p.second_look_max_see_through == 0.3
+
+    def look_at(T: NDArray[np.float64]) -> LocalizationResult:
+        return LocalizationResult(0, "global", True, "ok", T_map_camera=T, covariance=1e-4 * np.eye(6),
+                                  keyframes=(0,), stop_reason="looked at again")
+
+    ahead = T_true @ g.make_T(g.so3_exp(np.radians([1.0, -2.0, 0.0])), [0.08, 0.05, 0.14])
+    assert see_through(points, ahead, CORNER_K, depth)[1] > 0.3
+    moved = moved_onto_live_depth(look_at(ahead), points, CORNER_K, depth, p)
+    assert moved is not None and moved.accepted and "onto the live depth" in moved.stop_reason
+    assert moved.T_map_camera is not None and moved.covariance is not None
+    dt, dr = g.relative_pose_error(moved.T_map_camera, T_true)
+    assert dt < 0.01 and dr < 0.5
+    assert moved.covariance[0, 0] > 0.01 and see_through(points, moved.T_map_camera, CORNER_K, depth)[1] < 0.15
+    far = T_true @ g.make_T(np.eye(3), [0.0, 0.0, 0.45])
+    assert moved_onto_live_depth(look_at(far), points, CORNER_K, depth, p) is None
+    turned = T_true @ g.make_T(g.so3_exp(np.radians([0.0, 8.0, 0.0])), [0.02, 0.0, 0.05])  # 8 deg > 6
+    assert see_through(points, turned, CORNER_K, depth)[1] > 0.3
+    assert moved_onto_live_depth(look_at(turned), points, CORNER_K, depth, p) is None
+    wider = replace(p, second_look_align_deg=9.0)
+    assert moved_onto_live_depth(look_at(turned), points, CORNER_K, depth, wider) is not None
+    assert moved_onto_live_depth(look_at(ahead), points, CORNER_K, depth, replace(p, second_look_align_m=0)) is None
