@@ -251,8 +251,7 @@ class LocalizationParams:
     second_look_from_inliers: int = 10
     # it refuses a pose putting more than this share of its keyframes' map points in view in front of the live depth
     second_look_max_see_through: float = 0.3
-    # ... a pose over it is moved onto the live depth (ICP of those points) and accepted if the moved pose keeps under
-    # half that share and the move is at most this far (m; 0 = no move)
+    # ... a pose over it is moved onto the live depth if at most this far (m; 0 = never), then under half that share
     second_look_align_m: float = 0.3
     # ... and turns it at most this much (degrees)
     second_look_align_deg: float = 6.0
