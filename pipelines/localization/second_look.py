@@ -12,10 +12,10 @@ depth belongs to its stored keypoints), so only the live depth lifts points.
 Denser features also let a wrong pose collect more inliers (a band of repeated leaflets): a pose
 the second look accepts must not see through the map (`see_through`: the keyframes' stored
 points with map depth against the live depth image). Across a wide view change a right pose can
-miss by 10-15 cm along the view and see through too: a pose that does is moved onto the live
-depth (`depth_align`) and accepted where the moved pose holds and the move is small
-(`second_look_align_m`, `second_look_align_deg`) and the moved pose keeps under half the
-see-through limit; its covariance grows by the move.
+miss by 10-20 cm along the view and see through too: a pose that does is moved onto the live
+depth (`depth_align`) and accepted where the move is small (`second_look_align_m`,
+`second_look_align_deg`) and the moved pose keeps under half the see-through limit; its
+covariance grows by the move.
 """
 
 from __future__ import annotations
@@ -144,9 +144,9 @@ class SecondLook:
 
 def sees_through_reason(points_map: NDArray[np.float64], T_map_live: NDArray[np.float64], K: NDArray[np.float64],
                         depth: NDArray[np.floating], limit: float) -> str:
-    """'' when the pose keeps more than `1 - limit` of the (N, 3) map points in view off the
-    live free space (see `see_through`), else the refusal reason; a pose it cannot check is
-    refused; `limit` >= 1 checks nothing."""
+    """'' when at most `limit` of the (N, 3) map points the pose puts in the live depth's view lie
+    in front of the live surface (see `see_through`), else the refusal reason; a pose it cannot
+    check is refused; `limit` >= 1 checks nothing."""
     if limit >= 1.0:
         return ""
     n, share = see_through(points_map, T_map_live, K, depth)
