@@ -287,6 +287,20 @@ def project(K: NDArray[np.floating], points_cam: NDArray[np.floating]) -> F64:
     return uvw[:, :2] / uvw[:, 2:3]
 
 
+def pixels_in_view(T_cam_world: NDArray[np.floating], points_world: NDArray[np.floating], K: NDArray[np.floating],
+                   shape: tuple[int, ...], min_z: float = 0.1) -> tuple[F64, NDArray[np.int64], NDArray[np.int64]]:
+    """The Nx3 world points that land in an image of `shape` (h, w, ...) seen from `T_cam_world`,
+    at least `min_z` metres ahead: their (M, 3) camera-frame points and rounded pixel (col, row)."""
+    T = np.asarray(T_cam_world, dtype=np.float64)
+    P = np.asarray(points_world, dtype=np.float64).reshape(-1, 3) @ T[:3, :3].T + T[:3, 3]
+    P = P[P[:, 2] > min_z]
+    uv = project(K, P)
+    col, row = np.round(uv[:, 0]).astype(np.int64), np.round(uv[:, 1]).astype(np.int64)
+    h, w = shape[:2]
+    inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
+    return P[inside], col[inside], row[inside]
+
+
 def backproject_pixels(K: NDArray[np.floating], uv: NDArray[np.floating], z: NDArray[np.floating]) -> F64:
     """Lift Nx2 pixels with depths z (N,) metres to Nx3 camera-frame points."""
     K = np.asarray(K, dtype=np.float64)

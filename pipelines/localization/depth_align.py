@@ -19,9 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.base.geometry import backproject_pixels, make_T, relative_pose_error, so3_exp
-
-F64 = NDArray[np.float64]
+from litevloc.base.geometry import F64, backproject_pixels, make_T, pixels_in_view, relative_pose_error, so3_exp
 
 NORMAL_STEP_PX = 2  # neighbours the live surface normal is taken across (pixels)
 # a neighbour farther than this (metres, or share of the depth) is across a depth edge: no normal
@@ -73,16 +71,9 @@ def align_to_live_depth(points_map: NDArray[np.floating], T_map_live: NDArray[np
     P_map = np.asarray(points_map, np.float64).reshape(-1, 3)
     D = np.asarray(depth, np.float64)
     Kf = np.asarray(K, np.float64)
-    h, w = D.shape[:2]
     pairs, rms = 0, float("nan")
     for it in range(iterations):
-        P = P_map @ T_live_map[:3, :3].T + T_live_map[:3, 3]
-        P = P[P[:, 2] > 0.1]
-        uv = P @ Kf.T
-        col = np.round(uv[:, 0] / uv[:, 2]).astype(np.int64)
-        row = np.round(uv[:, 1] / uv[:, 2]).astype(np.int64)
-        inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
-        P, col, row = P[inside], col[inside], row[inside]
+        P, col, row = pixels_in_view(T_live_map, P_map, Kf, D.shape)
         q, n, ok = _surface(D, Kf, col, row)
         r = np.sum(n * (P - q), axis=1)
         # the gate narrows as the pose settles: far pairs only steer the first steps

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.base.geometry import backproject_pixels
+from litevloc.base.geometry import backproject_pixels, pixels_in_view
 from litevloc.pipelines.topomap.types import TopoMap
 
 # How far in front of the live surface a point must lie to count (fixed from the depth noise of
@@ -42,16 +42,9 @@ def see_through(points_map: NDArray[np.float64], T_map_live: NDArray[np.float64]
     """(n, share): of the (N, 3) map points that project into the live image (intrinsics `K`,
     depth image `depth` in metres, NaN or <= 0 = none) where it has depth, how many (n) and which
     share lie in front of the live surface by more than `IN_FRONT_M` / `IN_FRONT_REL`."""
-    h, w = depth.shape[:2]
-    T = np.linalg.inv(np.asarray(T_map_live, np.float64))
-    P = np.asarray(points_map, np.float64) @ T[:3, :3].T + T[:3, 3]
-    P = P[P[:, 2] > 0.1]
-    uv = P @ np.asarray(K, np.float64).T
-    uv = uv[:, :2] / uv[:, 2:3]
-    col, row = np.round(uv[:, 0]).astype(np.int64), np.round(uv[:, 1]).astype(np.int64)
-    inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
-    z_live = np.asarray(depth, np.float64)[row[inside], col[inside]]
-    z_map = P[inside, 2]
+    P, col, row = pixels_in_view(np.linalg.inv(np.asarray(T_map_live, np.float64)), points_map, K, depth.shape)
+    z_live = np.asarray(depth, np.float64)[row, col]
+    z_map = P[:, 2]
     valid = np.isfinite(z_live) & (z_live > 0)
     z_live, z_map = z_live[valid], z_map[valid]
     if len(z_map) == 0:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from litevloc.base.geometry import undistort_normalized
+from litevloc.base.geometry import make_T, pixels_in_view, undistort_normalized
 
 
 def test_undistort_normalized_inverts_the_radial_model() -> None:
@@ -37,3 +37,13 @@ def test_camera_position_covariance_matches_sampled_body_frame_perturbations() -
     got = camera_position_covariance(T_map_base, C, T_base_camera)
     assert np.allclose(got, got.T)
     assert np.allclose(got, sampled, atol=0.04 * float(np.max(np.abs(sampled))))
+
+
+def test_pixels_in_view_keeps_the_points_ahead_and_inside_the_image() -> None:
+    K = np.array([[100.0, 0, 50], [0, 100.0, 40], [0, 0, 1]])
+    world = np.array([[0.0, 0.0, 2.0], [0.0, 0.0, -2.0], [5.0, 0.0, 2.0], [0.1, 0.2, 1.0], [0.0, 0.0, -0.95]])
+    T_cam_world = make_T(np.eye(3), [0.0, 0.0, 1.0])  # the world 1 m further ahead
+    P, col, row = pixels_in_view(T_cam_world, world, K, (80, 100, 3))
+    # behind the camera, outside the image and nearer than min_z are left out
+    assert P.tolist() == [[0.0, 0.0, 3.0], [0.1, 0.2, 2.0]]
+    assert col.tolist() == [50, 55] and row.tolist() == [40, 50]
