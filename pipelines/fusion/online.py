@@ -180,6 +180,20 @@ def _valid_cov(C: NDArray[np.floating] | None) -> F64 | None:
     return A
 
 
+def _estimate_pose3(smoother: gtsam.IncrementalFixedLagSmoother, key: int) -> gtsam.Pose3:
+    """The smoother's current estimate of the pose at `key` (T_map_base).
+
+    gtsam 4.3a1, the only gtsam wheel for Python 3.10 on aarch64 (JetPack 6), does not wrap
+    `calculateEstimatePose3`; there the whole window's estimate is computed (~40 us for 300 states).
+    """
+    one_key = getattr(smoother, "calculateEstimatePose3", None)
+    if one_key is not None:
+        pose: gtsam.Pose3 = one_key(key)
+        return pose
+    every_key: gtsam.Pose3 = smoother.calculateEstimate().atPose3(key)
+    return every_key
+
+
 def _pose3(T: F64) -> gtsam.Pose3:
     return gtsam.Pose3(T)
 
@@ -270,7 +284,7 @@ class OnlineFusion:
         try:
             self._smoother.update(graph, values, ts)
             newest_key = self._keys[-1][0]
-            self._last_est = self._smoother.calculateEstimatePose3(newest_key).matrix()
+            self._last_est = _estimate_pose3(self._smoother, newest_key).matrix()
         except RuntimeError:  # e.g. an indeterminant system: start over from the next VLoc
             self._counts["solver_errors"] += 1
             self._reset_graph()
@@ -571,7 +585,7 @@ class OnlineFusion:
         D = invert(T_ob) @ T_key_odom  # odometry from capture time to keyframe time
         meas = T_mb @ D
         cov_meas = cov + self._carried_cov(D, path)
-        pred = self._smoother.calculateEstimatePose3(key)
+        pred = _estimate_pose3(self._smoother, key)
         xi = gtsam.Pose3.Logmap(pred.between(_pose3(meas)))
         S = self._cov_state + self._odom_cov(self._cov_key_T_odom, self._keys[-1][2]) + cov_meas
         m2_walk = float(xi @ np.linalg.solve(S, xi))  # the graph's own (random-walk) uncertainty

@@ -9,11 +9,15 @@ The localizer (`vloc.VisualLocalizer.process`) moves INIT -> GLOBAL (GL over the
 from __future__ import annotations
 
 from dataclasses import dataclass
-from enum import StrEnum
+from enum import Enum
 
 
-class TrackingState(StrEnum):
+class TrackingState(str, Enum):
     """A state of the localizer; the service publishes INIT, TRACKING or LOST (`published_state`)."""
+
+    # printed and formatted as its value, like 3.11's StrEnum (Python 3.10 has none)
+    __str__ = str.__str__
+    __format__ = str.__format__
 
     INIT = "INIT"
     GLOBAL = "GLOBAL"
