@@ -12,7 +12,9 @@ import re
 from dataclasses import dataclass
 from typing import Any, Literal
 
-EXPORT_VERSION = 3  # 2: ALIKED deformable convs as DeformConv; 3: ALIKED descriptor sampling by gathers
+# 2: ALIKED deformable convs as DeformConv; 3: ALIKED descriptor sampling by gathers;
+# 4: ALIKED deformable convs by gathers (no DeformConv: onnxruntime 1.20-1.24 load it)
+EXPORT_VERSION = 4
 OPSET = 19
 LIGHTGLUE_LAYERS = 9
 

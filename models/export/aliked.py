@@ -4,10 +4,12 @@ Architecture after Zhao et al., "ALIKED: A Lighter Keypoint and Descriptor Extra
 via Deformable Transformation" (IEEE TIM 2023), reference code github.com/Shiaoming/ALIKED and
 its copy in cvg/LightGlue (BSD-3-Clause, (c) 2022 Zhao Xiaoming). Re-written here so that:
 
-- it needs neither torchvision nor kornia: the deformable 3x3 convolution is one `grid_sample`
-  over all nine taps followed by a matmul (same bilinear, zero-outside semantics as
-  `torchvision.ops.deform_conv2d`, which the reference uses); in ONNX it is exported as the
-  DeformConv op (faster in onnxruntime) or, optionally, as that grid_sample graph;
+- it needs neither torchvision nor kornia: the deformable 3x3 convolution gathers the bilinear
+  corners of its nine taps as rows of the map and sums them with one matmul (same bilinear,
+  zero-outside semantics as `torchvision.ops.deform_conv2d`, which the reference uses), so the
+  ONNX graph has no DeformConv op (onnxruntime has it from 1.25 only; Jetson's GPU build is
+  1.23) and no GridSample there: Gather, MatMul and elementwise ops that every runtime and
+  TensorRT's ONNX parser have;
 - keypoint detection (NMS, top-k, soft-argmax refinement) and the SDDH descriptor head gather
   only the k selected positions (the reference unfolds the whole score map), so the exported
   graph has static shapes;
@@ -22,18 +24,13 @@ Only this package (models/export) imports torch.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
 from litevloc.models.export.weights import load_strict
-
-if TYPE_CHECKING:
-    from torch.onnx._internal.torchscript_exporter.jit_utils import GraphContext
 
 # c1, c2, c3, c4, dim, K (SDDH kernel), M (SDDH sample positions)
 ALIKED_CFGS: dict[str, tuple[int, int, int, int, int, int, int]] = {
@@ -48,10 +45,8 @@ class DeformableConv2d(nn.Module):
     """3x3 deformable convolution (DCNv1, no modulation mask), stride 1, padding 1.
 
     Offsets come from `offset_conv` (18 channels: (dy, dx) per tap, taps row-major, the layout
-    of torchvision's deform_conv2d) and are clamped to +-max(H, W)/4 as in ALIKED.
-    `mode="grid_sample"` samples all taps with one bilinear grid_sample (zeros outside);
-    `mode="deformconv"` computes the same in eager mode but exports as the ONNX DeformConv
-    op (opset 19, see `DeformConvFunction`).
+    of torchvision's deform_conv2d) and are clamped to +-max(H, W)/4 as in ALIKED; the
+    convolution itself is `deform_conv3x3_gather`.
     """
 
     def __init__(self, in_channels: int, out_channels: int, kernel_size: int = 3) -> None:
@@ -60,24 +55,19 @@ class DeformableConv2d(nn.Module):
             raise ValueError("only 3x3 deformable convolutions are implemented")
         self.offset_conv = nn.Conv2d(in_channels, 18, 3, 1, 1, bias=True)
         self.regular_conv = nn.Conv2d(in_channels, out_channels, 3, 1, 1, bias=False)
-        self.mode = "grid_sample"
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         h, w = x.shape[-2:]
         max_offset = max(h, w) / 4.0
         offset = self.offset_conv(x).clamp(-max_offset, max_offset)  # (B, 18, H, W)
-        if self.mode == "deformconv":
-            # torch leaves Function.apply unannotated; its signature is that of forward below
-            deform_conv: Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor] = DeformConvFunction.apply
-            out: torch.Tensor = deform_conv(x, self.regular_conv.weight, offset)
-            return out
-        return deform_conv3x3(x, self.regular_conv.weight, offset)
+        return deform_conv3x3_gather(x, self.regular_conv.weight, offset)
 
 
 def deform_conv3x3(x: torch.Tensor, weight: torch.Tensor, offset: torch.Tensor) -> torch.Tensor:
     """DCNv1 3x3, stride 1, pad 1: x (B,C,H,W), weight (O,C,3,3), offset (B,18,H,W) -> (B,O,H,W).
 
-    Same semantics as torchvision.ops.deform_conv2d: offset channels are (dy, dx) per tap,
+    The reference form, by one `grid_sample` over all nine taps (tests check the exported
+    gather form against it). Same semantics as torchvision.ops.deform_conv2d: offset channels are (dy, dx) per tap,
     taps row-major; bilinear sampling where samples outside the map read zeros.
     """
     b, c, h, w = x.shape
@@ -96,34 +86,37 @@ def deform_conv3x3(x: torch.Tensor, weight: torch.Tensor, offset: torch.Tensor) 
     return out.reshape(b, weight.shape[0], h, w)
 
 
-class DeformConvFunction(torch.autograd.Function):
-    """Emits the ONNX `DeformConv` op (opset 19) in the TorchScript exporter; eager = grid_sample.
+def deform_conv3x3_gather(x: torch.Tensor, weight: torch.Tensor, offset: torch.Tensor) -> torch.Tensor:
+    """`deform_conv3x3` for one image (B = 1) by row gathers: the export form every runtime runs.
 
-    The default export form (`ALIKED.set_deform_mode("deformconv")`, done by the exporter):
-    onnxruntime's CPU DeformConv kernel is 10-15 % faster than the grid_sample form here.
+    x (1,C,H,W), weight (O,C,3,3), offset (1,18,H,W) -> (1,O,H,W), same semantics. The map is
+    transposed once to (H*W, C); the four bilinear corners of every pixel's nine taps are rows
+    gathered from it in one Gather (no GridSample or DeformConv op: onnxruntime < 1.25 has no
+    DeformConv kernel), corners outside the map weighted 0, and one matmul against the (O, 9*C)
+    weight sums the taps.
     """
-
-    @staticmethod
-    def forward(
-        ctx: torch.autograd.function.FunctionCtx, x: torch.Tensor, weight: torch.Tensor, offset: torch.Tensor
-    ) -> torch.Tensor:
-        return deform_conv3x3(x, weight, offset)
-
-    @staticmethod
-    def symbolic(g: GraphContext, x: torch._C.Value, weight: torch._C.Value, offset: torch._C.Value) -> torch._C.Value:
-        out: torch._C.Value = g.op(
-            "DeformConv",
-            x,
-            weight,
-            offset,
-            kernel_shape_i=[3, 3],
-            pads_i=[1, 1, 1, 1],
-            strides_i=[1, 1],
-            dilations_i=[1, 1],
-            group_i=1,
-            offset_group_i=1,
-        )
-        return out
+    b, c, h, w = x.shape
+    if b != 1:
+        raise ValueError(f"deform_conv3x3_gather takes one image, got a batch of {b}")
+    off = offset.reshape(9, 2, h * w).permute(2, 0, 1)  # (H*W, 9, (dy, dx))
+    ky = torch.tensor([-1.0, -1, -1, 0, 0, 0, 1, 1, 1], dtype=x.dtype).view(1, 9)
+    kx = torch.tensor([-1.0, 0, 1, -1, 0, 1, -1, 0, 1], dtype=x.dtype).view(1, 9)
+    ys = torch.arange(h, dtype=x.dtype).view(h, 1).expand(h, w).reshape(h * w, 1)
+    xs = torch.arange(w, dtype=x.dtype).view(1, w).expand(h, w).reshape(h * w, 1)
+    py = ys + ky + off[..., 0]  # (H*W, 9) sample rows and columns, pixels
+    px = xs + kx + off[..., 1]
+    y0, x0 = torch.floor(py), torch.floor(px)
+    fy, fx = py - y0, px - x0
+    cy = torch.stack((y0, y0, y0 + 1, y0 + 1))  # (4, H*W, 9): the corners (0,0) (0,1) (1,0) (1,1)
+    cx = torch.stack((x0, x0 + 1, x0, x0 + 1))
+    wgt = torch.stack(((1 - fy) * (1 - fx), (1 - fy) * fx, fy * (1 - fx), fy * fx))
+    inside = (cy >= 0) & (cy <= h - 1) & (cx >= 0) & (cx <= w - 1)
+    idx = (cy.clamp(0, h - 1) * w + cx.clamp(0, w - 1)).long()
+    rows_map = x.reshape(c, h * w).t()  # (H*W, C)
+    taps = (rows_map[idx] * (wgt * inside.to(x.dtype))[..., None]).sum(0)  # (H*W, 9, C)
+    w_taps = weight.permute(0, 2, 3, 1).reshape(weight.shape[0], 9 * c)  # (O, 9*C): tap-major, channel
+    out = taps.reshape(h * w, 9 * c) @ w_taps.t()  # (H*W, O)
+    return out.t().reshape(1, weight.shape[0], h, w)
 
 
 class ConvBlock(nn.Module):
@@ -267,13 +260,6 @@ class ALIKED(nn.Module):
             nn.Conv2d(4, 1, 3, 1, 1, bias=False),
         )
         self.desc_head = SDDH(dim, ks, m, gate)
-
-    def set_deform_mode(self, mode: str) -> None:
-        if mode not in ("grid_sample", "deformconv"):
-            raise ValueError(mode)
-        for mod in self.modules():
-            if isinstance(mod, DeformableConv2d):
-                mod.mode = mode
 
     @staticmethod
     def _up(x: torch.Tensor, f: int) -> torch.Tensor:
