@@ -255,6 +255,8 @@ class ZenohConfig:
     namespace: str = ""
     # key naming: "bridge" (zenoh-bridge-ros2dds keys) or "rmw_zenoh" (ROS 2's own Zenoh middleware, docs/ros2.md)
     ros2: Literal["bridge", "rmw_zenoh"] = "bridge"
+    # rmw_zenoh only: the robot's ROS 2, "jazzy" (Ubuntu 24.04) or "humble" (22.04, JetPack 6); "auto" reads ROS_DISTRO
+    ros2_distro: Literal["jazzy", "humble", "auto"] = "jazzy"
     # ROS_DOMAIN_ID of the robot (rmw_zenoh only; 0-232 as in ROS 2)
     domain_id: int = 0
     # ROS node name of the runtime (rmw_zenoh liveliness); the planner is `<node_name>_planner`

@@ -64,10 +64,12 @@ from litevloc.runtime.rmw_zenoh import (
     History,
     NodeIdentity,
     Qos,
+    Ros2Distro,
     attachment,
     attachment_fields,
     entity_gid,
     fully_qualified,
+    resolve_distro,
     ros_namespace,
     topic_keyexpr,
 )
@@ -285,6 +287,8 @@ class Bus:
 
     def __init__(self, cfg: ZenohConfig, node_name: str | None = None) -> None:
         self.cfg = cfg
+        # checked before a session opens: `auto` with an unusable ROS_DISTRO fails here
+        self.distro = resolve_distro(cfg.ros2_distro) if cfg.ros2 == "rmw_zenoh" else Ros2Distro.JAZZY
         self.session = open_session(cfg)
         self._closed = False
         self.node: NodeIdentity | None = None
@@ -292,7 +296,8 @@ class Bus:
         self._next_entity = 1
         if cfg.ros2 == "rmw_zenoh":
             self.node = NodeIdentity(cfg.domain_id, str(self.session.info.zid()), 0, ros_namespace(cfg.namespace),
-                                     node_name or cfg.node_name)
+                                     node_name or cfg.node_name, distro=self.distro)
+            log.info("rmw_zenoh: node %s as ROS 2 %s names it", self.node.node_name, self.distro.value)
             self._tokens.append(self._declare_token(self.node.node_token()))
 
     @property
@@ -311,7 +316,7 @@ class Bus:
         if self.node is None:
             return topic_key(self.cfg.namespace, name)
         tn = typename or TOPICS[topic][1]
-        return topic_keyexpr(self.cfg.domain_id, fully_qualified(self.cfg.namespace, name), tn)
+        return topic_keyexpr(self.cfg.domain_id, fully_qualified(self.cfg.namespace, name), tn, self.distro)
 
     def _endpoint(self, kind: str, topic: str, typename: str, qos: Qos) -> tuple[Any, bytes]:
         """rmw_zenoh: declare the MP/MS liveliness token of a new endpoint; (token, GID)."""

@@ -48,6 +48,8 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--listen", action="append", default=[], help="listen here instead (the service connects)")
     ap.add_argument("--namespace", default="")
     ap.add_argument("--ros2", choices=("bridge", "rmw_zenoh"), default="bridge", help="key naming (zenoh.ros2)")
+    ap.add_argument("--ros2-distro", choices=("jazzy", "humble", "auto"), default="jazzy",
+                    help="rmw_zenoh: the robot's ROS 2 (zenoh.ros2_distro)")
     ap.add_argument("--topics", default="pose,vloc,map_to_odom,status")
     ap.add_argument("--count", action="append", default=[], metavar="TOPIC=N", help="stop after N messages")
     ap.add_argument("--timeout", type=float, default=30.0)
@@ -99,7 +101,8 @@ def main(argv: list[str] | None = None) -> int:
             ap.error(f"unknown topic {t!r}; known: {sorted(TOPICS)}")
     want = {k: int(v) for k, v in (c.split("=", 1) for c in args.count)}
     cfg = ZenohConfig(mode="peer", listen=tuple(args.listen), connect=tuple(args.connect), namespace=args.namespace,
-                      connect_timeout_s=min(args.timeout, 10.0), ros2=args.ros2, node_name="litevloc_probe")
+                      connect_timeout_s=min(args.timeout, 10.0), ros2=args.ros2,
+                      ros2_distro=args.ros2_distro, node_name="litevloc_probe")
     warm_codecs()
     bus = Bus(cfg)
     res: dict[str, dict[str, Any]] = {t: {"count": 0, "decode_errors": 0, "lat_ms": [], "data": [], "stamp_ms": []}

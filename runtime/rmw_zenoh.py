@@ -20,20 +20,71 @@ expects to see on Zenoh, written from rmw_zenoh's design document (`docs/design.
 The type hash (RIHS01, REP-2011) is computed by the `rosbags` type store from the message
 definition; the GID is 16 bytes of BLAKE2b over the entity's liveliness key (rmw_zenoh hashes
 the same key with XXH3-128; a GID is an opaque, unique id of the entity).
+
+Two ROS 2 distributions (`Ros2Distro`, setting `zenoh.ros2_distro`), read from rmw_zenoh's
+release sources (ros2-gbp/rmw_zenoh-release, branches `release/humble/rmw_zenoh_cpp` 0.1.9 and
+`release/jazzy/rmw_zenoh_cpp` 0.2.10, `src/detail/`):
+
+* Jazzy: the `<type hash>` of data keys and tokens is the RIHS01 hash (`rmw_publisher_data.cpp`
+  / `rmw_subscription_data.cpp` stringify `get_type_hash_func`); Kilted's sources do the same.
+* Humble: ROS 2 Humble's type support has no type hash (REP-2011 came with Iron), so its
+  rmw_zenoh writes the constant `TypeHashNotSupported` in that same place (the same two files),
+  keeping the key and token layout. Everything else is the same in both: `TopicInfo` and
+  `Entity` in `liveliness_utils.cpp` build the key and the token alike (admin space `@ros2_lv`,
+  `NN`/`MP`/`MS`, '%' mangling), the QoS text has the same fields, defaults (`qos.cpp`: depth
+  42, RELIABLE, VOLATILE) and enumerator numbers (Humble lacks only BEST_AVAILABLE, which
+  LiteVLoc never sends), and the attachment (`attachment_helpers.cpp`) is the same zenoh-ext
+  serialization of int64, int64 and a 16-byte GID (Humble hard-codes 16 where Jazzy uses
+  `RMW_GID_STORAGE_SIZE`, which is 16 there; Humble's `rmw_gid_t` itself holds 24 bytes).
+  A subscriber matches only its exact key, so a wrong distribution delivers no data while the
+  graph (`ros2 topic list`, built from tokens by name and type) still shows the topic.
 """
 
 from __future__ import annotations
 
 import hashlib
+import os
 import struct
+from collections.abc import Mapping
 from dataclasses import dataclass
-from enum import IntEnum
+from enum import Enum, IntEnum
 
+from litevloc.base.errors import LiteVLocError
 from litevloc.hw import ros_msgs
 
 ADMIN_SPACE = "@ros2_lv"
 GID_SIZE = 16
 ATTACHMENT_SIZE = 8 + 8 + 1 + GID_SIZE
+# what Humble's rmw_zenoh writes where Jazzy's writes the RIHS01 type hash
+HUMBLE_TYPE_HASH = "TypeHashNotSupported"
+
+
+class Ros2Distro(Enum):
+    """The ROS 2 distribution whose rmw_zenoh LiteVLoc's keys and tokens must match."""
+
+    JAZZY = "jazzy"
+    HUMBLE = "humble"
+
+
+class Ros2DistroError(LiteVLocError, ValueError):
+    """`zenoh.ros2_distro: auto` and `ROS_DISTRO` is unset or names no supported distribution."""
+
+
+def resolve_distro(setting: str, environ: Mapping[str, str] | None = None) -> Ros2Distro:
+    """The distribution of `zenoh.ros2_distro` ("jazzy", "humble" or "auto"); `auto` reads
+    `ROS_DISTRO` (of `environ`, default the process environment) as a sourced ROS 2 sets it."""
+    if setting != "auto":
+        return Ros2Distro(setting)
+    env = os.environ if environ is None else environ
+    name = env.get("ROS_DISTRO", "").strip().lower()
+    known = [d.value for d in Ros2Distro]
+    if not name:
+        raise Ros2DistroError(f"zenoh.ros2_distro is 'auto' but ROS_DISTRO is not set: source the robot's ROS 2 "
+                              f"(setup.bash) or set zenoh.ros2_distro to one of {known}")
+    if name not in known:
+        raise Ros2DistroError(f"zenoh.ros2_distro is 'auto' and ROS_DISTRO is {name!r}, which LiteVLoc's rmw_zenoh "
+                              f"naming does not support; set zenoh.ros2_distro to one of {known}")
+    return Ros2Distro(name)
 
 
 class Reliability(IntEnum):
@@ -96,6 +147,13 @@ def type_hash(typename: str) -> str:
     return str(ros_msgs.typestore().hash_rihs01(typename))
 
 
+def key_type_hash(typename: str, distro: Ros2Distro) -> str:
+    """The `<type hash>` chunk of keys and tokens: RIHS01 for Jazzy, Humble's placeholder."""
+    if distro is Ros2Distro.HUMBLE:
+        return HUMBLE_TYPE_HASH
+    return type_hash(typename)
+
+
 def ros_namespace(namespace: str) -> str:
     """The configured namespace (`robot1`, `a/b` or "") as a ROS namespace (`/robot1`, `/a/b`, `/`)."""
     return "/" + namespace.strip("/")
@@ -110,9 +168,9 @@ def fully_qualified(namespace: str, topic: str) -> str:
     return f"/{ns}/{topic}" if ns else f"/{topic}"
 
 
-def topic_keyexpr(domain_id: int, fq_topic: str, typename: str) -> str:
+def topic_keyexpr(domain_id: int, fq_topic: str, typename: str, distro: Ros2Distro = Ros2Distro.JAZZY) -> str:
     """The Zenoh key of a topic's data (`fq_topic` fully qualified, with the leading '/')."""
-    return f"{domain_id}/{fq_topic.strip('/')}/{dds_type_name(typename)}/{type_hash(typename)}"
+    return f"{domain_id}/{fq_topic.strip('/')}/{dds_type_name(typename)}/{key_type_hash(typename, distro)}"
 
 
 @dataclass(frozen=True)
@@ -125,6 +183,7 @@ class NodeIdentity:
     namespace: str  # ROS namespace, `/` or `/robot1`
     node_name: str
     enclave: str = ""
+    distro: Ros2Distro = Ros2Distro.JAZZY  # decides the type hash chunk of its endpoint tokens
 
     def _head(self, entity_id: int, kind: str) -> str:
         return (f"{ADMIN_SPACE}/{self.domain_id}/{self.zid}/{self.node_id}/{entity_id}/{kind}/"
@@ -139,7 +198,7 @@ class NodeIdentity:
         if kind not in ("MP", "MS"):
             raise ValueError(f"entity kind must be MP or MS, got {kind!r}")
         return (f"{self._head(entity_id, kind)}/{mangle(fq_topic)}/{dds_type_name(typename)}/"
-                f"{type_hash(typename)}/{qos_keyexpr(qos)}")
+                f"{key_type_hash(typename, self.distro)}/{qos_keyexpr(qos)}")
 
 
 def entity_gid(liveliness_key: str) -> bytes:

@@ -8,6 +8,13 @@ ROS 2 Jazzy build (`/opt/ros/jazzy/share/<package>/msg/<Type>.json`), read from 
 repository ruredot/opt-ros-jazzy-share at commit 28471ab6622322562a010932b6af1fad60f3e8a7
 (`share/<package>/msg/<Type>.json`). The std_msgs/String value is also the one quoted in
 rmw_zenoh's design document (the `chatter` examples).
+
+ROS 2 Humble (`distro="humble"`), read from rmw_zenoh's Humble release sources
+(ros2-gbp/rmw_zenoh-release, branch `release/humble/rmw_zenoh_cpp`, 0.1.9): `src/detail/
+rmw_publisher_data.cpp` and `rmw_subscription_data.cpp` pass the constant `TypeHashNotSupported`
+where Jazzy passes the RIHS01 string; `liveliness_utils.cpp` (`TopicInfo`, `Entity`) builds keys
+and tokens from it exactly as Jazzy's does, and `attachment_helpers.cpp` writes the same fields
+(the GID fixed at 16 bytes).
 """
 
 from __future__ import annotations
@@ -36,8 +43,18 @@ DOC_NODE_TOKEN = "@ros2_lv/2/aac3178e146ba6f1fc6e6a4085e77f21/0/0/NN/%/%/listene
 DOC_PUB_TOKEN = ("@ros2_lv/2/8b20917502ee955ac4476e0266340d5c/0/10/MP/%/%/talker/%chatter/std_msgs::msg::dds_::String_/"
                  "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18/::,7:,:,:,,")
 
+HUMBLE_TYPE_HASH = "TypeHashNotSupported"
+
 _DDS = re.compile(r"^([A-Za-z0-9_]+)::msg::dds_::([A-Za-z0-9_]+)_$")
 _HASH = re.compile(r"^RIHS01_[0-9a-f]{64}$")
+
+
+def check_type_hash(chunk: str, distro: str) -> None:
+    """The type hash chunk of a key or token is of `distro`'s form ("jazzy": RIHS01, "humble")."""
+    if distro == "humble":
+        assert chunk == HUMBLE_TYPE_HASH, chunk
+    else:
+        assert distro == "jazzy" and _HASH.match(chunk), (distro, chunk)
 
 
 def ros_type(dds_name: str) -> str:
@@ -55,11 +72,11 @@ class DataKey:
     type_hash: str
 
 
-def parse_data_key(key: str) -> DataKey:
+def parse_data_key(key: str, distro: str = "jazzy") -> DataKey:
     """`<domain_id>/<fully qualified name>/<type name>/<type hash>`."""
     parts = key.split("/")
     assert len(parts) >= 4, key
-    assert _HASH.match(parts[-1]), parts[-1]
+    check_type_hash(parts[-1], distro)
     return DataKey(int(parts[0]), "/" + "/".join(parts[1:-2]), ros_type(parts[-2]), parts[-1])
 
 
@@ -101,8 +118,8 @@ def parse_qos(text: str) -> QosText:
     return QosText(int(f[0] or 1), int(f[1] or 2), int(hist or 1), int(depth or 42))
 
 
-def parse_token(key: str) -> Token:
-    """A node (`NN`) or publisher/subscription (`MP`/`MS`) liveliness token."""
+def parse_token(key: str, distro: str = "jazzy") -> Token:
+    """A node (`NN`) or publisher/subscription (`MP`/`MS`) liveliness token of `distro`."""
     p = key.split("/")
     assert p[0] == "@ros2_lv", key
     kind = p[5]
@@ -113,6 +130,7 @@ def parse_token(key: str) -> Token:
         assert len(p) == 9, key
         return Token(**base)  # type: ignore[arg-type]
     assert len(p) == 13, key
+    check_type_hash(p[11], distro)
     return Token(**base, topic=_demangle(p[9]), type=ros_type(p[10]), type_hash=p[11],  # type: ignore[arg-type]
                  qos=parse_qos(p[12]))
 

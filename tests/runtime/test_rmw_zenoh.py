@@ -82,7 +82,10 @@ class RosNodeView:
 
     def subscribe(self, domain: int, fq_topic: str, typename: str) -> str:
         dds = "{}::msg::dds_::{}_".format(*typename.split("/msg/"))
-        key = f"{domain}/{fq_topic.strip('/')}/{dds}/{REFERENCE_HASHES[typename]}"
+        return self.subscribe_key(f"{domain}/{fq_topic.strip('/')}/{dds}/{REFERENCE_HASHES[typename]}")
+
+    def subscribe_key(self, key: str) -> str:
+        """Subscribe on a literal data key (another distribution's form)."""
         self.samples[key] = []
 
         def cb(sample: Any, key: str = key) -> None:
@@ -110,6 +113,20 @@ class RosNodeView:
         self.session.close()
 
 
+def publish_three_poses_and_tf(pub: LiteVLocPublisher, view: RosNodeView, k_pose: str,
+                               k_tf: str) -> tuple[np.ndarray, list[tuple[bytes, bytes]]]:
+    """Once `view` is matched on both keys: three poses (stamps 1 s + i ns) and one map -> odom;
+    (the pose T_map_base, the three pose samples as `view` got them)."""
+    for p in pub.pubs.values():
+        if p.key_expr in (k_pose, k_tf):
+            assert p.wait_for_subscribers(5.0), p.key_expr
+    T = make_T(so3_exp(np.array([0.0, 0.0, 0.4])), np.array([1.0, 2.0, 0.0]))
+    for i in range(3):
+        pub.publish_pose(1_000_000_000 + i, T, np.eye(6) * 0.01)
+    pub.publish_map_to_odom(5_000_000_000, T)
+    return T, view.wait(k_pose, 3)
+
+
 @pytest.mark.timeout(30)
 def test_runtime_topics_as_an_rmw_zenoh_node_sees_them() -> None:
     port = free_port()
@@ -120,14 +137,7 @@ def test_runtime_topics_as_an_rmw_zenoh_node_sees_them() -> None:
         try:
             k_pose = view.subscribe(7, "/robot1/litevloc/pose", ros_msgs.ODOMETRY)
             k_tf = view.subscribe(7, "/robot1/tf", TF_MESSAGE)
-            for p in pub.pubs.values():
-                if p.key_expr in (k_pose, k_tf):
-                    assert p.wait_for_subscribers(5.0), p.key_expr
-            T = make_T(so3_exp(np.array([0.0, 0.0, 0.4])), np.array([1.0, 2.0, 0.0]))
-            for i in range(3):
-                pub.publish_pose(1_000_000_000 + i, T, np.eye(6) * 0.01)
-            pub.publish_map_to_odom(5_000_000_000, T)
-            got = view.wait(k_pose, 3)
+            T, got = publish_three_poses_and_tf(pub, view, k_pose, k_tf)
             seqs = []
             for payload, att in got:
                 seq, ts, gid = parse_attachment(att)
