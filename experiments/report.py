@@ -139,7 +139,18 @@ def _buildings(d: Json) -> str:
             "buildings without collision")
 
 
+def _wheels(d: Json) -> str:
+    targets = d["targets"]
+    ok = [t for t in targets if t["resolved"]]
+    failed = [t["target"] for t in targets if not t["resolved"]]
+    detail = [f"{t['target']} {t['wheels']} wheels {t['mb']:.0f} MB, onnxruntime {t['onnxruntime']}, gtsam {t['gtsam']}"
+              for t in ok if t["target"] in ("cp310-aarch64", "cp312-aarch64")]
+    return (f"litevloc[{d['extra']}] resolves from binary wheels alone for {len(ok)} of {len(targets)} targets"
+            + (f" (not {', '.join(failed)})" if failed else "") + ("; " + "; ".join(detail) if detail else ""))
+
+
 HEADLINES: tuple[Headline, ...] = (
+    Headline("installs from binary wheels", "bench/wheels.json", "python bench/wheels.py", _wheels),
     Headline("7-Scenes accuracy, 500 held-out queries", "bench/accuracy.json",
              "python bench/accuracy.py --map out/bench/inputs/7scenes/map", _accuracy),
     Headline("7-Scenes global localization", "bench/global_loc.json",
