@@ -28,6 +28,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import cast
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import print_table, write_json
@@ -128,7 +129,7 @@ def main() -> int:
         print(f"resolving {name} ...", file=sys.stderr, flush=True)
         results.append(check(TARGETS[name], args.extra, project))
     rows = [[r["target"], "yes" if r["resolved"] else f"NO: {r['reason']}", r.get("wheels", ""), r.get("mb", ""),
-             r.get("gtsam", ""), r.get("onnxruntime", ""), r.get("numpy", ""), " ".join(r.get("pre_releases", []))]
+             r.get("gtsam", ""), r.get("onnxruntime", ""), r.get("numpy", ""), " ".join(cast(list[str], r.get("pre_releases", [])))]
             for r in results]
     print_table(f"litevloc[{args.extra}] from binary wheels", ["target", "resolves", "wheels", "MB", "gtsam",
                 "onnxruntime", "numpy", "pre-releases"], rows)
