@@ -129,8 +129,8 @@ def main() -> int:
         print(f"resolving {name} ...", file=sys.stderr, flush=True)
         results.append(check(TARGETS[name], args.extra, project))
     rows = [[r["target"], "yes" if r["resolved"] else f"NO: {r['reason']}", r.get("wheels", ""), r.get("mb", ""),
-             r.get("gtsam", ""), r.get("onnxruntime", ""), r.get("numpy", ""), " ".join(cast(list[str], r.get("pre_releases", [])))]
-            for r in results]
+             r.get("gtsam", ""), r.get("onnxruntime", ""), r.get("numpy", ""),
+             " ".join(cast(list[str], r.get("pre_releases", [])))] for r in results]
     print_table(f"litevloc[{args.extra}] from binary wheels", ["target", "resolves", "wheels", "MB", "gtsam",
                 "onnxruntime", "numpy", "pre-releases"], rows)
     write_json(args.name, {"extra": args.extra, "targets": results})
