@@ -20,13 +20,13 @@ import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from enum import Enum
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import onnxruntime as ort
 
 from litevloc.base.params.models import MIB, CudaConfig, TensorrtConfig
+from litevloc.models.types import ProviderState
 
 if TYPE_CHECKING:
     from litevloc.base.params.models import ModelsConfig
@@ -159,8 +159,18 @@ _DISTRIBUTIONS = ("onnxruntime-gpu", "onnxruntime", "onnxruntime-directml", "onn
                   "onnxruntime-training", "ort-nightly-gpu", "ort-nightly")
 
 
+_build: OrtBuild | None = None
+
+
 def ort_build() -> OrtBuild:
-    """The `OrtBuild` of this process (the distribution from importlib.metadata)."""
+    """The `OrtBuild` of this process (the distribution from importlib.metadata; computed once)."""
+    global _build
+    if _build is None:
+        _build = _read_build()
+    return _build
+
+
+def _read_build() -> OrtBuild:
     dist = ""
     for name in _DISTRIBUTIONS:
         try:
@@ -188,14 +198,6 @@ class SessionReport:
     def fell_back(self) -> bool:
         """The session does not run on the first provider asked for."""
         return bool(self.asked) and self.used != self.asked[0]
-
-
-class ProviderState(Enum):
-    """What the models' sessions run on, against what `models.providers` asks for."""
-
-    NO_SESSIONS = "no_sessions"  # no ONNX session made (yet, or classical models only)
-    AS_ASKED = "as_asked"  # every session runs on the first provider asked for
-    FALLBACK = "fallback"  # a session runs on a later provider (e.g. tensorrt asked for, running on CPU)
 
 
 @dataclass(frozen=True)
@@ -231,6 +233,14 @@ class ProviderReport:
         asked = SHORT_NAMES.get(worst[0].asked[0], worst[0].asked[0])
         used = sorted({u for m in worst for u in m.used})
         return f"models: {asked} asked for, running on {', '.join(used)} ({', '.join(m.model for m in worst)})"
+
+    @property
+    def summary(self) -> str:
+        """One line for the start-up log: the build, then each model's provider."""
+        b = self.build
+        models = "; ".join(f"{m.model} on {', '.join(m.used)}" for m in self.models) or "no ONNX session"
+        return (f"onnxruntime {b.version} ({b.distribution or 'distribution unknown'}, device {b.device}, "
+                f"providers {', '.join(b.available)}): {models}")
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-able (the service status's `models` entry)."""
@@ -273,9 +283,11 @@ def session_reports() -> list[SessionReport]:
 
 def clear_session_reports() -> None:
     """Forget the sessions made so far and the providers already warned about (tests)."""
+    global _build
     with _lock:
         _sessions.clear()
         _warned.clear()
+        _build = None
 
 
 def model_inputs(path: Path) -> list[tuple[str, list[int | str | None]]]:
