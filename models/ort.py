@@ -300,16 +300,21 @@ def model_inputs(path: Path) -> list[tuple[str, list[int | str | None]]]:
     return [(i.name, list(i.shape)) for i in sess.get_inputs()]
 
 
-def _shape_text(shape: Sequence[int | str | None], n: int) -> str:
+def profile_shape(shape: Sequence[int | str | None], n: int) -> list[int]:
+    """An input shape with every dynamic keypoint axis at `n` (a dynamic batch axis of a 3-D input at 1)."""
     dims = []
     for axis, d in enumerate(shape):
         if isinstance(d, int) and d >= 0:
-            dims.append(str(d))
+            dims.append(d)
         elif axis == 0 and len(shape) == 3:  # (batch, N, C) with a dynamic batch: one image pair
-            dims.append("1")
+            dims.append(1)
         else:  # a dynamic keypoint axis
-            dims.append(str(n))
-    return "x".join(dims)
+            dims.append(n)
+    return dims
+
+
+def _shape_text(shape: Sequence[int | str | None], n: int) -> str:
+    return "x".join(str(d) for d in profile_shape(shape, n))
 
 
 def trt_profile_shapes(

@@ -8,7 +8,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import onnxruntime as ort
@@ -31,8 +31,8 @@ class FakeSession:
     """Records what `make_session` asks for; runs on a real CPU session. `get_providers` says the
     session took every provider asked for, unless `refuse` names ones whose libraries "failed"."""
 
-    calls: list[tuple[str, list[Any]]] = []
-    refuse: set[str] = set()
+    calls: ClassVar[list[tuple[str, list[Any]]]] = []
+    refuse: ClassVar[set[str]] = set()
 
     def __init__(self, path: str, sess_options: Any = None, providers: list[Any] | None = None) -> None:
         self.asked = list(providers or [])
