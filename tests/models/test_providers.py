@@ -259,3 +259,18 @@ def test_cpu_is_always_last(monkeypatch: pytest.MonkeyPatch) -> None:
     assert mort.resolve_providers(["tensorrt"]) == [GPU[0], GPU[2]]
     setup = mort.ProviderSetup(("cpu", "cuda"))
     assert [p for p, _ in mort.session_providers(setup)] == GPU[1:]
+
+
+def test_the_start_up_log_names_the_build_and_each_models_provider(
+    monkeypatch: pytest.MonkeyPatch, cache: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    from litevloc.runtime.app import log_provider_report
+
+    fake_gpu(monkeypatch, ["CPUExecutionProvider"])
+    load_place_recognizer("effnet-gem", ModelsConfig(cache_dir=str(cache), providers=("tensorrt", "cpu")))
+    with caplog.at_level(logging.INFO, logger="litevloc.runtime.app"):
+        log_provider_report(mort.provider_report())
+    [info, warning] = [r for r in caplog.records if r.name == "litevloc.runtime.app"]
+    assert info.levelno == logging.INFO and f"onnxruntime {ort.__version__}" in info.getMessage()
+    assert "effnet-gem-240x320 on CPUExecutionProvider" in info.getMessage()
+    assert warning.levelno == logging.WARNING and "tensorrt asked for, running on CPU" in warning.getMessage()
