@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Any
 
 import onnxruntime as ort
 
+from litevloc.base.errors import LiteVLocError
 from litevloc.base.params.models import MIB, CudaConfig, TensorrtConfig
 from litevloc.models.types import ProviderState
 
@@ -67,6 +68,10 @@ TIMING_CACHE_DIR = "trt-timing"  # under the model cache, when models.tensorrt.t
 _warned: set[str] = set()  # providers already reported missing (one WARNING per process each)
 _lock = threading.Lock()
 _sessions: list[SessionReport] = []
+
+
+class ProviderError(LiteVLocError, RuntimeError):
+    """A provider's settings cannot be applied (e.g. TensorRT's cache folder cannot be created)."""
 
 
 @dataclass(frozen=True)
@@ -349,12 +354,21 @@ def _cache_folder(setting: str, default: str, cache_dir: Path | None) -> Path:
     return p if p.is_absolute() else base / p
 
 
+def _make_folder(d: Path, setting: str) -> None:
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ProviderError(f"cannot create TensorRT's cache folder {d} ({exc.strerror or exc}): "
+                            f"set {setting} to a writable folder") from exc
+
+
 def tensorrt_options(setup: ProviderSetup, path: Path | None = None, dynamic_keypoints: bool = False) -> dict[str, str]:
     """The TensorRT execution provider's options of `setup` (onnxruntime's names, string values).
 
     Engine and timing caches go to `tensorrt.engine_cache_dir` / `timing_cache_dir` ("" = `trt-engines`
     / `trt-timing` in the model cache; a relative path is under the model cache), created here.
-    With `dynamic_keypoints` the optimisation profile comes from the inputs of the model at `path`."""
+    With `dynamic_keypoints` the optimisation profile comes from the inputs of the model at `path`.
+    ProviderError when a cache folder cannot be created."""
     t = setup.tensorrt
     opts = {
         "device_id": str(t.device_id),
@@ -365,11 +379,11 @@ def tensorrt_options(setup: ProviderSetup, path: Path | None = None, dynamic_key
     }
     if t.engine_cache:
         d = _cache_folder(t.engine_cache_dir, ENGINE_CACHE_DIR, setup.cache_dir)
-        d.mkdir(parents=True, exist_ok=True)
+        _make_folder(d, "models.tensorrt.engine_cache_dir")
         opts["trt_engine_cache_path"] = str(d)
     if t.timing_cache:
         d = _cache_folder(t.timing_cache_dir, TIMING_CACHE_DIR, setup.cache_dir)
-        d.mkdir(parents=True, exist_ok=True)
+        _make_folder(d, "models.tensorrt.timing_cache_dir")
         opts["trt_timing_cache_path"] = str(d)
     if dynamic_keypoints and path is not None:
         n_max = setup.profile_max_keypoints

@@ -274,3 +274,13 @@ def test_the_start_up_log_names_the_build_and_each_models_provider(
     assert info.levelno == logging.INFO and f"onnxruntime {ort.__version__}" in info.getMessage()
     assert "effnet-gem-240x320 on CPUExecutionProvider" in info.getMessage()
     assert warning.levelno == logging.WARNING and "tensorrt asked for, running on CPU" in warning.getMessage()
+
+
+def test_an_unwritable_engine_cache_is_a_user_error_naming_the_setting(monkeypatch: pytest.MonkeyPatch,
+                                                                       cache: Path) -> None:
+    fake_gpu(monkeypatch)
+    (cache / "a-file").write_text("")
+    cfg = ModelsConfig(cache_dir=str(cache), providers=("tensorrt",),
+                       tensorrt=TensorrtConfig(engine_cache_dir=str(cache / "a-file" / "engines")))
+    with pytest.raises(mort.ProviderError, match=r"models\.tensorrt\.engine_cache_dir"):
+        load_place_recognizer("effnet-gem", cfg)
