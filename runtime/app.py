@@ -202,14 +202,13 @@ def build_app(
             on_ground_truth=recorder.on_ground_truth, on_fused=fused_hook,
             after_odometry=fusion.flush if defer else None,
         )
+        report_of: Callable[[], ProviderReport] | None = provider_report  # live: the second look joins when loaded
         if vloc_proc is not None:
-            child_report = vloc_proc.provider_report
-            if child_report is not None:
-                service.models_report = lambda: child_report
-        else:
-            service.models_report = provider_report  # live: the second look's extractor joins when loaded
-        if service.models_report is not None:
-            log_provider_report(service.models_report())
+            child_report = vloc_proc.provider_report  # the child's sessions, when it had loaded them
+            report_of = None if child_report is None else (lambda: child_report)
+        if report_of is not None:
+            service.models_report = report_of
+            log_provider_report(report_of())
         if cfg.zenoh.initial_pose.enabled:
             service.inputs["initial_pose"] = InitialPoseInput(bus, service.core, cfg.zenoh)
     except Exception:
