@@ -80,7 +80,7 @@ class ModelsConfig:
 
     # folder of exported ONNX files + manifest.json; "" = $LITEVLOC_MODEL_CACHE, else ~/.cache/litevloc/models
     cache_dir: str = ""
-    # onnxruntime execution providers in order of preference (unavailable ones are skipped; CPU is last)
+    # onnxruntime execution providers in order of preference (one missing: a WARNING and skipped; CPU is last)
     providers: tuple[Literal["cpu", "cuda", "tensorrt"], ...] = ("cpu",)
     # TensorRT provider options (engine and timing caches, FP16, workspace, LightGlue's shape profile)
     tensorrt: TensorrtConfig = field(default_factory=TensorrtConfig)
