@@ -130,6 +130,7 @@ bench: $(VENV)/.dev-installed models $(BENCH_7S_MAP)/manifest.json $(BENCH_7S_SP
 	$(VENV)/bin/python bench/_common.py office-inputs
 	$(VENV)/bin/python bench/streams.py
 	$(VENV)/bin/python bench/models.py
+	$(VENV)/bin/python bench/gpu.py
 	$(VENV)/bin/python bench/matcher.py
 	$(VENV)/bin/python bench/mapping.py
 	$(VENV)/bin/python bench/fusion.py

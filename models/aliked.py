@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.models.ort import make_session
+from litevloc.models.ort import ProviderSetup, make_session
 from litevloc.models.preprocess import prepare_image, to_image_pixels
 from litevloc.models.types import Features
 
@@ -26,7 +26,7 @@ class AlikedOnnx:
         path: Path,
         name: str,
         size_hw: tuple[int, int],
-        providers: Sequence[str] = ("cpu",),
+        providers: Sequence[str] | ProviderSetup = ("cpu",),
         intra_op_threads: int = 2,
     ) -> None:
         self.name = name

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.models.ort import make_session
+from litevloc.models.ort import ProviderSetup, make_session
 from litevloc.models.types import Features, Matches
 
 
@@ -59,12 +59,12 @@ class LightGlueOnnx:
         self,
         path: Path,
         threshold: float = 0.1,
-        providers: Sequence[str] = ("cpu",),
+        providers: Sequence[str] | ProviderSetup = ("cpu",),
         intra_op_threads: int = 2,
     ) -> None:
         self.name = "lightglue"
         self.threshold = float(threshold)
-        self.session = make_session(path, providers, intra_op_threads)
+        self.session = make_session(path, providers, intra_op_threads, dynamic_keypoints=True)
         self.input_dim = int(self.session.get_inputs()[2].shape[-1])
 
     def match(self, f0: Features, f1: Features) -> Matches:
@@ -108,7 +108,7 @@ class AdaptiveLightGlueOnnx:
         threshold: float = 0.1,
         depth_confidence: float = 0.95,
         width_confidence: float = 0.99,
-        providers: Sequence[str] = ("cpu",),
+        providers: Sequence[str] | ProviderSetup = ("cpu",),
         intra_op_threads: int = 2,
     ) -> None:
         self.name = "lightglue-adaptive"
@@ -125,7 +125,7 @@ class AdaptiveLightGlueOnnx:
             raise ValueError(f"adaptive LightGlue needs encoder, layer0.. and head0.. parts, got {sorted(parts)}")
 
         def session(name: str) -> object:
-            return make_session(parts[name], providers, intra_op_threads)
+            return make_session(parts[name], providers, intra_op_threads, dynamic_keypoints=True)
 
         self.encoder = session("encoder")
         self.layers = [session(f"layer{i}") for i in range(self.n_layers)]

@@ -22,6 +22,7 @@ from typing import Any
 from litevloc.base.errors import LiteVLocError
 from litevloc.base.params.models import ModelsConfig
 from litevloc.models.catalog import ModelSpec, aliked_id, manifest_fields, spec_for, vpr_id
+from litevloc.models.ort import ProviderSetup, provider_setup
 from litevloc.models.types import FeatureExtractor, Matcher, PlaceRecognizer
 
 MANIFEST = "manifest.json"
@@ -139,6 +140,11 @@ def locate_parts(model_id: str, cfg: ModelsConfig | None = None) -> dict[str, Pa
     return {name: path.parent / f for name, f in spec_for(model_id).parts.items()}
 
 
+def _setup(cfg: ModelsConfig) -> ProviderSetup:
+    """The providers and provider options of `cfg`'s sessions (TensorRT's caches under its model cache)."""
+    return provider_setup(cfg, cache_dir_of(cfg))
+
+
 def load_extractor(name: str, cfg: ModelsConfig | None = None) -> FeatureExtractor:
     """ "aliked-t16" | "aliked-n16" (ONNX, size and top-k from cfg) | "sift" | "orb" (OpenCV)."""
     cfg = cfg or ModelsConfig()
@@ -146,7 +152,7 @@ def load_extractor(name: str, cfg: ModelsConfig | None = None) -> FeatureExtract
         from litevloc.models.aliked import AlikedOnnx
 
         path, _ = locate(aliked_id(name, cfg.extractor_size, cfg.max_keypoints), cfg)
-        return AlikedOnnx(path, name, cfg.extractor_size, cfg.providers, cfg.intra_op_threads)
+        return AlikedOnnx(path, name, cfg.extractor_size, _setup(cfg), cfg.intra_op_threads)
     if name in ("sift", "orb"):
         from litevloc.models.classical import OpenCVExtractor
 
@@ -174,13 +180,13 @@ def load_matcher(name: str, cfg: ModelsConfig | None = None) -> Matcher:
 
         return AdaptiveLightGlueOnnx(
             locate_parts("lightglue-aliked-adaptive", cfg), cfg.match_threshold, cfg.depth_confidence,
-            cfg.width_confidence, cfg.providers, cfg.intra_op_threads,
+            cfg.width_confidence, _setup(cfg), cfg.intra_op_threads,
         )
     if name in ("lightglue", "lightglue-int8"):
         from litevloc.models.lightglue import LightGlueOnnx
 
         path, _ = locate("lightglue-aliked" + ("-int8" if name == "lightglue-int8" else ""), cfg)
-        return LightGlueOnnx(path, cfg.match_threshold, cfg.providers, cfg.intra_op_threads)
+        return LightGlueOnnx(path, cfg.match_threshold, _setup(cfg), cfg.intra_op_threads)
     if name == "mnn":
         from litevloc.models.classical import MutualNNMatcher
 
@@ -213,6 +219,6 @@ def load_place_recognizer(name: str, cfg: ModelsConfig | None = None) -> PlaceRe
         name,
         "effnet-gem" if name == "effnet-gem" else "cosplace-r18",
         cfg.vpr_size,
-        cfg.providers,
+        _setup(cfg),
         cfg.intra_op_threads,
     )

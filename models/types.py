@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import Enum
 from typing import Protocol
 
 import numpy as np
@@ -86,3 +87,12 @@ class PlaceRecognizer(Protocol):
     dim: int
 
     def describe(self, image_rgb: NDArray[np.uint8]) -> NDArray[np.float32]: ...
+
+
+class ProviderState(Enum):
+    """What the models' onnxruntime sessions run on, against what `models.providers` asks for
+    (`models.ort.ProviderReport.state`; the service's diagnostics level follows it)."""
+
+    NO_SESSIONS = "no_sessions"  # no ONNX session made (yet, or classical models only)
+    AS_ASKED = "as_asked"  # every session runs on the first provider asked for
+    FALLBACK = "fallback"  # a session runs on a later provider (e.g. tensorrt asked for, running on CPU)

@@ -9,7 +9,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litevloc.models.catalog import VPR_NORMALIZATION
-from litevloc.models.ort import make_session
+from litevloc.models.ort import ProviderSetup, make_session
 from litevloc.models.preprocess import prepare_image
 
 
@@ -23,7 +23,7 @@ class OnnxPlaceRecognizer:
         name: str,
         arch: str,
         size_hw: tuple[int, int],
-        providers: Sequence[str] = ("cpu",),
+        providers: Sequence[str] | ProviderSetup = ("cpu",),
         intra_op_threads: int = 2,
     ) -> None:
         self.name = name

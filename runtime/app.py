@@ -9,6 +9,7 @@ error, not a hang.
 from __future__ import annotations
 
 import dataclasses
+import logging
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,6 +21,8 @@ from numpy.typing import NDArray
 from litevloc.config.schema import LiteVLocConfig
 from litevloc.hw import ros_msgs
 from litevloc.hw.messages import GroundTruthPose, SourceMessage
+from litevloc.models.ort import ProviderReport, provider_report
+from litevloc.models.types import ProviderState
 from litevloc.pipelines.fusion.online import OnlineFusion
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map, read_manifest
@@ -32,6 +35,17 @@ from litevloc.runtime.service import Service, VlocFn, fusion_callables, localize
 from litevloc.runtime.stages import call_in_low_priority_thread
 from litevloc.runtime.vloc_models import check_map_models, load_bundle, second_look_for
 from litevloc.runtime.vloc_process import VlocProcess, VlocWorkerSpec
+
+log = logging.getLogger(__name__)
+
+
+def log_provider_report(report: ProviderReport) -> None:
+    """The start-up line: the onnxruntime build and each model's provider; a provider asked for and
+    not in use is a WARNING."""
+    log.info("models: %s", report.summary)
+    if report.state is ProviderState.FALLBACK:
+        log.warning("%s: see `litevloc models warmup` and docs/deployment.md (GPU: CUDA and TensorRT)",
+                    report.message)
 
 
 @dataclass
@@ -188,6 +202,13 @@ def build_app(
             on_ground_truth=recorder.on_ground_truth, on_fused=fused_hook,
             after_odometry=fusion.flush if defer else None,
         )
+        report_of: Callable[[], ProviderReport] | None = provider_report  # live: the second look joins when loaded
+        if vloc_proc is not None:
+            child_report = vloc_proc.provider_report  # the child's sessions, when it had loaded them
+            report_of = None if child_report is None else (lambda: child_report)
+        if report_of is not None:
+            service.models_report = report_of
+            log_provider_report(report_of())
         if cfg.zenoh.initial_pose.enabled:
             service.inputs["initial_pose"] = InitialPoseInput(bus, service.core, cfg.zenoh)
     except Exception:

@@ -19,6 +19,9 @@ the previous snapshot (for rates over the last period), with levels from
   plus totals; "lower is worse" thresholds, judged once `min_vloc_calls` calls were made.
 * `litevloc/tracking`: INIT (WARN), TRACKING (OK), LOST or FAILED (ERROR), with the reasons.
 * `litevloc/map`: the map id (folder name and manifest hash) and node count.
+* `litevloc/models` (when the status has a `models` entry, `models.ort.ProviderReport.as_dict`): the
+  onnxruntime build and the provider each model runs on; WARN when a provider asked for is not in
+  use (`ProviderState.FALLBACK`: "models: tensorrt asked for, running on CPUExecutionProvider ...").
 
 `DiagnosticsPublisher` (used by `runtime.bus.LiteVLocPublisher.publish_status`) keeps the
 previous snapshot and rate-limits to `period_s`.
@@ -33,6 +36,7 @@ from typing import Any
 
 from litevloc.config.schema import DiagnosticsConfig, LevelThresholds
 from litevloc.hw import ros_msgs
+from litevloc.models.types import ProviderState
 from litevloc.pipelines.localization.tracking import TrackingState
 from litevloc.runtime.metrics import LatencyWindow
 
@@ -42,6 +46,8 @@ VLOC_STAGES = ("extract", "vpr", "match", "pnp")
 STAGES = (*VLOC_STAGES, "fusion", "publish")
 
 Status = tuple[int, str, str, str, list[tuple[str, str]]]  # level, name, message, hardware_id, values
+#: level of `litevloc/models` per provider state (an unknown state: WARN)
+PROVIDER_LEVELS = {ProviderState.NO_SESSIONS: OK, ProviderState.AS_ASKED: OK, ProviderState.FALLBACK: WARN}
 
 
 class VlocStageTimes:
@@ -176,7 +182,27 @@ def diagnostic_statuses(
         ("last_fusion_reason", str(status.get("last_fusion_reason") or ""))]))
     out.append((OK, "litevloc/map", map_id or "(no map id)", hw, [
         ("map_id", map_id), ("nodes", "" if n_nodes is None else str(n_nodes))]))
+    models = status.get("models")
+    if models:
+        out.append(models_status(models, hw))
     return out
+
+
+def models_status(models: Mapping[str, Any], hw: str) -> Status:
+    """`litevloc/models` from the status's `models` entry (`models.ort.ProviderReport.as_dict`): level
+    from its `state` (`PROVIDER_LEVELS`), the build and each model's provider as values."""
+    try:
+        state: ProviderState | None = ProviderState(models.get("state"))
+    except ValueError:
+        state = None
+    lvl = WARN if state is None else PROVIDER_LEVELS[state]
+    b = models.get("onnxruntime") or {}
+    values = [("state", str(models.get("state", ""))), ("onnxruntime", str(b.get("version", ""))),
+              ("distribution", str(b.get("distribution", ""))), ("device", str(b.get("device", ""))),
+              ("available_providers", ", ".join(b.get("available") or []))]
+    for name, m in (models.get("sessions") or {}).items():
+        values.append((f"provider/{name}", ", ".join(m.get("used") or [])))
+    return lvl, "litevloc/models", str(models.get("message", "")), hw, values
 
 
 @dataclass

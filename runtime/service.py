@@ -111,6 +111,12 @@ class PublisherLike(Protocol):
     def publish_status(self, status: dict[str, Any]) -> None: ...
 
 
+class ProviderReportLike(Protocol):
+    """`models.ort.ProviderReport`: what the models' sessions run on."""
+
+    def as_dict(self) -> dict[str, Any]: ...
+
+
 class ServiceError(LiteVLocError, RuntimeError):
     """The service could not run (or stopped) because of a fatal error; the message says which."""
 
@@ -169,6 +175,9 @@ class Service:
         self._odometry_receiver_factory = odometry_receiver
         self.odometry_receiver: Any = None
         self.inputs: dict[str, Any] = {}  # other live inputs with a `report()` (e.g. the /initialpose subscriber)
+        # the models' onnxruntime build and providers (`models.ort.provider_report`, or the VLoc process's):
+        # the status's `models` entry, which `runtime.diagnostics` turns into `litevloc/models`
+        self.models_report: Callable[[], ProviderReportLike] | None = None
         if configure_thread_counts:
             self.threads = configure_threads(p.cv_threads, p.ort_intra_op_threads, p.ort_inter_op_threads,
                                              p.gil_switch_interval_s)
@@ -609,6 +618,8 @@ class Service:
                 out["bus"] = {"error": str(exc)}
         if self.inputs:
             out["inputs"] = {name: inp.report() for name, inp in self.inputs.items()}
+        if self.models_report is not None:
+            out["models"] = self.models_report().as_dict()
         return dict(jsonable(out))
 
 

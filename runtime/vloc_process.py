@@ -51,6 +51,7 @@ if TYPE_CHECKING:
 
     from litevloc.config.schema import LiteVLocConfig
     from litevloc.hw.messages import RgbdFrame
+    from litevloc.models.ort import ProviderReport
     from litevloc.runtime.localization_core import VlocOutcome
     from litevloc.runtime.vloc_prior import VlocPrior
 
@@ -98,7 +99,9 @@ def _worker_main(spec: VlocWorkerSpec, conn: Connection) -> None:
         conn.send(("error", type(exc).__name__, str(exc), isinstance(exc, LiteVLocError)))
         conn.close()
         return
-    conn.send(("ready", os.getpid(), nice))
+    from litevloc.models.ort import provider_report
+
+    conn.send(("ready", os.getpid(), nice, provider_report()))
     while True:
         try:
             msg = conn.recv()
@@ -132,6 +135,7 @@ class VlocProcess:
         self._dead: str | None = None
         self.calls = 0
         self.child_nice: int | None = None
+        self.provider_report: ProviderReport | None = None  # the child's models (`models.ort.provider_report`)
         self._await_ready()
 
     @property
@@ -159,6 +163,7 @@ class VlocProcess:
             self._proc.join(self.spec.join_timeout_s)
             raise VlocProcessError(text if user_error else f"VLoc process start-up failed: {kind}: {text}")
         self.child_nice = msg[2]
+        self.provider_report = msg[3]
 
     def __call__(self, frame: RgbdFrame, prior: VlocPrior | None) -> VlocOutcome:
         with self._lock:

@@ -1,4 +1,6 @@
-"""`litevloc models export|list`: build the ONNX models into the cache; show what is there.
+"""`litevloc models export|list|warmup`: build the ONNX models into the cache; show what is there;
+build (and time) every session the configured runtime uses, so TensorRT engines are built and
+cached before the first run.
 
 `export` is the only runtime command that needs torch (the `[export]` extra); it imports the
 exporter lazily so that every other command runs without torch.
@@ -55,6 +57,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     ls = msub.add_parser("list", help="show the catalogue and the state of the cache")
     _common(ls)
     ls.set_defaults(func=run_list)
+
+    w = msub.add_parser(
+        "warmup",
+        help="build every model session the configured runtime uses (TensorRT engines are built and "
+        "cached), run each once at its largest shape, and time it; a table per model",
+    )
+    w.add_argument("--runs", type=int, default=5, metavar="N", help="steady calls timed per model (median)")
+    _common(w)
+    w.set_defaults(func=run_warmup)
 
 
 def _common(p: argparse.ArgumentParser) -> None:
@@ -186,4 +197,51 @@ def run_list(args: argparse.Namespace) -> int:
         print(f"{r['id']:28s} {r['group']:8s} {r['size_mb']:7.1f}  {sha:13s} {r['status']}")
     print("(<model>.onnx + manifest.json in the cache; `litevloc models export` builds them)")
     write_json(args.json, {"cache": str(cache), "models": rows})
+    return 0
+
+
+def run_warmup(args: argparse.Namespace) -> int:
+    """`litevloc models warmup`: `models.warmup.warm_up` on the configured models, with the runtime's
+    threads per session; a table on stdout (and --json). A missing model is a ModelError (exit 2)."""
+    from dataclasses import replace
+
+    from litevloc.models.ort import TENSORRT, provider_report, provider_setup, tensorrt_options
+    from litevloc.models.types import ProviderState
+    from litevloc.models.warmup import warm_up
+
+    if args.runs < 1:
+        raise ModelError(f"--runs must be >= 1, got {args.runs}")
+    full = config_of(args)
+    cfg = replace(_models_cfg(args), intra_op_threads=full.runtime.ort_intra_op_threads)
+    cache = cache_dir_of(cfg)
+    if not (cache / "manifest.json").is_file():
+        raise ModelError(f"the model cache {cache} has no models; run `litevloc models export` first")
+    second_look = full.localization.second_look_candidates > 0
+    skipped = set() if second_look else {aliked_id(cfg.extractor, cfg.second_look_size, cfg.second_look_keypoints)}
+    for i in configured_ids(cfg):  # every model checked before any is built (a TensorRT build takes minutes)
+        if i not in skipped or i == aliked_id(cfg.extractor, cfg.extractor_size, cfg.max_keypoints):
+            locate(i, cfg)
+    t0 = time.monotonic()
+    rows = warm_up(cfg, second_look=second_look, runs=args.runs)
+    report = provider_report()
+    b = report.build
+    print(f"onnxruntime {b.version} ({b.distribution or 'distribution unknown'}, device {b.device}); "
+          f"available: {', '.join(b.available)}; asked for: {', '.join(cfg.providers)}")
+    print(f"{'role':11s} {'model':28s} {'provider':26s} {'sessions':>8s} {'build s':>8s} {'first run s':>11s} "
+          f"{'steady ms':>9s}  steady shape")
+    for r in rows:
+        print(f"{r.role:11s} {r.model:28s} {', '.join(r.providers):26s} {r.sessions:8d} {r.build_s:8.2f} "
+              f"{r.first_run_s:11.2f} {r.steady_ms:9.1f}  {r.shape}")
+    engines = ""
+    if any(TENSORRT in r.providers for r in rows):
+        opts = tensorrt_options(provider_setup(cfg, cache))
+        engines = opts.get("trt_engine_cache_path", "")
+        print(f"TensorRT engines: {engines or '(engine cache off: built at every start)'}")
+    if report.state is ProviderState.FALLBACK:
+        print(f"WARNING: {report.message}")
+    print(f"{len(rows)} model(s) warmed up in {time.monotonic() - t0:.1f} s")
+    write_json(args.json, {"cache": str(cache), "providers_asked": list(cfg.providers),
+                           "onnxruntime": report.as_dict()["onnxruntime"], "state": report.state.value,
+                           "message": report.message, "engine_cache": engines,
+                           "models": [r.as_dict() for r in rows]})
     return 0

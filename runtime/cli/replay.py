@@ -92,7 +92,7 @@ def run_runtime(args: argparse.Namespace) -> int:
             r = ate(cam[ia], np.stack(rec.gt_T)[ib], align=False)
             summary["ate_m"] = {"rmse": r.rmse, "median": r.median, "max": r.max, "n": r.n}
     for key in ("state", "reasons", "counters", "last_vloc_reason", "last_fusion_reason", "vloc_state", "latency",
-                "frames_dropped", "queues", "stages", "faults"):
+                "frames_dropped", "queues", "stages", "faults", "models"):
         if key in status:
             summary[key] = status[key]
     line = f"replay (runtime): {res['reason']}; {len(rec.fused_t)} fused poses"

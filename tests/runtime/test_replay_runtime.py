@@ -34,6 +34,9 @@ def test_replay_through_runtime_matches_ground_truth(seven_scenes_held_out: Held
     assert rc == 0
     summary = json.loads(js.read_text())
     assert summary["fused_poses"] > 100 and summary["ate_m"]["rmse"] < 0.15
+    models = summary["models"]  # the status says what the models run on (here: CPU, as asked)
+    assert models["state"] == "as_asked" and models["onnxruntime"]["version"]
+    assert {u for m in models["sessions"].values() for u in m["used"]} == {"CPUExecutionProvider"}
     # The other process decoded nav_msgs/Odometry CDR; its poses match ground truth.
     poses = got["topics"]["pose"]
     assert poses["decode_errors"] == 0 and poses["count"] == summary["fused_poses"]

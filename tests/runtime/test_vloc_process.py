@@ -64,6 +64,9 @@ def test_the_child_answers_queries_and_a_dead_child_is_a_clear_error(small_map: 
         assert res.accepted and res.T_map_camera is not None  # a held-out frame, global localization
         assert res.tracking_state  # the child's localizer state travels with the result
         assert proc.calls == 1
+        report = proc.provider_report  # what the child's sessions run on, for the service's status
+        assert report is not None and report.models and report.state.value == "as_asked"
+        assert {u for m in report.models for u in m.used} == {"CPUExecutionProvider"}
         os.kill(proc.pid, signal.SIGKILL)
         with pytest.raises(VlocProcessError, match="died"):
             proc(_first_frame(rec), None)
