@@ -23,11 +23,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import onnxruntime as ort
-
 from litevloc.base.errors import LiteVLocError
 from litevloc.base.params.models import MIB, CudaConfig, TensorrtConfig
-from litevloc.models.types import ProviderState
+from litevloc.models.types import OnnxRuntimeMissing, ProviderState
+
+try:
+    import onnxruntime as ort
+except ImportError as exc:  # neither extra installed: a one-line user error where a model is first needed
+    raise OnnxRuntimeMissing(
+        "onnxruntime is not installed: pip install 'litevloc[cpu]' for the CPU build, or on a Jetson NVIDIA's "
+        f"onnxruntime-gpu wheel first (docs/deployment.md) ({exc})") from exc
 
 if TYPE_CHECKING:
     from litevloc.base.params.models import ModelsConfig
@@ -158,6 +163,9 @@ class OrtBuild:
     version: str
     device: str
     available: tuple[str, ...]
+    # every onnxruntime distribution installed ("onnxruntime-gpu 1.23.0", ...): more than one share
+    # the import name `onnxruntime`, and the last one installed overwrote the other's files
+    installed: tuple[str, ...] = ()
 
 
 _DISTRIBUTIONS = ("onnxruntime-gpu", "onnxruntime", "onnxruntime-directml", "onnxruntime-openvino",
@@ -176,15 +184,16 @@ def ort_build() -> OrtBuild:
 
 
 def _read_build() -> OrtBuild:
-    dist = ""
+    installed: list[tuple[str, str]] = []
     for name in _DISTRIBUTIONS:
         try:
-            importlib.metadata.version(name)
+            installed.append((name, importlib.metadata.version(name)))
         except importlib.metadata.PackageNotFoundError:
             continue
-        dist = name
-        break
-    return OrtBuild(dist, str(ort.__version__), str(ort.get_device()), tuple(available_providers()))
+    # the distribution whose version is the imported module's (the first such: -gpu before the CPU build)
+    dist = next((n for n, v in installed if v == ort.__version__), installed[0][0] if installed else "")
+    return OrtBuild(dist, str(ort.__version__), str(ort.get_device()), tuple(available_providers()),
+                    tuple(f"{n} {v}" for n, v in installed))
 
 
 @dataclass(frozen=True)
@@ -229,6 +238,9 @@ class ProviderReport:
     def message(self) -> str:
         """One line: "models: all on TensorrtExecutionProvider" or "models: tensorrt asked for, running
         on CPUExecutionProvider (aliked-..., lightglue-...)"."""
+        if self.state is ProviderState.DISTRIBUTION_CLASH:
+            return (f"models: {' and '.join(self.build.installed)} are installed together and share one import "
+                    "(one overwrote the other): uninstall both, then install one (docs/deployment.md)")
         if self.state is ProviderState.NO_SESSIONS:
             return "models: no onnxruntime session yet"
         if self.state is ProviderState.AS_ASKED:
@@ -254,7 +266,7 @@ class ProviderReport:
             "state": self.state.value,
             "message": self.message,
             "onnxruntime": {"distribution": b.distribution, "version": b.version, "device": b.device,
-                            "available": list(b.available)},
+                            "available": list(b.available), "installed": list(b.installed)},
             "sessions": {m.model: {"used": list(m.used), "asked": list(m.asked), "sessions": m.sessions,
                                    "build_s": round(m.build_s, 3), "fell_back": m.fell_back} for m in self.models},
         }
@@ -271,13 +283,16 @@ def provider_report(sessions: Sequence[SessionReport] | None = None) -> Provider
                      sum(s.build_s for s in ss), any(s.fell_back for s in ss))
         for name, ss in by_model.items()
     )
-    if not models:
+    build = ort_build()
+    if len(build.installed) > 1:
+        state = ProviderState.DISTRIBUTION_CLASH
+    elif not models:
         state = ProviderState.NO_SESSIONS
     elif any(m.fell_back for m in models):
         state = ProviderState.FALLBACK
     else:
         state = ProviderState.AS_ASKED
-    return ProviderReport(ort_build(), models, state)
+    return ProviderReport(build, models, state)
 
 
 def session_reports() -> list[SessionReport]:

@@ -17,13 +17,15 @@ import hashlib
 import json
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from litevloc.base.errors import LiteVLocError
 from litevloc.base.params.models import ModelsConfig
 from litevloc.models.catalog import ModelSpec, aliked_id, manifest_fields, spec_for, vpr_id
-from litevloc.models.ort import ProviderSetup, provider_setup
 from litevloc.models.types import FeatureExtractor, Matcher, PlaceRecognizer
+
+if TYPE_CHECKING:
+    from litevloc.models.ort import ProviderSetup
 
 MANIFEST = "manifest.json"
 MANIFEST_FORMAT = 1
@@ -141,7 +143,10 @@ def locate_parts(model_id: str, cfg: ModelsConfig | None = None) -> dict[str, Pa
 
 
 def _setup(cfg: ModelsConfig) -> ProviderSetup:
-    """The providers and provider options of `cfg`'s sessions (TensorRT's caches under its model cache)."""
+    """The providers and provider options of `cfg`'s sessions (TensorRT's caches under its model cache).
+    onnxruntime is imported here, where a model is first loaded: the cache's bookkeeping needs none."""
+    from litevloc.models.ort import provider_setup
+
     return provider_setup(cfg, cache_dir_of(cfg))
 
 

@@ -9,6 +9,8 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.base.errors import LiteVLocError
+
 
 @dataclass(frozen=True, eq=False)
 class Features:
@@ -96,3 +98,8 @@ class ProviderState(Enum):
     NO_SESSIONS = "no_sessions"  # no ONNX session made (yet, or classical models only)
     AS_ASKED = "as_asked"  # every session runs on the first provider asked for
     FALLBACK = "fallback"  # a session runs on a later provider (e.g. tensorrt asked for, running on CPU)
+    DISTRIBUTION_CLASH = "distribution_clash"  # two onnxruntime distributions installed (CPU over GPU build)
+
+
+class OnnxRuntimeMissing(LiteVLocError, ImportError):
+    """No onnxruntime distribution is installed (LiteVLoc's `cpu` and `gpu` extras each bring one)."""

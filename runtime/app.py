@@ -46,6 +46,8 @@ def log_provider_report(report: ProviderReport) -> None:
     if report.state is ProviderState.FALLBACK:
         log.warning("%s: see `litevloc models warmup` and docs/deployment.md (GPU: CUDA and TensorRT)",
                     report.message)
+    elif report.state is ProviderState.DISTRIBUTION_CLASH:
+        log.warning("%s", report.message)
 
 
 @dataclass

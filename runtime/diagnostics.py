@@ -47,7 +47,8 @@ STAGES = (*VLOC_STAGES, "fusion", "publish")
 
 Status = tuple[int, str, str, str, list[tuple[str, str]]]  # level, name, message, hardware_id, values
 #: level of `litevloc/models` per provider state (an unknown state: WARN)
-PROVIDER_LEVELS = {ProviderState.NO_SESSIONS: OK, ProviderState.AS_ASKED: OK, ProviderState.FALLBACK: WARN}
+PROVIDER_LEVELS = {ProviderState.NO_SESSIONS: OK, ProviderState.AS_ASKED: OK, ProviderState.FALLBACK: WARN,
+                   ProviderState.DISTRIBUTION_CLASH: WARN}
 
 
 class VlocStageTimes:

@@ -11,8 +11,8 @@ from litevloc.config import preset_names
 from litevloc.runtime.cli.common import add_json_arg
 from litevloc.runtime.outputs import write_json
 
-_PACKAGES = ("numpy", "opencv-python-headless", "onnxruntime", "gtsam", "eclipse-zenoh", "pyyaml", "depthai",
-             "mcap", "rosbags")
+_PACKAGES = ("numpy", "opencv-python-headless", "onnxruntime", "onnxruntime-gpu", "gtsam", "eclipse-zenoh", "pyyaml",
+             "depthai", "mcap", "rosbags")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -28,15 +28,29 @@ def _version(name: str) -> str:
         return "not installed"
 
 
-def run(args: argparse.Namespace) -> int:
-    import onnxruntime as ort
+def _onnxruntime() -> tuple[str, list[str]]:
+    """The imported onnxruntime's build in words and its providers, or why there is none (`info` must
+    not fail where the runtime cannot start)."""
+    from litevloc.models.types import OnnxRuntimeMissing
 
+    try:
+        from litevloc.models.ort import ort_build
+    except OnnxRuntimeMissing as exc:
+        return str(exc), []
+    b = ort_build()
+    clash = f"; WARNING: {' and '.join(b.installed)} installed together" if len(b.installed) > 1 else ""
+    return f"{b.distribution} {b.version}, device {b.device}{clash}", list(b.available)
+
+
+def run(args: argparse.Namespace) -> int:
+    onnxruntime, providers = _onnxruntime()
     info: dict = {
         "litevloc": _version("litevloc"),
         "python": platform.python_version(),
         "machine": platform.machine(),
         "packages": {n: _version(n) for n in _PACKAGES},
-        "onnxruntime_providers": ort.get_available_providers(),
+        "onnxruntime": onnxruntime,
+        "onnxruntime_providers": providers,
         "presets": preset_names(),
     }
     try:

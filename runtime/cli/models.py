@@ -237,7 +237,7 @@ def run_warmup(args: argparse.Namespace) -> int:
         opts = tensorrt_options(provider_setup(cfg, cache))
         engines = opts.get("trt_engine_cache_path", "")
         print(f"TensorRT engines: {engines or '(engine cache off: built at every start)'}")
-    if report.state is ProviderState.FALLBACK:
+    if report.state in (ProviderState.FALLBACK, ProviderState.DISTRIBUTION_CLASH):
         print(f"WARNING: {report.message}")
     print(f"{len(rows)} model(s) warmed up in {time.monotonic() - t0:.1f} s")
     write_json(args.json, {"cache": str(cache), "providers_asked": list(cfg.providers),

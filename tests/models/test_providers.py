@@ -284,3 +284,31 @@ def test_an_unwritable_engine_cache_is_a_user_error_naming_the_setting(monkeypat
                        tensorrt=TensorrtConfig(engine_cache_dir=str(cache / "a-file" / "engines")))
     with pytest.raises(mort.ProviderError, match=r"models\.tensorrt\.engine_cache_dir"):
         load_place_recognizer("effnet-gem", cfg)
+
+
+def test_a_cpu_build_installed_over_the_gpu_build_is_a_warning_and_a_warn_entry(
+    monkeypatch: pytest.MonkeyPatch, cache: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """`pip install onnxruntime` after NVIDIA's onnxruntime-gpu: one import, two distributions."""
+    from litevloc.runtime.app import log_provider_report
+
+    versions = {"onnxruntime-gpu": "1.23.0", "onnxruntime": ort.__version__}
+
+    def version(name: str) -> str:
+        if name in versions:
+            return versions[name]
+        raise mort.importlib.metadata.PackageNotFoundError(name)
+
+    monkeypatch.setattr(mort.importlib.metadata, "version", version)
+    fake_gpu(monkeypatch, ["CPUExecutionProvider"])
+    load_place_recognizer("effnet-gem", ModelsConfig(cache_dir=str(cache), providers=("cpu",)))
+    report = mort.provider_report()
+    assert report.state is ProviderState.DISTRIBUTION_CLASH
+    assert report.build.installed == ("onnxruntime-gpu 1.23.0", f"onnxruntime {ort.__version__}")
+    assert report.build.distribution == "onnxruntime"  # the one whose version is the imported module's
+    assert "onnxruntime-gpu 1.23.0 and onnxruntime" in report.message
+    with caplog.at_level(logging.INFO, logger="litevloc.runtime.app"):
+        log_provider_report(report)
+    assert [r.levelno for r in caplog.records if r.name == "litevloc.runtime.app"] == [logging.INFO, logging.WARNING]
+    entries = {e[1]: e for e in diagnostic_statuses({"models": report.as_dict()}, None, DiagnosticsConfig())}
+    assert entries["litevloc/models"][0] == WARN
