@@ -71,7 +71,10 @@ fuzz: $(VENV)/.dev-installed models
 # import is Any (ignore_missing_imports), so types are never checked ACROSS packages. The strict
 # check and `lint-cross` go through a symlinked `litevloc` namespace tree instead.
 MYPY_NS := out/mypy-namespace
-MYPY_NS_RUN := MYPYPATH=$(MYPY_NS) $(VENV)/bin/mypy --namespace-packages
+# The strict and cross-package checks read the installed numpy's stubs, and numpy >= 2.3 (3.11 and
+# later only) types array arithmetic as Any when mypy targets 3.10: they target 3.11; the per-folder
+# check targets 3.10 (pyproject), and vermin checks the 3.10 standard library and syntax.
+MYPY_NS_RUN := MYPYPATH=$(MYPY_NS) $(VENV)/bin/mypy --namespace-packages --python-version 3.11
 # mypy --strict clean (issue 19): the bottom layer, all of models and pipelines, and the service
 # core and shell. Still to do: runtime and hw, strict only for the runtime modules listed here.
 MYPY_STRICT := -p litevloc.base -p litevloc.models -p litevloc.pipelines -m litevloc.runtime.localization_core \

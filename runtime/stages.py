@@ -41,8 +41,11 @@ class StageState(str, Enum):
     """A stage thread's life: created, running, then done, stopped or failed."""
 
     # printed and formatted as its value, like 3.11's StrEnum (Python 3.10 has none)
-    __str__ = str.__str__
-    __format__ = str.__format__
+    def __str__(self) -> str:
+        return str(self.value)
+
+    def __format__(self, spec: str) -> str:
+        return format(str(self.value), spec)
 
     CREATED = "CREATED"
     RUNNING = "RUNNING"

@@ -16,8 +16,11 @@ class TrackingState(str, Enum):
     """A state of the localizer; the service publishes INIT, TRACKING or LOST (`published_state`)."""
 
     # printed and formatted as its value, like 3.11's StrEnum (Python 3.10 has none)
-    __str__ = str.__str__
-    __format__ = str.__format__
+    def __str__(self) -> str:
+        return str(self.value)
+
+    def __format__(self, spec: str) -> str:
+        return format(str(self.value), spec)
 
     INIT = "INIT"
     GLOBAL = "GLOBAL"
