@@ -157,3 +157,39 @@ def test_worker_files_round_trip_without_pickle(tmp_path) -> None:  # type: igno
     a64.save_npz(tmp_path / "m.npz", {"a": np.arange(3), "b": np.ones((2, 2), np.float32)})
     back = a64.load_npz(tmp_path / "m.npz")
     assert set(back) == {"a", "b"} and back["b"].dtype == np.float32
+
+
+def test_the_figures_row_reads_the_checks_json(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    import json
+
+    from litevloc.experiments.report import HEADLINES, row_from_json
+
+    h = next(h for h in HEADLINES if h.json == "bench/aarch64.json")
+    counts = {"queries": 3, "accepted": 3, "global": 1, "local": 2}
+    d = {"meta": {"time": "2026-12-02T05:00:00+0000", "cpu": "Xeon", "cpus": 2, "load_avg": 3.0}, "wall_s": 600.0,
+         "localize": {"frames_both": 3, "max_m": 1.7e-8, "max_deg": 3.9e-7, "passed": True,
+                      "counts": {"x86": counts, "aarch64": counts}},
+         "models": {"count": 24, "passed": False, "worst_relative": 7e-5}}
+    (tmp_path / "a.json").write_text(json.dumps(d))
+    row = row_from_json(h, tmp_path / "a.json")
+    assert row[0] == h.what and row[2] == "2026-12-02" and row[4] == "`make aarch64-check`"
+    assert "3 of 3" in row[1] and "2e-06 cm" in row[1] and "NOT within" in row[1] and "10 min" in row[1]
+
+
+def test_without_qemu_or_apt_the_check_stops_with_one_line(tmp_path, monkeypatch, capsys) -> None:  # type: ignore[no-untyped-def]
+    import importlib.util
+    import shutil
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    spec = importlib.util.spec_from_file_location("aarch64_check", root / "tools" / "aarch64_check.py")
+    assert spec is not None and spec.loader is not None
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    (tmp_path / "frame-000000.color.jpg").write_bytes(b"")
+    monkeypatch.setattr(shutil, "which", lambda _name: None)  # neither qemu-aarch64-static nor apt-get
+    assert tool.main(["--data", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("aarch64 check: apt-get is not available")
+    assert tool.main(["--data", str(tmp_path / "nowhere")]) == 2
+    assert "needs the 7-Scenes data" in capsys.readouterr().err
