@@ -313,6 +313,20 @@ def model_ids() -> list[str]:
     return list(dict.fromkeys([*DEFAULT_EXPORTS, *configured_ids(load_config("7scenes").models)]))
 
 
+def check_models() -> None:
+    """CheckUnavailable naming `litevloc models export` where a model of `model_ids` is missing or
+    stale in the model cache (before minutes of work that would need it)."""
+    from litevloc.config import load_config
+    from litevloc.models.registry import ModelError, locate
+
+    cfg = load_config("7scenes").models
+    for mid in model_ids():
+        try:
+            locate(mid, cfg)
+        except ModelError as exc:
+            raise CheckUnavailable(str(exc)) from exc
+
+
 def prepare_model_inputs(data: Path, out: Path, frames: tuple[int, int] = (500, 510)) -> list[dict[str, str]]:
     """Inputs of every model (`model_ids`) as `.npz` files and `out/index.json` for `run_models`:
     the extractors and the VPR model on frame frames[0] (each at its own input size, preprocessed
@@ -419,6 +433,7 @@ def check(args: argparse.Namespace) -> int:
     data: Path = args.data
     if not (data / "frame-000000.color.jpg").is_file():
         raise CheckUnavailable(f"the check needs the 7-Scenes data at {data} (see its DATA.md)")
+    check_models()
     n_steps = 6
     n_cpus = os.cpu_count() or 1
     log(f"[1/{n_steps}] qemu and the arm64 sysroot ({CACHE})")
