@@ -158,7 +158,7 @@ bench: $(VENV)/.dev-installed models $(BENCH_7S_MAP)/manifest.json $(BENCH_7S_SP
 # the runtime's own aarch64 wheels run `litevloc localize` and every ONNX model under qemu user-mode
 # emulation, and must give the x86 run's poses (1 cm) and model outputs. Needs apt-get as root the
 # first time (qemu-user-static, Debian's arm64 Python into .cache/aarch64/) and the 7-Scenes data;
-# takes ~11 min on two shared cores (7 of them the emulated localize), so neither `make test` nor CI
+# takes 5 min on two cores (11 min while others load them 3.5x), so neither `make test` nor CI
 # runs it. Its models: the cache ($$LITEVLOC_MODEL_CACHE); its x86 map and outputs are rebuilt every run.
 aarch64-check: $(VENV)/.dev-installed models
 	$(VENV)/bin/python tools/aarch64_check.py --data $(SHARED)
