@@ -68,9 +68,9 @@ _ORIN_CORE = (
 def cpuinfo_text(n_cpus: int) -> str:
     """An Orin's `/proc/cpuinfo` with `n_cpus` cores (numbered 0..n-1). qemu-user looks paths up
     under its `-L` sysroot first, so `SYSROOT/proc/cpuinfo` is what the emulated process reads;
-    the host's `/sys/devices/system/cpu` still says how many CPUs there are, so `n_cpus` must be
-    the host's count (onnxruntime's cpuinfo probe crashes on x86 text, or on fewer cores than
-    `/sys` lists)."""
+    the host's `/sys/devices/system/cpu` still says how many CPUs there are, so `n_cpus` is the
+    host's count, to agree with it (onnxruntime's cpuinfo probe crashes on the x86 text; other
+    counts were not tried)."""
     if n_cpus < 1:
         raise ValueError(f"n_cpus must be >= 1, got {n_cpus}")
     return "".join(_ORIN_CORE.format(i=i) for i in range(n_cpus))
