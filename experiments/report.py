@@ -149,6 +149,21 @@ def _wheels(d: Json) -> str:
             + (f" (not {', '.join(failed)})" if failed else "") + ("; " + "; ".join(detail) if detail else ""))
 
 
+def _aarch64(d: Json) -> str:
+    parts = []
+    loc = d.get("localize")
+    if loc:
+        c = loc["counts"]["x86"]
+        parts.append(f"{loc['frames_both']} of {c['queries']} 7-Scenes poses (1 cm tolerance) "
+                     f"{'equal' if loc['passed'] else 'NOT equal'} to x86's: at most "
+                     f"{100 * loc['max_m']:.1g} cm / {loc['max_deg']:.1g} deg apart")
+    m = d.get("models")
+    if m:
+        parts.append(f"{m['count']} ONNX models and parts {'within' if m['passed'] else 'NOT within'} tolerance, "
+                     f"worst {m['worst_relative']:.0e} of an output's largest value")
+    return f"aarch64 wheels under qemu: {'; '.join(parts)}; {d['wall_s'] / 60:.0f} min"
+
+
 HEADLINES: tuple[Headline, ...] = (
     Headline("installs from binary wheels", "bench/wheels.json", "python bench/wheels.py", _wheels),
     Headline("7-Scenes accuracy, 500 held-out queries", "bench/accuracy.json",
@@ -170,6 +185,7 @@ HEADLINES: tuple[Headline, ...] = (
              "--window-min 0.5", _soak),
     Headline("map merge, 7-Scenes sessions in two frames", "bench/merge.json", "python bench/merge.py", _merge),
     Headline("map update, 7-Scenes", "bench/update.json", "python bench/update.py", _update),
+    Headline("aarch64 (Jetson) build, emulated", "bench/aarch64.json", "make aarch64-check", _aarch64),
 )
 
 
