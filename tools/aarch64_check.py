@@ -61,6 +61,7 @@ from _common import SEVEN_SCENES, print_table, write_json  # noqa: E402
 
 from litevloc.base.errors import LiteVLocError  # noqa: E402
 from litevloc.experiments import aarch64 as a64  # noqa: E402
+from litevloc.experiments import model_conformance as mc  # noqa: E402
 
 CACHE = ROOT / ".cache" / "aarch64"
 OUT = ROOT / "out" / "aarch64"
@@ -304,109 +305,18 @@ def localize_args(map_dir: Path, data: Path, frames: str, side: str) -> list[str
 # --- 5. model inputs ---------------------------------------------------------------------------
 
 
-def model_ids() -> list[str]:
-    """The models `litevloc models list` puts in the default and config groups (7scenes preset)."""
-    from litevloc.config import load_config
-    from litevloc.models.catalog import DEFAULT_EXPORTS
-    from litevloc.runtime.cli.models import configured_ids
-
-    return list(dict.fromkeys([*DEFAULT_EXPORTS, *configured_ids(load_config("7scenes").models)]))
-
-
 def check_models() -> None:
-    """CheckUnavailable naming `litevloc models export` where a model of `model_ids` is missing or
+    """CheckUnavailable naming `litevloc models export` where a model of `mc.model_ids` is missing or
     stale in the model cache (before minutes of work that would need it)."""
     from litevloc.config import load_config
     from litevloc.models.registry import ModelError, locate
 
     cfg = load_config("7scenes").models
-    for mid in model_ids():
+    for mid in mc.model_ids():
         try:
             locate(mid, cfg)
         except ModelError as exc:
             raise CheckUnavailable(str(exc)) from exc
-
-
-def prepare_model_inputs(data: Path, out: Path, frames: tuple[int, int] = (500, 510)) -> list[dict[str, str]]:
-    """Inputs of every model (`model_ids`) as `.npz` files and `out/index.json` for `run_models`:
-    the extractors and the VPR model on frame frames[0] (each at its own input size, preprocessed
-    as the runtime does), LightGlue on the `LIGHTGLUE_POINTS` strongest configured ALIKED-n16
-    features of both frames, each
-    adaptive part on the x86 outputs of the part before it (no pruning: every layer's input is the
-    whole set)."""
-    import cv2
-    import numpy as np
-
-    from litevloc.config import load_config
-    from litevloc.models.catalog import VPR_NORMALIZATION, spec_for
-    from litevloc.models.lightglue import normalize_keypoints
-    from litevloc.models.ort import make_session
-    from litevloc.models.preprocess import prepare_image
-    from litevloc.models.registry import ModelError, load_extractor, locate, locate_parts
-
-    cfg = load_config("7scenes").models
-    rgb = []
-    for i in frames:
-        img = cv2.imread(str(data / f"frame-{i:06d}.color.jpg"))
-        if img is None:
-            raise CheckUnavailable(f"{data}: frame {i} is missing")
-        rgb.append(cv2.cvtColor(img, cv2.COLOR_BGR2RGB))
-    ext = load_extractor("aliked-n16", cfg)
-    feats = []
-    for f in (ext.extract(rgb[0]), ext.extract(rgb[1])):
-        keep = np.sort(np.argsort(-f.scores, kind="stable")[:LIGHTGLUE_POINTS])
-        feats.append((normalize_keypoints(f.keypoints[keep], f.image_size)[None],
-                      np.ascontiguousarray(f.descriptors[keep][None])))
-    pair = {"kpts0": feats[0][0], "kpts1": feats[1][0], "desc0": feats[0][1], "desc1": feats[1][1]}
-    shutil.rmtree(out, ignore_errors=True)
-    index: list[dict[str, str]] = []
-
-    def add(name: str, kind: str, onnx: Path, feeds: dict[str, Any]) -> None:
-        a64.save_npz(out / f"{name}.npz", feeds)
-        index.append({"name": name, "kind": kind, "onnx": str(onnx), "feeds": f"{name}.npz"})
-
-    for mid in model_ids():
-        spec = spec_for(mid)
-        try:
-            path, _ = locate(mid, cfg)
-        except ModelError as exc:
-            raise CheckUnavailable(str(exc)) from exc
-        if spec.kind == "extractor":
-            assert spec.input_hw is not None
-            add(mid, "extractor", path, {"image": prepare_image(rgb[0], spec.input_hw)})
-        elif spec.kind == "vpr":
-            assert spec.input_hw is not None
-            mean, std = VPR_NORMALIZATION[spec.arch]
-            add(mid, "vpr", path, {"image": prepare_image(rgb[0], spec.input_hw, mean, std)})
-        elif not spec.adaptive:
-            add(mid, "matcher", path, pair)
-        else:
-            parts = locate_parts(mid, cfg)
-            enc = make_session(parts["encoder"], ("cpu",), cfg.intra_op_threads)
-            add(f"{mid}.encoder", "matcher-part", parts["encoder"], pair)
-            d0, d1, e0, e1 = enc.run(None, pair)
-            n_layers = sum(1 for k in parts if k.startswith("layer"))
-            for i in range(n_layers):
-                layer = make_session(parts[f"layer{i}"], ("cpu",), cfg.intra_op_threads)
-                names = [x.name for x in layer.get_inputs()]
-                feeds = dict(zip(names, (d0, d1, e0, e1), strict=True))
-                add(f"{mid}.layer{i}", "matcher-part", parts[f"layer{i}"], feeds)
-                res = layer.run(None, feeds)
-                head = make_session(parts[f"head{i}"], ("cpu",), cfg.intra_op_threads)
-                hnames = [x.name for x in head.get_inputs()]
-                add(f"{mid}.head{i}", "matcher-part", parts[f"head{i}"], dict(zip(hnames, res[:2], strict=True)))
-                d0, d1 = res[0], res[1]
-    (out / a64.INDEX).write_text(json.dumps(index, indent=1))
-    return index
-
-
-def compare_models(index: list[dict[str, str]], ref_dir: Path, other_dir: Path) -> list[a64.OutputDiff]:
-    diffs: list[a64.OutputDiff] = []
-    for e in index:
-        names, ref = a64.read_outputs(ref_dir, e["name"])
-        _, other = a64.read_outputs(other_dir, e["name"])
-        diffs += a64.compare_outputs(e["name"], e["kind"], names, ref, other)
-    return diffs
 
 
 # --- the check ---------------------------------------------------------------------------------
@@ -482,16 +392,19 @@ def check(args: argparse.Namespace) -> int:
     if not args.skip_models:
         log(f"[5/{n_steps}] model inputs (x86) and the models under x86")
         inputs = OUT / "model-inputs"
-        index = prepare_model_inputs(data, inputs)
-        worker = ["-m", "litevloc.experiments.aarch64", "run-models", str(inputs)]
+        try:
+            index = mc.prepare_model_inputs(data, inputs, lightglue_points=LIGHTGLUE_POINTS)
+        except mc.ModelInputsError as exc:
+            raise CheckUnavailable(str(exc)) from exc
+        worker = ["-m", "litevloc.experiments.model_conformance", "run-models", str(inputs)]
         run([sys.executable, *worker, str(OUT / "x86" / "models")], "x86 models", quiet=True)
         log(f"[6/{n_steps}] the {len(index)} models (and parts) under emulation")
         emu.python([*worker, str(OUT / "aarch64" / "models")], "aarch64 models")
-        diffs = compare_models(index, OUT / "x86" / "models", OUT / "aarch64" / "models")
+        diffs = mc.compare_models(index, OUT / "x86" / "models", OUT / "aarch64" / "models")
         models_ok = all(d.passed for d in diffs)
         ok = ok and models_ok
         timings = {s: json.loads((OUT / s / "models" / "timings.json").read_text()) for s in ("x86", "aarch64")}
-        result["models"] = {"count": len(index), "tolerance": asdict(a64.Tolerance()), "passed": models_ok,
+        result["models"] = {"count": len(index), "tolerance": asdict(mc.Tolerance()), "passed": models_ok,
                             "outputs": [asdict(d) for d in diffs], "seconds": timings}
         print_table("model outputs, x86 vs aarch64 (same inputs)", ["model", "output", "max abs diff", "of max |x86|",
                                                                     "agree", "ok", "note"],

@@ -2,9 +2,10 @@
 
 onnxruntime: `make install-dev` installs the older CPU builds named in the Makefile
 (ONNXRUNTIME_COMPAT: 1.20 to 1.23, the Jetson GPU wheel's 1.23 among them) beside the venv's
-newest, under `<venv>/ort/<version>`; each runs `python -m litevloc.models.conformance` on two
-7-Scenes frames in its own process and must give the newest's outputs within
-`conformance.Tolerance`'s defaults.
+newest, under `<venv>/ort/<version>`. Every model the runtime uses (the adaptive LightGlue part by
+part) runs on the same 7-Scenes inputs under each build in its own process
+(`python -m litevloc.experiments.model_conformance run-models`, as the aarch64 check runs it
+under qemu) and must give the newest's outputs within `model_conformance.Tolerance`.
 
 TensorRT: no GPU here, so no parser runs. What is checked is the operator list of each model
 against the operators that onnx-tensorrt 10.1's docs/operators.md marks supported (TensorRT 10.x,
@@ -19,11 +20,10 @@ import subprocess
 import sys
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 
-from litevloc.models.conformance import compare_outputs, model_outputs
+from litevloc.experiments import model_conformance as mc
 
 onnx = pytest.importorskip("onnx")
 
@@ -75,36 +75,6 @@ def test_every_model_uses_only_operators_tensorrt_parses(model_cache: Path) -> N
                 assert not any(a.name == "reduction" for a in node.attribute), f"{path.name}: ScatterND reduction"
 
 
-def _frames(seven_scenes_dir: Path) -> list[np.ndarray]:
-    frames = []
-    for i in (0, 10):
-        bgr = cv2.imread(str(seven_scenes_dir / f"frame-{i:06d}.color.jpg"))
-        assert bgr is not None
-        frames.append(np.asarray(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), np.uint8))
-    return frames
-
-
-def test_compare_outputs_accepts_a_reordered_run_and_names_what_moved() -> None:
-    rng = np.random.default_rng(0)
-    kp = rng.uniform(0, 300, (50, 2)).astype(np.float32)
-    desc = rng.normal(size=(50, 8)).astype(np.float32)
-    a = {"x/0/keypoints": kp, "x/0/descriptors": desc, "x/0/scores": np.ones(50, np.float32),
-         "v/0/descriptor": desc[0], "m/pairs": np.hstack((kp, kp))[:20], "m/scores": np.ones(20, np.float32)}
-    order = rng.permutation(50)
-    b = {**a, "x/0/keypoints": kp[order], "x/0/descriptors": desc[order]}
-    assert compare_outputs(a, b) == []
-    moved = {**a, "x/0/descriptors": desc + np.float32(1e-3)}
-    assert [d.key for d in compare_outputs(a, moved)] == ["x/0/descriptors"]
-    shifted = {**a, "x/0/keypoints": kp + np.float32(0.01)}
-    assert [d.key for d in compare_outputs(a, shifted)] == ["x/0/keypoints"]
-    fewer = {**a, "m/pairs": a["m/pairs"][:15], "m/scores": a["m/scores"][:15]}
-    assert [d.key for d in compare_outputs(a, fewer)] == ["m/pairs"]
-    assert [d.key for d in compare_outputs(a, {**a, "v/0/descriptor": desc[1]})] == ["v/0/descriptor"]
-    missing = dict(a)
-    del missing["v/0/descriptor"]
-    assert [d.key for d in compare_outputs(a, missing)] == ["v/0/descriptor"]
-
-
 @pytest.mark.shared_data
 def test_older_onnxruntime_builds_give_the_newest_outputs(model_cache: Path, seven_scenes_dir: Path,
                                                           tmp_path: Path) -> None:
@@ -113,19 +83,17 @@ def test_older_onnxruntime_builds_give_the_newest_outputs(model_cache: Path, sev
     assert {"1.20", "1.23"} <= versions, (
         f"older onnxruntime builds missing under {Path(sys.prefix) / 'ort'} (have {sorted(versions)}): "
         "`make install-dev` installs them")
-    images = []
-    for i, img in enumerate(_frames(seven_scenes_dir)):
-        images.append(tmp_path / f"{i}.png")
-        cv2.imwrite(str(images[-1]), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
-    ref = model_outputs(model_cache, _frames(seven_scenes_dir))
-    ref_path = tmp_path / "newest.npz"
-    np.savez(ref_path, **ref)
+    index = mc.prepare_model_inputs(seven_scenes_dir, tmp_path / "inputs")
+    assert len(index) >= 20  # 3 extractors, LightGlue, the adaptive one's 19 parts, VPR
+    mc.run_models(tmp_path / "inputs", tmp_path / "newest", threads=1)
     for build in builds:
+        out = tmp_path / build.name
         proc = subprocess.run(
-            [sys.executable, "-m", "litevloc.models.conformance", "--cache", str(model_cache),
-             "--images", *map(str, images), "--against", str(ref_path)],
-            env={**os.environ, "PYTHONPATH": str(build)},
-            capture_output=True, text=True, timeout=240)
-        assert f"onnxruntime {build.name}" in proc.stderr, proc.stderr[-2000:]
-        assert proc.returncode == 0, f"onnxruntime {build.name}:\n{proc.stdout}{proc.stderr[-2000:]}"
-
+            [sys.executable, "-c", "import onnxruntime, sys; print(onnxruntime.__version__, file=sys.stderr); "
+             "from litevloc.experiments.model_conformance import main; sys.exit(main())",
+             "run-models", str(tmp_path / "inputs"), str(out), "--threads", "1"],
+            env={**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, (str(build), os.environ.get("PYTHONPATH"))))},
+            capture_output=True, text=True, timeout=300)
+        assert proc.returncode == 0 and proc.stderr.startswith(build.name), proc.stderr[-2000:]
+        failed = [d for d in mc.compare_models(index, tmp_path / "newest", out) if not d.passed]
+        assert not failed, f"onnxruntime {build.name}: {failed}"
