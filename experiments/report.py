@@ -149,6 +149,17 @@ def _wheels(d: Json) -> str:
             + (f" (not {', '.join(failed)})" if failed else "") + ("; " + "; ".join(detail) if detail else ""))
 
 
+def _gpu(d: Json) -> str:
+    parts = []
+    for name, r in d["results"].items():
+        if r.get("status") == "ok":
+            v = r["vloc"]
+            parts.append(f"{name} {v['rate_hz']:.1f} Hz (median {v['median_ms']:.0f} ms, {v['accepted_pct']:.0f} % accepted)")
+        else:
+            parts.append(f"{name} not run here ({r.get('status', '?')}: no such provider in this onnxruntime)")
+    return "VLoc back to back on the simulated office: " + "; ".join(parts)
+
+
 def _aarch64(d: Json) -> str:
     parts = []
     loc = d.get("localize")
@@ -185,6 +196,7 @@ HEADLINES: tuple[Headline, ...] = (
              "--window-min 0.5", _soak),
     Headline("map merge, 7-Scenes sessions in two frames", "bench/merge.json", "python bench/merge.py", _merge),
     Headline("map update, 7-Scenes", "bench/update.json", "python bench/update.py", _update),
+    Headline("VLoc per execution provider", "bench/gpu.json", "python bench/gpu.py", _gpu),
     Headline("aarch64 (Jetson) build, emulated", "bench/aarch64.json", "make aarch64-check", _aarch64),
 )
 
