@@ -154,7 +154,8 @@ def _gpu(d: Json) -> str:
     for name, r in d["results"].items():
         if r.get("status") == "ok":
             v = r["vloc"]
-            parts.append(f"{name} {v['rate_hz']:.1f} Hz (median {v['median_ms']:.0f} ms, {v['accepted_pct']:.0f} % accepted)")
+            parts.append(f"{name} {v['rate_hz']:.1f} Hz (median {v['median_ms']:.0f} ms, "
+                         f"{v['accepted_pct']:.0f} % accepted)")
         else:
             parts.append(f"{name} not run here ({r.get('status', '?')}: no such provider in this onnxruntime)")
     return "VLoc back to back on the simulated office: " + "; ".join(parts)
