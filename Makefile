@@ -167,6 +167,7 @@ bench: $(VENV)/.dev-installed models $(BENCH_7S_MAP)/manifest.json $(BENCH_7S_SP
 	$(VENV)/bin/python bench/runtime.py --view --repeat 3
 	$(VENV)/bin/python bench/soak.py --minutes 2 --warmup-min 0.5 --window-min 0.5
 	$(VENV)/bin/python bench/codebase.py
+	$(VENV)/bin/python bench/wheels.py
 	$(VENV)/bin/python bench/report.py
 
 # The aarch64 (Jetson) build checked on this x86 machine (tools/aarch64_check.py, docs/deployment.md):

@@ -227,7 +227,7 @@ def model_ids() -> list[str]:
     """The models `litevloc models list` puts in the default and config groups (7scenes preset)."""
     from litevloc.config import load_config
     from litevloc.models.catalog import DEFAULT_EXPORTS
-    from litevloc.runtime.cli.models import configured_ids
+    from litevloc.models.registry import configured_ids
 
     return list(dict.fromkeys([*DEFAULT_EXPORTS, *configured_ids(load_config("7scenes").models)]))
 

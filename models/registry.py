@@ -142,6 +142,24 @@ def locate_parts(model_id: str, cfg: ModelsConfig | None = None) -> dict[str, Pa
     return {name: path.parent / f for name, f in spec_for(model_id).parts.items()}
 
 
+def configured_ids(cfg: ModelsConfig) -> list[str]:
+    """The ONNX models the configuration needs (extractor, matcher, VPR) or may need (the second
+    look's extractor: `localization.second_look_candidates` turns it on, in another section)."""
+    ids: list[str] = []
+    if cfg.extractor.startswith("aliked"):
+        ids.append(aliked_id(cfg.extractor, cfg.extractor_size, cfg.max_keypoints))
+        ids.append(aliked_id(cfg.extractor, cfg.second_look_size, cfg.second_look_keypoints))
+    if cfg.matcher == "lightglue":
+        ids.append("lightglue-aliked")
+    elif cfg.matcher == "lightglue-int8":
+        ids.append("lightglue-aliked-int8")
+    elif cfg.matcher == "lightglue-adaptive":
+        ids.append("lightglue-aliked-adaptive")
+    if cfg.place_recognizer == "effnet-gem":
+        ids.append(vpr_id("effnet-gem", cfg.vpr_size))
+    return ids
+
+
 def _setup(cfg: ModelsConfig) -> ProviderSetup:
     """The providers and provider options of `cfg`'s sessions (TensorRT's caches under its model cache).
     onnxruntime is imported here, where a model is first loaded: the cache's bookkeeping needs none."""

@@ -16,7 +16,7 @@ from typing import Any
 
 from litevloc.base.params.models import ModelsConfig
 from litevloc.models.catalog import DEFAULT_EXPORTS, EXTRA_EXPORTS, aliked_id, spec_for, vpr_id
-from litevloc.models.registry import ModelError, cache_dir_of, locate, read_manifest
+from litevloc.models.registry import ModelError, cache_dir_of, configured_ids, locate, read_manifest
 from litevloc.runtime.cli.common import add_config_args, add_json_arg, config_of
 from litevloc.runtime.outputs import write_json
 
@@ -87,24 +87,6 @@ def _models_cfg(args: argparse.Namespace) -> ModelsConfig:
 
         cfg = replace(cfg, cache_dir=str(args.cache))
     return cfg
-
-
-def configured_ids(cfg: ModelsConfig) -> list[str]:
-    """The ONNX models the configuration needs (extractor, matcher, VPR) or may need (the second
-    look's extractor: `localization.second_look_candidates` turns it on, in another section)."""
-    ids: list[str] = []
-    if cfg.extractor.startswith("aliked"):
-        ids.append(aliked_id(cfg.extractor, cfg.extractor_size, cfg.max_keypoints))
-        ids.append(aliked_id(cfg.extractor, cfg.second_look_size, cfg.second_look_keypoints))
-    if cfg.matcher == "lightglue":
-        ids.append("lightglue-aliked")
-    elif cfg.matcher == "lightglue-int8":
-        ids.append("lightglue-aliked-int8")
-    elif cfg.matcher == "lightglue-adaptive":
-        ids.append("lightglue-aliked-adaptive")
-    if cfg.place_recognizer == "effnet-gem":
-        ids.append(vpr_id("effnet-gem", cfg.vpr_size))
-    return ids
 
 
 def _unique(ids: list[str]) -> list[str]:

@@ -10,7 +10,10 @@ under qemu) and must give the newest's outputs within `model_conformance.Toleran
 TensorRT: no GPU here, so no parser runs. What is checked is the operator list of each model
 against the operators that onnx-tensorrt 10.1's docs/operators.md marks supported (TensorRT 10.x,
 JetPack 6 ships 10.3), the opset range it states (9 to 20) and the restrictions there that our
-operators have (TopK's K < 3840, ScatterND without `reduction`, GridSample on 4-D inputs).
+operators have (TopK's K < 3840, ScatterND without `reduction`, GridSample on 4-D inputs). The
+optional int8 LightGlue (`lightglue-int8`, onnxruntime's dynamic quantization for CPUs) is the
+exception: its DynamicQuantizeLinear and MatMulInteger nodes run on onnxruntime's CPU or CUDA
+provider, the rest on TensorRT; on a GPU the fp32 models with `models.tensorrt.fp16` are the choice.
 """
 
 from __future__ import annotations
@@ -56,13 +59,21 @@ def _onnx_files(cache: Path) -> list[Path]:
     return files
 
 
+DYNAMIC_INT8_OPS = frozenset(("DynamicQuantizeLinear", "MatMulInteger"))
+
+
 def test_every_model_uses_only_operators_tensorrt_parses(model_cache: Path) -> None:
+    from litevloc.models.registry import read_manifest
+
+    quantized = {f for e in read_manifest(model_cache)["models"].values() if e.get("quantization")
+                 for f in [e["file"], *(e.get("parts_sha256") or {})]}
     for path in _onnx_files(model_cache):
         proto = onnx.load(str(path))
         opset = next(o.version for o in proto.opset_import if o.domain in ("", "ai.onnx"))
         assert opset in TENSORRT_OPSETS, f"{path.name}: opset {opset}"
         ops = {n.op_type for n in proto.graph.node}
-        assert ops <= TENSORRT_ONNX_OPS, f"{path.name}: {sorted(ops - TENSORRT_ONNX_OPS)} not in TensorRT's parser"
+        allowed = TENSORRT_ONNX_OPS | (DYNAMIC_INT8_OPS if path.name in quantized else frozenset())
+        assert ops <= allowed, f"{path.name}: {sorted(ops - allowed)} not in TensorRT's parser"
         assert "DeformConv" not in ops, f"{path.name}: DeformConv has no kernel in onnxruntime < 1.25"
         consts = {i.name: onnx.numpy_helper.to_array(i) for i in proto.graph.initializer}
         for node in proto.graph.node:

@@ -39,7 +39,7 @@ def test_top_n_matching_returns_indices_into_the_full_sets() -> None:
 
 
 def test_the_second_look_is_built_only_when_on_and_a_missing_model_names_its_export(tmp_path: Path) -> None:
-    from litevloc.runtime.cli.models import configured_ids
+    from litevloc.models.registry import configured_ids
 
     models = ModelsConfig(cache_dir=str(tmp_path))  # an empty model cache
     topomap = None  # never read when the second look is off, nor before its model is found
