@@ -1,4 +1,4 @@
-"""Rewrite the headline figures table in README.md and docs/benchmarks.md from the benchmarks'
+"""Rewrite the headline figures table in README.md and docs/results/figures.md from the benchmarks'
 own JSON (out/bench/*.json, out/demo/demo.json): one row per headline, dated, with the machine
 and the command. A headline whose JSON is missing keeps its last committed row (said on stdout).
 
@@ -19,7 +19,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", type=Path, default=ROOT / "out", help="folder holding bench/*.json and demo/demo.json")
     args = ap.parse_args()
-    update_docs(args.out, [ROOT / "README.md", ROOT / "docs" / "benchmarks.md"])
+    update_docs(args.out, [ROOT / "README.md", ROOT / "docs" / "results" / "figures.md"])
     return 0
 
 

@@ -1,4 +1,4 @@
-"""The headline figures table of README.md and docs/benchmarks.md, regenerated from the
+"""The headline figures table of README.md and docs/results/figures.md, regenerated from the
 benchmarks' own JSON (`python bench/report.py`).
 
 Each `Headline` names a benchmark's JSON file under `out/` and how to read one line from it.

@@ -1,5 +1,5 @@
 """The headline figures table: rows from the benchmarks' JSON, committed rows kept where a JSON
-is missing, no cell over 300 characters, the README and docs/benchmarks.md tables the same."""
+is missing, no cell over 300 characters, the README and docs/results/figures.md tables the same."""
 
 from __future__ import annotations
 
@@ -62,7 +62,7 @@ def test_rewrite_replaces_only_the_table(tmp_path: Path) -> None:
 
 def test_the_committed_tables_have_every_headline_and_agree() -> None:
     readme = committed_rows((ROOT / "README.md").read_text())
-    docs = committed_rows((ROOT / "docs" / "benchmarks.md").read_text())
+    docs = committed_rows((ROOT / "docs" / "results" / "figures.md").read_text())
     assert set(readme) == {h.what for h in HEADLINES} and readme == docs
     for row in readme.values():
         assert len(row) == 5 and all(len(c) <= MAX_CELL for c in row) and row[2], row
