@@ -172,7 +172,12 @@ def load_npz(path: Path) -> dict[str, NDArray[Any]]:
 def run_models(inputs_dir: Path, out_dir: Path, threads: int = 2, only: Sequence[str] = ()) -> dict[str, float]:
     """Run every model of `inputs_dir/index.json` on its saved feeds with the runtime's session
     options and write its outputs (by output name, in the model's order) to `out_dir/NAME.npz`;
-    `out_dir/timings.json`: {name: seconds of session creation + one run}. Progress on stderr."""
+    `out_dir/timings.json`: {name: seconds of session creation + one run}; `out_dir/runtime.json`:
+    the onnxruntime version and machine that computed them. Progress on stderr."""
+    import platform
+
+    import onnxruntime
+
     from litevloc.models.ort import make_session
 
     index = json.loads((inputs_dir / INDEX).read_text())
@@ -180,6 +185,8 @@ def run_models(inputs_dir: Path, out_dir: Path, threads: int = 2, only: Sequence
         index = [e for e in index if e["name"] in only]
     timings: dict[str, float] = {}
     out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "runtime.json").write_text(json.dumps({"onnxruntime": onnxruntime.__version__,
+                                                      "machine": platform.machine()}))
     t_all = time.perf_counter()
     for k, entry in enumerate(index, 1):
         t0 = time.perf_counter()
