@@ -78,12 +78,12 @@ MYPY_NS := out/mypy-namespace
 MYPY_NS_RUN := MYPYPATH=$(MYPY_NS) $(VENV)/bin/mypy --namespace-packages --python-version 3.11
 # mypy --strict clean (issue 19): the bottom layer, all of models and pipelines, and the service
 # core and shell. Still to do: runtime and hw, strict only for the runtime modules listed here.
-MYPY_STRICT := -p litevloc.base -p litevloc.models -p litevloc.pipelines -m litevloc.runtime.localization_core \
-	-m litevloc.runtime.vloc_prior -m litevloc.runtime.service
+MYPY_STRICT := -p litevloc.base -p litevloc.models -p litevloc.pipelines -m litevloc.runtime.service.core \
+	-m litevloc.runtime.service.vloc_prior -m litevloc.runtime.service.shell
 
 mypy-namespace:
 	rm -rf $(MYPY_NS) && mkdir -p $(MYPY_NS)/litevloc
-	for d in runtime experiments pipelines hw sim models config base; do ln -s $(CURDIR)/$$d $(MYPY_NS)/litevloc/$$d; done
+	for d in cli runtime experiments pipelines hw sim models config base; do ln -s $(CURDIR)/$$d $(MYPY_NS)/litevloc/$$d; done
 
 # Python 3.10 (JetPack 6) is checked three ways without a 3.10 interpreter: ruff's py310 target,
 # mypy's python_version 3.10 (typeshed's 3.10 standard library) and vermin's per-feature versions.
@@ -91,15 +91,15 @@ VERMIN := $(VENV)/bin/vermin -t=3.10- --violations --no-tips --eval-annotations 
 
 lint: $(VENV)/.dev-installed mypy-namespace
 	$(VENV)/bin/ruff check .
-	$(VERMIN) runtime experiments pipelines hw sim models config base bench tests
-	$(VENV)/bin/mypy runtime experiments pipelines hw sim models config base
+	$(VERMIN) cli runtime experiments pipelines hw sim models config base bench tests
+	$(VENV)/bin/mypy cli runtime experiments pipelines hw sim models config base
 	$(MYPY_NS_RUN) --strict $(MYPY_STRICT)
 	$(MYPY_NS_RUN) $(MYPY_CROSS)
 
 # Every package across packages: part of `lint` (its last step; the 21 errors listed in issue 19's
 # closing note are fixed). `make lint-cross` runs this check alone.
 MYPY_CROSS := -p litevloc.base -p litevloc.config -p litevloc.hw -p litevloc.sim -p litevloc.models -p litevloc.pipelines \
-	-p litevloc.runtime -p litevloc.experiments
+	-p litevloc.cli -p litevloc.runtime -p litevloc.experiments
 
 lint-cross: $(VENV)/.dev-installed mypy-namespace
 	$(MYPY_NS_RUN) $(MYPY_CROSS)

@@ -1,6 +1,6 @@
 """Map the design card's top-level folders onto the `litevloc.*` namespace.
 
-`runtime/` -> `litevloc.runtime`, `pipelines/` -> `litevloc.pipelines`, `hw/` ->
+`cli/` -> `litevloc.cli`, `runtime/` -> `litevloc.runtime`, `pipelines/` -> `litevloc.pipelines`, `hw/` ->
 `litevloc.hw`, `models/` -> `litevloc.models`, `config/` -> `litevloc.config`, `base/` -> `litevloc.base`
 (the bottom layer: errors, geometry, parameter dataclasses).
 Sub-packages are discovered, so adding a folder with an `__init__.py` needs no edit here.
@@ -9,7 +9,7 @@ Works for normal and editable (`pip install -e .`) installs.
 
 from setuptools import find_packages, setup
 
-FOLDERS = ("runtime", "experiments", "pipelines", "hw", "sim", "models", "config", "base")
+FOLDERS = ("cli", "runtime", "experiments", "pipelines", "hw", "sim", "models", "config", "base")
 
 packages: list[str] = []
 package_dir: dict[str, str] = {}

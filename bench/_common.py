@@ -22,7 +22,7 @@ def litevloc(*args: str) -> None:
     """Run one `litevloc` command in a child process (its output goes to the terminal); fail loudly."""
     t0 = time.perf_counter()
     print(f"$ litevloc {' '.join(args)}", flush=True)
-    r = subprocess.run([sys.executable, "-m", "litevloc.runtime.cli.main", *args])
+    r = subprocess.run([sys.executable, "-m", "litevloc.cli.main", *args])
     if r.returncode != 0:
         raise SystemExit(f"`litevloc {' '.join(args)}` failed with exit code {r.returncode}")
     print(f"  ({time.perf_counter() - t0:.0f} s)", flush=True)

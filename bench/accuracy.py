@@ -54,8 +54,8 @@ from litevloc.pipelines.localization.results import MatchedPixels
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map
 from litevloc.pipelines.topomap.types import NodeFeatures
-from litevloc.runtime.posed import posed_frames
 from litevloc.runtime.sources import open_source
+from litevloc.runtime.tools.posed import posed_frames
 from litevloc.runtime.vloc_models import check_map_models, load_bundle, second_look_for
 
 # The `localization:` block of config/presets/7scenes.yaml before issue #16 (tuned on the query pass).
@@ -140,7 +140,7 @@ class ModelCache:
 def ensure_map(path: Path, data: Path, overrides: list[str]) -> None:
     if (path / "manifest.json").is_file():
         return
-    from litevloc.runtime.map_building import MapBuildRequest, build_map
+    from litevloc.runtime.tools.map_building import MapBuildRequest, build_map
 
     print(f"building the map {path} (frames 0-499, --config 7scenes {' '.join(overrides)}) ...")
     build_map(MapBuildRequest(src=data, output=path, frames="0:500", config="7scenes"),

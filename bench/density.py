@@ -31,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import OUT, print_table, write_json
 
 from litevloc.config import load_config
-from litevloc.runtime.world_navigation import ensure_map, navigate
+from litevloc.runtime.tools.world_navigation import ensure_map, navigate
 
 
 def keyframes_of(map_dir: Path) -> int:

@@ -50,7 +50,7 @@ RIGHT_M = 1.5  # a placement within this of the true goal pose is right (m)
 def world_map(world: str, config: str, maps_dir: Path | None = None, map_set: tuple[str, ...] = ()) -> Path:
     """The cached map `sim navigate` (or `bench/loop.py`) uses for the world; built when absent.
     With `maps_dir`: the map under maps_dir/WORLD, built there with the `map_set` overrides."""
-    from litevloc.runtime.world_navigation import ensure_map
+    from litevloc.runtime.tools.world_navigation import ensure_map
 
     if maps_dir is not None:
         return ensure_map(world, maps_dir / world, config, map_pass="loop" if world == "loop" else "map",
@@ -63,8 +63,8 @@ def world_map(world: str, config: str, maps_dir: Path | None = None, map_set: tu
 def goal_images(world_name: str, cfg: Any, extra: int) -> list[tuple[str, NDArray[np.uint8], NDArray[np.float64]]]:
     """(name, RGB image, true T_world_camera) of the world's goal images and `extra` frames of
     its second pass."""
-    from litevloc.runtime.planner_service import decode_goal_image
-    from litevloc.runtime.sim_navigation import render_goals
+    from litevloc.runtime.planner.node import decode_goal_image
+    from litevloc.runtime.tools.sim_navigation import render_goals
     from litevloc.sim.realism import sample_lighting
     from litevloc.sim.render import Renderer
     from litevloc.sim.simulator import camera_pose, render_frame

@@ -52,7 +52,7 @@ def vloc_rate(cfg: Any, map_dir: Path, rec: Path, frames: int) -> dict[str, Any]
     from litevloc.hw.streams.mcap_io import McapSource
     from litevloc.pipelines.localization.vloc import VisualLocalizer
     from litevloc.pipelines.topomap.io import load_map
-    from litevloc.runtime.posed import posed_frames
+    from litevloc.runtime.tools.posed import posed_frames
     from litevloc.runtime.vloc_models import check_map_models, load_bundle, second_look_for
 
     bundle = load_bundle(cfg.models)

@@ -28,7 +28,7 @@ another lane through the full runtime, then navigate to goal images along it.
      when its maximum was.
 3. Navigation: `--goals` goal images rendered at equal arc length along the mapping route
    (facing along it), driven to in order from the route's start with LiteVLoc localization
-   (`runtime.sim_navigation.run_navigation`, as `sim navigate`), and again with ground-truth
+   (`runtime.tools.sim_navigation.run_navigation`, as `sim navigate`), and again with ground-truth
    localization as the baseline (`--no-baseline`: LiteVLoc only).
 
 Prints a table and writes JSON (all numbers measured in this run; nothing here was tuned on
@@ -62,7 +62,7 @@ def _rmse(err: np.ndarray) -> float:
 
 def build_map(out: Path, config: str) -> dict[str, Any]:
     from litevloc.config import load_config
-    from litevloc.runtime import map_building, outputs
+    from litevloc.runtime.tools import map_building, outputs
 
     js = out / "map.json"
     t0 = time.perf_counter()
@@ -79,8 +79,8 @@ def query(map_dir: Path, config: str, pass_name: str = "loop-lane", rate: float 
     configuration `config` with `overrides` (key=value) and `faults` injected (as `--fault`)."""
     from litevloc.base.geometry import invert
     from litevloc.config import load_config
-    from litevloc.runtime.app import build_app, with_endpoints
-    from litevloc.runtime.faults import FaultInjector
+    from litevloc.runtime.service.app import build_app, with_endpoints
+    from litevloc.runtime.service.faults import FaultInjector
     from litevloc.sim.source import SimSequenceSource
     from litevloc.sim.world import load_world
 
@@ -174,7 +174,7 @@ def _time_without_fix(t_calls_s: np.ndarray, t_fixes_s: np.ndarray, t0_s: float)
 def loop_goals(world: Any, cfg: Any, n_goals: int) -> tuple[list[Any], Any, list[float]]:
     """(goals, the mapping route, each goal's arc length in metres): `n_goals` goal images
     rendered at equal arc length along the loop's mapping route, facing along it (seeded)."""
-    from litevloc.runtime.sim_navigation import Goal
+    from litevloc.runtime.tools.sim_navigation import Goal
     from litevloc.sim.realism import sample_lighting
     from litevloc.sim.render import Renderer
     from litevloc.sim.simulator import camera_pose, render_frame
@@ -206,7 +206,7 @@ def navigate(map_dir: Path, config: str, n_goals: int, baseline: bool,
     the same way in both runs, so a goal the baseline misses too is lost to its image or the
     map, not to the localization."""
     from litevloc.config import load_config
-    from litevloc.runtime.sim_navigation import goal_ratios, run_navigation
+    from litevloc.runtime.tools.sim_navigation import goal_ratios, run_navigation
     from litevloc.sim.world import load_world
 
     cfg = load_config(config, overrides)

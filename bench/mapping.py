@@ -26,8 +26,8 @@ from litevloc.base.frames import parse_frames
 from litevloc.config import load_config
 from litevloc.experiments.mapping import vpr_recall
 from litevloc.pipelines.topomap.io import load_map
-from litevloc.runtime.posed import posed_frames
 from litevloc.runtime.sources import open_source
+from litevloc.runtime.tools.posed import posed_frames
 from litevloc.runtime.vloc_models import load_bundle
 
 

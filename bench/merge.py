@@ -55,8 +55,8 @@ from litevloc.pipelines.topomap.io import load_map
 from litevloc.pipelines.topomap.map_save import save_map
 from litevloc.pipelines.topomap.merge import Link, align, find_links, join_maps, transform_map
 from litevloc.pipelines.topomap.types import TopoMap
-from litevloc.runtime.posed import posed_frames
 from litevloc.runtime.sources import open_source
+from litevloc.runtime.tools.posed import posed_frames
 from litevloc.runtime.vloc_models import ModelBundle, check_map_models, load_bundle, second_look_for
 from litevloc.sim.world import World, load_world
 
@@ -67,7 +67,7 @@ SIM = ROOT / "out" / "merge_sim"
 def build(data: Path, frames: str, out: Path, config: str) -> Path:
     if not (out / "manifest.json").is_file():
         print(f"building {out} from frames {frames} ...", flush=True)
-        subprocess.run([sys.executable, "-m", "litevloc.runtime.cli.main", "map", "build", str(data), "--frames",
+        subprocess.run([sys.executable, "-m", "litevloc.cli.main", "map", "build", str(data), "--frames",
                         frames, "-o", str(out), "--config", config, "--force"], check=True)
     return out
 
@@ -288,7 +288,7 @@ def sim_case(args: argparse.Namespace) -> None:
         print(f"$ litevloc {' '.join(cmd)}", flush=True)
         out_json.unlink(missing_ok=True)
         # exit code 1 = not every goal reached (the JSON says which); anything else is a failure
-        rc = subprocess.run([sys.executable, "-m", "litevloc.runtime.cli.main", *cmd]).returncode
+        rc = subprocess.run([sys.executable, "-m", "litevloc.cli.main", *cmd]).returncode
         if rc not in (0, 1) or not out_json.is_file():
             raise SystemExit(f"`litevloc {' '.join(cmd)}` failed with exit code {rc}")
         nav[name] = json.loads(out_json.read_text())

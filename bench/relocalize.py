@@ -79,8 +79,8 @@ def events_at(t0: float, t1: float, first_s: float, every_s: float) -> list[tupl
 def run_world(world: str, args: argparse.Namespace) -> dict[str, Any]:
     from litevloc.config import load_config
     from litevloc.pipelines.topomap.io import load_map
-    from litevloc.runtime.posed import posed_frames
     from litevloc.runtime.sources import open_source
+    from litevloc.runtime.tools.posed import posed_frames
     from litevloc.runtime.vloc_models import check_map_models, load_bundle, second_look_for
 
     mp, q = prepare(world, args.out, args.query_seed)

@@ -8,7 +8,7 @@
    `BoundedFifo.get` vs `queue.Queue.get`, at 200 Hz.
 3. Zenoh over loopback TCP, across processes: nav_msgs/Odometry (fused pose) published
    at `--rate` Hz by `LiteVLocPublisher.publish_pose` here, received and CDR-decoded by
-   `python -m litevloc.runtime.probe` in another process. Latency = receive time - send
+   `python -m litevloc.runtime.transport.probe` in another process. Latency = receive time - send
    time (attachment; CLOCK_MONOTONIC is machine-wide), plus the message build +
    serialisation cost on the publisher side.
 Prints a table; JSON in out/bench/runtime_queues.json.
@@ -36,9 +36,11 @@ from litevloc.base.geometry import make_T, so3_exp
 from litevloc.base.stats import percentiles_ms
 from litevloc.config.schema import ZenohConfig
 from litevloc.hw import ros_msgs
-from litevloc.runtime.bus import Bus, LiteVLocPublisher
 from litevloc.runtime.metrics import now_ns
-from litevloc.runtime.queues import BoundedFifo, LatestMailbox
+from litevloc.runtime.service.queues import BoundedFifo, LatestMailbox
+from litevloc.runtime.transport.bus import Bus, LiteVLocPublisher
+
+PROBE = "litevloc.runtime.transport.probe"
 
 
 def op_cost(n: int = 200_000) -> dict[str, float]:
@@ -105,7 +107,7 @@ def zenoh_latency(seconds: float, rate: float) -> dict[str, object]:
     with Bus(ZenohConfig(listen=(ep,))) as bus:
         pub = LiteVLocPublisher(bus)
         proc = subprocess.Popen(
-            [sys.executable, "-m", "litevloc.runtime.probe", "--connect", ep, "--topics", "pose",
+            [sys.executable, "-m", "litevloc.runtime.transport.probe", "--connect", ep, "--topics", "pose",
              "--count", f"pose={n}", "--timeout", str(seconds + 30), "--json", str(out)],
             stdout=subprocess.PIPE, text=True)
         assert proc.stdout is not None
@@ -137,7 +139,7 @@ def service_e2e(switch_interval_s: float, vloc_ms: float, seconds: float = 6.0) 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     from litevloc.base.params.drift import T_BASE_CAMERA_OPTICAL
     from litevloc.config.schema import RuntimeConfig
-    from litevloc.runtime.service import Service
+    from litevloc.runtime.service.shell import Service
     from tests.runtime.fakes import T_MAP_ODOM_TRUE, FakeFusion, FakePublisher, Result, SyntheticSource, T_odom_base_at
 
     def vloc(frame, prior):  # type: ignore[no-untyped-def]
@@ -180,7 +182,7 @@ def service_wire_e2e(switch_interval_s: float, vloc_ms: float, seconds: float = 
     from litevloc.base.params.drift import T_BASE_CAMERA_OPTICAL
     from litevloc.config.schema import RuntimeConfig
     from litevloc.hw.odometry import OdometryReceiver
-    from litevloc.runtime.service import Service
+    from litevloc.runtime.service.shell import Service
     from tests.runtime.fakes import T_MAP_ODOM_TRUE, FakeFusion, Result, SyntheticSource, T_odom_base_at
 
     def vloc(frame, prior):  # type: ignore[no-untyped-def]
@@ -202,13 +204,13 @@ def service_wire_e2e(switch_interval_s: float, vloc_ms: float, seconds: float = 
                            publish_inline=inline)
     with Bus(ZenohConfig(listen=(ep,))) as bus:
         pub = LiteVLocPublisher(bus)
-        probe = _popen_ready([sys.executable, "-m", "litevloc.runtime.probe", "--connect", ep, "--topics", "pose",
+        probe = _popen_ready([sys.executable, "-m", PROBE, "--connect", ep, "--topics", "pose",
                               "--stamp-latency", "--idle", "2", "--timeout", str(seconds + 30), "--json", str(out)])
         fusion = FakeFusion()
         svc = Service(SyntheticSource(seconds=seconds, odom_hz=10, frame_hz=30), vloc, fusion.add_odometry,
                       fusion.add_vloc, pub, params, rate=1.0,
                       odometry_receiver=lambda sink: OdometryReceiver(bus.session, "robot/odom", sink))
-        robot = _popen_ready([sys.executable, "-m", "litevloc.runtime.probe", "--connect", ep, "--send-odometry",
+        robot = _popen_ready([sys.executable, "-m", PROBE, "--connect", ep, "--send-odometry",
                               "robot/odom", "--rate", "200", "--seconds", str(seconds - 1.0)])
         try:
             res = svc.run(timeout_s=seconds + 30)

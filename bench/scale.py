@@ -319,8 +319,8 @@ def measure(path: Path, verify: bool) -> dict[str, Any]:
     verify_ms: list[float] = []
     if verify:
         from litevloc.pipelines.localization.query import relative_pose
-        from litevloc.runtime.posed import posed_frames
         from litevloc.runtime.sources import open_source
+        from litevloc.runtime.tools.posed import posed_frames
         from litevloc.runtime.vloc_models import as_features, load_bundle
 
         bundle = load_bundle(cfg.models)
@@ -414,7 +414,7 @@ def main() -> int:
     for n in sorted(args.sizes):
         path = scaled_map(base, n, args.cache)
         cmd = [sys.executable, __file__, "--measure", str(path)] + (["--no-verify"] if args.no_verify else [])
-        # one BLAS thread, as the service configures it (runtime.stages.configure_threads):
+        # one BLAS thread, as the service configures it (runtime.service.stages.configure_threads):
         # on 2 loaded CPUs a second OpenBLAS thread made the 10k-node top-k 2x slower
         env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
         out = subprocess.run(cmd, check=True, capture_output=True, text=True, env=env)

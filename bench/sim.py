@@ -149,7 +149,7 @@ def bench_map_feed(world_name: str, sim_seconds: float) -> dict[str, float]:
 
 def bench_record(seconds: float) -> dict[str, float]:
     from litevloc.config import load_config
-    from litevloc.runtime.sim_recording import record_pass
+    from litevloc.runtime.tools.sim_recording import record_pass
 
     with tempfile.TemporaryDirectory() as d:
         t0 = time.perf_counter()

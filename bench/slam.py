@@ -83,7 +83,7 @@ def inject(world: str, config: str) -> dict[str, Any]:
 
 def _reference(rec: Path) -> dict[int, np.ndarray]:
     from litevloc.hw.streams.mcap_io import McapSource
-    from litevloc.runtime.posed import posed_frames
+    from litevloc.runtime.tools.posed import posed_frames
 
     return {f.index: T for f, T in posed_frames(McapSource(rec)) if T is not None}
 
@@ -123,7 +123,7 @@ def _odometry_ate(rec: Path, npz: Path) -> float:
     from litevloc.hw.messages import Odometry
     from litevloc.hw.streams.mcap_io import McapSource
     from litevloc.pipelines.evaluation.trajectory import ate
-    from litevloc.runtime.slam_build import load_graph
+    from litevloc.runtime.tools.slam_build import load_graph
 
     odo = [(m.t_ns, m.T_odom_base) for m in McapSource(rec) if isinstance(m, Odometry)]
     t = np.array([o[0] for o in odo], np.int64)
@@ -226,12 +226,12 @@ def navigation(world: str, config: str) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for poses, m in maps.items():
         js = HERE / f"nav-{world}-{poses}.json"
-        subprocess.run([sys.executable, "-m", "litevloc.runtime.cli.main", "sim", "navigate", world, "--map", str(m),
+        subprocess.run([sys.executable, "-m", "litevloc.cli.main", "sim", "navigate", world, "--map", str(m),
                         "--out-dir", str(HERE / f"nav-{world}-{poses}"), "--localization", "litevloc", "--json",
                         str(js), "--config", config])
         out[poses] = json.loads(js.read_text())
     s, g = out["slam"], out["ground-truth"]
-    from litevloc.runtime.sim_navigation import goal_ratios
+    from litevloc.runtime.tools.sim_navigation import goal_ratios
 
     return {"goals_reached_slam_map": s["goals_reached"], "goals_reached_gt_map": g["goals_reached"],
             "goals_total": s["goals_total"], "path_ratio_slam_vs_gt_map": goal_ratios(s["goals"], g["goals"]),
@@ -264,7 +264,7 @@ def loop_query(T: list[list[float]], nav: bool) -> dict[str, Any]:
             out[tag]["navigation"] = {k: q["navigation"][k] for k in ("goals_reached", "goals_total", "time_s",
                                                                        "path_length_m", "collisions")}
     if nav:
-        from litevloc.runtime.sim_navigation import goal_ratios
+        from litevloc.runtime.tools.sim_navigation import goal_ratios
 
         out.update({"goals_reached_slam_map": out["slam_map"]["goals_reached"],
                     "goals_reached_gt_map": out["gt_map"]["goals_reached"], "goals_total": out["gt_map"]["goals_total"],

@@ -107,7 +107,7 @@ def looped(rec: Path, seconds: float, gap_ns: int = 5_000_000) -> Iterator[Any]:
 def one_run(rec: Path, map_dir: Path, minutes: float, rate: float, endpoint: str, out: Path,
             sample_s: float, window_min: float, overrides: list[str]) -> None:
     from litevloc.config import load_config
-    from litevloc.runtime.app import build_app, with_endpoints
+    from litevloc.runtime.service.app import build_app, with_endpoints
 
     cfg = load_config("default", ["runtime.mode=realtime", *SOAK_OVERRIDES, *overrides])
     cfg = with_endpoints(cfg, [], [endpoint], None)
@@ -351,7 +351,7 @@ def main() -> None:
         ep = f"tcp/127.0.0.1:{free_port()}"
         probe_out.unlink(missing_ok=True)
         probe = subprocess.Popen(
-            [sys.executable, "-m", "litevloc.runtime.probe", "--listen", ep, "--topics", "pose",
+            [sys.executable, "-m", "litevloc.runtime.transport.probe", "--listen", ep, "--topics", "pose",
              "--timeout", str(wall_limit * 3 + 300), "--idle", "30", "--json", str(probe_out)],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         assert probe.stdout is not None

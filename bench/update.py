@@ -38,7 +38,7 @@ MAPS = ROOT / "out" / "maps"
 
 def sim_case(world: str, query_frames: str) -> None:
     """Old map vs updated map on a changed simulated world (see the module docstring)."""
-    cli = [sys.executable, "-m", "litevloc.runtime.cli.main"]
+    cli = [sys.executable, "-m", "litevloc.cli.main"]
     d = ROOT / "out" / "update_sim" / world
     d.mkdir(parents=True, exist_ok=True)
     changed = f"{world}-changed"
@@ -92,7 +92,7 @@ def main() -> None:
     new = MAPS / "update_new"
     OUT.mkdir(parents=True, exist_ok=True)
     js = OUT / "update_cli.json"
-    cli = [sys.executable, "-m", "litevloc.runtime.cli.main"]
+    cli = [sys.executable, "-m", "litevloc.cli.main"]
     subprocess.run([*cli, "map", "update", str(old), str(data), "--frames", "250:500", "-o", str(new), "--force",
                     "--config", args.config, "--json", str(js)], check=True)
     upd = json.loads(js.read_text())

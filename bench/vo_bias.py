@@ -39,7 +39,7 @@ from litevloc.experiments.vo_bias import (
 )
 from litevloc.pipelines.slam.frontend import FrontEnd
 from litevloc.pipelines.slam.types import FrameImages
-from litevloc.runtime.slam_build import slam_models
+from litevloc.runtime.tools.slam_build import slam_models
 from litevloc.runtime.vloc_models import load_bundle
 from litevloc.sim.source import open_sim_source
 

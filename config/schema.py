@@ -164,7 +164,7 @@ class LiteVLocConfig:
 
 
 # --------------------------------------------------------------------- runtime / Zenoh
-# (used by litevloc.runtime.bus / service)
+# (used by litevloc.runtime.transport.bus / service)
 _ENDPOINT_PROTOCOLS = ("tcp", "udp", "tls", "quic", "unixsock-stream", "ws", "serial")
 
 
@@ -395,7 +395,7 @@ class RuntimeConfig:
 
 
 # --------------------------------------------------------------------- planner (image-goal navigation)
-# (used by litevloc.runtime.planner_service / `litevloc plan`)
+# (used by litevloc.runtime.planner.node / `litevloc plan`)
 
 
 @dataclass(frozen=True)
@@ -432,7 +432,7 @@ class PlannerConfig:
 
 
 # --------------------------------------------------------------------- diagnostics
-# (used by litevloc.runtime.diagnostics: `litevloc/diagnostics`, diagnostic_msgs/DiagnosticArray)
+# (used by litevloc.runtime.service.diagnostics: `litevloc/diagnostics`, diagnostic_msgs/DiagnosticArray)
 @dataclass(frozen=True)
 class LevelThresholds:
     """WARN at or above `warn`, ERROR at or above `error` (for "lower is worse" figures the

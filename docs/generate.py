@@ -11,9 +11,9 @@ import argparse
 import sys
 from pathlib import Path
 
+from litevloc.cli.reference import render_cli_reference
 from litevloc.config import preset_names
 from litevloc.config.describe import load_with_origins, render_markdown
-from litevloc.runtime.cli.reference import render_cli_reference
 
 DOCS = Path(__file__).resolve().parent
 

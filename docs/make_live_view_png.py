@@ -38,7 +38,7 @@ def main() -> None:
     map_dir, query = office_inputs()
     args.rrd.parent.mkdir(parents=True, exist_ok=True)
     cut = args.rrd.with_suffix(".mcap")
-    cli = [sys.executable, "-m", "litevloc.runtime.cli.main"]
+    cli = [sys.executable, "-m", "litevloc.cli.main"]
     for cmd in ([*cli, "convert", str(query), str(cut), "--frames", args.frames],
                 [*cli, "replay", str(cut), "--map", str(map_dir), "--listen", f"tcp/127.0.0.1:{free_port()}",
                  "--view-save", str(args.rrd)]):

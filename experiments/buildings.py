@@ -16,7 +16,7 @@ buildings with the first simulator's pictures):
    (the same stream, even odds), so both sets are driven in every building. The image of the
    other camera is placed too (placement only).
 3. **Navigation**: the goal sequence driven twice from the start room's goal place, with
-   LiteVLoc localization (`runtime.sim_navigation.run_navigation`, as `litevloc sim navigate`)
+   LiteVLoc localization (`runtime.tools.sim_navigation.run_navigation`, as `litevloc sim navigate`)
    and with ground-truth localization, the same goal images, map and seeds.
 
 A goal is *refused* when the planner placed it nowhere (its reason is kept), *wrong* when it
@@ -45,8 +45,8 @@ from litevloc.pipelines.topomap.build import MapBuilder
 from litevloc.pipelines.topomap.io import load_map
 from litevloc.pipelines.topomap.map_save import save_map
 from litevloc.pipelines.topomap.openings import find_openings, openings_summary
-from litevloc.runtime.planner_service import GoalPlanner, decode_goal_image, goal_locator
-from litevloc.runtime.sim_navigation import Goal, NavRun, placed_position, render_goals, run_navigation
+from litevloc.runtime.planner.node import GoalPlanner, decode_goal_image, goal_locator
+from litevloc.runtime.tools.sim_navigation import Goal, NavRun, placed_position, render_goals, run_navigation
 from litevloc.runtime.vloc_models import ModelBundle, load_bundle
 from litevloc.sim.coverage import map_coverage
 from litevloc.sim.source import SimSequenceSource

@@ -22,7 +22,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-PACKAGES = ("base", "config", "hw", "sim", "models", "pipelines", "runtime", "experiments")
+PACKAGES = ("base", "config", "hw", "sim", "models", "pipelines", "runtime", "cli", "experiments")
 SETTINGS_SUFFIXES = ("Params", "Config")
 # test id -> whether it localizes frames its own map was built from (judged by reading it)
 LOCALIZATION_TESTS: dict[str, bool] = {

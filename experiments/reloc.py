@@ -30,7 +30,7 @@ from litevloc.models.types import Features
 from litevloc.pipelines.evaluation.reloc import reloc_metrics
 from litevloc.pipelines.localization.query import relative_pose
 from litevloc.pipelines.topomap.types import TopoMap
-from litevloc.runtime.posed import posed_frames
+from litevloc.runtime.tools.posed import posed_frames
 
 # The shipped LightGlue weights are for 128-d ALIKED descriptors (n16); t16 (64-d) pairs with mutual-NN.
 DEFAULT_METHODS = (

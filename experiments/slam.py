@@ -31,7 +31,7 @@ from litevloc.pipelines.evaluation.trajectory import ate
 from litevloc.pipelines.slam.evaluate import WRONG_LOOP_DEG, WRONG_LOOP_M, loop_errors, trajectory_errors
 from litevloc.pipelines.slam.graph import optimise
 from litevloc.pipelines.slam.types import Edge
-from litevloc.runtime.slam_build import SavedGraph, load_graph, solve_saved
+from litevloc.runtime.tools.slam_build import SavedGraph, load_graph, solve_saved
 
 F64 = NDArray[np.float64]
 

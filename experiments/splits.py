@@ -39,8 +39,8 @@ from litevloc.pipelines.localization.results import LocalizationResult
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map
 from litevloc.pipelines.topomap.types import TopoMap
-from litevloc.runtime.posed import posed_frames
 from litevloc.runtime.sources import open_source
+from litevloc.runtime.tools.posed import posed_frames
 from litevloc.runtime.vloc_models import check_map_models, load_bundle, second_look_for
 
 BLOCK = 250

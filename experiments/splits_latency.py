@@ -21,8 +21,8 @@ from litevloc.config import load_config
 from litevloc.experiments.splits import Split
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map
-from litevloc.runtime.posed import posed_frames
 from litevloc.runtime.sources import open_source
+from litevloc.runtime.tools.posed import posed_frames
 from litevloc.runtime.vloc_models import check_map_models, load_bundle, second_look_for
 
 

@@ -186,7 +186,7 @@ def encode_odometry(odom: Odometry, twist: NDArray[np.floating] | None = None) -
 class OdometryReceiver:
     """Subscribes to nav_msgs/Odometry CDR on a Zenoh session and feeds checked messages to `sink`.
 
-    `session` is an open `zenoh.Session` (from `runtime.bus.Bus.session`); the sink is called
+    `session` is an open `zenoh.Session` (from `runtime.transport.bus.Bus.session`); the sink is called
     in Zenoh's callback thread and must not block (a `BoundedFifo.put`). A sink exception
     (e.g. the queue closed at shutdown) is counted in `sink_errors`, never raised into Zenoh.
     """

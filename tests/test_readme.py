@@ -150,7 +150,7 @@ def test_every_readme_usage_line_runs(seven_scenes_held_out: HeldOut, tmp_path: 
 
     def plan(line: str) -> None:
         from litevloc.config.schema import ZenohConfig
-        from litevloc.runtime.bus import Bus
+        from litevloc.runtime.transport.bus import Bus
 
         robot.append(Bus(ZenohConfig(listen=(f"tcp/127.0.0.1:{robot_port}",))))  # the robot's service stands in
         p = subprocess.Popen([litevloc_exe(), *shlex.split(expand(line))[1:]], cwd=tmp_path, env=env,

@@ -269,7 +269,7 @@ def import_check(emu: Emulator, reqs: Sequence[str]) -> dict[str, Any]:
             "t = time.perf_counter()\n"
             f"mods = {mods!r}\n"
             "for m in mods: importlib.import_module(m)\n"
-            "import litevloc.runtime.cli.main\n"
+            "import litevloc.cli.main\n"
             "import onnxruntime\n"
             "print(json.dumps({'machine': platform.machine(), 'python': platform.python_version(),\n"
             "  'onnxruntime': onnxruntime.__version__, 'providers': onnxruntime.get_available_providers(),\n"
@@ -285,7 +285,7 @@ def import_check(emu: Emulator, reqs: Sequence[str]) -> dict[str, Any]:
 
 
 def litevloc_cmd(args: Sequence[str]) -> list[str]:
-    return ["-m", "litevloc.runtime.cli.main", *args]
+    return ["-m", "litevloc.cli.main", *args]
 
 
 def build_map(data: Path) -> Path:

@@ -1,6 +1,6 @@
 """Closed-loop navigation in the simulator: the loop's rates and limits, the simulated robot's
 local planner and its search for a first pose (config section `sim_navigation`, used by
-`litevloc.runtime.sim_navigation`, `litevloc.sim.local_planner` and `litevloc.sim.search`)."""
+`litevloc.runtime.tools.sim_navigation`, `litevloc.sim.local_planner` and `litevloc.sim.search`)."""
 
 from __future__ import annotations
 

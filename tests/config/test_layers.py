@@ -1,6 +1,8 @@
 """Layers that point one way: `base` <- `hw`, `models`, `config`; `pipelines` -> `models`, `base`;
 `sim` -> `pipelines`, `hw`, `base`; `runtime` above them; `experiments` (the benchmarks' logic)
-above `runtime`, imported only by the command line (`runtime.cli`) and `bench/`.
+above `runtime`, imported only by the command line (`cli`, the top layer) and `bench/`. Inside
+`runtime`, the transport is the bottom subsystem, the service and the planner's node sit on it,
+and the offline tools on all three.
 
 `config` imports no algorithm or hardware module, `hw` (drivers and file formats) imports only
 `base`, the simulator imports neither the configuration nor the runtime, and `base` imports no
@@ -88,16 +90,48 @@ def test_import_config_loads_no_heavy_module() -> None:
 def test_only_the_command_line_imports_experiments() -> None:
     for pkg in ("base", "config", "hw", "sim", "models", "pipelines"):
         assert _offending(pkg, ("litevloc.experiments",)) == {}, pkg
-    outside_cli = {p: m for p, m in _offending("runtime", ("litevloc.experiments",)).items()
-                   if not p.startswith("runtime/cli/")}
-    assert outside_cli == {}
+    assert _offending("runtime", ("litevloc.experiments",)) == {}
+
+
+def test_nothing_below_the_command_line_imports_it() -> None:
+    for pkg in ("base", "config", "hw", "sim", "models", "pipelines", "runtime", "experiments"):
+        assert _offending(pkg, ("litevloc.cli",)) == {}, pkg
+
+
+# runtime's subsystems: what each may import of the others (the shared modules at runtime/'s top,
+# metrics, sources, model glue, child processes, import none of them)
+RUNTIME_SUBSYSTEMS = ("service", "transport", "planner", "tools")
+RUNTIME_MAY_IMPORT = {
+    "transport": (),
+    "service": ("transport",),
+    "planner": ("transport",),
+    "tools": ("service", "transport", "planner"),
+}
+
+
+def test_runtime_subsystems_point_one_way() -> None:
+    for sub, allowed in RUNTIME_MAY_IMPORT.items():
+        forbidden = tuple(f"litevloc.runtime.{o}" for o in RUNTIME_SUBSYSTEMS if o != sub and o not in allowed)
+        assert _offending(f"runtime/{sub}", forbidden) == {}, sub
+    shared = {p: m for p, m in _offending("runtime", tuple(f"litevloc.runtime.{o}" for o in RUNTIME_SUBSYSTEMS)).items()
+              if p.count("/") == 1}
+    assert shared == {}
+
+
+def test_runtime_holds_only_its_subsystems_and_the_shared_modules() -> None:
+    """A new runtime module goes into the subsystem it belongs to, not back into a flat folder."""
+    top = sorted(p.name for p in (ROOT / "runtime").glob("*.py"))
+    assert top == ["__init__.py", "child_processes.py", "metrics.py", "recording_process.py", "sources.py",
+                   "vloc_models.py"]
+    assert sorted(p.name for p in (ROOT / "runtime").iterdir() if p.is_dir() and p.name != "__pycache__") == \
+        sorted(RUNTIME_SUBSYSTEMS)
 
 
 def test_experiments_do_not_import_the_command_line() -> None:
-    assert _offending("experiments", ("litevloc.runtime.cli",)) == {}
+    assert _offending("experiments", ("litevloc.cli",)) == {}
 
 
 def test_bench_scripts_import_no_command_line_module() -> None:
     """Benchmarks call library functions (`litevloc.experiments`, ...), never a CLI module (they
     may run the `litevloc` program as a child process, as a user would)."""
-    assert _offending("bench", ("litevloc.runtime.cli",)) == {}
+    assert _offending("bench", ("litevloc.cli",)) == {}

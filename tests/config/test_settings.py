@@ -28,7 +28,7 @@ from litevloc.config.describe import (
 from litevloc.config.schema import LiteVLocConfig
 
 ROOT = Path(__file__).resolve().parents[2]
-PACKAGES = ("base", "config", "hw", "sim", "models", "pipelines", "runtime", "experiments")
+PACKAGES = ("base", "config", "hw", "sim", "models", "pipelines", "runtime", "cli", "experiments")
 
 
 def test_every_field_of_every_settings_class_has_a_one_line_description() -> None:

@@ -12,8 +12,8 @@ from hypothesis import strategies as st
 
 from litevloc.config.schema import RuntimeConfig
 from litevloc.hw.messages import RgbdFrame
-from litevloc.runtime.frame_guard import MAX_SIDE, MIN_SIDE, FrameGuard, frame_problem
-from litevloc.runtime.service import Service
+from litevloc.runtime.service.frame_guard import MAX_SIDE, MIN_SIDE, FrameGuard, frame_problem
+from litevloc.runtime.service.shell import Service
 from tests.runtime.fakes import FakeFusion, FakePublisher, SyntheticSource
 
 K = np.array([[100.0, 0, 50], [0, 100.0, 40], [0, 0, 1]])

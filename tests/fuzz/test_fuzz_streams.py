@@ -194,7 +194,7 @@ def test_garbage_over_zenoh_is_counted_not_fatal(count_case: Any) -> None:
     odometry afterwards still goes through."""
     from litevloc.config.schema import ZenohConfig
     from litevloc.hw.odometry import OdometryReceiver
-    from litevloc.runtime.bus import Bus
+    from litevloc.runtime.transport.bus import Bus
     from tests.runtime.zenoh_helpers import free_port
 
     ep = f"tcp/127.0.0.1:{free_port()}"

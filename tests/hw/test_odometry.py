@@ -11,8 +11,8 @@ from litevloc.config.schema import ZenohConfig
 from litevloc.hw import ros_msgs
 from litevloc.hw.messages import Odometry
 from litevloc.hw.odometry import OdometryChecker, OdometryReceiver, OdometrySender, encode_odometry
-from litevloc.runtime.bus import Bus
-from litevloc.runtime.queues import BoundedFifo
+from litevloc.runtime.service.queues import BoundedFifo
+from litevloc.runtime.transport.bus import Bus
 from tests.runtime.zenoh_helpers import free_port
 
 S = 1_000_000_000

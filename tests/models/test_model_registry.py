@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from litevloc.base.params.models import ModelsConfig
+from litevloc.cli.main import main
 from litevloc.models.catalog import EXPORT_VERSION, spec_for
 from litevloc.models.registry import (
     ModelError,
@@ -21,7 +22,6 @@ from litevloc.models.registry import (
     locate,
     read_manifest,
 )
-from litevloc.runtime.cli.main import main
 
 
 def test_default_cache_dir_precedence(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
@@ -123,7 +123,7 @@ def test_runtime_never_imports_torch(model_cache: Path) -> None:
         "import sys\n"
         "from litevloc.base.params.models import ModelsConfig\n"
         "from litevloc.models.registry import load_extractor, load_matcher, load_place_recognizer\n"
-        "import litevloc.runtime.cli.main as m\n"
+        "import litevloc.cli.main as m\n"
         "m.build_parser()\n"
         f"cfg = ModelsConfig(cache_dir={str(model_cache)!r})\n"
         "load_extractor('aliked-n16', cfg); load_matcher('lightglue', cfg)\n"

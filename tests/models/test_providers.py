@@ -19,8 +19,8 @@ from litevloc.config.schema import DiagnosticsConfig, RuntimeConfig
 from litevloc.models import ort as mort
 from litevloc.models.registry import load_extractor, load_matcher, load_place_recognizer
 from litevloc.models.types import ProviderState
-from litevloc.runtime.diagnostics import OK, WARN, diagnostic_statuses
-from litevloc.runtime.service import Service
+from litevloc.runtime.service.diagnostics import OK, WARN, diagnostic_statuses
+from litevloc.runtime.service.shell import Service
 from tests.runtime.fakes import FakeFusion, FakePublisher, FakeVloc, SyntheticSource
 
 GPU = ["TensorrtExecutionProvider", "CUDAExecutionProvider", "CPUExecutionProvider"]
@@ -264,13 +264,13 @@ def test_cpu_is_always_last(monkeypatch: pytest.MonkeyPatch) -> None:
 def test_the_start_up_log_names_the_build_and_each_models_provider(
     monkeypatch: pytest.MonkeyPatch, cache: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
-    from litevloc.runtime.app import log_provider_report
+    from litevloc.runtime.service.app import log_provider_report
 
     fake_gpu(monkeypatch, ["CPUExecutionProvider"])
     load_place_recognizer("effnet-gem", ModelsConfig(cache_dir=str(cache), providers=("tensorrt", "cpu")))
-    with caplog.at_level(logging.INFO, logger="litevloc.runtime.app"):
+    with caplog.at_level(logging.INFO, logger="litevloc.runtime.service.app"):
         log_provider_report(mort.provider_report())
-    [info, warning] = [r for r in caplog.records if r.name == "litevloc.runtime.app"]
+    [info, warning] = [r for r in caplog.records if r.name == "litevloc.runtime.service.app"]
     assert info.levelno == logging.INFO and f"onnxruntime {ort.__version__}" in info.getMessage()
     assert "effnet-gem-240x320 on CPUExecutionProvider" in info.getMessage()
     assert warning.levelno == logging.WARNING and "tensorrt asked for, running on CPU" in warning.getMessage()
@@ -290,7 +290,7 @@ def test_a_cpu_build_installed_over_the_gpu_build_is_a_warning_and_a_warn_entry(
     monkeypatch: pytest.MonkeyPatch, cache: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
     """`pip install onnxruntime` after NVIDIA's onnxruntime-gpu: one import, two distributions."""
-    from litevloc.runtime.app import log_provider_report
+    from litevloc.runtime.service.app import log_provider_report
 
     versions = {"onnxruntime-gpu": "1.23.0", "onnxruntime": ort.__version__}
 
@@ -307,8 +307,9 @@ def test_a_cpu_build_installed_over_the_gpu_build_is_a_warning_and_a_warn_entry(
     assert report.build.installed == ("onnxruntime-gpu 1.23.0", f"onnxruntime {ort.__version__}")
     assert report.build.distribution == "onnxruntime"  # the one whose version is the imported module's
     assert "onnxruntime-gpu 1.23.0 and onnxruntime" in report.message
-    with caplog.at_level(logging.INFO, logger="litevloc.runtime.app"):
+    with caplog.at_level(logging.INFO, logger="litevloc.runtime.service.app"):
         log_provider_report(report)
-    assert [r.levelno for r in caplog.records if r.name == "litevloc.runtime.app"] == [logging.INFO, logging.WARNING]
+    levels = [r.levelno for r in caplog.records if r.name == "litevloc.runtime.service.app"]
+    assert levels == [logging.INFO, logging.WARNING]
     entries = {e[1]: e for e in diagnostic_statuses({"models": report.as_dict()}, None, DiagnosticsConfig())}
     assert entries["litevloc/models"][0] == WARN

@@ -9,8 +9,8 @@ from pathlib import Path
 import onnxruntime as ort
 import pytest
 
+from litevloc.cli.main import main
 from litevloc.models import ort as mort
-from litevloc.runtime.cli.main import main
 from tests.models.test_providers import GPU, FakeSession
 
 FAST = ["--set", "models.tensorrt.profile_max_keypoints=64", "--set", "localization.second_look_candidates=0",

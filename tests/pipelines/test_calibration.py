@@ -100,7 +100,7 @@ def test_register_depth_identity_leaves_depth_unchanged() -> None:
 def test_calibration_lowers_reprojection_error_on_7scenes(seven_scenes_dir: Path) -> None:
     from litevloc.base.frames import parse_frames
     from litevloc.hw.streams.sevenscenes import SevenScenesSource
-    from litevloc.runtime.posed import posed_frames
+    from litevloc.runtime.tools.posed import posed_frames
 
     preset = load_config("7scenes").rgbd_calibration
     assert preset is not None

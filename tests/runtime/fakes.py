@@ -48,7 +48,7 @@ class SyntheticSource:
 
 @dataclass(frozen=True)
 class Result:
-    """A VLoc result as the service takes it (`runtime.localization_core.VlocOutcome`)."""
+    """A VLoc result as the service takes it (`runtime.service.core.VlocOutcome`)."""
 
     t_ns: int
     accepted: bool

@@ -5,7 +5,7 @@ odometry at 200 Hz; nothing is rendered). Frames are tiny placeholders at `frame
 VLoc is an *oracle* that returns the true camera pose with a little noise (the real
 localizer is exercised elsewhere; here the question is what the runtime and fusion do
 when inputs misbehave), and that rejects a frame whose depth has no valid pixel, as the
-real one does ("too few matches with depth"). `runtime.faults.FaultInjector` injects
+real one does ("too few matches with depth"). `runtime.service.faults.FaultInjector` injects
 the faults. Used by tests/runtime/test_faults.py and bench/faults.py.
 """
 
@@ -22,8 +22,8 @@ from litevloc.base.geometry import make_T, so3_exp
 from litevloc.config import load_config
 from litevloc.hw.messages import GroundTruthPose, Message, Odometry, RgbdFrame
 from litevloc.pipelines.fusion.online import OnlineFusion
-from litevloc.runtime.faults import FaultInjector
-from litevloc.runtime.service import Service, fusion_callables
+from litevloc.runtime.service.faults import FaultInjector
+from litevloc.runtime.service.shell import Service, fusion_callables
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,6 @@
 """An rmw_zenoh reader written from rmw_zenoh's design document (ros2/rmw_zenoh `docs/design.md`,
 sections "Topic and Service name mapping to Zenoh key expressions", "Graph Cache", "Publishers"),
-independent of `litevloc.runtime.rmw_zenoh`: the tests parse what LiteVLoc puts on Zenoh with it.
+independent of `litevloc.runtime.transport.rmw_zenoh`: the tests parse what LiteVLoc puts on Zenoh with it.
 
 Reference type hashes (RIHS01, REP-2011) as ROS 2 itself generated them: the `type_hashes`
 entries of the type-description files that `rosidl_generator_type_description` installs with a

@@ -13,9 +13,9 @@ from pathlib import Path
 
 import pytest
 
+from litevloc.cli.main import main
 from litevloc.hw.messages import Message, Odometry, RgbdFrame
 from litevloc.hw.streams.mcap_io import McapSource, record_messages
-from litevloc.runtime.cli.main import main
 from tests.conftest import HeldOut
 
 from .zenoh_helpers import free_port

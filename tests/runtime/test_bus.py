@@ -9,7 +9,7 @@ import pytest
 
 from litevloc.base.geometry import gtsam_to_ros_covariance, make_T, so3_exp
 from litevloc.config.schema import ZenohConfig
-from litevloc.runtime.bus import (
+from litevloc.runtime.transport.bus import (
     Bus,
     BusError,
     LiteVLocPublisher,

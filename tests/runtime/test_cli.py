@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from litevloc.runtime.cli.main import main
+from litevloc.cli.main import main
 
 
 def test_info(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -48,13 +48,13 @@ def test_a_replay_without_a_fused_pose_still_writes_its_output_and_says_why(
 
     import numpy as np
 
-    from litevloc.runtime.cli import replay
+    from litevloc.cli import replay
 
     out = tmp_path / "fused.txt"
     out.write_text("0.0 1 2 3 0 0 0 1\n")  # an earlier run's poses
     rec = SimpleNamespace(fused_t=[], fused_T=[], gt_t=[], gt_T=[])
     status = {"last_fusion_reason": None, "last_vloc_reason": "not localized: no VPR candidate verified"}
-    monkeypatch.setattr("litevloc.runtime.cli.run.run_service", lambda *a, **k: {
+    monkeypatch.setattr("litevloc.cli.run.run_service", lambda *a, **k: {
         "ok": True, "reason": "end of source", "status": status, "recorder": rec, "T_base_camera": np.eye(4)})
     assert replay.run_runtime(argparse.Namespace(rec=tmp_path / "r.mcap", rate=1.0, output=out, json=None)) == 0
     assert [ln for ln in out.read_text().splitlines() if not ln.startswith("#")] == []

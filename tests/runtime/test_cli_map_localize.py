@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from litevloc.runtime.cli.main import main
+from litevloc.cli.main import main
 from tests.conftest import HeldOut
 
 

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from litevloc.base.geometry import make_T, so3_exp
+from litevloc.cli.main import main
 from litevloc.hw.messages import GroundTruthPose
 from litevloc.hw.streams.mcap_io import McapSource, record_messages
 from litevloc.pipelines.evaluation.trajectory import write_tum
 from litevloc.pipelines.topomap.io import load_map
-from litevloc.runtime.cli.main import main
 
 pytestmark = pytest.mark.slow
 # cheap models: ORB features and mutual nearest neighbours (the SLAM's logic, not the models, is under test)

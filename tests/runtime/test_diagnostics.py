@@ -14,8 +14,7 @@ import pytest
 from litevloc.base.loader import ConfigError, from_mapping
 from litevloc.config.schema import DiagnosticsConfig, LevelThresholds, LiteVLocConfig, RuntimeConfig, ZenohConfig
 from litevloc.hw.messages import RgbdFrame
-from litevloc.runtime.bus import Bus, LiteVLocPublisher
-from litevloc.runtime.diagnostics import (
+from litevloc.runtime.service.diagnostics import (
     ERROR,
     OK,
     WARN,
@@ -23,7 +22,8 @@ from litevloc.runtime.diagnostics import (
     VlocStageTimes,
     diagnostic_statuses,
 )
-from litevloc.runtime.service import Service
+from litevloc.runtime.service.shell import Service
+from litevloc.runtime.transport.bus import Bus, LiteVLocPublisher
 from tests.runtime.fakes import FakeFusion, FakeVloc, SyntheticSource
 from tests.runtime.zenoh_helpers import free_port
 

@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 
 from litevloc.config.schema import RuntimeConfig, ZenohConfig
-from litevloc.runtime.faults import FaultInjector, FaultSpec, FaultSpecError
-from litevloc.runtime.service import Service
+from litevloc.runtime.service.faults import FaultInjector, FaultSpec, FaultSpecError
+from litevloc.runtime.service.shell import Service
 
 from .fakes import FakeFusion, FakePublisher, FakeVloc, SyntheticSource
 from .fault_scenarios import run_scenario
@@ -166,7 +166,7 @@ def test_zenoh_peer_disappears_and_comes_back(tmp_path: Path) -> None:
     """The service connects to a peer (another process) that dies and restarts on the same
     endpoint: status reports the lost connection, the service keeps running, the new peer
     receives poses again."""
-    from litevloc.runtime.bus import Bus, LiteVLocPublisher
+    from litevloc.runtime.transport.bus import Bus, LiteVLocPublisher
 
     ep = f"tcp/127.0.0.1:{free_port()}"
     first = start_probe(ep, tmp_path / "p1.json", "pose", {}, timeout=60, listen=True)

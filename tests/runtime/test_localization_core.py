@@ -11,8 +11,8 @@ import pytest
 from litevloc.base.params.drift import T_BASE_CAMERA_OPTICAL
 from litevloc.config.schema import RuntimeConfig
 from litevloc.hw.messages import Odometry
-from litevloc.runtime.localization_core import LocalizationCore, PoseOut, VlocOut
-from litevloc.runtime.service import Service
+from litevloc.runtime.service.core import LocalizationCore, PoseOut, VlocOut
+from litevloc.runtime.service.shell import Service
 from tests.runtime.fakes import (
     MS,
     T_MAP_ODOM_TRUE,

@@ -3,7 +3,7 @@ from __future__ import annotations
 import numpy as np
 
 from litevloc.hw.messages import Odometry
-from litevloc.runtime.pacing import paced
+from litevloc.runtime.service.pacing import paced
 
 
 class FakeClock:

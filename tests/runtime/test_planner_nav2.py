@@ -10,9 +10,9 @@ import pytest
 
 from litevloc.config.schema import ZenohConfig
 from litevloc.hw import ros_msgs
-from litevloc.runtime.bus import Bus
-from litevloc.runtime.planner_service import KEYS, PlannerService
-from litevloc.runtime.ros_interface import image_to_rgb
+from litevloc.runtime.planner.node import KEYS, PlannerService
+from litevloc.runtime.transport.bus import Bus
+from litevloc.runtime.transport.ros_interface import image_to_rgb
 from tests.runtime.rmw_zenoh_reference import REFERENCE_HASHES, parse_attachment
 from tests.runtime.test_planner_service import img, planner, pose
 from tests.runtime.test_rmw_zenoh import RosNodeView

@@ -15,7 +15,7 @@ from litevloc.config.schema import PlannerConfig, ZenohConfig
 from litevloc.hw import ros_msgs
 from litevloc.pipelines.navigation.planner import GoalResult
 from litevloc.pipelines.topomap.types import OccupancyGrid
-from litevloc.runtime.planner_service import KEYS, GoalPlanner, PlannerService
+from litevloc.runtime.planner.node import KEYS, GoalPlanner, PlannerService
 from tests.pipelines.navigation.test_planner import grid_map
 from tests.runtime.zenoh_helpers import free_port
 
@@ -267,8 +267,8 @@ def test_over_zenoh_goal_status_and_subgoals() -> None:
     """Pose + goal in over Zenoh (loopback, free port), subgoal_base and status out."""
     import cv2
 
-    from litevloc.runtime.bus import Bus
-    from litevloc.runtime.goal_client import send_goals
+    from litevloc.runtime.planner.goal_client import send_goals
+    from litevloc.runtime.transport.bus import Bus
 
     ep = f"tcp/127.0.0.1:{free_port()}"
     z = ZenohConfig(listen=(ep,))

@@ -5,7 +5,7 @@ import time
 
 import pytest
 
-from litevloc.runtime.queues import (
+from litevloc.runtime.service.queues import (
     BoundedFifo,
     LatestMailbox,
     QueueClosed,

@@ -38,7 +38,7 @@ from litevloc.hw import ros_msgs
 from litevloc.hw.messages import GroundTruthPose, Odometry
 from litevloc.hw.odometry import OdometrySender
 from litevloc.hw.streams.mcap_io import McapSource
-from litevloc.runtime.bus import TOPICS, Bus, topic_key, warm_codecs
+from litevloc.runtime.transport.bus import TOPICS, Bus, topic_key, warm_codecs
 from tests.conftest import HeldOut
 
 from .zenoh_helpers import free_port
@@ -152,7 +152,7 @@ def test_realtime_run_on_held_out_queries(inputs: tuple[Path, Path], tmp_path: P
     out = tmp_path / "run.json"
     with Bus(ZenohConfig(listen=(ep,))) as bus:
         robot = Robot(bus, odometry)
-        cmd = [sys.executable, "-m", "litevloc.runtime.cli.main", "run", "--config", "7scenes", "--map", str(map_dir),
+        cmd = [sys.executable, "-m", "litevloc.cli.main", "run", "--config", "7scenes", "--map", str(map_dir),
                "--source", str(rec), "--rate", str(RATE), "--listen", f"tcp/127.0.0.1:{free_port()}", "--connect", ep,
                "--fault", FAULT, "--json", str(out),
                "--set", "runtime.mode=realtime", "--set", "runtime.odometry_input=zenoh",

@@ -12,11 +12,11 @@ import cv2
 import numpy as np
 import pytest
 
+from litevloc.cli.main import main
 from litevloc.hw.messages import Message, Odometry, RgbdFrame, StreamStats, depth_from_millimetres
 from litevloc.hw.streams.mcap_io import McapRecorder, McapSource
-from litevloc.runtime import recording
-from litevloc.runtime.cli.main import main
 from litevloc.runtime.sources import open_source
+from litevloc.runtime.tools import recording
 
 
 class TinySource:

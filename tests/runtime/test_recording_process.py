@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from litevloc.cli.main import main
 from litevloc.hw.messages import EncodedRgbdFrame, GroundTruthPose, Odometry, StreamError
 from litevloc.hw.streams.mcap_io import McapSource
-from litevloc.runtime.cli.main import main
 from litevloc.runtime.recording_process import RecordingReaderProcess
 from litevloc.runtime.sources import service_messages
 

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from litevloc.base.geometry import make_T, quat_xyzw_to_matrix
-from litevloc.runtime.cli.main import main
-from litevloc.runtime.posed import posed_frames
+from litevloc.cli.main import main
 from litevloc.runtime.sources import open_source
+from litevloc.runtime.tools.posed import posed_frames
 from tests.conftest import HeldOut
 
 from .zenoh_helpers import finish_probe, free_port, start_probe

@@ -14,9 +14,9 @@ import pytest
 from litevloc.base.geometry import make_T, so3_exp
 from litevloc.config.schema import TfConfig, ZenohConfig
 from litevloc.hw import ros_msgs
-from litevloc.runtime import rmw_zenoh
-from litevloc.runtime.bus import Bus, LiteVLocPublisher
-from litevloc.runtime.ros_interface import TF_MESSAGE
+from litevloc.runtime.transport import rmw_zenoh
+from litevloc.runtime.transport.bus import Bus, LiteVLocPublisher
+from litevloc.runtime.transport.ros_interface import TF_MESSAGE
 from tests.runtime.rmw_zenoh_reference import (
     DOC_NODE_TOKEN,
     DOC_PUB_TOKEN,

@@ -16,10 +16,10 @@ from litevloc.base.errors import LiteVLocError
 from litevloc.base.loader import ConfigError, from_mapping
 from litevloc.config.schema import TfConfig, ZenohConfig
 from litevloc.hw import ros_msgs
-from litevloc.runtime import rmw_zenoh
-from litevloc.runtime.bus import Bus, LiteVLocPublisher
-from litevloc.runtime.rmw_zenoh import Ros2Distro
-from litevloc.runtime.ros_interface import TF_MESSAGE
+from litevloc.runtime.transport import rmw_zenoh
+from litevloc.runtime.transport.bus import Bus, LiteVLocPublisher
+from litevloc.runtime.transport.rmw_zenoh import Ros2Distro
+from litevloc.runtime.transport.ros_interface import TF_MESSAGE
 from tests.runtime.rmw_zenoh_reference import (
     HUMBLE_TYPE_HASH,
     REFERENCE_HASHES,

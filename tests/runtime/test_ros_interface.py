@@ -26,11 +26,11 @@ from litevloc.pipelines.fusion.online import OnlineFusion
 from litevloc.pipelines.localization.search_region import SearchRegion, nodes_within
 from litevloc.pipelines.localization.tracking import TrackingState
 from litevloc.pipelines.localization.vloc import VisualLocalizer
-from litevloc.runtime.bus import Bus, LiteVLocPublisher
-from litevloc.runtime.localization_core import LocalizationCore
-from litevloc.runtime.ros_inputs import InitialPoseInput
-from litevloc.runtime.ros_interface import TF_MESSAGE, InitialPoseRefused, parse_initial_pose
-from litevloc.runtime.service import Service, fusion_callables, localizer_callable
+from litevloc.runtime.service.core import LocalizationCore
+from litevloc.runtime.service.shell import Service, fusion_callables, localizer_callable
+from litevloc.runtime.transport.bus import Bus, LiteVLocPublisher
+from litevloc.runtime.transport.ros_inputs import InitialPoseInput
+from litevloc.runtime.transport.ros_interface import TF_MESSAGE, InitialPoseRefused, parse_initial_pose
 from tests.pipelines.localization.test_vloc import IMG, PARAMS, K, Scene, make_map, pose
 from tests.runtime.fakes import T_MAP_ODOM_TRUE, FakeFusion, Result, SyntheticSource, T_odom_base_at
 from tests.runtime.rmw_zenoh_reference import REFERENCE_HASHES, parse_attachment
@@ -204,7 +204,7 @@ def test_initial_pose_over_rmw_zenoh_reaches_the_core() -> None:
             deadline = time.monotonic() + 5
             while not rviz.matching_status.matching and time.monotonic() < deadline:
                 time.sleep(0.01)
-            from litevloc.runtime.rmw_zenoh import attachment
+            from litevloc.runtime.transport.rmw_zenoh import attachment
 
             rviz.put(_initial_pose_msg(5.0, -2.0), attachment=attachment(1, time.time_ns(), bytes(16)))
             done = threading.Event()

@@ -15,8 +15,8 @@ from litevloc.config import load_config
 from litevloc.config.schema import ZenohConfig
 from litevloc.hw.messages import Odometry
 from litevloc.hw.odometry import OdometryReceiver, encode_odometry
-from litevloc.runtime.bus import Bus, BusError, LiteVLocPublisher, zenoh_config
-from litevloc.runtime.zenoh_security import odometry_acl, usrpwd_auth
+from litevloc.runtime.transport.bus import Bus, BusError, LiteVLocPublisher, zenoh_config
+from litevloc.runtime.transport.security import odometry_acl, usrpwd_auth
 from tests.runtime.zenoh_helpers import free_port
 
 ROOT = Path(__file__).resolve().parents[2]

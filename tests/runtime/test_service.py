@@ -13,8 +13,8 @@ import pytest
 from litevloc.config.schema import RuntimeConfig, ZenohConfig
 from litevloc.hw.messages import Odometry
 from litevloc.hw.odometry import OdometryReceiver, OdometrySender
-from litevloc.runtime.bus import Bus, LiteVLocPublisher
-from litevloc.runtime.service import Service
+from litevloc.runtime.service.shell import Service
+from litevloc.runtime.transport.bus import Bus, LiteVLocPublisher
 from tests.runtime.fakes import (
     T_MAP_ODOM_TRUE,
     FakeFusion,
@@ -300,7 +300,7 @@ def test_inline_publishing_gives_the_same_output() -> None:
 
 @pytest.mark.timeout(30)
 def test_adapters_for_localizer_and_fusion() -> None:
-    from litevloc.runtime.service import fusion_callables, localizer_callable
+    from litevloc.runtime.service.shell import fusion_callables, localizer_callable
 
     calls: list[tuple[str, int]] = []
 

@@ -11,7 +11,7 @@ from litevloc.config.schema import RuntimeConfig
 from litevloc.hw.messages import RgbdFrame
 from litevloc.pipelines.fusion.online import OnlineFusion
 from litevloc.pipelines.localization.results import LocalizationResult, ProvisionalPose
-from litevloc.runtime.service import Service, fusion_callables
+from litevloc.runtime.service.shell import Service, fusion_callables
 from tests.runtime.fakes import T_MAP_ODOM_TRUE, FakePublisher, SyntheticSource, T_odom_base_at
 
 

@@ -9,13 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from litevloc.runtime.cli.main import main
+from litevloc.cli.main import main
 
 
 @pytest.fixture(scope="module")
 def small_map(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Map of the first 12 s of the office mapping pass (the start room)."""
-    from litevloc.runtime.world_navigation import ensure_map
+    from litevloc.runtime.tools.world_navigation import ensure_map
 
     return ensure_map("office", tmp_path_factory.mktemp("nav"), "default", map_duration=12.0)
 
@@ -23,7 +23,7 @@ def small_map(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_closed_loop_reaches_a_goal_with_litevloc(small_map: Path, tmp_path: Path) -> None:
     from litevloc.base.params.sim_navigation import NavParams
     from litevloc.config import load_config
-    from litevloc.runtime.sim_navigation import render_goals, run_navigation
+    from litevloc.runtime.tools.sim_navigation import render_goals, run_navigation
     from litevloc.sim.world import load_world
 
     cfg = load_config("default")
@@ -60,7 +60,7 @@ def test_a_run_that_never_localizes_ends_with_the_reason(small_map: Path) -> Non
     the run ends and every goal fails as never localized, the reason counting the moves."""
     from litevloc.base.params.sim_navigation import NavParams
     from litevloc.config import load_config
-    from litevloc.runtime.sim_navigation import render_goals, run_navigation
+    from litevloc.runtime.tools.sim_navigation import render_goals, run_navigation
     from litevloc.sim.world import load_world
 
     cfg = load_config("default")
@@ -95,7 +95,7 @@ def test_cli_goal_send_without_planner_reports_no_answer(tmp_path: Path) -> None
 
 def test_map_from_the_simulator_reports_how_its_keyframes_were_chosen(small_map: Path, tmp_path: Path) -> None:
     """ensure_map builds straight from the simulator; the map carries coverage, budget and build time."""
-    from litevloc.runtime.world_navigation import map_summary
+    from litevloc.runtime.tools.world_navigation import map_summary
 
     s = map_summary(small_map)
     assert s["keyframes"] >= 3 and s["coverage"] is not None and s["coverage"] >= 0.95
@@ -114,7 +114,7 @@ def test_driver_status_callback_updates_state_and_feeds_the_view() -> None:
     from types import SimpleNamespace
 
     from litevloc.hw import ros_msgs
-    from litevloc.runtime.sim_navigation import _Driver
+    from litevloc.runtime.tools.sim_navigation import _Driver
 
     def sample(st: dict) -> SimpleNamespace:
         msg = ros_msgs.typestore().types[ros_msgs.STRING](data=json.dumps(st))
@@ -135,10 +135,10 @@ def test_ensure_map_passes_build_overrides_and_reuses_a_built_map(tmp_path: Path
                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
     """`ensure_map(..., overrides=...)` builds with each KEY=VALUE applied to the configuration
     (the density benchmark caps the keyframe budget this way) and builds nothing when the map exists."""
-    import litevloc.runtime.world_navigation as world_navigation
+    import litevloc.runtime.tools.world_navigation as world_navigation
     from litevloc.config.schema import LiteVLocConfig
-    from litevloc.runtime.map_building import MapBuildRequest
-    from litevloc.runtime.world_navigation import ensure_map
+    from litevloc.runtime.tools.map_building import MapBuildRequest
+    from litevloc.runtime.tools.world_navigation import ensure_map
 
     calls: list[tuple[MapBuildRequest, LiteVLocConfig]] = []
 
@@ -161,7 +161,7 @@ def test_ensure_map_passes_build_overrides_and_reuses_a_built_map(tmp_path: Path
 
 
 def test_ratios_compare_only_goals_both_modes_reached() -> None:
-    from litevloc.runtime.sim_navigation import goal_ratios
+    from litevloc.runtime.tools.sim_navigation import goal_ratios
 
     def g(name: str, outcome: str, t: float, p: float) -> dict:
         return {"name": name, "outcome": outcome, "time_s": t, "path_length_m": p}
@@ -177,7 +177,7 @@ def test_sim_navigate_takes_the_loop_settings_from_the_config(tmp_path: Path,
                                                               monkeypatch: pytest.MonkeyPatch) -> None:
     """`sim navigate` runs with the config's `sim_navigation` section (`--set` reaches the local
     planner), its flags on top; nothing else is changed."""
-    import litevloc.runtime.cli.sim_navigate as cli_nav
+    import litevloc.cli.sim_navigate as cli_nav
     from litevloc.base.params.sim_navigation import NavParams
 
     seen: list[NavParams] = []
@@ -202,7 +202,7 @@ def test_a_far_goal_gets_time_for_its_path() -> None:
     """A goal's budget grows with its shortest free path where that path is long (a far room of
     the 15-room floor), and stays `goal_timeout_s` for a near one."""
     from litevloc.base.params.sim_navigation import NavParams
-    from litevloc.runtime.sim_navigation import goal_budget
+    from litevloc.runtime.tools.sim_navigation import goal_budget
     from litevloc.sim.world import load_world
 
     world = load_world("floor", seed=10)

@@ -1,4 +1,4 @@
-"""The SLAM's feed from a recording (`runtime.slam_build.run_on_messages`)."""
+"""The SLAM's feed from a recording (`runtime.tools.slam_build.run_on_messages`)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 
 from litevloc.hw.messages import EncodedRgbdFrame, StreamError
 from litevloc.pipelines.slam.types import FrameRef
-from litevloc.runtime.slam_build import run_on_messages
+from litevloc.runtime.tools.slam_build import run_on_messages
 
 
 class _Session:

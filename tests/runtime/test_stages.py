@@ -6,8 +6,15 @@ import time
 
 import pytest
 
-from litevloc.runtime.queues import BoundedFifo
-from litevloc.runtime.stages import Periodic, Stage, StageInput, StageState, configure_threads, ort_session_options
+from litevloc.runtime.service.queues import BoundedFifo
+from litevloc.runtime.service.stages import (
+    Periodic,
+    Stage,
+    StageInput,
+    StageState,
+    configure_threads,
+    ort_session_options,
+)
 
 
 @pytest.mark.timeout(20)
@@ -133,7 +140,7 @@ def test_low_priority_threads_and_their_children() -> None:
     """The VLoc thread and the threads started by code run at low priority inherit its nice."""
     import os
 
-    from litevloc.runtime.stages import call_in_low_priority_thread, lower_thread_priority
+    from litevloc.runtime.service.stages import call_in_low_priority_thread, lower_thread_priority
 
     def child_nice() -> tuple[int, int]:
         seen: list[int] = []
@@ -169,7 +176,7 @@ def test_realtime_priority_is_what_the_status_says() -> None:
     where not permitted it keeps normal priority and says why. Either way the status is true."""
     import os
 
-    from litevloc.runtime.stages import use_realtime_priority
+    from litevloc.runtime.service.stages import use_realtime_priority
 
     stop = threading.Event()
     q: BoundedFifo[int] = BoundedFifo("q", 4)

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from litevloc.config.schema import ZenohConfig
-from litevloc.runtime.bus import Bus, BusError, LiteVLocPublisher
-from litevloc.runtime.zenoh_security import tls_config
+from litevloc.runtime.transport.bus import Bus, BusError, LiteVLocPublisher
+from litevloc.runtime.transport.security import tls_config
 from tests.runtime.zenoh_helpers import free_port
 
 x509 = pytest.importorskip("cryptography.x509", reason="the `cryptography` package (dev extra) makes the certificates")

@@ -19,8 +19,8 @@ from litevloc.base.geometry import make_T, so3_exp
 from litevloc.hw.messages import RgbdFrame
 from litevloc.pipelines.localization.results import MatchedPixels
 from litevloc.pipelines.topomap.types import NodeFeatures, OccupancyGrid, TopoMap
-from litevloc.runtime.queues import DropQueue
-from litevloc.runtime.view import covariance_ellipsoid, occupied_points
+from litevloc.runtime.service.queues import DropQueue
+from litevloc.runtime.service.view import covariance_ellipsoid, occupied_points
 from tests.conftest import HeldOut
 from tests.runtime.zenoh_helpers import free_port
 
@@ -101,7 +101,7 @@ def test_covariance_ellipsoid_and_occupancy_points() -> None:
 def test_saved_stream_holds_every_part_of_the_view(tmp_path: Path) -> None:
     from rerun.chunk import RrdReader
 
-    from litevloc.runtime.view import LiveView
+    from litevloc.runtime.service.view import LiveView
 
     m = synthetic_map()
     out = tmp_path / "view.rrd"
@@ -146,20 +146,20 @@ def test_saved_stream_holds_every_part_of_the_view(tmp_path: Path) -> None:
 
 
 def test_view_needs_a_sink() -> None:
-    from litevloc.runtime.view import LiveView, ViewError
+    from litevloc.runtime.service.view import LiveView, ViewError
 
     with pytest.raises(ViewError, match="--view-save"):
         LiveView()
 
 
 def test_nothing_is_imported_with_the_view_off() -> None:
-    code = ("import sys; from litevloc.runtime.cli.main import build_parser; "
-            "import litevloc.runtime.app, litevloc.runtime.cli.replay, litevloc.runtime.cli.run, "
-            "litevloc.runtime.cli.localize; "
+    code = ("import sys; from litevloc.cli.main import build_parser; "
+            "import litevloc.runtime.service.app, litevloc.cli.replay, litevloc.cli.run, "
+            "litevloc.cli.localize; "
             "a = build_parser().parse_args(['replay', 'x.mcap', '--map', 'm']); "
             "assert a.view is False and a.view_save is None, a; "
             "bad = [m for m in sys.modules if m.split('.')[0] in ('rerun', 'rerun_bindings', 'pyarrow') "
-            "or m == 'litevloc.runtime.view']; print(bad); assert not bad")
+            "or m == 'litevloc.runtime.service.view']; print(bad); assert not bad")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stdout + r.stderr
 
@@ -177,7 +177,7 @@ def _entity_rows(rrd: Path) -> dict[str, int]:
 def test_replay_and_localize_save_the_view(seven_scenes_held_out: HeldOut, tmp_path: Path) -> None:
     """`litevloc replay REC --map MAP --view-save` and `litevloc localize ... --view-save` on 16
     held-out 7-Scenes frames: the files hold the map, fused poses, VLoc results and status."""
-    from litevloc.runtime.cli.main import main
+    from litevloc.cli.main import main
 
     rec, mp = seven_scenes_held_out.queries, seven_scenes_held_out.map_dir
     fast = ["--set", "models.matcher=mnn"]

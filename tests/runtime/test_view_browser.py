@@ -22,7 +22,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.timeout(400)]
 @pytest.mark.skipif(find_chromium() is None,
                     reason="no chromium on PATH (`make test` installs Debian's chromium when run as root)")
 def test_saved_view_opens_in_the_web_viewer(tmp_path: Path) -> None:
-    from litevloc.runtime.view import LiveView
+    from litevloc.runtime.service.view import LiveView
 
     m = synthetic_map()
     rrd = tmp_path / "view.rrd"

@@ -14,8 +14,8 @@ from litevloc.base.params.fusion import FusionParams
 from litevloc.config.schema import RuntimeConfig
 from litevloc.hw.messages import Odometry, RgbdFrame
 from litevloc.pipelines.fusion.online import OnlineFusion
-from litevloc.runtime.service import Service, fusion_callables
-from litevloc.runtime.vloc_prior import OdometryHistory, VlocPrior, prior_at
+from litevloc.runtime.service.shell import Service, fusion_callables
+from litevloc.runtime.service.vloc_prior import OdometryHistory, VlocPrior, prior_at
 from tests.runtime.fakes import MS, T_MAP_ODOM_TRUE, FakeFusion, FakePublisher, Result, T_odom_base_at, Update
 
 
@@ -98,7 +98,7 @@ def test_delayed_frame_gets_the_pose_at_its_stamp_and_its_true_age() -> None:
             seen.append((prior, prior_age_s, prior_cov, prior_travel_m))
             return Result(t_ns, False, "too few inliers")
 
-    from litevloc.runtime.service import localizer_callable
+    from litevloc.runtime.service.shell import localizer_callable
     frame = RgbdFrame(t_frame, np.zeros((8, 8, 3), np.uint8), None, np.eye(3))
     out = localizer_callable(Loc())(frame, prior)
     assert seen[0][0] is prior.T_map_camera and seen[0][1] == pytest.approx(0.4)

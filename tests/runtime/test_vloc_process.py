@@ -1,4 +1,4 @@
-"""VLoc in a child process (`runtime.vloc_process`): the same results as in a thread, clear
+"""VLoc in a child process (`runtime.service.vloc_process`): the same results as in a thread, clear
 errors when the child cannot start or dies, and a clean end."""
 
 from __future__ import annotations
@@ -11,11 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from litevloc.cli.main import main
 from litevloc.config import load_config
 from litevloc.hw.messages import RgbdFrame
 from litevloc.hw.streams.mcap_io import McapSource
-from litevloc.runtime.cli.main import main
-from litevloc.runtime.vloc_process import VlocProcess, VlocProcessError, VlocWorkerSpec
+from litevloc.runtime.service.vloc_process import VlocProcess, VlocProcessError, VlocWorkerSpec
 from tests.conftest import HeldOut
 
 from .zenoh_helpers import free_port
@@ -47,7 +47,7 @@ def test_deterministic_replay_gives_the_same_trajectory_with_vloc_in_a_process(
         traj = tmp_path / f"fused_{placement}.txt"
         assert main(["replay", str(rec), "--frames", "0:12", "--config", "7scenes", "--map", str(mp), "-o", str(traj),
                      "--listen", f"tcp/127.0.0.1:{free_port()}", "--set", "runtime.mode=deterministic",
-                     "--set", f"runtime.vloc_process={placement}"]) == 0
+                     "--set", f"runtime.service.vloc_process={placement}"]) == 0
         trajs[placement] = traj.read_text()
     assert len(trajs["false"].splitlines()) > 100  # 12 frames 0.33 s apart, 100 Hz odometry
     assert trajs["true"] == trajs["false"]

@@ -19,10 +19,10 @@ def free_port() -> int:
 def start_probe(endpoint: str, out: Path, topics: str, counts: dict[str, int], timeout: float = 20.0,
                 namespace: str = "", idle: float = 0.0, listen: bool = False,
                 ros2: str = "bridge") -> subprocess.Popen[str]:
-    """Start `python -m litevloc.runtime.probe` and wait (bounded) for its READY line.
+    """Start `python -m litevloc.runtime.transport.probe` and wait (bounded) for its READY line.
 
     The probe connects to `endpoint`, or with `listen=True` listens there (the service connects)."""
-    cmd = [sys.executable, "-m", "litevloc.runtime.probe", "--listen" if listen else "--connect", endpoint,
+    cmd = [sys.executable, "-m", "litevloc.runtime.transport.probe", "--listen" if listen else "--connect", endpoint,
            "--topics", topics,
            "--timeout", str(timeout), "--json", str(out), "--keep", "--namespace", namespace, "--ros2", ros2]
     if idle:

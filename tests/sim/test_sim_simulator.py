@@ -10,10 +10,10 @@ import pytest
 
 from litevloc.base.geometry import GeometryError, interpolate_pose_at, invert
 from litevloc.base.params.drift import DriftParams
+from litevloc.cli.main import main
 from litevloc.hw.messages import GroundTruthPose, Odometry, RgbdFrame
 from litevloc.hw.streams.mcap_io import McapSource
 from litevloc.pipelines.odometry_drift import IncrementalDrift, resample_times, simulate_odometry
-from litevloc.runtime.cli.main import main
 from litevloc.sim.elements import pose2d
 from litevloc.sim.simulator import SimParams, Simulator
 from litevloc.sim.source import SimSequenceSource

@@ -61,7 +61,7 @@ def test_keyframes_know_their_path_along_the_chain(scene: Scene, base) -> None: 
 
 def test_saved_graph_reoptimises_to_the_same_map(base, tmp_path) -> None:  # type: ignore[no-untyped-def]
     # the simulator's preset holds the base on one level floor: the saved graph keeps that too
-    from litevloc.runtime.slam_build import load_graph, save_graph, solve_saved
+    from litevloc.runtime.tools.slam_build import load_graph, save_graph, solve_saved
 
     _, res = base
     assert res.level is not None

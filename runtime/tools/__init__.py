@@ -1,0 +1,1 @@
+"""Offline tools: map building, recording, simulated passes and simulated navigation runs."""

@@ -1,0 +1,1 @@
+"""Transport: the Zenoh bus, rmw_zenoh framing, ROS 2 messages and the session's security."""
