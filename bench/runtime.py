@@ -17,7 +17,7 @@ frame at the source as before, for an A/B in the same run (`--modes realtime rea
 `--modes realtime realtime+alt --alt-set KEY=VALUE ...` is an A/B of any runtime setting in one
 run (e.g. the fused-pose latency settings: `--alt-set runtime.fusion_rt_priority=0`).
 `--modes realtime+thread realtime+process` compares VLoc in a thread of the service with VLoc
-in its own process (`runtime.service.vloc_process`; RSS and CPU then include the child's).
+in its own process (`runtime.vloc_process`; RSS and CPU then include the child's).
 
 `--view` compares the threaded runtime without and with the live view (`--view-save` to a
 temporary .rrd: Rerun logging in the view thread) on the same input in the same run:
@@ -50,7 +50,7 @@ from _common import ROOT, office_inputs, print_table, write_json
 
 class RssSampler:
     """RSS (MB) of this process plus its child processes (the VLoc process, the recording
-    reader: `runtime.service.vloc_process`, `runtime.recording_process`) every `period_s` in a daemon
+    reader: `runtime.vloc_process`, `runtime.recording_process`) every `period_s` in a daemon
     thread."""
 
     def __init__(self, period_s: float = 0.5) -> None:
@@ -120,8 +120,8 @@ def one_run(mode: str, rec: Path, map_dir: Path, seconds: float, endpoint: str, 
 
     view = mode.endswith("+view")
     eager = mode.endswith("+eager")
-    placement = {"realtime+process": ["runtime.service.vloc_process=true"],  # VLoc in its own process / in a thread,
-                 "realtime+thread": ["runtime.service.vloc_process=false"],  # whatever the preset says
+    placement = {"realtime+process": ["runtime.vloc_process=true"],  # VLoc in its own process / in a thread,
+                 "realtime+thread": ["runtime.vloc_process=false"],  # whatever the preset says
                  "realtime+alt": alt_overrides}.get(mode, [])
     cfg = load_config("default", [f"runtime.mode={mode.split('+')[0]}", *overrides, *placement])
     cfg = with_endpoints(cfg, [], [endpoint], None)
@@ -139,7 +139,7 @@ def one_run(mode: str, rec: Path, map_dir: Path, seconds: float, endpoint: str, 
             yield m
 
     app = build_app(cfg, map_dir, limited(), 1.0, view_save=out.with_suffix(".rrd") if view else None)
-    child = app.vloc_process.pid if app.vloc_process is not None else None  # runtime.service.vloc_process
+    child = app.vloc_process.pid if app.vloc_process is not None else None  # runtime.vloc_process
     cpu0, t0 = cpu_seconds(), time.perf_counter()
     child_cpu0 = proc_cpu_s(child)  # the VLoc process loaded its models before t0: not counted
     children_cpu0 = cpu_seconds(resource.RUSAGE_CHILDREN)

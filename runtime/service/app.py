@@ -81,7 +81,7 @@ class App:
     recorder: Recorder
     T_base_camera: NDArray[np.float64]
     view: Any = None  # runtime.service.view.LiveView with --view / --view-save
-    vloc_process: VlocProcess | None = None  # runtime.service.vloc_process: the child that runs the localizer
+    vloc_process: VlocProcess | None = None  # runtime.vloc_process: the child that runs the localizer
 
     def close(self) -> None:
         self.bus.close()
@@ -123,8 +123,8 @@ def build_app(
     `view_spawn` / `view_save`: the live view (`runtime.service.view`, imported only then), fed off
     the hot path from the VLoc callable, the fused-pose hook and the status tick.
 
-    With `runtime.service.vloc_process` (realtime and deterministic modes) the models and the map are
-    loaded by the VLoc child process (`runtime.service.vloc_process`), which is started and has loaded
+    With `runtime.vloc_process` (realtime and deterministic modes) the models and the map are
+    loaded by the VLoc child process (`runtime.vloc_process`), which is started and has loaded
     them when this returns; this process loads the map only for the live view."""
     localizer: VisualLocalizer | None = None
     vloc_proc: VlocProcess | None = None
