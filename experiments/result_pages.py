@@ -51,6 +51,20 @@ def _prior_gate_rows(d: Json) -> list[list[str]]:
             for r in d["results"]]
 
 
+def _opt(v: float | None, fmt: str, scale: float = 1.0) -> str:
+    """`v` x `scale` formatted, "-" where the run has no such figure (None)."""
+    return "-" if v is None else format(scale * v if scale != 1.0 else v, fmt)
+
+
+def _slam_rows(d: Json) -> list[list[str]]:
+    cases = [(name, c) for name, c in d.items() if isinstance(c, dict) and "s_per_keyframe" in c]
+    return [[name, _opt(c.get("keyframe_ate_m"), ".1f", 100), _opt(c.get("odometry_ate_m"), ".0f", 100),
+             _opt(c.get("no_loop_ate_m"), ".1f", 100), _opt(c.get("loops_kept"), "d"),
+             _opt(c.get("wrong_loops_kept"), "d"),
+             f"{c['s_per_keyframe']:.2f} ({_opt(c.get('cpu_s_per_keyframe'), '.1f')})",
+             f"{_opt(c.get('map_keyframes'), 'd')} / {_opt(c.get('slam_keyframes'), 'd')}"] for name, c in cases]
+
+
 PAGES: tuple[Page, ...] = (
     Page("splits", "7-Scenes cross-split localization", "bench/splits.json", "python bench/splits.py",
          "localization.md#the-cross-split-benchmark-python-benchsplitspy",
@@ -60,6 +74,9 @@ PAGES: tuple[Page, ...] = (
          "bench/prior_gate.json", "python bench/prior_gate.py", "localization.md#the-prior-gate",
          ("pass", "odometry alone", "error median / max cm", "error / sigma, max",
           "gate along the axis, median m (age gate m)", "true pose refused"), _prior_gate_rows),
+    Page("slam", "Maps posed by their own SLAM", "bench/slam.json", "python bench/slam.py", "mapping.md#what-the-slam-does",
+         ("case", "keyframe ATE cm", "odometry alone ATE cm", "without loops ATE cm", "loops kept", "wrong loops kept",
+          "s per map keyframe (CPU-s)", "map / SLAM keyframes"), _slam_rows),
 )
 
 

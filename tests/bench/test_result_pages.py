@@ -60,3 +60,19 @@ def test_every_page_is_committed_as_generated_and_dated() -> None:
         assert block is not None and text == page_text(page, block), page.name
         assert re.match(r"Measured \d{4}-\d{2}-\d{2} on ", block), block[:80]
         assert BEGIN in text and END in text
+
+
+def test_a_slam_case_without_ground_truth_shows_a_dash_and_non_cases_are_skipped(tmp_path: Path) -> None:
+    out, results = tmp_path / "out", tmp_path / "results"
+    (out / "bench").mkdir(parents=True)
+    results.mkdir()
+    case = {"keyframe_ate_m": 0.0058, "odometry_ate_m": 2.23, "no_loop_ate_m": None, "loops_kept": 181,
+            "wrong_loops_kept": 0, "s_per_keyframe": 0.94, "cpu_s_per_keyframe": 1.4, "map_keyframes": 158,
+            "slam_keyframes": 1164}
+    robot = {**case, "keyframe_ate_m": None, "odometry_ate_m": None, "wrong_loops_kept": None}
+    (out / "bench" / "slam.json").write_text(json.dumps({"meta": {"time": "2031-02-03"}, "office": case,
+                                                         "robot": robot, "notes": "not a case"}))
+    update_pages(out, results, lambda _m: None)
+    rows = [line for line in (results / "slam.md").read_text().splitlines() if line.startswith("| ")][1:]
+    assert rows == ["| office | 0.6 | 223 | - | 181 | 0 | 0.94 (1.4) | 158 / 1164 |",
+                    "| robot | - | - | - | 181 | - | 0.94 (1.4) | 158 / 1164 |"]
