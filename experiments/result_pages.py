@@ -53,7 +53,7 @@ def _prior_gate_rows(d: Json) -> list[list[str]]:
 
 def _opt(v: float | None, fmt: str, scale: float = 1.0) -> str:
     """`v` x `scale` formatted, "-" where the run has no such figure (None)."""
-    return "-" if v is None else format(scale * v if scale != 1.0 else v, fmt)
+    return "-" if v is None else format(v if scale == 1.0 else scale * v, fmt)
 
 
 def _slam_rows(d: Json) -> list[list[str]]:
@@ -74,7 +74,8 @@ PAGES: tuple[Page, ...] = (
          "bench/prior_gate.json", "python bench/prior_gate.py", "localization.md#the-prior-gate",
          ("pass", "odometry alone", "error median / max cm", "error / sigma, max",
           "gate along the axis, median m (age gate m)", "true pose refused"), _prior_gate_rows),
-    Page("slam", "Maps posed by their own SLAM", "bench/slam.json", "python bench/slam.py", "mapping.md#what-the-slam-does",
+    Page("slam", "Maps posed by their own SLAM", "bench/slam.json", "python bench/slam.py",
+         "mapping.md#what-the-slam-does",
          ("case", "keyframe ATE cm", "odometry alone ATE cm", "without loops ATE cm", "loops kept", "wrong loops kept",
           "s per map keyframe (CPU-s)", "map / SLAM keyframes"), _slam_rows),
 )
