@@ -83,7 +83,7 @@ def _convert(value: Any, tp: Any, path: str, source: str | None) -> Any:
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise ConfigError(f"{_where(path, source)} must be a number, got {value!r}")
-        if not math.isfinite(value):  # NaN/inf pass most `>`/`<` checks silently (found by tests/fuzz)
+        if not math.isfinite(value):  # NaN/inf pass most `>`/`<` checks silently
             raise ConfigError(f"{_where(path, source)} must be a finite number, got {value!r}")
         return float(value)
     if tp is str:

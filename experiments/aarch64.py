@@ -1,4 +1,4 @@
-"""The aarch64 check's own logic (`tools/aarch64_check.py` drives it; issue 75 item 5).
+"""The aarch64 check's own logic (`tools/aarch64_check.py` drives it).
 
 The check runs the runtime's aarch64 wheels on an x86 machine under qemu user-mode emulation
 (an arm64 Python from Debian's packages in a sysroot folder) and compares what they compute with

@@ -1,5 +1,5 @@
 """Figures of a `experiments.buildings` run: per building, per generator, per goal camera and
-in total; the acceptance checks of issue 42; the table rows and the distribution plot.
+in total; the acceptance checks on the totals; the table rows and the distribution plot.
 
 Definitions (all per goal image driven, both localizations on the same images):
 
@@ -107,7 +107,7 @@ def totals(buildings: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def acceptance(t: dict[str, Any]) -> dict[str, Any]:
-    """Issue 42's acceptance checks on the totals: value and pass/fail each."""
+    """The acceptance checks on the totals: value and pass/fail each."""
     lv, gt = t["litevloc"], t["ground-truth"]
     share = lv["reached"] / lv["goals"] if lv["goals"] else 0.0
     vs_gt = lv["reached"] / gt["reached"] if gt["reached"] else 0.0

@@ -202,12 +202,14 @@ HEADLINES: tuple[Headline, ...] = (
 )
 
 
-def _cell(text: str) -> str:
+def cell(text: str) -> str:
+    """One table cell: on one line, no `|`, at most `MAX_CELL` characters."""
     text = " ".join(str(text).split()).replace("|", "/")
     return text if len(text) <= MAX_CELL else text[: MAX_CELL - 3] + "..."
 
 
-def _machine(meta: Json) -> str:
+def machine(meta: Json) -> str:
+    """The machine column: CPU, CPU count and load average of a run's `meta`."""
     if not meta:
         return "not recorded"
     parts = [str(meta.get("cpu") or meta.get("machine", "?"))]
@@ -218,12 +220,16 @@ def _machine(meta: Json) -> str:
     return ", ".join(parts)
 
 
+def measured_on(meta: Json, path: Path) -> str:
+    """The run's date (YYYY-MM-DD) from its `meta`, else the JSON file's modification date."""
+    return str(meta.get("time", ""))[:10] or time.strftime("%Y-%m-%d", time.localtime(path.stat().st_mtime))
+
+
 def row_from_json(h: Headline, path: Path) -> list[str]:
     """The table row of `h` from its JSON file (KeyError/ValueError when the file lacks a figure)."""
     d = json.loads(path.read_text())
     meta = d.get("meta", {})
-    when = str(meta.get("time", ""))[:10] or time.strftime("%Y-%m-%d", time.localtime(path.stat().st_mtime))
-    return [h.what, h.figure(d), when, _machine(meta), f"`{h.command}`"]
+    return [h.what, h.figure(d), measured_on(meta, path), machine(meta), f"`{h.command}`"]
 
 
 def committed_rows(text: str) -> dict[str, list[str]]:
@@ -254,7 +260,7 @@ def build_table(out_dir: Path, committed: Mapping[str, list[str]], log: Callable
             log(f"{h.what}: no {path}; keeping the committed row")
         if row is None:
             row = list(committed.get(h.what, [h.what, "not measured yet", "", "", f"`{h.command}`"]))
-        lines.append("| " + " | ".join(_cell(c) for c in row) + " |")
+        lines.append("| " + " | ".join(cell(c) for c in row) + " |")
     return "\n".join(lines)
 
 

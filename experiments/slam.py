@@ -1,6 +1,6 @@
 """The mapping pass's SLAM, measured (`bench/slam.py` runs the commands, this holds the logic).
 
-* `case_figures`: the issue-41 keys of one `map build --poses slam --json` report.
+* `case_figures`: the benchmark's keys of one `map build --poses slam --json` report.
 * `inject_wrong_loops`: a saved pose graph (`map build --slam-graph`) with `fraction` x its
   loop count of wrong loop factors added between keyframes more than `min_apart_m` apart in
   the reference (each claims the two views are at the same place, 10 cm apart, with a real

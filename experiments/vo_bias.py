@@ -1,5 +1,5 @@
 """The SLAM's visual edges against a simulated pass's truth: do they measure motion long or
-short, and which points make them so (`bench/vo_bias.py` runs it; issue 41).
+short, and which points make them so (`bench/vo_bias.py` runs it).
 
 * `edge_pairs`: frames of a pass `step_m` apart (translation, ground truth), spread over it.
 * `edge_errors`: for one pair, the front end's own edge (`FrontEnd._relative`: guided matches

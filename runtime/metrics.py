@@ -54,7 +54,7 @@ class LatencyWindow:
     def summary(self) -> dict[str, Any]:
         snap = self.snapshot()
         s = percentiles_ms(snap)
-        s["last_ms"] = snap[-1] if snap else float("nan")  # (issue 17: `litevloc/diagnostics` reports it)
+        s["last_ms"] = snap[-1] if snap else float("nan")  # `litevloc/diagnostics` reports it
         s["total"] = self.total
         return s
 

@@ -264,7 +264,7 @@ class LocalPlanner:
         if self._stuck >= p.recover_after:
             self._stuck, self._turn_sign = 0, 0.0
             if rear_clear:
-                self._detour = 0  # then face the point steered to: arcs tried at once drove back into the spot
+                self._detour = 0  # face the point steered to first: arcs at once drive back into the spot
                 self._reversing = p.recover_commands - 1
                 return Command(-p.min_speed, 0.0, "recover")
         return cmd

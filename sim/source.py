@@ -119,10 +119,8 @@ class SimSequenceSource:
         return apply_depth(d, self.params.realism, np.random.default_rng([self._noise_seed, 13, index]))
 
     def __iter__(self) -> Iterator[Message]:
-        # Build the renderer (textures: 2.7 s for the loop world) before the first message: a
-        # replay paced in real time starts its clock there, and a first frame that late arrived
-        # with the 2.7 s of frames behind it at once, so the localizer's second query came
-        # 1.5-4.5 s of sensor time after its first (its prior that old).
+        # the renderer (seconds in a large world) is built before the first message, where a
+        # replay paced in real time starts its clock
         if self._renderer is None:
             self._renderer = Renderer(self.world)
         odo_t, odo_T = self.run.t_ns, self.run.T_odom_base

@@ -60,8 +60,8 @@ TOPIC_TYPES = {
 }
 _FRAME_TOPICS = (TOPIC_COLOR, TOPIC_DEPTH, TOPIC_INFO)
 # What the mcap library (and zstd/lz4 below it) raise on a corrupt or truncated file: besides
-# McapError, plain struct/zstd/overflow errors from length fields that point anywhere (found by
-# tests/fuzz/test_fuzz_streams.py). All become StreamError.
+# McapError, plain struct/zstd/overflow errors from length fields that point anywhere. All become
+# StreamError.
 _CORRUPT: tuple[type[BaseException], ...] = (McapError, ValueError, EOFError, KeyError, IndexError, OverflowError,
                                              struct.error, MemoryError, RuntimeError)
 try:
