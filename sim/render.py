@@ -10,6 +10,9 @@ larger field of view and warping it with the rotation homography (exact for colo
 to resampling; the range along each ray is rotation-invariant and is converted back to
 z-depth).
 
+The column ray cast is `raycast.FloorPlanCaster`, the texturing and shading of the hits
+`shading.Shader`; this module composes the hits of each pixel and models the camera.
+
 Output: colour HxWx3 uint8 RGB (ideal: no noise; see `realism`) and depth HxW float32
 metres (z along the optical axis), NaN where nothing was hit.
 """
@@ -25,11 +28,10 @@ from numpy.typing import NDArray
 
 from litevloc.base.errors import LiteVLocError
 from litevloc.base.geometry import PinholeIntrinsics, check_rigid
-from litevloc.sim.elements import s_increasing
-from litevloc.sim.textures import MIP_LEVELS, BakedTextures, bake
+from litevloc.sim.raycast import KIND_CEIL, KIND_FLOOR, KIND_SIDE, KIND_TOP, KIND_VOID, KIND_WALL, FloorPlanCaster
+from litevloc.sim.shading import Shader
+from litevloc.sim.textures import BakedTextures, bake
 from litevloc.sim.world import World
-
-KIND_VOID, KIND_WALL, KIND_FLOOR, KIND_CEIL, KIND_SIDE, KIND_TOP = 0, 1, 2, 3, 4, 5
 
 
 class RenderError(LiteVLocError, ValueError):
@@ -61,32 +63,6 @@ def _pixel_rays(
     return d, n
 
 
-def _sample(
-    A: NDArray[np.uint8], r: NDArray[np.float64], c: NDArray[np.float64], bilinear: bool
-) -> NDArray[np.float32]:
-    """Texels of A (h, w, 3) at continuous (row, col) coordinates (texel centres at +0.5)."""
-    h, w = A.shape[:2]
-    if not bilinear:
-        ri = np.clip(r.astype(np.intp), 0, h - 1)
-        ci = np.clip(c.astype(np.intp), 0, w - 1)
-        return A.reshape(-1, 3).take(ri * w + ci, axis=0).astype(np.float32)
-    r = r - 0.5
-    c = c - 0.5
-    r0 = np.floor(r)
-    c0 = np.floor(c)
-    fr = (r - r0).astype(np.float32)[:, None]
-    fc = (c - c0).astype(np.float32)[:, None]
-    r0i = np.clip(r0.astype(np.intp), 0, h - 1)
-    c0i = np.clip(c0.astype(np.intp), 0, w - 1)
-    dr = np.where(r0i < h - 1, w, 0)
-    dc = np.where(c0i < w - 1, 1, 0)
-    flat = A.reshape(-1, 3)
-    i00 = r0i * w + c0i
-    top = flat.take(i00, axis=0) * (1 - fc) + flat.take(i00 + dc, axis=0) * fc
-    bot = flat.take(i00 + dr, axis=0) * (1 - fc) + flat.take(i00 + dr + dc, axis=0) * fc
-    return np.asarray(top * (1 - fr) + bot * fr, dtype=np.float32)
-
-
 class Renderer:
     """Render RGB-D images of a `World` (see module docstring).
 
@@ -101,22 +77,8 @@ class Renderer:
         self.tex = baked_textures(world)
         self.max_range = float(max_range)
         self.light_falloff = float(light_falloff)
-        faces = world.faces
-        self._axis = np.array([f.axis for f in faces], np.int8)
-        self._c = np.array([f.c for f in faces])
-        self._lo = np.array([f.lo for f in faces])
-        self._hi = np.array([f.hi for f in faces])
-        self._normal = np.array([f.normal for f in faces], np.float64)
-        self._sinc = np.array([s_increasing(f) for f in faces])
-        self._wall = np.array([f.kind == "wall" for f in faces])
-        box_face0 = [i for i, f in enumerate(faces) if f.kind == "box"]
-        self._box_face0 = box_face0[0] if box_face0 else 0
-        self._wall_idx = {a: np.nonzero(self._wall & (self._axis == a))[0] for a in (0, 1)}
-        fppm = self.tex.floor_ppm
-        self._floor_mips = [self.tex.floor]
-        for _ in range(2):
-            self._floor_mips.append(np.asarray(cv2.pyrDown(self._floor_mips[-1]), dtype=np.uint8))
-        self._fppm = fppm
+        self._caster = FloorPlanCaster(world, self.max_range)
+        self._shader = Shader(self.tex, world.wall_height, self.light_falloff)
 
     # ------------------------------------------------------------------ public
     def render(
@@ -193,155 +155,6 @@ class Renderer:
         right, _ = self.render(T_r, intrinsics)
         return left, right, depth
 
-    # --------------------------------------------------------------- internals
-    def _walls(
-        self, p: NDArray[np.float64], d: NDArray[np.float64]
-    ) -> tuple[NDArray[np.float64], NDArray[np.intp], NDArray[np.float64]]:
-        """Nearest wall per column ray: param t, face index, texture coordinate s (m)."""
-        n = len(d)
-        best_t = np.full(n, np.inf)
-        best_f = np.full(n, -1, np.intp)
-        best_s = np.zeros(n)
-        for axis in (0, 1):
-            idx = self._wall_idx[axis]
-            if len(idx) == 0:
-                continue
-            other = 1 - axis
-            da = d[:, axis : axis + 1]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                t = (self._c[idx][None, :] - p[axis]) / da
-            coord = p[other] + t * d[:, other : other + 1]
-            ok = (
-                (t > 1e-6)
-                & (coord >= self._lo[idx])
-                & (coord <= self._hi[idx])
-                & (self._normal[idx] * da < 0)
-            )
-            t = np.where(ok, t, np.inf)
-            k = np.argmin(t, axis=1)
-            tk = t[np.arange(n), k]
-            better = tk < best_t
-            best_t = np.where(better, tk, best_t)
-            fk = idx[k]
-            ck = coord[np.arange(n), k]
-            sk = np.where(self._sinc[fk], ck - self._lo[fk], self._hi[fk] - ck)
-            best_f = np.where(better, fk, best_f)
-            best_s = np.where(better, sk, best_s)
-        return best_t, best_f, best_s
-
-    def _boxes(self, p: NDArray[np.float64], d: NDArray[np.float64], t_wall: NDArray[np.float64]):
-        """Boxes hit before the wall, nearest first: (K, n) t_in, t_out, height, face, s, box."""
-        B = self.world.boxes
-        if len(B) == 0:
-            return None
-        cx, cy = (B[:, 0] + B[:, 2]) / 2, (B[:, 1] + B[:, 3]) / 2
-        near = np.nonzero(np.hypot(cx - p[0], cy - p[1]) < self.max_range)[0]
-        if len(near) == 0:
-            return None
-        B = B[near]
-        dx = np.where(np.abs(d[:, :1]) < 1e-12, 1e-12, d[:, :1])
-        dy = np.where(np.abs(d[:, 1:2]) < 1e-12, 1e-12, d[:, 1:2])
-        tx1, tx2 = (B[None, :, 0] - p[0]) / dx, (B[None, :, 2] - p[0]) / dx
-        ty1, ty2 = (B[None, :, 1] - p[1]) / dy, (B[None, :, 3] - p[1]) / dy
-        txn, txx = np.minimum(tx1, tx2), np.maximum(tx1, tx2)
-        tyn, tyx = np.minimum(ty1, ty2), np.maximum(ty1, ty2)
-        t_in, t_out = np.maximum(txn, tyn), np.minimum(txx, tyx)
-        hit = (t_out > t_in) & (t_in > 1e-6) & (t_in < t_wall[:, None])
-        counts = hit.sum(axis=1)
-        K = int(counts.max())
-        if K == 0:
-            return None
-        t_sort = np.where(hit, t_in, np.inf)
-        order = np.argsort(t_sort, axis=1)[:, :K]
-        rows = np.arange(len(d))[:, None]
-        ti = t_sort[rows, order]
-        valid = np.isfinite(ti)
-        ti = np.where(valid, ti, 1e9)
-        to = t_out[rows, order]
-        via_x = (txn > tyn)[rows, order]
-        bidx = near[order]
-        dxs, dys = dx[:, 0][:, None], dy[:, 0][:, None]
-        face_local = np.where(via_x, np.where(dxs > 0, 0, 1), np.where(dys > 0, 2, 3))
-        face = self._box_face0 + 4 * bidx + face_local
-        coord = np.where(via_x, p[1] + ti * dys, p[0] + ti * dxs)
-        coord = np.where(valid, coord, 0.0)
-        s = np.where(self._sinc[face], coord - self._lo[face], self._hi[face] - coord)
-        h = self.world.boxes[bidx, 4]
-        return ti.T, to.T, h.T, face.T, s.T, bidx.T, valid.T
-
-    def _shade(
-        self,
-        p: NDArray[np.float64],
-        d: NDArray[np.float64],
-        Y: NDArray[np.float64],
-        f: float,
-        kind: NDArray[np.int8],
-        t: NDArray[np.float64],
-        rng: NDArray[np.float64],
-        acol: NDArray[np.float64],
-        top_box: NDArray[np.intp],
-    ) -> NDArray[np.float32]:
-        """Colour (float, 0-255) of each pixel of a level camera at `p` from what it hit (`kind`,
-        ray parameter `t`, range `rng` m; `d` (W, 2) column directions, `Y` (H, 1) normalised
-        rows): textured walls and box sides (atlas column `acol`), floor, ceiling and box tops
-        (`top_box`), grey where nothing was hit, darker with distance."""
-        H = self.world.wall_height
-        h = float(p[2])
-        hh, ww = kind.shape
-        color = np.zeros((hh, ww, 3), np.float32)
-        # texture level per pixel from its footprint in texels; -1 = magnified: bilinear level 0
-        lvl = np.clip(
-            np.round(np.log2(np.maximum(rng * self.tex.ppm / f, 1e-6))), -1, MIP_LEVELS - 1
-        ).astype(np.int8)
-        # walls and box sides: atlas
-        m = (kind == KIND_WALL) | (kind == KIND_SIDE)
-        if m.any():
-            zz = h - Y * t
-            arow = (H - zz) * self.tex.ppm
-            for L in range(-1, MIP_LEVELS):
-                mm = m & (lvl == L)
-                if not mm.any():
-                    continue
-                A = self.tex.atlas[max(L, 0)]
-                sc = 0.5 ** max(L, 0)
-                color[mm] = _sample(A, arow[mm] * sc, acol[mm] * sc, bilinear=L < 0)
-        # floor and box tops: world-aligned maps
-        mf = kind == KIND_FLOOR
-        mt = kind == KIND_TOP
-        mc = kind == KIND_CEIL
-        if mf.any() or mt.any() or mc.any():
-            wx = p[0] + t * d[None, :, 0]
-            wy = p[1] + t * d[None, :, 1]
-            if mf.any():
-                flvl = np.clip(
-                    np.round(np.log2(np.maximum(rng * self._fppm / f, 1e-6))), -1, 2
-                ).astype(np.int8)
-                for L in range(-1, 3):
-                    mm = mf & (flvl == L)
-                    if not mm.any():
-                        continue
-                    A = self._floor_mips[max(L, 0)]
-                    sc = self._fppm * 0.5 ** max(L, 0)
-                    color[mm] = _sample(A, wy[mm] * sc, wx[mm] * sc, bilinear=L < 0)
-            if mc.any():
-                A = self.tex.ceiling
-                sc = self.tex.ceiling_ppm
-                r_ = np.clip((wy[mc] * sc).astype(np.intp), 0, A.shape[0] - 1)
-                c_ = np.clip((wx[mc] * sc).astype(np.intp), 0, A.shape[1] - 1)
-                color[mc] = A[r_, c_]
-            if mt.any():
-                T_ = self.tex.top_tile
-                n = T_.shape[0]
-                r_ = (wy[mt] * self.tex.top_ppm).astype(np.intp) % n
-                c_ = (wx[mt] * self.tex.top_ppm).astype(np.intp) % n
-                color[mt] = T_[r_, c_] * self.tex.top_color[top_box[mt]]
-        color[kind == KIND_VOID] = 128
-        if self.light_falloff > 0:
-            color *= (1.0 - self.light_falloff * np.clip(rng / 10.0, 0, 1))[..., None].astype(
-                np.float32
-            )
-        return color
-
     def _render_level(
         self,
         p: NDArray[np.float64],
@@ -362,7 +175,7 @@ class Renderer:
             raise RenderError(f"camera height {h:.2f} m is not between floor and ceiling (0, {H})")
         z_v, x_v = R_wv[:2, 2], R_wv[:2, 0]
         d = z_v[None, :] + xn[:, None] * x_v[None, :]  # (W, 2): point = p + t d, t = virtual z
-        t_wall, f_wall, s_wall = self._walls(p, d)
+        t_wall, f_wall, s_wall = self._caster.walls(p, d)
         Y = yn[:, None]  # (H, 1)
         z_wall = h - Y * t_wall[None, :]
         with np.errstate(divide="ignore"):
@@ -387,7 +200,7 @@ class Renderer:
             else None
         )
         top_box = np.zeros((hh, ww), np.intp) if want_color else None
-        boxes = self._boxes(p, d, t_wall)
+        boxes = self._caster.boxes(p, d, t_wall)
         if boxes is not None:
             ti, to, hb, face, s, bidx, valid = boxes
             for k in range(len(ti) - 1, -1, -1):
@@ -416,6 +229,6 @@ class Renderer:
         rng = t * np.sqrt(1.0 + xn[None, :] ** 2 + Y**2)
         if acol is None or top_box is None:
             return None, np.where(kind == KIND_VOID, np.nan, rng).astype(np.float32)
-        color = self._shade(p, d, Y, f, kind, t, rng, acol, top_box)
+        color = self._shader.shade(p, d, Y, f, kind, t, rng, acol, top_box)
         out_rng = np.where(kind == KIND_VOID, np.nan, rng).astype(np.float32)
         return np.clip(color, 0, 255).astype(np.uint8), out_rng

@@ -121,6 +121,82 @@ def _prior_mahalanobis2(result: gtsam.Values, vl_state: NDArray[np.int64], vl_T_
     )
 
 
+@dataclass(frozen=True)
+class _Problem:
+    """The factor graph's states and priors: (S,) state times and (S, 4, 4) T_odom_base there,
+    the (P,) VLoc results inside the odometry span (`vidx`), their T_map_base and states."""
+
+    st_t: I64
+    st_T: F64
+    vidx: I64
+    vl_T_mb: F64
+    vl_state: I64
+    T_map_odom0: F64  # the consensus initial T_map_odom
+
+
+def _checked(odom_times_ns: NDArray[np.integer], T_odom_base: NDArray[np.floating], vloc_times_ns: NDArray[np.integer],
+             T_map_camera: NDArray[np.floating]) -> tuple[I64, F64, I64, F64]:
+    """The inputs as int64 / float64 arrays; ValueError on bad shapes or odometry times that do
+    not increase."""
+    t = np.asarray(odom_times_ns, dtype=np.int64)
+    To = np.asarray(T_odom_base, dtype=np.float64)
+    tv = np.asarray(vloc_times_ns, dtype=np.int64)
+    Tv = np.asarray(T_map_camera, dtype=np.float64)
+    if t.ndim != 1 or len(t) < 2 or To.shape != (len(t), 4, 4):
+        raise ValueError(
+            f"need (N>=2,) odometry times and (N,4,4) poses, got {t.shape} and {To.shape}"
+        )
+    if np.any(np.diff(t) <= 0):
+        raise ValueError("odometry times must be strictly increasing")
+    if tv.ndim != 1 or Tv.shape != (len(tv), 4, 4):
+        raise ValueError(f"need (M,) VLoc times and (M,4,4) poses, got {tv.shape} and {Tv.shape}")
+    return t, To, tv, Tv
+
+
+def _problem(t: I64, To: F64, tv: I64, Tv: F64, T_cb: F64, params: FusionParams) -> _Problem:
+    """States at the decimated odometry keyframes plus the VLoc capture times inside the
+    odometry span (odometry interpolated there), each VLoc pose moved to base_link by `T_cb`
+    (T_camera_base)."""
+    vidx = np.nonzero((tv >= t[0]) & (tv <= t[-1]))[0]
+    if len(vidx) == 0:
+        raise ValueError("no VLoc result falls inside the odometry time span")
+    kf = _keyframes(t, To, params)
+    st_t = np.unique(np.concatenate([t[kf], tv[vidx]]))
+    st_T = np.stack([interpolate_pose_at(int(x), t, To) for x in st_t])
+    vl_T_mb = np.stack([Tv[i] @ T_cb for i in vidx])
+    vl_state = np.searchsorted(st_t, tv[vidx])
+    T_map_odom0 = _consensus_map_odom(
+        np.stack([vl_T_mb[k] @ invert(st_T[s]) for k, s in enumerate(vl_state)]), params
+    )
+    return _Problem(st_t, st_T, vidx, vl_T_mb, vl_state, T_map_odom0)
+
+
+def _solve_gated(pb: _Problem, covs: list[F64], params: FusionParams) -> tuple[gtsam.Values, NDArray[np.bool_], int]:
+    """LM on the odometry chain and the VLoc priors (`covs`: GTSAM-order covariances of
+    T_map_base); while `gate_chi2` > 0, the priors beyond it are dropped and LM runs again
+    from the last solution (at most 4 solves, until the kept set stops changing or would be
+    empty). The solution, the priors kept, and the LM iterations of all solves."""
+    base, values = _odometry_chain(pb.st_T, pb.T_map_odom0, params)
+    active = np.ones(len(pb.vidx), dtype=bool)
+    iterations = 0
+    result = values
+    for _round in range(4):
+        graph = gtsam.NonlinearFactorGraph(base)
+        for kk in np.nonzero(active)[0]:
+            graph.add(gtsam.PriorFactorPose3(int(pb.vl_state[kk]), gtsam.Pose3(pb.vl_T_mb[kk]),
+                                             vloc_noise_model(covs[kk], params)))
+        lm = gtsam.LevenbergMarquardtOptimizer(graph, result, gtsam.LevenbergMarquardtParams())
+        result = lm.optimize()
+        iterations += lm.iterations()
+        if params.gate_chi2 <= 0:
+            break
+        new_active = _prior_mahalanobis2(result, pb.vl_state, pb.vl_T_mb, covs) <= params.gate_chi2
+        if not new_active.any() or np.array_equal(new_active, active):
+            break
+        active = new_active
+    return result, active, iterations
+
+
 def refine_session(
     odom_times_ns: NDArray[np.integer],
     T_odom_base: NDArray[np.floating],
@@ -145,37 +221,12 @@ def refine_session(
     Raises:
         ValueError: no usable VLoc result, bad shapes or non-rigid poses.
     """
-    t = np.asarray(odom_times_ns, dtype=np.int64)
-    To = np.asarray(T_odom_base, dtype=np.float64)
-    tv = np.asarray(vloc_times_ns, dtype=np.int64)
-    Tv = np.asarray(T_map_camera, dtype=np.float64)
-    if t.ndim != 1 or len(t) < 2 or To.shape != (len(t), 4, 4):
-        raise ValueError(
-            f"need (N>=2,) odometry times and (N,4,4) poses, got {t.shape} and {To.shape}"
-        )
-    if np.any(np.diff(t) <= 0):
-        raise ValueError("odometry times must be strictly increasing")
-    if tv.ndim != 1 or Tv.shape != (len(tv), 4, 4):
-        raise ValueError(f"need (M,) VLoc times and (M,4,4) poses, got {tv.shape} and {Tv.shape}")
+    t, To, tv, Tv = _checked(odom_times_ns, T_odom_base, vloc_times_ns, T_map_camera)
     T_bc = _valid_pose(T_base_camera)
     if T_bc is None:
         raise ValueError("T_base_camera must be a finite 4x4 rigid transform")
     Ad = gtsam.Pose3(T_bc).AdjointMap()
-    T_cb = invert(T_bc)
-
-    inside = (tv >= t[0]) & (tv <= t[-1])
-    vidx = np.nonzero(inside)[0]
-    if len(vidx) == 0:
-        raise ValueError("no VLoc result falls inside the odometry time span")
-    # State times: decimated odometry keyframes plus VLoc capture times.
-    kf = _keyframes(t, To, params)
-    st_t = np.unique(np.concatenate([t[kf], tv[vidx]]))
-    st_T = np.stack([interpolate_pose_at(int(x), t, To) for x in st_t])
-    vl_T_mb = np.stack([Tv[i] @ T_cb for i in vidx])
-    vl_state = np.searchsorted(st_t, tv[vidx])
-    T_map_odom0 = _consensus_map_odom(
-        np.stack([vl_T_mb[k] @ invert(st_T[s]) for k, s in enumerate(vl_state)]), params
-    )
+    pb = _problem(t, To, tv, Tv, invert(T_bc), params)
 
     def cov_of(i: int) -> F64:
         if vloc_covariances is None:
@@ -184,30 +235,10 @@ def refine_session(
             c = ros_to_gtsam_covariance(np.asarray(vloc_covariances, dtype=np.float64)[i])
         return Ad @ c @ Ad.T
 
-    base, values = _odometry_chain(st_T, T_map_odom0, params)
-    covs = [cov_of(int(i)) for i in vidx]
-    active = np.ones(len(vidx), dtype=bool)
-    iterations = 0
-    result = values
-    for _round in range(4):
-        graph = gtsam.NonlinearFactorGraph(base)
-        for kk in np.nonzero(active)[0]:
-            graph.add(
-                gtsam.PriorFactorPose3(int(vl_state[kk]), gtsam.Pose3(vl_T_mb[kk]), vloc_noise_model(covs[kk], params))
-            )
-        lm = gtsam.LevenbergMarquardtOptimizer(graph, result, gtsam.LevenbergMarquardtParams())
-        result = lm.optimize()
-        iterations += lm.iterations()
-        if params.gate_chi2 <= 0:
-            break
-        new_active = _prior_mahalanobis2(result, vl_state, vl_T_mb, covs) <= params.gate_chi2
-        if not new_active.any() or np.array_equal(new_active, active):
-            break
-        active = new_active
-    est = np.stack([result.atPose3(k).matrix() for k in range(len(st_t))])
-    prev = np.clip(np.searchsorted(st_t, t, side="right") - 1, 0, len(st_t) - 1)
-    out = est[prev] @ invert(st_T[prev]) @ To
-    info = BatchInfo(
-        len(st_t), int(active.sum()), int((~active).sum()), int((~inside).sum()), iterations
-    )
+    result, active, iterations = _solve_gated(pb, [cov_of(int(i)) for i in pb.vidx], params)
+    est = np.stack([result.atPose3(k).matrix() for k in range(len(pb.st_t))])
+    prev = np.clip(np.searchsorted(pb.st_t, t, side="right") - 1, 0, len(pb.st_t) - 1)
+    out = est[prev] @ invert(pb.st_T[prev]) @ To
+    outside = int(len(tv) - len(pb.vidx))
+    info = BatchInfo(len(pb.st_t), int(active.sum()), int((~active).sum()), outside, iterations)
     return BatchResult(t, out, info)

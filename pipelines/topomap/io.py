@@ -56,6 +56,7 @@ from numpy.typing import NDArray
 
 from litevloc.base.errors import LiteVLocError
 from litevloc.pipelines.topomap.descriptor_codec import MAX_CENTROIDS
+from litevloc.pipelines.topomap.npy_scan import RowCheck, scan_npy
 from litevloc.pipelines.topomap.types import FeatureStore, OccupancyGrid, TopoMap, keypoints_from_fixed
 
 FORMAT = "litevloc-map"
@@ -166,113 +167,38 @@ class VerifiedImages(Sequence[bytes]):
         return self._get(int(i))
 
 
-_CHUNK = 1 << 22  # bytes per read when streaming a large file through the checksum
-
-
-RowCheck = Callable[[NDArray[Any], int], None]  # (rows of a chunk, index of its first row)
-
-
-def _rows_problem(a: NDArray[Any], scratch: NDArray[np.uint16], row_check: RowCheck | None, row: int) -> str | None:
-    """The first value problem of a chunk of whole rows `a` (row index `row` first): NaN or
-    infinity in float data, else what `row_check` raises; None when there is none. `scratch`
-    (at least a.size uint16) holds float16 exponent bits."""
-    if a.dtype == np.float16:  # non-finite iff all exponent bits are set (in place: no temporaries)
-        bits = scratch[: a.size]
-        np.bitwise_and(a.reshape(-1).view(np.uint16), 0x7C00, out=bits)
-        bad = bool(bits.max() == 0x7C00)
-    else:
-        bad = a.dtype.kind == "f" and not bool(np.all(np.isfinite(a)))
-    if bad:
-        return "contains NaN or infinity"
-    if row_check is not None:
-        try:
-            row_check(a, row)
-        except MapFormatError as exc:
-            return str(exc)
-    return None
+def _check_layout(folder: Path, rel: str, a_dtype: np.dtype[Any], a_shape: tuple[int, ...], dtype: Any,
+                  shape: tuple[int | None, ...]) -> None:
+    """An array's dtype is one of `dtype` (one or a tuple) and its shape matches `shape`
+    (None = any length)."""
+    dtypes = dtype if isinstance(dtype, tuple) else (dtype,)
+    if a_dtype not in [np.dtype(d) for d in dtypes]:
+        raise _fail(folder, rel, f"dtype {a_dtype}, expected {' or '.join(str(np.dtype(d)) for d in dtypes)}")
+    if len(a_shape) != len(shape) or any(s is not None and s != d for s, d in zip(shape, a_shape, strict=True)):
+        want = "x".join("*" if s is None else str(s) for s in shape)
+        raise _fail(folder, rel, f"shape {a_shape}, expected {want}")
 
 
 def _streamed_npy(
     folder: Path, rel: str, entry: Any, dtype: Any, shape: tuple[int | None, ...], row_check: RowCheck | None = None,
 ) -> NDArray[Any]:
-    """A large .npy verified in one streaming pass, then opened as a read-only memory map.
-
-    The pass reads the file in chunks: sha256 over all bytes and, on the same chunks (whole
-    rows), the finiteness of float data and `row_check` (which raises MapFormatError);
-    nothing is kept, so checking costs no memory and the map's pages are read on use.
-    Same checks and messages as `_array` on `_read_verified` bytes, in the same order
-    (size, checksum, readable header, dtype, shape, values)."""
+    """A large .npy verified in one streaming pass (`npy_scan`), then opened as a read-only
+    memory map: the map's pages are read on use, checking costs no memory. Same checks and
+    messages as `_array` on `_read_verified` bytes, in the same order (size, checksum,
+    readable header, dtype, shape, values)."""
     p = _check_entry(folder, rel, entry)
     size = p.stat().st_size
     if size != entry["bytes"]:
         raise _fail(folder, rel, f"truncated or extended: {size} bytes, manifest says {entry['bytes']}")
-    h = hashlib.sha256()
-    hdr: tuple[Any, ...] | None = None
-    head_exc: Exception | None = None
-    problem: str | None = None  # the first value problem found in the pass, reported after the checksum
-    with p.open("rb") as f:
-        head = f.read(min(size, 4096))
-        h.update(head)
-        try:
-            hf = io.BytesIO(head)
-            version = np.lib.format.read_magic(hf)
-            if version == (1, 0):
-                hdr = np.lib.format.read_array_header_1_0(hf)
-            elif version == (2, 0):
-                hdr = np.lib.format.read_array_header_2_0(hf)
-            else:
-                raise ValueError(f"unsupported .npy format version {version}")
-            start = hf.tell()
-        except (ValueError, OSError, EOFError, SyntaxError) as exc:
-            head_exc = exc
-        ok_layout = False
-        if hdr is not None:
-            a_shape, fortran, a_dtype = hdr
-            dts = dtype if isinstance(dtype, tuple) else (dtype,)
-            ok_layout = (not fortran and np.dtype(a_dtype) in [np.dtype(d) for d in dts]
-                         and len(a_shape) == len(shape) and len(a_shape) >= 1)
-        if ok_layout and hdr is not None:
-            dt = np.dtype(hdr[2])
-            row_shape = tuple(hdr[0][1:])
-            row_bytes = dt.itemsize * int(np.prod(row_shape, dtype=np.int64))
-            # read into one reused buffer (no per-chunk allocation or copy); the bytes of a row
-            # split across two reads (< one row) move to the buffer's start
-            buf = bytearray(_CHUNK + row_bytes + len(head))
-            scratch = np.empty(len(buf) // 2 if dt == np.float16 else 0, np.uint16)
-            mv = memoryview(buf)
-            carry = len(head) - start
-            buf[:carry] = head[start:]
-            row = 0
-            while True:
-                got = f.readinto(mv[carry:carry + _CHUNK])
-                h.update(mv[carry:carry + got])
-                have = carry + got
-                n_rows = have // row_bytes if row_bytes else 0
-                if n_rows and problem is None:
-                    a = np.frombuffer(buf, dt, count=n_rows * int(np.prod(row_shape, dtype=np.int64)))
-                    problem = _rows_problem(a.reshape((n_rows, *row_shape)), scratch, row_check, row)
-                    del a
-                rest = have - n_rows * row_bytes
-                buf[:rest] = buf[n_rows * row_bytes:have]
-                carry, row = rest, row + n_rows
-                if not got:
-                    break
-        else:
-            for chunk in iter(lambda: f.read(_CHUNK), b""):
-                h.update(chunk)
-    if h.hexdigest() != entry["sha256"]:
+    scan = scan_npy(p, size, dtype if isinstance(dtype, tuple) else (dtype,), len(shape), row_check)
+    if scan.sha256 != entry["sha256"]:
         raise _fail(folder, rel, "checksum mismatch (file modified or corrupt)")
-    if hdr is None:
-        raise _fail(folder, rel, f"not a readable .npy array ({head_exc})")
-    a_shape, _fortran, a_dtype = hdr
-    dtypes = dtype if isinstance(dtype, tuple) else (dtype,)
-    if np.dtype(a_dtype) not in [np.dtype(d) for d in dtypes]:
-        raise _fail(folder, rel, f"dtype {a_dtype}, expected {' or '.join(str(np.dtype(d)) for d in dtypes)}")
-    if len(a_shape) != len(shape) or any(s is not None and s != d for s, d in zip(shape, a_shape, strict=True)):
-        want = "x".join("*" if s is None else str(s) for s in shape)
-        raise _fail(folder, rel, f"shape {a_shape}, expected {want}")
-    if problem is not None:
-        raise problem_error(folder, rel, problem)
+    if scan.header is None:
+        raise _fail(folder, rel, f"not a readable .npy array ({scan.header_error})")
+    a_shape, _fortran, a_dtype = scan.header
+    _check_layout(folder, rel, np.dtype(a_dtype), a_shape, dtype, shape)
+    if scan.problem is not None:
+        raise _fail(folder, rel, scan.problem)
     try:
         a = cast(NDArray[Any], np.load(p, mmap_mode="r", allow_pickle=False))  # a .npy file: an ndarray (memmap)
     except (ValueError, OSError, EOFError) as exc:
@@ -282,24 +208,12 @@ def _streamed_npy(
     return a
 
 
-def problem_error(folder: Path, rel: str, problem: str) -> MapFormatError:
-    """A value problem found while streaming: a row check's own error keeps its message."""
-    if problem.startswith(f"map {folder}: "):
-        return MapFormatError(problem)
-    return _fail(folder, rel, problem)
-
-
 def _array(folder: Path, rel: str, data: bytes, dtype: Any, shape: tuple[int | None, ...]) -> NDArray[Any]:
     try:
         a: NDArray[Any] = np.load(io.BytesIO(data), allow_pickle=False)  # .npy bytes: an ndarray
     except (ValueError, OSError, EOFError) as exc:
         raise _fail(folder, rel, f"not a readable .npy array ({exc})") from exc
-    dtypes = dtype if isinstance(dtype, tuple) else (dtype,)
-    if a.dtype not in [np.dtype(d) for d in dtypes]:
-        raise _fail(folder, rel, f"dtype {a.dtype}, expected {' or '.join(str(np.dtype(d)) for d in dtypes)}")
-    if a.ndim != len(shape) or any(s is not None and s != d for s, d in zip(shape, a.shape, strict=True)):
-        want = "x".join("*" if s is None else str(s) for s in shape)
-        raise _fail(folder, rel, f"shape {a.shape}, expected {want}")
+    _check_layout(folder, rel, a.dtype, a.shape, dtype, shape)
     if a.dtype.kind == "f" and not np.all(np.isfinite(a)):
         raise _fail(folder, rel, "contains NaN or infinity")
     return a
@@ -321,18 +235,16 @@ def _rigid_rows(T: NDArray[np.float64], atol: float) -> NDArray[np.bool_]:
 _STREAMED = {"features/keypoints.npy", "features/scores.npy", "features/descriptors.npy"}
 
 
-def _positive_rows(root: Path, rel: str) -> RowCheck:
-    def check(a: NDArray[Any], first: int) -> None:
-        if a.size and not bool(a.min() > 0):
-            raise _fail(root, rel, f"scales must be > 0 (row {first + int(np.argmin(a))})")
-    return check
+def _positive_scales(a: NDArray[Any], first: int) -> str | None:
+    if a.size and not bool(a.min() > 0):
+        return f"scales must be > 0 (row {first + int(np.argmin(a))})"
+    return None
 
 
-def _nonnegative_rows(root: Path, rel: str) -> RowCheck:
-    def check(a: NDArray[Any], first: int) -> None:
-        if a.size and not bool(a.min() >= 0):
-            raise _fail(root, rel, f"depths must be >= 0 (row {first + int(np.argmin(a))})")
-    return check
+def _nonnegative_depths(a: NDArray[Any], first: int) -> str | None:
+    if a.size and not bool(a.min() >= 0):
+        return f"depths must be >= 0 (row {first + int(np.argmin(a))})"
+    return None
 
 
 _CODECS = ("pq", "int8", "binary")
@@ -361,11 +273,11 @@ def _codebook(root: Path, man: dict[str, Any]) -> NDArray[np.float32] | None:
     return book
 
 
-def _codes_below(root: Path, k: int) -> RowCheck:
-    def check(a: NDArray[Any], first: int) -> None:
+def _codes_below(k: int) -> RowCheck:
+    def check(a: NDArray[Any], first: int) -> str | None:
         if a.size and int(a.max()) >= k:
-            raise _fail(root, "features/descriptors.npy",
-                        f"codes must be < {k}, the codebook's size (row {first + int(np.argmax(a.max(axis=1)))})")
+            return f"codes must be < {k}, the codebook's size (row {first + int(np.argmax(a.max(axis=1)))})"
+        return None
     return check
 
 
@@ -379,7 +291,7 @@ def _load_features(root: Path, man: dict[str, Any], off: NDArray[np.int64], size
         raise _fail(root, "features/offsets.npy", "must rise from 0 (node i owns rows offsets[i]:offsets[i+1])")
     wh = size.astype(np.float32) - 0.5
 
-    def in_image(k: NDArray[Any], first: int) -> None:
+    def in_image(k: NDArray[Any], first: int) -> str | None:
         """Keypoints of rows first.. lie inside their node's image (one array operation)."""
         if k.dtype == np.uint16:
             k = keypoints_from_fixed(k)
@@ -388,8 +300,8 @@ def _load_features(root: Path, man: dict[str, Any], off: NDArray[np.int64], size
         out = (k.min(axis=1) < -0.5) | (k[:, 0] > wh[owner, 0]) | (k[:, 1] > wh[owner, 1])
         if out.any():
             i = int(owner[int(np.argmax(out))])
-            raise _fail(root, "features/keypoints.npy",
-                        f"keypoints of node {i} fall outside its {int(size[i, 0])}x{int(size[i, 1])} image")
+            return f"keypoints of node {i} fall outside its {int(size[i, 0])}x{int(size[i, 1])} image"
+        return None
 
     v3 = man["version"] >= 3  # fixed-point keypoints and float16 scores
     codebook = _codebook(root, man)  # the manifest's codec first: it decides what the features must be
@@ -403,7 +315,7 @@ def _load_features(root: Path, man: dict[str, Any], off: NDArray[np.int64], size
     desc = _streamed_npy(root, "features/descriptors.npy", files["features/descriptors.npy"],
                          (np.float16, np.uint8) if v1 else (np.int8, np.uint8),
                          (M, None if codebook is None else codebook.shape[0]),
-                         None if codebook is None else _codes_below(root, len(codebook[0])))
+                         None if codebook is None else _codes_below(len(codebook[0])))
     if codebook is not None and desc.dtype != np.uint8:
         raise _fail(root, "features/descriptors.npy", f"dtype {desc.dtype}, expected uint8 (product-quantiser codes)")
     desc_scale = None
@@ -411,12 +323,84 @@ def _load_features(root: Path, man: dict[str, Any], off: NDArray[np.int64], size
         rel = "features/descriptor_scale.npy"
         if rel not in files:
             raise _fail(root, rel, "not listed in manifest.json (int8 descriptors need their row scales)")
-        desc_scale = _streamed_npy(root, rel, files[rel], np.float32, (M,), _positive_rows(root, rel))
+        desc_scale = _streamed_npy(root, rel, files[rel], np.float32, (M,), _positive_scales)
     depth = None
     if "features/depth.npy" in files:
         rel = "features/depth.npy"
-        depth = _streamed_npy(root, rel, files[rel], np.float16, (M,), _nonnegative_rows(root, rel))
+        depth = _streamed_npy(root, rel, files[rel], np.float16, (M,), _nonnegative_depths)
     return FeatureStore(off, kps, desc, scores, size, descriptor_scale=desc_scale, depth=depth, codebook=codebook)
+
+
+_REQUIRED = (
+    "nodes/T_map_camera.npy", "nodes/K.npy", "nodes/image_size.npy", "nodes/t_ns.npy", "nodes/frame_index.npy",
+    "vpr/descriptors.npy", "vpr/scale.npy", "features/offsets.npy", "features/keypoints.npy", "features/scores.npy",
+    "features/descriptors.npy", "graph/covisibility_edges.npy", "graph/covisibility_inliers.npy",
+    "graph/covisibility_weight.npy", "graph/connectivity_edges.npy", "graph/connectivity_metres.npy",
+    "grid/cells.npy", "grid/frame.npy",
+)
+
+ArrayOf = Callable[[str, Any, tuple[int | None, ...]], NDArray[Any]]  # (file, dtype(s), shape) -> checked array
+
+
+def _nodes(arr: ArrayOf, root: Path, N: int) -> tuple[NDArray[Any], ...]:
+    """The (N, ...) node arrays: T_map_camera (rigid), K (positive focal lengths), image_size
+    (positive), t_ns, frame_index."""
+    T = arr("nodes/T_map_camera.npy", np.float64, (N, 4, 4))
+    bad = np.flatnonzero(~_rigid_rows(T, atol=1e-5))
+    if len(bad):
+        raise _fail(root, "nodes/T_map_camera.npy", f"pose of node {int(bad[0])} is not a rigid transform")
+    K = arr("nodes/K.npy", np.float64, (N, 3, 3))
+    if np.any(K[:, 0, 0] <= 0) or np.any(K[:, 1, 1] <= 0):
+        raise _fail(root, "nodes/K.npy", "focal lengths must be positive")
+    size = arr("nodes/image_size.npy", np.int32, (N, 2))
+    if np.any(size <= 0):
+        raise _fail(root, "nodes/image_size.npy", "image sizes must be positive")
+    return T, K, size, arr("nodes/t_ns.npy", np.int64, (N,)), arr("nodes/frame_index.npy", np.int64, (N,))
+
+
+def _place_descriptors(arr: ArrayOf, root: Path, N: int, vpr_dim: Any) -> NDArray[np.float32]:
+    """(N, D) float32 unit place descriptors decoded from their int8 codes and row scales;
+    D must be the manifest's `vpr_dim`."""
+    codes = arr("vpr/descriptors.npy", np.int8, (N, None))
+    vpr_scale = arr("vpr/scale.npy", np.float32, (N,))
+    vpr = codes.astype(np.float32)
+    vpr *= vpr_scale[:, None]
+    norms = np.linalg.norm(vpr, axis=1, keepdims=True)
+    if np.any(norms < 1e-6):
+        raise _fail(root, "vpr/descriptors.npy", "a descriptor is zero")
+    vpr /= norms
+    if vpr.shape[1] != vpr_dim:
+        raise _fail(root, "vpr/descriptors.npy", f"dimension {vpr.shape[1]} != manifest vpr_dim {vpr_dim}")
+    return vpr
+
+
+def _graphs(arr: ArrayOf, root: Path, N: int) -> tuple[NDArray[Any], ...]:
+    """Covisibility (E,2) edges, (E,) inliers, (E,) weights in (0, 1] and connectivity (F,2)
+    edges, (F,) metres >= 0; every edge a node pair i < j."""
+    ce = arr("graph/covisibility_edges.npy", np.int64, (None, 2))
+    ci = arr("graph/covisibility_inliers.npy", np.int32, (len(ce),))
+    cw = arr("graph/covisibility_weight.npy", np.float32, (len(ce),))
+    ne = arr("graph/connectivity_edges.npy", np.int64, (None, 2))
+    nm = arr("graph/connectivity_metres.npy", np.float32, (len(ne),))
+    for rel, e in (("graph/covisibility_edges.npy", ce), ("graph/connectivity_edges.npy", ne)):
+        if len(e) and (e.min() < 0 or e.max() >= N or np.any(e[:, 0] >= e[:, 1])):
+            raise _fail(root, rel, f"edges must be node pairs i < j within 0..{N - 1}")
+    if len(cw) and (cw.min() <= 0 or cw.max() > 1):
+        raise _fail(root, "graph/covisibility_weight.npy", "weights must be in (0, 1]")
+    if len(nm) and nm.min() < 0:
+        raise _fail(root, "graph/connectivity_metres.npy", "lengths must be >= 0")
+    return ce, ci, cw, ne, nm
+
+
+def _grid(arr: ArrayOf, root: Path) -> OccupancyGrid:
+    """The occupancy grid: cells in {0, 1, 2} and its frame (positive resolution)."""
+    cells = arr("grid/cells.npy", np.uint8, (None, None))
+    if cells.size and cells.max() > 2:
+        raise _fail(root, "grid/cells.npy", "cell values must be 0, 1 or 2")
+    gf = arr("grid/frame.npy", np.float64, (12,))
+    if gf[2] <= 0:
+        raise _fail(root, "grid/frame.npy", "resolution must be positive")
+    return OccupancyGrid(cells, gf[0:2].copy(), float(gf[2]), gf[3:6].copy(), gf[6:12].reshape(2, 3).copy())
 
 
 def load_map(folder: str | Path) -> TopoMap:
@@ -432,64 +416,20 @@ def load_map(folder: str | Path) -> TopoMap:
     man = read_manifest(root)
     files: dict[str, Any] = man["files"]
     N = int(man["nodes"])
-    required = [
-        "nodes/T_map_camera.npy", "nodes/K.npy", "nodes/image_size.npy", "nodes/t_ns.npy", "nodes/frame_index.npy",
-        "vpr/descriptors.npy", "vpr/scale.npy", "features/offsets.npy", "features/keypoints.npy", "features/scores.npy",
-        "features/descriptors.npy", "graph/covisibility_edges.npy", "graph/covisibility_inliers.npy",
-        "graph/covisibility_weight.npy", "graph/connectivity_edges.npy", "graph/connectivity_metres.npy",
-        "grid/cells.npy", "grid/frame.npy",
-    ]
     image_rels = [f"images/{i:06d}.jpg" for i in range(N)]
-    for rel in required + image_rels:
+    for rel in [*_REQUIRED, *image_rels]:
         if rel not in files:
             raise _fail(root, rel, "not listed in manifest.json")
-    raw = {rel: _read_verified(root, rel, files[rel]) for rel in required if rel not in _STREAMED}
+    raw = {rel: _read_verified(root, rel, files[rel]) for rel in _REQUIRED if rel not in _STREAMED}
 
     def arr(rel: str, dtype: Any, shape: tuple[int | None, ...]) -> NDArray[Any]:
         return _array(root, rel, raw[rel], dtype, shape)
 
-    T = arr("nodes/T_map_camera.npy", np.float64, (N, 4, 4))
-    bad = np.flatnonzero(~_rigid_rows(T, atol=1e-5))
-    if len(bad):
-        raise _fail(root, "nodes/T_map_camera.npy", f"pose of node {int(bad[0])} is not a rigid transform")
-    K = arr("nodes/K.npy", np.float64, (N, 3, 3))
-    if np.any(K[:, 0, 0] <= 0) or np.any(K[:, 1, 1] <= 0):
-        raise _fail(root, "nodes/K.npy", "focal lengths must be positive")
-    size = arr("nodes/image_size.npy", np.int32, (N, 2))
-    if np.any(size <= 0):
-        raise _fail(root, "nodes/image_size.npy", "image sizes must be positive")
-    t_ns = arr("nodes/t_ns.npy", np.int64, (N,))
-    frame_index = arr("nodes/frame_index.npy", np.int64, (N,))
-    codes = arr("vpr/descriptors.npy", np.int8, (N, None))
-    vpr_scale = arr("vpr/scale.npy", np.float32, (N,))
-    vpr = codes.astype(np.float32)
-    vpr *= vpr_scale[:, None]
-    norms = np.linalg.norm(vpr, axis=1, keepdims=True)
-    if np.any(norms < 1e-6):
-        raise _fail(root, "vpr/descriptors.npy", "a descriptor is zero")
-    vpr /= norms
-    if vpr.shape[1] != man.get("vpr_dim"):
-        raise _fail(root, "vpr/descriptors.npy", f"dimension {vpr.shape[1]} != manifest vpr_dim {man.get('vpr_dim')}")
-    off = arr("features/offsets.npy", np.int64, (N + 1,))
-    feats = _load_features(root, man, off, size)
-    ce = arr("graph/covisibility_edges.npy", np.int64, (None, 2))
-    ci = arr("graph/covisibility_inliers.npy", np.int32, (len(ce),))
-    cw = arr("graph/covisibility_weight.npy", np.float32, (len(ce),))
-    ne = arr("graph/connectivity_edges.npy", np.int64, (None, 2))
-    nm = arr("graph/connectivity_metres.npy", np.float32, (len(ne),))
-    for rel, e in (("graph/covisibility_edges.npy", ce), ("graph/connectivity_edges.npy", ne)):
-        if len(e) and (e.min() < 0 or e.max() >= N or np.any(e[:, 0] >= e[:, 1])):
-            raise _fail(root, rel, f"edges must be node pairs i < j within 0..{N - 1}")
-    if len(cw) and (cw.min() <= 0 or cw.max() > 1):
-        raise _fail(root, "graph/covisibility_weight.npy", "weights must be in (0, 1]")
-    if len(nm) and nm.min() < 0:
-        raise _fail(root, "graph/connectivity_metres.npy", "lengths must be >= 0")
-    cells = arr("grid/cells.npy", np.uint8, (None, None))
-    if cells.size and cells.max() > 2:
-        raise _fail(root, "grid/cells.npy", "cell values must be 0, 1 or 2")
-    gf = arr("grid/frame.npy", np.float64, (12,))
-    if gf[2] <= 0:
-        raise _fail(root, "grid/frame.npy", "resolution must be positive")
+    T, K, size, t_ns, frame_index = _nodes(arr, root, N)
+    vpr = _place_descriptors(arr, root, N, man.get("vpr_dim"))
+    feats = _load_features(root, man, arr("features/offsets.npy", np.int64, (N + 1,)), size)
+    ce, ci, cw, ne, nm = _graphs(arr, root, N)
+    grid = _grid(arr, root)
     for rel in image_rels:  # every image checked now, none kept
         _check_jpeg(root, rel, _read_verified(root, rel, files[rel]))
     images = VerifiedImages(root, [files[rel] for rel in image_rels])
@@ -497,8 +437,7 @@ def load_map(folder: str | Path) -> TopoMap:
     return TopoMap(
         T_map_camera=T, K=K, image_size=size, t_ns=t_ns, frame_index=frame_index, vpr=vpr, features=feats,
         images_jpeg=images, covis_edges=ce, covis_inliers=ci, covis_weight=cw, conn_edges=ne, conn_metres=nm,
-        grid=OccupancyGrid(cells, gf[0:2].copy(), float(gf[2]), gf[3:6].copy(), gf[6:12].reshape(2, 3).copy()),
-        extractor=str(man.get("extractor", "")), vpr_model=str(man.get("vpr_model", "")),
+        grid=grid, extractor=str(man.get("extractor", "")), vpr_model=str(man.get("vpr_model", "")),
         meta={str(k): str(v) for k, v in meta.items()} if isinstance(meta, dict) else {},
     )
 

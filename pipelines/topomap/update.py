@@ -290,53 +290,9 @@ class MapUpdate:
         K = np.concatenate([m.K[kept], _stack([c.K for c in cands], (3, 3))])
         feats: list[NodeFeatures] = [*(m.stored_features(i) for i in kept), *(c.features for c in cands)]
         grid = self._grid(occupancy)
-        # covisibility: old edges between kept nodes + verified edges of every new node
-        covis: dict[tuple[int, int], tuple[int, float]] = {}
-        for (i, j), n, w in zip(m.covis_edges.tolist(), m.covis_inliers.tolist(), m.covis_weight.tolist(),
-                                strict=True):
-            if i in new_id and j in new_id:
-                covis[(new_id[i], new_id[j])] = (int(n), float(w))
-        pos, z = T[:, :3, 3], T[:, :3, 2]
-        cos_max = np.cos(np.radians(covisibility.max_angle_deg))
-        tree = cKDTree(pos)
-        for k, c in enumerate(cands):
-            a = n_kept + k
-            for b in tree.query_ball_point(pos[a], r=covisibility.max_distance_m):
-                if b == a or (b > a) or float(z[a] @ z[b]) < cos_max:
-                    continue  # each new pair once (b < a covers kept nodes and earlier new ones)
-                n_in = pair_inliers(c.features, c.keypoint_depth, c.K, T[a], feats[b], K[b], T[b], self.match,
-                                    covisibility)
-                if on_pair is not None:
-                    on_pair()
-                if n_in >= covisibility.min_inliers:
-                    covis[(b, a)] = (n_in, min(n_in / covisibility.weight_saturation, 1.0))
-        # connectivity: old edges between kept nodes, repaired around retired nodes, extended to new nodes
-        conn: dict[tuple[int, int], float] = {}
-        nb_old: dict[int, list[int]] = {}
-        for (i, j), d in zip(m.conn_edges.tolist(), m.conn_metres.tolist(), strict=True):
-            if i in new_id and j in new_id:
-                conn[(new_id[i], new_id[j])] = float(d)
-            nb_old.setdefault(i, []).append(j)
-            nb_old.setdefault(j, []).append(i)
-        xy = grid.to_plane(pos)
-
-        def link(a: int, b: int) -> None:
-            e = (min(a, b), max(a, b))
-            d = float(np.linalg.norm(xy[a] - xy[b]))
-            if a != b and segment_is_free(grid, xy[a], xy[b]):
-                conn[e] = min(conn.get(e, np.inf), d)
-
-        for gone in retired:  # neighbours of a retired node stay connected where the way is free
-            around = [new_id[n] for n in nb_old.get(gone, []) if n in new_id]
-            for x in range(len(around)):
-                for y in range(x + 1, len(around)):
-                    link(around[x], around[y])
-        for k in range(len(cands)):
-            a = n_kept + k
-            near = sorted(tree.query_ball_point(pos[a], r=max(connectivity.max_line_of_sight_m, 1e-6)),
-                          key=lambda b: float(np.linalg.norm(xy[a] - xy[b])))
-            for b in [b for b in near if b != a][: connectivity.max_line_of_sight_neighbours]:
-                link(a, b)
+        tree = cKDTree(T[:, :3, 3])
+        covis = _covisibility(m, new_id, cands, T, K, feats, tree, self.match, covisibility, on_pair)
+        conn = _connectivity(m, new_id, retired, n_kept, T[:, :3, 3], grid, tree, connectivity)
         ce = sorted(covis)
         ne = sorted(conn)
         meta = dict(m.meta)
@@ -372,3 +328,70 @@ class MapUpdate:
         from litevloc.pipelines.topomap.merge import fuse_grids
 
         return fuse_grids(old, fresh, MergeParams())  # one ground plane (`old.up`): the up check cannot fire
+
+
+def _covisibility(
+    m: TopoMap, new_id: dict[int, int], cands: list[Observation], T: NDArray[np.float64], K: NDArray[np.float64],
+    feats: list[NodeFeatures], tree: cKDTree, match: MatchFn, covisibility: CovisibilityParams,
+    on_pair: Callable[[], None] | None,
+) -> dict[tuple[int, int], tuple[int, float]]:
+    """Covisibility edges (i, j) -> (inliers, weight) of the updated map: the old edges between
+    kept nodes (`new_id`: old id -> new id) plus, for every new node (ids after the kept ones),
+    the PnP-verified edges to nodes within `max_distance_m` and `max_angle_deg`. `T`, `K`,
+    `feats` and `tree` (over T's positions) are the updated map's nodes; `on_pair` is called
+    after every pair verified."""
+    covis: dict[tuple[int, int], tuple[int, float]] = {}
+    for (i, j), n, w in zip(m.covis_edges.tolist(), m.covis_inliers.tolist(), m.covis_weight.tolist(), strict=True):
+        if i in new_id and j in new_id:
+            covis[(new_id[i], new_id[j])] = (int(n), float(w))
+    pos, z = T[:, :3, 3], T[:, :3, 2]
+    cos_max = np.cos(np.radians(covisibility.max_angle_deg))
+    n_kept = len(new_id)
+    for k, c in enumerate(cands):
+        a = n_kept + k
+        for b in tree.query_ball_point(pos[a], r=covisibility.max_distance_m):
+            if b == a or (b > a) or float(z[a] @ z[b]) < cos_max:
+                continue  # each new pair once (b < a covers kept nodes and earlier new ones)
+            n_in = pair_inliers(c.features, c.keypoint_depth, c.K, T[a], feats[b], K[b], T[b], match, covisibility)
+            if on_pair is not None:
+                on_pair()
+            if n_in >= covisibility.min_inliers:
+                covis[(b, a)] = (n_in, min(n_in / covisibility.weight_saturation, 1.0))
+    return covis
+
+
+def _connectivity(
+    m: TopoMap, new_id: dict[int, int], retired: set[int], n_kept: int, pos: NDArray[np.float64],
+    grid: OccupancyGrid, tree: cKDTree, connectivity: ConnectivityParams,
+) -> dict[tuple[int, int], float]:
+    """Connectivity edges (i, j) -> metres of the updated map: the old edges between kept nodes,
+    repaired around `retired` nodes and extended from every new node (ids from `n_kept`) to its
+    `max_line_of_sight_neighbours` nearest within `max_line_of_sight_m`, each link only through
+    free space of `grid`. `pos` (N, 3) are the updated nodes' positions (map frame, m), `tree`
+    over them."""
+    conn: dict[tuple[int, int], float] = {}
+    nb_old: dict[int, list[int]] = {}
+    for (i, j), d in zip(m.conn_edges.tolist(), m.conn_metres.tolist(), strict=True):
+        if i in new_id and j in new_id:
+            conn[(new_id[i], new_id[j])] = float(d)
+        nb_old.setdefault(i, []).append(j)
+        nb_old.setdefault(j, []).append(i)
+    xy = grid.to_plane(pos)
+
+    def link(a: int, b: int) -> None:
+        e = (min(a, b), max(a, b))
+        d = float(np.linalg.norm(xy[a] - xy[b]))
+        if a != b and segment_is_free(grid, xy[a], xy[b]):
+            conn[e] = min(conn.get(e, np.inf), d)
+
+    for gone in retired:  # neighbours of a retired node stay connected where the way is free
+        around = [new_id[n] for n in nb_old.get(gone, []) if n in new_id]
+        for x in range(len(around)):
+            for y in range(x + 1, len(around)):
+                link(around[x], around[y])
+    for a in range(n_kept, len(pos)):
+        near = sorted(tree.query_ball_point(pos[a], r=max(connectivity.max_line_of_sight_m, 1e-6)),
+                      key=lambda b: float(np.linalg.norm(xy[a] - xy[b])))
+        for b in [b for b in near if b != a][: connectivity.max_line_of_sight_neighbours]:
+            link(a, b)
+    return conn
