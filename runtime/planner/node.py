@@ -61,7 +61,9 @@ from litevloc.base.geometry import invert
 from litevloc.config.schema import PlannerConfig, TfConfig
 from litevloc.hw import ros_msgs
 from litevloc.pipelines.navigation.approach import Approach, plan_approach
-from litevloc.pipelines.navigation.planner import GoalResult, NavStatus, SubgoalTracker, localize_goal
+from litevloc.pipelines.navigation.candidates import GoalResult
+from litevloc.pipelines.navigation.planner import localize_goal
+from litevloc.pipelines.navigation.tracker import NavState, NavStatus, SubgoalTracker
 from litevloc.pipelines.topomap.types import TopoMap
 from litevloc.runtime.metrics import jsonable
 from litevloc.runtime.transport.ros_interface import image_to_rgb
@@ -395,7 +397,7 @@ class GoalPlanner:
                        f"(past node {node})", name, goal_node=node)
             self._start_next(out)
             return out
-        nav = NavStatus("planned", "final approach", node, (node,) if node is not None else (), d)
+        nav = NavStatus(NavState.PLANNED, "final approach", node, (node,) if node is not None else (), d)
         self._nav = nav
         self._publish_subgoal(out, nav, force=len(self._waypoints) != legs)
         return out

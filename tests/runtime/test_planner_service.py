@@ -13,7 +13,7 @@ import pytest
 from litevloc.base.params.navigation import TrackerParams
 from litevloc.config.schema import PlannerConfig, ZenohConfig
 from litevloc.hw import ros_msgs
-from litevloc.pipelines.navigation.planner import GoalResult
+from litevloc.pipelines.navigation.candidates import GoalResult
 from litevloc.pipelines.topomap.types import OccupancyGrid
 from litevloc.runtime.planner.node import KEYS, GoalPlanner, PlannerService
 from tests.pipelines.navigation.test_planner import grid_map
