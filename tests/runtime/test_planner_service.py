@@ -6,6 +6,7 @@ import dataclasses
 import json
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -343,3 +344,18 @@ def test_planner_section_loads_from_config() -> None:
     assert c.planner.tracker.reach_m == 0.7 and c.planner.goal.top_k == 3
     with pytest.raises(ConfigError, match=r"planner\.tracker"):
         load_config("default", ["planner.tracker.reach_m=5"])
+
+
+def test_plan_cli_writes_the_final_status_as_json(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """`litevloc plan --json` ends with the counters and the planner's status object."""
+    import litevloc.pipelines.topomap.io as topomap_io
+    import litevloc.runtime.planner.node as node
+    from litevloc.cli.main import main
+
+    monkeypatch.setattr(topomap_io, "load_map", lambda path: None)
+    monkeypatch.setattr(node, "build_planner", lambda cfg, topomap: planner({}))
+    out = tmp_path / "plan.json"
+    assert main(["plan", "--map", str(tmp_path), "--listen", f"tcp/127.0.0.1:{free_port()}", "--duration", "0.2",
+                 "--json", str(out)]) == 0
+    got = json.loads(out.read_text())
+    assert got["status"]["state"] == "idle" and got["status"]["seq"] >= 1 and got["counters"]["poses_in"] == 0
