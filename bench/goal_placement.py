@@ -63,7 +63,7 @@ def world_map(world: str, config: str, maps_dir: Path | None = None, map_set: tu
 def goal_images(world_name: str, cfg: Any, extra: int) -> list[tuple[str, NDArray[np.uint8], NDArray[np.float64]]]:
     """(name, RGB image, true T_world_camera) of the world's goal images and `extra` frames of
     its second pass."""
-    from litevloc.runtime.planner.node import decode_goal_image
+    from litevloc.runtime.planner.core import decode_goal_image
     from litevloc.runtime.tools.sim_navigation import render_goals
     from litevloc.sim.realism import sample_lighting
     from litevloc.sim.render import Renderer

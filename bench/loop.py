@@ -174,7 +174,7 @@ def _time_without_fix(t_calls_s: np.ndarray, t_fixes_s: np.ndarray, t0_s: float)
 def loop_goals(world: Any, cfg: Any, n_goals: int) -> tuple[list[Any], Any, list[float]]:
     """(goals, the mapping route, each goal's arc length in metres): `n_goals` goal images
     rendered at equal arc length along the loop's mapping route, facing along it (seeded)."""
-    from litevloc.runtime.tools.sim_navigation import Goal
+    from litevloc.runtime.tools.sim_driver import Goal
     from litevloc.sim.realism import sample_lighting
     from litevloc.sim.render import Renderer
     from litevloc.sim.simulator import camera_pose, render_frame

@@ -234,7 +234,7 @@ def timed(fn: Any, reps: int) -> list[float]:
 # ---------------------------------------------------------------- one size, in a fresh process
 def measure(path: Path, verify: bool) -> dict[str, Any]:
     from litevloc.config import load_config
-    from litevloc.pipelines.navigation.planner import shortest_path
+    from litevloc.pipelines.navigation.graph import shortest_path
 
     rss0 = memory_mb()["rss"]
     loads, cpus = [], []

@@ -106,9 +106,17 @@ def run(args: argparse.Namespace) -> int:
                                                  "rotation_inside_95": float(c[:, 1].mean())}
     if n_keyframes:
         summary["keyframes_per_pose_mean"] = float(np.mean(n_keyframes))
+    _print_summary(summary, counts, args.output)
+    write_json(args.json, summary)
+    return 0
+
+
+def _print_summary(summary: dict, counts: dict[str, int], output: Path) -> None:
+    """The run's result in a line (accepted queries, errors, covariance calibration), then each
+    mode's latency and mean stage times."""
     line = (f"localized {counts['accepted']}/{counts['queries']} queries "
-            f"({counts['global']} global, {counts['local']} local) -> {args.output}")
-    if errors:
+            f"({counts['global']} global, {counts['local']} local) -> {output}")
+    if "errors" in summary:
         er = summary["errors"]
         line += (f"; error median {100 * er['median_m']:.1f} cm / {er['median_deg']:.2f} deg, "
                  f"max {100 * er['max_m']:.1f} cm")
@@ -122,5 +130,3 @@ def run(args: argparse.Namespace) -> int:
             s = summary[f"{mode}_latency_ms"]
             parts = ", ".join(f"{k} {v:.0f}" for k, v in summary[f"{mode}_stage_mean_ms"].items() if k != "total")
             print(f"  {mode} latency: median {s['median']:.0f} ms, p90 {s['p90']:.0f} ms (mean ms: {parts})")
-    write_json(args.json, summary)
-    return 0

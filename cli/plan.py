@@ -56,6 +56,6 @@ def run(args: argparse.Namespace) -> int:
     finally:
         svc.close()
         bus.close()
-    write_json(args.json, {"counters": svc.counters, "status": planner.status})
+    write_json(args.json, {"counters": svc.counters, "status": planner.status.as_dict()})
     print(f"planner: stopped; {svc.counters}")
     return 0

@@ -57,27 +57,17 @@ def make_view(args: argparse.Namespace, topomap: Any = None, T_base_camera: Any 
 
 
 def open_configured_source(cfg: Any, path: Path | None, frames: slice = slice(None)) -> Any:
-    """--source (limited to `frames`), else the config's source (recording, dataset, sim URI, or
-    the OAK-D)."""
+    """--source (limited to `frames`), else the config's source (`source.kind`, opened through
+    `runtime.sources.SOURCE_KINDS`: a recording, dataset, sim URI, or a camera)."""
     from litevloc.base.frames import parse_frames
-    from litevloc.runtime.sources import open_source
+    from litevloc.runtime.sources import SourceUse, open_source, source_kind
 
     if path is not None:
         return open_source(path, frames, strict=cfg.source.strict, rgbd_calibration=cfg.rgbd_calibration)
-    kind = cfg.source.kind
-    if kind == "oak-d":
-        import dataclasses
-
-        from litevloc.hw.oak import OakSource
-
-        # `camera.jpeg_quality` is the JPEG round trip that makes a recording's pixels the live
-        # ones (`litevloc record`); the service records nothing, so it takes the raw colour
-        # (#19: encode only when recording)
-        return OakSource(dataclasses.replace(cfg.camera, jpeg_quality=0), strict=cfg.source.strict)
-    if not cfg.source.path:
-        raise UserError(f"config source.kind is {kind!r} but source.path is empty; give --source")
-    return open_source(cfg.source.path, parse_frames(cfg.source.frames or None), strict=cfg.source.strict,
-                       rgbd_calibration=cfg.rgbd_calibration)
+    kind = source_kind(cfg.source.kind)
+    if kind.needs_path and not cfg.source.path:
+        raise UserError(f"config source.kind is {cfg.source.kind!r} but source.path is empty; give --source")
+    return kind.open(cfg, parse_frames(cfg.source.frames or None), SourceUse.SERVICE)
 
 
 def run_service(args: argparse.Namespace, source_path: Path | None, rate: float | None, record: bool = True) -> dict:

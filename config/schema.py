@@ -39,8 +39,8 @@ from litevloc.base.params.slam import SlamParams
 class SourceConfig:
     """Where sensor data come from when no `--source` is given on the command line."""
 
-    # what the sensor data come from
-    kind: Literal["recording", "dataset", "oak-d", "sim"] = "recording"
+    # what the sensor data come from: a kind of runtime/sources.py SOURCE_KINDS (recording, dataset, oak-d, sim)
+    kind: str = "recording"
     # the recording or dataset folder ("" = none)
     path: str = ""
     # part of a recording or dataset: a Python slice over frame indices, as --frames

@@ -45,8 +45,9 @@ from litevloc.pipelines.topomap.build import MapBuilder
 from litevloc.pipelines.topomap.io import load_map
 from litevloc.pipelines.topomap.map_save import save_map
 from litevloc.pipelines.topomap.openings import find_openings, openings_summary
-from litevloc.runtime.planner.node import GoalPlanner, decode_goal_image, goal_locator
-from litevloc.runtime.tools.sim_navigation import Goal, NavRun, placed_position, render_goals, run_navigation
+from litevloc.runtime.planner.core import GoalPlanner, decode_goal_image, goal_locator
+from litevloc.runtime.tools.sim_driver import Goal
+from litevloc.runtime.tools.sim_navigation import NavRun, placed_position, render_goals, run_navigation
 from litevloc.runtime.vloc_models import ModelBundle, load_bundle
 from litevloc.sim.coverage import map_coverage
 from litevloc.sim.source import SimSequenceSource
@@ -196,7 +197,7 @@ def place_other(goals: list[Goal], map_dir: Path, cfg: LiteVLocConfig, bundle: M
     planner = GoalPlanner(topomap, locate, cfg.planner, cfg.fusion.T_base_camera())
     out = []
     for g in goals:
-        res = planner.place(decode_goal_image(g.jpeg))[0]
+        res = planner.place(decode_goal_image(g.jpeg)).result
         p = placed_position(res, topomap)
         err = None if p is None or g.T_world_camera is None else float(np.linalg.norm(p[:2] - g.T_world_camera[:2, 3]))
         out.append({"name": g.name, "camera": g.camera, "placed_node": res.node, "reason": res.reason,

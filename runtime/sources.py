@@ -4,12 +4,20 @@ Folders are detected (7-Scenes, TUM RGB-D); `.mcap` files are recordings. For po
 datasets without odometry, `with_simulated_odometry` interleaves drift-model odometry
 (`pipelines.odometry_drift`) with the frames in time order. Camera and base_link are
 related by `T_BASE_CAMERA_OPTICAL` (base_link = the camera, in REP-103 body axes).
+
+`SOURCE_KINDS` is the one registry of the config's `source.kind` values: each names how its
+source is opened and what it needs. Both dispatchers (`litevloc run`, `cli.run`, and
+`litevloc record`, `runtime.tools.recording`) open the configured source through `source_kind`,
+so a new camera driver is its `StreamSource` module plus one entry here.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import enum
 import heapq
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +25,7 @@ import numpy as np
 from litevloc.base.geometry import invert
 from litevloc.base.params.calibration import ColorDepthCalibration
 from litevloc.base.params.drift import T_BASE_CAMERA_OPTICAL, DriftParams
+from litevloc.config.schema import LiteVLocConfig
 from litevloc.hw.messages import Message, Odometry, SourceMessage, StreamError, StreamStats
 from litevloc.hw.streams.base import StreamSource
 from litevloc.hw.streams.mcap_io import McapSource
@@ -58,6 +67,60 @@ def open_source(
     if is_tum_folder(p):
         return TumRgbdSource(p, frames, strict=strict)
     raise StreamError(f"{p}: not a 7-Scenes folder (frame-NNNNNN.color.jpg) nor a TUM folder (rgb.txt)")
+
+
+class SourceUse(enum.Enum):
+    """What the configured source is opened for."""
+
+    SERVICE = "service"  # `litevloc run`: the onboard service reads it
+    RECORD = "record"  # `litevloc record`: it is copied to an MCAP file
+
+
+SourceOpener = Callable[[LiteVLocConfig, slice, SourceUse], StreamSource]
+
+
+@dataclass(frozen=True)
+class SourceKind:
+    """One `source.kind`: `open(cfg, frames, use)` -> the source (`frames`: a slice over frame
+    indices, for sources that have them); `needs_path`: it reads `source.path` (refused when
+    empty); `recordable`: `litevloc record` can record it from the config."""
+
+    open: SourceOpener
+    needs_path: bool = False
+    recordable: bool = True
+
+
+def _open_path(cfg: LiteVLocConfig, frames: slice, use: SourceUse) -> StreamSource:
+    # a recording checks every message as it copies it; the service skips bad ones if so configured
+    strict = True if use is SourceUse.RECORD else cfg.source.strict
+    return open_source(cfg.source.path, frames, strict=strict, rgbd_calibration=cfg.rgbd_calibration)
+
+
+def _open_oak(cfg: LiteVLocConfig, frames: slice, use: SourceUse) -> StreamSource:
+    from litevloc.hw.oak import OakSource
+
+    camera = cfg.camera
+    if use is SourceUse.SERVICE:
+        # `camera.jpeg_quality` is the JPEG round trip that makes a recording's pixels the live
+        # ones; the service records nothing, so it takes the raw colour
+        camera = dataclasses.replace(camera, jpeg_quality=0)
+    return OakSource(camera, strict=cfg.source.strict)
+
+
+# source.kind -> how it is opened; integrations and tests may add entries
+SOURCE_KINDS: dict[str, SourceKind] = {
+    "recording": SourceKind(_open_path, needs_path=True),
+    "dataset": SourceKind(_open_path, needs_path=True),
+    "sim": SourceKind(_open_path, needs_path=True, recordable=False),
+    "oak-d": SourceKind(_open_oak),
+}
+
+
+def source_kind(name: str) -> SourceKind:
+    """The registry entry of a `source.kind`; StreamError naming the known kinds otherwise."""
+    if name not in SOURCE_KINDS:
+        raise StreamError(f"unknown source.kind {name!r}; known kinds: {', '.join(sorted(SOURCE_KINDS))}")
+    return SOURCE_KINDS[name]
 
 
 def service_messages(src: StreamSource, reader_process: bool = False) -> Iterable[SourceMessage]:

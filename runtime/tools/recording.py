@@ -56,21 +56,18 @@ ODOMETRY_PROVIDERS: dict[str, OdometryFactory] = {"zenoh": _zenoh_odometry}
 
 
 def open_camera_source(cfg: LiteVLocConfig, source: Path | None, frames: slice) -> StreamSource:
-    """The source to record: `--source` if given, else the configured one (OAK-D, recording, dataset)."""
-    from litevloc.runtime.sources import open_source, with_simulated_odometry
+    """The source to record: `--source` if given, else the configured one (`source.kind`, opened
+    through `runtime.sources.SOURCE_KINDS`: a camera, recording or dataset)."""
+    from litevloc.runtime.sources import SourceUse, open_source, source_kind, with_simulated_odometry
 
     if source is not None:
         src = open_source(source, frames, strict=True, rgbd_calibration=cfg.rgbd_calibration)
         return with_simulated_odometry(src, cfg.odometry_sim.rate_hz, cfg.odometry_sim.drift, cfg.odometry_sim.seed)
-    kind = cfg.source.kind
-    if kind == "oak-d":
-        from litevloc.hw.oak import OakSource
-
-        return OakSource(cfg.camera, strict=cfg.source.strict)
-    if kind in ("recording", "dataset") and cfg.source.path:
-        return open_source(cfg.source.path, frames, strict=True, rgbd_calibration=cfg.rgbd_calibration)
+    kind = source_kind(cfg.source.kind)
+    if kind.recordable and (cfg.source.path or not kind.needs_path):
+        return kind.open(cfg, frames, SourceUse.RECORD)
     raise RecordingError(
-        f"nothing to record: the config's source.kind is {kind!r}"
+        f"nothing to record: the config's source.kind is {cfg.source.kind!r}"
         + ("" if cfg.source.path else " with no source.path")
         + "; use a config with source.kind: oak-d (e.g. --config oak-d) or pass --source PATH"
     )

@@ -96,7 +96,8 @@ def navigate(world_name: str, cfg: Any, map_path: Path, goal_args: list[str] | N
              view_spawn: bool = False, view_save: Path | None = None, goal_camera: str = "robot") -> dict[str, Any]:
     """Run the loop for each localization mode; returns the results dict (and writes the PNG)."""
     from litevloc.pipelines.topomap.io import load_map
-    from litevloc.runtime.tools.sim_navigation import Goal, goal_ratios, plot_navigation, render_goals, run_navigation
+    from litevloc.runtime.tools.sim_driver import Goal
+    from litevloc.runtime.tools.sim_navigation import goal_ratios, plot_navigation, render_goals, run_navigation
     from litevloc.runtime.vloc_models import load_bundle
     from litevloc.sim.world import load_world
 

@@ -112,7 +112,7 @@ def test_subgoals_to_nav2_over_rmw_zenoh_from_a_raw_image_goal() -> None:
             xs = [_xy(ros_msgs.deserialize(p, ros_msgs.POSE_STAMPED))[0] for p, _ in got]
             assert xs == pytest.approx([0.0, 1.0, 2.0], abs=1e-3), xs  # the path's nodes 0, 1, 2, each once
             assert [parse_attachment(a)[0] for _, a in got] == [1, 2, 3] and first
-            assert svc.planner.status["goal"] == "kitchen"
+            assert svc.planner.status.goal == "kitchen"
         finally:
             view.close()
             svc.close()

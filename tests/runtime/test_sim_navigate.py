@@ -41,6 +41,7 @@ def test_closed_loop_reaches_a_goal_with_litevloc(small_map: Path, tmp_path: Pat
                          view_save=rrd)
     s = run.summary()
     assert s["goals_reached"] == 1, s["goals"]
+    assert s["goals"][0]["placed_node"] is not None and s["goals"][0]["placement_error_m"] is not None  # recorded
     assert s["runtime"]["vloc_accepted"] >= 1 and s["planner"]["poses_in"] > 10
     assert s["localization_error_m"]["median"] < 0.2
     assert s["collisions"] == 0 and s["collision_xy"] == []  # where each bump happened (none here)
@@ -114,7 +115,7 @@ def test_driver_status_callback_updates_state_and_feeds_the_view() -> None:
     from types import SimpleNamespace
 
     from litevloc.hw import ros_msgs
-    from litevloc.runtime.tools.sim_navigation import _Driver
+    from litevloc.runtime.tools.sim_driver import SimDriver
 
     def sample(st: dict) -> SimpleNamespace:
         msg = ros_msgs.typestore().types[ros_msgs.STRING](data=json.dumps(st))
@@ -123,7 +124,7 @@ def test_driver_status_callback_updates_state_and_feeds_the_view() -> None:
 
     seen: list[dict] = []
     for hook in (None, seen.append):
-        d = _Driver.__new__(_Driver)
+        d = SimDriver.__new__(SimDriver)
         d.cond, d.status, d.events, d.on_plan = threading.Condition(), {}, [], hook
         d._on_status(sample({"seq": 1, "state": "navigating"}))
         d._on_status(sample({"seq": 2, "state": "reached"}))
@@ -202,7 +203,7 @@ def test_a_far_goal_gets_time_for_its_path() -> None:
     """A goal's budget grows with its shortest free path where that path is long (a far room of
     the 15-room floor), and stays `goal_timeout_s` for a near one."""
     from litevloc.base.params.sim_navigation import NavParams
-    from litevloc.runtime.tools.sim_navigation import goal_budget
+    from litevloc.runtime.tools.sim_driver import goal_budget
     from litevloc.sim.world import load_world
 
     world = load_world("floor", seed=10)

@@ -7,7 +7,9 @@ import pytest
 
 from litevloc.base import geometry as g
 from litevloc.base.params.navigation import GoalParams, TrackerParams
-from litevloc.pipelines.navigation.planner import NavigationError, SubgoalTracker, localize_goal, shortest_path
+from litevloc.pipelines.navigation.graph import NavigationError, shortest_path
+from litevloc.pipelines.navigation.planner import localize_goal
+from litevloc.pipelines.navigation.tracker import SubgoalTracker
 from tests.pipelines.localization.test_vloc import K, match_by_id, observe, pose
 from tests.pipelines.localization.test_vloc import make_map as make_vloc_map
 
@@ -61,7 +63,7 @@ def test_goal_localization_verifies_geometry() -> None:
 
 
 def test_tracker_stray_is_measured_from_the_path_segment() -> None:
-    from litevloc.pipelines.navigation.planner import segment_distance
+    from litevloc.pipelines.navigation.graph import segment_distance
 
     assert np.isclose(segment_distance(np.array([1.0, 1.0, 0]), np.zeros(3), np.array([2.0, 0, 0])), 1.0)
     assert np.isclose(segment_distance(np.array([-1.0, 0, 0]), np.zeros(3), np.array([2.0, 0, 0])), 1.0)
@@ -273,7 +275,7 @@ def test_planner_keeps_to_the_maps_viewing_direction_unless_the_way_back_is_far_
 
 
 def test_plane_rms_measures_how_flat_a_point_set_is() -> None:
-    from litevloc.pipelines.navigation.planner import plane_rms
+    from litevloc.pipelines.navigation.candidates import plane_rms
 
     rng = np.random.default_rng(3)
     wall = np.column_stack([rng.uniform(-1, 1, 200), rng.uniform(0, 2, 200), np.full(200, 4.0)])
@@ -449,7 +451,7 @@ def test_horizontal_share_is_the_part_of_a_support_on_one_horizontal_surface() -
     """A corridor view's support: 80 points on the floor (heights within 1 cm), 20 on a wall
     (heights spread over 2 m) -> 0.8 along the map's up; the same points with up along x
     (a wall's normal) share no horizontal band -> small; no points -> NaN."""
-    from litevloc.pipelines.navigation.planner import horizontal_share
+    from litevloc.pipelines.navigation.candidates import horizontal_share
 
     rng = np.random.default_rng(0)
     floor = np.c_[rng.uniform(0, 10, 80), rng.uniform(-1, 1, 80), rng.uniform(-0.005, 0.005, 80)]
@@ -502,16 +504,17 @@ def test_floor_tiles_do_not_make_a_goal_ambiguous_where_the_rest_of_its_support_
     support node 1 (most essential inliers) has a rival within x2 (node 2): ambiguous. Counting
     only support off the floor band, node 2's place alone holds any: it is chosen. With fewer than
     `pose_min_inliers` such points, or the rule off (`ambiguity_band_m` 0), the goal stays refused."""
-    from litevloc.pipelines.navigation.planner import _Candidate, _unambiguous
+    from litevloc.pipelines.navigation.candidates import Candidate
+    from litevloc.pipelines.navigation.places import unambiguous
 
     m = make_vloc_map([0.0, 1.0, 2.0, 3.0])  # up = -y of the map; no keyframes covisible
     m = dataclasses.replace(m, covis_edges=np.zeros((0, 2), np.int64), covis_inliers=np.zeros(0, np.int32),
                             covis_weight=np.zeros(0, np.float32))
     rng = np.random.default_rng(1)
 
-    def cand(node: int, x_goal: float, inliers: int, pts_map: np.ndarray) -> _Candidate:
+    def cand(node: int, x_goal: float, inliers: int, pts_map: np.ndarray) -> Candidate:
         T = m.T_map_camera[node]
-        return _Candidate(node, 0.5, inliers, pose(x_goal), len(pts_map), 0.0, (pts_map - T[:3, 3]) @ T[:3, :3])
+        return Candidate(node, 0.5, inliers, pose(x_goal), len(pts_map), 0.0, (pts_map - T[:3, 3]) @ T[:3, :3])
 
     def floor(n: int) -> np.ndarray:
         return np.c_[rng.uniform(-3, 3, n), np.full(n, 1.2) + rng.uniform(-0.005, 0.005, n), rng.uniform(3, 8, n)]
@@ -522,15 +525,15 @@ def test_floor_tiles_do_not_make_a_goal_ambiguous_where_the_rest_of_its_support_
     tiles, place, tiles2 = cand(1, 1.0, 100, floor(90)), cand(2, 2.2, 90, scene(70)), cand(3, 3.5, 60, floor(40))
     cands = [tiles, place, tiles2]
     params = GoalParams()
-    best, refusal = _unambiguous(m, cands, cands, tiles, params, ())
+    best, refusal = unambiguous(m, cands, cands, tiles, params, ())
     assert refusal is None and best is place
     off = dataclasses.replace(params, ambiguity_band_m=0.0)
-    assert _unambiguous(m, cands, cands, tiles, off, ())[1] is not None
+    assert unambiguous(m, cands, cands, tiles, off, ())[1] is not None
     thin = cand(2, 2.2, 90, np.vstack([floor(60), scene(params.pose_min_inliers - 2)]))
-    res = _unambiguous(m, [tiles, thin, tiles2], [tiles, thin, tiles2], tiles, params, ())[1]
+    res = unambiguous(m, [tiles, thin, tiles2], [tiles, thin, tiles2], tiles, params, ())[1]
     assert res is not None and "ambiguous" in res.reason and "horizontal surface" in res.reason
     # the singled-out place must hold a verified candidate
-    assert _unambiguous(m, cands, [tiles, tiles2], tiles, params, ())[1] is not None
+    assert unambiguous(m, cands, [tiles, tiles2], tiles, params, ())[1] is not None
 
 
 def test_a_place_gives_the_goal_its_best_supported_pose() -> None:
@@ -538,17 +541,18 @@ def test_a_place_gives_the_goal_its_best_supported_pose() -> None:
     covisible neighbour (one place), did not verify (a flat support needs more) but its pose has
     three times the PnP support and lies where the image was taken: the goal gets node 2's pose,
     and node 2, the place's keyframe nearest that pose, as its node."""
-    from litevloc.pipelines.navigation.planner import _Candidate, _unambiguous
+    from litevloc.pipelines.navigation.candidates import Candidate
+    from litevloc.pipelines.navigation.places import unambiguous
 
     m = make_vloc_map([0.0, 1.0, 2.0, 3.0])  # consecutive keyframes covisible
-    weak = _Candidate(1, 0.5, 35, pose(4.0), 20)
-    strong = _Candidate(2, 0.5, 30, pose(2.0), 60)
-    chosen, refusal = _unambiguous(m, [weak, strong], [weak], weak, GoalParams(), ())
+    weak = Candidate(1, 0.5, 35, pose(4.0), 20)
+    strong = Candidate(2, 0.5, 30, pose(2.0), 60)
+    chosen, refusal = unambiguous(m, [weak, strong], [weak], weak, GoalParams(), ())
     assert refusal is None and chosen.node == 2 and chosen.T_map_goal is strong.T_map_goal
     # node 1's pose is the best supported; node 2's keyframe stands nearer to it: pose 1's, node 2
-    far_kf = _Candidate(1, 0.5, 30, pose(2.1), 60)
-    near_kf = _Candidate(2, 0.5, 35, pose(4.0), 20)
-    chosen, _ = _unambiguous(m, [near_kf, far_kf], [near_kf], near_kf, GoalParams(), ())
+    far_kf = Candidate(1, 0.5, 30, pose(2.1), 60)
+    near_kf = Candidate(2, 0.5, 35, pose(4.0), 20)
+    chosen, _ = unambiguous(m, [near_kf, far_kf], [near_kf], near_kf, GoalParams(), ())
     assert chosen.node == 2 and chosen.T_map_goal is far_kf.T_map_goal
 
 
@@ -556,36 +560,38 @@ def test_a_place_gives_the_goal_the_pose_most_of_its_support_agrees_with() -> No
     """Three covisible keyframes are one place: the strongest PnP (47 inliers) puts the goal 2 m
     off, the two others (39 and 30) agree where the image was taken: the goal gets the pose of
     the stronger of the two (office room_03: 3.8 m off on the strongest, 4-8 cm on the others)."""
-    from litevloc.pipelines.navigation.planner import _Candidate, _unambiguous
+    from litevloc.pipelines.navigation.candidates import Candidate
+    from litevloc.pipelines.navigation.places import unambiguous
 
     m = make_vloc_map([0.0, 1.0, 2.0, 3.0])  # consecutive keyframes covisible
-    off = _Candidate(1, 0.5, 56, pose(4.0), 47)
-    right = _Candidate(2, 0.5, 52, pose(2.0), 39)
-    also = _Candidate(0, 0.5, 43, pose(2.05), 30)
-    chosen, refusal = _unambiguous(m, [off, right, also], [off, right, also], off, GoalParams(), ())
+    off = Candidate(1, 0.5, 56, pose(4.0), 47)
+    right = Candidate(2, 0.5, 52, pose(2.0), 39)
+    also = Candidate(0, 0.5, 43, pose(2.05), 30)
+    chosen, refusal = unambiguous(m, [off, right, also], [off, right, also], off, GoalParams(), ())
     assert refusal is None and chosen.T_map_goal is right.T_map_goal and chosen.node == 2
     # the pose with most agreeing support (2.3: agrees with 2.0 and 2.6) stands for its group; the
     # goal gets that group's strongest pose (2.0), not the middle one
-    middle = _Candidate(2, 0.5, 52, pose(2.3), 25)
-    strong = _Candidate(1, 0.5, 56, pose(2.0), 40)
-    far = _Candidate(0, 0.5, 43, pose(2.6), 30)
-    chosen, _ = _unambiguous(m, [strong, middle, far], [strong, middle, far], strong, GoalParams(), ())
+    middle = Candidate(2, 0.5, 52, pose(2.3), 25)
+    strong = Candidate(1, 0.5, 56, pose(2.0), 40)
+    far = Candidate(0, 0.5, 43, pose(2.6), 30)
+    chosen, _ = unambiguous(m, [strong, middle, far], [strong, middle, far], strong, GoalParams(), ())
     assert chosen.T_map_goal is strong.T_map_goal
 
 
 def test_candidate_poses_agree_along_the_floor() -> None:
     """Two goal poses 0.3 m apart on the floor and 0.5 m apart in height (PnP's least certain
     axis; the map's up is -y) are one spot to drive to; 0.6 m apart on the floor they are two."""
-    from litevloc.pipelines.navigation.planner import _Candidate, _places
+    from litevloc.pipelines.navigation.candidates import Candidate
+    from litevloc.pipelines.navigation.places import group_places
 
     to_plane = make_vloc_map([0.0, 1.0]).grid.to_plane  # the floor: x, z
-    a = _Candidate(0, 0.5, 40, pose(1.0), 40)
+    a = Candidate(0, 0.5, 40, pose(1.0), 40)
     high = pose(1.3)
     high[1, 3] = -0.5
-    b = _Candidate(1, 0.5, 35, high, 30)
-    assert len(_places([a, b], 0.5, 20.0, to_plane)) == 1
-    c = _Candidate(1, 0.5, 35, pose(1.6), 30)
-    assert len(_places([a, c], 0.5, 20.0, to_plane)) == 2
+    b = Candidate(1, 0.5, 35, high, 30)
+    assert len(group_places([a, b], 0.5, 20.0, to_plane)) == 1
+    c = Candidate(1, 0.5, 35, pose(1.6), 30)
+    assert len(group_places([a, c], 0.5, 20.0, to_plane)) == 2
 
 
 def test_goal_retrieval_reorders_the_place_descriptors_candidates_by_local_matches() -> None:
