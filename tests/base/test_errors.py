@@ -16,7 +16,7 @@ import pytest
 from litevloc.base.errors import LiteVLocError
 
 ROOT = Path(__file__).resolve().parents[2]
-PACKAGES = ("base", "config", "hw", "sim", "models", "pipelines", "runtime")
+PACKAGES = ("base", "config", "hw", "sim", "models", "pipelines", "runtime", "cli")
 # Exceptions that are control flow, not errors: a closed/empty queue ends a consumer's loop.
 NOT_ERRORS = {"QueueClosed", "QueueEmpty"}
 BUILTIN_BASES = {"Exception", "ValueError", "RuntimeError", "OSError", "KeyError", "TypeError", "LookupError"}
