@@ -136,7 +136,7 @@ def standalone_problem(text: str) -> str | None:
         return f"continues another description: {t!r}"
     if t.lower().startswith(_CONTINUATIONS):
         return f"starts as a continuation ({t.split()[0]!r}): {t!r}"
-    if any(r in t.lower() for r in _REFERRING):
+    if any(r in t.lower() for r in _REFERRING) or t.lower().rstrip(".").endswith((" too", " as well")):
         return f"refers to another description: {t!r}"
     return None
 

@@ -305,8 +305,8 @@ class RuntimeConfig(Settings):
         10.0, "LOST when no VLoc update was accepted for this much sensor time after the first", unit="s", low=0,
         low_open=True)
     lost_variance: float = setting(
-        1.0e4, "with lost_policy 'flag', the covariance diagonal is raised to at least this while LOST (m^2, rad^2)",
-        unit="m^2", low=0, low_open=True)
+        1.0e4, "with lost_policy 'flag', the covariance diagonal is raised to at least this while LOST",
+        unit="m^2, rad^2", low=0, low_open=True)
     odometry_input: Literal["source", "zenoh"] = setting(
         "source", "odometry from the sensor source (recordings, simulator) or received over Zenoh")
     odometry_key: str = setting("odom", "Zenoh key expression of the robot's nav_msgs/Odometry (not namespaced)")

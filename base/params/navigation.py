@@ -70,8 +70,8 @@ class GoalParams(Settings):
     planar_factor: float = setting(
         2.0, "a flat-patch candidate verifies a place only with this many times min_inliers", low=1)
     expand_from: int = setting(
-        2, "the candidates with most essential-matrix inliers that bring their neighbour keyframes to verify too",
-        low=0)
+        2, "how many of the candidates with most essential-matrix inliers also bring their neighbour keyframes to be "
+        "verified", low=0)
     expand_k: int = setting(4, "neighbour keyframes each expanding candidate brings at most (0 = no expansion)", low=0)
     expand_m: float = setting(
         2.5, "a candidate's neighbour keyframe stands within this distance of the candidate's keyframe", unit="m",

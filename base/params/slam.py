@@ -42,7 +42,8 @@ class SlamOdometryParams(Settings):
         5.0, "an odometry step faster than this is a jump (a reset or a fault) and splits the odometry", unit="m/s",
         low=0, low_open=True)
     max_turn_dps: float = setting(
-        720.0, "an odometry step turning faster than this is a jump too", unit="deg/s", low=0, low_open=True)
+        720.0, "an odometry step turning faster than this is a jump (a reset or a fault) and splits the odometry",
+        unit="deg/s", low=0, low_open=True)
 
 
 @dataclass(frozen=True)
@@ -159,8 +160,8 @@ class SlamGraphParams(Settings):
         0.2, "the chain's rotation drift allowed per metre of chain path between the compared keyframes", unit="deg/m",
         low=0)
     gate_sigmas: float = setting(
-        3.0, "both bounds also grow by this many of the chain's own sigmas over the stretch (its edges' noise as a "
-        "random walk)", low=0)
+        3.0, "the loop gate's bounds also grow by this many of the chain's own sigmas over the stretch (its edges' "
+        "noise as a random walk)", low=0)
     visual_covariance_scale: float = setting(
         4.0, "the visual edges' covariance is multiplied by this in the optimisation (the refinement understates "
         "their error)", low=0, low_open=True)

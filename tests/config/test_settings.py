@@ -60,6 +60,7 @@ def test_every_field_is_declared_with_a_description_that_stands_alone() -> None:
     ("and within this rotation", False),
     ("the depth-squared term of that bound", False),
     ("keyframes this close (m) ...", False),
+    ("a step turning faster than this is a jump too", False),
     ("", False),
 ])
 def test_a_description_that_continues_another_is_caught(text: str, ok: bool) -> None:
