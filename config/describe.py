@@ -100,11 +100,6 @@ def declaration(cls: type, name: str) -> Spec:
     return spec if spec is not None else Spec(_comment_lines(cls).get(name, ""))
 
 
-def field_descriptions(cls: type) -> dict[str, str]:
-    """{field name: its description} for a settings class (empty descriptions left out)."""
-    return {f.name: d for f in dataclasses.fields(cls) if (d := declaration(cls, f.name).description)}
-
-
 def choices_of(tp: Any) -> tuple[Any, ...]:
     """The choices a `Literal` annotation (also inside `X | None` or `tuple[X, ...]`) allows; () if none."""
     if typing.get_origin(tp) is Literal:
