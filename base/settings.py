@@ -184,8 +184,9 @@ def _one_of(v: Any, choices: tuple[Any, ...]) -> str | None:
 
 
 def _check_number(v: Any, spec: Spec, integral: bool) -> str | None:
-    kind = "an integer" if integral else "a finite number"
-    if isinstance(v, bool) or not isinstance(v, numbers.Integral if integral else numbers.Real) \
-            or not math.isfinite(float(v)) or not spec.admits(float(v)):
-        return f"{kind} in {spec.range_text()}"
+    # exact int/float first: the numbers ABCs (numpy scalars) are slower to test
+    number = type(v) is int or (type(v) is float and not integral) or (
+        not isinstance(v, bool) and isinstance(v, numbers.Integral if integral else numbers.Real))
+    if not number or not math.isfinite(float(v)) or not spec.admits(float(v)):
+        return f"{'an integer' if integral else 'a finite number'} in {spec.range_text()}"
     return None
