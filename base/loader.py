@@ -5,7 +5,8 @@ from a plain mapping (as `yaml.safe_load` returns it) and rejects unknown keys, 
 required keys and wrong types with a `ConfigError` that names the dotted key and the
 file. Supported field types: bool, int, float, str, `Path`, `Literal[...]`, `X | None`,
 `tuple[X, ...]`, `tuple[X, Y]`, nested dataclasses. Defaults live on the dataclasses
-(one place for defaults); YAML files only override.
+(one place for defaults, declared with `litevloc.base.settings.setting`, which also
+validates them); YAML files only override.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from typing import Any, Literal, TypeVar, get_args, get_origin, get_type_hints
 import yaml
 
 from litevloc.base.errors import LiteVLocError
+from litevloc.base.settings import SettingError
 
 T = TypeVar("T")
 
@@ -135,7 +137,10 @@ def _build(cls: type[T], data: Mapping[str, Any], prefix: str, source: str | Non
             raise ConfigError(f"missing required key {_where(key, source)}")
     try:
         return cls(**kwargs)
-    except (ValueError, TypeError) as exc:  # __post_init__ validation
+    except SettingError as exc:  # a field outside its declaration
+        key = f"{prefix}.{exc.key}" if prefix else exc.key
+        raise ConfigError(f"{_where(key, source)} must be {exc.allowed}, got {exc.value!r}") from exc
+    except (ValueError, TypeError) as exc:  # a rule between fields (`check_relations`)
         raise ConfigError(f"{_where(prefix or cls.__name__, source)}: {exc}") from exc
 
 

@@ -1,15 +1,14 @@
-"""Every setting with its type, default, description and origin (`litevloc config show`,
-`docs/parameters.md`).
+"""Every setting with its type, default, unit, range, description and origin (`litevloc config
+show`, `docs/parameters.md`).
 
-A setting's description is the one `#` comment line directly above its field in the settings
-class (`base/params/*.py`, `config/schema.py`):
+A setting is declared once, in its settings class (`base/params/*.py`, `config/schema.py`), with
+`litevloc.base.settings.setting`:
 
-    # cell of the coverage grid that one keyframe covers (m)
-    cell_m: float = 0.5
+    cell_m: float = setting(0.5, "ground-plane cell of the coverage count", unit="m", low=0, low_open=True)
 
-`field_descriptions` reads them from the source, so the description lives in one place, beside
-the typed default. `settings` walks the configuration tree and says where each effective value
-came from: the code default, the preset or YAML file, or a `--set` override.
+`walk` goes through the configuration tree, yielding each section and each leaf with its
+declaration and where its effective value came from: the code default, the preset or YAML file,
+or a `--set` override. `litevloc.config.render` prints them.
 """
 
 from __future__ import annotations
@@ -23,9 +22,10 @@ import types
 import typing
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from litevloc.base.loader import apply_override, from_mapping, load_yaml
+from litevloc.base.settings import Spec, spec_of
 from litevloc.config.schema import LiteVLocConfig
 
 DEFAULT = "default"
@@ -44,10 +44,24 @@ class Setting:
     value: Any
     # the code default at this place in the tree (a section's default may differ from its class's)
     default: Any
-    # the one-line comment above the field ("" when it has none)
+    # the declared description ("" when it has none)
     description: str
     # "default", the YAML file's name, or "override"
     origin: str
+    # unit of a physical quantity ("" for counts, ratios, switches and names)
+    unit: str = ""
+    # what the declaration allows: a range such as `(0, inf)`, the choices `a | b`, or ""
+    allowed: str = ""
+
+
+@dataclasses.dataclass(frozen=True)
+class Section:
+    """One section of the configuration tree (a nested settings class)."""
+
+    # dotted key, e.g. mapping.keyframes
+    key: str
+    # the section's declared description
+    description: str
 
 
 @dataclasses.dataclass(frozen=True)
@@ -78,47 +92,78 @@ def load_with_origins(name_or_path: str | Path | None = None, overrides: Sequenc
     return ConfigSources(from_mapping(LiteVLocConfig, data, source), path, file_data, override_data)
 
 
-def field_descriptions(cls: type) -> dict[str, str]:
-    """{field name: the one `#` line directly above it} for a dataclass, from its source.
+def declaration(cls: type, name: str) -> Spec:
+    """The declaration of field `name` of settings class `cls` (`base/settings.py`); a field not
+    declared with `setting`/`section` gets its one `#` comment line as description."""
+    f = {f.name: f for f in dataclasses.fields(cls)}[name]
+    spec = spec_of(f)
+    return spec if spec is not None else Spec(_comment_lines(cls).get(name, ""))
 
-    A field without such a line, or with a comment block of several lines above it, is left
-    out (`description_problems` names them)."""
-    return {name: text for name, (text, n_lines) in _comments(cls).items() if n_lines == 1}
+
+def choices_of(tp: Any) -> tuple[Any, ...]:
+    """The choices a `Literal` annotation (also inside `X | None` or `tuple[X, ...]`) allows; () if none."""
+    if typing.get_origin(tp) is Literal:
+        return typing.get_args(tp)
+    for arg in typing.get_args(tp):
+        if found := choices_of(arg):
+            return found
+    return ()
+
+
+def allowed_text(cls: type, name: str) -> str:
+    """What a field allows, as printed: its range (`(0, inf)`), its choices, or ""."""
+    choices = choices_of(typing.get_type_hints(cls)[name])
+    if choices:
+        return " | ".join(map(str, choices))
+    return declaration(cls, name).range_text()
+
+
+_CONTINUATIONS = ("and ", "or ", "then ", "but ", "nor ", "as does ", "as do ", "until ")
+_REFERRING = ("that bound", "that count", "as above", "the above", "each such", "the line above")
+
+
+def standalone_problem(text: str) -> str | None:
+    """Why a description does not stand alone (it continues or refers to the one above it), else None."""
+    t = text.strip()
+    if not t:
+        return "no description"
+    if t.startswith(("...", "\u2026")) or t.endswith(("...", "\u2026")):
+        return f"continues another description: {t!r}"
+    if t.lower().startswith(_CONTINUATIONS):
+        return f"starts as a continuation ({t.split()[0]!r}): {t!r}"
+    if any(r in t.lower() for r in _REFERRING) or t.lower().rstrip(".").endswith((" too", " as well")):
+        return f"refers to another description: {t!r}"
+    return None
 
 
 def description_problems(cls: type) -> list[str]:
-    """Fields of `cls` without a one-line description, as 'Class.field: why'."""
-    found = _comments(cls)
+    """Fields of `cls` without a declaration or with a description that does not stand alone,
+    as 'Class.field: why'."""
     out = []
     for f in dataclasses.fields(cls):
-        text, n_lines = found.get(f.name, ("", 0))
-        if n_lines == 0:
-            out.append(f"{cls.__name__}.{f.name}: no `#` comment line directly above the field")
-        elif n_lines > 1:
-            out.append(f"{cls.__name__}.{f.name}: {n_lines} comment lines above the field (one line describes it)")
-        elif not text:
-            out.append(f"{cls.__name__}.{f.name}: empty comment")
+        spec = spec_of(f)
+        if spec is None:
+            out.append(f"{cls.__name__}.{f.name}: not declared with `setting` or `section` (base/settings.py)")
+        elif (why := standalone_problem(spec.description)) is not None:
+            out.append(f"{cls.__name__}.{f.name}: {why}")
     return out
 
 
 @functools.cache
-def _comments(cls: type) -> dict[str, tuple[str, int]]:
-    """{field: (the comment line directly above it, how many comment lines the block has)}."""
+def _comment_lines(cls: type) -> dict[str, str]:
+    """{field: the one `#` comment line directly above it}, for a class whose fields are not yet
+    declared with `setting` (base/params/localization.py until it is converted)."""
     lines, _ = inspect.getsourcelines(cls)
     source = textwrap.dedent("".join(lines))
     body = ast.parse(source).body[0]
     assert isinstance(body, ast.ClassDef)
     src_lines = source.splitlines()
-    out: dict[str, tuple[str, int]] = {}
+    out: dict[str, str] = {}
     for node in body.body:
-        if not (isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)):
-            continue
-        above = node.lineno - 2  # 0-based index of the line above the field
-        n = 0
-        while above - n >= 0 and src_lines[above - n].strip().startswith("#"):
-            n += 1
-        text = src_lines[above].strip().lstrip("#").strip() if n else ""
-        out[node.target.id] = (text, n)
+        if isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
+            above = src_lines[node.lineno - 2].strip() if node.lineno >= 2 else ""
+            if above.startswith("#"):
+                out[node.target.id] = above.lstrip("#").strip()
     return out
 
 
@@ -156,11 +201,16 @@ def _has(data: Mapping[str, Any], parts: Sequence[str]) -> bool:
     return True
 
 
-def settings(loaded: ConfigSources) -> list[Setting]:
-    """Every leaf of the effective configuration, in the order of the classes' fields.
-
-    A section that is null (`rgbd_calibration` unless a preset gives it) is one leaf."""
+def walk(loaded: ConfigSources) -> list[Setting | Section]:
+    """Every section and leaf of the effective configuration, depth first in the order of the
+    classes' fields (a section before its fields). A null section (`rgbd_calibration` unless a
+    preset gives it) is one leaf."""
     return list(_walk(LiteVLocConfig, loaded.config, LiteVLocConfig(), (), loaded))
+
+
+def settings(loaded: ConfigSources) -> list[Setting]:
+    """Every leaf of the effective configuration, in the order of the classes' fields."""
+    return [r for r in walk(loaded) if isinstance(r, Setting)]
 
 
 def all_fields() -> list[Setting]:
@@ -168,7 +218,8 @@ def all_fields() -> list[Setting]:
     value (a null section's fields with their class defaults; `value` is `REQUIRED` where the
     class has none)."""
     empty = ConfigSources(LiteVLocConfig(), Path("-"), {}, {})
-    return list(_walk(LiteVLocConfig, LiteVLocConfig(), LiteVLocConfig(), (), empty, expand_null=True))
+    return [r for r in _walk(LiteVLocConfig, LiteVLocConfig(), LiteVLocConfig(), (), empty, expand_null=True)
+            if isinstance(r, Setting)]
 
 
 class _Required:
@@ -180,9 +231,8 @@ REQUIRED: Any = _Required()
 
 
 def _walk(cls: type, value: Any, default: Any, prefix: tuple[str, ...], loaded: ConfigSources,
-          expand_null: bool = False) -> Iterator[Setting]:
+          expand_null: bool = False) -> Iterator[Setting | Section]:
     hints = typing.get_type_hints(cls)
-    notes = field_descriptions(cls)
     for f in dataclasses.fields(cls):
         parts = (*prefix, f.name)
         if value is not None:
@@ -196,6 +246,7 @@ def _walk(cls: type, value: Any, default: Any, prefix: tuple[str, ...], loaded: 
         d = getattr(default, f.name) if dataclasses.is_dataclass(default) else v
         section = _dataclass_of(hints[f.name])
         if section is not None and (dataclasses.is_dataclass(v) or (v is None and expand_null)):
+            yield Section(".".join(parts), declaration(cls, f.name).description)
             yield from _walk(section, v, d, parts, loaded, expand_null)
             continue
         if _has(loaded.override_data, parts):
@@ -204,57 +255,6 @@ def _walk(cls: type, value: Any, default: Any, prefix: tuple[str, ...], loaded: 
             origin = loaded.path.name
         else:
             origin = DEFAULT
-        yield Setting(".".join(parts), str(f.type), v, d, notes.get(f.name, ""), origin)
-
-
-def format_value(v: Any) -> str:
-    """A value as YAML would write it inline (tuples as lists, None as null)."""
-    if v is None:
-        return "null"
-    if v is REQUIRED:
-        return "required"
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, tuple | list):
-        return "[" + ", ".join(format_value(x) for x in v) + "]"
-    if isinstance(v, str):
-        return repr(v) if v == "" or v != v.strip() else v
-    if isinstance(v, Mapping):
-        return "{" + ", ".join(f"{k}: {format_value(x)}" for k, x in v.items()) + "}"
-    return str(v)
-
-
-def render_text(rows: Sequence[Setting]) -> str:
-    """`key = value  [origin]  description`, one line per setting, columns aligned."""
-    if not rows:
-        return ""
-    left = [f"{r.key} = {format_value(r.value)}" for r in rows]
-    origin = [f"[{r.origin}]" for r in rows]
-    w1, w2 = max(map(len, left)), max(map(len, origin))
-    return "\n".join(f"{a:<{w1}}  {o:<{w2}}  {r.description}".rstrip()
-                     for a, o, r in zip(left, origin, rows, strict=True)) + "\n"
-
-
-def render_markdown(presets: Mapping[str, ConfigSources]) -> str:
-    """docs/parameters.md: every field of every settings class, grouped by section, with its
-    type, code default, description and the presets that set it."""
-    rows = all_fields()
-    by_preset = {name: {r.key: r for r in settings(loaded) if r.origin != DEFAULT} for name, loaded in presets.items()}
-    out = ["# Parameters", "",
-           "Generated by `python docs/generate.py` from the settings classes (`base/params/*.py`,",
-           "`config/schema.py`) and the presets (`config/presets/*.yaml`); do not edit by hand.",
-           "Every key can be set in a YAML file or with `--set KEY=VALUE`; `litevloc config show",
-           "[--config P] [--set KEY=VALUE]` prints the effective values and where each came from.",
-           "How the configuration works: [configuration.md](configuration.md).", ""]
-    section = None
-    for r in rows:
-        top = r.key.split(".")[0] if "." in r.key else "top level"
-        if top != section:
-            section = top
-            out += ["", f"## {top}" if top == "top level" else f"## `{top}`", "",
-                    "| key | type | default | description | presets |", "|---|---|---|---|---|"]
-        presets_cell = ", ".join(f"{name}: `{format_value(rows_p[r.key].value)}`"
-                                 for name, rows_p in by_preset.items() if r.key in rows_p)
-        cells = (f"`{r.key}`", f"`{r.type}`", f"`{format_value(r.value)}`", r.description, presets_cell)
-        out.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
-    return "\n".join(out).replace("\n\n\n", "\n\n") + "\n"
+        spec = declaration(cls, f.name)
+        yield Setting(".".join(parts), str(f.type), v, d, spec.description, origin, spec.unit,
+                      allowed_text(cls, f.name))

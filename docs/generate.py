@@ -1,5 +1,5 @@
 """Regenerate the documentation that the code can write: docs/parameters.md (every setting,
-from the settings classes and presets) and docs/cli.md (every command, from the parsers).
+from the settings declarations and presets) and docs/cli.md (every command, from the parsers).
 
     python docs/generate.py          # rewrite them
     python docs/generate.py --check  # exit 1 when a committed file is stale (the tests do this)
@@ -13,7 +13,8 @@ from pathlib import Path
 
 from litevloc.cli.reference import render_cli_reference
 from litevloc.config import preset_names
-from litevloc.config.describe import load_with_origins, render_markdown
+from litevloc.config.describe import load_with_origins
+from litevloc.config.render import render_markdown
 
 DOCS = Path(__file__).resolve().parent
 

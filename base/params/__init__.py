@@ -1,7 +1,8 @@
-"""Parameter dataclasses of the subsystems (frozen, validated in `__post_init__`).
+"""Parameter dataclasses of the subsystems (frozen; each field declared once with
+`litevloc.base.settings.setting`, which validates it).
 
 Each module holds the parameters of one subsystem; the configuration tree
-(`config/schema.py`) reaches every one of them. Each field has its typed default and, on the
-line directly above it, a one-line `#` description that `litevloc config show` prints.
-Only the standard library and numpy are imported here.
+(`config/schema.py`) reaches every one of them. Each field's declaration gives its typed
+default, a description that stands alone, its unit and its range, which `litevloc config
+show` and docs/parameters.md print. Only the standard library and numpy are imported here.
 """

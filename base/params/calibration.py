@@ -3,55 +3,44 @@ estimated by `litevloc.pipelines.calibration`)."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
 from litevloc.base.geometry import make_T, matrix_to_quat_xyzw, quat_xyzw_to_matrix
+from litevloc.base.settings import Settings, setting
 
 F64 = NDArray[np.float64]
 
 
 @dataclass(frozen=True)
-class ColorDepthCalibration:
+class ColorDepthCalibration(Settings):
     """Colour intrinsics (pixels, pinhole) and the depth->colour extrinsic of an RGB-D camera.
 
     `translation_color_depth` (metres) and `quat_xyzw_color_depth` form `T_color_depth`,
     which maps points from the depth camera's optical frame to the colour camera's.
     """
 
-    # colour focal length along x (pixels)
-    color_fx: float
-    # colour focal length along y (pixels)
-    color_fy: float
-    # colour principal point x (pixels)
-    color_cx: float
-    # colour principal point y (pixels)
-    color_cy: float
-    # translation of T_color_depth (m)
-    translation_color_depth: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    # rotation of T_color_depth as a unit quaternion (x, y, z, w)
-    quat_xyzw_color_depth: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
-    # cv2.registerDepth: splat each depth point to 2x2 pixels
-    depth_dilation: bool = False
-    # radial distortion k1 of the colour lens (frames are undistorted to the pinhole K_color)
-    color_k1: float = 0.0
-    # radial distortion k2 of the colour lens
-    color_k2: float = 0.0
+    color_fx: float = setting(description="colour focal length along x", unit="px", low=0, low_open=True)
+    color_fy: float = setting(description="colour focal length along y", unit="px", low=0, low_open=True)
+    color_cx: float = setting(description="colour principal point along x", unit="px", low=-math.inf)
+    color_cy: float = setting(description="colour principal point along y", unit="px", low=-math.inf)
+    translation_color_depth: tuple[float, float, float] = setting(
+        (0.0, 0.0, 0.0), "translation of T_color_depth, the depth optical frame in the colour one (at most 1 m long)",
+        unit="m", low=-1, high=1)
+    quat_xyzw_color_depth: tuple[float, float, float, float] = setting(
+        (0.0, 0.0, 0.0, 1.0), "rotation of T_color_depth as a unit quaternion (x, y, z, w)", low=-math.inf)
+    depth_dilation: bool = setting(False, "cv2.registerDepth splats each depth point to 2x2 pixels")
+    color_k1: float = setting(
+        0.0, "radial distortion k1 of the colour lens (frames are undistorted to the pinhole K_color)", low=-1, high=1)
+    color_k2: float = setting(
+        0.0, "radial distortion k2 of the colour lens (frames are undistorted to the pinhole K_color)", low=-2, high=2)
 
-    def __post_init__(self) -> None:
-        vals = (self.color_fx, self.color_fy, self.color_cx, self.color_cy,
-                *self.translation_color_depth, *self.quat_xyzw_color_depth, self.color_k1, self.color_k2)
-        if not all(np.isfinite(v) for v in vals):
-            raise ValueError("colour calibration values must be finite")
-        if self.color_fx <= 0 or self.color_fy <= 0:
-            raise ValueError(f"color_fx and color_fy must be > 0, got {self.color_fx}, {self.color_fy}")
+    def check_relations(self) -> None:
         if np.linalg.norm(self.translation_color_depth) > 1.0:
             raise ValueError("translation_color_depth is over 1 m: not a colour/depth pair of one sensor")
-        if abs(self.color_k1) > 1.0 or abs(self.color_k2) > 2.0:
-            raise ValueError(f"color_k1 / color_k2 ({self.color_k1}, {self.color_k2}) are beyond a "
-                             "pinhole-like lens (|k1| <= 1, |k2| <= 2)")
         n = float(np.linalg.norm(self.quat_xyzw_color_depth))
         if abs(n - 1.0) > 1e-3:
             raise ValueError(f"quat_xyzw_color_depth must be a unit quaternion (x, y, z, w), norm is {n:.6f}")
@@ -79,47 +68,39 @@ class ColorDepthCalibration:
 
 
 @dataclass(frozen=True)
-class CalibrationParams:
+class CalibrationParams(Settings):
     """Settings of `litevloc calib` (`pipelines.calibration.calibrate_color_depth`; config
     `calibration`). Frame gaps count positions in the selected frames."""
 
-    # pair each frame with the ones this many positions later (wide gaps observe intrinsics best)
-    pair_gaps: tuple[int, ...] = (5, 10, 20, 40)
-    # frame pairs used at most (evenly spread)
-    max_pairs: int = 150
-    # SIFT features per image
-    sift_features: int = 1500
-    # Lowe ratio of the SIFT matches
-    ratio: float = 0.75
-    # RANSAC threshold of the calibration-free (fundamental matrix) outlier filter (pixels)
-    fundamental_px: float = 1.0
-    # pairs with fewer matches are skipped
-    min_matches: int = 30
-    # Huber loss scale of the reprojection residuals (pixels)
-    huber_px: float = 1.0
-    # residuals above this after a round leave the next round (pixels)
-    outlier_px: float = 8.0
-    # robust least-squares rounds
-    rounds: int = 4
-    # depth nearer than this is not lifted (m)
-    min_depth_m: float = 0.3
-    # depth farther than this is not lifted (m)
-    max_depth_m: float = 4.0
-    # largest relative spread of the 2x2 depth neighbourhood of a lifted pixel (depth edges)
-    edge_rel_tol: float = 0.02
-    # pairs whose camera centres are closer than this are skipped (m)
-    min_parallax_m: float = 0.02
-    # translation of T_color_depth the solve starts from, kept unless estimate_translation (m; Kinect v1)
-    translation_prior: tuple[float, float, float] = (-0.025, 0.0, 0.0)
-    # also estimate the depth->colour translation (nearly degenerate with the principal point)
-    estimate_translation: bool = False
-    # also estimate the colour lens's radial distortion k1, k2
-    estimate_distortion: bool = False
+    pair_gaps: tuple[int, ...] = setting(
+        (5, 10, 20, 40), "pair each frame with the ones this many positions later (wide gaps observe intrinsics best)",
+        low=1)
+    max_pairs: int = setting(150, "frame pairs used at most, spread evenly over the frames", low=1)
+    sift_features: int = setting(1500, "SIFT features per image", low=-math.inf)
+    ratio: float = setting(0.75, "Lowe ratio of the SIFT matches", low=-math.inf)
+    fundamental_px: float = setting(
+        1.0, "RANSAC threshold of the calibration-free (fundamental matrix) outlier filter", unit="px", low=-math.inf)
+    min_matches: int = setting(30, "frame pairs with fewer SIFT matches than this are skipped", low=8)
+    huber_px: float = setting(1.0, "Huber loss scale of the reprojection residuals", unit="px", low=0, low_open=True)
+    outlier_px: float = setting(
+        8.0, "residuals above this after a round leave the next round", unit="px", low=0, low_open=True)
+    rounds: int = setting(4, "robust least-squares rounds", low=1)
+    min_depth_m: float = setting(0.3, "depth nearer than this is not lifted", unit="m", low=0, low_open=True)
+    max_depth_m: float = setting(
+        4.0, "depth farther than this is not lifted (above min_depth_m)", unit="m", low=0, low_open=True)
+    edge_rel_tol: float = setting(
+        0.02, "largest relative spread of the 2x2 depth neighbourhood of a lifted pixel (depth edges)", low=-math.inf)
+    min_parallax_m: float = setting(
+        0.02, "pairs whose camera centres are closer than this are skipped", unit="m", low=-math.inf)
+    translation_prior: tuple[float, float, float] = setting(
+        (-0.025, 0.0, 0.0), "translation of T_color_depth the solve starts from, kept unless estimate_translation "
+        "(Kinect v1)", unit="m", low=-math.inf)
+    estimate_translation: bool = setting(
+        False, "also estimate the depth->colour translation (nearly degenerate with the principal point)")
+    estimate_distortion: bool = setting(False, "also estimate the colour lens's radial distortion k1, k2")
 
-    def __post_init__(self) -> None:
-        if not self.pair_gaps or min(self.pair_gaps) < 1:
+    def check_relations(self) -> None:
+        if not self.pair_gaps:
             raise ValueError("pair_gaps must be non-empty positive integers")
-        if self.max_pairs < 1 or self.rounds < 1 or self.min_matches < 8:
-            raise ValueError("max_pairs >= 1, rounds >= 1 and min_matches >= 8 required")
-        if not (0 < self.min_depth_m < self.max_depth_m) or self.huber_px <= 0 or self.outlier_px <= 0:
-            raise ValueError("need 0 < min_depth_m < max_depth_m and positive huber_px / outlier_px")
+        if not self.min_depth_m < self.max_depth_m:
+            raise ValueError(f"need 0 < min_depth_m < max_depth_m, got {self.min_depth_m}, {self.max_depth_m}")

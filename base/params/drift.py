@@ -3,35 +3,28 @@ base_link <- camera-optical rotation."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from litevloc.base.geometry import make_T
+from litevloc.base.settings import Settings, setting
 
 
 @dataclass(frozen=True)
-class DriftParams:
+class DriftParams(Settings):
     """Noise parameters of the odometry drift model (see module docstring)."""
 
-    # translation noise per axis, per metre travelled (1 sigma, fraction of the distance)
-    sigma_trans_per_m: float = 0.02
-    # translation noise per axis that grows with time, not distance (m per sqrt(s), 1 sigma)
-    sigma_trans_floor: float = 0.0005
-    # rotation noise per metre travelled (rad/m, 1 sigma)
-    sigma_rot_per_m: float = float(np.radians(1.0))
-    # rotation noise per radian turned (rad/rad, 1 sigma)
-    sigma_rot_per_rad: float = 0.01
-    # constant yaw bias per metre travelled (rad/m)
-    yaw_bias_per_m: float = float(np.radians(0.5))
-
-    def __post_init__(self) -> None:
-        for name in ("sigma_trans_per_m", "sigma_trans_floor", "sigma_rot_per_m", "sigma_rot_per_rad"):
-            v = getattr(self, name)
-            if not np.isfinite(v) or v < 0:
-                raise ValueError(f"{name} must be a finite number >= 0, got {v}")
-        if not np.isfinite(self.yaw_bias_per_m):
-            raise ValueError("yaw_bias_per_m must be finite")
+    sigma_trans_per_m: float = setting(
+        0.02, "translation noise per axis per metre travelled (1 sigma, fraction of the distance)", unit="m/m", low=0)
+    sigma_trans_floor: float = setting(
+        0.0005, "translation noise per axis that grows with time, not distance (1 sigma)", unit="m/sqrt(s)", low=0)
+    sigma_rot_per_m: float = setting(
+        float(np.radians(1.0)), "rotation noise per metre travelled (1 sigma)", unit="rad/m", low=0)
+    sigma_rot_per_rad: float = setting(0.01, "rotation noise per radian turned (1 sigma)", unit="rad/rad", low=0)
+    yaw_bias_per_m: float = setting(
+        float(np.radians(0.5)), "constant yaw bias per metre travelled", unit="rad/m", low=-math.inf)
 
 
 # base_link (x forward, y left, z up) <- camera optical (x right, y down, z forward).

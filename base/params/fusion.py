@@ -12,11 +12,13 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.base.settings import Settings, setting
+
 F64 = NDArray[np.float64]
 
 
 @dataclass(frozen=True)
-class FusionParams:
+class FusionParams(Settings):
     """Parameters of `OnlineFusion` and `refine_session` (lengths m, angles deg, times s).
 
     Odometry increment noise (per axis, 1 sigma) for an increment of length d metres and
@@ -25,116 +27,78 @@ class FusionParams:
     VLoc sigmas are used when `add_vloc` gets no covariance.
     """
 
-    # an odometry message becomes a smoother state when this much time passed since the last (s)
-    keyframe_period_s: float = 0.1
-    # ... or the robot moved this far (m)
-    keyframe_dist_m: float = 0.25
-    # ... or turned this far (degrees)
-    keyframe_angle_deg: float = 10.0
-    # fixed-lag smoother window (s); must exceed the worst VLoc latency
-    lag_s: float = 3.0
-    # odometry increment translation noise, constant part (m, 1 sigma per axis)
-    odom_sigma_trans_floor: float = 0.002
-    # odometry increment translation noise per metre of the increment (m/m)
-    odom_sigma_trans_per_m: float = 0.04
-    # odometry increment rotation noise, constant part (degrees, 1 sigma per axis)
-    odom_sigma_rot_floor_deg: float = 0.05
-    # odometry increment rotation noise per metre of the increment (deg/m)
-    odom_sigma_rot_per_m_deg: float = 1.5
-    # odometry increment rotation noise per radian turned (rad/rad)
-    odom_sigma_rot_per_rad: float = 0.02
-    # VLoc translation sigma when a VLoc pose comes without a covariance (m)
-    vloc_sigma_trans: float = 0.05
-    # VLoc rotation sigma when a VLoc pose comes without a covariance (degrees)
-    vloc_sigma_rot_deg: float = 2.0
-    # robust kernel on accepted VLoc priors
-    robust_kernel: Literal["huber", "cauchy", "none"] = "cauchy"
-    # robust kernel width (whitened units, sigmas)
-    robust_k: float = 2.5
-    # chi-square gate of a VLoc pose against the prediction (6 dof, p = 0.999); 0 = no gate
-    gate_chi2: float = 22.46
-    # agreeing VLoc poses needed to initialise (1 = the first one)
-    init_votes: int = 2
-    # initialisation votes agree when their T_map_odom lie within this (m) ...
-    init_max_trans_m: float = 0.5
-    # ... and this (degrees)
-    init_max_rot_deg: float = 10.0
-    # initialisation votes must be captured within this of the newest (s) ...
-    init_window_s: float = 5.0
-    # ... or, if older (a slow first fix), the odometry between them travelled less than this (m) ...
-    init_window_m: float = 2.5
-    # ... and turned less than this in all (degrees)
-    init_window_deg: float = 45.0
-    # consecutive agreeing gated rejections that re-initialise the filter (0 = never)
-    reinit_after_rejects: int = 5
-    # at most one marginal covariance per this much sensor time (s)
-    covariance_period_s: float = 1.0
-    # odometry kept for late VLoc poses (s, >= lag_s): a vote captured longer ago is refused as too old
-    odom_buffer_s: float = 60.0
-    # a VLoc pose up to this much newer than the newest odometry is extrapolated (s)
-    max_future_s: float = 0.05
-    # a VLoc pose older than the window is carried to it by odometry that moved less than this since (m; 0 = off) ...
-    late_max_travel_m: float = 5.0
-    # ... and turned less than this (degrees)
-    late_max_turn_deg: float = 360.0
-    # odometry heading drift its random-walk noise misses, 1 sigma per metre since the last accepted VLoc pose (deg/m)
-    odom_drift_yaw_deg_per_m: float = 0.5
-    # ... and its scale drift, along the net displacement since that pose (m per m, 1 sigma)
-    odom_drift_trans_per_m: float = 0.02
+    keyframe_period_s: float = setting(
+        0.1, "an odometry message becomes a smoother state when this much time passed since the last one", unit="s",
+        low=0, low_open=True)
+    keyframe_dist_m: float = setting(
+        0.25, "an odometry message becomes a smoother state when the robot moved this far since the last one", unit="m",
+        low=0, low_open=True)
+    keyframe_angle_deg: float = setting(
+        10.0, "an odometry message becomes a smoother state when the robot turned this far since the last one",
+        unit="deg", low=0, low_open=True)
+    lag_s: float = setting(
+        3.0, "fixed-lag smoother window; must exceed the worst VLoc latency and 2 x keyframe_period_s", low=0,
+        low_open=True, unit="s")
+    odom_sigma_trans_floor: float = setting(
+        0.002, "odometry increment translation noise, constant part (1 sigma per axis)", unit="m", low=0, low_open=True)
+    odom_sigma_trans_per_m: float = setting(
+        0.04, "odometry increment translation noise per metre of the increment", unit="m/m", low=0)
+    odom_sigma_rot_floor_deg: float = setting(
+        0.05, "odometry increment rotation noise, constant part (1 sigma per axis)", unit="deg", low=0, low_open=True)
+    odom_sigma_rot_per_m_deg: float = setting(
+        1.5, "odometry increment rotation noise per metre of the increment", unit="deg/m", low=0)
+    odom_sigma_rot_per_rad: float = setting(
+        0.02, "odometry increment rotation noise per radian turned", unit="rad/rad", low=0)
+    vloc_sigma_trans: float = setting(
+        0.05, "VLoc translation sigma when a VLoc pose comes without a covariance", unit="m", low=0, low_open=True)
+    vloc_sigma_rot_deg: float = setting(
+        2.0, "VLoc rotation sigma when a VLoc pose comes without a covariance", unit="deg", low=0, low_open=True)
+    robust_kernel: Literal["huber", "cauchy", "none"] = setting("cauchy", "robust kernel on accepted VLoc priors")
+    robust_k: float = setting(2.5, "robust kernel width (whitened units, sigmas)", low=0, low_open=True)
+    gate_chi2: float = setting(
+        22.46, "chi-square gate of a VLoc pose against the prediction (6 dof, p = 0.999; 0 = no gate)", low=0)
+    init_votes: int = setting(2, "agreeing VLoc poses needed to initialise (1 = the first one)", low=1)
+    init_max_trans_m: float = setting(
+        0.5, "initialisation votes agree when their T_map_odom translations lie within this", low=0, low_open=True,
+        unit="m")
+    init_max_rot_deg: float = setting(
+        10.0, "initialisation votes agree when their T_map_odom rotations lie within this", unit="deg", low=0,
+        low_open=True)
+    init_window_s: float = setting(
+        5.0, "initialisation votes must be captured within this of the newest vote", low=0, low_open=True, unit="s")
+    init_window_m: float = setting(
+        2.5, "a vote older than init_window_s (a slow first fix) still counts when the odometry since travelled less "
+        "than this", unit="m", low=0, low_open=True)
+    init_window_deg: float = setting(
+        45.0, "a vote older than init_window_s still counts when the odometry since also turned less than this in all",
+        unit="deg", low=0, low_open=True)
+    reinit_after_rejects: int = setting(
+        5, "consecutive agreeing gated rejections that re-initialise the filter (0 = never)", low=0)
+    covariance_period_s: float = setting(
+        1.0, "at most one marginal covariance per this much sensor time", unit="s", low=0, low_open=True)
+    odom_buffer_s: float = setting(
+        60.0, "odometry kept for late VLoc poses (at least lag_s): a vote captured longer ago is refused as too old",
+        unit="s", low=0, low_open=True)
+    max_future_s: float = setting(
+        0.05, "a VLoc pose up to this much newer than the newest odometry is extrapolated", unit="s", low=0)
+    late_max_travel_m: float = setting(
+        5.0, "a VLoc pose older than the smoother window is carried to it by odometry that moved less than this since "
+        "(0 = off)", unit="m", low=0)
+    late_max_turn_deg: float = setting(
+        360.0, "a VLoc pose older than the smoother window is carried to it only when the odometry since turned less "
+        "than this", unit="deg", low=0)
+    odom_drift_yaw_deg_per_m: float = setting(
+        0.5, "odometry heading drift its random-walk noise misses, 1 sigma per metre since the last accepted VLoc pose",
+        unit="deg/m", low=0)
+    odom_drift_trans_per_m: float = setting(
+        0.02, "odometry scale drift its random-walk noise misses, along the net displacement since the last accepted "
+        "VLoc pose (1 sigma)", unit="m/m", low=0)
 
-    def __post_init__(self) -> None:
-        positive = (
-            "keyframe_period_s",
-            "keyframe_dist_m",
-            "keyframe_angle_deg",
-            "lag_s",
-            "odom_sigma_trans_floor",
-            "odom_sigma_rot_floor_deg",
-            "vloc_sigma_trans",
-            "vloc_sigma_rot_deg",
-            "robust_k",
-            "init_max_trans_m",
-            "init_max_rot_deg",
-            "init_window_s",
-            "init_window_m",
-            "init_window_deg",
-            "covariance_period_s",
-            "odom_buffer_s",
-        )
-        for name in positive:
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be a finite number > 0, got {v}")
-        for name in (
-            "odom_sigma_trans_per_m",
-            "odom_sigma_rot_per_m_deg",
-            "odom_sigma_rot_per_rad",
-            "gate_chi2",
-            "max_future_s",
-            "late_max_travel_m",
-            "late_max_turn_deg",
-            "odom_drift_yaw_deg_per_m",
-            "odom_drift_trans_per_m",
-        ):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v >= 0):
-                raise ValueError(f"{name} must be a finite number >= 0, got {v}")
-        if self.robust_kernel not in ("huber", "cauchy", "none"):
-            raise ValueError(
-                f"robust_kernel must be huber, cauchy or none, got {self.robust_kernel!r}"
-            )
-        if self.init_votes < 1:
-            raise ValueError(f"init_votes must be >= 1, got {self.init_votes}")
-        if self.reinit_after_rejects < 0:
-            raise ValueError(f"reinit_after_rejects must be >= 0, got {self.reinit_after_rejects}")
+    def check_relations(self) -> None:
         if self.lag_s < 2 * self.keyframe_period_s:
-            raise ValueError(
-                f"lag_s ({self.lag_s}) must be >= 2 * keyframe_period_s ({self.keyframe_period_s})"
-            )
+            raise ValueError(f"lag_s ({self.lag_s}) must be >= 2 * keyframe_period_s ({self.keyframe_period_s})")
         if self.odom_buffer_s < self.lag_s:
-            raise ValueError(
-                f"odom_buffer_s ({self.odom_buffer_s}) must be >= lag_s ({self.lag_s})"
-            )
+            raise ValueError(f"odom_buffer_s ({self.odom_buffer_s}) must be >= lag_s ({self.lag_s})")
 
     def odom_sigmas(self, dist_m: float, angle_rad: float) -> F64:
         """Per-axis sigmas of an odometry increment, GTSAM order (rot rad x3, trans m x3)."""

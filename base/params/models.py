@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import math
+from dataclasses import dataclass
 from typing import Literal
+
+from litevloc.base.settings import Settings, section, setting
 
 EXTRACTORS = ("aliked-t16", "aliked-n16", "sift", "orb")
 MATCHERS = ("lightglue", "lightglue-int8", "lightglue-adaptive", "mnn", "nn-ratio")
@@ -15,128 +18,90 @@ MIB = 1 << 20  # bytes
 
 
 @dataclass(frozen=True)
-class TensorrtConfig:
+class TensorrtConfig(Settings):
     """onnxruntime's TensorRT execution provider (config `models.tensorrt`), used when `models.providers`
     names `tensorrt`. Engines and the timing cache are kept under the model cache by default, so each
     engine is built once (`litevloc models warmup` builds them ahead of the first run)."""
 
-    # GPU the TensorRT engines run on (CUDA device index; onnxruntime's `device_id`)
-    device_id: int = 0
-    # build FP16 engines where the GPU supports them (`trt_fp16_enable`; off = FP32, slower)
-    fp16: bool = True
-    # keep built engines on disk and reuse them at the next start (`trt_engine_cache_enable`)
-    engine_cache: bool = True
-    # folder of the engine cache; "" = `trt-engines` in the model cache folder (`trt_engine_cache_path`)
-    engine_cache_dir: str = ""
-    # keep TensorRT's layer timing cache on disk: later builds are faster (`trt_timing_cache_enable`)
-    timing_cache: bool = True
-    # folder of the timing cache; "" = `trt-timing` in the model cache folder (`trt_timing_cache_path`)
-    timing_cache_dir: str = ""
-    # TensorRT builder workspace limit (MiB; `trt_max_workspace_size` is this in bytes)
-    max_workspace_mib: int = 1024
-    # largest keypoint count the LightGlue engines take (0 = max of max_keypoints and second_look_keypoints)
-    profile_max_keypoints: int = 0
-
-    def __post_init__(self) -> None:
-        if not 0 <= self.device_id <= 63:
-            raise ValueError(f"tensorrt.device_id must be in [0, 63], got {self.device_id}")
-        if not 16 <= self.max_workspace_mib <= 1 << 20:
-            raise ValueError(f"tensorrt.max_workspace_mib must be in [16, 1048576] MiB, got {self.max_workspace_mib}")
-        if not (self.profile_max_keypoints == 0 or 16 <= self.profile_max_keypoints <= 16384):
-            raise ValueError(
-                f"tensorrt.profile_max_keypoints must be 0 (from the models section) or in [16, 16384], "
-                f"got {self.profile_max_keypoints}"
-            )
+    device_id: int = setting(
+        0, "GPU the TensorRT engines run on (CUDA device index; onnxruntime's `device_id`)", low=0, high=63)
+    fp16: bool = setting(True, "build FP16 engines where the GPU supports them (`trt_fp16_enable`; off = FP32, slower)")
+    engine_cache: bool = setting(
+        True, "keep built engines on disk and reuse them at the next start (`trt_engine_cache_enable`)")
+    engine_cache_dir: str = setting(
+        "", "folder of the engine cache; \"\" = `trt-engines` in the model cache folder (`trt_engine_cache_path`)")
+    timing_cache: bool = setting(
+        True, "keep TensorRT's layer timing cache on disk: later builds are faster (`trt_timing_cache_enable`)")
+    timing_cache_dir: str = setting(
+        "", "folder of the timing cache; \"\" = `trt-timing` in the model cache folder (`trt_timing_cache_path`)")
+    max_workspace_mib: int = setting(
+        1024, "TensorRT builder workspace limit (`trt_max_workspace_size` is this in bytes)", unit="MiB", low=16,
+        high=1 << 20)
+    profile_max_keypoints: int = setting(
+        0, "largest keypoint count the LightGlue engines take (0 = max of max_keypoints and second_look_keypoints)",
+        low=16, high=16384, off=0)
 
 
 @dataclass(frozen=True)
-class CudaConfig:
+class CudaConfig(Settings):
     """onnxruntime's CUDA execution provider (config `models.cuda`), used when `models.providers` names
     `cuda` (and for the nodes TensorRT does not take when both are named)."""
 
-    # GPU the CUDA sessions run on (CUDA device index; onnxruntime's `device_id`)
-    device_id: int = 0
-    # how cuDNN picks convolution algorithms (`cudnn_conv_algo_search`; HEURISTIC: quick start, less memory)
-    cudnn_conv_algo_search: Literal["EXHAUSTIVE", "HEURISTIC", "DEFAULT"] = "HEURISTIC"
-    # how the CUDA memory arena grows (`arena_extend_strategy`; kSameAsRequested suits a shared-memory Jetson)
-    arena_extend_strategy: Literal["kNextPowerOfTwo", "kSameAsRequested"] = "kSameAsRequested"
-    # cap of the CUDA memory arena per session (MiB, `gpu_mem_limit` in bytes; 0 = no cap)
-    gpu_mem_limit_mib: int = 0
-
-    def __post_init__(self) -> None:
-        if not 0 <= self.device_id <= 63:
-            raise ValueError(f"cuda.device_id must be in [0, 63], got {self.device_id}")
-        if not 0 <= self.gpu_mem_limit_mib <= 1 << 20:
-            raise ValueError(f"cuda.gpu_mem_limit_mib must be in [0, 1048576] MiB, got {self.gpu_mem_limit_mib}")
+    device_id: int = setting(
+        0, "GPU the CUDA sessions run on (CUDA device index; onnxruntime's `device_id`)", low=0, high=63)
+    cudnn_conv_algo_search: Literal["EXHAUSTIVE", "HEURISTIC", "DEFAULT"] = setting(
+        "HEURISTIC", "how cuDNN picks convolution algorithms (`cudnn_conv_algo_search`; HEURISTIC: quick start, less "
+        "memory)")
+    arena_extend_strategy: Literal["kNextPowerOfTwo", "kSameAsRequested"] = setting(
+        "kSameAsRequested", "how the CUDA memory arena grows (`arena_extend_strategy`; kSameAsRequested suits a "
+        "shared-memory Jetson)")
+    gpu_mem_limit_mib: int = setting(
+        0, "cap of the CUDA memory arena per session (`gpu_mem_limit` in bytes; 0 = no cap)", low=0, high=1 << 20,
+        unit="MiB")
 
 
 @dataclass(frozen=True)
-class ModelsConfig:
+class ModelsConfig(Settings):
     """Which models the runtime uses and how onnxruntime runs them (config `models`).
 
     ALIKED is exported for a fixed (extractor_size, max_keypoints); SIFT/ORB also resize to
     extractor_size. Sizes are (height, width) in pixels.
     """
 
-    # folder of exported ONNX files + manifest.json; "" = $LITEVLOC_MODEL_CACHE, else ~/.cache/litevloc/models
-    cache_dir: str = ""
-    # onnxruntime execution providers in order of preference (one missing: a WARNING and skipped; CPU is last)
-    providers: tuple[Literal["cpu", "cuda", "tensorrt"], ...] = ("cpu",)
-    # TensorRT provider options (engine and timing caches, FP16, workspace, LightGlue's shape profile)
-    tensorrt: TensorrtConfig = field(default_factory=TensorrtConfig)
-    # CUDA provider options (device, cuDNN algorithm search, memory arena)
-    cuda: CudaConfig = field(default_factory=CudaConfig)
-    # onnxruntime intra-op threads per session (and OpenCV's for SIFT/ORB) in offline commands
-    intra_op_threads: int = 2
-    # local feature extractor
-    extractor: Literal["aliked-t16", "aliked-n16", "sift", "orb"] = "aliked-n16"
-    # extractor input size (h, w pixels)
-    extractor_size: tuple[int, int] = (240, 320)
-    # keypoints extracted per image
-    max_keypoints: int = 512
-    # matcher; lightglue-adaptive: the reference's early stopping + point pruning
-    matcher: Literal["lightglue", "lightglue-int8", "lightglue-adaptive", "mnn", "nn-ratio"] = "lightglue-adaptive"
-    # the second look (localization.second_look_candidates): extractor input size (h, w pixels) ...
-    second_look_size: tuple[int, int] = (480, 640)
-    # ... and keypoints per image, for the query and the keyframes' stored images (all matched)
-    second_look_keypoints: int = 2048
-    # LightGlue match score threshold
-    match_threshold: float = 0.1
-    # lightglue-adaptive: early-stopping confidence (<= 0 = off)
-    depth_confidence: float = 0.95
-    # lightglue-adaptive: point-pruning confidence (<= 0 = off)
-    width_confidence: float = 0.99
-    # match only the strongest N keypoints of each image (0 = all)
-    match_max_keypoints: int = 384
-    # Lowe ratio of the nn-ratio matcher
-    ratio: float = 0.8
-    # place recognition (VPR) model
-    place_recognizer: Literal["effnet-gem", "cosplace"] = "effnet-gem"
-    # VPR input size (h, w pixels)
-    vpr_size: tuple[int, int] = (240, 320)
-    # official CosPlace ResNet-18/256 .pth, only for exporting "cosplace"
-    cosplace_checkpoint: str = ""
+    cache_dir: str = setting(
+        "", 'folder of exported ONNX files + manifest.json; "" = $LITEVLOC_MODEL_CACHE, else ~/.cache/litevloc/models')
+    providers: tuple[Literal["cpu", "cuda", "tensorrt"], ...] = setting(
+        ("cpu",), "onnxruntime execution providers in order of preference (one missing: a WARNING and skipped; CPU is "
+        "last)")
+    tensorrt: TensorrtConfig = section(
+        TensorrtConfig, "TensorRT provider options (engine and timing caches, FP16, workspace, LightGlue's shape "
+        "profile)")
+    cuda: CudaConfig = section(CudaConfig, "CUDA provider options (device, cuDNN algorithm search, memory arena)")
+    intra_op_threads: int = setting(
+        2, "onnxruntime intra-op threads per session (and OpenCV's for SIFT/ORB) in offline commands", low=1, high=64)
+    extractor: Literal["aliked-t16", "aliked-n16", "sift", "orb"] = setting("aliked-n16", "local feature extractor")
+    extractor_size: tuple[int, int] = setting((240, 320), "extractor input size (h, w)", unit="px", low=32, high=4096)
+    max_keypoints: int = setting(512, "keypoints extracted per image", low=16, high=16384)
+    matcher: Literal["lightglue", "lightglue-int8", "lightglue-adaptive", "mnn", "nn-ratio"] = setting(
+        "lightglue-adaptive", "matcher; lightglue-adaptive: the reference's early stopping + point pruning")
+    second_look_size: tuple[int, int] = setting(
+        (480, 640), "extractor input size (h, w) of the second look (localization.second_look_candidates)", unit="px",
+        low=32, high=4096)
+    second_look_keypoints: int = setting(
+        2048, "keypoints per image of the second look, for the query and the keyframes' stored images (all matched)",
+        low=16, high=16384)
+    match_threshold: float = setting(0.1, "LightGlue match score threshold", low=0, high=1, high_open=True)
+    depth_confidence: float = setting(
+        0.95, "lightglue-adaptive: early-stopping confidence (<= 0 = off)", low=-math.inf, high=1, high_open=True)
+    width_confidence: float = setting(
+        0.99, "lightglue-adaptive: point-pruning confidence (<= 0 = off)", low=-math.inf, high=1, high_open=True)
+    match_max_keypoints: int = setting(384, "match only the strongest N keypoints of each image (0 = all)", low=0)
+    ratio: float = setting(0.8, "Lowe ratio of the nn-ratio matcher", low=0, low_open=True, high=1)
+    place_recognizer: Literal["effnet-gem", "cosplace"] = setting("effnet-gem", "place recognition (VPR) model")
+    vpr_size: tuple[int, int] = setting((240, 320), "VPR input size (h, w)", unit="px", low=32, high=4096)
+    cosplace_checkpoint: str = setting("", "official CosPlace ResNet-18/256 .pth, only for exporting 'cosplace'")
 
-    def __post_init__(self) -> None:
-        if not 1 <= self.intra_op_threads <= 64:
-            raise ValueError(f"intra_op_threads must be in [1, 64], got {self.intra_op_threads}")
-        for key in ("extractor_size", "vpr_size", "second_look_size"):
-            h, w = getattr(self, key)
-            if not (32 <= h <= 4096 and 32 <= w <= 4096):
-                raise ValueError(f"{key} must be (h, w) within [32, 4096], got {(h, w)}")
-        for key in ("max_keypoints", "second_look_keypoints"):
-            if not 16 <= getattr(self, key) <= 16384:
-                raise ValueError(f"{key} must be in [16, 16384], got {getattr(self, key)}")
-        if self.match_max_keypoints < 0:
-            raise ValueError(f"match_max_keypoints must be >= 0, got {self.match_max_keypoints}")
-        if not 0.0 <= self.match_threshold < 1.0:
-            raise ValueError(f"match_threshold must be in [0, 1), got {self.match_threshold}")
-        for key in ("depth_confidence", "width_confidence"):
-            v = getattr(self, key)
-            if not (v <= 0 or 0 < v < 1):
-                raise ValueError(f"{key} must be in (0, 1), or <= 0 to disable, got {v}")
-        if not 0.0 < self.ratio <= 1.0:
-            raise ValueError(f"ratio must be in (0, 1], got {self.ratio}")
+    def check_relations(self) -> None:
         if not self.providers:
             raise ValueError("providers must name at least one provider (e.g. [cpu])")
 

@@ -4,13 +4,16 @@ local planner and its search for a first pose (config section `sim_navigation`, 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import math
+from dataclasses import dataclass
 
 import numpy as np
 
+from litevloc.base.settings import Settings, section, setting
+
 
 @dataclass(frozen=True)
-class LocalPlannerParams:
+class LocalPlannerParams(Settings):
     """The simulated robot's reactive planner: arcs scored on depth-derived obstacle points.
 
     Obstacle memory: points are kept in the odometry frame while they stay within
@@ -27,170 +30,132 @@ class LocalPlannerParams:
     the arcs steer to the farthest path point within `lookahead_m` that a straight line from the
     robot reaches with clearance (at least `carrot_m` along the path)."""
 
-    # top forward speed (m/s)
-    max_speed: float = 0.6
-    # lowest speed of a driven arc, also the backing-up speed (m/s)
-    min_speed: float = 0.15
-    # top turn rate (rad/s)
-    max_omega: float = 1.0
-    # arcs have curvatures in [-this, this] (1/m)
-    max_curvature: float = 2.5
-    # arcs tried per command
-    n_arcs: int = 21
-    # arcs are checked this far, or to the subgoal (m)
-    lookahead_m: float = 2.5
-    # points checked along each arc
-    samples: int = 25
-    # speed = free arc length / this, clipped to [min_speed, max_speed] (s)
-    time_to_end_s: float = 1.5
-    # arcs blocked sooner than this are not driven (m)
-    min_progress_m: float = 0.2
-    # radius of the robot's footprint (m)
-    robot_radius: float = 0.3
-    # arcs closer to an obstacle than robot_radius + this are blocked (m; clearance_m is the soft term)
-    margin_m: float = 0.03
-    # arcs may sweep the robot's footprint this far over ground its camera never saw (m; >= robot_radius: off)
-    unseen_overlap_m: float = 0.05
-    # obstacle heights above the floor, [low, high] (m)
-    height_band_m: tuple[float, float] = (0.08, 1.5)
-    # depth farther than this is not an obstacle (m)
-    max_range_m: float = 4.0
-    # depth image subsampling (pixels)
-    stride_px: int = 4
-    # turn in place when the subgoal's bearing exceeds this (degrees)
-    turn_in_place_deg: float = 55.0
-    # turn rate per radian of bearing to the subgoal when turning in place (1/s)
-    turn_gain: float = 1.5
-    # stop when the subgoal is this close (m)
-    arrive_m: float = 0.15
-    # clearance below this is penalised (m)
-    clearance_m: float = 0.7
-    # weight of the clearance penalty in an arc's score
-    w_clearance: float = 3.0
-    # weight of an arc's curvature in its score
-    w_turn: float = 0.1
-    # remembered obstacle points farther from the robot than this are dropped (m)
-    memory_radius_m: float = 2.5
-    # remembered obstacle points seen more than this much odometry ago are dropped (m; 0: no memory)
-    memory_travel_m: float = 2.5
-    # a radian of net heading change since a sighting counts as this many metres of odometry (m/rad)
-    memory_m_per_rad: float = 0.1
-    # obstacle points are thinned to one per voxel of this size (m)
-    voxel_m: float = 0.05
-    # bumper contacts remembered in the odometry frame, newest kept
-    contact_points: int = 64
-    # after a bump, back up until the nearest contact ahead is this far beyond robot_radius (m)
-    contact_clear_m: float = 0.1
-    # commands spent backing off after a bump at most
-    backoff_commands: int = 8
-    # consecutive commands without a drivable arc before backing up
-    recover_after: int = 15
-    # commands spent backing up
-    recover_commands: int = 8
-    # before each backing-up command the footprint's path this far straight back is checked (m)
-    rear_check_m: float = 0.1
-    # commands after a blocked one during which arcs are tried even towards a subgoal far to the side
-    detour_commands: int = 10
-    # cell of the local path grid (m)
-    grid_m: float = 0.05
-    # the local path grid reaches this far around the robot (m; 0: arcs steer straight to the subgoal)
-    grid_radius_m: float = 3.0
-    # cells nearer an obstacle than this cost proportionally more on the local path (m)
-    path_clear_m: float = 0.6
-    # extra cost of a cell nearer an obstacle than robot_radius + margin_m
-    blocked_cost: float = 40.0
-    # the arcs steer at least this far along the local path (m)
-    carrot_m: float = 0.8
+    max_speed: float = setting(
+        0.6, "top forward speed of the local planner (at least min_speed)", unit="m/s", low=0, low_open=True)
+    min_speed: float = setting(
+        0.15, "lowest speed of a driven arc, also the backing-up speed", unit="m/s", low=0, low_open=True)
+    max_omega: float = setting(1.0, "top turn rate", unit="rad/s", low=0, low_open=True)
+    max_curvature: float = setting(2.5, "arcs have curvatures in [-this, this]", unit="1/m", low=0, low_open=True)
+    n_arcs: int = setting(21, "arcs tried per command", low=3)
+    lookahead_m: float = setting(2.5, "arcs are checked this far, or to the subgoal", unit="m", low=0, low_open=True)
+    samples: int = setting(25, "points checked along each arc", low=2)
+    time_to_end_s: float = setting(
+        1.5, "speed = free arc length / this, clipped to [min_speed, max_speed]", unit="s", low=0, low_open=True)
+    min_progress_m: float = setting(0.2, "arcs blocked sooner than this are not driven", unit="m", low=0)
+    robot_radius: float = setting(0.3, "radius of the robot's footprint", unit="m", low=0, low_open=True)
+    margin_m: float = setting(
+        0.03, "arcs closer to an obstacle than robot_radius + this are blocked (clearance_m is the soft term)",
+        unit="m", low=0)
+    unseen_overlap_m: float = setting(
+        0.05, "arcs may sweep the robot's footprint this far over ground its camera never saw (>= robot_radius: off)",
+        unit="m", low=-math.inf)
+    height_band_m: tuple[float, float] = setting(
+        (0.08, 1.5), "obstacle heights above the floor, [low, high] with low < high", unit="m", low=-math.inf)
+    max_range_m: float = setting(4.0, "depth farther than this is not an obstacle", unit="m", low=-math.inf)
+    stride_px: int = setting(4, "depth image subsampling for obstacle points", unit="px", low=1)
+    turn_in_place_deg: float = setting(
+        55.0, "turn in place when the subgoal's bearing exceeds this", unit="deg", low=-math.inf)
+    turn_gain: float = setting(
+        1.5, "turn rate per radian of bearing to the subgoal when turning in place", unit="1/s", low=-math.inf)
+    arrive_m: float = setting(0.15, "stop when the subgoal is this close", unit="m", low=-math.inf)
+    clearance_m: float = setting(0.7, "clearance below this is penalised", unit="m", low=-math.inf)
+    w_clearance: float = setting(3.0, "weight of the clearance penalty in an arc's score", low=-math.inf)
+    w_turn: float = setting(0.1, "weight of an arc's curvature in its score", low=-math.inf)
+    memory_radius_m: float = setting(
+        2.5, "remembered obstacle points farther from the robot than this are dropped", unit="m", low=0, low_open=True)
+    memory_travel_m: float = setting(
+        2.5, "remembered obstacle points seen more than this much odometry ago are dropped (0: no memory)", unit="m",
+        low=0)
+    memory_m_per_rad: float = setting(
+        0.1, "a radian of net heading change since a sighting counts as this many metres of odometry", unit="m/rad",
+        low=0)
+    voxel_m: float = setting(0.05, "obstacle points are thinned to one per voxel of this size", unit="m", low=-math.inf)
+    contact_points: int = setting(64, "bumper contacts remembered in the odometry frame, newest kept", low=-math.inf)
+    contact_clear_m: float = setting(
+        0.1, "after a bump, back up until the nearest contact ahead is this far beyond robot_radius", unit="m", low=0)
+    backoff_commands: int = setting(8, "commands spent backing off after a bump at most", low=0)
+    recover_after: int = setting(15, "consecutive commands without a drivable arc before backing up", low=-math.inf)
+    recover_commands: int = setting(8, "commands spent backing up", low=-math.inf)
+    rear_check_m: float = setting(
+        0.1, "before each backing-up command the footprint's path this far straight back is checked", unit="m", low=0,
+        low_open=True)
+    detour_commands: int = setting(
+        10, "commands after a blocked one during which arcs are tried even towards a subgoal far to the side",
+        low=-math.inf)
+    grid_m: float = setting(0.05, "cell of the local path grid", unit="m", low=0, low_open=True)
+    grid_radius_m: float = setting(
+        3.0, "the local path grid reaches this far around the robot (0: arcs steer straight to the subgoal)", unit="m",
+        low=0)
+    path_clear_m: float = setting(
+        0.6, "cells nearer an obstacle than this cost proportionally more on the local path", unit="m", low=-math.inf)
+    blocked_cost: float = setting(40.0, "extra cost of a cell nearer an obstacle than robot_radius + margin_m", low=0)
+    carrot_m: float = setting(
+        0.8, "the arcs steer at least this far along the local path", unit="m", low=0, low_open=True)
 
-    def __post_init__(self) -> None:
-        if not 0 < self.min_speed <= self.max_speed:
+    def check_relations(self) -> None:
+        if not self.min_speed <= self.max_speed:
             raise ValueError("need 0 < min_speed <= max_speed")
-        if self.max_omega <= 0 or self.max_curvature <= 0 or self.n_arcs < 3 or self.samples < 2:
-            raise ValueError("need max_omega > 0, max_curvature > 0, n_arcs >= 3 and samples >= 2")
-        if self.lookahead_m <= 0 or self.time_to_end_s <= 0 or self.min_progress_m < 0:
-            raise ValueError("need lookahead_m > 0, time_to_end_s > 0 and min_progress_m >= 0")
-        if self.robot_radius <= 0 or self.margin_m < 0 or self.stride_px < 1:
-            raise ValueError("need robot_radius > 0, margin_m >= 0 and stride_px >= 1")
-        if self.memory_radius_m <= 0 or self.memory_travel_m < 0 or self.memory_m_per_rad < 0:
-            raise ValueError("need memory_radius_m > 0, memory_travel_m >= 0 and memory_m_per_rad >= 0")
         if not self.height_band_m[0] < self.height_band_m[1]:
             raise ValueError("height_band_m must be (low, high) with low < high")
-        if self.grid_m <= 0 or self.grid_radius_m < 0 or self.carrot_m <= 0 or self.blocked_cost < 0:
-            raise ValueError("need grid_m > 0, grid_radius_m >= 0, carrot_m > 0 and blocked_cost >= 0")
-        if self.contact_clear_m < 0 or self.backoff_commands < 0:
-            raise ValueError("need contact_clear_m >= 0 and backoff_commands >= 0")
-        if self.rear_check_m <= 0:
-            raise ValueError("need rear_check_m > 0")
 
 
 @dataclass(frozen=True)
-class SearchParams:
+class SearchParams(Settings):
     """Looking for a first pose: turn on the spot, then drive to open space not yet visited
     (`litevloc.sim.search`)."""
 
-    # turn rate while looking around (rad/s)
-    omega: float = 0.5
-    # turn this far at each spot before moving on (rad)
-    look_rad: float = 2 * np.pi
-    # drive at most this far to the next spot (m)
-    leg_m: float = 1.5
-    # headings with less free length than this are not taken (m)
-    min_leg_m: float = 0.4
-    # stop this far before the first obstacle ahead (m)
-    stop_short_m: float = 0.6
-    # the corridor checked for free length is robot radius + this on each side (m)
-    margin_m: float = 0.05
-    # free length is measured this far (m)
-    range_m: float = 8.0
-    # weight of novelty (distance from the spots already visited) in a heading's score
-    novelty_weight: float = 1.0
-    # novelty counts up to this distance (m)
-    novelty_cap_m: float = 2.0
-    # a leg ends after this long (simulated s)
-    leg_timeout_s: float = 15.0
-    # a leg ends after this many blocked commands
-    leg_blocked_commands: int = 10
+    omega: float = setting(0.5, "turn rate while looking around for a first pose", unit="rad/s", low=0, low_open=True)
+    look_rad: float = setting(
+        2 * np.pi, "turn this far at each search spot before moving on", unit="rad", low=0, low_open=True)
+    leg_m: float = setting(
+        1.5, "drive at most this far to the next search spot (at least min_leg_m)", unit="m", low=0, low_open=True)
+    min_leg_m: float = setting(
+        0.4, "search headings with less free length than this are not taken", unit="m", low=0, low_open=True)
+    stop_short_m: float = setting(0.6, "a search leg stops this far before the first obstacle ahead", unit="m", low=0)
+    margin_m: float = setting(
+        0.05, "the corridor checked for free length is robot radius + this on each side", unit="m", low=0)
+    range_m: float = setting(
+        8.0, "free length of a search heading is measured this far", unit="m", low=0, low_open=True)
+    novelty_weight: float = setting(
+        1.0, "weight of novelty (distance from the spots already visited) in a heading's score", low=0)
+    novelty_cap_m: float = setting(2.0, "novelty counts up to this distance", unit="m", low=0)
+    leg_timeout_s: float = setting(
+        15.0, "a search leg ends after this much simulated time", low=0, low_open=True, unit="s")
+    leg_blocked_commands: int = setting(10, "a search leg ends after this many blocked commands", low=1)
 
-    def __post_init__(self) -> None:
-        if self.omega <= 0 or self.look_rad <= 0 or self.leg_timeout_s <= 0 or self.range_m <= 0:
-            raise ValueError("need omega > 0, look_rad > 0, leg_timeout_s > 0 and range_m > 0")
-        if not 0 < self.min_leg_m <= self.leg_m or self.stop_short_m < 0 or self.margin_m < 0:
-            raise ValueError("need 0 < min_leg_m <= leg_m, stop_short_m >= 0 and margin_m >= 0")
-        if self.novelty_weight < 0 or self.novelty_cap_m < 0 or self.leg_blocked_commands < 1:
-            raise ValueError("need novelty_weight >= 0, novelty_cap_m >= 0 and leg_blocked_commands >= 1")
+    def check_relations(self) -> None:
+        if not self.min_leg_m <= self.leg_m:
+            raise ValueError("need 0 < min_leg_m <= leg_m")
 
 
 @dataclass(frozen=True)
-class NavParams:
+class NavParams(Settings):
     """The closed loop `litevloc sim navigate` runs: simulator -> runtime -> planner -> local planner."""
 
-    # local planner and simulator step rate; a frame is rendered each step (Hz)
-    control_hz: float = 5.0
-    # frames handed to the runtime per simulated second (Hz)
-    vloc_hz: float = 1.0
-    # simulated seconds per goal before it is cancelled (s)
-    goal_timeout_s: float = 120.0
-    # and at least this per metre of the shortest free path from where the goal became active to its place (s/m; 0: off)
-    goal_timeout_s_per_m: float = 4.0
-    # a goal is reached within this of its place; goals are localized to a map keyframe, often 1-2 m away (m)
-    success_radius_m: float = 2.0
-    # with no pose yet for this long, look for a place: turn, then move (simulated s)
-    search_after_s: float = 3.0
-    # wall time to wait for the planner's answer to a pose (s)
-    answer_timeout_s: float = 20.0
-    # seed of the simulated run (noise, drift) and of the goal images' lighting
-    seed: int = 0
-    # simulated odometry rate, the loop's message load: each fused pose goes to the planner (Hz; null: sim's)
-    odometry_hz: float | None = 50.0
-    # the simulated robot's local planner
-    local: LocalPlannerParams = field(default_factory=LocalPlannerParams)
-    # the search for a first pose
-    search: SearchParams = field(default_factory=SearchParams)
+    control_hz: float = setting(
+        5.0, "local planner and simulator step rate; a frame is rendered each step", unit="Hz", low=0, low_open=True,
+        high=50)
+    vloc_hz: float = setting(
+        1.0, "frames handed to the runtime per simulated second (at most control_hz)", unit="Hz", low=0, low_open=True)
+    goal_timeout_s: float = setting(
+        120.0, "simulated seconds per goal before it is cancelled", unit="s", low=0, low_open=True)
+    goal_timeout_s_per_m: float = setting(
+        4.0, "a goal also gets at least this per metre of the shortest free path from where it became active to its "
+        "place (0: off)", unit="s/m", low=0)
+    success_radius_m: float = setting(
+        2.0, "a goal is reached within this of its place; goals are localized to a map keyframe, often 1-2 m away",
+        unit="m", low=0, low_open=True)
+    search_after_s: float = setting(
+        3.0, "with no pose yet for this long, look for a place: turn, then move (simulated s)", unit="s", low=-math.inf)
+    answer_timeout_s: float = setting(
+        20.0, "wall time to wait for the planner's answer to a pose", unit="s", low=0, low_open=True)
+    seed: int = setting(0, "seed of the simulated run (noise, drift) and of the goal images' lighting", low=-math.inf)
+    odometry_hz: float | None = setting(
+        50.0, "simulated odometry rate, the loop's message load: each fused pose goes to the planner (null: sim's)",
+        unit="Hz", low=-math.inf)
+    local: LocalPlannerParams = section(LocalPlannerParams, "the simulated robot's local planner")
+    search: SearchParams = section(SearchParams, "the search for a first pose")
 
-    def __post_init__(self) -> None:
-        if not (0 < self.control_hz <= 50 and 0 < self.vloc_hz <= self.control_hz):
+    def check_relations(self) -> None:
+        if not self.vloc_hz <= self.control_hz:
             raise ValueError("need 0 < vloc_hz <= control_hz <= 50")
-        if self.goal_timeout_s <= 0 or self.success_radius_m <= 0 or self.answer_timeout_s <= 0:
-            raise ValueError("goal_timeout_s, success_radius_m and answer_timeout_s must be > 0")
-        if self.goal_timeout_s_per_m < 0:
-            raise ValueError(f"goal_timeout_s_per_m must be >= 0, got {self.goal_timeout_s_per_m}")
