@@ -30,7 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_json_arg(p)
     from litevloc.cli.run import add_view_args
 
-    add_view_args(p)  # --view / --view-save (issue 17)
+    add_view_args(p)  # --view / --view-save
     p.set_defaults(func=run)
 
 

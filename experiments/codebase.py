@@ -1,5 +1,5 @@
 """How well a newcomer can hold the codebase in their head (`bench/codebase.py`): the figures of
-issue 44's before/after table, read statically from a source tree (any commit's, exported with
+a before/after comparison, read statically from a source tree (any commit's, exported with
 `git archive`), so the same code measures before and after.
 
 * README size; modules over 500 lines and functions over 100 lines in the library packages;
@@ -101,7 +101,7 @@ CHANGES: dict[str, tuple[Layout, ...]] = {
 SETTINGS_SUFFIXES = ("Params", "Config")
 # test id -> whether it localizes frames its own map was built from (judged by reading it)
 LOCALIZATION_TESTS: dict[str, bool] = {
-    # before (bb82192): 7-Scenes maps of frames 0:120:4 / 0:60:4 / 0:80:4 queried with frames they contain
+    # these tests localize 7-Scenes frames their own map was built from (True)
     "tests/runtime/test_cli_map_localize.py::small_map": True,  # 0:120:4, queried with 30:90:6
     "tests/runtime/test_replay_runtime.py::test_replay_through_runtime_matches_ground_truth": True,
     "tests/runtime/test_vloc_process.py::small_map": True,

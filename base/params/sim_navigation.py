@@ -23,7 +23,7 @@ class LocalPlannerParams(Settings):
     Recovery: after `recover_after` commands without a drivable arc (e.g. diagonally in a
     doorway) the robot backs straight up for `recover_commands` commands, each only while the
     `rear_check_m` behind it is clear of known obstacles and of ground not seen (as arcs are),
-    then faces the point it steers to before driving (no detour: arcs tried at once drove it back).
+    then faces the point it steers to before driving (no detour first: arcs at once drive it back into the spot).
     Detour: after a blocked command, arcs are tried for `detour_commands` commands even when the
     subgoal is far to the side, so an obstacle in front of a subgoal is driven around.
     Local path: known obstacle points are rasterised on a `grid_m` grid out to `grid_radius_m`;

@@ -26,7 +26,7 @@ grid/frame.npy                (12,) float64: origin(2), resolution, up(3), plane
 images/NNNNNN.jpg             keyframe images (JPEG), one per node
 ```
 
-Local float descriptors are most of a map's bytes (#15). By default (`mapping.descriptor_bytes`
+Local float descriptors are most of a map's bytes. By default (`mapping.descriptor_bytes`
 32) they are product-quantised (`descriptor_codec.py`): 32 one-byte centroid indices per
 128-d ALIKED descriptor with a codebook trained on the map, 4x smaller than int8 codes with
 one float32 scale per keypoint (132 bytes, format 2, `descriptor_bytes` 0), which were 52 %
