@@ -491,7 +491,7 @@ def run_navigation(
         else:
             gt_bus = Bus(z_rt)
             closers.append(gt_bus.close)
-            pub = LiteVLocPublisher(gt_bus, cfg.runtime.lost_policy, cfg.runtime.lost_variance)
+            pub = LiteVLocPublisher(gt_bus)
             closers.append(pub.close)
 
             def on_step_gt(step: Any) -> int | None:

@@ -11,8 +11,7 @@ import pytest
 from litevloc.base.params.drift import T_BASE_CAMERA_OPTICAL
 from litevloc.config.schema import RuntimeConfig
 from litevloc.hw.messages import Odometry
-from litevloc.runtime.service.core import LocalizationCore, PoseOut, VlocOut
-from litevloc.runtime.service.shell import Service
+from litevloc.runtime.service.core import FusionPort, LocalizationCore, PoseOut, VlocOut
 from tests.runtime.fakes import (
     MS,
     T_MAP_ODOM_TRUE,
@@ -22,6 +21,7 @@ from tests.runtime.fakes import (
     Result,
     SyntheticSource,
     T_odom_base_at,
+    make_service,
 )
 
 
@@ -32,8 +32,8 @@ def fix(t_ns: int, state: str = "") -> Result:
 
 def make_core(**params: object) -> tuple[LocalizationCore, FakeFusion]:
     fusion = FakeFusion()
-    core = LocalizationCore(fusion.add_odometry, fusion.add_vloc, RuntimeConfig(**params),  # type: ignore[arg-type]
-                            T_BASE_CAMERA_OPTICAL)
+    core = LocalizationCore(FusionPort(fusion.add_odometry, fusion.add_vloc),
+                            RuntimeConfig(**params))  # type: ignore[arg-type]
     return core, fusion
 
 
@@ -90,9 +90,9 @@ def test_fusion_refusals_are_counted_and_named() -> None:
     core.odometry(Odometry(1 * MS, T_odom_base_at(1 * MS)), 0)
     core.vloc_result(fix(2 * MS))
     core.odometry(Odometry(2 * MS + 1, T_odom_base_at(2 * MS + 1)), 0)  # fusion's first pose
-    core.on_vloc = lambda r: Refusal()
+    core.fusion = dataclasses.replace(core.fusion, on_vloc=lambda r: Refusal())
     assert core.vloc_result(fix(3 * MS)) == []
-    core.on_odometry = lambda o: None  # fusion refuses an odometry message
+    core.fusion = dataclasses.replace(core.fusion, on_odometry=lambda o: None)  # fusion refuses an odometry message
     assert core.odometry(Odometry(4 * MS, T_odom_base_at(4 * MS)), 0) == []
     rep = core.report()
     assert rep["counters"]["fusion_rejected"] == 1 and rep["last_fusion_reason"] == "gated"
@@ -103,9 +103,9 @@ def test_fusion_refusals_are_counted_and_named() -> None:
 def _published(mode: str) -> tuple[list[tuple[int, bool]], list[int], list[int]]:
     pub = FakePublisher()
     fusion = FakeFusion()
-    svc = Service(SyntheticSource(seconds=1.0), FakeVloc(reject_after_ns=600 * MS), fusion.add_odometry,
-                  fusion.add_vloc, pub, RuntimeConfig(mode=mode, lost_after_s=0.2, map_to_odom_period_s=0.05),
-                  rate=0.0)
+    svc = make_service(SyntheticSource(seconds=1.0), FakeVloc(reject_after_ns=600 * MS), fusion, pub,
+                       RuntimeConfig(mode=mode, lost_after_s=0.2, map_to_odom_period_s=0.05),
+                       rate=0.0)
     res = svc.run(timeout_s=20)
     assert res.ok, res.reason
     return [(t, lost) for t, _, lost in pub.poses], [t for t, _ in pub.m2o], pub.vloc
