@@ -120,8 +120,8 @@ def one_run(mode: str, rec: Path, map_dir: Path, seconds: float, endpoint: str, 
 
     view = mode.endswith("+view")
     eager = mode.endswith("+eager")
-    placement = {"realtime+process": ["runtime.service.vloc_process=true"],  # VLoc in its own process / in a thread,
-                 "realtime+thread": ["runtime.service.vloc_process=false"],  # whatever the preset says
+    placement = {"realtime+process": ["runtime.vloc_process=true"],  # VLoc in its own process / in a thread,
+                 "realtime+thread": ["runtime.vloc_process=false"],  # whatever the preset says
                  "realtime+alt": alt_overrides}.get(mode, [])
     cfg = load_config("default", [f"runtime.mode={mode.split('+')[0]}", *overrides, *placement])
     cfg = with_endpoints(cfg, [], [endpoint], None)

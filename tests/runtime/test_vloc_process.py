@@ -47,7 +47,7 @@ def test_deterministic_replay_gives_the_same_trajectory_with_vloc_in_a_process(
         traj = tmp_path / f"fused_{placement}.txt"
         assert main(["replay", str(rec), "--frames", "0:12", "--config", "7scenes", "--map", str(mp), "-o", str(traj),
                      "--listen", f"tcp/127.0.0.1:{free_port()}", "--set", "runtime.mode=deterministic",
-                     "--set", f"runtime.service.vloc_process={placement}"]) == 0
+                     "--set", f"runtime.vloc_process={placement}"]) == 0
         trajs[placement] = traj.read_text()
     assert len(trajs["false"].splitlines()) > 100  # 12 frames 0.33 s apart, 100 Hz odometry
     assert trajs["true"] == trajs["false"]
