@@ -380,3 +380,22 @@ def test_undecodable_frame_is_a_counted_rejection_not_a_crash() -> None:
     assert c["frames_undecodable"] == 1 and c["frames_decoded"] == src.frame_count() - 1
     assert 3 not in vloc.seen and len(vloc.seen) == src.frame_count() - 1
     assert c["vloc_accepted"] == src.frame_count() - 1
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize("mode", ["realtime", "sequential"])
+def test_why_a_run_ended_is_an_enum_not_its_message(mode: str) -> None:
+    """ok follows the StopCause: a timeout is not ok, the end of the source is, and a stop whose
+    reason merely reads like a timeout is a requested stop."""
+    from litevloc.runtime.service.runners import StopCause
+
+    svc, _, _, _ = make(mode, src=SyntheticSource(seconds=30.0), rate=1.0)
+    res = svc.run(timeout_s=0.3)
+    assert res.cause is StopCause.TIMEOUT and not res.ok and res.reason == "timeout after 0.3 s"
+    svc, _, _, _ = make(mode, src=SyntheticSource(seconds=0.5))
+    res = svc.run(timeout_s=20)
+    assert res.cause is StopCause.END_OF_SOURCE and res.ok and res.reason == "end of source"
+    svc, _, _, _ = make(mode, src=SyntheticSource(seconds=30.0), rate=1.0)
+    threading.Timer(0.2, lambda: svc.stop("timeout of the operator's patience")).start()
+    res = svc.run(timeout_s=20)
+    assert res.cause is StopCause.REQUESTED and res.ok and res.reason == "timeout of the operator's patience"
