@@ -121,6 +121,57 @@ def _prior_mahalanobis2(result: gtsam.Values, vl_state: NDArray[np.int64], vl_T_
     )
 
 
+def _checked(
+    odom_times_ns: NDArray[np.integer], T_odom_base: NDArray[np.floating], vloc_times_ns: NDArray[np.integer],
+    T_map_camera: NDArray[np.floating], T_base_camera: NDArray[np.floating],
+) -> tuple[NDArray[np.int64], F64, NDArray[np.int64], F64, F64]:
+    """`refine_session`'s inputs as arrays (int64 times, float64 poses), ValueError on bad ones."""
+    t = np.asarray(odom_times_ns, dtype=np.int64)
+    To = np.asarray(T_odom_base, dtype=np.float64)
+    tv = np.asarray(vloc_times_ns, dtype=np.int64)
+    Tv = np.asarray(T_map_camera, dtype=np.float64)
+    if t.ndim != 1 or len(t) < 2 or To.shape != (len(t), 4, 4):
+        raise ValueError(
+            f"need (N>=2,) odometry times and (N,4,4) poses, got {t.shape} and {To.shape}"
+        )
+    if np.any(np.diff(t) <= 0):
+        raise ValueError("odometry times must be strictly increasing")
+    if tv.ndim != 1 or Tv.shape != (len(tv), 4, 4):
+        raise ValueError(f"need (M,) VLoc times and (M,4,4) poses, got {tv.shape} and {Tv.shape}")
+    T_bc = valid_pose(T_base_camera)
+    if T_bc is None:
+        raise ValueError("T_base_camera must be a finite 4x4 rigid transform")
+    return t, To, tv, Tv, T_bc
+
+
+def _optimise(
+    base: gtsam.NonlinearFactorGraph, values: gtsam.Values, vl_state: NDArray[np.int64], vl_T_mb: F64,
+    covs: list[F64], params: FusionParams,
+) -> tuple[gtsam.Values, NDArray[np.bool_], int]:
+    """Levenberg-Marquardt over the odometry chain `base` and the VLoc priors (state index,
+    T_map_base, GTSAM-order covariance), at most four rounds that drop the priors gated out by
+    `gate_chi2`; (estimate, which priors stayed, iterations)."""
+    active = np.ones(len(vl_state), dtype=bool)
+    iterations = 0
+    result = values
+    for _round in range(4):
+        graph = gtsam.NonlinearFactorGraph(base)
+        for kk in np.nonzero(active)[0]:
+            graph.add(
+                gtsam.PriorFactorPose3(int(vl_state[kk]), gtsam.Pose3(vl_T_mb[kk]), vloc_noise_model(covs[kk], params))
+            )
+        lm = gtsam.LevenbergMarquardtOptimizer(graph, result, gtsam.LevenbergMarquardtParams())
+        result = lm.optimize()
+        iterations += lm.iterations()
+        if params.gate_chi2 <= 0:
+            break
+        new_active = _prior_mahalanobis2(result, vl_state, vl_T_mb, covs) <= params.gate_chi2
+        if not new_active.any() or np.array_equal(new_active, active):
+            break
+        active = new_active
+    return result, active, iterations
+
+
 def refine_session(
     odom_times_ns: NDArray[np.integer],
     T_odom_base: NDArray[np.floating],
@@ -145,21 +196,7 @@ def refine_session(
     Raises:
         ValueError: no usable VLoc result, bad shapes or non-rigid poses.
     """
-    t = np.asarray(odom_times_ns, dtype=np.int64)
-    To = np.asarray(T_odom_base, dtype=np.float64)
-    tv = np.asarray(vloc_times_ns, dtype=np.int64)
-    Tv = np.asarray(T_map_camera, dtype=np.float64)
-    if t.ndim != 1 or len(t) < 2 or To.shape != (len(t), 4, 4):
-        raise ValueError(
-            f"need (N>=2,) odometry times and (N,4,4) poses, got {t.shape} and {To.shape}"
-        )
-    if np.any(np.diff(t) <= 0):
-        raise ValueError("odometry times must be strictly increasing")
-    if tv.ndim != 1 or Tv.shape != (len(tv), 4, 4):
-        raise ValueError(f"need (M,) VLoc times and (M,4,4) poses, got {tv.shape} and {Tv.shape}")
-    T_bc = valid_pose(T_base_camera)
-    if T_bc is None:
-        raise ValueError("T_base_camera must be a finite 4x4 rigid transform")
+    t, To, tv, Tv, T_bc = _checked(odom_times_ns, T_odom_base, vloc_times_ns, T_map_camera, T_base_camera)
     Ad = gtsam.Pose3(T_bc).AdjointMap()
     T_cb = invert(T_bc)
 
@@ -186,24 +223,7 @@ def refine_session(
 
     base, values = _odometry_chain(st_T, T_map_odom0, params)
     covs = [cov_of(int(i)) for i in vidx]
-    active = np.ones(len(vidx), dtype=bool)
-    iterations = 0
-    result = values
-    for _round in range(4):
-        graph = gtsam.NonlinearFactorGraph(base)
-        for kk in np.nonzero(active)[0]:
-            graph.add(
-                gtsam.PriorFactorPose3(int(vl_state[kk]), gtsam.Pose3(vl_T_mb[kk]), vloc_noise_model(covs[kk], params))
-            )
-        lm = gtsam.LevenbergMarquardtOptimizer(graph, result, gtsam.LevenbergMarquardtParams())
-        result = lm.optimize()
-        iterations += lm.iterations()
-        if params.gate_chi2 <= 0:
-            break
-        new_active = _prior_mahalanobis2(result, vl_state, vl_T_mb, covs) <= params.gate_chi2
-        if not new_active.any() or np.array_equal(new_active, active):
-            break
-        active = new_active
+    result, active, iterations = _optimise(base, values, vl_state, vl_T_mb, covs, params)
     est = np.stack([result.atPose3(k).matrix() for k in range(len(st_t))])
     prev = np.clip(np.searchsorted(st_t, t, side="right") - 1, 0, len(st_t) - 1)
     out = est[prev] @ invert(st_T[prev]) @ To
