@@ -139,8 +139,15 @@ def service_e2e(switch_interval_s: float, vloc_ms: float, seconds: float = 6.0) 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     from litevloc.base.params.drift import T_BASE_CAMERA_OPTICAL
     from litevloc.config.schema import RuntimeConfig
-    from litevloc.runtime.service.shell import Service
-    from tests.runtime.fakes import T_MAP_ODOM_TRUE, FakeFusion, FakePublisher, Result, SyntheticSource, T_odom_base_at
+    from tests.runtime.fakes import (
+        T_MAP_ODOM_TRUE,
+        FakeFusion,
+        FakePublisher,
+        Result,
+        SyntheticSource,
+        T_odom_base_at,
+        make_service,
+    )
 
     def vloc(frame, prior):  # type: ignore[no-untyped-def]
         t0 = time.perf_counter()
@@ -152,8 +159,8 @@ def service_e2e(switch_interval_s: float, vloc_ms: float, seconds: float = 6.0) 
 
     old = sys.getswitchinterval()
     fusion = FakeFusion()
-    svc = Service(SyntheticSource(seconds=seconds, odom_hz=200, frame_hz=30), vloc, fusion.add_odometry,
-                  fusion.add_vloc, FakePublisher(), RuntimeConfig(gil_switch_interval_s=switch_interval_s), rate=1.0)
+    svc = make_service(SyntheticSource(seconds=seconds, odom_hz=200, frame_hz=30), vloc, fusion, FakePublisher(),
+                       RuntimeConfig(gil_switch_interval_s=switch_interval_s), rate=1.0)
     try:
         res = svc.run(timeout_s=seconds + 30)
     finally:
@@ -182,8 +189,7 @@ def service_wire_e2e(switch_interval_s: float, vloc_ms: float, seconds: float = 
     from litevloc.base.params.drift import T_BASE_CAMERA_OPTICAL
     from litevloc.config.schema import RuntimeConfig
     from litevloc.hw.odometry import OdometryReceiver
-    from litevloc.runtime.service.shell import Service
-    from tests.runtime.fakes import T_MAP_ODOM_TRUE, FakeFusion, Result, SyntheticSource, T_odom_base_at
+    from tests.runtime.fakes import T_MAP_ODOM_TRUE, FakeFusion, Result, SyntheticSource, T_odom_base_at, make_service
 
     def vloc(frame, prior):  # type: ignore[no-untyped-def]
         t0 = time.perf_counter()
@@ -207,9 +213,9 @@ def service_wire_e2e(switch_interval_s: float, vloc_ms: float, seconds: float = 
         probe = _popen_ready([sys.executable, "-m", PROBE, "--connect", ep, "--topics", "pose",
                               "--stamp-latency", "--idle", "2", "--timeout", str(seconds + 30), "--json", str(out)])
         fusion = FakeFusion()
-        svc = Service(SyntheticSource(seconds=seconds, odom_hz=10, frame_hz=30), vloc, fusion.add_odometry,
-                      fusion.add_vloc, pub, params, rate=1.0,
-                      odometry_receiver=lambda sink: OdometryReceiver(bus.session, "robot/odom", sink))
+        svc = make_service(SyntheticSource(seconds=seconds, odom_hz=10, frame_hz=30), vloc, fusion, pub, params,
+                           rate=1.0,
+                           odometry_receiver=lambda sink: OdometryReceiver(bus.session, "robot/odom", sink))
         robot = _popen_ready([sys.executable, "-m", PROBE, "--connect", ep, "--send-odometry",
                               "robot/odom", "--rate", "200", "--seconds", str(seconds - 1.0)])
         try:

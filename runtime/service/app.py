@@ -27,9 +27,12 @@ from litevloc.pipelines.fusion.online import OnlineFusion
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map, read_manifest
 from litevloc.pipelines.topomap.types import TopoMap
+from litevloc.runtime.service.core import LocalizationCore
 from litevloc.runtime.service.diagnostics import DiagnosticsPublisher
 from litevloc.runtime.service.frame_guard import FrameGuard
-from litevloc.runtime.service.shell import Service, VlocFn, fusion_callables, localizer_callable
+from litevloc.runtime.service.fusion_port import fusion_port
+from litevloc.runtime.service.lifecycle import Lifecycle
+from litevloc.runtime.service.shell import OdometryReceiverFactory, Service, ServicePorts, VlocFn, localizer_callable
 from litevloc.runtime.service.stages import call_in_low_priority_thread
 from litevloc.runtime.service.vloc_process import VlocProcess, VlocWorkerSpec
 from litevloc.runtime.transport.bus import Bus, LiteVLocPublisher
@@ -72,23 +75,137 @@ class Recorder:
         self.gt_T.append(gt.T_world_camera)
 
 
-@dataclass
-class App:
-    service: Service
-    bus: Bus
-    localizer: VisualLocalizer | None  # None when VLoc runs in its own process (`vloc_process`)
-    fusion: OnlineFusion
-    recorder: Recorder
-    T_base_camera: NDArray[np.float64]
-    view: Any = None  # runtime.service.view.LiveView with --view / --view-save
-    vloc_process: VlocProcess | None = None  # runtime.vloc_process: the child that runs the localizer
+class App(Lifecycle):
+    """The onboard node: map, models, localizer (or its process), fusion, view, bus, publisher and
+    the `Service` that runs them, each held by the node's lifecycle (`runtime.service.lifecycle`).
+
+    configure: the VLoc (models and map in this process, or the VLoc child process), fusion, the
+    live view, the Zenoh session, the publishers and the service's wiring; activate: the live
+    inputs on the bus (/initialpose) and the models' provider line; deactivate: stop the service;
+    cleanup: release all of it, newest first. `build_app` configures and activates one."""
+
+    def __init__(self, cfg: LiteVLocConfig, map_path: Path, source: Iterable[SourceMessage], rate: float, *,
+                 on_fused: Callable[[Any], None] | None = None, record: bool = True,
+                 view_spawn: bool = False, view_save: Path | None = None) -> None:
+        super().__init__()
+        self.cfg, self.map_path, self.source, self.rate = cfg, Path(map_path), source, rate
+        self.on_fused, self.view_spawn, self.view_save = on_fused, view_spawn, view_save
+        self.recorder = Recorder(enabled=record)
+        self.T_base_camera: NDArray[np.float64] = cfg.fusion.T_base_camera()
+        self.localizer: VisualLocalizer | None = None  # None when VLoc runs in its own process (`vloc_process`)
+        self.vloc_process: VlocProcess | None = None  # runtime.vloc_process: the child that runs the localizer
+        self.view: Any = None  # runtime.service.view.LiveView with --view / --view-save
+        self.fusion = OnlineFusion(cfg.fusion.params, self.T_base_camera)
+        self._topomap: TopoMap | None = None
+
+    @property
+    def wants_view(self) -> bool:
+        return self.view_spawn or self.view_save is not None
 
     def close(self) -> None:
-        self.bus.close()
-        if self.vloc_process is not None:
-            self.vloc_process.close()
+        """Release everything the node holds (`cleanup`)."""
+        self.cleanup()
+
+    # ------------------------------------------------------------------ configure
+    def on_configure(self) -> None:
+        inner_vloc = self._configure_vloc()
+        if self.wants_view:
+            self.view = self.hold(self._open_view())
+        self.bus = self.hold(Bus(self.cfg.zenoh))
+        self.publisher = self.hold(self._open_publisher())
+        vloc_fn = FrameGuard(inner_vloc)
         if self.view is not None:
-            self.view.close()
+            vloc_fn = self.view.wrap_vloc(vloc_fn)
+            self.publisher.on_status = self.view.put_status
+        self.service = self._wire_service(vloc_fn)
+
+    def _configure_vloc(self) -> VlocFn:
+        """The VLoc callable: a child process that loads the models and the map itself (realtime and
+        deterministic modes with `runtime.vloc_process`; this process then loads the map only for the
+        live view), or the localizer built here with its models."""
+        cfg = self.cfg
+        if cfg.runtime.vloc_process and cfg.runtime.mode != "sequential":
+            self.vloc_process = self.hold(VlocProcess(VlocWorkerSpec(cfg, self.map_path)))
+            self._topomap = load_map(self.map_path) if self.wants_view else None
+            return self.vloc_process
+        models = dataclasses.replace(cfg.models, intra_op_threads=cfg.runtime.ort_intra_op_threads)
+        # Sessions made in a low-priority thread: their intra-op threads inherit the VLoc thread's nice.
+        bundle = call_in_low_priority_thread(lambda: load_bundle(models), cfg.runtime.vloc_nice)
+        topomap = self._topomap = check_map_models(load_map(self.map_path), bundle)
+        self.localizer = VisualLocalizer(topomap, cfg.localization, bundle.extract, bundle.describe, bundle.match,
+                                         second_look=second_look_for(topomap, models, cfg.localization, bundle))
+        return localizer_callable(self.localizer)
+
+    def _open_view(self) -> Any:
+        """The live view (`runtime.service.view`, imported only then), fed off the hot path from the
+        VLoc callable, the fused-pose hook and the status tick."""
+        from litevloc.runtime.service.view import LiveView
+
+        nice = self.cfg.runtime.vloc_nice
+        # Made in a thread at VLoc's nice: the view thread and Rerun's own threads (batcher, sinks)
+        # inherit it. Not lower: a view thread preempted while it holds the GIL stalls fusion
+        # (measured at nice 19: fused-pose p99 x3; at VLoc's nice 10: x1.0, see bench/runtime.py --view).
+        return call_in_low_priority_thread(
+            lambda: LiveView(save=self.view_save, spawn=self.view_spawn, topomap=self._topomap,
+                             T_base_camera=self.T_base_camera, nice=nice), nice)
+
+    def _open_publisher(self) -> LiteVLocPublisher:
+        # (with the VLoc process, the child validated the whole map; the node count is the manifest's)
+        topomap = self._topomap
+        n_nodes = topomap.n_nodes if topomap is not None else int(read_manifest(self.map_path)["nodes"])
+        diagnostics = DiagnosticsPublisher(self.cfg.diagnostics, map_id(self.map_path), n_nodes)
+        return LiteVLocPublisher(self.bus, tf=self.cfg.zenoh.tf, diagnostics=diagnostics,
+                                 T_base_camera=self.T_base_camera)
+
+    def _wire_service(self, vloc_fn: VlocFn) -> Service:
+        cfg, recorder, view, on_fused = self.cfg, self.recorder, self.view, self.on_fused
+
+        def fused_hook(f: Any) -> None:
+            recorder.on_fused(f)
+            if on_fused is not None:
+                on_fused(f)
+            if view is not None:
+                view.put_fused(f)
+
+        # The smoother update a fusion keyframe needs (~1-3 ms, every fusion.keyframe_period_s) runs
+        # after the pose is handed on, not before (runtime.defer_fusion_updates).
+        port = fusion_port(self.fusion, defer_updates=cfg.runtime.defer_fusion_updates)
+        core = LocalizationCore(port, cfg.runtime, T_base_camera=self.T_base_camera, on_fused=fused_hook)
+        ports = ServicePorts(self.publisher, self._odometry_receiver(), recorder.on_ground_truth)
+        return Service(self.source, vloc_fn, core, ports, rate=self.rate)
+
+    def _odometry_receiver(self) -> OdometryReceiverFactory | None:
+        """`runtime.odometry_input: zenoh`: the robot's odometry from the bus, made when the run starts."""
+        rt, bus = self.cfg.runtime, self.bus
+        if rt.odometry_input != "zenoh":
+            return None
+        from litevloc.hw.odometry import OdometryReceiver
+
+        # bridge: the literal key; rmw_zenoh: the ROS topic `odometry_key` in the node's namespace
+        odom_key = rt.odometry_key if not bus.rmw_zenoh else bus.key(rt.odometry_key, ros_msgs.ODOMETRY)
+
+        def zenoh_odometry(sink: Callable[[Any], None]) -> Any:
+            if bus.rmw_zenoh:  # announce the subscription to the ROS graph
+                bus.announce_subscription(rt.odometry_key, ros_msgs.ODOMETRY)
+            return OdometryReceiver(bus.session, odom_key, sink, rt.odometry_checks)
+
+        return zenoh_odometry
+
+    # ------------------------------------------------------------------ activate / deactivate
+    def on_activate(self) -> None:
+        service = self.service
+        report_of: Callable[[], ProviderReport] | None = provider_report  # live: the second look joins when loaded
+        if self.vloc_process is not None:
+            child_report = self.vloc_process.provider_report  # the child's sessions, when it had loaded them
+            report_of = None if child_report is None else (lambda: child_report)
+        if report_of is not None:
+            service.models_report = report_of
+            log_provider_report(report_of())
+        if self.cfg.zenoh.initial_pose.enabled:
+            service.inputs["initial_pose"] = self.hold(InitialPoseInput(self.bus, service.core, self.cfg.zenoh))
+
+    def on_deactivate(self) -> None:
+        self.service.stop("node deactivated")
 
 
 def with_endpoints(cfg: LiteVLocConfig, listen: list[str], connect: list[str], namespace: str | None) -> LiteVLocConfig:
@@ -118,107 +235,11 @@ def build_app(
     on_fused: Callable[[Any], None] | None = None, record: bool = True,
     view_spawn: bool = False, view_save: Path | None = None,
 ) -> App:
-    """Load map and models, open the bus, and wire the service (nothing runs yet).
-
-    `view_spawn` / `view_save`: the live view (`runtime.service.view`, imported only then), fed off
-    the hot path from the VLoc callable, the fused-pose hook and the status tick.
-
-    With `runtime.vloc_process` (realtime and deterministic modes) the models and the map are
-    loaded by the VLoc child process (`runtime.vloc_process`), which is started and has loaded
-    them when this returns; this process loads the map only for the live view."""
-    localizer: VisualLocalizer | None = None
-    vloc_proc: VlocProcess | None = None
-    topomap: TopoMap | None
-    inner_vloc: VlocFn
-    if cfg.runtime.vloc_process and cfg.runtime.mode != "sequential":
-        vloc_proc = VlocProcess(VlocWorkerSpec(cfg, Path(map_path)))
-        inner_vloc = vloc_proc
-        topomap = load_map(map_path) if (view_spawn or view_save is not None) else None
-    else:
-        models = dataclasses.replace(cfg.models, intra_op_threads=cfg.runtime.ort_intra_op_threads)
-        # Sessions made in a low-priority thread: their intra-op threads inherit the VLoc thread's nice.
-        bundle = call_in_low_priority_thread(lambda: load_bundle(models), cfg.runtime.vloc_nice)
-        topomap = check_map_models(load_map(map_path), bundle)
-        localizer = VisualLocalizer(topomap, cfg.localization, bundle.extract, bundle.describe, bundle.match,
-                                    second_look=second_look_for(topomap, models, cfg.localization, bundle))
-        inner_vloc = localizer_callable(localizer)
-    T_base_camera = cfg.fusion.T_base_camera()
-    fusion = OnlineFusion(cfg.fusion.params, T_base_camera)
-    recorder = Recorder(enabled=record)
-    view = None
-    if view_spawn or view_save is not None:
-        from litevloc.runtime.service.view import LiveView
-
-        # Made in a thread at VLoc's nice: the view thread and Rerun's own threads (batcher, sinks)
-        # inherit it. Not lower: a view thread preempted while it holds the GIL stalls fusion
-        # (measured at nice 19: fused-pose p99 x3; at VLoc's nice 10: x1.0, see bench/runtime.py --view).
-        view = call_in_low_priority_thread(
-            lambda: LiveView(save=view_save, spawn=view_spawn, topomap=topomap, T_base_camera=T_base_camera,
-                             nice=cfg.runtime.vloc_nice), cfg.runtime.vloc_nice)
-    try:
-        bus = Bus(cfg.zenoh)
-    except Exception:
-        if vloc_proc is not None:
-            vloc_proc.close()
-        raise
-    try:
-        # (with the VLoc process, the child validated the whole map; the node count is the manifest's)
-        n_nodes = topomap.n_nodes if topomap is not None else int(read_manifest(Path(map_path))["nodes"])
-        diagnostics = DiagnosticsPublisher(cfg.diagnostics, map_id(map_path), n_nodes)
-        publisher = LiteVLocPublisher(bus, cfg.runtime.lost_policy, cfg.runtime.lost_variance, cfg.zenoh.tf,
-                                      diagnostics=diagnostics, T_base_camera=T_base_camera)
-        # The smoother update a fusion keyframe needs (~1-3 ms, every fusion.keyframe_period_s) runs
-        # after the pose is handed on, not before (runtime.defer_fusion_updates).
-        defer = cfg.runtime.defer_fusion_updates
-        on_odom, on_vloc = fusion_callables(fusion, defer_updates=defer)
-        receiver: Callable[[Callable[[Any], None]], Any] | None = None
-        if cfg.runtime.odometry_input == "zenoh":
-            from litevloc.hw.odometry import OdometryReceiver
-
-            # bridge: the literal key; rmw_zenoh: the ROS topic `odometry_key` in the node's namespace
-            odom_key = cfg.runtime.odometry_key if not bus.rmw_zenoh else bus.key(cfg.runtime.odometry_key,
-                                                                                  ros_msgs.ODOMETRY)
-
-            def zenoh_odometry(sink: Callable[[Any], None]) -> Any:
-                if bus.rmw_zenoh:  # announce the subscription to the ROS graph
-                    bus.announce_subscription(cfg.runtime.odometry_key, ros_msgs.ODOMETRY)
-                return OdometryReceiver(bus.session, odom_key, sink, cfg.runtime.odometry_checks)
-
-            receiver = zenoh_odometry
-
-        def fused_hook(f: Any) -> None:
-            recorder.on_fused(f)
-            if on_fused is not None:
-                on_fused(f)
-            if view is not None:
-                view.put_fused(f)
-
-        vloc_fn = FrameGuard(inner_vloc)
-        if view is not None:
-            vloc_fn = view.wrap_vloc(vloc_fn)
-            publisher.on_status = view.put_status
-
-        service = Service(
-            source, vloc_fn, on_odom, on_vloc, publisher, cfg.runtime, rate=rate,
-            T_base_camera=T_base_camera, odometry_receiver=receiver,
-            on_ground_truth=recorder.on_ground_truth, on_fused=fused_hook,
-            after_odometry=fusion.flush if defer else None,
-        )
-        report_of: Callable[[], ProviderReport] | None = provider_report  # live: the second look joins when loaded
-        if vloc_proc is not None:
-            child_report = vloc_proc.provider_report  # the child's sessions, when it had loaded them
-            report_of = None if child_report is None else (lambda: child_report)
-        if report_of is not None:
-            service.models_report = report_of
-            log_provider_report(report_of())
-        if cfg.zenoh.initial_pose.enabled:
-            service.inputs["initial_pose"] = InitialPoseInput(bus, service.core, cfg.zenoh)
-    except Exception:
-        bus.close()
-        if vloc_proc is not None:
-            vloc_proc.close()
-        if view is not None:
-            view.close()
-        raise
-    return App(service, bus, localizer, fusion, recorder, T_base_camera, view, vloc_proc)
-
+    """The onboard node configured and activated (nothing runs yet: `app.service.run()`, then
+    `app.close()`). Everything that can be missing is checked here, before any thread starts;
+    on a failure what was acquired is released (newest first) and the error raised."""
+    app = App(cfg, map_path, source, rate, on_fused=on_fused, record=record, view_spawn=view_spawn,
+              view_save=view_save)
+    app.configure()
+    app.activate()
+    return app

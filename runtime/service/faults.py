@@ -198,11 +198,11 @@ class _SlowPublisher:
     def __init__(self, inner: Any, inj: FaultInjector) -> None:
         self._inner, self._inj = inner, inj
 
-    def publish_pose(self, t_ns: int, T: Any, cov: Any, lost: bool = False) -> bool:
+    def publish_pose(self, t_ns: int, T: Any, cov: Any) -> None:
         for s in self._inj._active("slow_consumer", t_ns):
             self._inj._count("slow_consumer")
             time.sleep(s.delay_ms * 1e-3)
-        return bool(self._inner.publish_pose(t_ns, T, cov, lost))
+        self._inner.publish_pose(t_ns, T, cov)
 
     def __getattr__(self, name: str) -> Any:  # publish_map_to_odom, publish_vloc, publish_status, status, close
         return getattr(self._inner, name)

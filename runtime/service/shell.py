@@ -9,27 +9,21 @@ fusion stage --outbox: BoundedFifo--> publisher stage (Zenoh)
 status: every status_period_s (Periodic) -> publisher.publish_status + `Service.status()`
 ```
 
-Every decision (fusion calls, tracking state, map->odom throttle, what to publish) is the
-core's (`runtime.service.core`); this module only moves messages: it paces the
-source, runs the VLoc callable and the core's steps in their threads (or inline), publishes
-the core's typed outputs and assembles the status from the core's report, the queues and
-the stages.
+Every decision (fusion calls, tracking state, map->odom throttle, what to publish and how) is
+the core's (`runtime.service.core`); this module only moves messages: it paces the source,
+runs the VLoc callable and the core's steps in their threads (or inline), hands the core's
+typed outputs to the publisher as they are and assembles the status from the core's report,
+the queues and the stages.
 
-Injected callables (the lead plugs the real ones; tests use fakes):
+What it is given (the lead plugs the real ones; tests use fakes):
 
 * `vloc(frame: RgbdFrame, prior: VlocPrior | None) -> VlocOutcome` (e.g. `LocalizationResult`
   via `localizer_callable`, which also reports the localizer's tracking state); runs in the
   vloc thread.
-* `on_odometry(odom) -> FusedPoseLike | None` and `on_vloc(result) -> FusionUpdateLike | None`
-  (e.g. `fusion_callables(OnlineFusion)`); both run in the fusion thread only, so the fusion
-  object needs no lock.
-* `publisher`: `runtime.transport.bus.LiteVLocPublisher` or a fake with the same four methods.
-* `after_odometry()` (optional): called in the fusion thread after each odometry message's
-  outputs were handed on (published, with `publish_inline`), e.g. `OnlineFusion.flush`: the
-  smoother update that `fusion_callables(..., defer_updates=True)` left for after the pose.
-
-Fused covariances are converted with `covariance_to_ros` (e.g.
-`base.geometry.gtsam_to_ros_covariance`) before publishing; default: already in ROS order.
+* `core`: a `LocalizationCore` with its `FusionPort` (e.g. `runtime.service.fusion_port`);
+  its steps run in the fusion thread only, so the fusion object needs no lock.
+* `ports` (`ServicePorts`): the publisher (`runtime.transport.bus.LiteVLocPublisher` or a fake
+  with the same four methods), the Zenoh odometry receiver's factory, the ground-truth sink.
 
 Modes (`RuntimeConfig.mode`):
 * `realtime`: the source is paced at `rate` (1 = recorded timing); frames go through a
@@ -49,61 +43,57 @@ A stage that FAILS stops the service with its traceback summary in the result.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import logging
-import signal
 import threading
 import time
-from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.base.errors import LiteVLocError
-from litevloc.base.params.drift import T_BASE_CAMERA_OPTICAL
-from litevloc.config.schema import RuntimeConfig
 from litevloc.hw.messages import EncodedRgbdFrame, GroundTruthPose, Odometry, RgbdFrame, SourceMessage, StreamError
-from litevloc.runtime.metrics import LatencyWindow, jsonable, now_ns
-from litevloc.runtime.service.core import (
-    CoreOutput,
-    FusedPoseLike,
-    FusionUpdateLike,
-    LocalizationCore,
-    MapToOdomOut,
-    OdometryFn,
-    PoseOut,
-    VlocOut,
-    VlocOutcome,
-    VlocUpdateFn,
-)
+from litevloc.runtime.metrics import LatencyWindow, now_ns
+from litevloc.runtime.service.core import CoreOutput, LocalizationCore, MapToOdomOut, PoseOut, VlocOut, VlocOutcome
 from litevloc.runtime.service.frame_guard import RejectedFrame
 from litevloc.runtime.service.pacing import paced
+from litevloc.runtime.service.progress import Progress
 from litevloc.runtime.service.queues import BoundedFifo, LatestMailbox, QueueBase, QueueClosed
-from litevloc.runtime.service.stages import Periodic, Stage, StageInput, StageState, _StageThread, configure_threads
+from litevloc.runtime.service.runners import ServiceResult, StopCause, handle_signals, run_sequential, run_threaded
+from litevloc.runtime.service.stages import (
+    BodyThread,
+    Periodic,
+    Stage,
+    StageInput,
+    StageState,
+    _StageThread,
+    configure_threads,
+)
+from litevloc.runtime.service.status import Liveness, build_status
 from litevloc.runtime.service.vloc_prior import VlocPrior
 
 if TYPE_CHECKING:
-    from litevloc.pipelines.fusion.online import OnlineFusion
     from litevloc.pipelines.localization.vloc import VisualLocalizer
 
 log = logging.getLogger(__name__)
 
 VlocFn = Callable[[RgbdFrame, VlocPrior | None], VlocOutcome]
 
-#: counters the shell owns (the core's are in `localization_core.CORE_COUNTERS`)
+#: counters the shell owns (the core's are in `core.CORE_COUNTERS`)
 SHELL_COUNTERS = ("frames_in", "odometry_in", "odometry_ignored", "ground_truth_in", "vloc_calls", "poses_published",
-                  "poses_withheld", "map_to_odom_published", "vloc_published", "status_published",
+                  "map_to_odom_published", "vloc_published", "status_published",
                   "frames_decoded", "frames_undecodable", "odometry_left_at_stop", "prior_waits_timed_out")
 
 
 class PublisherLike(Protocol):
-    def publish_pose(self, t_ns: int, T_map_base: NDArray[np.floating], covariance: NDArray[np.floating] | None,
-                     lost: bool = False) -> bool: ...
+    """Serialises what the core decided to publish (`runtime.transport.bus.LiteVLocPublisher`)."""
 
-    def publish_map_to_odom(self, t_ns: int, T_map_odom: NDArray[np.floating], lost: bool = False) -> bool: ...
+    def publish_pose(self, t_ns: int, T_map_base: NDArray[np.floating],
+                     covariance: NDArray[np.floating] | None) -> None: ...
+
+    def publish_map_to_odom(self, t_ns: int, T_map_odom: NDArray[np.floating]) -> None: ...
 
     def publish_vloc(self, t_ns: int, T_map_camera: NDArray[np.floating],
                      covariance: NDArray[np.floating] | None) -> None: ...
@@ -117,62 +107,40 @@ class ProviderReportLike(Protocol):
     def as_dict(self) -> dict[str, Any]: ...
 
 
-class ServiceError(LiteVLocError, RuntimeError):
-    """The service could not run (or stopped) because of a fatal error; the message says which."""
+OdometryReceiverFactory = Callable[[Callable[[Odometry], None]], Any]
 
 
-@dataclass
-class ServiceResult:
-    ok: bool
-    reason: str  # "end of source", "SIGINT", "stage 'vloc' failed: ..."
-    status: dict[str, Any] = field(default_factory=dict)
+@dataclass(frozen=True)
+class ServicePorts:
+    """Where the service's messages go and where live odometry comes from.
 
+    `publisher`: None publishes nothing (counted as published); `odometry_receiver`: called with the
+    odometry sink when the run starts (`runtime.odometry_input: zenoh`), returns an object with
+    `report(stale_s)` and `close()`; `on_ground_truth`: each ground-truth message of the source."""
 
-class _SourceThread(_StageThread):
-    def __init__(self, name: str, stop: threading.Event, body: Callable[[], None]) -> None:
-        super().__init__(name, stop, on_error="fail")
-        self._body = body
-
-    def _loop(self) -> None:
-        self._body()
-        if not self.stop_event.is_set():
-            self._set_done()
+    publisher: PublisherLike | None = None
+    odometry_receiver: OdometryReceiverFactory | None = None
+    on_ground_truth: Callable[[GroundTruthPose], None] | None = None
 
 
 class Service:
-    """Runs source -> VLoc / odometry -> fusion -> publisher as described in the module docstring."""
+    """Runs source -> VLoc / odometry -> fusion -> publisher as described in the module docstring.
 
-    def __init__(
-        self,
-        source: Iterable[SourceMessage],
-        vloc: VlocFn,
-        on_odometry: OdometryFn,
-        on_vloc: VlocUpdateFn,
-        publisher: PublisherLike | None = None,
-        params: RuntimeConfig | None = None,
-        *,
-        rate: float = 1.0,
-        T_base_camera: NDArray[np.float64] = T_BASE_CAMERA_OPTICAL,
-        covariance_to_ros: Callable[[NDArray[np.float64]], NDArray[np.float64]] | None = None,
-        odometry_receiver: Callable[[Callable[[Odometry], None]], Any] | None = None,
-        on_ground_truth: Callable[[GroundTruthPose], None] | None = None,
-        on_fused: Callable[[FusedPoseLike], None] | None = None,
-        after_odometry: Callable[[], None] | None = None,
-        configure_thread_counts: bool = True,
-    ) -> None:
-        self.params = p = params or RuntimeConfig()
+    `rate`: the source's pace (1 = recorded timing, 0 = as fast as it comes; realtime and
+    sequential modes); `configure_thread_counts`: set the process's OpenCV / BLAS / onnxruntime
+    thread counts from the settings (`stages.configure_threads`). The settings are the core's."""
+
+    def __init__(self, source: Iterable[SourceMessage], vloc: VlocFn, core: LocalizationCore,
+                 ports: ServicePorts | None = None, *, rate: float = 1.0, configure_thread_counts: bool = True) -> None:
+        ports = ports or ServicePorts()
+        self.params = p = core.params
         if rate < 0:
             raise ValueError(f"rate must be >= 0, got {rate}")
-        if p.odometry_input == "zenoh" and odometry_receiver is None:
+        if p.odometry_input == "zenoh" and ports.odometry_receiver is None:
             raise ValueError("runtime.odometry_input is 'zenoh' but no odometry receiver was given")
-        self.source, self.rate = source, rate
-        self.vloc_fn = vloc
-        self.publisher = publisher
-        self.on_ground_truth = on_ground_truth
-        self.after_odometry = after_odometry
-        self.core = LocalizationCore(on_odometry, on_vloc, p, np.asarray(T_base_camera, dtype=np.float64),
-                                     covariance_to_ros, on_fused, window=p.latency_window)
-        self._odometry_receiver_factory = odometry_receiver
+        self.source, self.rate, self.vloc_fn, self.core = source, rate, vloc, core
+        self.publisher, self.on_ground_truth = ports.publisher, ports.on_ground_truth
+        self._odometry_receiver_factory = ports.odometry_receiver
         self.odometry_receiver: Any = None
         self.inputs: dict[str, Any] = {}  # other live inputs with a `report()` (e.g. the /initialpose subscriber)
         # the models' onnxruntime build and providers (`models.ort.provider_report`, or the VLoc process's):
@@ -181,41 +149,29 @@ class Service:
         if configure_thread_counts:
             self.threads = configure_threads(p.cv_threads, p.ort_intra_op_threads, p.ort_inter_op_threads,
                                              p.gil_switch_interval_s)
-
         self._stop = threading.Event()
         self._stop_reason: str | None = None
-        self._progress = threading.Condition()  # deterministic lockstep; realtime: results taken by fusion
-        det = p.mode == "deterministic"
+        self._stop_cause = StopCause.REQUESTED
+        self.progress = Progress(p.mode == "deterministic", p.deterministic_timeout_s, self._stop)
         w = p.latency_window
         self.frames: QueueBase[RgbdFrame | EncodedRgbdFrame] = (
-            BoundedFifo("frames", capacity=1_000_000, window=w) if det else LatestMailbox("frames", window=w)
-        )
+            BoundedFifo("frames", capacity=1_000_000, window=w) if p.mode == "deterministic"
+            else LatestMailbox("frames", window=w))
         self.odometry: BoundedFifo[tuple[int, Odometry]] = BoundedFifo("odometry", p.odometry_queue_capacity,
                                                                          window=w)
         self.results: BoundedFifo[VlocOutcome] = BoundedFifo("vloc_results", p.result_queue_capacity, window=w)
         self.outbox: BoundedFifo[CoreOutput] = BoundedFifo("outbox", p.publish_queue_capacity, window=w)
         # publish_inline: the fusion thread publishes itself (one thread hop less); else via the outbox
         self._out: Callable[[CoreOutput], None] = self._handle_publish if p.publish_inline else self.outbox.put
-
-        # state written by one thread each (see the stage that owns it)
-        self.shell_counters: dict[str, int] = dict.fromkeys(SHELL_COUNTERS, 0)
-        self._odom_pushed = 0
-        self._odom_done = 0
-        self._frames_pushed = 0
-        self._vloc_done = 0
-        self._results_put = 0  # vloc thread
-        self._fix_in_flight = False  # vloc thread: the last result it put was an accepted fix
-        self._prior_waiting = False  # vloc thread: waits in `_await_previous_fix`
-        self._odom_at_result = 0  # fusion thread: odometry messages handled when it took the last result
+        self.shell_counters: dict[str, int] = dict.fromkeys(SHELL_COUNTERS, 0)  # each written by one thread
         self._last_odom_wall: float | None = None
         self._last_frame_wall: float | None = None
         self.e2e = LatencyWindow(w)  # odometry into the FIFO -> pose handed to Zenoh (ms)
         self._t_start = time.monotonic()
         self._status: dict[str, Any] = {}
         self._fatal: str | None = None
-
         oe, mr = p.stage_on_error, p.stage_max_restarts
-        self.source_stage = _SourceThread("source", self._stop, self._run_source)
+        self.source_stage = BodyThread("source", self._stop, self._run_source)
         self.vloc_stage = Stage("vloc", [StageInput(self.frames, self._handle_frame)], self._stop, oe, mr,
                                 nice=p.vloc_nice)
         self.fusion_stage = Stage(
@@ -225,7 +181,7 @@ class Service:
         )
         self.publish_stage = Stage("publisher", [StageInput(self.outbox, self._handle_publish)], self._stop, oe, mr,
                                    rt_priority=p.fusion_rt_priority)
-        self.status_stage = Periodic("status", self._status_tick, p.status_period_s, threading.Event())
+        self.status_stage = Periodic("status", self.status_tick, p.status_period_s, threading.Event())
         self.stages: list[_StageThread] = [self.source_stage, self.vloc_stage, self.fusion_stage, self.publish_stage]
 
     @property
@@ -234,134 +190,62 @@ class Service:
         return {**self.shell_counters, **self.core.counters}
 
     # ------------------------------------------------------------------ control
-    def stop(self, reason: str = "stop requested") -> None:
-        """Stop promptly (thread-safe, callable from a signal handler)."""
+    def stop(self, reason: str = "stop requested", cause: StopCause = StopCause.REQUESTED) -> None:
+        """Stop promptly (thread-safe, callable from a signal handler); the first reason given stays."""
         if self._stop_reason is None:
-            self._stop_reason = reason
+            self._stop_reason, self._stop_cause = reason, cause
         self._stop.set()
         for st in (self.vloc_stage, self.fusion_stage, self.publish_stage):
             st.wake()
-        with contextlib.suppress(RuntimeError), self._progress:  # RuntimeError: re-entered from a signal
-            self._progress.notify_all()
+        self.progress.wake_all()
 
-    @contextlib.contextmanager
-    def _signals(self, install: bool) -> Iterator[None]:
-        if not install or threading.current_thread() is not threading.main_thread():
-            yield
-            return
-        old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    def end(self, reason: str, cause: StopCause) -> None:
+        """Record why the run ended unless a reason was given first (the source ended, it failed)."""
+        if self._stop_reason is None:
+            self._stop_reason, self._stop_cause = reason, cause
 
-        def handler(signum: int, _frame: Any) -> None:
-            self.stop(signal.Signals(signum).name)
+    def fail(self, message: str, replace_reason: bool = False) -> None:
+        """Stop because of a fatal error (a failed stage; the sequential run's exception, whose
+        message replaces any earlier reason)."""
+        self._fatal = message
+        if replace_reason:
+            self._stop_reason = None
+        self.stop(message, StopCause.FAILED)
 
-        for s in old:
-            signal.signal(s, handler)
-        try:
-            yield
-        finally:
-            for s, h in old.items():
-                signal.signal(s, h)
+    @property
+    def stop_event(self) -> threading.Event:
+        return self._stop
 
     def run(self, install_signals: bool = False, timeout_s: float | None = None) -> ServiceResult:
         """Run until the source ends, `stop()`, a signal, a failed stage, or `timeout_s`."""
-        with self._signals(install_signals):
+        with handle_signals(self.stop, install_signals):
             if self.params.mode == "sequential":
-                return self._run_sequential(timeout_s)
-            return self._run_threaded(timeout_s)
+                return run_sequential(self, timeout_s)
+            return run_threaded(self, timeout_s)
 
-    def _run_threaded(self, timeout_s: float | None) -> ServiceResult:
-        p = self.params
-        if self._odometry_receiver_factory is not None and p.odometry_input == "zenoh":
+    def start_odometry_receiver(self) -> None:
+        """Live odometry (`runtime.odometry_input: zenoh`): the receiver starts feeding the odometry FIFO."""
+        if self._odometry_receiver_factory is not None and self.params.odometry_input == "zenoh":
             self.odometry_receiver = self._odometry_receiver_factory(self._push_odometry)
-        self.status_stage.start()
-        for st in reversed(self.stages):
-            st.start()
-        deadline = None if timeout_s is None else time.monotonic() + timeout_s
-        chain: list[tuple[_StageThread, list[QueueBase[Any]]]] = [
-            (self.source_stage, [self.frames, self.odometry]), (self.vloc_stage, [self.results]),
-            (self.fusion_stage, [self.outbox])]
-        closed: set[str] = set()
-        while True:
-            failed = [st for st in self.stages if st.state == StageState.FAILED]
-            if failed:
-                self._fatal = f"stage {failed[0].name!r} failed: {failed[0].last_error}"
-                self.stop(self._fatal)
-                break
-            if self._stop.is_set():
-                break
-            for st, downstream in chain:  # end of stream propagates downstream
-                if st.finished.is_set() and st.state == StageState.DONE and st.name not in closed:
-                    closed.add(st.name)
-                    for q in downstream:  # (live Zenoh odometry, if any, ends with the recording too)
-                        q.close()
-            if self.publish_stage.state == StageState.DONE:
-                self._stop_reason = self._stop_reason or "end of source"
-                break
-            if deadline is not None and time.monotonic() > deadline:
-                self.stop(f"timeout after {timeout_s:g} s")
-                break
-            self.publish_stage.finished.wait(0.02)
-        return self._shutdown()
 
-    def _shutdown(self) -> ServiceResult:
-        p = self.params
-        self._stop.set()
-        if self.odometry_receiver is not None:
-            with contextlib.suppress(Exception):
-                self.odometry_receiver.close()
-        for q in (self.frames, self.odometry, self.results, self.outbox):
-            q.close()
-        for st in (self.vloc_stage, self.fusion_stage, self.publish_stage):
-            st.wake()
-        stuck = [st.name for st in self.stages if not st.join(p.stage_join_timeout_s)]
-        # a stop ends the fusion promptly: odometry that arrived in its last moments is counted, not fused
-        self.shell_counters["odometry_left_at_stop"] = len(self.odometry)
-        if "source" not in stuck:
-            self._close_source()
-        self.status_stage.stop_event.set()
-        self.status_stage.join(p.stage_join_timeout_s)
-        if self.status_stage.state == StageState.CREATED:
-            self._status_tick()
-        reason = self._stop_reason or "stopped"
-        if stuck:
-            reason += f"; stage(s) {stuck} did not stop within {p.stage_join_timeout_s:g} s"
-        ok = self._fatal is None and not stuck and not reason.startswith("timeout")
+    def result(self, extra: str = "", ok: bool = True) -> ServiceResult:
+        """The run's result: why it ended (+ `extra`), ok unless it timed out or failed (or not `ok`)."""
+        reason = (self._stop_reason or "stopped") + extra
+        cause = self._stop_cause
+        ok = ok and self._fatal is None and cause not in (StopCause.TIMEOUT, StopCause.FAILED)
         status = self.status()
         status["stop_reason"] = reason
-        return ServiceResult(ok=ok, reason=reason, status=status)
-
-    def _close_source(self) -> None:
-        """Close the source where it can be closed (a generator, a recording read in a child
-        process), so what it holds (files, the reader process) ends with the service."""
-        close = getattr(self.source, "close", None)
-        if callable(close):
-            try:
-                close()
-            except Exception as exc:  # e.g. a generator still running in a stuck source thread
-                log.warning("could not close the source: %s", exc)
+        return ServiceResult(ok=ok, reason=reason, status=status, cause=cause)
 
     # ------------------------------------------------------------------ source thread
     def _push_odometry(self, odom: Odometry) -> None:
         self.odometry.put((now_ns(), odom))
-        self._odom_pushed += 1
-
-    def _wait_progress(self, pred: Callable[[], bool], what: str) -> bool:
-        timeout = self.params.deterministic_timeout_s
-        deadline = time.monotonic() + timeout
-        ok = False
-        while not ok and time.monotonic() < deadline:
-            with self._progress:  # notified per item; the short slice also catches stage errors
-                ok = self._progress.wait_for(lambda: pred() or self._stop.is_set(), 0.05)
-        if not ok:
-            raise ServiceError(f"deterministic mode: timed out after {timeout:g} s waiting for {what}")
-        return not self._stop.is_set()
-
-    def _errors(self) -> int:
-        return self.vloc_stage.errors + self.fusion_stage.errors
+        self.progress.odom_pushed += 1
 
     def _run_source(self) -> None:
         det = self.params.mode == "deterministic"
         live_odom = self.params.odometry_input == "zenoh"
+        pg = self.progress
         msgs: Iterable[SourceMessage] = self.source if det else paced(self.source, self.rate, sleep=self._stop.wait)
         for msg in msgs:
             if self._stop.is_set():
@@ -375,42 +259,31 @@ class Service:
             elif isinstance(msg, RgbdFrame | EncodedRgbdFrame):
                 self.shell_counters["frames_in"] += 1
                 self._last_frame_wall = time.monotonic()
-                if det:
-                    pushed = self._odom_pushed
-
-                    def odom_done(n: int = pushed) -> bool:
-                        return self._odom_done >= n
-
-                    if not self._wait_progress(odom_done, "odometry before a frame"):
-                        return
+                if det and not pg.wait(lambda n=pg.odom_pushed: pg.odom_done >= n, "odometry before a frame"):
+                    return
                 self.frames.put(msg)
-                self._frames_pushed += 1
-                if det:
-                    k = self._frames_pushed
-
-                    def frame_done(k: int = k) -> bool:  # an item skipped by a stage error counts as done
-                        return self._vloc_done + self._errors() >= k
-
-                    if not self._wait_progress(frame_done, f"VLoc + fusion of frame {msg.index} (t={msg.t_ns} ns)"):
-                        return
+                pg.frames_pushed += 1
+                # an item skipped by a stage error counts as done
+                if det and not pg.wait(lambda k=pg.frames_pushed: pg.vloc_done + self._errors() >= k,
+                                       f"VLoc + fusion of frame {msg.index} (t={msg.t_ns} ns)"):
+                    return
             elif isinstance(msg, GroundTruthPose):
-                self.shell_counters["ground_truth_in"] += 1
-                if self.on_ground_truth is not None:
-                    self.on_ground_truth(msg)
+                self._ground_truth(msg)
 
-    def _notify_progress(self, waiter: bool = False) -> None:
-        """Wake the source (deterministic mode) or a `waiter` (the VLoc thread, `_await_previous_fix`)."""
-        if self.params.mode == "deterministic" or waiter:
-            with self._progress:
-                self._progress.notify_all()
+    def _ground_truth(self, msg: GroundTruthPose) -> None:
+        self.shell_counters["ground_truth_in"] += 1
+        if self.on_ground_truth is not None:
+            self.on_ground_truth(msg)
+
+    def _errors(self) -> int:
+        return self.vloc_stage.errors + self.fusion_stage.errors
 
     # ------------------------------------------------------------------ vloc thread
     def _handle_frame(self, frame: RgbdFrame | EncodedRgbdFrame) -> None:
         res = self._vloc(frame)
         try:
             self.results.put(res)
-            self._results_put += 1
-            self._fix_in_flight = bool(res.accepted)
+            self.progress.result_put(bool(res.accepted))
         except QueueClosed:  # shutdown closed the queue while this frame was in VLoc: not a stage failure
             if not self._stop.is_set():
                 raise
@@ -432,26 +305,10 @@ class Service:
         return res
 
     def _await_previous_fix(self) -> None:
-        """Realtime, after a frame whose result was an accepted fix: wait at most `prior_wait_ms`
-        until fusion took that result and a fused pose followed it (the next odometry message),
-        so the next frame's prior holds the fix. Without it the prior lagged one VLoc call (the
-        result went into the queue as the next frame asked for its prior): a 4 s VLoc's prior
-        was always two calls old, too old to confirm a pose. Timeouts are counted."""
-        wait_ms = self.params.prior_wait_ms
-        if self.params.mode != "realtime" or wait_ms <= 0 or not self._fix_in_flight:
-            return
-        n = self._results_put
-
-        def fused_after() -> bool:  # `_vloc_done` counts every result taken, a failed one too
-            return (self._vloc_done >= n and self._odom_done > self._odom_at_result) or self._stop.is_set()
-
-        self._prior_waiting = True
-        try:
-            with self._progress:
-                if not self._progress.wait_for(fused_after, wait_ms * 1e-3):
-                    self.shell_counters["prior_waits_timed_out"] += 1
-        finally:
-            self._prior_waiting = False
+        """Realtime, after an accepted fix: wait at most `prior_wait_ms` for fusion to take it, so
+        the next frame's prior holds it (`Progress.await_previous_fix`). Timeouts are counted."""
+        if self.params.mode == "realtime" and not self.progress.await_previous_fix(self.params.prior_wait_ms):
+            self.shell_counters["prior_waits_timed_out"] += 1
 
     # ------------------------------------------------------------------ fusion thread
     def _handle_odometry_item(self, item: tuple[int, Odometry]) -> None:
@@ -460,87 +317,52 @@ class Service:
         try:
             for out in self.core.odometry(odom, t_in):
                 self._out(out)
-            if self.after_odometry is not None:  # work the pose must not wait for (deferred fusion update)
-                self.after_odometry()
+            self.core.after_odometry()  # work the pose must not wait for (deferred fusion update)
         finally:
-            self._odom_done += 1
-            self._notify_progress(waiter=self._prior_waiting)
+            self.progress.odometry_handled()
 
     def _handle_result(self, res: VlocOutcome) -> None:
         try:
             for out in self.core.vloc_result(res):
                 self._out(out)
         finally:
-            self._odom_at_result = self._odom_done
-            self._vloc_done += 1
-            self._notify_progress(waiter=self._prior_waiting)
+            self.progress.result_handled()
 
     # ------------------------------------------------------------------ publisher thread
     def _handle_publish(self, out: CoreOutput) -> None:
+        """Hand one of the core's outputs to the publisher as it is (the core decided what goes out)."""
         pub, c = self.publisher, self.shell_counters
         if isinstance(out, PoseOut):
-            if pub is None or pub.publish_pose(out.t_ns, out.T_map_base, out.covariance, out.lost):
-                c["poses_published"] += 1
-                self.e2e.add_since(out.t_in_ns)
-            else:
-                c["poses_withheld"] += 1
+            if pub is not None:
+                pub.publish_pose(out.t_ns, out.T_map_base, out.covariance)
+            c["poses_published"] += 1
+            self.e2e.add_since(out.t_in_ns)
         elif isinstance(out, MapToOdomOut):
-            if pub is None or pub.publish_map_to_odom(out.t_ns, out.T_map_odom, out.lost):
-                c["map_to_odom_published"] += 1
+            if pub is not None:
+                pub.publish_map_to_odom(out.t_ns, out.T_map_odom)
+            c["map_to_odom_published"] += 1
         elif isinstance(out, VlocOut):
             if pub is not None:
                 pub.publish_vloc(out.t_ns, out.T_map_camera, out.covariance)
             c["vloc_published"] += 1
 
     # ------------------------------------------------------------------ sequential baseline
-    def _run_sequential(self, timeout_s: float | None) -> ServiceResult:
-        p = self.params
-        deadline = None if timeout_s is None else time.monotonic() + timeout_s
-        next_status = time.monotonic()
-        self.source_stage.state = StageState.RUNNING
-        try:
-            for msg in paced(self.source, self.rate, sleep=self._stop.wait):
-                if self._stop.is_set():
-                    break
-                t_in = now_ns()
-                if isinstance(msg, Odometry):
-                    self.shell_counters["odometry_in"] += 1
-                    self._handle_odometry_item((t_in, msg))
-                elif isinstance(msg, RgbdFrame | EncodedRgbdFrame):
-                    self.shell_counters["frames_in"] += 1
-                    self._handle_result(self._vloc(msg))
-                elif isinstance(msg, GroundTruthPose):
-                    self.shell_counters["ground_truth_in"] += 1
-                    if self.on_ground_truth is not None:
-                        self.on_ground_truth(msg)
-                while self.outbox.ready():  # publish inline
-                    self._handle_publish(self.outbox.get_nowait())
-                if time.monotonic() >= next_status:
-                    self._status_tick()
-                    next_status += p.status_period_s
-                if deadline is not None and time.monotonic() > deadline:
-                    self.stop(f"timeout after {timeout_s:g} s")
-                    break
-            else:
-                self._stop_reason = self._stop_reason or "end of source"
-            self.source_stage.state = StageState.DONE
-            self._close_source()
-        except Exception as exc:
-            from litevloc.runtime.service.stages import traceback_summary
-
-            self.source_stage.state = StageState.FAILED
-            self.source_stage.last_error = traceback_summary(exc)
-            self._fatal = f"sequential run failed: {self.source_stage.last_error}"
-            self._stop_reason = self._fatal
-        self._status_tick()
-        reason = self._stop_reason or "stopped"
-        ok = self._fatal is None and not reason.startswith("timeout")
-        status = self.status()
-        status["stop_reason"] = reason
-        return ServiceResult(ok=ok, reason=reason, status=status)
+    def step(self, msg: SourceMessage) -> None:
+        """One source message handled to completion in the calling thread, its outputs published."""
+        if isinstance(msg, Odometry):
+            self.shell_counters["odometry_in"] += 1
+            self._handle_odometry_item((now_ns(), msg))
+        elif isinstance(msg, RgbdFrame | EncodedRgbdFrame):
+            self.shell_counters["frames_in"] += 1
+            self._handle_result(self._vloc(msg))
+        elif isinstance(msg, GroundTruthPose):
+            self._ground_truth(msg)
+        while self.outbox.ready():  # publish inline
+            self._handle_publish(self.outbox.get_nowait())
 
     # ------------------------------------------------------------------ status
-    def _status_tick(self) -> None:
+    def status_tick(self) -> None:
+        """Build the status and publish it."""
         st = self._build_status()
         self._status = st
         if self.publisher is not None:
@@ -555,72 +377,18 @@ class Service:
         return self._build_status()
 
     def _build_status(self) -> dict[str, Any]:
-        p = self.params
-        core = self.core.report()
-        state, reasons = core["state"], core["reasons"]
-        stages = {st.name: st.status() for st in self.stages}
-        for name, s in stages.items():
-            if s["state"] == "FAILED":
-                reasons.append(f"stage {name} FAILED: {s['last_error']}")
-            elif s["errors"]:
-                reasons.append(f"stage {name}: {s['errors']} error(s), last: {s['last_error']}")
-        queues = {q.name: q.metrics().as_dict() for q in (self.frames, self.odometry, self.results, self.outbox)}
-        for q in queues.values():
-            if q["error"]:
-                reasons.append(q["error"])
-        odo: dict[str, Any] = {"input": p.odometry_input}
-        if self.odometry_receiver is not None:
-            odo.update(self.odometry_receiver.report(p.odometry_stale_s))
-            if odo.get("skipped_total"):
-                reasons.append(f"odometry input skipped {odo['skipped_total']} message(s): {odo['skipped']}")
-            if odo.get("gaps"):
-                reasons.append(f"odometry time jumped forward {odo['gaps']} time(s) "
-                               f"(max {odo['max_gap_seen_s']:.3f} s)")
-        gaps = self.core.counters["odometry_gaps"]
-        if gaps and p.odometry_input == "source":
-            reasons.append(f"odometry time jumped forward {gaps} time(s) (> {p.odometry_checks.max_gap_s:g} s)")
-        running = not self._stop.is_set() and self.source_stage.state == StageState.RUNNING
-        age = None if self._last_odom_wall is None else time.monotonic() - self._last_odom_wall
-        odo["seconds_since_last"] = odo.get("seconds_since_last", age)
-        since = odo["seconds_since_last"]
-        waited = since if since is not None else time.monotonic() - self._t_start
-        if running and waited > p.odometry_stale_s:
-            reasons.append("no odometry received yet" if since is None else f"odometry stale: none for {since:.2f} s")
-        f_age = time.monotonic() - (self._last_frame_wall or self._t_start)
-        if running and p.mode == "realtime" and f_age > p.frame_stale_s:
-            reasons.append("no camera frame received yet" if self._last_frame_wall is None
-                            else f"camera frames stale: none for {f_age:.2f} s")
-        if self._fatal:
-            state = "FAILED"
-        out: dict[str, Any] = {
-            "t_wall": time.time(),
-            "uptime_s": time.monotonic() - self._t_start,
-            "mode": p.mode,
-            **core,
-            "state": state,
-            "reasons": reasons,
-            "running": running,
-            "counters": self.counters,
-            "frames_dropped": queues["frames"]["drops"],
-            "odometry": odo,
-            "latency": {"odometry_to_publish": self.e2e.summary()},
-            "queues": queues,
-            "stages": stages,
-        }
-        pub_status = getattr(self.publisher, "status", None)
-        if callable(pub_status):
-            try:
-                out["bus"] = pub_status()
-                problem = out["bus"].get("connectivity", {}).get("problem")
-                if problem:
-                    reasons.append(problem)
-            except Exception as exc:
-                out["bus"] = {"error": str(exc)}
-        if self.inputs:
-            out["inputs"] = {name: inp.report() for name, inp in self.inputs.items()}
-        if self.models_report is not None:
-            out["models"] = self.models_report().as_dict()
-        return dict(jsonable(out))
+        return build_status(self)
+
+    def liveness(self) -> Liveness:
+        """How long since the run started and since the last odometry message and camera frame."""
+        now = time.monotonic()
+        return Liveness(not self._stop.is_set() and self.source_stage.state == StageState.RUNNING,
+                        now - self._t_start, None if self._last_odom_wall is None else now - self._last_odom_wall,
+                        None if self._last_frame_wall is None else now - self._last_frame_wall, self._fatal)
+
+    @property
+    def queues(self) -> tuple[QueueBase[Any], ...]:
+        return (self.frames, self.odometry, self.results, self.outbox)
 
 
 # ---------------------------------------------------------------------- adapters
@@ -643,29 +411,3 @@ def localizer_callable(localizer: VisualLocalizer) -> VlocFn:
 
     return vloc
 
-
-def fusion_callables(fusion: OnlineFusion, defer_updates: bool = False) -> tuple[OdometryFn, VlocUpdateFn]:
-    """An object with `add_odometry(t_ns, T_odom_base, covariance)` and
-    `add_vloc(t_ns, T_map_camera, covariance, vote_only=False)` (the GTSAM `OnlineFusion`) -> the
-    service's `(on_odometry, on_vloc)`; a rejected result with a provisional pose goes in as a vote.
-    The VLoc covariance is passed as `pipelines.pnp` gives it:
-    6x6, camera-frame right perturbation, order (tx, ty, tz, rx, ry, rz).
-
-    `defer_updates`: odometry that makes a fusion keyframe due returns its pose before the
-    smoother update, which waits for `fusion.flush()` (pass it to the `Service` as
-    `after_odometry`, so the pose is published first)."""
-
-    def on_odometry(o: Odometry) -> FusedPoseLike | None:
-        if defer_updates:
-            return fusion.add_odometry(o.t_ns, o.T_odom_base, o.covariance, defer_update=True)
-        return fusion.add_odometry(o.t_ns, o.T_odom_base, o.covariance)
-
-    def on_vloc(r: VlocOutcome) -> FusionUpdateLike:
-        prov = r.provisional
-        if not r.accepted and prov is not None:  # a provisional GL pose: a vote
-            return fusion.add_vloc(r.t_ns, prov.T_map_camera, prov.covariance, vote_only=True)
-        if r.T_map_camera is None:
-            raise ValueError(f"VLoc result at t={r.t_ns} ns is accepted but has no pose")
-        return fusion.add_vloc(r.t_ns, r.T_map_camera, r.covariance)
-
-    return on_odometry, on_vloc

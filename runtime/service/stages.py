@@ -223,6 +223,19 @@ class _StageThread:
                 "scheduling": self.scheduling}
 
 
+class BodyThread(_StageThread):
+    """A stage thread that runs `body()` once (the paced source); DONE when it returns unstopped."""
+
+    def __init__(self, name: str, stop: threading.Event, body: Callable[[], None]) -> None:
+        super().__init__(name, stop, on_error="fail")
+        self._body = body
+
+    def _loop(self) -> None:
+        self._body()
+        if not self.stop_event.is_set():
+            self._set_done()
+
+
 class Stage(_StageThread):
     """A thread that takes items from `inputs` (in priority order) and calls their handlers."""
 

@@ -174,11 +174,11 @@ def _litevloc_side(cfg: LiteVLocConfig, z_rt: Any, map_path: Path, view_spawn: b
     return _Localization(on_step, app, lost, source_box)
 
 
-def _ground_truth_side(cfg: LiteVLocConfig, z_rt: Any, closers: list[Callable[[], None]]) -> _Localization:
+def _ground_truth_side(z_rt: Any, closers: list[Callable[[], None]]) -> _Localization:
     """The simulator's true base pose published on `litevloc/pose` in place of the runtime."""
     gt_bus = Bus(z_rt)
     closers.append(gt_bus.close)
-    pub = LiteVLocPublisher(gt_bus, cfg.runtime.lost_policy, cfg.runtime.lost_variance)
+    pub = LiteVLocPublisher(gt_bus)
     closers.append(pub.close)
 
     def on_step(step: Any) -> int | None:
@@ -231,7 +231,7 @@ def run_navigation(
     placements: list[GoalResult] = []  # each goal image's placement, in the order they arrive
     try:
         side = (_litevloc_side(cfg, z_rt, map_path, view_spawn, view_save, closers) if localization == "litevloc"
-                else _ground_truth_side(cfg, z_rt, closers))
+                else _ground_truth_side(z_rt, closers))
         pl_bus = Bus(z_pl, node_name=f"{z_pl.node_name}_planner")
         closers.append(pl_bus.close)
         goal_planner = build_planner(cfg, load_map(map_path), bundle, on_placed=lambda pl: placements.append(pl.result))

@@ -27,15 +27,8 @@ behind zenoh-bridge-ros2dds receives them unchanged; Zenoh encoding
   sent with the status tick at `diagnostics.period_s` (1 Hz) when the publisher has a
   `DiagnosticsPublisher`.
 
-Tracking loss (how the flag is carried, `RuntimeConfig.lost_policy`):
-* `"flag"` (default): poses keep coming, but every diagonal entry of the pose
-  covariance is raised to at least `lost_variance` (1e4 m^2 / rad^2 by default, so any
-  covariance-aware consumer ignores them), and `litevloc/status` says `"state": "LOST"`
-  with the reason. Frame ids are NOT changed (a renamed child frame would break TF users).
-  `map_to_odom` is still published (its last good value).
-* `"withhold"`: nothing is published on `pose` and `map_to_odom` while LOST; status goes on.
-Before the first accepted VLoc update the map frame is undefined: no pose is published
-under either policy (status state INIT).
+What is published, and when (tracking loss, INIT), is decided by the service's core
+(`runtime.service.core`); the publisher here only serialises what it is given.
 
 Every put carries an 8-byte attachment (little-endian uint64): the publisher's
 `time.monotonic_ns()` at send time (CLOCK_MONOTONIC is machine-wide), so a subscriber on
@@ -391,16 +384,9 @@ class Bus:
         self.close()
 
 
-def flag_covariance(cov: NDArray[np.floating] | None, variance: float) -> NDArray[np.float64]:
-    """Covariance with every diagonal entry raised to at least `variance` (the LOST flag)."""
-    c = np.zeros((6, 6)) if cov is None else np.array(cov, dtype=np.float64).reshape(6, 6)
-    d = np.arange(6)
-    c[d, d] = np.maximum(np.nan_to_num(c[d, d], nan=variance), variance)
-    return c
-
-
 class LiteVLocPublisher:
-    """Publishes LiteVLoc's topics on a `Bus`, applying the tracking-loss policy.
+    """Serialises LiteVLoc's topics onto a `Bus`: each message as it is given (what to publish
+    is the caller's decision, `runtime.service.core`).
 
     Frame names from `tf` (`zenoh.tf`, REP-105 defaults `map`, `odom`, `base_link`). With
     `tf.publish_tf`, every map->odom also goes out on `/tf` (tf2_msgs/TFMessage, stamped with the
@@ -410,13 +396,10 @@ class LiteVLocPublisher:
     """
 
     def __init__(
-        self, bus: Bus, lost_policy: str = "flag", lost_variance: float = 1.0e4,
-        tf: TfConfig | None = None, diagnostics: Any = None, T_base_camera: NDArray[np.floating] | None = None,
+        self, bus: Bus, *, tf: TfConfig | None = None, diagnostics: Any = None,
+        T_base_camera: NDArray[np.floating] | None = None,
     ) -> None:
-        if lost_policy not in ("flag", "withhold"):
-            raise ValueError(f"lost_policy must be 'flag' or 'withhold', got {lost_policy!r}")
         self.bus = bus
-        self.lost_policy, self.lost_variance = lost_policy, lost_variance
         self.tf = tf = tf or TfConfig()
         self.map_frame, self.odom_frame, self.base_frame = tf.map_frame, tf.odom_frame, tf.base_frame
         self.pubs = {name: bus.publisher(name) for name in TOPICS if name != "tf" or tf.publish_tf}
@@ -429,41 +412,21 @@ class LiteVLocPublisher:
             self.pubs["tf_static"] = bus.publisher("tf_static", TF_MESSAGE)
             self.pubs["tf_static"].put(self._static)
         warm_codecs()
-        self.withheld = 0
-        self.flagged = 0
         self.diagnostics = diagnostics  # runtime.service.diagnostics.DiagnosticsPublisher or None
         self.on_status: Callable[[dict[str, Any]], None] | None = None  # e.g. the live view's put_status
 
-    def _lost_gate(self, lost: bool) -> bool:
-        """True if the message may go out; counts flagged/withheld messages."""
-        if not lost:
-            return True
-        if self.lost_policy == "withhold":
-            self.withheld += 1
-            return False
-        self.flagged += 1
-        return True
+    def publish_pose(self, t_ns: int, T_map_base: NDArray[np.floating],
+                     covariance: NDArray[np.floating] | None) -> None:
+        """nav_msgs/Odometry on `pose`; covariance 6x6 in ROS order (None: zeros)."""
+        self.pubs["pose"].put(ros_msgs.odometry_msg(t_ns, T_map_base, self.map_frame, self.base_frame, covariance))
 
-    def publish_pose(self, t_ns: int, T_map_base: NDArray[np.floating], covariance: NDArray[np.floating] | None,
-                     lost: bool = False) -> bool:
-        """nav_msgs/Odometry on `pose`; covariance in ROS order. False if withheld."""
-        if not self._lost_gate(lost):
-            return False
-        cov = flag_covariance(covariance, self.lost_variance) if lost else covariance
-        msg = ros_msgs.odometry_msg(t_ns, T_map_base, self.map_frame, self.base_frame, cov)
-        self.pubs["pose"].put(msg)
-        return True
-
-    def publish_map_to_odom(self, t_ns: int, T_map_odom: NDArray[np.floating], lost: bool = False) -> bool:
+    def publish_map_to_odom(self, t_ns: int, T_map_odom: NDArray[np.floating]) -> None:
         """`map_to_odom` (TransformStamped) and, with `tf.publish_tf`, the same on `/tf`."""
-        if lost and self.lost_policy == "withhold":
-            return False
         self.pubs["map_to_odom"].put(ros_msgs.transform_stamped_msg(t_ns, T_map_odom, self.map_frame,
                                                                     self.odom_frame))
         if "tf" in self.pubs:
             t_tf = t_ns + round(self.tf.post_date_s * 1e9)
             self.pubs["tf"].put(tf_message([(t_tf, np.asarray(T_map_odom), self.map_frame, self.odom_frame)]))
-        return True
 
     def publish_vloc(self, t_ns: int, T_map_camera: NDArray[np.floating],
                      covariance: NDArray[np.floating] | None) -> None:
@@ -482,8 +445,7 @@ class LiteVLocPublisher:
             self.on_status(status)
 
     def status(self) -> dict[str, Any]:
-        return {"topics": {n: p.status() for n, p in self.pubs.items()}, "withheld": self.withheld,
-                "flagged": self.flagged, "connectivity": self.bus.connectivity()}
+        return {"topics": {n: p.status() for n, p in self.pubs.items()}, "connectivity": self.bus.connectivity()}
 
     def close(self) -> None:
         for p in self.pubs.values():

@@ -88,58 +88,97 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("give --connect ENDPOINT or --listen ENDPOINT")
     if args.send_odometry:
         return _send(args)
-
-    from litevloc.base.stats import percentiles_ms
-    from litevloc.config.schema import ZenohConfig
-    from litevloc.hw import ros_msgs
-    from litevloc.runtime.metrics import now_ns
-    from litevloc.runtime.transport.bus import TOPICS, Bus, warm_codecs, wire_latency_ns
+    from litevloc.runtime.transport.bus import TOPICS
 
     topics = [t.strip() for t in args.topics.split(",") if t.strip()]
     for t in topics:
         if t not in TOPICS:
             ap.error(f"unknown topic {t!r}; known: {sorted(TOPICS)}")
+    return _receive(args, topics)
+
+
+class _Tally:
+    """What arrived per topic (counts, decode errors, latencies, kept items), filled by the
+    subscriber callbacks; `done` is set once every `want` count is reached."""
+
+    def __init__(self, topics: list[str], want: dict[str, int], args: argparse.Namespace) -> None:
+        self.res: dict[str, dict[str, Any]] = {
+            t: {"count": 0, "decode_errors": 0, "lat_ms": [], "data": [], "stamp_ms": []} for t in topics}
+        self.want, self.args = want, args
+        self.lock = threading.Lock()
+        self.last_rx = time.monotonic()
+        self.done = threading.Event()
+
+    def callback(self, topic: str) -> Any:
+        from litevloc.hw import ros_msgs
+        from litevloc.runtime.metrics import now_ns
+        from litevloc.runtime.transport.bus import TOPICS, wire_latency_ns
+
+        typename, args = TOPICS[topic][1], self.args
+
+        def cb(sample: Any) -> None:
+            t_rx = now_ns()
+            wire_ns = wire_latency_ns(sample)
+            r = self.res[topic]
+            try:
+                msg = ros_msgs.deserialize(sample.payload.to_bytes(), typename)
+            except ros_msgs.MessageDecodeError:
+                with self.lock:
+                    r["decode_errors"] += 1
+                return
+            item = _kept_item(topic, msg) if args.keep else None
+            if args.stamp_latency and topic == "pose":
+                r["stamp_ms"].append((t_rx - ros_msgs.stamp_ns(msg.header)) * 1e-6)
+            with self.lock:
+                r["count"] += 1
+                if wire_ns is not None:
+                    r["lat_ms"].append(wire_ns * 1e-6)
+                if item is not None:
+                    r["data"].append(item)
+                self.last_rx = time.monotonic()
+                if self.want and all(self.res[k]["count"] >= n for k, n in self.want.items() if k in self.res):
+                    self.done.set()
+
+        return cb
+
+    def wait(self, t_end: float, idle_s: float) -> str:
+        """Until the counts, `idle_s` without messages once one arrived, or `t_end`; which of them."""
+        while time.monotonic() < t_end:
+            if self.done.is_set():
+                return "count"
+            got_any = any(r["count"] or r["decode_errors"] for r in self.res.values())
+            if idle_s > 0 and got_any and time.monotonic() - self.last_rx > idle_s:
+                return "idle"
+            self.done.wait(0.05)
+        return "timeout"
+
+    def summary(self) -> dict[str, Any]:
+        from litevloc.base.stats import percentiles_ms
+
+        args = self.args
+        with self.lock:
+            return {
+                t: {"count": r["count"], "decode_errors": r["decode_errors"], "latency": percentiles_ms(r["lat_ms"]),
+                    "over_1ms": int(np.sum(np.asarray(r["lat_ms"]) > 1.0)),
+                    "over_5ms": int(np.sum(np.asarray(r["lat_ms"]) > 5.0)),
+                    **({"stamp_latency": percentiles_ms(r["stamp_ms"])} if args.stamp_latency else {}),
+                    **({"data": r["data"]} if args.keep else {})}
+                for t, r in self.res.items()
+            }
+
+
+def _receive(args: argparse.Namespace, topics: list[str]) -> int:
+    from litevloc.config.schema import ZenohConfig
+    from litevloc.runtime.transport.bus import TOPICS, Bus, warm_codecs
+
     want = {k: int(v) for k, v in (c.split("=", 1) for c in args.count)}
     cfg = ZenohConfig(mode="peer", listen=tuple(args.listen), connect=tuple(args.connect), namespace=args.namespace,
                       connect_timeout_s=min(args.timeout, 10.0), ros2=args.ros2,
                       ros2_distro=args.ros2_distro, node_name="litevloc_probe")
     warm_codecs()
     bus = Bus(cfg)
-    res: dict[str, dict[str, Any]] = {t: {"count": 0, "decode_errors": 0, "lat_ms": [], "data": [], "stamp_ms": []}
-                                      for t in topics}
-    lock = threading.Lock()
-    last_rx = [time.monotonic()]
-    done = threading.Event()
-
-    def make_cb(topic: str) -> Any:
-        typename = TOPICS[topic][1]
-
-        def cb(sample: Any) -> None:
-            t_rx = now_ns()
-            wire_ns = wire_latency_ns(sample)
-            r = res[topic]
-            try:
-                msg = ros_msgs.deserialize(sample.payload.to_bytes(), typename)
-            except ros_msgs.MessageDecodeError:
-                with lock:
-                    r["decode_errors"] += 1
-                return
-            item = _kept_item(topic, msg) if args.keep else None
-            if args.stamp_latency and topic == "pose":
-                r["stamp_ms"].append((t_rx - ros_msgs.stamp_ns(msg.header)) * 1e-6)
-            with lock:
-                r["count"] += 1
-                if wire_ns is not None:
-                    r["lat_ms"].append(wire_ns * 1e-6)
-                if item is not None:
-                    r["data"].append(item)
-                last_rx[0] = time.monotonic()
-                if want and all(res[k]["count"] >= n for k, n in want.items() if k in res):
-                    done.set()
-
-        return cb
-
-    subs = [bus.subscribe_topic(t, TOPICS[t][1], make_cb(t)) for t in topics]
+    tally = _Tally(topics, want, args)
+    subs = [bus.subscribe_topic(t, TOPICS[t][1], tally.callback(t)) for t in topics]
     t_end = time.monotonic() + args.timeout
     if args.listen:  # listening: ready as soon as the subscribers exist; the service connects to us
         print("READY", flush=True)
@@ -147,35 +186,17 @@ def main(argv: list[str] | None = None) -> int:
         while not bus.connectivity()["connected"] and time.monotonic() < t_end:
             time.sleep(0.01)
         print("READY" if bus.connectivity()["connected"] else "NOT-CONNECTED", flush=True)
-    ended = "timeout"  # what ended the probe: the counts asked for, the idle limit or the timeout
-    while time.monotonic() < t_end:
-        if done.is_set():
-            ended = "count"
-            break
-        got_any = any(r["count"] or r["decode_errors"] for r in res.values())
-        if args.idle > 0 and got_any and time.monotonic() - last_rx[0] > args.idle:
-            ended = "idle"
-            break
-        done.wait(0.05)
+    ended = tally.wait(t_end, args.idle)  # what ended the probe: the counts asked for, the idle limit or the timeout
     for s in subs:
         s.undeclare()
     bus.close()
-    with lock:
-        out = {
-            t: {"count": r["count"], "decode_errors": r["decode_errors"], "latency": percentiles_ms(r["lat_ms"]),
-                "over_1ms": int(np.sum(np.asarray(r["lat_ms"]) > 1.0)),
-                "over_5ms": int(np.sum(np.asarray(r["lat_ms"]) > 5.0)),
-                **({"stamp_latency": percentiles_ms(r["stamp_ms"])} if args.stamp_latency else {}),
-                **({"data": r["data"]} if args.keep else {})}
-            for t, r in res.items()
-        }
-    text = json.dumps({"topics": out, "completed": done.is_set(), "ended": ended}, default=float)
+    text = json.dumps({"topics": tally.summary(), "completed": tally.done.is_set(), "ended": ended}, default=float)
     if args.json:
         with open(args.json, "w") as f:
             f.write(text)
     else:
         print(text, flush=True)
-    return 0 if (done.is_set() or not want) else 3
+    return 0 if (tally.done.is_set() or not want) else 3
 
 
 def _send(args: argparse.Namespace) -> int:

@@ -13,8 +13,7 @@ from hypothesis import strategies as st
 from litevloc.config.schema import RuntimeConfig
 from litevloc.hw.messages import RgbdFrame
 from litevloc.runtime.service.frame_guard import MAX_SIDE, MIN_SIDE, FrameGuard, frame_problem
-from litevloc.runtime.service.shell import Service
-from tests.runtime.fakes import FakeFusion, FakePublisher, SyntheticSource
+from tests.runtime.fakes import FakeFusion, FakePublisher, SyntheticSource, make_service
 
 K = np.array([[100.0, 0, 50], [0, 100.0, 40], [0, 0, 1]])
 DTYPES = ["uint8", "uint16", "int8", "float32", "float64", "bool", "int64"]
@@ -114,8 +113,8 @@ def test_service_survives_bad_frames() -> None:
     def never(frame: RgbdFrame, prior: Any) -> Any:
         raise AssertionError("a bad frame reached VLoc")
 
-    svc = Service(src, FrameGuard(never), fusion.add_odometry, fusion.add_vloc, FakePublisher(),
-                  RuntimeConfig(mode="deterministic"), rate=0.0, configure_thread_counts=False)
+    svc = make_service(src, FrameGuard(never), fusion, FakePublisher(),
+                       RuntimeConfig(mode="deterministic"), rate=0.0, configure_thread_counts=False)
     res = svc.run(timeout_s=20)
     assert res.ok and res.reason == "end of source"
     c = res.status["counters"]

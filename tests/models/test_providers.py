@@ -20,8 +20,7 @@ from litevloc.models import ort as mort
 from litevloc.models.registry import load_extractor, load_matcher, load_place_recognizer
 from litevloc.models.types import ProviderState
 from litevloc.runtime.service.diagnostics import OK, WARN, diagnostic_statuses
-from litevloc.runtime.service.shell import Service
-from tests.runtime.fakes import FakeFusion, FakePublisher, FakeVloc, SyntheticSource
+from tests.runtime.fakes import FakeFusion, FakePublisher, FakeVloc, SyntheticSource, make_service
 
 GPU = ["TensorrtExecutionProvider", "CUDAExecutionProvider", "CPUExecutionProvider"]
 _REAL_SESSION = ort.InferenceSession
@@ -216,8 +215,8 @@ def test_a_missing_provider_is_one_warning_and_a_warn_diagnostics_entry(
     assert report.message.startswith("models: tensorrt asked for, running on CPUExecutionProvider")
     assert report.build.available == ("CPUExecutionProvider",)
 
-    svc = Service(SyntheticSource(), FakeVloc(), FakeFusion().add_odometry, FakeFusion().add_vloc, FakePublisher(),
-                  RuntimeConfig(mode="sequential"), configure_thread_counts=False)
+    svc = make_service(SyntheticSource(), FakeVloc(), FakeFusion(), FakePublisher(),
+                       RuntimeConfig(mode="sequential"), configure_thread_counts=False)
     assert "models" not in svc.status()
     svc.models_report = mort.provider_report
     status = svc.status()

@@ -3,14 +3,18 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from litevloc.base.geometry import invert, make_T, so3_exp
 from litevloc.base.params.drift import T_BASE_CAMERA_OPTICAL
+from litevloc.config.schema import RuntimeConfig
 from litevloc.hw.messages import Message, Odometry, RgbdFrame, StreamStats
+from litevloc.runtime.service.core import FusionPort, LocalizationCore
+from litevloc.runtime.service.shell import Service, ServicePorts
 
 MS = 1_000_000
 T_MAP_ODOM_TRUE = make_T(so3_exp(np.array([0.0, 0.0, 0.7])), np.array([2.0, -1.0, 0.1]))
@@ -120,22 +124,41 @@ class FakeFusion:
 
 
 class FakePublisher:
-    def __init__(self) -> None:
+    """Records what the service hands on; a pose's flag: its covariance carries the LOST variance."""
+
+    def __init__(self, lost_variance: float = 1.0e4) -> None:
+        self.lost_variance = lost_variance
         self.poses: list[tuple[int, np.ndarray, bool]] = []
         self.m2o: list[tuple[int, np.ndarray]] = []
         self.vloc: list[int] = []
         self.status: list[dict[str, Any]] = []
 
-    def publish_pose(self, t_ns: int, T: Any, cov: Any, lost: bool = False) -> bool:
-        self.poses.append((t_ns, np.asarray(T), lost))
-        return True
+    def publish_pose(self, t_ns: int, T: Any, cov: Any) -> None:
+        flagged = cov is not None and bool(np.all(np.diag(np.asarray(cov)) >= self.lost_variance))
+        self.poses.append((t_ns, np.asarray(T), flagged))
 
-    def publish_map_to_odom(self, t_ns: int, T: Any, lost: bool = False) -> bool:
+    def publish_map_to_odom(self, t_ns: int, T: Any) -> None:
         self.m2o.append((t_ns, np.asarray(T)))
-        return True
 
     def publish_vloc(self, t_ns: int, T: Any, cov: Any) -> None:
         self.vloc.append(t_ns)
 
     def publish_status(self, status: dict[str, Any]) -> None:
         self.status.append(status)
+
+
+class FusionLike(Protocol):
+    def add_odometry(self, o: Odometry) -> Any: ...
+
+    def add_vloc(self, r: Any) -> Any: ...
+
+
+def make_service(source: Iterable[Any], vloc: Any, fusion: FusionLike, publisher: Any = None,
+                 params: RuntimeConfig | None = None, *, rate: float = 1.0,
+                 covariance_to_ros: Any = None, on_fused: Any = None, odometry_receiver: Any = None,
+                 T_base_camera: np.ndarray = T_BASE_CAMERA_OPTICAL, configure_thread_counts: bool = True) -> Service:
+    """A `Service` around a fake fusion (`add_odometry(odom)`, `add_vloc(result)`), its core built here."""
+    core = LocalizationCore(FusionPort(fusion.add_odometry, fusion.add_vloc, covariance_to_ros=covariance_to_ros),
+                            params, T_base_camera=T_base_camera, on_fused=on_fused)
+    return Service(source, vloc, core, ServicePorts(publisher, odometry_receiver), rate=rate,
+                   configure_thread_counts=configure_thread_counts)

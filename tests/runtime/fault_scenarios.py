@@ -22,8 +22,10 @@ from litevloc.base.geometry import make_T, so3_exp
 from litevloc.config import load_config
 from litevloc.hw.messages import GroundTruthPose, Message, Odometry, RgbdFrame
 from litevloc.pipelines.fusion.online import OnlineFusion
+from litevloc.runtime.service.core import LocalizationCore
 from litevloc.runtime.service.faults import FaultInjector
-from litevloc.runtime.service.shell import Service, fusion_callables
+from litevloc.runtime.service.fusion_port import fusion_port
+from litevloc.runtime.service.shell import Service
 
 
 @dataclass(frozen=True)
@@ -106,7 +108,6 @@ def run_scenario(faults: list[str], seconds: float = 30.0, frame_hz: float = 5.0
     cfg = load_config("default", [f"runtime.mode={mode}", f"runtime.lost_after_s={lost_after_s}"])
     T_bc = cfg.fusion.T_base_camera()
     fusion = OnlineFusion(cfg.fusion.params, T_bc)
-    on_odom, on_vloc = fusion_callables(fusion)
     inj = FaultInjector(faults)
     t_all, _, cams, _ = sim_pass(seconds, seed)
     gt = {int(a): b for a, b in zip(t_all, cams, strict=True)}  # true camera pose at every odometry stamp
@@ -126,8 +127,8 @@ def run_scenario(faults: list[str], seconds: float = 30.0, frame_hz: float = 5.0
             st = holder["svc"].status()
             states.append((inj.rel_s(int(f.t_ns)), st["state"], list(st["reasons"])))
 
-    svc = Service(messages(seconds, frame_hz, seed), OracleVloc(seconds, seed), on_odom, on_vloc, None, cfg.runtime,
-                  rate=rate, T_base_camera=T_bc, on_fused=on_fused,
+    core = LocalizationCore(fusion_port(fusion), cfg.runtime, T_base_camera=T_bc, on_fused=on_fused)
+    svc = Service(messages(seconds, frame_hz, seed), OracleVloc(seconds, seed), core, rate=rate,
                   configure_thread_counts=False)
     holder["svc"] = svc
     inj.apply(svc)

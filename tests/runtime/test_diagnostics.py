@@ -22,9 +22,8 @@ from litevloc.runtime.service.diagnostics import (
     VlocStageTimes,
     diagnostic_statuses,
 )
-from litevloc.runtime.service.shell import Service
 from litevloc.runtime.transport.bus import Bus, LiteVLocPublisher
-from tests.runtime.fakes import FakeFusion, FakeVloc, SyntheticSource
+from tests.runtime.fakes import FakeFusion, FakeVloc, SyntheticSource, make_service
 from tests.runtime.zenoh_helpers import free_port
 
 
@@ -138,10 +137,9 @@ def test_diagnostics_on_the_wire_decoded_by_independent_readers(tmp_path: Path) 
             sub = sub_bus.subscribe("litevloc/diagnostics", lambda s: payloads.append(bytes(s.payload.to_bytes())))
             assert pub.pubs["diagnostics"].wait_for_subscribers(5.0)
             fusion = FakeFusion()
-            svc = Service(SyntheticSource(seconds=1.5, odom_hz=100, frame_hz=10), _timed(FakeVloc()),
-                          fusion.add_odometry, fusion.add_vloc, pub,
-                          RuntimeConfig(mode="realtime", status_period_s=0.25), rate=1.0,
-                          configure_thread_counts=False)
+            svc = make_service(SyntheticSource(seconds=1.5, odom_hz=100, frame_hz=10), _timed(FakeVloc()), fusion,
+                               pub, RuntimeConfig(mode="realtime", status_period_s=0.25), rate=1.0,
+                               configure_thread_counts=False)
             res = svc.run(timeout_s=20)
             assert res.ok, res.reason
             pub.publish_status(svc.status())  # a last one after the end (rate-limited like the others)

@@ -18,9 +18,8 @@ import pytest
 
 from litevloc.config.schema import RuntimeConfig, ZenohConfig
 from litevloc.runtime.service.faults import FaultInjector, FaultSpec, FaultSpecError
-from litevloc.runtime.service.shell import Service
 
-from .fakes import FakeFusion, FakePublisher, FakeVloc, SyntheticSource
+from .fakes import FakeFusion, FakePublisher, FakeVloc, SyntheticSource, make_service
 from .fault_scenarios import run_scenario
 from .zenoh_helpers import finish_probe, free_port, start_probe
 
@@ -135,8 +134,8 @@ def test_slow_consumer_backs_up_outbox_not_fusion() -> None:
     off; inline, the fusion thread puts on Zenoh itself, where pose puts drop rather than wait.)"""
     src = SyntheticSource(seconds=3.0)
     fusion, pub = FakeFusion(), FakePublisher()
-    svc = Service(src, FakeVloc(), fusion.add_odometry, fusion.add_vloc, pub, RuntimeConfig(publish_inline=False),
-                  rate=1.0, configure_thread_counts=False)
+    svc = make_service(src, FakeVloc(), fusion, pub, RuntimeConfig(publish_inline=False),
+                       rate=1.0, configure_thread_counts=False)
     inj = FaultInjector(["slow_consumer@1:1,delay_ms=20"]).apply(svc)
     seen: list[dict[str, Any]] = []
     done = threading.Event()
@@ -173,8 +172,8 @@ def test_zenoh_peer_disappears_and_comes_back(tmp_path: Path) -> None:
     bus = Bus(ZenohConfig(listen=(), connect=(ep,), connect_timeout_s=2.0))
     publisher = LiteVLocPublisher(bus)
     fusion = FakeFusion()
-    svc = Service(SyntheticSource(seconds=14.0, odom_hz=100.0), FakeVloc(), fusion.add_odometry, fusion.add_vloc,
-                  publisher, RuntimeConfig(), rate=1.0, configure_thread_counts=False)
+    svc = make_service(SyntheticSource(seconds=14.0, odom_hz=100.0), FakeVloc(), fusion,
+                       publisher, RuntimeConfig(), rate=1.0, configure_thread_counts=False)
     out: dict[str, Any] = {}
     th = threading.Thread(target=lambda: out.setdefault("res", svc.run(timeout_s=60)))
     th.start()

@@ -11,8 +11,7 @@ import pytest
 from litevloc.base.params.drift import T_BASE_CAMERA_OPTICAL
 from litevloc.config.schema import RuntimeConfig
 from litevloc.hw.messages import Odometry
-from litevloc.runtime.service.core import LocalizationCore, PoseOut, VlocOut
-from litevloc.runtime.service.shell import Service
+from litevloc.runtime.service.core import FusionPort, LocalizationCore, PoseOut, VlocOut
 from tests.runtime.fakes import (
     MS,
     T_MAP_ODOM_TRUE,
@@ -22,6 +21,7 @@ from tests.runtime.fakes import (
     Result,
     SyntheticSource,
     T_odom_base_at,
+    make_service,
 )
 
 
@@ -32,8 +32,8 @@ def fix(t_ns: int, state: str = "") -> Result:
 
 def make_core(**params: object) -> tuple[LocalizationCore, FakeFusion]:
     fusion = FakeFusion()
-    core = LocalizationCore(fusion.add_odometry, fusion.add_vloc, RuntimeConfig(**params),  # type: ignore[arg-type]
-                            T_BASE_CAMERA_OPTICAL)
+    core = LocalizationCore(FusionPort(fusion.add_odometry, fusion.add_vloc),
+                            RuntimeConfig(**params))  # type: ignore[arg-type]
     return core, fusion
 
 
@@ -90,9 +90,9 @@ def test_fusion_refusals_are_counted_and_named() -> None:
     core.odometry(Odometry(1 * MS, T_odom_base_at(1 * MS)), 0)
     core.vloc_result(fix(2 * MS))
     core.odometry(Odometry(2 * MS + 1, T_odom_base_at(2 * MS + 1)), 0)  # fusion's first pose
-    core.on_vloc = lambda r: Refusal()
+    core.fusion = dataclasses.replace(core.fusion, on_vloc=lambda r: Refusal())
     assert core.vloc_result(fix(3 * MS)) == []
-    core.on_odometry = lambda o: None  # fusion refuses an odometry message
+    core.fusion = dataclasses.replace(core.fusion, on_odometry=lambda o: None)  # fusion refuses an odometry message
     assert core.odometry(Odometry(4 * MS, T_odom_base_at(4 * MS)), 0) == []
     rep = core.report()
     assert rep["counters"]["fusion_rejected"] == 1 and rep["last_fusion_reason"] == "gated"
@@ -103,9 +103,9 @@ def test_fusion_refusals_are_counted_and_named() -> None:
 def _published(mode: str) -> tuple[list[tuple[int, bool]], list[int], list[int]]:
     pub = FakePublisher()
     fusion = FakeFusion()
-    svc = Service(SyntheticSource(seconds=1.0), FakeVloc(reject_after_ns=600 * MS), fusion.add_odometry,
-                  fusion.add_vloc, pub, RuntimeConfig(mode=mode, lost_after_s=0.2, map_to_odom_period_s=0.05),
-                  rate=0.0)
+    svc = make_service(SyntheticSource(seconds=1.0), FakeVloc(reject_after_ns=600 * MS), fusion, pub,
+                       RuntimeConfig(mode=mode, lost_after_s=0.2, map_to_odom_period_s=0.05),
+                       rate=0.0)
     res = svc.run(timeout_s=20)
     assert res.ok, res.reason
     return [(t, lost) for t, _, lost in pub.poses], [t for t, _ in pub.m2o], pub.vloc
@@ -122,3 +122,50 @@ def test_the_same_inputs_give_the_same_outputs_in_every_mode() -> None:
     poses, m2o, vloc = seq
     assert any(lost for _, lost in poses) and not poses[0][1]  # the run goes LOST after 0.6 s + 0.2 s
     assert len(m2o) > 10 and len(vloc) == 6
+
+
+def test_lost_policy_is_decided_here_flagged_or_withheld() -> None:
+    """The core hands the publisher the final covariance (flag) or nothing (withhold); the
+    publisher only serialises it."""
+    for policy in ("flag", "withhold"):
+        core, _ = make_core(lost_after_s=0.5, lost_policy=policy, lost_variance=5e3)
+        core.odometry(Odometry(1 * MS, T_odom_base_at(1 * MS)), 0)
+        core.vloc_result(fix(2 * MS, state="TRACKING"))
+        out = core.odometry(Odometry(10 * MS, T_odom_base_at(10 * MS)), 0)
+        assert not out[0].lost and np.allclose(np.diag(out[0].covariance), 0.01)  # the fake's, unchanged
+        out = core.odometry(Odometry(700 * MS, T_odom_base_at(700 * MS)), 0)  # no fix for 0.7 s: LOST
+        if policy == "flag":
+            assert isinstance(out[0], PoseOut) and out[0].lost  # (map->odom goes on, its last good value)
+            assert np.allclose(np.diag(out[0].covariance), 5e3) and core.poses_flagged == 1
+        else:
+            assert out == [] and core.counters["poses_withheld"] == 1 and core.poses_flagged == 0  # no map->odom
+
+
+def test_the_vloc_thread_reads_one_frozen_snapshot_per_fusion_step() -> None:
+    """Each fusion step replaces the snapshot whole; one read by the VLoc thread keeps that
+    step's pose, covariance and fix time together, and the fused pose's arrays cannot change."""
+    import pytest
+
+    from litevloc.base.params.fusion import FusionParams
+    from litevloc.pipelines.fusion.online import OnlineFusion
+    from litevloc.runtime.service.fusion_port import fusion_port
+
+    core = LocalizationCore(fusion_port(OnlineFusion(FusionParams(init_votes=1), T_BASE_CAMERA_OPTICAL)),
+                            RuntimeConfig())
+    core.odometry(Odometry(1 * MS, T_odom_base_at(1 * MS)), 0)
+    core.vloc_result(fix(1 * MS))
+    core.odometry(Odometry(6 * MS, T_odom_base_at(6 * MS)), 0)
+    before = core.snapshot
+    assert before.fused is not None and before.fused.initialised and before.last_fix_ns == 1 * MS
+    core.odometry(Odometry(11 * MS, T_odom_base_at(11 * MS)), 0)
+    after = core.snapshot
+    assert after is not before and before.sensor_now_ns == 6 * MS and after.sensor_now_ns == 11 * MS
+    assert before.fused is not None and before.fused.t_ns == 6 * MS  # the old one is as it was
+    assert after.fused is not None and after.fused.t_ns == 11 * MS and after.last_fix_ns == 1 * MS
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        after.fused = None  # type: ignore[misc]
+    assert after.fused is not None and after.covariance is not None
+    with pytest.raises(ValueError, match="read-only"):
+        after.fused.T_map_base[0, 3] = 1.0
+    with pytest.raises(ValueError, match="read-only"):
+        after.covariance[0, 0] = 1.0

@@ -3,6 +3,7 @@ bounding global localization, refusals."""
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 from typing import Any
@@ -26,8 +27,9 @@ from litevloc.pipelines.fusion.online import OnlineFusion
 from litevloc.pipelines.localization.search_region import SearchRegion, nodes_within
 from litevloc.pipelines.localization.tracking import TrackingState
 from litevloc.pipelines.localization.vloc import VisualLocalizer
-from litevloc.runtime.service.core import LocalizationCore
-from litevloc.runtime.service.shell import Service, fusion_callables, localizer_callable
+from litevloc.runtime.service.core import FusionPort, LocalizationCore
+from litevloc.runtime.service.fusion_port import fusion_port
+from litevloc.runtime.service.shell import Service, ServicePorts, localizer_callable
 from litevloc.runtime.transport.bus import Bus, LiteVLocPublisher
 from litevloc.runtime.transport.ros_inputs import InitialPoseInput
 from litevloc.runtime.transport.ros_interface import TF_MESSAGE, InitialPoseRefused, parse_initial_pose
@@ -68,9 +70,9 @@ def test_tf_map_to_odom_composed_with_odometry_is_the_published_pose() -> None:
             assert all(p.wait_for_subscribers(5.0) for p in (pub.pubs["pose"], pub.pubs["tf"]))
             src = SyntheticSource(seconds=3.0, odom_hz=100.0, frame_hz=5.0)
             fusion = OnlineFusion(FusionParams(), T_BASE_CAMERA_OPTICAL)
-            on_odom, on_vloc = fusion_callables(fusion)
-            svc = Service(src, NoisyVloc(), on_odom, on_vloc, pub, RuntimeConfig(mode="deterministic"),
-                          covariance_to_ros=gtsam_to_ros_covariance, configure_thread_counts=False)
+            port = dataclasses.replace(fusion_port(fusion), covariance_to_ros=gtsam_to_ros_covariance)
+            core = LocalizationCore(port, RuntimeConfig(mode="deterministic"))
+            svc = Service(src, NoisyVloc(), core, ServicePorts(pub), configure_thread_counts=False)
             res = svc.run(timeout_s=40)
             assert res.ok, res.reason
             n_tf = res.status["counters"]["map_to_odom_published"]
@@ -145,8 +147,7 @@ def _tracking_localizer() -> tuple[VisualLocalizer, Scene]:
 
 def test_initial_pose_20m_from_the_last_fix_bounds_the_next_global_search() -> None:
     loc, s = _tracking_localizer()
-    core = LocalizationCore(FakeFusion().add_odometry, FakeFusion().add_vloc, RuntimeConfig(),
-                            T_BASE_CAMERA_OPTICAL)
+    core = LocalizationCore(FusionPort(FakeFusion().add_odometry, FakeFusion().add_vloc))
     inp = InitialPoseInput(_NoBus(), core, ZenohConfig())
     vloc = localizer_callable(loc)
     frame = _Frame(1_000_000_000, s.look(pose(1.4), 1))  # the view looks like the old place (VPR ranks 0-3 first)
@@ -170,7 +171,7 @@ def test_initial_pose_20m_from_the_last_fix_bounds_the_next_global_search() -> N
 
 
 def test_initial_pose_is_held_until_a_fix_from_a_bounded_query_then_released() -> None:
-    core = LocalizationCore(FakeFusion().add_odometry, FakeFusion().add_vloc, RuntimeConfig(), T_BASE_CAMERA_OPTICAL)
+    core = LocalizationCore(FusionPort(FakeFusion().add_odometry, FakeFusion().add_vloc))
     inp = InitialPoseInput(_NoBus(), core, ZenohConfig())
     inp.handle(_initial_pose_msg(21.0, 0.0))
     core.vloc_result(Result(5, True, "ok", np.eye(4)))  # a fix in flight before the initial pose: not the answer
@@ -193,7 +194,7 @@ class _Frame:
 def test_initial_pose_over_rmw_zenoh_reaches_the_core() -> None:
     """Published as an rmw_zenoh node would (its key, its attachment), applied by the runtime."""
     port = free_port()
-    core = LocalizationCore(FakeFusion().add_odometry, FakeFusion().add_vloc, RuntimeConfig(), T_BASE_CAMERA_OPTICAL)
+    core = LocalizationCore(FusionPort(FakeFusion().add_odometry, FakeFusion().add_vloc))
     with Bus(ZenohConfig(listen=(f"tcp/127.0.0.1:{port}",), ros2="rmw_zenoh", namespace="r2")) as bus:
         inp = InitialPoseInput(bus, core, bus.cfg)
         view = RosNodeView(port)

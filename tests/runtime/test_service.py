@@ -22,6 +22,7 @@ from tests.runtime.fakes import (
     FakeVloc,
     SyntheticSource,
     T_odom_base_at,
+    make_service,
 )
 from tests.runtime.zenoh_helpers import finish_probe, free_port, start_probe
 
@@ -31,8 +32,8 @@ def make(mode: str = "deterministic", vloc: FakeVloc | None = None, pub: object 
     vloc = vloc or FakeVloc()
     fusion = FakeFusion()
     fp = FakePublisher()
-    svc = Service(src or SyntheticSource(), vloc, fusion.add_odometry, fusion.add_vloc, pub or fp,
-                  RuntimeConfig(mode=mode, status_period_s=0.05, **params), rate=rate)
+    svc = make_service(src or SyntheticSource(), vloc, fusion, pub or fp,
+                       RuntimeConfig(mode=mode, status_period_s=0.05, **params), rate=rate)
     return svc, vloc, fusion, fp
 
 
@@ -107,22 +108,25 @@ def test_tracking_loss_flagged() -> None:
     res = svc.run(timeout_s=20)
     assert res.ok and res.status["state"] == "LOST"
     assert any("no VLoc fix accepted" in r for r in res.status["reasons"])
-    # last fix: frame 2 at t = 0.202 s -> LOST from 0.702 s on (the policy is applied by the
-    # real publisher, tested in test_bus; the service hands it the flag)
+    # last fix: frame 2 at t = 0.202 s -> LOST from 0.702 s on: the core hands the publisher the
+    # pose with its covariance raised to lost_variance (FakePublisher's flag)
     lost = [t for t, _, flag in pub.poses if flag]
     assert lost and min(lost) > 0.702e9 and all(not f for t, _, f in pub.poses if t <= 0.702e9)
 
 
 @pytest.mark.timeout(30)
-def test_tracking_loss_withheld_by_real_publisher() -> None:
+def test_tracking_loss_withheld_before_the_real_publisher() -> None:
     with Bus(ZenohConfig(listen=(f"tcp/127.0.0.1:{free_port()}",))) as bus:
-        pub = LiteVLocPublisher(bus, lost_policy="withhold")
-        svc, _, _, _ = make("deterministic", vloc=FakeVloc(reject_after_ns=300_000_000), pub=pub, lost_after_s=0.5)
+        pub = LiteVLocPublisher(bus)
+        svc, _, _, _ = make("deterministic", vloc=FakeVloc(reject_after_ns=300_000_000), pub=pub, lost_after_s=0.5,
+                            lost_policy="withhold")
         res = svc.run(timeout_s=20)
     c = res.status["counters"]
-    assert res.ok and res.status["state"] == "LOST" and pub.withheld == c["poses_withheld"] > 0
+    assert res.ok and res.status["state"] == "LOST" and res.status["bus"]["withheld"] == c["poses_withheld"] > 0
     assert c["poses_published"] + c["poses_withheld"] == 399  # all but the one before the first fix
-    assert pub.pubs["pose"].sent == c["poses_published"]
+    assert pub.pubs["pose"].sent == c["poses_published"] and res.status["bus"]["flagged"] == 0
+    # map->odom is withheld with the pose: none after the state went LOST (from 0.702 s)
+    assert pub.pubs["map_to_odom"].sent == c["map_to_odom_published"] > 0
 
 
 @pytest.mark.timeout(30)
@@ -186,9 +190,9 @@ def test_odometry_from_zenoh_feeds_fusion() -> None:
         fusion, fp = FakeFusion(), FakePublisher()
         tx = OdometrySender(robot.session, "robot/odom")
         params = RuntimeConfig(mode="realtime", odometry_input="zenoh", odometry_key="robot/odom")
-        svc = Service(src, FakeVloc(), fusion.add_odometry, fusion.add_vloc, fp, params, rate=1.0,
-                      odometry_receiver=lambda sink: OdometryReceiver(bus.session, params.odometry_key, sink,
-                                                                      params.odometry_checks))
+        svc = make_service(src, FakeVloc(), fusion, fp, params, rate=1.0,
+                           odometry_receiver=lambda sink: OdometryReceiver(bus.session, params.odometry_key, sink,
+                                                                           params.odometry_checks))
         time.sleep(0.2)
         stop = threading.Event()
 
@@ -223,8 +227,8 @@ def test_odometry_input_killed_mid_stream_is_reported() -> None:
         fusion, fp = FakeFusion(), FakePublisher()
         tx = OdometrySender(robot.session, "odom")
         params = RuntimeConfig(odometry_input="zenoh", odometry_stale_s=0.2, status_period_s=0.05)
-        svc = Service(SyntheticSource(seconds=1.2), FakeVloc(), fusion.add_odometry, fusion.add_vloc, fp, params,
-                      rate=1.0, odometry_receiver=lambda sink: OdometryReceiver(bus.session, "odom", sink))
+        svc = make_service(SyntheticSource(seconds=1.2), FakeVloc(), fusion, fp, params,
+                           rate=1.0, odometry_receiver=lambda sink: OdometryReceiver(bus.session, "odom", sink))
         time.sleep(0.2)
 
         def robot_loop() -> None:  # 0.3 s of odometry, then the robot's odometry dies
@@ -258,8 +262,8 @@ def test_source_dying_mid_stream_is_a_fatal_error_not_a_hang() -> None:
                 yield m
 
     fusion = FakeFusion()
-    svc = Service(Dying(), FakeVloc(), fusion.add_odometry, fusion.add_vloc, FakePublisher(),
-                  RuntimeConfig(status_period_s=0.05), rate=0.0)
+    svc = make_service(Dying(), FakeVloc(), fusion, FakePublisher(),
+                       RuntimeConfig(status_period_s=0.05), rate=0.0)
     t0 = time.monotonic()
     res = svc.run(timeout_s=20)
     # bound: as above, stopped by the failure and not by the 20 s run timeout
@@ -279,8 +283,8 @@ def test_stalled_camera_is_reported() -> None:
             return iter([Odo((i + 1) * 5_000_000, T_odom_base_at((i + 1) * 5_000_000)) for i in range(200)])
 
     fusion, fp = FakeFusion(), FakePublisher()
-    svc = Service(OdomOnly(), FakeVloc(), fusion.add_odometry, fusion.add_vloc, fp,
-                  RuntimeConfig(status_period_s=0.05, frame_stale_s=0.3), rate=1.0)
+    svc = make_service(OdomOnly(), FakeVloc(), fusion, fp,
+                       RuntimeConfig(status_period_s=0.05, frame_stale_s=0.3), rate=1.0)
     res = svc.run(timeout_s=20)
     assert res.ok and any("no camera frame received yet" in r for s in fp.status for r in s["reasons"])
     assert res.status["state"] == "INIT"
@@ -300,7 +304,9 @@ def test_inline_publishing_gives_the_same_output() -> None:
 
 @pytest.mark.timeout(30)
 def test_adapters_for_localizer_and_fusion() -> None:
-    from litevloc.runtime.service.shell import fusion_callables, localizer_callable
+    from litevloc.runtime.service.core import LocalizationCore
+    from litevloc.runtime.service.fusion_port import fusion_port
+    from litevloc.runtime.service.shell import ServicePorts, localizer_callable
 
     calls: list[tuple[str, int]] = []
 
@@ -323,10 +329,10 @@ def test_adapters_for_localizer_and_fusion() -> None:
             return inner.add_vloc(type("R", (), {"t_ns": t_ns, "T_map_camera": T})())
 
     loc = Loc()
-    on_odom, on_vloc = fusion_callables(Fusion())
+    core = LocalizationCore(fusion_port(Fusion()), RuntimeConfig(mode="deterministic"))
     src = SyntheticSource(seconds=0.5)
     pub = FakePublisher()
-    svc = Service(src, localizer_callable(loc), on_odom, on_vloc, pub, RuntimeConfig(mode="deterministic"))
+    svc = Service(src, localizer_callable(loc), core, ServicePorts(pub))
     res = svc.run(timeout_s=20)
     assert res.ok and res.status["vloc_state"] == "TRACKING"
     assert sum(c == "process" for c, _ in calls) == src.frame_count() == sum(c == "vloc" for c, _ in calls)
@@ -374,3 +380,22 @@ def test_undecodable_frame_is_a_counted_rejection_not_a_crash() -> None:
     assert c["frames_undecodable"] == 1 and c["frames_decoded"] == src.frame_count() - 1
     assert 3 not in vloc.seen and len(vloc.seen) == src.frame_count() - 1
     assert c["vloc_accepted"] == src.frame_count() - 1
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize("mode", ["realtime", "sequential"])
+def test_why_a_run_ended_is_an_enum_not_its_message(mode: str) -> None:
+    """ok follows the StopCause: a timeout is not ok, the end of the source is, and a stop whose
+    reason merely reads like a timeout is a requested stop."""
+    from litevloc.runtime.service.runners import StopCause
+
+    svc, _, _, _ = make(mode, src=SyntheticSource(seconds=30.0), rate=1.0)
+    res = svc.run(timeout_s=0.3)
+    assert res.cause is StopCause.TIMEOUT and not res.ok and res.reason == "timeout after 0.3 s"
+    svc, _, _, _ = make(mode, src=SyntheticSource(seconds=0.5))
+    res = svc.run(timeout_s=20)
+    assert res.cause is StopCause.END_OF_SOURCE and res.ok and res.reason == "end of source"
+    svc, _, _, _ = make(mode, src=SyntheticSource(seconds=30.0), rate=1.0)
+    threading.Timer(0.2, lambda: svc.stop("timeout of the operator's patience")).start()
+    res = svc.run(timeout_s=20)
+    assert res.cause is StopCause.REQUESTED and res.ok and res.reason == "timeout of the operator's patience"

@@ -11,7 +11,9 @@ from litevloc.config.schema import RuntimeConfig
 from litevloc.hw.messages import RgbdFrame
 from litevloc.pipelines.fusion.online import OnlineFusion
 from litevloc.pipelines.localization.results import LocalizationResult, ProvisionalPose
-from litevloc.runtime.service.shell import Service, fusion_callables
+from litevloc.runtime.service.core import LocalizationCore
+from litevloc.runtime.service.fusion_port import fusion_port
+from litevloc.runtime.service.shell import Service, ServicePorts
 from tests.runtime.fakes import T_MAP_ODOM_TRUE, FakePublisher, SyntheticSource, T_odom_base_at
 
 
@@ -32,9 +34,9 @@ class VotingVloc:
 def test_provisional_poses_initialise_fusion_but_are_not_fixes() -> None:
     src = SyntheticSource(seconds=2.0)
     fusion = OnlineFusion(FusionParams(init_votes=2), T_BASE_CAMERA_OPTICAL)
-    on_odom, on_vloc = fusion_callables(fusion)
+    core = LocalizationCore(fusion_port(fusion), RuntimeConfig(mode="deterministic", lost_after_s=60.0))
     vloc, pub = VotingVloc(), FakePublisher()
-    svc = Service(src, vloc, on_odom, on_vloc, pub, RuntimeConfig(mode="deterministic", lost_after_s=60.0))
+    svc = Service(src, vloc, core, ServicePorts(pub))
     res = svc.run(timeout_s=20)
     assert res.ok, res.reason
     c = res.status["counters"]

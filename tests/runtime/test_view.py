@@ -20,7 +20,7 @@ from litevloc.hw.messages import RgbdFrame
 from litevloc.pipelines.localization.results import MatchedPixels
 from litevloc.pipelines.topomap.types import NodeFeatures, OccupancyGrid, TopoMap
 from litevloc.runtime.service.queues import DropQueue
-from litevloc.runtime.service.view import covariance_ellipsoid, occupied_points
+from litevloc.runtime.service.view_scene import covariance_ellipsoid, occupied_points
 from tests.conftest import HeldOut
 from tests.runtime.zenoh_helpers import free_port
 

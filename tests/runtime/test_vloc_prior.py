@@ -14,9 +14,20 @@ from litevloc.base.params.fusion import FusionParams
 from litevloc.config.schema import RuntimeConfig
 from litevloc.hw.messages import Odometry, RgbdFrame
 from litevloc.pipelines.fusion.online import OnlineFusion
-from litevloc.runtime.service.shell import Service, fusion_callables
+from litevloc.runtime.service.core import FusionPort, LocalizationCore
+from litevloc.runtime.service.fusion_port import fusion_port
+from litevloc.runtime.service.shell import Service, ServicePorts
 from litevloc.runtime.service.vloc_prior import OdometryHistory, VlocPrior, prior_at
-from tests.runtime.fakes import MS, T_MAP_ODOM_TRUE, FakeFusion, FakePublisher, Result, T_odom_base_at, Update
+from tests.runtime.fakes import (
+    MS,
+    T_MAP_ODOM_TRUE,
+    FakeFusion,
+    FakePublisher,
+    Result,
+    T_odom_base_at,
+    Update,
+    make_service,
+)
 
 
 def test_history_interpolates_and_clamps_at_the_ends() -> None:
@@ -66,8 +77,7 @@ def test_delayed_frame_gets_the_pose_at_its_stamp_and_its_true_age() -> None:
     robot was then (the latest fused pose is 0.25 m and 9 deg further on), and its age counts
     from the last fix."""
     fusion = FakeFusion()
-    svc = Service([], lambda f, p: None, fusion.add_odometry, fusion.add_vloc, FakePublisher(),
-                  RuntimeConfig(mode="sequential"))
+    svc = make_service([], lambda f, p: None, fusion, FakePublisher(), RuntimeConfig(mode="sequential"))
     t_fix = 100 * MS
     for k in range(0, 201):  # odometry at 200 Hz for 1 s
         t = k * 5 * MS + 1
@@ -115,8 +125,8 @@ def test_before_fusion_starts_the_first_fix_is_carried_by_odometry() -> None:
     since, aged from the fix (not the pose where the robot was, nor nothing); once fusion
     starts, fusion's prior again."""
     fusion = OnlineFusion(FusionParams(), T_BASE_CAMERA_OPTICAL)
-    on_odom, on_vloc = fusion_callables(fusion)
-    svc = Service([], lambda f, p: None, on_odom, on_vloc, FakePublisher(), RuntimeConfig(mode="sequential"))
+    core = LocalizationCore(fusion_port(fusion), RuntimeConfig(mode="sequential"))
+    svc = Service([], lambda f, p: None, core, ServicePorts(FakePublisher()))
     t_fix = 100 * MS
     for k in range(0, 201):  # odometry at 200 Hz for 1 s
         t = k * 5 * MS + 1
@@ -148,9 +158,10 @@ def test_the_next_frames_prior_has_the_fix_before_the_fusion_thread_takes_it() -
     fusion = FakeFusion()
     t_fix = 100 * MS
     T = T_MAP_ODOM_TRUE @ T_odom_base_at(t_fix) @ T_BASE_CAMERA_OPTICAL
-    svc = Service([], lambda f, p: Result(f.t_ns, True, "ok", T, np.eye(6) * 1e-4),
-                  fusion.add_odometry, lambda r: Update(False, "awaiting_init"), FakePublisher(),
-                  RuntimeConfig(mode="sequential"))
+    core = LocalizationCore(FusionPort(fusion.add_odometry, lambda r: Update(False, "awaiting_init")),
+                            RuntimeConfig(mode="sequential"))
+    svc = Service([], lambda f, p: Result(f.t_ns, True, "ok", T, np.eye(6) * 1e-4), core,
+                  ServicePorts(FakePublisher()))
     for k in range(0, 201):
         t = k * 5 * MS + 1
         svc._handle_odometry_item((0, Odometry(t, T_odom_base_at(t))))
@@ -171,7 +182,6 @@ def test_realtime_next_frames_prior_holds_the_fix_fusion_takes_meanwhile(wait_ms
     without the wait (`prior_wait_ms` 0) it is the fix before, and a VLoc slower than the
     robot's prior gate (4 s per call) never had a prior fresh enough to confirm a pose."""
     fusion = FakeFusion()
-    on_odom, on_vloc = fusion.add_odometry, fusion.add_vloc
     priors: list[VlocPrior | None] = []
     shifted = np.eye(4)
     shifted[0, 3] = 0.1  # the fix at 0.6 s says the map is 0.1 m off from where the first one put it
@@ -181,8 +191,7 @@ def test_realtime_next_frames_prior_holds_the_fix_fusion_takes_meanwhile(wait_ms
         T = T_MAP_ODOM_TRUE @ T_odom_base_at(frame.t_ns) @ T_BASE_CAMERA_OPTICAL
         return Result(frame.t_ns, True, "ok", shifted @ T if frame.t_ns == 600 * MS else T, np.eye(6) * 1e-4)
 
-    svc = Service([], vloc_fn, on_odom, on_vloc, FakePublisher(),
-                  RuntimeConfig(mode="realtime", prior_wait_ms=wait_ms))
+    svc = make_service([], vloc_fn, fusion, FakePublisher(), RuntimeConfig(mode="realtime", prior_wait_ms=wait_ms))
     for k in range(0, 201):  # odometry at 200 Hz for 1 s, the first fix at 0.1 s
         t = k * 5 * MS + 1
         svc._handle_odometry_item((0, Odometry(t, T_odom_base_at(t))))

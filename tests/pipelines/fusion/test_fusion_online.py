@@ -205,7 +205,7 @@ def test_solver_error_is_counted_and_the_filter_restarts() -> None:
         def update(self, *args: object) -> None:
             raise RuntimeError("Indeterminant linear system")
 
-    f._smoother = Broken()  # type: ignore[assignment]
+    f._w.smoother = Broken()  # type: ignore[assignment]
     assert f.add_odometry(200_000_000, np.eye(4)) is None  # the keyframe update failed
     st = f.stats()
     assert st["solver_errors"] == 1 and not f.initialised
