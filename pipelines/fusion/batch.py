@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 
 from litevloc.base.geometry import interpolate_pose_at, invert, ros_to_gtsam_covariance, rotation_angle
 from litevloc.base.params.fusion import FusionParams
-from litevloc.pipelines.fusion.online import _valid_pose, vloc_noise_model
+from litevloc.pipelines.fusion.graph_ops import valid_pose, vloc_noise_model
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -222,7 +222,7 @@ def refine_session(
         ValueError: no usable VLoc result, bad shapes or non-rigid poses.
     """
     t, To, tv, Tv = _checked(odom_times_ns, T_odom_base, vloc_times_ns, T_map_camera)
-    T_bc = _valid_pose(T_base_camera)
+    T_bc = valid_pose(T_base_camera)
     if T_bc is None:
         raise ValueError("T_base_camera must be a finite 4x4 rigid transform")
     Ad = gtsam.Pose3(T_bc).AdjointMap()
