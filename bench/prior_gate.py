@@ -27,7 +27,7 @@ from _common import print_table, write_json
 from litevloc.base.geometry import camera_position_covariance
 from litevloc.config import load_config
 from litevloc.pipelines.fusion.online import OnlineFusion
-from litevloc.pipelines.localization.prior_gate import narrowed_gate, sigma_along
+from litevloc.pipelines.localization.prior import narrowed_gate, sigma_along
 from litevloc.sim.source import open_sim_source
 
 _FIX_COV = np.diag([0.01**2] * 3 + [np.radians(0.5) ** 2] * 3)  # ROS order: a well-verified VLoc fix

@@ -73,8 +73,6 @@ class PnpParams:
 class RefineParams:
     """Joint multi-keyframe refinement and its acceptance (pixels, metres, degrees)."""
 
-    # joint multi-keyframe refinement; false: the single-keyframe PnP pose + a separate confirmation
-    enabled: bool = True
     # keyframes in the joint solve, the PnP keyframe included
     max_keyframes: int = 3
     # keyframes that must each be consistent with the joint pose
@@ -155,8 +153,6 @@ class LocalizationParams:
 
     # GL: keyframes retrieved by VPR and verified, best first
     gl_top_k: int = 10
-    # > 0: GL stops at the first candidate with this many PnP inliers (joint refinement off)
-    gl_early_accept_inliers: int = 0
     # > 0: GL's time budget per query (ms); a next candidate is tried only while it fits
     gl_time_budget_ms: float = 0.0
     # GL tries its candidates in the order of their mutual-nearest-neighbour count with the live frame
@@ -175,10 +171,6 @@ class LocalizationParams:
     gl_vote_min_inliers: int = 60
     # a GL candidate whose inliers span less height than this rests on floor or ceiling: refused (m; 0 = off)
     gl_min_support_height_m: float = 0.15
-    # inliers a second keyframe needs to confirm a pose
-    confirm_min_inliers: int = 20
-    # second keyframes tried for the confirmation
-    confirm_max_nodes: int = 2
     # an LL pose this close to a fresh prior needs no second keyframe (m)
     confirm_skip_within_m: float = 0.2
     # ... and this close in rotation (degrees)
@@ -261,7 +253,7 @@ class LocalizationParams:
     pnp: PnpParams = field(default_factory=PnpParams)
     # validity gates of the live depth at keypoints
     depth: DepthLookupParams = field(default_factory=DepthLookupParams)
-    # joint multi-keyframe refinement (replaces the separate confirmation when enabled)
+    # joint multi-keyframe refinement: a pose's confirmation by its keyframe's covisible neighbours
     refine: RefineParams = field(default_factory=RefineParams)
 
     def __post_init__(self) -> None:

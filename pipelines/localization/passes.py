@@ -10,9 +10,9 @@ cached matches and PnP fits are reused), each later pass only where the earlier 
   the full floor together (`pooled_short`); run only when a refused candidate was weak (`weak`).
 
 A frame an earlier pass accepts is never verified again, so what it accepts is unchanged. This
-module decides the passes and their parameters; the localizer runs the verification itself.
-A GL query every pass refused may then be looked at again at full resolution
-(`pipelines.localization.second_look`), on the candidates `second_look_nodes` picks.
+module decides the passes and their parameters; GL and LL run each pass's verification under
+them (`VerifyFn`). A query every pass refused may then be looked at again at full resolution
+(`checks.second_look`), on the candidates `second_look_nodes` picks.
 """
 
 from __future__ import annotations
@@ -57,24 +57,25 @@ def pooled_short(res: PnpResult, joint: RefineResult | None, floor: int, min_key
     return f"too few inliers ({res.n_inliers} < {floor}; pooled {how})"
 
 
-def passes(p: LocalizationParams, map_has_depth: bool, allowed: bool) -> list[tuple[LocalizationParams, str]]:
+def passes(p: LocalizationParams, map_has_depth: bool, allowed: bool,
+           pooling: bool = True) -> list[tuple[LocalizationParams, str]]:
     """The passes in order, each (its parameters, how the stop reason names it; '' for the first).
     `allowed`: whether the map-depth pass may run (LL only from a fresh prior, whose gate keeps a
     repeated place out); it turns GL's distinctiveness test on (map depth lets a repeated place
-    verify too)."""
+    verify too). `pooling`: whether the pooled pass may run (not in the second look)."""
     out: list[tuple[LocalizationParams, str]] = [(replace(p, pooled_min_inliers=0), "")]
     if allowed and p.map_depth_fallback and not p.verify_map_depth and map_has_depth:
         out.append((replace(out[0][0], verify_map_depth=True,
                             gl_distinct_ratio=p.map_depth_fallback_distinct_ratio or p.gl_distinct_ratio),
                     "verified again with the map's depth"))
-    if p.pooled_min_inliers > 0:
+    if pooling and p.pooled_min_inliers > 0:
         out.append((replace(out[-1][0], pooled_min_inliers=p.pooled_min_inliers),
                     "verified again with weak candidates pooled"))
     return out
 
 
 def with_second_passes(verify: VerifyFn, p: LocalizationParams, timer: StageTimer, map_has_depth: bool,
-                       allowed: bool = True) -> LocalizationResult:
+                       allowed: bool = True, pooling: bool = True) -> LocalizationResult:
     """`verify(params)` under each of `passes(p, ...)` until one accepts (a pooled pass only where
     a refused candidate was `weak`). The refusals' attempts are kept in front and their reasons
     named in the stop reason; `timer`'s total is the whole query's, all passes."""
@@ -82,7 +83,7 @@ def with_second_passes(verify: VerifyFn, p: LocalizationParams, timer: StageTime
     refusals: list[str] = []  # the reasons of the passes refused before the last one run
     res: LocalizationResult | None = None
     last_how = ""
-    for params, how in passes(p, map_has_depth, allowed):
+    for params, how in passes(p, map_has_depth, allowed, pooling):
         if res is not None:
             if res.accepted or (params.pooled_min_inliers
                                 and not any(weak(a, params.pooled_min_inliers) for a in attempts)):

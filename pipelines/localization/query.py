@@ -3,6 +3,7 @@ and the two-view relative pose used by GL and LL verification."""
 
 from __future__ import annotations
 
+import copy
 import time
 from collections.abc import Callable
 
@@ -109,11 +110,18 @@ class Query:
         self.map, self.params, self.match = topomap, params, match
         self.feats, self.depth, self.K, self.timer = feats, depth, K, timer
         self._matches: dict[int, tuple[NDArray[np.int64], NDArray[np.int64]]] = {}
-        self._points: NDArray[np.float64] | None = None
+        self._lifted: dict[str, NDArray[np.float64]] = {}  # "points": the lifted live keypoints, once
         self.pnp_fits: PnpFits = {}  # PnP fits, reused when a later pass verifies a keyframe again
         self.rerank_counts: dict[int, int] = {}  # GL: mutual-nearest-neighbour count per re-ranked node
         # GL: those mutual nearest neighbours, (live indices, keyframe indices) per re-ranked node
         self.rerank_pairs: dict[int, tuple[NDArray[np.int64], NDArray[np.int64]]] = {}
+
+    def under(self, params: LocalizationParams) -> Query:
+        """This query verified under `params` (a later pass's): the same features, matches, lifted
+        points and PnP fits, shared with this one."""
+        view = copy.copy(self)
+        view.params = params
+        return view
 
     def matches(self, node: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
         """(live indices, keyframe indices) of the matches with `node`."""
@@ -126,16 +134,16 @@ class Query:
 
     def points(self) -> NDArray[np.float64]:
         """(N, 3) live keypoints lifted with the live depth (NaN rows where no depth)."""
-        if self._points is None:
+        if "points" not in self._lifted:
             t0 = self.timer.now()
             uv = np.asarray(self.feats.keypoints, dtype=np.float64).reshape(-1, 2)
             z = depth_at(self.depth, uv, self.params.depth).astype(np.float64)
             pts = np.full((len(uv), 3), np.nan)
             ok = np.isfinite(z)
             pts[ok] = backproject_pixels(self.K, uv[ok], z[ok])
-            self._points = pts
+            self._lifted["points"] = pts
             self.timer.add("lift", t0)
-        return self._points
+        return self._lifted["points"]
 
     def observations(self, node: int) -> KeyframeObservations:
         """The matches with `node` as refinement input (see `_observations`)."""

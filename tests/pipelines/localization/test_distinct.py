@@ -13,6 +13,7 @@ from numpy.typing import NDArray
 from litevloc.base import geometry as g
 from litevloc.base.params.localization import LocalizationParams
 from litevloc.pipelines.localization.distinct import Rival, VerifiedPose, ambiguity, rivals_to_verify, strongest_rival
+from litevloc.pipelines.localization.prior import Prior
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.types import NodeFeatures, TopoMap
 from tests.pipelines.localization.test_vloc import IMG, PARAMS, Feats, K, Scene, make_map, pose
@@ -62,7 +63,7 @@ def test_gl_refuses_a_pose_that_another_place_verifies_as_well() -> None:
     assert not r.accepted and r.T_map_camera is None and r.provisional is None
     assert "ambiguous" in r.reason and "10.00 m" in r.reason, r.reason
     # a fresh prior is trusted: the pose that agrees with it is accepted
-    r = on.localize_global(0, IMG, depth, K, pose(0.4, 3.0), prior_age_s=0.1)
+    r = on.localize_global(0, IMG, depth, K, Prior(pose(0.4, 3.0), 0.1))
     assert r.accepted, r.reason
     assert g.relative_pose_error(r.T_map_camera, T_true)[0] < 0.01
     # the rivals verified after the winner are bounded

@@ -10,6 +10,7 @@ from numpy.typing import NDArray
 
 from litevloc.base import geometry as g
 from litevloc.base.params.localization import RefineParams
+from litevloc.pipelines.localization.prior import Prior
 from litevloc.pipelines.localization.refine import KeyframeObservations, refine_pose
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.pnp import PnpResult, inverse_result
@@ -63,18 +64,20 @@ def test_the_map_depth_fallback_verifies_again_only_what_live_depth_refused() ->
     full = s.look(T_true, vpr_best=1)
     holes = _holes(full, 8)
     loc = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)  # the fallback is on by default
-    for r in (loc.localize_global(0, IMG, holes, K), loc.localize_local(0, IMG, holes, K, pose(0.75))):
+    near = Prior(pose(0.75), fused=False)
+    for r in (loc.localize_global(0, IMG, holes, K), loc.localize_local(0, IMG, holes, K, near)):
         assert r.accepted and "verified again with the map's depth" in r.stop_reason, (r.mode, r.reason)
         assert any("too few matches with depth" in a.reason for a in r.attempts)  # the first pass's refusal kept
         assert g.relative_pose_error(r.T_map_camera, T_true)[0] < 0.01
     assert not loc.params.verify_map_depth  # for that query alone
-    stale = loc.localize_local(0, IMG, holes, K, pose(0.75), prior_age_s=10.0)  # a repeated place could pass its gate
+    # a repeated place could pass its gate
+    stale = loc.localize_local(0, IMG, holes, K, Prior(pose(0.75), 10.0, fused=False))
     assert not stale.accepted and "map's depth" not in stale.stop_reason
     r = loc.localize_global(0, IMG, full, K)
     assert r.accepted and "map's depth" not in r.stop_reason
     off = VisualLocalizer(m, replace(PARAMS, map_depth_fallback=False), s.extract, s.describe, s.match)
     assert not off.localize_global(0, IMG, holes, K).accepted
-    assert not off.localize_local(0, IMG, holes, K, pose(0.75)).accepted
+    assert not off.localize_local(0, IMG, holes, K, Prior(pose(0.75), fused=False)).accepted
 
 
 def test_refinement_with_keyframe_points_only_reaches_the_truth() -> None:

@@ -14,10 +14,11 @@ import pytest
 from numpy.typing import NDArray
 
 from litevloc.base import geometry as g
+from litevloc.pipelines.localization.checks.see_through import moved_onto_live_depth, see_through
 from litevloc.pipelines.localization.passes import second_look_nodes
+from litevloc.pipelines.localization.prior import Prior
 from litevloc.pipelines.localization.results import CandidateAttempt, LocalizationResult
-from litevloc.pipelines.localization.second_look import SecondLook, StoredImageFeatures, moved_onto_live_depth
-from litevloc.pipelines.localization.see_through import see_through
+from litevloc.pipelines.localization.second_look import SecondLook, StoredImageFeatures
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.pnp import Refusal
 from litevloc.pipelines.topomap.types import NodeFeatures, TopoMap
@@ -140,14 +141,14 @@ def test_a_gl_query_the_first_look_refuses_is_accepted_by_the_second() -> None:
     # the same look, its pose moved 1 m ahead: the keyframes' points then lie in front of the live
     # depth (it sees through the map) and it is refused, saying so
     ahead = SecondLook(m, p, full.extract, s.describe, match_by_id, SMALLER)
-    verify = ahead.localizer.localize_global
+    verify = ahead.global_.localize
 
     def moved(*args: Any, **kwargs: Any) -> LocalizationResult:
         res = verify(*args, **kwargs)
         assert res.T_map_camera is not None
         return replace(res, T_map_camera=res.T_map_camera @ g.make_T(np.eye(3), [0, 0, 1.0]))
 
-    ahead.localizer.localize_global = moved  # type: ignore[method-assign]
+    ahead.global_.localize = moved  # type: ignore[method-assign]
     r4 = VisualLocalizer(m, p, s.extract, s.describe, few, second_look=ahead).localize_global(0, IMG, depth, K)
     assert not r4.accepted and "sees through the map" in r4.stop_reason, r4.stop_reason
     # an image no larger than what the first look's extractor sees has nothing finer to show
@@ -225,15 +226,16 @@ def test_an_ll_query_the_first_look_refuses_is_accepted_by_the_second_within_the
     look = SecondLook(m, p, full.extract, s.describe, match_by_id, SMALLER)
     loc = VisualLocalizer(m, p, s.extract, s.describe, few, second_look=look)
     off = VisualLocalizer(m, replace(p, second_look_candidates=0), s.extract, s.describe, few)
-    assert not off.localize_local(0, IMG, depth, K, pose(1.4, 5.0)).accepted
+    assert not off.localize_local(0, IMG, depth, K, Prior(pose(1.4, 5.0), fused=False)).accepted
     gl_only = VisualLocalizer(m, replace(p, second_look_local=False), s.extract, s.describe, few, second_look=look)
-    assert not gl_only.localize_local(0, IMG, depth, K, pose(1.4, 5.0)).accepted  # LL's look is its own switch
-    r = loc.localize_local(0, IMG, depth, K, pose(1.4, 5.0))
+    # LL's look is its own switch
+    assert not gl_only.localize_local(0, IMG, depth, K, Prior(pose(1.4, 5.0), fused=False)).accepted
+    r = loc.localize_local(0, IMG, depth, K, Prior(pose(1.4, 5.0), fused=False))
     assert r.accepted and r.mode == "local", r.stop_reason
     assert r.stop_reason.startswith("looked at again at full resolution (nodes [")
     dt, dr = g.relative_pose_error(r.T_map_camera, T_true)
     assert dt < 0.005 and dr < 0.2
-    far = loc.localize_local(0, IMG, depth, K, pose(3.3, 5.0))
+    far = loc.localize_local(0, IMG, depth, K, Prior(pose(3.3, 5.0), fused=False))
     assert not far.accepted and any("inconsistent with the prior" in a.reason for a in far.attempts)
 
 
@@ -253,7 +255,7 @@ def test_the_ll_look_keeps_closer_to_a_last_pose_prior_than_ll_does() -> None:
     def local(params: Any) -> LocalizationResult:
         look = SecondLook(m, params, full.extract, s.describe, match_by_id, SMALLER)
         loc = VisualLocalizer(m, params, s.extract, s.describe, few, second_look=look)
-        return loc.localize_local(0, IMG, depth, K, pose(1.8, 5.0))
+        return loc.localize_local(0, IMG, depth, K, Prior(pose(1.8, 5.0), fused=False))
 
     tight = local(p)
     assert not tight.accepted and any("inconsistent with the prior" in a.reason for a in tight.attempts)

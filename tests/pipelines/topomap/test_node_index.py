@@ -178,7 +178,7 @@ def test_local_candidates_equal_the_localizer_on_a_topomap() -> None:
         got = m.node_index.local_candidates(P, desc, m.vpr, m.T_map_camera, m.covisibility_lists,
                                             p.candidate_radius_m, p.gl_trigger_distance_m, p.max_view_angle_deg,
                                             p.ll_max_candidates)
-        ref = loc.local_candidates(P, desc)
+        ref = loc.local_search.candidates(loc.params, P, desc)
         assert [c for c, _ in got] == [c for c, _ in ref]
     # the covisibility lists are the localizer's neighbour order (strongest first, ties by id)
     assert m.covisibility_lists == [[k for k, _ in sorted(m.covisible_neighbours(i), key=lambda x: (-x[1], x[0]))]

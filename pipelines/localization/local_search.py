@@ -1,0 +1,121 @@
+"""Local localization (LL): from a prior pose, the map nodes around it verified in order.
+
+The nearest map node and its covisibility neighbours within `candidate_radius_m` and
+`max_view_angle_deg` are ranked by descriptor similarity; candidates are tried in that order
+until one passes every check (a rejected candidate hands over to the next): PnP (on matches
+guided by a fresh prior first), the prior gate, the joint refinement (unless the pose lies close
+to a fresh prior) and, for a weak candidate, the pooled inlier count. A query every pass refused
+is looked at again at full resolution where that is configured (`checks.second_look`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from litevloc.base.geometry import check_rigid, relative_pose_error
+from litevloc.base.params.localization import LocalizationParams
+from litevloc.pipelines.localization import prior as pg
+from litevloc.pipelines.localization.checks.second_look import SecondLookFn, look_again
+from litevloc.pipelines.localization.passes import pooled, pooled_short, with_second_passes
+from litevloc.pipelines.localization.prior import Prior
+from litevloc.pipelines.localization.query import Query, StageTimer
+from litevloc.pipelines.localization.refusals import QueryRefusal, refusal_text
+from litevloc.pipelines.localization.results import CandidateAttempt, LocalizationResult
+from litevloc.pipelines.localization.verifier import Best, CandidateVerifier
+from litevloc.pipelines.pnp import Refusal
+
+Gate = tuple[float, float, NDArray[np.float64] | None]  # the prior's growth (m), gate radius (m), position covariance
+
+
+class LocalSearch:
+    """LL over `verifier`'s map; `second_look` (None: none) looks again at a refused query,
+    `pooling`: whether weak candidates may be pooled (a later pass)."""
+
+    def __init__(self, verifier: CandidateVerifier, second_look: SecondLookFn | None = None,
+                 pooling: bool = True) -> None:
+        self.verifier, self.second_look, self.pooling = verifier, second_look, pooling
+
+    def candidates(self, p: LocalizationParams, prior: NDArray[np.float64],
+                   desc: NDArray[np.float32]) -> list[tuple[int, float]]:
+        """(node, similarity) candidates for a prior pose, best first; empty if none is near.
+
+        The nearest node (none if farther than `gl_trigger_distance_m`), its covisible
+        neighbours and every node within `candidate_radius_m` that faces within
+        `max_view_angle_deg` of the prior, ranked by VPR similarity; looked up in the map's
+        KD-tree node index (`TopoMap.node_index`), so the cost does not grow with the map."""
+        m = self.verifier.map
+        return m.node_index.local_candidates(
+            prior, desc, m.vpr, m.T_map_camera, self.verifier.neighbours, p.candidate_radius_m,
+            p.gl_trigger_distance_m, p.max_view_angle_deg, p.ll_max_candidates)
+
+    def localize(self, t_ns: int, color: NDArray[np.uint8], depth: NDArray[np.float32] | None,
+                 K: NDArray[np.float64], p: LocalizationParams, prior: Prior,
+                 only: Sequence[int] | None = None) -> LocalizationResult:
+        """LL from `prior` under `p` (`only`: these nodes, in this order, instead of the prior's
+        candidates). A candidate's pose must pass the prior gate (`prior.growth_m`: at the fused
+        rate for fusion's prior, at the robot's top speed for the last VLoc pose, narrowed by
+        fusion's covariance, `prior.gate_toward`)."""
+        T_prior = check_rigid(prior.T_map_camera, "prior T_map_camera", atol=1e-4)
+        v = self.verifier
+        timer = StageTimer(v.clock)
+        t_all = v.clock()
+        q, desc = v.query(color, depth, K, p, timer)
+        if only is None:
+            cands = self.candidates(p, T_prior, desc)
+        else:
+            sims = v.map.vpr @ desc
+            cands = [(int(n), float(sims[int(n)])) for n in only]
+        growth = pg.growth_m(p, prior.age_s, prior.fused, prior.travel_m)
+        gate = (growth, pg.gate_m(p, growth, prior.fused), prior.cov)
+        res = with_second_passes(lambda pp: self.attempts(t_ns, q.under(pp), cands, T_prior, gate, timer, t_all),
+                                 p, q.timer, v.map_has_depth, allowed=pg.fresh(p, growth), pooling=self.pooling)
+        if not res.accepted and self.second_look is not None and p.second_look_local:
+            res = look_again(self.second_look, p, res, (color, depth, K),
+                             replace(prior, T_map_camera=T_prior), local=True)
+        return res
+
+    def attempts(self, t_ns: int, q: Query, cands: list[tuple[int, float]], prior: NDArray[np.float64],
+                 gate: Gate, timer: StageTimer, t_all: float) -> LocalizationResult:
+        """LL's candidates `cands` (node, similarity) tried in order under the query's parameters
+        until one passes the prior gate (`gate`) and the joint refinement (see `localize`)."""
+        p, v = q.params, self.verifier
+        growth, gate_m, cov = gate
+        attempts: list[CandidateAttempt] = []
+        best: Best | None = None
+        guided_first = p.ll_guided_min_matches > 0 and pg.fresh(p, growth)
+        floor = p.pnp.min_inliers  # a weaker candidate passes only pooled (see `passes.pooled_short`)
+        for node, sim in cands:
+            res, att = v.verify_local(node, q, sim, prior if guided_first else None, pooled(p))
+            if res is not None and res.accepted and res.T_target_source is not None:
+                T = v.map.T_map_camera[node] @ res.T_target_source
+                dt, dr = relative_pose_error(T, prior)
+                radius = pg.gate_toward(p, T, prior, gate_m, cov)
+                if dt > radius or dr > p.prior_gate_deg:
+                    attempts.append(CandidateAttempt(node, sim, att.matches, att.inliers,
+                                                     f"inconsistent with the prior ({dt:.2f} m > {radius:.2f} m or "
+                                                     f"{dr:.0f} deg)"))
+                    continue
+                weak = res.n_inliers < floor
+                close = (dt <= p.confirm_skip_within_m and dr <= p.confirm_skip_within_deg
+                         and pg.fresh(p, growth) and not weak)
+                need = p.refine.min_keyframes if (p.ll_confirm and not close) or weak else 1
+                joint = v.joint(node, T, q, [n for n, _ in cands], need)
+                if not joint.accepted and not weak:  # a weak one is refused below, saying so
+                    attempts.append(CandidateAttempt(node, sim, att.matches, att.inliers,
+                                                     f"joint refinement rejected: {joint.reason}"))
+                    continue
+                short = pooled_short(res, joint, floor, p.refine.min_keyframes)
+                if short:
+                    attempts.append(replace(att, reason=short, refusal=Refusal.INLIERS))
+                    continue
+                attempts.append(att)
+                best = (node, res, joint)
+                break
+            attempts.append(att)
+        timer.add("total", t_all)
+        kind = QueryRefusal.NO_NODE_NEAR_PRIOR if not cands else QueryRefusal.NO_CANDIDATE
+        return v.result(t_ns, "local", best, attempts, timer, (kind, refusal_text(kind)), q)
