@@ -243,7 +243,7 @@ def main() -> int:
                     help="LL prior: the last accepted VLoc pose carried on by the true relative motion since "
                          "(drift-free odometry, as the fused pose) or the last VLoc pose as it is")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                    help="config override for the query pass, e.g. --set localization.lost_cost_ratio=0")
+                    help="config override for the query pass, e.g. --set localization.global_search.lost_cost_ratio=0")
     ap.add_argument("--max-s", type=float, default=0.0, help="use only the first S s of the query pass (0 = all)")
     ap.add_argument("--resummarise", type=Path, help="recompute the summaries of an earlier JSON (no localization)")
     args = ap.parse_args()

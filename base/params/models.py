@@ -96,7 +96,7 @@ class ModelsConfig:
     max_keypoints: int = 512
     # matcher; lightglue-adaptive: the reference's early stopping + point pruning
     matcher: Literal["lightglue", "lightglue-int8", "lightglue-adaptive", "mnn", "nn-ratio"] = "lightglue-adaptive"
-    # the second look (localization.second_look_candidates): extractor input size (h, w pixels) ...
+    # the second look (localization.second_look.candidates): extractor input size (h, w pixels) ...
     second_look_size: tuple[int, int] = (480, 640)
     # ... and keypoints per image, for the query and the keyframes' stored images (all matched)
     second_look_keypoints: int = 2048

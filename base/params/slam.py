@@ -138,7 +138,7 @@ class SlamLoopParams:
     search_every: int = 2
     # a candidate within this many keyframes of a loop partner already verified for this keyframe is skipped
     partner_spacing: int = 3
-    # skip unmatched a candidate the chain puts beyond the chain gate's bound + localization.max_distance_to_node_m
+    # skip unmatched a candidate the chain puts beyond its gate's bound + localization.verify.max_distance_to_node_m
     chain_pregate: bool = True
     # a loop factor's translation noise is at least this, per axis (metres)
     sigma_floor_m: float = 0.003

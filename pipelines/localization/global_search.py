@@ -1,17 +1,17 @@
 """Global localization (GL): VPR top-k retrieval over the map, each candidate verified in order.
 
 Candidates come by place-descriptor similarity, re-ordered by a cheap mutual-nearest-neighbour
-count (`gl_rerank`); each is verified (PnP, support, joint refinement: `verifier`) and the first
+count (`global_search.rerank`); each is verified (PnP, support, joint refinement: `verifier`) and the first
 that passes wins, then the distinctiveness check judges it (no trusted prior), or the search
-stops when the time budget would be overrun (`gl_time_budget_ms`; while recovering after
-tracking was lost, `lost_cost_ratio` x the median wall time of the last LL queries); the result
+stops when the time budget would be overrun (`global_search.time_budget_ms`; while recovering after
+tracking was lost, `global_search.lost_cost_ratio` x the median wall time of the last LL queries); the result
 says why in `stop_reason`.
 
-* A candidate that only its own keyframe confirms strongly (`gl_vote_min_inliers`) is returned,
+* A candidate that only its own keyframe confirms strongly (`global_search.vote_min_inliers`) is returned,
   not accepted, as `LocalizationResult.provisional`; with a fresh fused prior it agrees with
   (within the prior gate), it is accepted (the prior is the independent second view).
 * A GL pose outside a fused prior's gate gives way to a pose LL verifies at the prior's place
-  (`gl_check_prior_place`): in a repeating corridor both verify, the odometry tells them apart.
+  (`global_search.check_prior_place`): in a repeating corridor both verify, the odometry tells them apart.
 """
 
 from __future__ import annotations
@@ -26,12 +26,12 @@ from litevloc.base.geometry import check_rigid, relative_pose_error
 from litevloc.base.params.localization import LocalizationParams
 from litevloc.pipelines.guided_matching import mutual_nn_pairs
 from litevloc.pipelines.localization import prior as pg
-from litevloc.pipelines.localization.checks.distinctiveness import ambiguous, gl_params
+from litevloc.pipelines.localization.checks.distinctiveness import ambiguous
 from litevloc.pipelines.localization.checks.joint import single_keyframe
 from litevloc.pipelines.localization.checks.second_look import SecondLookFn, look_again
 from litevloc.pipelines.localization.distinct import VerifiedPose
 from litevloc.pipelines.localization.local_search import LocalSearch
-from litevloc.pipelines.localization.passes import pooled, pooled_short, with_second_passes
+from litevloc.pipelines.localization.passes import pooled, pooled_short, with_pooled, with_second_passes
 from litevloc.pipelines.localization.prior import Prior
 from litevloc.pipelines.localization.query import Query, StageTimer
 from litevloc.pipelines.localization.refusals import QueryRefusal, refusal_text
@@ -42,15 +42,15 @@ from litevloc.pipelines.pnp import Refusal
 
 
 def gl_budget_ms(p: LocalizationParams, ll_wall_ms: Sequence[float], nominal_ll_ms: float = float("inf")) -> float:
-    """The wall-time bound (ms) on a GL query while recovering: `lost_cost_ratio` x the cost of
+    """The wall-time bound (ms) on a GL query while recovering: `global_search.lost_cost_ratio` x the cost of
     an LL query, the median wall time of the last LL queries `ll_wall_ms` or `nominal_ll_ms` (the
     GL query's own feature extraction and VPR plus one candidate's verification: what an LL query
     that runs the matcher once costs) where lower or where no LL query has run; and
-    `gl_time_budget_ms` when set (the smaller bound); 0 = none."""
-    bounds = [b for b in (p.gl_time_budget_ms,) if b > 0]
+    `global_search.time_budget_ms` when set (the smaller bound); 0 = none."""
+    bounds = [b for b in (p.global_search.time_budget_ms,) if b > 0]
     ll = min(float(np.median(ll_wall_ms)) if len(ll_wall_ms) else float("inf"), nominal_ll_ms)
-    if p.lost_cost_ratio > 0 and np.isfinite(ll):
-        bounds.append(p.lost_cost_ratio * ll)
+    if p.global_search.lost_cost_ratio > 0 and np.isfinite(ll):
+        bounds.append(p.global_search.lost_cost_ratio * ll)
     return min(bounds) if bounds else 0.0
 
 
@@ -90,33 +90,33 @@ class GlobalSearch:
         res = with_second_passes(verify, p, q.timer, v.map_has_depth, pooling=self.pooling)
         if not res.accepted and self.second_look is not None:
             res = look_again(self.second_look, p, res, (color, depth, K), prior)
-        if not res.accepted or prior is None or not p.gl_check_prior_place:
+        if not res.accepted or prior is None or not p.global_search.check_prior_place:
             return res
         return self._against_the_priors_place(res, q, desc, prior, t_all)
 
     def candidates(self, p: LocalizationParams, sims: NDArray[np.float32], q: Query,
                    region: SearchRegion | None = None) -> NDArray[np.int64]:
-        """The map nodes GL verifies, in order (node ids, at most `gl_top_k`): the
-        `gl_rerank_depth` most similar by place descriptor (`sims`, (N,) per node) among the
+        """The map nodes GL verifies, in order (node ids, at most `global_search.top_k`): the
+        `global_search.rerank_depth` most similar by place descriptor (`sims`, (N,) per node) among the
         keyframes within `region` (an initial pose) where one is given, re-ordered by local
-        matches (`_rerank`), the first `gl_top_k` of them. The one place where GL's candidate
+        matches (`_rerank`), the first `global_search.top_k` of them. The one place where GL's candidate
         list is made: a filter on the candidates belongs here."""
         ranked = np.argsort(-sims, kind="stable")
         if region is not None:
             ranked = nodes_within(ranked, self.verifier.map.positions, region)
-        shortlist = ranked[: max(p.gl_top_k, p.gl_rerank_depth if p.gl_rerank else 0)]
-        return self._rerank(p, shortlist, q)[: p.gl_top_k]
+        shortlist = ranked[: max(p.global_search.top_k, p.global_search.rerank_depth if p.global_search.rerank else 0)]
+        return self._rerank(p, shortlist, q)[: p.global_search.top_k]
 
     def _rerank(self, p: LocalizationParams, order: NDArray[np.int64], q: Query) -> NDArray[np.int64]:
         """The VPR candidates `order` (best first) re-ordered by their mutual-nearest-neighbour
-        count with the live descriptors (`gl_rerank`), VPR order breaking ties."""
-        if not p.gl_rerank or len(order) < 2:
+        count with the live descriptors (`global_search.rerank`), VPR order breaking ties."""
+        if not p.global_search.rerank or len(order) < 2:
             return order
         t0 = self.verifier.clock()
         live = np.asarray(q.feats.descriptors)
         feats = self.verifier.map.features
-        q.rerank_pairs = {int(n): mutual_nn_pairs(live, feats[int(n)].descriptors, p.gl_rerank_min_similarity)
-                          for n in order}
+        least = p.global_search.rerank_min_similarity
+        q.rerank_pairs = {int(n): mutual_nn_pairs(live, feats[int(n)].descriptors, least) for n in order}
         q.rerank_counts = {n: len(pairs[0]) for n, pairs in q.rerank_pairs.items()}
         counts = [q.rerank_counts[int(n)] for n in order]
         q.timer.add("rerank", t0)
@@ -139,9 +139,8 @@ class GlobalSearch:
         growth = 0.0 if prior is None else pg.growth_m(p, prior.age_s, True, prior.travel_m)
         evidence: list[VerifiedPose] = []  # every candidate's PnP pose, for the distinctiveness check
         trusted = prior is not None and pg.fresh(p, growth)
-        pnp_params = gl_params(p, trusted)
-        floor = pnp_params.pnp.min_inliers  # a weaker candidate passes only pooled (see `passes.pooled_short`)
-        budget = p.gl_time_budget_ms
+        floor = p.pnp.min_inliers  # a weaker candidate passes only pooled (see `passes.pooled_short`)
+        budget = p.global_search.time_budget_ms
         candidates_ms = 0.0  # verification time (match, PnP, joint refinement) of the candidates so far
         for k, node in enumerate(int(n) for n in order):
             spent = (v.clock() - t_all) * 1e3
@@ -153,14 +152,14 @@ class GlobalSearch:
                         f"{ahead:.0f} ms per candidate, after {k} of {len(order)} candidates")
                 break
             t_cand = v.clock()
-            res, att = v.verify_global(node, q, float(sims[node]), evidence, pooled(pnp_params))
+            res, att = v.verify_global(node, q, float(sims[node]), evidence, pooled(p))
             if res is None or not res.accepted or res.T_target_source is None:
                 attempts.append(att)
                 candidates_ms += (v.clock() - t_cand) * 1e3
                 continue
             T = v.map.T_map_camera[node] @ res.T_target_source
             weak = res.n_inliers < floor
-            joint = v.joint(node, T, q, [int(n) for n in order], p.refine.min_keyframes if p.gl_confirm or weak else 1)
+            joint = v.joint(node, T, q, [int(n) for n in order], p.refine.min_keyframes if p.confirm.gl or weak else 1)
             candidates_ms += (v.clock() - t_cand) * 1e3
             short = pooled_short(res, joint, floor, p.refine.min_keyframes)
             if short:
@@ -209,7 +208,7 @@ class GlobalSearch:
             return res
         dt, _ = relative_pose_error(res.T_map_camera, prior.T_map_camera)
         q.timer.ms.pop("total", None)  # the whole query's, measured again below
-        ll_params = p if self.pooling else replace(p, pooled_min_inliers=0)
+        ll_params = p if self.pooling else with_pooled(p, 0)
         local = self.local.attempts(res.t_ns, q.under(ll_params), self.local.candidates(p, prior.T_map_camera, desc),
                                     prior.T_map_camera, (growth, radius, prior.cov), q.timer, t_all)
         why = f"GL's pose (node {res.ref_node}) lay {dt:.2f} m from the prior, outside its gate"

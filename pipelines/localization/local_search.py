@@ -1,7 +1,7 @@
 """Local localization (LL): from a prior pose, the map nodes around it verified in order.
 
-The nearest map node and its covisibility neighbours within `candidate_radius_m` and
-`max_view_angle_deg` are ranked by descriptor similarity; candidates are tried in that order
+The nearest map node and its covisibility neighbours within `local_search.candidate_radius_m` and
+`local_search.max_view_angle_deg` are ranked by descriptor similarity; candidates are tried in that order
 until one passes every check (a rejected candidate hands over to the next): PnP (on matches
 guided by a fresh prior first), the prior gate, the joint refinement (unless the pose lies close
 to a fresh prior) and, for a weak candidate, the pooled inlier count. A query every pass refused
@@ -43,14 +43,14 @@ class LocalSearch:
                    desc: NDArray[np.float32]) -> list[tuple[int, float]]:
         """(node, similarity) candidates for a prior pose, best first; empty if none is near.
 
-        The nearest node (none if farther than `gl_trigger_distance_m`), its covisible
-        neighbours and every node within `candidate_radius_m` that faces within
-        `max_view_angle_deg` of the prior, ranked by VPR similarity; looked up in the map's
+        The nearest node (none if farther than `local_search.trigger_distance_m`), its covisible
+        neighbours and every node within `local_search.candidate_radius_m` that faces within
+        `local_search.max_view_angle_deg` of the prior, ranked by VPR similarity; looked up in the map's
         KD-tree node index (`TopoMap.node_index`), so the cost does not grow with the map."""
         m = self.verifier.map
         return m.node_index.local_candidates(
-            prior, desc, m.vpr, m.T_map_camera, self.verifier.neighbours, p.candidate_radius_m,
-            p.gl_trigger_distance_m, p.max_view_angle_deg, p.ll_max_candidates)
+            prior, desc, m.vpr, m.T_map_camera, self.verifier.neighbours, p.local_search.candidate_radius_m,
+            p.local_search.trigger_distance_m, p.local_search.max_view_angle_deg, p.local_search.max_candidates)
 
     def localize(self, t_ns: int, color: NDArray[np.uint8], depth: NDArray[np.float32] | None,
                  K: NDArray[np.float64], p: LocalizationParams, prior: Prior,
@@ -73,7 +73,7 @@ class LocalSearch:
         gate = (growth, pg.gate_m(p, growth, prior.fused), prior.cov)
         res = with_second_passes(lambda pp: self.attempts(t_ns, q.under(pp), cands, T_prior, gate, timer, t_all),
                                  p, q.timer, v.map_has_depth, allowed=pg.fresh(p, growth), pooling=self.pooling)
-        if not res.accepted and self.second_look is not None and p.second_look_local:
+        if not res.accepted and self.second_look is not None and p.second_look.local:
             res = look_again(self.second_look, p, res, (color, depth, K),
                              replace(prior, T_map_camera=T_prior), local=True)
         return res
@@ -86,7 +86,7 @@ class LocalSearch:
         growth, gate_m, cov = gate
         attempts: list[CandidateAttempt] = []
         best: Best | None = None
-        guided_first = p.ll_guided_min_matches > 0 and pg.fresh(p, growth)
+        guided_first = p.local_search.guided_min_matches > 0 and pg.fresh(p, growth)
         floor = p.pnp.min_inliers  # a weaker candidate passes only pooled (see `passes.pooled_short`)
         for node, sim in cands:
             res, att = v.verify_local(node, q, sim, prior if guided_first else None, pooled(p))
@@ -94,15 +94,15 @@ class LocalSearch:
                 T = v.map.T_map_camera[node] @ res.T_target_source
                 dt, dr = relative_pose_error(T, prior)
                 radius = pg.gate_toward(p, T, prior, gate_m, cov)
-                if dt > radius or dr > p.prior_gate_deg:
+                if dt > radius or dr > p.prior_gate.deg:
                     attempts.append(CandidateAttempt(node, sim, att.matches, att.inliers,
                                                      f"inconsistent with the prior ({dt:.2f} m > {radius:.2f} m or "
                                                      f"{dr:.0f} deg)"))
                     continue
                 weak = res.n_inliers < floor
-                close = (dt <= p.confirm_skip_within_m and dr <= p.confirm_skip_within_deg
+                close = (dt <= p.confirm.skip_within_m and dr <= p.confirm.skip_within_deg
                          and pg.fresh(p, growth) and not weak)
-                need = p.refine.min_keyframes if (p.ll_confirm and not close) or weak else 1
+                need = p.refine.min_keyframes if (p.confirm.ll and not close) or weak else 1
                 joint = v.joint(node, T, q, [n for n, _ in cands], need)
                 if not joint.accepted and not weak:  # a weak one is refused below, saying so
                     attempts.append(CandidateAttempt(node, sim, att.matches, att.inliers,

@@ -58,37 +58,37 @@ def narrowed_gate(gate_m: float, start_m: float, sigmas: float, sigma_m: float) 
 
 def growth_m(p: LocalizationParams, age_s: float, fused: bool, travel_m: float | None = None) -> float:
     """How far the prior may have wandered in `age_s` (m): odometry drift for a fused prior (no
-    more than `prior_gate_drift_fused` of the odometry's path `travel_m` since the fix where that
+    more than `prior_gate.drift_fused` of the odometry's path `travel_m` since the fix where that
     is known: a robot at rest keeps its prior), the robot's top speed for the last VLoc pose."""
     if not fused:
-        return p.prior_gate_rate_mps * max(age_s, 0.0)
-    growth = p.prior_gate_rate_fused_mps * max(age_s, 0.0)
-    return growth if travel_m is None else min(growth, p.prior_gate_drift_fused * max(travel_m, 0.0))
+        return p.prior_gate.rate_mps * max(age_s, 0.0)
+    growth = p.prior_gate.rate_fused_mps * max(age_s, 0.0)
+    return growth if travel_m is None else min(growth, p.prior_gate.drift_fused * max(travel_m, 0.0))
 
 
 def fresh(p: LocalizationParams, growth: float) -> bool:
     """A prior fresh enough to stand in for a second keyframe (see `confirm_skip_*`)."""
-    return growth <= p.prior_gate_rate_mps * p.confirm_skip_max_age_s
+    return growth <= p.prior_gate.rate_mps * p.confirm.skip_max_age_s
 
 
 def gate_m(p: LocalizationParams, growth: float, fused: bool) -> float:
     """The prior gate's radius (m): its base (fused or last-pose prior) + the growth."""
-    return (p.prior_gate_fused_m if fused else p.prior_gate_m) + growth
+    return (p.prior_gate.fused_m if fused else p.prior_gate.radius_m) + growth
 
 
 def gate_toward(p: LocalizationParams, T: NDArray[np.float64], prior: NDArray[np.float64], radius_m: float,
                 cov: NDArray[np.float64] | None) -> float:
     """The prior gate's radius (m) toward the pose `T`: `radius_m`, or less where fusion's 3x3
     position covariance `cov` (m^2, map frame) of a fused prior says it is better known along
-    that direction: its start + `prior_gate_sigmas` sigmas."""
+    that direction: its start + `prior_gate.sigmas` sigmas."""
     d = np.asarray(T, np.float64)[:3, 3] - np.asarray(prior, np.float64)[:3, 3]
     if cov is None or not np.any(d):
         return radius_m
-    return narrowed_gate(radius_m, p.prior_gate_fused_m, p.prior_gate_sigmas, sigma_along(cov, d))
+    return narrowed_gate(radius_m, p.prior_gate.fused_m, p.prior_gate.sigmas, sigma_along(cov, d))
 
 
 def within_gate(p: LocalizationParams, T: NDArray[np.float64], prior: NDArray[np.float64], radius_m: float,
                 cov: NDArray[np.float64] | None = None) -> bool:
-    """The prior gate: within `gate_toward` and `prior_gate_deg`."""
+    """The prior gate: within `gate_toward` and `prior_gate.deg`."""
     dt, dr = relative_pose_error(T, prior)
-    return bool(dt <= gate_toward(p, T, prior, radius_m, cov) and dr <= p.prior_gate_deg)
+    return bool(dt <= gate_toward(p, T, prior, radius_m, cov) and dr <= p.prior_gate.deg)

@@ -105,7 +105,8 @@ class SecondLook:
         self.features = StoredImageFeatures(topomap.images_jpeg, extract, capacity)
         view = replace(topomap, features=self.features)
         # denser features also make wrong poses near a tracked one: LL's look stays closer to its prior
-        self.params = replace(params, prior_gate_m=min(params.prior_gate_m, params.second_look_prior_gate_m))
+        radius = min(params.prior_gate.radius_m, params.second_look.prior_gate_m)
+        self.params = replace(params, prior_gate=replace(params.prior_gate, radius_m=radius))
         # no look after this one, and no pooled pass (denser features need no pooling of weak candidates)
         verifier = CandidateVerifier(view, extract, describe, match, clock)
         self.local = LocalSearch(verifier, second_look=None, pooling=False)

@@ -1,10 +1,10 @@
 """The tracking state machine over GL and LL, and the hold of poses the prior cannot confirm.
 
 INIT -> GLOBAL (GL over the whole map) -> TRACKING (LL around the prior) -> LOST
-(`ll_failures_before_lost` LL failures in a row) -> GLOBAL on the next query, each transition
+(`local_search.failures_before_lost` LL failures in a row) -> GLOBAL on the next query, each transition
 recorded with its reason. A pose (GL, or LL from fusion's prior) that lies outside a fresh fused
 prior's gate, or that a stale prior cannot confirm, is held until a later frame repeats it
-(`repeat_within_s`, `repeat_within_m`).
+(`repeat.within_s`, `repeat.within_m`).
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ _CLOCK_JITTER_S = 1e-3  # timestamps that differ by less than this are the same 
 @dataclass(frozen=True)
 class HeldPose:
     """A GL or LL pose that its fused prior could not confirm (outside its gate, or the prior
-    too stale), held until a later frame repeats it (`LocalizationParams.repeat_within_s`, `repeat_within_m`):
+    too stale), held until a later frame repeats it (`LocalizationParams.repeat.within_s`, `repeat.within_m`):
     both 4x4 `T_map_camera`, stamp in ns; `inside_gate`: the pose lay inside the prior's gate."""
 
     t_ns: int
@@ -89,7 +89,7 @@ class Tracker:
                 self._go(t_ns, TrackingState.GLOBAL, "prior far from every map node")
             else:
                 self.failures += 1
-                if self.failures >= p.ll_failures_before_lost:
+                if self.failures >= p.local_search.failures_before_lost:
                     self._go(t_ns, TrackingState.LOST, f"{self.failures} consecutive LL failures")
                     self.failures = 0
                 return res
@@ -106,17 +106,17 @@ class Tracker:
     def hold_unless_repeated(self, res: LocalizationResult, prior: Prior) -> LocalizationResult:
         """An accepted result (GL, or LL with a fused prior) as it is when it lies inside the
         gate of a fresh fused prior (see `prior.fresh`) or repeats the held pose (see
-        `LocalizationParams.repeat_within_s`); otherwise it is held and the result says so
+        `LocalizationParams.repeat.within_s`); otherwise it is held and the result says so
         (not accepted)."""
         p = self.params
-        if p.repeat_within_s <= 0 or res.T_map_camera is None:
+        if p.repeat.within_s <= 0 or res.T_map_camera is None:
             return res
         T = np.asarray(res.T_map_camera, np.float64)
         T_prior = np.asarray(prior.T_map_camera, np.float64)
         growth = pg.growth_m(p, prior.age_s, True, prior.travel_m)
         gate = pg.gate_toward(p, T, T_prior, pg.gate_m(p, growth, fused=True), prior.cov)
         dt, dr = relative_pose_error(T, T_prior)
-        inside, fresh = dt <= gate and dr <= p.prior_gate_deg, pg.fresh(p, growth)
+        inside, fresh = dt <= gate and dr <= p.prior_gate.deg, pg.fresh(p, growth)
         if inside and fresh:
             self.held = None
             return res
@@ -127,14 +127,14 @@ class Tracker:
             carried = np.linalg.inv(held.prior_T_map_camera) @ T_prior
             # a robot that stayed put may wait any time for the repeat (GL takes 20 s on a loaded
             # computer); the odometry's drift grows with its motion then, not with the time
-            still = float(np.linalg.norm(carried[:3, 3])) <= p.repeat_within_m
+            still = float(np.linalg.norm(carried[:3, 3])) <= p.repeat.within_m
             # the window includes its end up to the clock's jitter (frames 1.0 s apart by a camera's clock)
-            in_window = 0 < dt_s <= p.repeat_within_s + _CLOCK_JITTER_S
+            in_window = 0 < dt_s <= p.repeat.within_s + _CLOCK_JITTER_S
             if in_window or (dt_s > 0 and still):
                 expected = held.T_map_camera @ carried
                 et, er = relative_pose_error(T, expected)
-                tol = p.prior_gate_fused_m + p.prior_gate_rate_fused_mps * min(dt_s, p.repeat_within_s)
-                if et <= tol and er <= p.repeat_deg:
+                tol = p.prior_gate.fused_m + p.prior_gate.rate_fused_mps * min(dt_s, p.repeat.within_s)
+                if et <= tol and er <= p.repeat.deg:
                     self.held = None
                     return replace(res, stop_reason=f"{res.stop_reason}; repeats the pose held {dt_s:.2f} s "
                                    f"before ({et:.2f} m, {er:.1f} deg), {gate:.2f} m gate of the prior")
@@ -144,7 +144,7 @@ class Tracker:
                 kind = QueryRefusal.HELD_ELSEWHERE
                 return refused(res, kind, refusal_text(kind, dt_m=dt, dr_deg=dr, gate_m=gate, dt_s=dt_s))
         self.held = HeldPose(res.t_ns, T, T_prior, inside)
-        why = (f"{dt:.2f} m / {dr:.0f} deg from the prior, outside its gate ({gate:.2f} m, {p.prior_gate_deg:g} deg)"
+        why = (f"{dt:.2f} m / {dr:.0f} deg from the prior, outside its gate ({gate:.2f} m, {p.prior_gate.deg:g} deg)"
                if not inside else f"the prior is {prior.age_s:.1f} s past its last fix"
                + ("" if prior.travel_m is None else f" and {prior.travel_m:.1f} m of odometry")
                + ", too old to confirm it")

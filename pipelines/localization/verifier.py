@@ -75,9 +75,9 @@ class CandidateVerifier:
     def verify_local(self, node: int, q: Query, similarity: float, guided_prior: NDArray[np.float64] | None,
                      pnp_params: LocalizationParams) -> tuple[PnpResult | None, CandidateAttempt]:
         """`verify`, first on matches guided by a fresh prior when given (see
-        `LocalizationParams.ll_guided_min_matches`); the matcher's when those are too few or
+        `LocalizationParams.local_search.guided_min_matches`); the matcher's when those are too few or
         their PnP fails."""
-        if guided_prior is not None and q.try_guided(node, guided_prior, q.params.ll_guided_min_matches):
+        if guided_prior is not None and q.try_guided(node, guided_prior, q.params.local_search.guided_min_matches):
             res, att = self.verify(node, q, similarity, pnp_params)
             if res is not None and res.accepted:
                 return res, att
@@ -107,7 +107,7 @@ class CandidateVerifier:
         live_pts = q.points()[i_live]  # live camera frame, NaN without depth
         kf_px = np.asarray(self.map.features[node].keypoints, dtype=np.float64).reshape(-1, 2)[i_ref]
         live_px = np.asarray(q.feats.keypoints, dtype=np.float64).reshape(-1, 2)[i_live]
-        z_kf = self.map.keypoint_depth(node) if q.params.verify_map_depth else None
+        z_kf = self.map.keypoint_depth(node) if q.params.verify.map_depth else None
         kf_pts = (backproject_pixels(self.map.K[node], kf_px, np.asarray(z_kf, np.float64)[i_ref])
                   if z_kf is not None else np.full((len(i_ref), 3), np.nan))
         with np.errstate(invalid="ignore", divide="ignore"):

@@ -38,16 +38,16 @@ from litevloc.pipelines.topomap.types import TopoMap
 class VisualLocalizer:
     """GL + LL against one map with injected model callables (no I/O, no threads), and the
     tracking state machine over them (`tracker`); `second_look`: the full-resolution look
-    (needed where `second_look_candidates` > 0)."""
+    (needed where `second_look.candidates` > 0)."""
 
     def __init__(
         self, topomap: TopoMap, params: LocalizationParams, extract: ExtractFn, describe: DescribeFn, match: MatchFn,
         clock: Clock = time.perf_counter, second_look: SecondLookFn | None = None,
     ) -> None:
-        if params.second_look_candidates > 0 and second_look is None:
-            raise ConfigError("localization.second_look_candidates > 0 needs the second look's models; this command "
+        if params.second_look.candidates > 0 and second_look is None:
+            raise ConfigError("localization.second_look.candidates > 0 needs the second look's models; this command "
                               "does not load them: set it to 0 here")
-        look = second_look if params.second_look_candidates > 0 else None
+        look = second_look if params.second_look.candidates > 0 else None
         self.params = params
         self.verifier = CandidateVerifier(topomap, extract, describe, match, clock)
         self.local_search = LocalSearch(self.verifier, look)

@@ -3,18 +3,16 @@
 The accepted candidate is judged against the other candidates' PnP poses (`distinct`): the
 candidates verified so far, then the later ones worth verifying (`rivals_to_verify`), one at a
 time, each skipped where PnP on its re-ranking matches (no model run) puts the camera at the
-accepted pose's place (`gl_distinct_screen`).
+accepted pose's place (`distinctiveness.screen`).
 """
 
 from __future__ import annotations
 
-from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.base.params.localization import LocalizationParams
 from litevloc.pipelines.localization.distinct import (
     VerifiedPose,
     ambiguity,
@@ -30,35 +28,27 @@ if TYPE_CHECKING:
     from litevloc.pipelines.localization.verifier import CandidateVerifier
 
 
-def gl_params(p: LocalizationParams, trusted_prior: bool) -> LocalizationParams:
-    """The parameters GL's PnP verifies its candidates with: PnP's inlier floor lowered to
-    `gl_distinct_min_inliers` where the check will judge the pose (on, and no trusted prior),
-    else `p`."""
-    if p.gl_distinct_ratio <= 0 or p.gl_distinct_min_inliers <= 0 or trusted_prior:
-        return p
-    return replace(p, pnp=replace(p.pnp, min_inliers=p.gl_distinct_min_inliers))
-
-
 def ambiguous(verifier: CandidateVerifier, winner: int, res: PnpResult, joint: RefineResult, q: Query,
               later: NDArray[np.int64], sims: NDArray[np.float32], verified: list[VerifiedPose]) -> str:
     """The check of the GL pose `joint.T_map_camera` verified through `winner` (`res` its PnP),
     under the query's parameters: the refusal reason when a candidate at another place has at
-    least 1/`gl_distinct_ratio` of its inliers, else ''. Judged on `verified` (the candidates
+    least 1/`distinctiveness.ratio` of its inliers, else ''. Judged on `verified` (the candidates
     verified so far), then on the `rivals_to_verify` among the `later` candidates one at a time
     (appended to `verified`), stopping once a rival decides."""
     p = q.params
-    if p.gl_distinct_ratio <= 0:
+    if p.distinctiveness.ratio <= 0:
         return ""
     t0 = verifier.clock()
-    more = rivals_to_verify([int(n) for n in later], q.rerank_counts, winner, p.gl_distinct_ratio,
-                            p.gl_distinct_max_rivals)
+    more = rivals_to_verify([int(n) for n in later], q.rerank_counts, winner, p.distinctiveness.ratio,
+                            p.distinctiveness.max_rivals)
     amb = ""
     for node in [None, *more]:
-        if node is not None and not (p.gl_distinct_screen and _same_place_unmatched(verifier, node, q, joint)):
+        if node is not None and not (p.distinctiveness.screen and _same_place_unmatched(verifier, node, q, joint)):
             verifier.verify_global(node, q, float(sims[node]), verified)
-        rival = strongest_rival(joint.T_map_camera, [v for v in verified if v.node != winner], p.gl_distinct_m,
-                                p.gl_distinct_deg)
-        amb = ambiguity(winner, res.n_inliers, rival, p.gl_distinct_ratio)
+        others = [v for v in verified if v.node != winner]
+        rival = strongest_rival(joint.T_map_camera, others, p.distinctiveness.apart_m,
+                                p.distinctiveness.apart_deg)
+        amb = ambiguity(winner, res.n_inliers, rival, p.distinctiveness.ratio)
         if amb:
             break
     q.timer.add("distinct", t0)
@@ -79,5 +69,5 @@ def _same_place_unmatched(verifier: CandidateVerifier, node: int, q: Query, join
     q.timer.add("distinct_screen", t0)
     if res is None or not res.accepted or res.T_target_source is None:
         return False
-    return same_place(m.T_map_camera[node] @ res.T_target_source, joint.T_map_camera, p.gl_distinct_m,
-                      p.gl_distinct_deg)
+    return same_place(m.T_map_camera[node] @ res.T_target_source, joint.T_map_camera, p.distinctiveness.apart_m,
+                      p.distinctiveness.apart_deg)

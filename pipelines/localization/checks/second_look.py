@@ -35,10 +35,10 @@ class SecondLookFn(Protocol):
 def look_again(second_look: SecondLookFn, p: LocalizationParams, res: LocalizationResult, frame: Frame,
                prior: Prior | None, local: bool = False) -> LocalizationResult:
     """The refused GL (or LL: `local`) result `res` after the second look at the candidates
-    `second_look_nodes` picks from its attempts (`second_look_candidates`, `second_look_from_inliers`):
+    `second_look_nodes` picks from its attempts (`second_look.candidates`, `second_look.from_inliers`):
     its result where it accepts, else `res`; either way with both looks' attempts and time
     ("second_look" ms, in "total")."""
-    nodes = second_look_nodes(res.attempts, p.second_look_candidates, p.second_look_from_inliers)
+    nodes = second_look_nodes(res.attempts, p.second_look.candidates, p.second_look.from_inliers)
     if not nodes:
         return res
     look = second_look(res.t_ns, *frame, nodes, prior, local=local)

@@ -7,7 +7,7 @@ camera sees farther: free space through a mapped surface. A pose verified on one
 thin structure (leaflets on two shelves) puts many of the keyframes' other points there.
 Across a wide view change a right pose can miss by 10-20 cm along the view and see through
 too: a pose that does is moved onto the live depth (`depth_align`) and accepted where the move
-is small (`second_look_align_m`, `second_look_align_deg`) and the moved pose keeps under half
+is small (`see_through.align_m`, `see_through.align_deg`) and the moved pose keeps under half
 the see-through limit; its covariance grows by the move.
 """
 
@@ -84,16 +84,16 @@ def sees_through_reason(points_map: NDArray[np.float64], T_map_live: NDArray[np.
 def moved_onto_live_depth(res: LocalizationResult, points_map: NDArray[np.float64], K: NDArray[np.float64],
                           depth: NDArray[np.floating], p: LocalizationParams) -> LocalizationResult | None:
     """`res` with its pose moved onto the live depth (`align_to_live_depth` of its keyframes'
-    (N, 3) map points) where the move is within `second_look_align_m` / `_deg` and the moved
-    pose keeps under half of `second_look_max_see_through` in front of the live depth (it was
+    (N, 3) map points) where the move is within `see_through.align_m` / `_deg` and the moved
+    pose keeps under half of `see_through.max_share` in front of the live depth (it was
     fitted to that depth: what still lies in front counts against it), its covariance grown by
     the move; None otherwise."""
-    if p.second_look_align_m <= 0 or res.T_map_camera is None:
+    if p.see_through.align_m <= 0 or res.T_map_camera is None:
         return None
     a = align_to_live_depth(points_map, res.T_map_camera, K, depth)
-    if a is None or a.shift_m > p.second_look_align_m or a.shift_deg > p.second_look_align_deg:
+    if a is None or a.shift_m > p.see_through.align_m or a.shift_deg > p.see_through.align_deg:
         return None
-    if sees_through_reason(points_map, a.T_map_live, K, depth, p.second_look_max_see_through / 2):
+    if sees_through_reason(points_map, a.T_map_live, K, depth, p.see_through.max_share / 2):
         return None
     cov = res.covariance
     if cov is not None:  # the pose is known no better than the move the live depth asked for
@@ -107,12 +107,12 @@ def moved_onto_live_depth(res: LocalizationResult, points_map: NDArray[np.float6
 def checked_against_live_depth(topomap: TopoMap, res: LocalizationResult, K: NDArray[np.float64],
                                depth: NDArray[np.floating] | None, p: LocalizationParams) -> LocalizationResult:
     """The accepted `res` as it is where its pose does not see through `topomap` (its keyframes'
-    stored points against the live `depth`, `second_look_max_see_through`), moved onto the live
+    stored points against the live `depth`, `see_through.max_share`), moved onto the live
     depth where that is small enough (`moved_onto_live_depth`), else refused saying why."""
     if not res.accepted or res.T_map_camera is None or depth is None:
         return res
     points = keyframe_points(topomap, list(res.keyframes))
-    why = sees_through_reason(points, res.T_map_camera, K, depth, p.second_look_max_see_through)
+    why = sees_through_reason(points, res.T_map_camera, K, depth, p.see_through.max_share)
     if why and (moved := moved_onto_live_depth(res, points, K, depth, p)) is not None:
         return moved
     if not why:

@@ -36,8 +36,8 @@ def support_height_spread(verifier: CandidateVerifier, node: int, res: PnpResult
 
 def flat_support(verifier: CandidateVerifier, node: int, res: PnpResult, q: Query) -> str:
     """The refusal reason when a GL pose rests on one horizontal plane only (see
-    `LocalizationParams.gl_min_support_height_m`, the query's), else ''."""
-    need = q.params.gl_min_support_height_m
+    `LocalizationParams.support.min_height_m`, the query's), else ''."""
+    need = q.params.support.min_height_m
     if need <= 0:
         return ""
     spread = support_height_spread(verifier, node, res, q)

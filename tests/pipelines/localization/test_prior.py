@@ -22,12 +22,12 @@ def test_a_prior_checks_its_covariance() -> None:
 
 
 def test_the_gate_grows_with_the_odometry_for_a_fused_prior_and_with_speed_for_the_last_pose() -> None:
-    assert pg.growth_m(P, 5.0, fused=False) == pytest.approx(P.prior_gate_rate_mps * 5.0)
-    assert pg.growth_m(P, 5.0, fused=True) == pytest.approx(P.prior_gate_rate_fused_mps * 5.0)
+    assert pg.growth_m(P, 5.0, fused=False) == pytest.approx(P.prior_gate.rate_mps * 5.0)
+    assert pg.growth_m(P, 5.0, fused=True) == pytest.approx(P.prior_gate.rate_fused_mps * 5.0)
     # at rest (no odometry travel) a fused prior keeps its gate
     assert pg.growth_m(P, 5.0, fused=True, travel_m=0.0) == 0.0
-    assert pg.gate_m(P, 0.1, fused=True) == pytest.approx(P.prior_gate_fused_m + 0.1)
-    assert pg.gate_m(P, 0.1, fused=False) == pytest.approx(P.prior_gate_m + 0.1)
+    assert pg.gate_m(P, 0.1, fused=True) == pytest.approx(P.prior_gate.fused_m + 0.1)
+    assert pg.gate_m(P, 0.1, fused=False) == pytest.approx(P.prior_gate.radius_m + 0.1)
     assert pg.fresh(P, 0.0) and not pg.fresh(P, 10.0)
 
 
@@ -35,7 +35,7 @@ def test_the_covariance_narrows_the_gate_along_the_direction_it_knows() -> None:
     T = np.eye(4)
     T[0, 3] = 0.5
     tight_x = np.diag([0.05**2, 0.3**2, 0.3**2])
-    assert pg.gate_toward(P, T, np.eye(4), 1.0, tight_x) == pytest.approx(P.prior_gate_fused_m + 3 * 0.05)
+    assert pg.gate_toward(P, T, np.eye(4), 1.0, tight_x) == pytest.approx(P.prior_gate.fused_m + 3 * 0.05)
     assert pg.gate_toward(P, T, np.eye(4), 1.0, None) == 1.0
     assert not pg.within_gate(P, T, np.eye(4), 1.0, tight_x) and pg.within_gate(P, T, np.eye(4), 1.0)
 

@@ -15,7 +15,16 @@ import pytest
 from numpy.typing import NDArray
 
 from litevloc.base import geometry as g
-from litevloc.base.params.localization import LocalizationParams, PnpParams
+from litevloc.base.params.localization import (
+    GlobalSearchParams,
+    LocalizationParams,
+    LocalSearchParams,
+    PassesParams,
+    PnpParams,
+    RepeatParams,
+    SecondLookParams,
+    SupportParams,
+)
 from litevloc.pipelines.depth_lookup import depth_at
 from litevloc.pipelines.localization.global_search import gl_budget_ms
 from litevloc.pipelines.localization.passes import weak
@@ -125,8 +134,9 @@ IMG = np.zeros((H, W, 3), np.uint8)
 # (a broken node is modelled by the matcher's output: LL matching guided by a fresh prior,
 # which would not call it, is off here and tested on its own below)
 # no full-resolution second look here (tests/pipelines/localization/test_second_look.py)
-PARAMS = LocalizationParams(pnp=PnpParams(min_inliers=30), gl_top_k=3, ll_guided_min_matches=0,
-                            second_look_candidates=0)
+PARAMS = LocalizationParams(pnp=PnpParams(min_inliers=30), global_search=GlobalSearchParams(top_k=3),
+                            local_search=LocalSearchParams(guided_min_matches=0),
+                            second_look=SecondLookParams(candidates=0))
 
 
 def test_global_localization_exact() -> None:
@@ -219,7 +229,8 @@ def test_joint_refinement_uses_several_keyframes_and_matches_each_once() -> None
         return s.match(a, b)
 
     # candidates in VPR order (the re-ordering by mutual neighbours has its own test)
-    loc = VisualLocalizer(m, replace(PARAMS, gl_rerank=False), s.extract, s.describe, counting_match)
+    loc = VisualLocalizer(m, replace(PARAMS, global_search=replace(PARAMS.global_search, rerank=False)), s.extract,
+                          s.describe, counting_match)
     T_true = pose(1.3, 5.0)
     r = loc.localize_global(0, IMG, s.look(T_true, vpr_best=1), K)
     assert r.accepted and len(r.keyframes) >= 2 and r.ref_node == 1  # the first VPR candidate that passes
@@ -234,7 +245,8 @@ def test_gl_time_budget_stops_the_search_and_says_so() -> None:
     m = make_map([0.0, 1.0, 2.0])
     s = Scene(m)
     s.broken_nodes = {0, 1, 2}
-    slow = replace(PARAMS, ll_guided_min_matches=60, gl_time_budget_ms=1e-6)
+    slow = replace(PARAMS, local_search=replace(PARAMS.local_search, guided_min_matches=60),
+                   global_search=replace(PARAMS.global_search, time_budget_ms=1e-6))
     loc = VisualLocalizer(m, slow, s.extract, s.describe, s.match)
     r = loc.localize_global(0, IMG, s.look(pose(1.0), 1), K)
     # one candidate is always verified; the next would overrun the budget
@@ -244,7 +256,7 @@ def test_gl_time_budget_stops_the_search_and_says_so() -> None:
     r = loc.localize_global(0, IMG, s.look(pose(1.0), 1), K)
     assert not r.accepted and r.stop_reason == "all 3 VPR candidates tried" and len(r.attempts) == 3
     with pytest.raises(ValueError):
-        LocalizationParams(gl_time_budget_ms=-1)
+        LocalizationParams(global_search=GlobalSearchParams(time_budget_ms=-1))
 
 
 def test_gl_candidates_are_tried_in_order_of_shared_mutual_neighbours() -> None:
@@ -252,7 +264,8 @@ def test_gl_candidates_are_tried_in_order_of_shared_mutual_neighbours() -> None:
     s = Scene(m)
     # VPR ranks node 0 first, but the live frame shares its features with node 2
     depth = s.look(pose(2.0), vpr_best=0)
-    off = VisualLocalizer(m, replace(PARAMS, gl_rerank=False), s.extract, s.describe, s.match)
+    off = VisualLocalizer(m, replace(PARAMS, global_search=replace(PARAMS.global_search, rerank=False)), s.extract,
+                          s.describe, s.match)
     r = off.localize_global(0, IMG, depth, K)
     assert r.attempts[0].node == 0
     on = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)
@@ -260,8 +273,8 @@ def test_gl_candidates_are_tried_in_order_of_shared_mutual_neighbours() -> None:
     assert r.accepted and r.ref_node == 2 and [a.node for a in r.attempts] == [2] and "rerank" in r.timings_ms
     # the nearer the keyframe, the more it shares: node 2 (0 m), 3 (1 m), 0 (2 m)
     assert on.global_search._rerank(on.params, np.array([0, 3, 2]), _query(on, depth)).tolist() == [2, 3, 0]
-    with pytest.raises(ValueError, match="gl_rerank_min_similarity"):
-        LocalizationParams(gl_rerank_min_similarity=1.5)
+    with pytest.raises(ValueError, match="rerank_min_similarity"):
+        LocalizationParams(global_search=GlobalSearchParams(rerank_min_similarity=1.5))
 
 
 def _query(loc: VisualLocalizer, depth: NDArray[np.float32]) -> Query:
@@ -296,15 +309,17 @@ def test_recovering_gl_is_bounded_by_the_ll_cost() -> None:
     loc.tracker.ll_wall_ms.extend([100.0] * 30 + [1000.0] * 20)
     assert gl_budget_ms(loc.params, loc.tracker.ll_wall_ms) == 200.0
     assert gl_budget_ms(loc.params, loc.tracker.ll_wall_ms, nominal_ll_ms=80.0) == 160.0  # the lower of the two
-    assert gl_budget_ms(replace(PARAMS, gl_time_budget_ms=50.0), []) == 50.0
-    both = VisualLocalizer(m, replace(PARAMS, gl_time_budget_ms=500.0), s.extract, s.describe, s.match)
+    assert gl_budget_ms(replace(PARAMS, global_search=replace(PARAMS.global_search, time_budget_ms=50.0)), []) == 50.0
+    both = VisualLocalizer(m, replace(PARAMS, global_search=replace(PARAMS.global_search, time_budget_ms=500.0)),
+                           s.extract, s.describe, s.match)
     both.tracker.ll_wall_ms.append(100.0)
     assert gl_budget_ms(both.params, both.tracker.ll_wall_ms) == 200.0
-    free = VisualLocalizer(m, replace(PARAMS, lost_cost_ratio=0.0), s.extract, s.describe, s.match)
+    free = VisualLocalizer(m, replace(PARAMS, global_search=replace(PARAMS.global_search, lost_cost_ratio=0.0)),
+                           s.extract, s.describe, s.match)
     free.tracker.ll_wall_ms.append(100.0)
     assert gl_budget_ms(free.params, free.tracker.ll_wall_ms) == 0.0
     with pytest.raises(ValueError, match="lost_cost_ratio"):
-        LocalizationParams(lost_cost_ratio=-1)
+        LocalizationParams(global_search=GlobalSearchParams(lost_cost_ratio=-1))
 
 
 def test_accepted_results_carry_the_matched_pixels_with_inliers_marked() -> None:
@@ -346,7 +361,7 @@ def test_place_seen_by_one_keyframe_is_provisional_until_a_prior_agrees() -> Non
     depth = s.look(T_true, vpr_best=0)
     r = loc.localize_global(0, IMG, depth, K)
     assert not r.accepted and r.T_map_camera is None and r.provisional is not None
-    assert r.provisional.node == 0 and r.provisional.n_inliers >= PARAMS.gl_vote_min_inliers
+    assert r.provisional.node == 0 and r.provisional.n_inliers >= PARAMS.global_search.vote_min_inliers
     dt, dr = g.relative_pose_error(r.provisional.T_map_camera, T_true)
     assert dt < 0.01 and dr < 0.5
     assert r.provisional.covariance.shape == (6, 6)
@@ -366,11 +381,13 @@ def test_place_seen_by_one_keyframe_is_provisional_until_a_prior_agrees() -> Non
     dt, _ = g.relative_pose_error(acc.T_map_camera, T_true)
     assert dt < 0.01
     # too few inliers for a vote, or votes disabled: nothing provisional
-    for p in (replace(PARAMS, gl_vote_min_inliers=0), replace(PARAMS, gl_vote_min_inliers=100_000)):
+    votes = PARAMS.global_search
+    for p in (replace(PARAMS, global_search=replace(votes, vote_min_inliers=0)),
+              replace(PARAMS, global_search=replace(votes, vote_min_inliers=100_000))):
         r0 = VisualLocalizer(m, p, s.extract, s.describe, s.match).localize_global(0, IMG, depth, K, Prior(pose(0.3)))
         assert not r0.accepted and r0.provisional is None
-    with pytest.raises(ValueError, match="gl_vote_min_inliers"):
-        LocalizationParams(gl_vote_min_inliers=-1)
+    with pytest.raises(ValueError, match="vote_min_inliers"):
+        LocalizationParams(global_search=GlobalSearchParams(vote_min_inliers=-1))
 
 
 def test_fused_prior_gate_grows_with_odometry_drift_not_speed() -> None:
@@ -423,7 +440,8 @@ def test_gl_refuses_a_pose_resting_on_the_floor_alone(monkeypatch: pytest.Monkey
     res = loc.localize_global(0, IMG, depth, K)
     assert not res.accepted and res.provisional is None
     assert any("one horizontal plane" in a.reason for a in res.attempts), res.attempts
-    off = VisualLocalizer(m, replace(PARAMS, ll_guided_min_matches=60, gl_min_support_height_m=0.0),
+    off = VisualLocalizer(m, replace(PARAMS, local_search=replace(PARAMS.local_search, guided_min_matches=60),
+                                     support=replace(PARAMS.support, min_height_m=0.0)),
                           s.extract, s.describe, s.match)
     res = off.localize_global(0, IMG, depth, K)
     assert res.accepted and res.T_map_camera is not None
@@ -431,8 +449,8 @@ def test_gl_refuses_a_pose_resting_on_the_floor_alone(monkeypatch: pytest.Monkey
 
 
 def test_support_height_spread_parameter_is_validated() -> None:
-    with pytest.raises(ValueError, match="gl_min_support_height_m"):
-        LocalizationParams(gl_min_support_height_m=-0.1)
+    with pytest.raises(ValueError, match="min_height_m"):
+        LocalizationParams(support=SupportParams(min_height_m=-0.1))
 
 
 def test_local_matching_guided_by_a_fresh_prior() -> None:
@@ -446,7 +464,7 @@ def test_local_matching_guided_by_a_fresh_prior() -> None:
         calls[0] += 1
         return s.match(a, b)
 
-    guided = replace(PARAMS, ll_guided_min_matches=60)
+    guided = replace(PARAMS, local_search=replace(PARAMS.local_search, guided_min_matches=60))
     loc = VisualLocalizer(m, guided, s.extract, s.describe, counting)
     T_true = pose(2.1, 3.0)
     depth = s.look(T_true, vpr_best=2)
@@ -517,14 +535,15 @@ def test_gl_pose_outside_the_prior_gate_is_held_until_a_later_frame_repeats_it()
     assert not rest.process(0, IMG, s.look(pose(1.0), 1), K, Prior(pose(3.0))).accepted
     assert not rest.process(40 * sec, IMG, s.look(pose(1.8), 1), K, Prior(pose(3.0))).accepted
     # off: accepted at once, as before
-    off = VisualLocalizer(m, replace(PARAMS, repeat_within_s=0.0), s.extract, s.describe, s.match)
+    off = VisualLocalizer(m, replace(PARAMS, repeat=replace(PARAMS.repeat, within_s=0.0)), s.extract, s.describe,
+                          s.match)
     assert off.process(0, IMG, s.look(pose(1.0), 1), K, Prior(pose(3.0))).accepted
-    with pytest.raises(ValueError, match="repeat_"):
-        LocalizationParams(repeat_within_s=-1.0)
-    with pytest.raises(ValueError, match="repeat_"):
-        LocalizationParams(repeat_deg=0.0)
-    with pytest.raises(ValueError, match="repeat_"):
-        LocalizationParams(repeat_within_m=-0.1)
+    with pytest.raises(ValueError, match="within_s and within_m"):
+        LocalizationParams(repeat=RepeatParams(within_s=-1.0))
+    with pytest.raises(ValueError, match="within_s and within_m"):
+        LocalizationParams(repeat=RepeatParams(deg=0.0))
+    with pytest.raises(ValueError, match="within_s and within_m"):
+        LocalizationParams(repeat=RepeatParams(within_m=-0.1))
 
 
 def _aliased_map() -> TopoMap:
@@ -553,7 +572,8 @@ def test_gl_pose_at_a_copy_of_the_place_gives_way_to_the_priors_place() -> None:
 
     truth = [pose(0.3), pose(0.6)]
     for check, want_x in ((True, 0.0), (False, 10.0)):
-        loc = VisualLocalizer(m, replace(PARAMS, gl_check_prior_place=check), s.extract, s.describe, s.match)
+        loc = VisualLocalizer(m, replace(PARAMS, global_search=replace(PARAMS.global_search, check_prior_place=check)),
+                              s.extract, s.describe, s.match)
         first = loc.process(1 * sec, IMG, look_copies_first(truth[0]), K, Prior(pose(0.35), 10.0))
         assert not first.accepted and "held until a later frame repeats it" in first.reason
         r = loc.process(2 * sec, IMG, look_copies_first(truth[1]), K, Prior(pose(0.65), 11.0))
@@ -639,7 +659,7 @@ def matching_25_with_depth(s: Scene, depth: NDArray[np.float32]) -> Callable[[Fe
 
 def test_a_weak_candidate_counts_only_when_its_keyframes_together_reach_the_inlier_floor() -> None:
     """The matcher finds 25 matches per keyframe (a wide view angle), under PnP's floor of 30.
-    With `pooled_min_inliers` 20, a second pass lets the candidate reach the joint refinement,
+    With `passes.pooled_min_inliers` 20, a second pass lets the candidate reach the joint refinement,
     whose keyframes together explain far more: GL and LL accept the true pose. Alone (a
     one-keyframe map) it is refused, even beside an agreeing fresh prior, and never becomes a
     provisional vote."""
@@ -648,11 +668,12 @@ def test_a_weak_candidate_counts_only_when_its_keyframes_together_reach_the_inli
     T_true = pose(1.3, 5.0)
     depth = s.look(T_true, vpr_best=1)
     few = matching_25_with_depth(s, depth)
-    off = VisualLocalizer(m, replace(PARAMS, pooled_min_inliers=0), s.extract, s.describe, few)
+    off = VisualLocalizer(m, replace(PARAMS, passes=replace(PARAMS.passes, pooled_min_inliers=0)), s.extract,
+                          s.describe, few)
     assert not off.localize_global(0, IMG, depth, K).accepted
     assert not off.localize_local(0, IMG, depth, K, Prior(pose(1.4, 5.0), fused=False)).accepted
     pooled = PARAMS  # pooled_min_inliers 20 by default
-    assert pooled.pooled_min_inliers == 20
+    assert pooled.passes.pooled_min_inliers == 20
     on = VisualLocalizer(m, pooled, s.extract, s.describe, few)
     near = Prior(pose(1.4, 5.0), fused=False)
     for r in (on.localize_global(0, IMG, depth, K), on.localize_local(0, IMG, depth, K, near)):
@@ -663,7 +684,7 @@ def test_a_weak_candidate_counts_only_when_its_keyframes_together_reach_the_inli
         assert dt < 0.01 and dr < 0.5
     # a frame the strong candidates localize is localized by them alone: the same pose either way
     full = [VisualLocalizer(m, p, s.extract, s.describe, s.match).localize_global(0, IMG, depth, K)
-            for p in (replace(PARAMS, pooled_min_inliers=0), pooled)]
+            for p in (replace(PARAMS, passes=replace(PARAMS.passes, pooled_min_inliers=0)), pooled)]
     assert all(r.accepted for r in full) and np.array_equal(full[0].T_map_camera, full[1].T_map_camera)
     assert "pooled" not in full[1].stop_reason
     m1 = make_map([0.0])
@@ -678,7 +699,7 @@ def test_a_weak_candidate_counts_only_when_its_keyframes_together_reach_the_inli
         assert (r.attempts[0].refusal, r.attempts[0].matches) == (Refusal.MATCHES, 25)
         assert r.attempts[-1].refusal is Refusal.INLIERS and 20 <= r.attempts[-1].inliers < 30
     with pytest.raises(ValueError, match="pooled_min_inliers"):
-        LocalizationParams(pooled_min_inliers=2)
+        LocalizationParams(passes=PassesParams(pooled_min_inliers=2))
 
 
 def test_a_weak_candidate_is_known_by_its_refusal_kind_not_by_the_wording_of_its_reason() -> None:
