@@ -27,11 +27,14 @@ from litevloc.base.params.localization import LocalizationParams
 from litevloc.pipelines.guided_matching import mutual_nn_pairs
 from litevloc.pipelines.localization import prior as pg
 from litevloc.pipelines.localization.checks.distinctiveness import ambiguous
-from litevloc.pipelines.localization.checks.joint import single_keyframe
+from litevloc.pipelines.localization.checks.joint import JointCheck, single_keyframe
+from litevloc.pipelines.localization.checks.pnp import PnpCheck
+from litevloc.pipelines.localization.checks.pooled import PooledCheck
 from litevloc.pipelines.localization.checks.second_look import SecondLookFn, look_again
+from litevloc.pipelines.localization.checks.support import SupportCheck
 from litevloc.pipelines.localization.distinct import VerifiedPose
 from litevloc.pipelines.localization.local_search import LocalSearch
-from litevloc.pipelines.localization.passes import pooled, pooled_short, with_pooled, with_second_passes
+from litevloc.pipelines.localization.passes import pooled, with_pooled, with_second_passes
 from litevloc.pipelines.localization.prior import Prior
 from litevloc.pipelines.localization.query import Query, StageTimer
 from litevloc.pipelines.localization.refusals import QueryRefusal, refusal_text
@@ -140,6 +143,11 @@ class GlobalSearch:
         evidence: list[VerifiedPose] = []  # every candidate's PnP pose, for the distinctiveness check
         trusted = prior is not None and pg.fresh(p, growth)
         floor = p.pnp.min_inliers  # a weaker candidate passes only pooled (see `passes.pooled_short`)
+        min_kf = p.refine.min_keyframes
+        checks = [PnpCheck(v, pooled(p), evidence=evidence), SupportCheck(v),
+                  JointCheck(v, [int(n) for n in order], lambda c, weak: min_kf if p.confirm.gl or weak else 1, floor,
+                             refuse=False),
+                  PooledCheck(floor, min_kf)]
         budget = p.global_search.time_budget_ms
         candidates_ms = 0.0  # verification time (match, PnP, joint refinement) of the candidates so far
         for k, node in enumerate(int(n) for n in order):
@@ -152,19 +160,13 @@ class GlobalSearch:
                         f"{ahead:.0f} ms per candidate, after {k} of {len(order)} candidates")
                 break
             t_cand = v.clock()
-            res, att = v.verify_global(node, q, float(sims[node]), evidence, pooled(p))
-            if res is None or not res.accepted or res.T_target_source is None:
-                attempts.append(att)
-                candidates_ms += (v.clock() - t_cand) * 1e3
-                continue
-            T = v.map.T_map_camera[node] @ res.T_target_source
-            weak = res.n_inliers < floor
-            joint = v.joint(node, T, q, [int(n) for n in order], p.refine.min_keyframes if p.confirm.gl or weak else 1)
+            c, refused_by = v.run(node, float(sims[node]), q, checks)
             candidates_ms += (v.clock() - t_cand) * 1e3
-            short = pooled_short(res, joint, floor, p.refine.min_keyframes)
-            if short:
-                attempts.append(replace(att, reason=short, refusal=Refusal.INLIERS))
+            if refused_by is not None:
+                attempts.append(refused_by)
                 continue
+            res, att, joint = c.res, c.attempt, c.joint
+            assert res is not None and att is not None and joint is not None
             if joint.accepted:
                 attempts.append(att)
                 best = (node, res, joint)

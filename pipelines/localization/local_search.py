@@ -19,14 +19,17 @@ from numpy.typing import NDArray
 from litevloc.base.geometry import check_rigid, relative_pose_error
 from litevloc.base.params.localization import LocalizationParams
 from litevloc.pipelines.localization import prior as pg
+from litevloc.pipelines.localization.checks.joint import JointCheck
+from litevloc.pipelines.localization.checks.pnp import PnpCheck
+from litevloc.pipelines.localization.checks.pooled import PooledCheck
+from litevloc.pipelines.localization.checks.prior_gate import PriorGateCheck
 from litevloc.pipelines.localization.checks.second_look import SecondLookFn, look_again
-from litevloc.pipelines.localization.passes import pooled, pooled_short, with_second_passes
+from litevloc.pipelines.localization.passes import pooled, with_second_passes
 from litevloc.pipelines.localization.prior import Prior
 from litevloc.pipelines.localization.query import Query, StageTimer
 from litevloc.pipelines.localization.refusals import QueryRefusal, refusal_text
 from litevloc.pipelines.localization.results import CandidateAttempt, LocalizationResult
-from litevloc.pipelines.localization.verifier import Best, CandidateVerifier
-from litevloc.pipelines.pnp import Refusal
+from litevloc.pipelines.localization.verifier import Best, Candidate, CandidateVerifier
 
 Gate = tuple[float, float, NDArray[np.float64] | None]  # the prior's growth (m), gate radius (m), position covariance
 
@@ -86,36 +89,30 @@ class LocalSearch:
         growth, gate_m, cov = gate
         attempts: list[CandidateAttempt] = []
         best: Best | None = None
-        guided_first = p.local_search.guided_min_matches > 0 and pg.fresh(p, growth)
+        fresh = pg.fresh(p, growth)
+        guided_first = p.local_search.guided_min_matches > 0 and fresh
         floor = p.pnp.min_inliers  # a weaker candidate passes only pooled (see `passes.pooled_short`)
+        min_kf = p.refine.min_keyframes
+
+        def need(c: Candidate, weak: bool) -> int:
+            """Keyframes the joint refinement needs: one where the pose lies close to a fresh prior."""
+            assert c.T_map_camera is not None
+            dt, dr = relative_pose_error(c.T_map_camera, prior)
+            close = dt <= p.confirm.skip_within_m and dr <= p.confirm.skip_within_deg and fresh and not weak
+            return min_kf if (p.confirm.ll and not close) or weak else 1
+
+        checks = [PnpCheck(v, pooled(p), guided_prior=prior if guided_first else None),
+                  PriorGateCheck(prior, gate_m, cov),
+                  JointCheck(v, [n for n, _ in cands], need, floor, refuse=True), PooledCheck(floor, min_kf)]
         for node, sim in cands:
-            res, att = v.verify_local(node, q, sim, prior if guided_first else None, pooled(p))
-            if res is not None and res.accepted and res.T_target_source is not None:
-                T = v.map.T_map_camera[node] @ res.T_target_source
-                dt, dr = relative_pose_error(T, prior)
-                radius = pg.gate_toward(p, T, prior, gate_m, cov)
-                if dt > radius or dr > p.prior_gate.deg:
-                    attempts.append(CandidateAttempt(node, sim, att.matches, att.inliers,
-                                                     f"inconsistent with the prior ({dt:.2f} m > {radius:.2f} m or "
-                                                     f"{dr:.0f} deg)"))
-                    continue
-                weak = res.n_inliers < floor
-                close = (dt <= p.confirm.skip_within_m and dr <= p.confirm.skip_within_deg
-                         and pg.fresh(p, growth) and not weak)
-                need = p.refine.min_keyframes if (p.confirm.ll and not close) or weak else 1
-                joint = v.joint(node, T, q, [n for n, _ in cands], need)
-                if not joint.accepted and not weak:  # a weak one is refused below, saying so
-                    attempts.append(CandidateAttempt(node, sim, att.matches, att.inliers,
-                                                     f"joint refinement rejected: {joint.reason}"))
-                    continue
-                short = pooled_short(res, joint, floor, p.refine.min_keyframes)
-                if short:
-                    attempts.append(replace(att, reason=short, refusal=Refusal.INLIERS))
-                    continue
-                attempts.append(att)
-                best = (node, res, joint)
-                break
-            attempts.append(att)
+            c, refused_by = v.run(node, sim, q, checks)
+            if refused_by is not None:
+                attempts.append(refused_by)
+                continue
+            assert c.res is not None and c.attempt is not None and c.joint is not None
+            attempts.append(c.attempt)
+            best = (node, c.res, c.joint)
+            break
         timer.add("total", t_all)
         kind = QueryRefusal.NO_NODE_NEAR_PRIOR if not cands else QueryRefusal.NO_CANDIDATE
         return v.result(t_ns, "local", best, attempts, timer, (kind, refusal_text(kind)), q)

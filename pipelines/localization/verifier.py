@@ -1,10 +1,12 @@
 """The candidate verifier: one map keyframe checked against the live query, the checks in order.
 
-GL and LL (`global_search`, `local_search`) differ in which candidates they try and in what they
-do with the verdict; both verify a candidate here: PnP + RANSAC into the keyframe
-(`query.relative_pose`), for GL the support check (`checks.support`), then the joint refinement
-over the keyframe and its covisible neighbours (`checks.joint`). The parameters of a verification
-pass are the query's (`Query.under`): nothing here holds parameters of its own.
+GL and LL (`global_search`, `local_search`) differ in which candidates they try, in the checks
+they run and in what they do with the verdict; both run a candidate through their ordered list
+of checks here (`CandidateVerifier.run`): PnP + RANSAC into the keyframe (`checks.pnp`), the
+support check (GL, `checks.support`) or the prior gate (LL, `checks.prior_gate`), the joint
+refinement over the keyframe and its covisible neighbours (`checks.joint`) and the pooled inlier
+count of a weak candidate (`checks.pooled`). The parameters of a verification pass are the
+query's (`Query.under`): nothing here holds parameters of its own.
 
 Pose chain: PnP gives `T_node_live` (live camera -> map keyframe camera), hence
 `T_map_live = T_map_node @ T_node_live`. The covariance is that of a right (camera-frame)
@@ -14,26 +16,45 @@ perturbation of `T_map_live`, order (tx, ty, tz, rx, ry, rz), see `pipelines.pnp
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
-from dataclasses import replace
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
 from litevloc.base.geometry import backproject_pixels
 from litevloc.base.params.localization import LocalizationParams
-from litevloc.pipelines.localization.checks.support import flat_support
-from litevloc.pipelines.localization.distinct import VerifiedPose
 from litevloc.pipelines.localization.query import Clock, MatchFn, Query, StageTimer, relative_pose, reprojects
 from litevloc.pipelines.localization.refine import RefineResult, refine_pose
 from litevloc.pipelines.localization.refusals import QueryRefusal, refusal_text
 from litevloc.pipelines.localization.results import CandidateAttempt, LocalizationResult, MatchedPixels
-from litevloc.pipelines.pnp import PnpResult, Refusal
+from litevloc.pipelines.pnp import PnpResult
 from litevloc.pipelines.topomap.types import FeatureSet, TopoMap
 
 ExtractFn = Callable[[NDArray[np.uint8]], FeatureSet]
 DescribeFn = Callable[[NDArray[np.uint8]], NDArray[np.float32]]
 Best = tuple[int, PnpResult, RefineResult]  # the accepted candidate: node, its PnP, its joint refinement
+
+
+@dataclass
+class Candidate:
+    """One map keyframe under verification, filled in by the checks in order: PnP's result, its
+    attempt record and its pose `T_map_camera` (4x4), then the joint refinement."""
+
+    node: int
+    similarity: float
+    res: PnpResult | None = None
+    attempt: CandidateAttempt | None = None
+    T_map_camera: NDArray[np.float64] | None = None
+    joint: RefineResult | None = None
+
+
+class Check(Protocol):
+    """One check of a candidate under the query's parameters: None when it passes (it may fill
+    in the candidate), else the refused attempt, saying why."""
+
+    def __call__(self, c: Candidate, q: Query) -> CandidateAttempt | None: ...
 
 
 class CandidateVerifier:
@@ -72,28 +93,16 @@ class CandidateVerifier:
         )
         return res, CandidateAttempt(node, similarity, n_matches, res.n_inliers if res else 0, reason, refusal)
 
-    def verify_local(self, node: int, q: Query, similarity: float, guided_prior: NDArray[np.float64] | None,
-                     pnp_params: LocalizationParams) -> tuple[PnpResult | None, CandidateAttempt]:
-        """`verify`, first on matches guided by a fresh prior when given (see
-        `LocalizationParams.local_search.guided_min_matches`); the matcher's when those are too few or
-        their PnP fails."""
-        if guided_prior is not None and q.try_guided(node, guided_prior, q.params.local_search.guided_min_matches):
-            res, att = self.verify(node, q, similarity, pnp_params)
-            if res is not None and res.accepted:
-                return res, att
-            q.forget(node)
-        return self.verify(node, q, similarity, pnp_params)
-
-    def verify_global(self, node: int, q: Query, similarity: float, verified: list[VerifiedPose] | None = None,
-                      pnp_params: LocalizationParams | None = None) -> tuple[PnpResult | None, CandidateAttempt]:
-        """`verify`, then the support check (GL only): a pose resting on one horizontal plane
-        comes back as no result, its attempt carrying the reason. Any PnP pose, accepted or
-        not, floor or not, is appended to `verified` (evidence for the distinctiveness check)."""
-        res, att = self.verify(node, q, similarity, pnp_params)
-        if verified is not None and res is not None and res.T_target_source is not None:
-            verified.append(VerifiedPose(node, self.map.T_map_camera[node] @ res.T_target_source, res.n_inliers))
-        flat = "" if res is None or not res.accepted else flat_support(self, node, res, q)
-        return (None, replace(att, reason=flat, refusal=Refusal.LATER)) if flat else (res, att)
+    def run(self, node: int, similarity: float, q: Query, checks: Sequence[Check]) -> tuple[Candidate,
+                                                                                        CandidateAttempt | None]:
+        """`node` through `checks` in order, each on what the earlier ones found: the candidate
+        and the first refusal (None: every check passed)."""
+        c = Candidate(node, similarity)
+        for check in checks:
+            refusal = check(c, q)
+            if refusal is not None:
+                return c, refusal
+        return c, None
 
     def explained_matches(self, node: int, T_map_live: NDArray[np.float64],
                           q: Query) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:

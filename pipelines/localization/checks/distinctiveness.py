@@ -13,6 +13,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.pipelines.localization.checks.pnp import PnpCheck
+from litevloc.pipelines.localization.checks.support import SupportCheck
 from litevloc.pipelines.localization.distinct import (
     VerifiedPose,
     ambiguity,
@@ -44,7 +46,8 @@ def ambiguous(verifier: CandidateVerifier, winner: int, res: PnpResult, joint: R
     amb = ""
     for node in [None, *more]:
         if node is not None and not (p.distinctiveness.screen and _same_place_unmatched(verifier, node, q, joint)):
-            verifier.verify_global(node, q, float(sims[node]), verified)
+            verifier.run(node, float(sims[node]), q, [PnpCheck(verifier, q.params, evidence=verified),
+                                                      SupportCheck(verifier)])
         others = [v for v in verified if v.node != winner]
         rival = strongest_rival(joint.T_map_camera, others, p.distinctiveness.apart_m,
                                 p.distinctiveness.apart_deg)

@@ -6,15 +6,26 @@ supporting points all lie on one horizontal plane is no evidence of the place.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from litevloc.pipelines.localization.query import Query
-from litevloc.pipelines.pnp import PnpResult
+from litevloc.pipelines.localization.results import CandidateAttempt
+from litevloc.pipelines.localization.verifier import Candidate, CandidateVerifier
+from litevloc.pipelines.pnp import PnpResult, Refusal
 
-if TYPE_CHECKING:
-    from litevloc.pipelines.localization.verifier import CandidateVerifier
+
+@dataclass(frozen=True, eq=False)
+class SupportCheck:
+    """GL's check of a PnP-verified candidate: refused when its pose rests on one horizontal plane."""
+
+    verifier: CandidateVerifier
+
+    def __call__(self, c: Candidate, q: Query) -> CandidateAttempt | None:
+        assert c.res is not None and c.attempt is not None
+        flat = flat_support(self.verifier, c.node, c.res, q)
+        return replace(c.attempt, reason=flat, refusal=Refusal.LATER) if flat else None
 
 
 def support_height_spread(verifier: CandidateVerifier, node: int, res: PnpResult, q: Query) -> float:
