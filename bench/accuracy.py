@@ -1,4 +1,4 @@
-"""7-Scenes localization accuracy: the issue-#16 table, new defaults vs the starting point.
+"""7-Scenes localization accuracy: the issue-#16 table of the defaults.
 
 Runs `VisualLocalizer.process` (the state machine of `litevloc localize`: GL at start-up and
 when lost, LL from the last accepted pose) on every query frame (default 500:1000, all 500;
@@ -6,12 +6,9 @@ a frame without an accepted pose is a failure) for each configuration:
 
 * `joint`    — the defaults: joint multi-keyframe refinement (`pipelines/localization/refine.py`),
                with the map's keypoint depth as 3D residuals (`localization.refine.map_depth`).
-* `start`    — the starting point of issue #16: single-keyframe PnP pose + separate
-               confirmation (`localization.refine.enabled=false`) with the localization block
-               the 7scenes preset carried before (thresholds tuned on the query pass) and
-               the colour calibration it carried then (`START_CALIBRATION`) and format-2 int8 descriptors,
-               in its own map
-               `<map>-start` built with that calibration.
+
+(The starting point of issue #16, the single-keyframe PnP pose with a separate confirmation, is
+no longer in the code; its figures are in this file's git history.)
 
 and prints: share of all query frames within [2 cm, 2 deg], [5 cm, 5 deg], [25 cm, 5 deg];
 accepted share; median / max error of accepted poses; poses wrong by > 0.5 m; covariance
@@ -22,9 +19,9 @@ Models run once per frame and pair: features, VPR descriptors and matches are ca
 out/cache/accuracy/ (npz, no pickle) with the time each model call took, so the
 configurations share them and a cached call counts its recorded time in the latency
 (latency = geometry measured now + the model time measured when it first ran). The map is
-built if absent (out/maps/7s, frames 0-499, `--config 7scenes`; `start`: out/maps/7s-start).
+built if absent (out/maps/7s, frames 0-499, `--config 7scenes`).
 
-    python bench/accuracy.py [--frames 500:1000] [--map out/maps/7s] [--configs joint start]
+    python bench/accuracy.py [--frames 500:1000] [--map out/maps/7s] [--configs joint]
         [--set K=V ...] [--name accuracy]
 """
 
@@ -58,16 +55,7 @@ from litevloc.runtime.sources import open_source
 from litevloc.runtime.tools.posed import posed_frames
 from litevloc.runtime.vloc_models import check_map_models, load_bundle, second_look_for
 
-# The `localization:` block of config/presets/7scenes.yaml before issue #16 (tuned on the query pass).
-# With the colour calibration the preset carried then (frames 0:500:3, pairs 3-9 frames apart).
-START = ["localization.refine.enabled=false", "localization.gl_top_k=10", "localization.confirm_min_inliers=15",
-         "localization.confirm_max_nodes=3", "localization.pnp.min_inliers=30",
-         "localization.second_look_candidates=0"]  # the second look came later (issue #43)
-START_MAP_FORMAT = ["mapping.descriptor_bytes=0"]
-START_CALIBRATION = ["rgbd_calibration.color_fx=515.1845", "rgbd_calibration.color_fy=518.5869",
-                     "rgbd_calibration.color_cx=318.7434", "rgbd_calibration.color_cy=226.2822",
-                     "rgbd_calibration.quat_xyzw_color_depth=[-0.009544,-0.013322,-0.000174,0.999866]"]
-CONFIGS: dict[str, list[str]] = {"joint": [], "start": START}
+CONFIGS: dict[str, list[str]] = {"joint": []}
 PUBLISHED = [  # redkitchen, from the papers (dense scene-specific models), for reference only
     {"method": "DSAC* (RGB-D)", "median_cm": 1.9, "median_deg": 0.80, "within_5cm_5deg_pct": 92.4},
     {"method": "hloc SP+SG", "median_cm": 4.0, "median_deg": 1.38, "within_5cm_5deg_pct": 61.9},
@@ -148,10 +136,7 @@ def ensure_map(path: Path, data: Path, overrides: list[str]) -> None:
 
 
 def map_of(name: str, args: argparse.Namespace) -> tuple[Path, list[str]]:
-    """The map a configuration localizes in, and the calibration overrides it was built with:
-    `start` has its own map (`<map>-start`), built with the starting point's colour calibration."""
-    if name == "start" and args.src is None:
-        return args.map.parent / f"{args.map.name}-start", START_CALIBRATION
+    """The map a configuration localizes in, and the calibration overrides it was built with."""
     return args.map, []
 
 
@@ -269,9 +254,8 @@ def main() -> None:
     data = require_7scenes() if args.src is None else args.src
     maps = {c: map_of(c, args) for c in args.configs}
     for path, calibration in maps.values():
-        if args.src is None:  # the starting point's map also keeps its int8 descriptors (map format 2)
-            ensure_map(path, data, calibration + (START_MAP_FORMAT if calibration == START_CALIBRATION else [])
-                       + args.overrides)
+        if args.src is None:
+            ensure_map(path, data, calibration + args.overrides)
         elif not (path / "manifest.json").is_file():
             raise SystemExit(f"no map at {path} (build one for {args.src} first)")
     cfg = load_config(args.config, args.overrides)
@@ -299,15 +283,9 @@ def main() -> None:
                 [[r["config"]] + [r[c] for c in cols] for r in results])
     print_table("published (reference)", ["method", "median cm", "median deg", "5cm5d%"],
                 [[p["method"], p["median_cm"], p["median_deg"], p["within_5cm_5deg_pct"]] for p in PUBLISHED])
-    base = next((r for r in results if r["config"] == "start"), None)
-    ratios = {}
-    if base is not None:
-        for r in results:
-            ratios[r["config"]] = {"ll_latency_median_x": r["ll_latency_median_ms"] / base["ll_latency_median_ms"],
-                                   "median_cm_x": r["median_cm"] / base["median_cm"]}
     write_json(args.name, {"frames": args.frames, "map": str(args.map), "preset": args.config,
                            "overrides": args.overrides,
-                           "results": results, "ratios_vs_start": ratios, "published": PUBLISHED,
+                           "results": results, "published": PUBLISHED,
                            "note": "latency on a shared 2-core machine; cached model calls count their recorded time"})
 
 

@@ -91,7 +91,7 @@ def one_provider(name: str, base: Any, map_dir: Path | None, rec: Path | None, f
                 f"{build.version}: {', '.join(build.available)}); a Jetson needs onnxruntime-gpu (JetPack's wheel)"}
     cfg = dataclasses.replace(base, models=dataclasses.replace(base.models, providers=PROVIDER_CHAINS[name]))
     before = len(mort.session_reports())
-    rows = warm_up(cfg.models, second_look=cfg.localization.second_look_candidates > 0, runs=runs)
+    rows = warm_up(cfg.models, second_look=cfg.localization.second_look.candidates > 0, runs=runs)
     report = mort.provider_report(mort.session_reports()[before:])
     out: dict[str, Any] = {"status": "ok", "providers": list(PROVIDER_CHAINS[name]),
                            "models": [r.as_dict() for r in rows]}

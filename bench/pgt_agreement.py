@@ -183,7 +183,7 @@ def plot(query: list[int], d_query: F64, per_frame: dict[str, dict[str, list]], 
     fig, axes = plt.subplots(2, 1, figsize=(11, 6.5), sharex=True)
     for ax, col, unit, scale in ((axes[0], 0, "position error (cm)", 100.0), (axes[1], 1, "rotation error (deg)", 1.0)):
         ax.plot(query, d_query[:, col] * scale, "k-", lw=1.5, label="the two references (D-SLAM vs SfM)")
-        for cfg, style in (("joint", "."), ("start", "x")):
+        for cfg, style in (("joint", "."),):
             if cfg in per_frame and per_frame[cfg]["frames"]:
                 f = per_frame[cfg]
                 ax.plot(f["frames"], np.array(f["err_gt"])[:, col] * scale, style, ms=3,

@@ -1,7 +1,7 @@
 """Is fusion's covariance an honest prior gate? The error of a fused prior against its covariance.
 
 LL accepts a pose only inside the prior gate; toward a pose, the gate of a fused prior is at
-most `prior_gate_fused_m` + `prior_gate_sigmas` sigma of the fused camera position along the
+most `prior_gate.fused_m` + `prior_gate.sigmas` sigma of the fused camera position along the
 offset (`pipelines.localization.prior_gate`, as LL uses it). That is only safe if fusion's covariance covers the
 odometry's real drift. Here, on a simulator pass (its own drift model, with a yaw bias the
 fusion model does not have): every `--every` s, fusion (the runtime's `OnlineFusion`, default
@@ -11,7 +11,7 @@ alone for `age` s; at the end the fused camera position's error is compared with
 Reported per pass and age: the error (median, max), error / sigma along the error (median,
 max), the gate toward the truth and along the optical axis (where a repeated texture puts the
 wrong copy), and how many windows would refuse the true pose (`right refused`: error over the
-gate toward it; the age gate `prior_gate_fused_m` + `prior_gate_rate_fused_mps` x age beside it).
+gate toward it; the age gate `prior_gate.fused_m` + `prior_gate.rate_fused_mps` x age beside it).
 
     python bench/prior_gate.py [--passes sim:loop?pass=loop-lane&seed=0 ...] [--ages 2 6 15 30]
 """
@@ -27,7 +27,7 @@ from _common import print_table, write_json
 from litevloc.base.geometry import camera_position_covariance
 from litevloc.config import load_config
 from litevloc.pipelines.fusion.online import OnlineFusion
-from litevloc.pipelines.localization.prior_gate import narrowed_gate, sigma_along
+from litevloc.pipelines.localization.prior import narrowed_gate, sigma_along
 from litevloc.sim.source import open_sim_source
 
 _FIX_COV = np.diag([0.01**2] * 3 + [np.radians(0.5) ** 2] * 3)  # ROS order: a well-verified VLoc fix
@@ -77,8 +77,8 @@ def main() -> None:
                 continue
             err = np.array([w["err_m"] for w in ws])
             z = err / np.array([w["sigma_err_m"] for w in ws])
-            age_gate = lp.prior_gate_fused_m + lp.prior_gate_rate_fused_mps * age
-            gate_err, gate_axis = (np.array([narrowed_gate(age_gate, lp.prior_gate_fused_m, lp.prior_gate_sigmas,
+            age_gate = lp.prior_gate.fused_m + lp.prior_gate.rate_fused_mps * age
+            gate_err, gate_axis = (np.array([narrowed_gate(age_gate, lp.prior_gate.fused_m, lp.prior_gate.sigmas,
                                                            w[key]) for w in ws])
                                    for key in ("sigma_err_m", "sigma_axis_m"))
             r = {"pass": uri, "age_s": age, "windows": len(ws), "err_median_m": float(np.median(err)),
@@ -93,10 +93,10 @@ def main() -> None:
                          f"{r['gate_axis_max_m']:.2f}", f"{age_gate:.2f}", f"{r['right_refused']} / "
                          f"{r['right_refused_age_gate']}"])
             print(f"{uri} age {age:g} s: {len(ws)} windows", flush=True)
-    print_table(f"Fused prior vs its covariance (prior_gate_sigmas {lp.prior_gate_sigmas:g})",
+    print_table(f"Fused prior vs its covariance (prior_gate_sigmas {lp.prior_gate.sigmas:g})",
                 ["pass", "age s", "windows", "error m (median / max)", "error / sigma (median / max)",
                  "gate along axis m (median / max)", "age gate m", "right refused (cov / age gate)"], rows)
-    write_json(a.json, {"prior_gate_sigmas": lp.prior_gate_sigmas, "results": results})
+    write_json(a.json, {"prior_gate_sigmas": lp.prior_gate.sigmas, "results": results})
 
 
 if __name__ == "__main__":

@@ -45,6 +45,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import ROOT, print_table
 
+from litevloc.pipelines.localization.prior import Prior
 from litevloc.pipelines.localization.tracking import TrackingState
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 
@@ -127,22 +128,23 @@ def run_world(world: str, args: argparse.Namespace) -> dict[str, Any]:
             # the fused pose jumped; odometry carries it on with the true motion
             prior = jump_T @ (T_gt if prior is None else prior)
             kind = "jump"
-        state_before = loc.state
-        n_tr = len(loc.transitions)
+        state_before = loc.tracker.state
+        n_tr = len(loc.tracker.transitions)
         w0 = time.perf_counter()
-        res = loc.process(frame.t_ns, color, depth, frame.K, prior)
+        res = loc.process(frame.t_ns, color, depth, frame.K, None if prior is None else Prior(prior))
         wall = time.perf_counter() - w0
-        new = list(loc.transitions)[n_tr:] if len(loc.transitions) >= n_tr else []
+        new = list(loc.tracker.transitions)[n_tr:] if len(loc.tracker.transitions) >= n_tr else []
         err = None
         if res.accepted and res.T_map_camera is not None and T_gt is not None:
             last_vloc = (res.T_map_camera, T_gt)
             err = float(np.linalg.norm(res.T_map_camera[:3, 3] - T_gt[:3, 3]))
         queries.append({"t": t, "mode": res.mode, "accepted": res.accepted, "wall_s": wall, "err_m": err,
-                        "state_before": str(state_before), "state_after": str(loc.state), "fault": kind,
+                        "state_before": str(state_before), "state_after": str(loc.tracker.state), "fault": kind,
                         "attempts": len(res.attempts), "event": ev_i, "reason": res.reason,
                         "attempt_reasons": [f"{a.node}: {a.reason}" for a in res.attempts],
                         "transitions": [f"{x.from_state}->{x.to_state}" for x in new]})
-        if active is not None and active[1] == "jump" and loc.state == TrackingState.TRACKING and res.mode == "global":
+        tracking = loc.tracker.state == TrackingState.TRACKING
+        if active is not None and active[1] == "jump" and tracking and res.mode == "global":
             jump_T = None  # GL relocalized: the fused pose follows VLoc again
             active = None
     return summarise(world, events, queries, args, t_start, t_end, topomap.n_nodes)
@@ -241,7 +243,7 @@ def main() -> int:
                     help="LL prior: the last accepted VLoc pose carried on by the true relative motion since "
                          "(drift-free odometry, as the fused pose) or the last VLoc pose as it is")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                    help="config override for the query pass, e.g. --set localization.lost_cost_ratio=0")
+                    help="config override for the query pass, e.g. --set localization.global_search.lost_cost_ratio=0")
     ap.add_argument("--max-s", type=float, default=0.0, help="use only the first S s of the query pass (0 = all)")
     ap.add_argument("--resummarise", type=Path, help="recompute the summaries of an earlier JSON (no localization)")
     args = ap.parse_args()

@@ -268,7 +268,7 @@ def measure(path: Path, verify: bool) -> dict[str, Any]:
 
     def retrieval() -> None:
         sims = m.vpr @ q
-        np.argsort(-sims, kind="stable")[: lp.gl_top_k]
+        np.argsort(-sims, kind="stable")[: lp.global_search.top_k]
 
     c0 = time.process_time()
     gl = timed(retrieval, 50)
@@ -286,7 +286,8 @@ def measure(path: Path, verify: bool) -> dict[str, Any]:
         P = m.T_map_camera[node].copy()
         P[:3, 3] += rng.normal(0, 0.3 / math.sqrt(3), 3)
         priors.append(P)
-    args = (lp.candidate_radius_m, lp.gl_trigger_distance_m, lp.max_view_angle_deg, lp.ll_max_candidates)
+    ls = lp.local_search
+    args = (ls.candidate_radius_m, ls.trigger_distance_m, ls.max_view_angle_deg, ls.max_candidates)
     ll, ll_brute = [], []
     for P in priors:
         t0 = time.perf_counter()

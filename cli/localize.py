@@ -63,7 +63,8 @@ def run(args: argparse.Namespace) -> int:
             res = loc.process(frame.t_ns, frame.color, frame.depth, frame.K)
             if view is not None:
                 view.put_vloc(frame, res)
-                view.put_status({"sensor_time_ns": frame.t_ns, "state": str(loc.state), "reasons": [res.reason]})
+                view.put_status({"sensor_time_ns": frame.t_ns, "state": str(loc.tracker.state),
+                                 "reasons": [res.reason]})
             counts["queries"] += 1
             counts[res.mode] += 1
             lat[res.mode].append(res.timings_ms.get("total", 0.0))
@@ -86,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
     args.output.parent.mkdir(parents=True, exist_ok=True)
     write_tum(args.output, np.array(times), np.array(poses).reshape(-1, 4, 4))
     summary: dict = {**counts, "rejection_reasons": reasons, "output": str(args.output),
-                     "transitions": [f"{t.from_state}->{t.to_state}: {t.reason}" for t in loc.transitions]}
+                     "transitions": [f"{t.from_state}->{t.to_state}: {t.reason}" for t in loc.tracker.transitions]}
     for mode, v in lat.items():
         if v:
             summary[f"{mode}_latency_ms"] = {"median": float(np.median(v)), "p90": float(np.percentile(v, 90))}

@@ -198,7 +198,7 @@ def run_warmup(args: argparse.Namespace) -> int:
     cache = cache_dir_of(cfg)
     if not (cache / "manifest.json").is_file():
         raise ModelError(f"the model cache {cache} has no models; run `litevloc models export` first")
-    second_look = full.localization.second_look_candidates > 0
+    second_look = full.localization.second_look.candidates > 0
     skipped = set() if second_look else {aliked_id(cfg.extractor, cfg.second_look_size, cfg.second_look_keypoints)}
     for i in configured_ids(cfg):  # every model checked before any is built (a TensorRT build takes minutes)
         if i not in skipped or i == aliked_id(cfg.extractor, cfg.extractor_size, cfg.max_keypoints):

@@ -141,7 +141,7 @@ def run_split(split: Split, map_dir: Path, data: Path, config: str, overrides: S
                           clock=models.clock,
                           second_look=second_look_for(topomap, cfg.models, cfg.localization, bundle, models.clock))
     lp = cfg.localization
-    shortlist = max(lp.gl_top_k, lp.gl_rerank_depth if lp.gl_rerank else 0)
+    shortlist = max(lp.global_search.top_k, lp.global_search.rerank_depth if lp.global_search.rerank else 0)
     a, b = split.query_frames
     src = open_source(data, slice(a, b, step), strict=True, rgbd_calibration=cfg.rgbd_calibration)
     records: list[dict[str, Any]] = []

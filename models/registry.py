@@ -144,7 +144,7 @@ def locate_parts(model_id: str, cfg: ModelsConfig | None = None) -> dict[str, Pa
 
 def configured_ids(cfg: ModelsConfig) -> list[str]:
     """The ONNX models the configuration needs (extractor, matcher, VPR) or may need (the second
-    look's extractor: `localization.second_look_candidates` turns it on, in another section)."""
+    look's extractor: `localization.second_look.candidates` turns it on, in another section)."""
     ids: list[str] = []
     if cfg.extractor.startswith("aliked"):
         ids.append(aliked_id(cfg.extractor, cfg.extractor_size, cfg.max_keypoints))

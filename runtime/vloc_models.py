@@ -122,11 +122,11 @@ class ExtractOnFirstCall:
 
 def second_look_for(topomap: TopoMap, models: ModelsConfig, params: LocalizationParams, bundle: ModelBundle,
                     clock: Clock = time.perf_counter) -> SecondLook | None:
-    """The full-resolution second look on `topomap` where `params.second_look_candidates` > 0
+    """The full-resolution second look on `topomap` where `params.second_look.candidates` > 0
     (its extractor at `models.second_look_size` / `second_look_keypoints`, loaded on the first
     look, the bundle's matcher over all keypoints; ModelError naming the export command when that
     extractor is missing), else None."""
-    if params.second_look_candidates <= 0:
+    if params.second_look.candidates <= 0:
         return None
     full = dataclasses.replace(models, extractor_size=models.second_look_size,
                                max_keypoints=models.second_look_keypoints)

@@ -16,7 +16,7 @@ Steps (each shows its progress; the slow ones print a line every 30 s):
    7scenes`), rebuilt every run with the current model cache ($LITEVLOC_MODEL_CACHE).
 4. `litevloc localize` on the query frames (`--frames`, default 500:650:50, 3 frames: one
    global localization, then two local ones) under x86 and under emulation, same map, same settings:
-   the 7scenes preset with the second look off (`localization.second_look_candidates=0`): a
+   the 7scenes preset with the second look off (`localization.second_look.candidates=0`): a
    look costs minutes under emulation (full-resolution ALIKED and LightGlue on 2048 points);
    the look's extractor is compared below on its own. Poses must agree within `--tol-m` (1 cm).
 5. Every model the runtime uses (`litevloc models list`: the default exports and the config's:
@@ -65,7 +65,7 @@ from litevloc.experiments import model_conformance as mc  # noqa: E402
 
 CACHE = ROOT / ".cache" / "aarch64"
 OUT = ROOT / "out" / "aarch64"
-SECOND_LOOK_OFF = "localization.second_look_candidates=0"
+SECOND_LOOK_OFF = "localization.second_look.candidates=0"
 # runtime requirement -> its import name, for the emulated import check (others: name with _)
 IMPORT_NAMES = {"opencv-python-headless": "cv2", "eclipse-zenoh": "zenoh", "pyyaml": "yaml",
                 "scikit-image": "skimage"}

@@ -1,6 +1,6 @@
-"""Parameters of localization: depth lookup, PnP, joint refinement, GL/LL and the state machine
-(config `localization`; the algorithms are `pipelines.depth_lookup`, `pipelines.pnp`,
-`pipelines.localization.refine` and `pipelines.localization.vloc`).
+"""Parameters of localization: depth lookup, PnP, joint refinement, GL/LL, their checks and the state
+machine, one section each (config `localization`; the algorithms are `pipelines.depth_lookup`,
+`pipelines.pnp` and `pipelines.localization`).
 """
 
 from __future__ import annotations
@@ -49,9 +49,9 @@ class PnpParams:
     refine_lm: bool = True
     # a pose needs at least this many inliers
     min_inliers: int = 40
-    # ... and at least this share of the matches as inliers
+    # a pose needs at least this share of the matches as inliers
     min_inlier_ratio: float = 0.2
-    # ... and a median inlier reprojection error of at most this (pixels)
+    # a pose needs a median inlier reprojection error of at most this (pixels)
     max_median_reprojection_px: float = 2.0
     # RANSAC seed (results are reproducible)
     seed: int = 0
@@ -73,8 +73,6 @@ class PnpParams:
 class RefineParams:
     """Joint multi-keyframe refinement and its acceptance (pixels, metres, degrees)."""
 
-    # joint multi-keyframe refinement; false: the single-keyframe PnP pose + a separate confirmation
-    enabled: bool = True
     # keyframes in the joint solve, the PnP keyframe included
     max_keyframes: int = 3
     # keyframes that must each be consistent with the joint pose
@@ -99,7 +97,7 @@ class RefineParams:
     map_depth: bool = True
     # the joint pose may move at most this far from the initial pose (m)
     max_shift_m: float = 0.25
-    # ... and turn at most this far (degrees)
+    # the joint pose may turn at most this far from the initial pose (degrees)
     max_shift_deg: float = 5.0
     # covariance: systematic translation error, constant part (m)
     sigma_sys_t_m: float = 0.0
@@ -150,163 +148,258 @@ class RefineParams:
 
 
 @dataclass(frozen=True)
-class LocalizationParams:
-    """Parameters of GL, LL and the state machine (metres, degrees)."""
+class GlobalSearchParams:
+    """Global localization (GL): its VPR candidates, their order, its time budget and its provisional poses."""
 
-    # GL: keyframes retrieved by VPR and verified, best first
-    gl_top_k: int = 10
-    # > 0: GL stops at the first candidate with this many PnP inliers (joint refinement off)
-    gl_early_accept_inliers: int = 0
-    # > 0: GL's time budget per query (ms); a next candidate is tried only while it fits
-    gl_time_budget_ms: float = 0.0
+    # keyframes retrieved by VPR and verified per GL query, best first
+    top_k: int = 10
+    # GL's time budget per query (ms): a next candidate is tried only while it fits (0 = no budget)
+    time_budget_ms: float = 0.0
     # GL tries its candidates in the order of their mutual-nearest-neighbour count with the live frame
-    gl_rerank: bool = True
+    rerank: bool = True
     # smallest descriptor similarity of a mutual nearest neighbour counted by the re-ranking (cosine)
-    gl_rerank_min_similarity: float = 0.7
-    # VPR shortlist the re-ranking orders, its first gl_top_k verified (0 = gl_top_k)
-    gl_rerank_depth: int = 0
-    # once tracked, a GL query may cost this many times the mean LL query (0 = no bound)
+    rerank_min_similarity: float = 0.7
+    # VPR shortlist the re-ranking orders, its first top_k verified (0 = top_k)
+    rerank_depth: int = 0
+    # once tracked, a GL query may cost this many times the median LL query (0 = no bound)
     lost_cost_ratio: float = 2.0
-    # a GL pose must also explain matches with a second keyframe
-    gl_confirm: bool = True
-    # an LL pose must also explain matches with a second keyframe (unless confirm_skip_* applies)
-    ll_confirm: bool = True
     # a GL pose with this many inliers that no second keyframe sees is a provisional vote (0 = off)
-    gl_vote_min_inliers: int = 60
-    # a GL candidate whose inliers span less height than this rests on floor or ceiling: refused (m; 0 = off)
-    gl_min_support_height_m: float = 0.15
-    # inliers a second keyframe needs to confirm a pose
-    confirm_min_inliers: int = 20
-    # second keyframes tried for the confirmation
-    confirm_max_nodes: int = 2
-    # an LL pose this close to a fresh prior needs no second keyframe (m)
-    confirm_skip_within_m: float = 0.2
-    # ... and this close in rotation (degrees)
-    confirm_skip_within_deg: float = 5.0
-    # a prior is fresh up to this age (s)
-    confirm_skip_max_age_s: float = 0.5
-    # LL prior gate: an LL pose must lie this close to a last-VLoc-pose prior (m) ...
-    prior_gate_m: float = 0.75
-    # ... plus this much per second of the prior's age (m/s)
-    prior_gate_rate_mps: float = 1.5
-    # ... and within this rotation of it (degrees)
-    prior_gate_deg: float = 30.0
-    # a fused prior's gate grows at this rate per second since the last fix (m/s: odometry drift)
-    prior_gate_rate_fused_mps: float = 0.1
-    # ... but no more than this fraction of the odometry's path since that fix, where known (at rest: no growth)
-    prior_gate_drift_fused: float = 0.2
-    # a fused prior's gate starts from this radius (m)
-    prior_gate_fused_m: float = 0.25
-    # with fusion's covariance, a fused prior's gate toward a pose is at most its start + this many sigmas (0 = off)
-    prior_gate_sigmas: float = 3.0
+    vote_min_inliers: int = 60
     # a GL pose outside a fused prior's gate gives way to a pose LL verifies at the prior's place (repeating places)
-    gl_check_prior_place: bool = True
-    # a pose outside a fused prior's gate (or with a stale prior) waits this long for a repeat (s; 0 = off)
-    repeat_within_s: float = 5.0
-    # ... or for any time while the prior moved less than this since the held pose (m: a robot at rest, slow GL)
-    repeat_within_m: float = 0.1
-    # a held pose is repeated when the two agree within this rotation (degrees)
-    repeat_deg: float = 5.0
+    check_prior_place: bool = True
+
+    def __post_init__(self) -> None:
+        if self.top_k < 1:
+            raise ValueError(f"top_k must be >= 1, got {self.top_k}")
+        if self.vote_min_inliers < 0:
+            raise ValueError("vote_min_inliers must be >= 0 (0 = no provisional poses)")
+        if self.time_budget_ms < 0:
+            raise ValueError("time_budget_ms must be >= 0 (0 = no budget)")
+        if self.lost_cost_ratio < 0:
+            raise ValueError("lost_cost_ratio must be >= 0 (0 = no bound)")
+        if self.rerank_depth < 0:
+            raise ValueError("rerank_depth must be >= 0")
+        if not -1 <= self.rerank_min_similarity <= 1:
+            raise ValueError("rerank_min_similarity must be in [-1, 1]")
+
+
+@dataclass(frozen=True)
+class LocalSearchParams:
+    """Local localization (LL): its candidates around the prior, its matching and when tracking is lost."""
+
     # LL candidates: keyframes within this distance of the prior (m)
     candidate_radius_m: float = 3.0
     # LL candidates: keyframes looking within this angle of the prior (degrees)
     max_view_angle_deg: float = 90.0
     # LL candidates by place descriptor per query (then the nearest, where they leave it out)
-    ll_max_candidates: int = 3
-    # LL with a fresh prior: guided matches stand in for the matcher's when at least this many (0 = off)
-    ll_guided_min_matches: int = 60
-    # consecutive LL failures that make the state LOST (the next query runs GL)
-    ll_failures_before_lost: int = 3
+    max_candidates: int = 3
     # a prior farther than this from every keyframe sends the query to GL (m)
-    gl_trigger_distance_m: float = 7.5
-    # an accepted pose must lie this close to its keyframe (m)
-    max_distance_to_node_m: float = 5.0
+    trigger_distance_m: float = 7.5
+    # LL with a fresh prior: guided matches stand in for the matcher's when at least this many (0 = off)
+    guided_min_matches: int = 60
+    # consecutive LL failures that make the state LOST (the next query runs GL)
+    failures_before_lost: int = 3
+
+    def __post_init__(self) -> None:
+        if self.guided_min_matches < 0:
+            raise ValueError(f"guided_min_matches must be >= 0, got {self.guided_min_matches}")
+        if self.max_candidates < 1 or self.failures_before_lost < 1:
+            raise ValueError("max_candidates and failures_before_lost must be >= 1")
+        if self.candidate_radius_m <= 0 or not (0 < self.max_view_angle_deg <= 180):
+            raise ValueError("candidate_radius_m > 0 and max_view_angle_deg in (0, 180] required")
+
+
+@dataclass(frozen=True)
+class VerifyParams:
+    """A candidate keyframe's verification by PnP: what it needs and where the pose may lie."""
+
     # matches a candidate needs before PnP
     min_matches: int = 20
-    # > 0: a candidate with this many PnP inliers (< pnp.min_inliers) passes if its joint keyframes reach that many
-    pooled_min_inliers: int = 20
+    # an accepted pose must lie this close to its keyframe (m)
+    max_distance_to_node_m: float = 5.0
     # verification and refinement also use the map's depth at keyframe keypoints (off: it verifies aliased places too)
-    verify_map_depth: bool = False
-    # a GL query that live depth cannot verify is verified again with the map's depth (verify_map_depth for it alone)
-    map_depth_fallback: bool = True
-    # that second pass: GL refuses a pose another place verifies with >= 1/this of its inliers (0 = gl_distinct_ratio)
-    map_depth_fallback_distinct_ratio: float = 2.0
-    # without a fresh prior, GL refuses a pose if a candidate at another pose has >= 1/this of its PnP inliers (0 = off)
-    gl_distinct_ratio: float = 0.0
-    # candidate poses farther apart than this are different places for that test (m)
-    gl_distinct_m: float = 0.3
-    # ... or turned further apart than this (degrees)
-    gl_distinct_deg: float = 10.0
-    # candidates verified after the accepted one for that test at most (those with >= 1/ratio of its re-ranking count)
-    gl_distinct_max_rivals: int = 3
-    # that test skips the later candidates whose PnP on the re-ranking's matches (no model run) agrees with that pose
-    gl_distinct_screen: bool = True
-    # > 0: where that test judges a GL pose, its PnP needs this many inliers instead of pnp.min_inliers
-    gl_distinct_min_inliers: int = 0
-    # GL refused by every pass: re-verify this many refused candidates at models.second_look_size (0 = off)
-    second_look_candidates: int = 2
-    # ... LL too (keeps tracking where the first look loses it; its poses are only as good as the prior's gate)
-    second_look_local: bool = True
-    # ... only candidates whose first look found at least this many PnP inliers (the cost goes where a pose may be)
-    second_look_from_inliers: int = 10
-    # it refuses a pose putting more than this share of its keyframes' map points in view in front of the live depth
-    second_look_max_see_through: float = 0.3
-    # ... a pose over it is moved onto the live depth if at most this far (m; 0 = never), then under half that share
-    second_look_align_m: float = 0.3
-    # ... and turns it at most this much (degrees)
-    second_look_align_deg: float = 6.0
-    # LL's look: its pose must lie this close to a last-VLoc-pose prior (m, for prior_gate_m; the rate still adds)
-    second_look_prior_gate_m: float = 0.25
+    map_depth: bool = False
+
+
+@dataclass(frozen=True)
+class ConfirmParams:
+    """Confirmation of a pose by the joint refinement's second keyframe, and when a fresh prior stands in for it."""
+
+    # a GL pose must also explain matches with a second keyframe
+    gl: bool = True
+    # an LL pose must also explain matches with a second keyframe (unless it lies close to a fresh prior)
+    ll: bool = True
+    # an LL pose this close to a fresh prior needs no second keyframe (m)
+    skip_within_m: float = 0.2
+    # an LL pose turned this little from a fresh prior needs no second keyframe (degrees)
+    skip_within_deg: float = 5.0
+    # a prior is fresh while its gate has grown no more than prior_gate.rate_mps x this (s)
+    skip_max_age_s: float = 0.5
+
+
+@dataclass(frozen=True)
+class SupportParams:
+    """The support check of a GL pose: the height its inliers span."""
+
+    # a GL candidate whose inliers span less height than this rests on floor or ceiling: refused (m; 0 = off)
+    min_height_m: float = 0.15
+
+    def __post_init__(self) -> None:
+        if self.min_height_m < 0:
+            raise ValueError("min_height_m must be >= 0 (0 = off)")
+
+
+@dataclass(frozen=True)
+class PriorGateParams:
+    """The prior gate: how far a pose may lie from the prior it was verified from (metres, degrees)."""
+
+    # an LL pose must lie this close to a last-VLoc-pose prior, before its growth (m)
+    radius_m: float = 0.75
+    # a last-VLoc-pose prior's gate grows at this rate per second of its age (m/s)
+    rate_mps: float = 1.5
+    # a pose must lie within this rotation of the prior (degrees)
+    deg: float = 30.0
+    # a fused prior's gate grows at this rate per second since the last fix (m/s: odometry drift)
+    rate_fused_mps: float = 0.1
+    # a fused prior's gate grows by at most this fraction of the odometry's path since the fix (at rest: none)
+    drift_fused: float = 0.2
+    # a fused prior's gate starts from this radius (m)
+    fused_m: float = 0.25
+    # with fusion's covariance, a fused prior's gate toward a pose is at most fused_m + this many sigmas (0 = off)
+    sigmas: float = 3.0
+
+    def __post_init__(self) -> None:
+        if self.sigmas < 0:
+            raise ValueError("sigmas must be >= 0 (0 = off)")
+        if self.rate_fused_mps < 0 or self.drift_fused < 0 or self.fused_m <= 0:
+            raise ValueError("rate_fused_mps, drift_fused >= 0, fused_m > 0 required")
+        if self.radius_m <= 0 or self.rate_mps < 0 or not (0 < self.deg <= 180):
+            raise ValueError("radius_m > 0, rate_mps >= 0 and deg in (0, 180] required")
+
+
+@dataclass(frozen=True)
+class RepeatParams:
+    """The hold: a pose its prior cannot confirm waits for a later frame that repeats it."""
+
+    # a pose outside a fused prior's gate (or with a stale prior) waits this long for a repeat (s; 0 = off)
+    within_s: float = 5.0
+    # a held pose may wait any time while the prior moved less than this since it (m: a robot at rest, slow GL)
+    within_m: float = 0.1
+    # a held pose is repeated when the two agree within this rotation (degrees)
+    deg: float = 5.0
+
+    def __post_init__(self) -> None:
+        if self.within_s < 0 or self.within_m < 0 or not 0 < self.deg <= 180:
+            raise ValueError("within_s and within_m must be >= 0 (0 = off) and deg in (0, 180]")
+
+
+@dataclass(frozen=True)
+class PassesParams:
+    """The later verification passes of a refused query, on the same features and matches."""
+
+    # a query that live depth cannot verify is verified again with the map's depth (verify.map_depth for it alone)
+    map_depth: bool = True
+    # the map-depth pass's GL refuses a pose another place verifies with >= 1/this of its inliers (0 = the check's)
+    map_depth_distinct_ratio: float = 2.0
+    # a candidate with this many PnP inliers (< pnp.min_inliers) passes if its joint keyframes reach that many (0 = off)
+    pooled_min_inliers: int = 20
+
+    def __post_init__(self) -> None:
+        if self.map_depth_distinct_ratio < 0 or 0 < self.map_depth_distinct_ratio < 1:
+            raise ValueError("map_depth_distinct_ratio must be 0 (distinctiveness.ratio) or >= 1")
+        if self.pooled_min_inliers < 0 or 0 < self.pooled_min_inliers < 4:
+            raise ValueError("pooled_min_inliers must be 0 (off) or >= 4")
+
+
+@dataclass(frozen=True)
+class DistinctivenessParams:
+    """The distinctiveness check of a GL pose without a fresh prior: does another place verify nearly as well?"""
+
+    # GL refuses a pose if a candidate at another pose has >= 1/this of its PnP inliers (0 = off)
+    ratio: float = 0.0
+    # candidate poses farther apart than this are different places for the check (m)
+    apart_m: float = 0.3
+    # candidate poses turned further apart than this are different places for the check (degrees)
+    apart_deg: float = 10.0
+    # candidates verified after the accepted one for the check at most (those with >= 1/ratio of its re-ranking count)
+    max_rivals: int = 3
+    # the check skips the later candidates whose PnP on the re-ranking's matches (no model run) agrees with the pose
+    screen: bool = True
+
+    def __post_init__(self) -> None:
+        if self.ratio < 0 or 0 < self.ratio < 1:
+            raise ValueError("ratio must be 0 (off) or >= 1")
+        if self.apart_m <= 0 or not 0 < self.apart_deg <= 180 or self.max_rivals < 0:
+            raise ValueError("need apart_m > 0, apart_deg in (0, 180] and max_rivals >= 0")
+
+
+@dataclass(frozen=True)
+class SecondLookParams:
+    """The full-resolution second look at a query every pass refused (its models: models.second_look_*)."""
+
+    # refused candidates verified again at models.second_look_size when GL refused a query (0 = off)
+    candidates: int = 2
+    # LL looks again too (keeps tracking where the first look loses it; its poses are only as good as the prior's gate)
+    local: bool = True
+    # only candidates whose first look found at least this many PnP inliers are looked at again
+    from_inliers: int = 10
+    # LL's look: its pose must lie this close to a last-VLoc-pose prior (m, for prior_gate.radius_m; its growth adds)
+    prior_gate_m: float = 0.25
+
+    def __post_init__(self) -> None:
+        if self.candidates < 0 or self.from_inliers < 0:
+            raise ValueError("candidates and from_inliers must be >= 0")
+        if self.prior_gate_m <= 0:
+            raise ValueError(f"prior_gate_m must be > 0, got {self.prior_gate_m}")
+
+
+@dataclass(frozen=True)
+class SeeThroughParams:
+    """The see-through check of a second-look pose: the map's points against the live depth."""
+
+    # a pose putting more than this share of its keyframes' map points in view in front of the live depth is refused
+    max_share: float = 0.3
+    # a pose over that share is moved onto the live depth if the move is at most this far (m; 0 = never)
+    align_m: float = 0.3
+    # a pose over that share is moved onto the live depth if the move turns it at most this much (degrees)
+    align_deg: float = 6.0
+
+    def __post_init__(self) -> None:
+        if self.align_m < 0 or self.align_deg < 0:
+            raise ValueError("align_m and align_deg must be >= 0")
+        if not 0.0 <= self.max_share <= 1.0:
+            raise ValueError(f"max_share must be in [0, 1] (1 = off), got {self.max_share}")
+
+
+@dataclass(frozen=True)
+class LocalizationParams:
+    """Parameters of GL, LL, their checks and the state machine, one section each (metres, degrees)."""
+
+    # global localization: VPR candidates, their order, the time budget, provisional poses
+    global_search: GlobalSearchParams = field(default_factory=GlobalSearchParams)
+    # local localization: candidates around the prior, guided matching, when tracking is lost
+    local_search: LocalSearchParams = field(default_factory=LocalSearchParams)
+    # a candidate's verification by PnP: matches needed, distance to its keyframe, map depth
+    verify: VerifyParams = field(default_factory=VerifyParams)
     # PnP + RANSAC of live keypoints (with live depth) against a keyframe
     pnp: PnpParams = field(default_factory=PnpParams)
     # validity gates of the live depth at keypoints
     depth: DepthLookupParams = field(default_factory=DepthLookupParams)
-    # joint multi-keyframe refinement (replaces the separate confirmation when enabled)
+    # joint multi-keyframe refinement: a pose's confirmation by its keyframe's covisible neighbours
     refine: RefineParams = field(default_factory=RefineParams)
-
-    def __post_init__(self) -> None:
-        if self.ll_guided_min_matches < 0:
-            raise ValueError(f"ll_guided_min_matches must be >= 0, got {self.ll_guided_min_matches}")
-        if self.gl_top_k < 1 or self.ll_max_candidates < 1 or self.ll_failures_before_lost < 1:
-            raise ValueError("gl_top_k, ll_max_candidates and ll_failures_before_lost must be >= 1")
-        if self.candidate_radius_m <= 0 or not (0 < self.max_view_angle_deg <= 180):
-            raise ValueError("candidate_radius_m > 0 and max_view_angle_deg in (0, 180] required")
-        if self.gl_vote_min_inliers < 0:
-            raise ValueError("gl_vote_min_inliers must be >= 0 (0 = no provisional poses)")
-        if self.gl_min_support_height_m < 0:
-            raise ValueError("gl_min_support_height_m must be >= 0 (0 = off)")
-        if self.gl_time_budget_ms < 0:
-            raise ValueError("gl_time_budget_ms must be >= 0 (0 = no budget)")
-        if self.lost_cost_ratio < 0:
-            raise ValueError("lost_cost_ratio must be >= 0 (0 = no bound)")
-        if self.gl_distinct_ratio < 0 or 0 < self.gl_distinct_ratio < 1:
-            raise ValueError("gl_distinct_ratio must be 0 (off) or >= 1")
-        if self.map_depth_fallback_distinct_ratio < 0 or 0 < self.map_depth_fallback_distinct_ratio < 1:
-            raise ValueError("map_depth_fallback_distinct_ratio must be 0 (gl_distinct_ratio) or >= 1")
-        if self.gl_distinct_m <= 0 or not 0 < self.gl_distinct_deg <= 180 or self.gl_distinct_max_rivals < 0:
-            raise ValueError("need gl_distinct_m > 0, gl_distinct_deg in (0, 180] and gl_distinct_max_rivals >= 0")
-        if self.pooled_min_inliers < 0 or 0 < self.pooled_min_inliers < 4:
-            raise ValueError("pooled_min_inliers must be 0 (off) or >= 4")
-        if self.gl_distinct_min_inliers < 0 or 0 < self.gl_distinct_min_inliers < 4:
-            raise ValueError("gl_distinct_min_inliers must be 0 (pnp.min_inliers) or >= 4")
-        if self.gl_rerank_depth < 0:
-            raise ValueError("gl_rerank_depth must be >= 0")
-        if self.second_look_candidates < 0 or self.second_look_from_inliers < 0:
-            raise ValueError("second_look_candidates and second_look_from_inliers must be >= 0")
-        if self.second_look_align_m < 0 or self.second_look_align_deg < 0:
-            raise ValueError("second_look_align_m and second_look_align_deg must be >= 0")
-        if self.second_look_prior_gate_m <= 0:
-            raise ValueError(f"second_look_prior_gate_m must be > 0, got {self.second_look_prior_gate_m}")
-        if not 0.0 <= self.second_look_max_see_through <= 1.0:
-            raise ValueError(f"second_look_max_see_through must be in [0, 1] (1 = off), got "
-                             f"{self.second_look_max_see_through}")
-        if not -1 <= self.gl_rerank_min_similarity <= 1:
-            raise ValueError("gl_rerank_min_similarity must be in [-1, 1]")
-        if self.repeat_within_s < 0 or self.repeat_within_m < 0 or not 0 < self.repeat_deg <= 180:
-            raise ValueError("repeat_within_s and repeat_within_m must be >= 0 (0 = off) and repeat_deg in (0, 180]")
-        if self.prior_gate_sigmas < 0:
-            raise ValueError("prior_gate_sigmas must be >= 0 (0 = off)")
-        if self.prior_gate_rate_fused_mps < 0 or self.prior_gate_drift_fused < 0 or self.prior_gate_fused_m <= 0:
-            raise ValueError("prior_gate_rate_fused_mps, prior_gate_drift_fused >= 0, prior_gate_fused_m > 0 required")
-        if self.prior_gate_m <= 0 or self.prior_gate_rate_mps < 0 or not (0 < self.prior_gate_deg <= 180):
-            raise ValueError("prior_gate_m > 0, prior_gate_rate_mps >= 0 and prior_gate_deg in (0, 180] required")
+    # which poses need a second keyframe, and when a fresh prior stands in for it
+    confirm: ConfirmParams = field(default_factory=ConfirmParams)
+    # the support check: GL poses resting on one horizontal plane
+    support: SupportParams = field(default_factory=SupportParams)
+    # the distinctiveness check: GL poses another place verifies nearly as well
+    distinctiveness: DistinctivenessParams = field(default_factory=DistinctivenessParams)
+    # the prior gate around the prior a pose was verified from
+    prior_gate: PriorGateParams = field(default_factory=PriorGateParams)
+    # the hold of a pose its prior cannot confirm, until a later frame repeats it
+    repeat: RepeatParams = field(default_factory=RepeatParams)
+    # the later verification passes of a refused query (map depth, pooled weak candidates)
+    passes: PassesParams = field(default_factory=PassesParams)
+    # the full-resolution second look at a refused query
+    second_look: SecondLookParams = field(default_factory=SecondLookParams)
+    # the see-through check of a second-look pose against the live depth
+    see_through: SeeThroughParams = field(default_factory=SeeThroughParams)

@@ -85,7 +85,7 @@ class ModelsConfig(Settings):
     matcher: Literal["lightglue", "lightglue-int8", "lightglue-adaptive", "mnn", "nn-ratio"] = setting(
         "lightglue-adaptive", "matcher; lightglue-adaptive: the reference's early stopping + point pruning")
     second_look_size: tuple[int, int] = setting(
-        (480, 640), "extractor input size (h, w) of the second look (localization.second_look_candidates)", unit="px",
+        (480, 640), "extractor input size (h, w) of the second look (localization.second_look.candidates)", unit="px",
         low=32, high=4096)
     second_look_keypoints: int = setting(
         2048, "keypoints per image of the second look, for the query and the keyframes' stored images (all matched)",

@@ -125,7 +125,7 @@ class SlamLoopParams(Settings):
         low=0)
     chain_pregate: bool = setting(
         True, "skip unmatched a candidate the chain puts beyond the chain gate's bound + "
-        "localization.max_distance_to_node_m")
+        "localization.verify.max_distance_to_node_m")
     sigma_floor_m: float = setting(
         0.003, "a loop factor's translation noise is at least this, per axis", unit="m", low=0, low_open=True)
     sigma_floor_deg: float = setting(

@@ -4,7 +4,7 @@ Without a prior, a pose verified at one period of a repeating texture (a corrido
 identical doors) is as convincing as the true one; the only evidence against it is that a
 candidate at another pose verifies too. `strongest_rival` finds, among the verified candidates
 of one GL query, the one with the most PnP inliers whose pose differs from the winner's by
-more than a place's extent; `LocalizationParams.gl_distinct_ratio` decides whether the winner
+more than a place's extent; `LocalizationParams.distinctiveness.ratio` decides whether the winner
 stands out from it (the goal planner refuses a goal image that verifies at two places the same
 way, `pipelines.navigation.planner`).
 """

@@ -3,16 +3,16 @@
 A GL or LL query that every candidate refused is verified again, no model run again (the query's
 cached matches and PnP fits are reused), each later pass only where the earlier ones refused:
 
-* with the map's depth (`LocalizationParams.map_depth_fallback`), where the map has keypoint depth
-  and `verify_map_depth` is off;
-* with weak candidates pooled (`pooled_min_inliers` > 0): PnP's inlier floor is lowered to that
+* with the map's depth (`LocalizationParams.passes.map_depth`), where the map has keypoint depth
+  and `verify.map_depth` is off;
+* with weak candidates pooled (`passes.pooled_min_inliers` > 0): PnP's inlier floor is lowered to that
   count (`pooled`) and a weak candidate passes only where the joint refinement's keyframes explain
   the full floor together (`pooled_short`); run only when a refused candidate was weak (`weak`).
 
 A frame an earlier pass accepts is never verified again, so what it accepts is unchanged. This
-module decides the passes and their parameters; the localizer runs the verification itself.
-A GL query every pass refused may then be looked at again at full resolution
-(`pipelines.localization.second_look`), on the candidates `second_look_nodes` picks.
+module decides the passes and their parameters; GL and LL run each pass's verification under
+them (`VerifyFn`). A query every pass refused may then be looked at again at full resolution
+(`checks.second_look`), on the candidates `second_look_nodes` picks.
 """
 
 from __future__ import annotations
@@ -37,10 +37,15 @@ def weak(attempt: CandidateAttempt, floor: int) -> bool:
 
 
 def pooled(p: LocalizationParams) -> LocalizationParams:
-    """`p` with PnP's inlier floor lowered to `pooled_min_inliers` (a weak candidate then
+    """`p` with PnP's inlier floor lowered to `passes.pooled_min_inliers` (a weak candidate then
     reaches the joint refinement, see `pooled_short`); `p` itself when that is off."""
-    k = p.pooled_min_inliers
+    k = p.passes.pooled_min_inliers
     return replace(p, pnp=replace(p.pnp, min_inliers=k)) if 0 < k < p.pnp.min_inliers else p
+
+
+def with_pooled(p: LocalizationParams, k: int) -> LocalizationParams:
+    """`p` with the pooled pass's inlier floor `passes.pooled_min_inliers` set to `k` (0: no pooling)."""
+    return replace(p, passes=replace(p.passes, pooled_min_inliers=k))
 
 
 def pooled_short(res: PnpResult, joint: RefineResult | None, floor: int, min_keyframes: int) -> str:
@@ -57,24 +62,26 @@ def pooled_short(res: PnpResult, joint: RefineResult | None, floor: int, min_key
     return f"too few inliers ({res.n_inliers} < {floor}; pooled {how})"
 
 
-def passes(p: LocalizationParams, map_has_depth: bool, allowed: bool) -> list[tuple[LocalizationParams, str]]:
+def passes(p: LocalizationParams, map_has_depth: bool, allowed: bool,
+           pooling: bool = True) -> list[tuple[LocalizationParams, str]]:
     """The passes in order, each (its parameters, how the stop reason names it; '' for the first).
     `allowed`: whether the map-depth pass may run (LL only from a fresh prior, whose gate keeps a
     repeated place out); it turns GL's distinctiveness test on (map depth lets a repeated place
-    verify too)."""
-    out: list[tuple[LocalizationParams, str]] = [(replace(p, pooled_min_inliers=0), "")]
-    if allowed and p.map_depth_fallback and not p.verify_map_depth and map_has_depth:
-        out.append((replace(out[0][0], verify_map_depth=True,
-                            gl_distinct_ratio=p.map_depth_fallback_distinct_ratio or p.gl_distinct_ratio),
+    verify too). `pooling`: whether the pooled pass may run (not in the second look)."""
+    first = with_pooled(p, 0)
+    out: list[tuple[LocalizationParams, str]] = [(first, "")]
+    if allowed and p.passes.map_depth and not p.verify.map_depth and map_has_depth:
+        ratio = p.passes.map_depth_distinct_ratio or p.distinctiveness.ratio
+        out.append((replace(first, verify=replace(first.verify, map_depth=True),
+                            distinctiveness=replace(first.distinctiveness, ratio=ratio)),
                     "verified again with the map's depth"))
-    if p.pooled_min_inliers > 0:
-        out.append((replace(out[-1][0], pooled_min_inliers=p.pooled_min_inliers),
-                    "verified again with weak candidates pooled"))
+    if pooling and p.passes.pooled_min_inliers > 0:
+        out.append((with_pooled(out[-1][0], p.passes.pooled_min_inliers), "verified again with weak candidates pooled"))
     return out
 
 
 def with_second_passes(verify: VerifyFn, p: LocalizationParams, timer: StageTimer, map_has_depth: bool,
-                       allowed: bool = True) -> LocalizationResult:
+                       allowed: bool = True, pooling: bool = True) -> LocalizationResult:
     """`verify(params)` under each of `passes(p, ...)` until one accepts (a pooled pass only where
     a refused candidate was `weak`). The refusals' attempts are kept in front and their reasons
     named in the stop reason; `timer`'s total is the whole query's, all passes."""
@@ -82,10 +89,10 @@ def with_second_passes(verify: VerifyFn, p: LocalizationParams, timer: StageTime
     refusals: list[str] = []  # the reasons of the passes refused before the last one run
     res: LocalizationResult | None = None
     last_how = ""
-    for params, how in passes(p, map_has_depth, allowed):
+    for params, how in passes(p, map_has_depth, allowed, pooling):
         if res is not None:
-            if res.accepted or (params.pooled_min_inliers
-                                and not any(weak(a, params.pooled_min_inliers) for a in attempts)):
+            if res.accepted or (params.passes.pooled_min_inliers
+                                and not any(weak(a, params.passes.pooled_min_inliers) for a in attempts)):
                 break  # accepted, or no candidate that a weaker floor could let through
             refusals.append(res.reason)
             timer.ms.pop("total", None)

@@ -3,6 +3,7 @@ and the two-view relative pose used by GL and LL verification."""
 
 from __future__ import annotations
 
+import copy
 import time
 from collections.abc import Callable
 
@@ -43,9 +44,9 @@ def relative_pose(
     Matches live vs reference features, lifts the matched live keypoints with the live
     depth (`pipelines.depth_lookup`), solves PnP into the reference image and applies the
     acceptance gates plus the distance gate. With `ref_depth` ((N_ref,) metres at each
-    reference keypoint, NaN = none: the map's depth) and `params.verify_map_depth`, it also
+    reference keypoint, NaN = none: the map's depth) and `params.verify.map_depth`, it also
     solves PnP from the reference points into the live pixels and keeps the direction with
-    more inliers (see `LocalizationParams.verify_map_depth`). `fits`: PnP fits to reuse (see
+    more inliers (see `LocalizationParams.verify.map_depth`). `fits`: PnP fits to reuse (see
     `solve_pnp`; a query verified again reuses its fits). Returns (PnpResult or None if
     too few matches, number of matches, reason, which gate refused it: `Refusal.NONE` if none).
     """
@@ -54,25 +55,25 @@ def relative_pose(
     t0 = timer.now()
     i_live, i_ref = match(live_feats, ref_feats)
     add("match", t0)
-    if len(i_live) < max(params.min_matches, params.pnp.min_inliers):  # cheap rejection: PnP cannot pass
+    if len(i_live) < max(params.verify.min_matches, params.pnp.min_inliers):  # cheap rejection: PnP cannot pass
         return None, len(i_live), f"too few matches ({len(i_live)})", Refusal.MATCHES
     t0 = timer.now()
     uv = np.asarray(live_feats.keypoints, dtype=np.float64)[i_live]
     kp_ref = np.asarray(ref_feats.keypoints, dtype=np.float64)[i_ref]
     z = depth_at(live_depth, uv, params.depth)
     ok = np.isfinite(z)
-    z_ref = (np.asarray(ref_depth, np.float64)[i_ref] if ref_depth is not None and params.verify_map_depth
+    z_ref = (np.asarray(ref_depth, np.float64)[i_ref] if ref_depth is not None and params.verify.map_depth
              else np.full(len(i_ref), np.nan))
     ok_ref = np.isfinite(z_ref) & (z_ref > 0)
     add("lift", t0)
-    if max(ok.sum(), ok_ref.sum()) < params.min_matches:
+    if max(ok.sum(), ok_ref.sum()) < params.verify.min_matches:
         return None, len(i_live), f"too few matches with depth ({max(ok.sum(), ok_ref.sum())})", Refusal.DEPTH
     t0 = timer.now()
     res: PnpResult | None = None
-    if ok.sum() >= params.min_matches:
+    if ok.sum() >= params.verify.min_matches:
         pts = backproject_pixels(K_live, uv[ok], z[ok].astype(np.float64))
         res = solve_pnp(pts, kp_ref[ok], K_ref, params.pnp, fits)
-    if ok_ref.sum() >= params.min_matches:
+    if ok_ref.sum() >= params.verify.min_matches:
         rev = inverse_result(solve_pnp(backproject_pixels(K_ref, kp_ref[ok_ref], z_ref[ok_ref]), uv[ok_ref],
                                        K_live, params.pnp, fits))
         if res is None or (rev.accepted, rev.n_inliers) > (res.accepted, res.n_inliers):
@@ -82,8 +83,8 @@ def relative_pose(
     if res.accepted and res.T_target_source is not None:
         # The translation of T_ref_live is the live camera centre in the reference frame.
         dist = float(np.linalg.norm(res.T_target_source[:3, 3]))
-        if dist > params.max_distance_to_node_m:
-            reason = f"pose {dist:.1f} m from its reference node (> {params.max_distance_to_node_m})"
+        if dist > params.verify.max_distance_to_node_m:
+            reason = f"pose {dist:.1f} m from its reference node (> {params.verify.max_distance_to_node_m})"
             res = PnpResult(False, reason, res.T_target_source, res.inliers, res.n_matches,
                             res.median_reprojection_px, res.covariance, refusal=Refusal.DISTANCE)
     return res, len(i_live), res.reason, res.refusal
@@ -109,11 +110,18 @@ class Query:
         self.map, self.params, self.match = topomap, params, match
         self.feats, self.depth, self.K, self.timer = feats, depth, K, timer
         self._matches: dict[int, tuple[NDArray[np.int64], NDArray[np.int64]]] = {}
-        self._points: NDArray[np.float64] | None = None
+        self._lifted: dict[str, NDArray[np.float64]] = {}  # "points": the lifted live keypoints, once
         self.pnp_fits: PnpFits = {}  # PnP fits, reused when a later pass verifies a keyframe again
         self.rerank_counts: dict[int, int] = {}  # GL: mutual-nearest-neighbour count per re-ranked node
         # GL: those mutual nearest neighbours, (live indices, keyframe indices) per re-ranked node
         self.rerank_pairs: dict[int, tuple[NDArray[np.int64], NDArray[np.int64]]] = {}
+
+    def under(self, params: LocalizationParams) -> Query:
+        """This query verified under `params` (a later pass's): the same features, matches, lifted
+        points and PnP fits, shared with this one."""
+        view = copy.copy(self)
+        view.params = params
+        return view
 
     def matches(self, node: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
         """(live indices, keyframe indices) of the matches with `node`."""
@@ -126,16 +134,16 @@ class Query:
 
     def points(self) -> NDArray[np.float64]:
         """(N, 3) live keypoints lifted with the live depth (NaN rows where no depth)."""
-        if self._points is None:
+        if "points" not in self._lifted:
             t0 = self.timer.now()
             uv = np.asarray(self.feats.keypoints, dtype=np.float64).reshape(-1, 2)
             z = depth_at(self.depth, uv, self.params.depth).astype(np.float64)
             pts = np.full((len(uv), 3), np.nan)
             ok = np.isfinite(z)
             pts[ok] = backproject_pixels(self.K, uv[ok], z[ok])
-            self._points = pts
+            self._lifted["points"] = pts
             self.timer.add("lift", t0)
-        return self._points
+        return self._lifted["points"]
 
     def observations(self, node: int) -> KeyframeObservations:
         """The matches with `node` as refinement input (see `_observations`)."""
@@ -144,13 +152,13 @@ class Query:
     def _observations(self, node: int, i_live: NDArray[np.int64], i_kf: NDArray[np.int64]) -> KeyframeObservations:
         """Matches (live indices, keyframe indices) with `node` as refinement input: those with
         live depth as live points; those without, where the map has depth at the keyframe
-        keypoint (and `verify_map_depth`), as keyframe points reprojected into the live image."""
+        keypoint (and `verify.map_depth`), as keyframe points reprojected into the live image."""
         m = self.map
         pts = self.points()[i_live]
         ok = np.all(np.isfinite(pts), axis=1)
         kp = np.asarray(m.features[node].keypoints, dtype=np.float64)[i_kf]
         z_kf = self._map_depth(node, i_kf)
-        if z_kf is None or not self.params.verify_map_depth:
+        if z_kf is None or not self.params.verify.map_depth:
             return KeyframeObservations(node, pts[ok], kp[ok], m.K[node], m.T_map_camera[node],
                                         None if z_kf is None else z_kf[ok])
         rev = ~ok & np.isfinite(z_kf) & (z_kf > 0)
@@ -190,11 +198,11 @@ class Query:
 
     def guided_observations(self, node: int, T_map_live: NDArray[np.float64]) -> KeyframeObservations:
         """Matches with `node` found by projecting with `T_map_live` (no model): the live points
-        into the keyframe, and (`verify_map_depth`) the keyframe's points (map depth) into the
+        into the keyframe, and (`verify.map_depth`) the keyframe's points (map depth) into the
         live image for live keypoints without live depth."""
         i_live, i_kf = self._guided(node, T_map_live)
         z_kf = self._map_depth(node, np.arange(len(self.map.features[node].keypoints)))
-        if z_kf is not None and self.params.verify_map_depth:
+        if z_kf is not None and self.params.verify.map_depth:
             m, f = self.map, self.map.features[node]
             kf_pts = backproject_pixels(m.K[node], np.asarray(f.keypoints, np.float64).reshape(-1, 2), z_kf)
             kf_pts[~(z_kf > 0)] = np.nan

@@ -290,6 +290,46 @@ def _perturb(T: F64, d: NDArray[np.floating]) -> F64:
     return T @ make_T(so3_exp(np.asarray(d[3:], dtype=np.float64)), np.asarray(d[:3], dtype=np.float64))
 
 
+def _solve_terms(observations: list[KeyframeObservations], T0: F64, p: RefineParams) -> list[_Terms]:
+    """The keyframes' correspondences within `gate_px` of the initial pose `T0`, as solve terms;
+    a keyframe with fewer than `min_keyframe_inliers` of them is left out."""
+    used: list[_Terms] = []
+    for ob in observations:
+        pts = np.asarray(ob.points_live, dtype=np.float64).reshape(-1, 3)
+        px = np.asarray(ob.pixels, dtype=np.float64).reshape(-1, 2)
+        rev = _live_reprojections(ob, T0, p)
+        keep = np.zeros(0, bool)
+        if len(pts):
+            r, _, _ = _residuals_and_jacobian(T0, ob, pts, px)
+            keep = np.linalg.norm(r, axis=1) <= p.gate_px
+        if keep.sum() + (0 if rev is None else len(rev.P_kf)) < p.min_keyframe_inliers:
+            continue
+        z_kf = None if ob.depth_kf is None else np.asarray(ob.depth_kf, np.float64).reshape(-1)[keep]
+        used.append(_Terms(ob, pts[keep], px[keep], z_kf, T0, p, rev))
+    return used
+
+
+def _consistent_keyframes(used: list[_Terms], T: F64,
+                          p: RefineParams) -> tuple[dict[int, int], list[F64], list[F64]]:
+    """Under the joint pose `T`: the inliers (within `inlier_px`) of each keyframe with at least
+    `min_keyframe_inliers` of them, by node; their pixel errors; their 6x6 information matrices
+    (whitened Gauss-Newton, scaled by the residual variance where it exceeds 1)."""
+    inl: dict[int, int] = {}
+    errs: list[F64] = []
+    info: list[F64] = []
+    for t in used:
+        _, _, e = t.whitened(T)
+        ok = e <= p.inlier_px
+        if ok.sum() < p.min_keyframe_inliers:
+            continue
+        inl[t.ob.node] = int(ok.sum())
+        errs.append(e[ok])
+        rw, Jw, _ = t.whitened(T, ok)
+        s2 = max(float(rw @ rw) / max(len(rw) - 6, 1), 1.0)
+        info.append(Jw.T @ Jw / s2)
+    return inl, errs, info
+
+
 def refine_pose(
     T_map_camera_init: NDArray[np.floating], observations: list[KeyframeObservations], params: RefineParams
 ) -> RefineResult:
@@ -306,19 +346,7 @@ def refine_pose(
     """
     T0 = np.asarray(T_map_camera_init, dtype=np.float64)
     p = params
-    used: list[_Terms] = []
-    for ob in observations:
-        pts = np.asarray(ob.points_live, dtype=np.float64).reshape(-1, 3)
-        px = np.asarray(ob.pixels, dtype=np.float64).reshape(-1, 2)
-        rev = _live_reprojections(ob, T0, p)
-        keep = np.zeros(0, bool)
-        if len(pts):
-            r, _, _ = _residuals_and_jacobian(T0, ob, pts, px)
-            keep = np.linalg.norm(r, axis=1) <= p.gate_px
-        if keep.sum() + (0 if rev is None else len(rev.P_kf)) < p.min_keyframe_inliers:
-            continue
-        z_kf = None if ob.depth_kf is None else np.asarray(ob.depth_kf, np.float64).reshape(-1)[keep]
-        used.append(_Terms(ob, pts[keep], px[keep], z_kf, T0, p, rev))
+    used = _solve_terms(observations, T0, p)
     matches = {ob.node: ob.n_matches for ob in observations}
     if not used:  # (one consistent keyframe is still solved: its pose can be a provisional GL vote)
         return RefineResult(False, f"no keyframe consistent with the initial pose (< {p.min_keyframes})",
@@ -351,19 +379,7 @@ def refine_pose(
     dR = T0[:3, :3].T @ T[:3, :3]
     shift_deg = float(np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1))))
 
-    inl: dict[int, int] = {}
-    errs: list[F64] = []
-    info: list[F64] = []
-    for t in used:
-        _, _, e = t.whitened(T)
-        ok = e <= p.inlier_px
-        if ok.sum() < p.min_keyframe_inliers:
-            continue
-        inl[t.ob.node] = int(ok.sum())
-        errs.append(e[ok])
-        rw, Jw, _ = t.whitened(T, ok)
-        s2 = max(float(rw @ rw) / max(len(rw) - 6, 1), 1.0)
-        info.append(Jw.T @ Jw / s2)
+    inl, errs, info = _consistent_keyframes(used, T, p)
     med = float(np.median(np.concatenate(errs))) if errs else float("nan")
     kfs = np.stack([t.ob.T_map_kf for t in used if t.ob.node in inl]) if inl else np.zeros((0, 4, 4))
     cov = joint_covariance(info, p, viewpoint_angle_rad(T, kfs), keyframe_distance_m(T, kfs)) if info else None

@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.pipelines.localization.refusals import QueryRefusal
 from litevloc.pipelines.localization.tracking import TrackingState
 from litevloc.pipelines.pnp import Refusal
 
@@ -56,7 +57,8 @@ class ProvisionalPose:
 
 @dataclass(frozen=True, eq=False)
 class LocalizationResult:
-    """Outcome of one query. `accepted` False means "not localized" (pose is None)."""
+    """Outcome of one query. `accepted` False means "not localized" (pose is None); `refusal` says
+    why by kind, `reason` in words with its numbers."""
 
     t_ns: int
     mode: str  # "global" | "local"
@@ -77,15 +79,10 @@ class LocalizationResult:
     provisional: ProvisionalPose | None = None  # rejected GL results only (see ProvisionalPose)
     candidates: tuple[int, ...] = ()  # GL: the nodes it would verify, in order (`global_candidates`)
     tracking_state: TrackingState | None = None  # the localizer's state after this query, when the caller reports it
+    refusal: QueryRefusal = QueryRefusal.NONE  # why it was not localized, by kind (NONE: accepted)
 
 
-@dataclass(frozen=True)
-class HeldPose:
-    """A GL or LL pose that its fused prior could not confirm (outside its gate, or the prior
-    too stale), held until a later frame repeats it (`LocalizationParams.repeat_within_s`, `repeat_within_m`):
-    both 4x4 `T_map_camera`, stamp in ns; `inside_gate`: the pose lay inside the prior's gate."""
-
-    t_ns: int
-    T_map_camera: NDArray[np.float64]
-    prior_T_map_camera: NDArray[np.float64]
-    inside_gate: bool = False
+def refused(res: LocalizationResult, refusal: QueryRefusal, reason: str) -> LocalizationResult:
+    """`res` not accepted, for `refusal` (`reason` its words): its pose, covariance and matches removed."""
+    return replace(res, accepted=False, T_map_camera=None, covariance=None, matches=None, reason=reason,
+                   refusal=refusal)

@@ -1,7 +1,7 @@
 """The tracking state machine's states and transitions, and the state the service publishes.
 
 The localizer (`vloc.VisualLocalizer.process`) moves INIT -> GLOBAL (GL over the whole map)
--> TRACKING (LL around the prior) -> LOST (`ll_failures_before_lost` LL failures in a row)
+-> TRACKING (LL around the prior) -> LOST (`local_search.failures_before_lost` LL failures in a row)
 -> GLOBAL on its next query. The service adds what only it knows, fusion, through
 `published_state`: the state on `litevloc/status` and the LOST flag of the published poses.
 """

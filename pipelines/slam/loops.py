@@ -9,14 +9,14 @@ overlap, so their neighbours' views still confirm a loop, and the matcher runs d
 that factor. With `loops.chain_pregate`, a
 candidate of the new keyframe's chain is skipped before that bound when the chain places it
 farther away than the chain gate (`pipelines.slam.consistency`) could accept for any loop
-verification can return (a verified loop is at most `localization.max_distance_to_node_m`
+verification can return (a verified loop is at most `localization.verify.max_distance_to_node_m`
 long): in a corridor whose texture repeats, most candidates are such repetitions.
 
 Verification (`verify_loop`) is the localizer's own geometry (`pipelines.localization`):
 the new keyframe plays the live frame (its keypoints lifted with its depth) and the candidate
 and its neighbours in their chain play map keyframes, posed by their initial (chained)
 estimates, which are consistent over so short a stretch. Matcher + PnP with depth into the
-candidate (`localization.pnp`, `min_matches`, `max_distance_to_node_m`), then the joint
+candidate (`localization.pnp`, `verify.min_matches`, `verify.max_distance_to_node_m`), then the joint
 refinement over the candidate and its neighbours matched by projection
 (`localization.refine`): accepted only when a second keyframe agrees. The loop factor is the
 joint pose relative to the candidate, with the refinement's covariance (its noise model
@@ -96,12 +96,12 @@ def verify_loop(q: Keyframe, cand: Keyframe, views: list[Keyframe], match: Match
     i_q, i_c = match(q.features, cand.features)
     i_q, i_c = np.asarray(i_q, np.int64), np.asarray(i_c, np.int64)
     first = _observations(q, cand, i_q, i_c)
-    if len(first.points_live) < max(loc.min_matches, loc.pnp.min_inliers):
+    if len(first.points_live) < max(loc.verify.min_matches, loc.pnp.min_inliers):
         return reject(f"too few matches with depth ({len(first.points_live)})")
     res = solve_pnp(first.points_live, first.pixels, cand.K, loc.pnp)
     if not res.accepted or res.T_target_source is None:
         return reject(res.reason, res.n_inliers)
-    if float(np.linalg.norm(res.T_target_source[:3, 3])) > loc.max_distance_to_node_m:
+    if float(np.linalg.norm(res.T_target_source[:3, 3])) > loc.verify.max_distance_to_node_m:
         return reject(f"pose {np.linalg.norm(res.T_target_source[:3, 3]):.1f} m from the candidate", res.n_inliers)
     T0 = cand.T_init @ res.T_target_source
     obs = [first]
@@ -159,7 +159,8 @@ def loop_closures(q: Keyframe, keyframes: list[Keyframe], search: LoopSearch, ma
     cands = search.candidates(q.id, q.vpr)
     counts.candidates += len(cands)
     if gate is not None:
-        near = [(j, s) for j, s in cands if not beyond_chain_gate(q, keyframes[j], gate, loc.max_distance_to_node_m)]
+        reach = loc.verify.max_distance_to_node_m
+        near = [(j, s) for j, s in cands if not beyond_chain_gate(q, keyframes[j], gate, reach)]
         counts.pregated += len(cands) - len(near)
         cands = near
     for j, sim in cands:

@@ -23,6 +23,7 @@ from litevloc.base.geometry import backproject_depth, invert, relative_pose_erro
 from litevloc.base.params.mapping import MappingParams
 from litevloc.models.types import Features
 from litevloc.pipelines.depth_lookup import depth_at
+from litevloc.pipelines.localization.prior import Prior
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.graphs import MatchFn
 from litevloc.pipelines.topomap.keyframes import moved
@@ -155,7 +156,7 @@ def update_from_session(
             T = T_map_session @ f.T_session_camera
 
             def localize(f: SessionFrame = f, T_prior: F64 = T) -> int:
-                res = localizer.localize_local(f.t_ns, f.color, f.depth, f.K, T_prior)
+                res = localizer.localize_local(f.t_ns, f.color, f.depth, f.K, Prior(T_prior, fused=False))
                 return res.n_inliers if res.accepted else 0
         else:  # the localizer tracks every frame; only frames that moved are compared
             res = localizer.process(f.t_ns, f.color, f.depth, f.K)

@@ -55,6 +55,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litevloc.hw.messages import EncodedRgbdFrame, GroundTruthPose, Odometry, RgbdFrame, SourceMessage, StreamError
+from litevloc.pipelines.localization.prior import Prior
 from litevloc.runtime.metrics import LatencyWindow, now_ns
 from litevloc.runtime.service.core import CoreOutput, LocalizationCore, MapToOdomOut, PoseOut, VlocOut, VlocOutcome
 from litevloc.runtime.service.frame_guard import RejectedFrame
@@ -404,10 +405,9 @@ def localizer_callable(localizer: VisualLocalizer) -> VlocFn:
         elif prior.region is not None:  # an initial pose: GL near it, the fused prior ignored
             res = localizer.process(frame.t_ns, frame.color, frame.depth, frame.K, None, region=prior.region)
         else:
-            res = localizer.process(frame.t_ns, frame.color, frame.depth, frame.K, prior.T_map_camera,
-                                    prior_age_s=prior.age_s, prior_cov=prior.cov_position,
-                                    prior_travel_m=prior.travel_m)
-        return dataclasses.replace(res, tracking_state=localizer.state)
+            res = localizer.process(frame.t_ns, frame.color, frame.depth, frame.K, Prior(
+                prior.T_map_camera, prior.age_s, cov=prior.cov_position, travel_m=prior.travel_m))
+        return dataclasses.replace(res, tracking_state=localizer.tracker.state)
 
     return vloc
 

@@ -19,7 +19,7 @@ def test_an_unavailable_provider_is_skipped_with_the_reason() -> None:
 def test_cpu_latency_per_model() -> None:
     """On the default model cache (`make models`; the model tests export it)."""
     gpu = load_bench("gpu")
-    cfg = load_config("default", ["localization.second_look_candidates=0", "models.tensorrt.profile_max_keypoints=64"])
+    cfg = load_config("default", ["localization.second_look.candidates=0", "models.tensorrt.profile_max_keypoints=64"])
     r = gpu.one_provider("cpu", cfg, None, None, 0, 1)
     assert r["status"] == "ok" and [m["role"] for m in r["models"]] == ["extractor", "matcher", "vpr"]
     assert all(m["providers"] == ["CPUExecutionProvider"] and m["steady_ms"] > 0 for m in r["models"])

@@ -13,7 +13,7 @@ from litevloc.cli.main import main
 from litevloc.models import ort as mort
 from tests.models.test_providers import GPU, FakeSession
 
-FAST = ["--set", "models.tensorrt.profile_max_keypoints=64", "--set", "localization.second_look_candidates=0",
+FAST = ["--set", "models.tensorrt.profile_max_keypoints=64", "--set", "localization.second_look.candidates=0",
         "--runs", "1"]
 
 

@@ -141,7 +141,7 @@ def _tracking_localizer() -> tuple[VisualLocalizer, Scene]:
     s = Scene(m)
     loc = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)
     r = loc.process(0, IMG, s.look(pose(1.2), 1), K)
-    assert r.accepted and loc.state == TrackingState.TRACKING
+    assert r.accepted and loc.tracker.state == TrackingState.TRACKING
     return loc, s
 
 
@@ -160,13 +160,13 @@ def test_initial_pose_20m_from_the_last_fix_bounds_the_next_global_search() -> N
     assert prior is not None and prior.region is not None
     res = vloc(frame, prior)
     tried = [a.node for a in res.attempts]
-    assert tried and all(20.0 - 2.5 <= loc.map.positions[n, 0] <= 23.0 for n in tried), tried
-    assert loc.state != TrackingState.TRACKING or res.accepted
+    assert tried and all(20.0 - 2.5 <= loc.verifier.map.positions[n, 0] <= 23.0 for n in tried), tried
+    assert loc.tracker.state != TrackingState.TRACKING or res.accepted
     # without the initial pose the same query searches near the old fix
     loc2, _ = _tracking_localizer()
-    loc2.state = TrackingState.GLOBAL
+    loc2.tracker.state = TrackingState.GLOBAL
     res2 = loc2.localize_global(frame.t_ns, IMG, frame.depth, K)
-    assert all(loc2.map.positions[a.node, 0] <= 3.0 for a in res2.attempts)
+    assert all(loc2.verifier.map.positions[a.node, 0] <= 3.0 for a in res2.attempts)
     assert inp.report()["applied"] == 1 and core.counters["initial_poses_applied"] == 1
 
 

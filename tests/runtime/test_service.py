@@ -311,9 +311,9 @@ def test_adapters_for_localizer_and_fusion() -> None:
     calls: list[tuple[str, int]] = []
 
     class Loc:
-        state = "TRACKING"
+        tracker = type("T", (), {"state": "TRACKING"})()
 
-        def process(self, t_ns, color, depth, K, prior, prior_age_s=0.0, prior_cov=None, prior_travel_m=None):
+        def process(self, t_ns, color, depth, K, prior=None, region=None):
             calls.append(("process", t_ns))
             return FakeVloc()(type("F", (), {"t_ns": t_ns, "index": 0})(), prior)
 

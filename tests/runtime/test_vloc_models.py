@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from litevloc.base.params.localization import LocalizationParams
+from litevloc.base.params.localization import LocalizationParams, SecondLookParams
 from litevloc.base.params.models import ModelsConfig
 from litevloc.models.registry import ModelError
 from litevloc.models.types import Features, Matches
@@ -43,9 +43,9 @@ def test_the_second_look_is_built_only_when_on_and_a_missing_model_names_its_exp
 
     models = ModelsConfig(cache_dir=str(tmp_path))  # an empty model cache
     topomap = None  # never read when the second look is off, nor before its model is found
-    off = LocalizationParams(second_look_candidates=0)
+    off = LocalizationParams(second_look=SecondLookParams(candidates=0))
     assert second_look_for(topomap, models, off, None) is None  # type: ignore[arg-type]
-    on = LocalizationParams(second_look_candidates=2)
+    on = LocalizationParams(second_look=SecondLookParams(candidates=2))
     with pytest.raises(ModelError, match=r"aliked-n16-480x640-k2048.*litevloc models export|litevloc models export.*"
                                          r"aliked-n16-480x640-k2048"):
         second_look_for(topomap, models, on, ModelBundle(EchoExtractor(), EchoMatcher(), None))  # type: ignore[arg-type]

@@ -14,6 +14,7 @@ from litevloc.base.params.fusion import FusionParams
 from litevloc.config.schema import RuntimeConfig
 from litevloc.hw.messages import Odometry, RgbdFrame
 from litevloc.pipelines.fusion.online import OnlineFusion
+from litevloc.pipelines.localization.prior import Prior
 from litevloc.runtime.service.core import FusionPort, LocalizationCore
 from litevloc.runtime.service.fusion_port import fusion_port
 from litevloc.runtime.service.shell import Service, ServicePorts
@@ -100,12 +101,12 @@ def test_delayed_frame_gets_the_pose_at_its_stamp_and_its_true_age() -> None:
     seen: list[tuple[np.ndarray | None, float, np.ndarray | None, float | None]] = []
 
     class Loc:
-        state = "LOCAL"
+        tracker = type("T", (), {"state": "LOCAL"})()
 
-        def process(self, t_ns: int, color: object, depth: object, K: object, prior: np.ndarray | None,
-                    prior_age_s: float = 0.0, prior_cov: np.ndarray | None = None,
-                    prior_travel_m: float | None = None) -> Result:
-            seen.append((prior, prior_age_s, prior_cov, prior_travel_m))
+        def process(self, t_ns: int, color: object, depth: object, K: object, prior: Prior | None = None,
+                    region: object = None) -> Result:
+            assert prior is not None and prior.fused
+            seen.append((prior.T_map_camera, prior.age_s, prior.cov, prior.travel_m))
             return Result(t_ns, False, "too few inliers")
 
     from litevloc.runtime.service.shell import localizer_callable

@@ -11,15 +11,17 @@ import pytest
 from numpy.typing import NDArray
 
 from litevloc.base import geometry as g
-from litevloc.base.params.localization import LocalizationParams
+from litevloc.base.params.localization import DistinctivenessParams, LocalizationParams
 from litevloc.pipelines.localization.distinct import Rival, VerifiedPose, ambiguity, rivals_to_verify, strongest_rival
+from litevloc.pipelines.localization.prior import Prior
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.types import NodeFeatures, TopoMap
 from tests.pipelines.localization.test_vloc import IMG, PARAMS, Feats, K, Scene, make_map, pose
 
 # re-ranking and guided matching off: over these large synthetic keypoint sets they dominate the time
-GUARD = replace(PARAMS, gl_top_k=4, gl_distinct_ratio=2.0, gl_rerank=False,
-                refine=replace(PARAMS.refine, extra_matching="model"))
+GUARD = replace(PARAMS, refine=replace(PARAMS.refine, extra_matching="model"),
+                global_search=replace(PARAMS.global_search, top_k=4,
+                                      rerank=False), distinctiveness=replace(PARAMS.distinctiveness, ratio=2.0))
 
 
 def _corridor() -> TopoMap:
@@ -45,8 +47,8 @@ def test_rivals_are_candidates_at_another_pose_and_the_ratio_decides() -> None:
     assert ambiguity(0, 101, Rival(2, 50, 10.0, 0.0), 2.0) == ""
     assert ambiguity(0, 100, Rival(2, 99, 10.0, 0.0), 0.0) == ""  # off
     assert ambiguity(0, 100, None, 2.0) == ""
-    with pytest.raises(ValueError, match="gl_distinct_ratio"):
-        LocalizationParams(gl_distinct_ratio=0.5)
+    with pytest.raises(ValueError, match="ratio must be 0"):
+        LocalizationParams(distinctiveness=DistinctivenessParams(ratio=0.5))
 
 
 def test_gl_refuses_a_pose_that_another_place_verifies_as_well() -> None:
@@ -55,18 +57,20 @@ def test_gl_refuses_a_pose_that_another_place_verifies_as_well() -> None:
     T_true = pose(0.3, 4.0)
     depth = s.look(T_true, vpr_best=0)
     s.vpr[2] = 0.9  # the aliased place ranks second
-    off = VisualLocalizer(m, replace(GUARD, gl_distinct_ratio=0.0), s.extract, s.describe, s.match)
+    off = VisualLocalizer(m, replace(GUARD, distinctiveness=replace(GUARD.distinctiveness, ratio=0.0)), s.extract,
+                          s.describe, s.match)
     assert off.localize_global(0, IMG, depth, K).accepted  # without the test: a fix at one of the two
     on = VisualLocalizer(m, GUARD, s.extract, s.describe, s.match)
     r = on.localize_global(0, IMG, depth, K)
     assert not r.accepted and r.T_map_camera is None and r.provisional is None
     assert "ambiguous" in r.reason and "10.00 m" in r.reason, r.reason
     # a fresh prior is trusted: the pose that agrees with it is accepted
-    r = on.localize_global(0, IMG, depth, K, pose(0.4, 3.0), prior_age_s=0.1)
+    r = on.localize_global(0, IMG, depth, K, Prior(pose(0.4, 3.0), 0.1))
     assert r.accepted, r.reason
     assert g.relative_pose_error(r.T_map_camera, T_true)[0] < 0.01
     # the rivals verified after the winner are bounded
-    none = VisualLocalizer(m, replace(GUARD, gl_distinct_max_rivals=0), s.extract, s.describe, s.match)
+    none = VisualLocalizer(m, replace(GUARD, distinctiveness=replace(GUARD.distinctiveness, max_rivals=0)), s.extract,
+                           s.describe, s.match)
     assert none.localize_global(0, IMG, depth, K).accepted
     # where the other period does not verify (its matches garbage), the place is distinctive
     s.broken_nodes = {2, 3}
@@ -103,14 +107,17 @@ def test_the_test_stops_once_a_rival_decides() -> None:
 
 
 def test_the_screen_verifies_only_candidates_the_reranking_puts_elsewhere() -> None:
-    screen = replace(GUARD, gl_rerank=True, gl_distinct_screen=True, refine=PARAMS.refine)  # guided joint: no matcher
+    # guided joint: no matcher
+    screen = replace(GUARD, refine=PARAMS.refine, global_search=replace(GUARD.global_search, rerank=True),
+                     distinctiveness=replace(GUARD.distinctiveness, screen=True))
     m = make_map([0.0, 1.0, 2.0])
     s = Scene(m)
     depth = s.look(pose(0.8, 3.0), vpr_best=1)
     runs: dict[bool, list[int]] = {}
     for on in (False, True):
         runs[on] = []
-        loc = VisualLocalizer(m, replace(screen, gl_distinct_screen=on), s.extract, s.describe, _counting(s, runs[on]))
+        loc = VisualLocalizer(m, replace(screen, distinctiveness=replace(screen.distinctiveness, screen=on)),
+                              s.extract, s.describe, _counting(s, runs[on]))
         r = loc.localize_global(0, IMG, depth, K)
         assert r.accepted and g.relative_pose_error(r.T_map_camera, pose(0.8, 3.0))[0] < 0.01, r.reason
     assert len(runs[False]) == 3 and len(runs[True]) == 1, runs  # the same place: no matcher run for the test

@@ -10,6 +10,7 @@ from numpy.typing import NDArray
 
 from litevloc.base import geometry as g
 from litevloc.base.params.localization import RefineParams
+from litevloc.pipelines.localization.prior import Prior
 from litevloc.pipelines.localization.refine import KeyframeObservations, refine_pose
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.pnp import PnpResult, inverse_result
@@ -42,20 +43,21 @@ def test_gl_verifies_and_confirms_with_map_depth_where_live_depth_is_missing() -
     T_true = pose(0.7, 4.0)
     depth = _holes(s.look(T_true, vpr_best=1), 8)
     assert np.isfinite(depth).mean() < 0.1
-    on_params = replace(PARAMS, verify_map_depth=True)
+    on_params = replace(PARAMS, verify=replace(PARAMS.verify, map_depth=True))
     on = VisualLocalizer(m, on_params, s.extract, s.describe, s.match).localize_global(0, IMG, depth, K)
     assert on.accepted, on.reason
     assert len(on.keyframes) >= 2  # the second keyframe confirmed it through map-depth terms
     dt, dr = g.relative_pose_error(on.T_map_camera, T_true)
     assert dt < 0.01 and dr < 0.3
-    off = VisualLocalizer(m, replace(PARAMS, verify_map_depth=False, map_depth_fallback=False), s.extract, s.describe,
+    off = VisualLocalizer(m, replace(PARAMS, verify=replace(PARAMS.verify, map_depth=False),
+                                     passes=replace(PARAMS.passes, map_depth=False)), s.extract, s.describe,
                           s.match)
     r = off.localize_global(0, IMG, depth, K)
     assert not r.accepted and all("too few matches with depth" in a.reason for a in r.attempts)
 
 
 def test_the_map_depth_fallback_verifies_again_only_what_live_depth_refused() -> None:
-    """`map_depth_fallback`: GL and LL refused for want of live depth are verified again with the
+    """`passes.map_depth`: GL and LL refused for want of live depth are verified again with the
     map's depth (accepted, saying so); a frame that live depth verifies is not verified twice."""
     m = _with_map_depth(make_map([0.0, 0.5, 1.0, 1.5]))
     s = Scene(m)
@@ -63,18 +65,21 @@ def test_the_map_depth_fallback_verifies_again_only_what_live_depth_refused() ->
     full = s.look(T_true, vpr_best=1)
     holes = _holes(full, 8)
     loc = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match)  # the fallback is on by default
-    for r in (loc.localize_global(0, IMG, holes, K), loc.localize_local(0, IMG, holes, K, pose(0.75))):
+    near = Prior(pose(0.75), fused=False)
+    for r in (loc.localize_global(0, IMG, holes, K), loc.localize_local(0, IMG, holes, K, near)):
         assert r.accepted and "verified again with the map's depth" in r.stop_reason, (r.mode, r.reason)
         assert any("too few matches with depth" in a.reason for a in r.attempts)  # the first pass's refusal kept
         assert g.relative_pose_error(r.T_map_camera, T_true)[0] < 0.01
-    assert not loc.params.verify_map_depth  # for that query alone
-    stale = loc.localize_local(0, IMG, holes, K, pose(0.75), prior_age_s=10.0)  # a repeated place could pass its gate
+    assert not loc.params.verify.map_depth  # for that query alone
+    # a repeated place could pass its gate
+    stale = loc.localize_local(0, IMG, holes, K, Prior(pose(0.75), 10.0, fused=False))
     assert not stale.accepted and "map's depth" not in stale.stop_reason
     r = loc.localize_global(0, IMG, full, K)
     assert r.accepted and "map's depth" not in r.stop_reason
-    off = VisualLocalizer(m, replace(PARAMS, map_depth_fallback=False), s.extract, s.describe, s.match)
+    off = VisualLocalizer(m, replace(PARAMS, passes=replace(PARAMS.passes, map_depth=False)), s.extract, s.describe,
+                          s.match)
     assert not off.localize_global(0, IMG, holes, K).accepted
-    assert not off.localize_local(0, IMG, holes, K, pose(0.75)).accepted
+    assert not off.localize_local(0, IMG, holes, K, Prior(pose(0.75), fused=False)).accepted
 
 
 def test_refinement_with_keyframe_points_only_reaches_the_truth() -> None:
@@ -101,10 +106,12 @@ def test_gl_reranks_a_shortlist_deeper_than_what_it_verifies() -> None:
     depth = s.look(pose(4.9), vpr_best=0)
     s.vpr = np.array([1.0, 0.9, 0.8, 0.7, 0.6, 0.5], np.float32)  # the right places rank last
     s.broken_nodes = {0, 1, 2}
-    shallow = VisualLocalizer(m, replace(PARAMS, gl_top_k=2, gl_rerank_depth=0), s.extract, s.describe, s.match)
+    shallow = VisualLocalizer(m, replace(PARAMS, global_search=replace(PARAMS.global_search, top_k=2, rerank_depth=0)),
+                              s.extract, s.describe, s.match)
     r = shallow.localize_global(0, IMG, depth, K)
     assert not r.accepted and set(r.candidates) == {0, 1}
-    deep = VisualLocalizer(m, replace(PARAMS, gl_top_k=2, gl_rerank_depth=6), s.extract, s.describe, s.match)
+    deep = VisualLocalizer(m, replace(PARAMS, global_search=replace(PARAMS.global_search, top_k=2, rerank_depth=6)),
+                           s.extract, s.describe, s.match)
     r = deep.localize_global(0, IMG, depth, K)
     assert r.accepted and set(r.candidates) <= {3, 4, 5} and r.ref_node in (4, 5)
 

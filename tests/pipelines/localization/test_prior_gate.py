@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from litevloc.pipelines.localization.prior_gate import narrowed_gate, sigma_along
+from litevloc.pipelines.localization.prior import narrowed_gate, sigma_along
 
 
 def test_sigma_along_a_direction_of_any_length() -> None:

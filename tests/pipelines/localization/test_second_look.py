@@ -14,10 +14,11 @@ import pytest
 from numpy.typing import NDArray
 
 from litevloc.base import geometry as g
+from litevloc.pipelines.localization.checks.see_through import moved_onto_live_depth, see_through
 from litevloc.pipelines.localization.passes import second_look_nodes
+from litevloc.pipelines.localization.prior import Prior
 from litevloc.pipelines.localization.results import CandidateAttempt, LocalizationResult
-from litevloc.pipelines.localization.second_look import SecondLook, StoredImageFeatures, moved_onto_live_depth
-from litevloc.pipelines.localization.see_through import see_through
+from litevloc.pipelines.localization.second_look import SecondLook, StoredImageFeatures
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.pnp import Refusal
 from litevloc.pipelines.topomap.types import NodeFeatures, TopoMap
@@ -118,11 +119,13 @@ def test_a_gl_query_the_first_look_refuses_is_accepted_by_the_second() -> None:
     T_true = pose(1.3, 5.0)
     depth = s.look(T_true, vpr_best=1)
     few = matching_25_with_depth(s, depth)
-    p = replace(PARAMS, pooled_min_inliers=0, second_look_candidates=2, second_look_from_inliers=0)
+    p = replace(PARAMS, passes=replace(PARAMS.passes, pooled_min_inliers=0),
+                second_look=replace(PARAMS.second_look, candidates=2, from_inliers=0))
     full = FullResolution(s, m)
     look = SecondLook(m, p, full.extract, s.describe, match_by_id, SMALLER)
     loc = VisualLocalizer(m, p, s.extract, s.describe, few, second_look=look)
-    off = VisualLocalizer(m, replace(p, second_look_candidates=0), s.extract, s.describe, few, second_look=look)
+    off = VisualLocalizer(m, replace(p, second_look=replace(p.second_look, candidates=0)), s.extract, s.describe, few,
+                          second_look=look)
     refused = off.localize_global(0, IMG, depth, K)
     assert not refused.accepted and "full resolution" not in refused.stop_reason
     r = loc.localize_global(0, IMG, depth, K)
@@ -140,14 +143,14 @@ def test_a_gl_query_the_first_look_refuses_is_accepted_by_the_second() -> None:
     # the same look, its pose moved 1 m ahead: the keyframes' points then lie in front of the live
     # depth (it sees through the map) and it is refused, saying so
     ahead = SecondLook(m, p, full.extract, s.describe, match_by_id, SMALLER)
-    verify = ahead.localizer.localize_global
+    verify = ahead.global_.localize
 
     def moved(*args: Any, **kwargs: Any) -> LocalizationResult:
         res = verify(*args, **kwargs)
         assert res.T_map_camera is not None
         return replace(res, T_map_camera=res.T_map_camera @ g.make_T(np.eye(3), [0, 0, 1.0]))
 
-    ahead.localizer.localize_global = moved  # type: ignore[method-assign]
+    ahead.global_.localize = moved  # type: ignore[method-assign]
     r4 = VisualLocalizer(m, p, s.extract, s.describe, few, second_look=ahead).localize_global(0, IMG, depth, K)
     assert not r4.accepted and "sees through the map" in r4.stop_reason, r4.stop_reason
     # an image no larger than what the first look's extractor sees has nothing finer to show
@@ -162,7 +165,8 @@ def test_the_second_look_refuses_what_its_features_do_not_verify_and_a_gate_skip
     s = Scene(m)
     depth = s.look(pose(1.0), 1)
     s.broken_nodes = {0, 1, 2}
-    p = replace(PARAMS, pooled_min_inliers=0, second_look_candidates=3, second_look_from_inliers=0)
+    p = replace(PARAMS, passes=replace(PARAMS.passes, pooled_min_inliers=0),
+                second_look=replace(PARAMS.second_look, candidates=3, from_inliers=0))
     full = FullResolution(s, m)
 
     def garbage(a: Feats, b: NodeFeatures) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
@@ -174,7 +178,8 @@ def test_the_second_look_refuses_what_its_features_do_not_verify_and_a_gate_skip
     r = loc.localize_global(0, IMG, depth, K)
     assert not r.accepted and r.T_map_camera is None
     assert "looked at again at full resolution (nodes [" in r.stop_reason and "second_look" in r.timings_ms
-    gated = VisualLocalizer(m, replace(p, second_look_from_inliers=30), s.extract, s.describe, s.match,
+    gated = VisualLocalizer(m, replace(p, second_look=replace(p.second_look, from_inliers=30)), s.extract, s.describe,
+                            s.match,
                             second_look=SecondLook(m, p, full.extract, s.describe, garbage, SMALLER))
     r2 = gated.localize_global(0, IMG, depth, K)
     assert not r2.accepted and "second_look" not in r2.timings_ms  # no candidate reached the gate
@@ -183,13 +188,13 @@ def test_the_second_look_refuses_what_its_features_do_not_verify_and_a_gate_skip
 def test_second_look_needs_its_models_and_the_maps_images() -> None:
     m = make_map([0.0, 1.0])
     s = Scene(m)
-    p = replace(PARAMS, second_look_candidates=1)
-    with pytest.raises(ValueError, match="second_look_candidates > 0 needs the second look's models"):
+    p = replace(PARAMS, second_look=replace(PARAMS.second_look, candidates=1))
+    with pytest.raises(ValueError, match=r"second_look\.candidates > 0 needs the second look's models"):
         VisualLocalizer(m, p, s.extract, s.describe, s.match)
     with pytest.raises(ValueError, match="second look needs every keyframe's stored image"):
         SecondLook(replace(m, images_jpeg=[]), p, s.extract, s.describe, s.match, SMALLER)
-    with pytest.raises(ValueError, match="second_look_candidates"):
-        replace(PARAMS, second_look_candidates=-1)
+    with pytest.raises(ValueError, match="candidates and from_inliers"):
+        replace(PARAMS, second_look=replace(PARAMS.second_look, candidates=-1))
 
 
 def test_a_pose_that_puts_the_maps_points_in_front_of_the_live_surface_sees_through_it() -> None:
@@ -212,65 +217,67 @@ def test_a_pose_that_puts_the_maps_points_in_front_of_the_live_surface_sees_thro
 
 def test_an_ll_query_the_first_look_refuses_is_accepted_by_the_second_within_the_priors_gate() -> None:
     """LL from a prior near the truth: refused on 25 matches per keyframe, accepted by the second
-    look where `second_look_local` is on; from a prior 2 m away the second look's pose is outside
+    look where `second_look.local` is on; from a prior 2 m away the second look's pose is outside
     the prior's gate: refused."""
     m = _with_images(make_map([0.0, 1.0, 2.0, 3.0]))
     s = Scene(m)
     T_true = pose(1.3, 5.0)
     depth = s.look(T_true, vpr_best=1)
     few = matching_25_with_depth(s, depth)
-    p = replace(PARAMS, pooled_min_inliers=0, second_look_candidates=2, second_look_from_inliers=0,
-                second_look_local=True)
+    p = replace(PARAMS, passes=replace(PARAMS.passes, pooled_min_inliers=0),
+                second_look=replace(PARAMS.second_look, candidates=2, from_inliers=0, local=True))
     full = FullResolution(s, m)
     look = SecondLook(m, p, full.extract, s.describe, match_by_id, SMALLER)
     loc = VisualLocalizer(m, p, s.extract, s.describe, few, second_look=look)
-    off = VisualLocalizer(m, replace(p, second_look_candidates=0), s.extract, s.describe, few)
-    assert not off.localize_local(0, IMG, depth, K, pose(1.4, 5.0)).accepted
-    gl_only = VisualLocalizer(m, replace(p, second_look_local=False), s.extract, s.describe, few, second_look=look)
-    assert not gl_only.localize_local(0, IMG, depth, K, pose(1.4, 5.0)).accepted  # LL's look is its own switch
-    r = loc.localize_local(0, IMG, depth, K, pose(1.4, 5.0))
+    off = VisualLocalizer(m, replace(p, second_look=replace(p.second_look, candidates=0)), s.extract, s.describe, few)
+    assert not off.localize_local(0, IMG, depth, K, Prior(pose(1.4, 5.0), fused=False)).accepted
+    gl_only = VisualLocalizer(m, replace(p, second_look=replace(p.second_look, local=False)), s.extract, s.describe,
+                              few, second_look=look)
+    # LL's look is its own switch
+    assert not gl_only.localize_local(0, IMG, depth, K, Prior(pose(1.4, 5.0), fused=False)).accepted
+    r = loc.localize_local(0, IMG, depth, K, Prior(pose(1.4, 5.0), fused=False))
     assert r.accepted and r.mode == "local", r.stop_reason
     assert r.stop_reason.startswith("looked at again at full resolution (nodes [")
     dt, dr = g.relative_pose_error(r.T_map_camera, T_true)
     assert dt < 0.005 and dr < 0.2
-    far = loc.localize_local(0, IMG, depth, K, pose(3.3, 5.0))
+    far = loc.localize_local(0, IMG, depth, K, Prior(pose(3.3, 5.0), fused=False))
     assert not far.accepted and any("inconsistent with the prior" in a.reason for a in far.attempts)
 
 
 def test_the_ll_look_keeps_closer_to_a_last_pose_prior_than_ll_does() -> None:
-    """A prior 0.5 m from the truth lies inside LL's own gate (`prior_gate_m` 0.75 m) but outside
-    its look's (`second_look_prior_gate_m` 0.25 m): the look's pose is refused; with the look's
+    """A prior 0.5 m from the truth lies inside LL's own gate (`prior_gate.radius_m` 0.75 m) but outside
+    its look's (`second_look.prior_gate_m` 0.25 m): the look's pose is refused; with the look's
     gate as wide as LL's it is accepted."""
     m = _with_images(make_map([0.0, 1.0, 2.0, 3.0]))
     s = Scene(m)
     depth = s.look(pose(1.3, 5.0), vpr_best=1)
     few = matching_25_with_depth(s, depth)
-    p = replace(PARAMS, pooled_min_inliers=0, second_look_candidates=2, second_look_from_inliers=0,
-                second_look_local=True)
-    assert p.prior_gate_m == 0.75 and p.second_look_prior_gate_m == 0.25
+    p = replace(PARAMS, passes=replace(PARAMS.passes, pooled_min_inliers=0),
+                second_look=replace(PARAMS.second_look, candidates=2, from_inliers=0, local=True))
+    assert p.prior_gate.radius_m == 0.75 and p.second_look.prior_gate_m == 0.25
     full = FullResolution(s, m)
 
     def local(params: Any) -> LocalizationResult:
         look = SecondLook(m, params, full.extract, s.describe, match_by_id, SMALLER)
         loc = VisualLocalizer(m, params, s.extract, s.describe, few, second_look=look)
-        return loc.localize_local(0, IMG, depth, K, pose(1.8, 5.0))
+        return loc.localize_local(0, IMG, depth, K, Prior(pose(1.8, 5.0), fused=False))
 
     tight = local(p)
     assert not tight.accepted and any("inconsistent with the prior" in a.reason for a in tight.attempts)
-    assert local(replace(p, second_look_prior_gate_m=0.75)).accepted
+    assert local(replace(p, second_look=replace(p.second_look, prior_gate_m=0.75))).accepted
 
 
 def test_a_look_pose_that_sees_through_by_a_small_miss_is_moved_onto_the_live_depth() -> None:
     """A room corner, the look's pose 17 cm and 2 deg off towards it: the map points it puts in front of
     the live depth make it see through; moved onto the live depth it is accepted, close to the
-    truth, its covariance grown by the move. A miss of 0.45 m is beyond `second_look_align_m`, one
-    turned 8 deg beyond `second_look_align_deg`: they stay refused; so does the small miss where
-    moving is off (`second_look_align_m` 0)."""
+    truth, its covariance grown by the move. A miss of 0.45 m is beyond `see_through.align_m`, one
+    turned 8 deg beyond `see_through.align_deg`: they stay refused; so does the small miss where
+    moving is off (`see_through.align_m` 0)."""
     T_true = g.make_T(g.so3_exp(np.array([0.1, 0.35, 0.02])), np.array([0.1, 0.0, 0.2]))
     depth = corner_depth(T_true)
     points = corner_points(g.make_T(g.so3_exp(np.array([0.05, 0.52, 0.0])), np.array([-0.3, -0.1, 0.0])))
-    p = replace(PARAMS, second_look_candidates=2)
-    assert p.second_look_align_m == 0.3 and p.second_look_max_see_through == 0.3
+    p = replace(PARAMS, second_look=replace(PARAMS.second_look, candidates=2))
+    assert p.see_through.align_m == 0.3 and p.see_through.max_share == 0.3
 
     def look_at(T: NDArray[np.float64]) -> LocalizationResult:
         return LocalizationResult(0, "global", True, "ok", T_map_camera=T, covariance=1e-4 * np.eye(6),
@@ -289,6 +296,7 @@ def test_a_look_pose_that_sees_through_by_a_small_miss_is_moved_onto_the_live_de
     turned = T_true @ g.make_T(g.so3_exp(np.radians([0.0, 8.0, 0.0])), [0.02, 0.0, 0.05])  # 8 deg > 6
     assert see_through(points, turned, CORNER_K, depth)[1] > 0.3
     assert moved_onto_live_depth(look_at(turned), points, CORNER_K, depth, p) is None
-    wider = replace(p, second_look_align_deg=9.0)
+    wider = replace(p, see_through=replace(p.see_through, align_deg=9.0))
     assert moved_onto_live_depth(look_at(turned), points, CORNER_K, depth, wider) is not None
-    assert moved_onto_live_depth(look_at(ahead), points, CORNER_K, depth, replace(p, second_look_align_m=0)) is None
+    never = replace(p, see_through=replace(p.see_through, align_m=0))
+    assert moved_onto_live_depth(look_at(ahead), points, CORNER_K, depth, never) is None

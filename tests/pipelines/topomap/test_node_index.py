@@ -11,7 +11,8 @@ from scipy.spatial.transform import Rotation
 from litevloc.pipelines.topomap.node_index import NodeIndex, connectivity_matrix, neighbour_lists
 
 
-def brute_local_candidates(pos, T, vpr, neighbours, prior, desc, radius, trigger, angle, k):  # type: ignore[no-untyped-def]
+# type: ignore[no-untyped-def]
+def brute_local_candidates(pos, T, vpr, neighbours, prior, desc, radius, trigger, angle, k):
     """`VisualLocalizer.local_candidates` as written on main (linear scan)."""
     d = np.linalg.norm(pos - prior[:3, 3], axis=1)
     nearest = int(np.argmin(d))
@@ -151,7 +152,7 @@ def test_connectivity_matrix_keeps_shortest_duplicate_and_zero_edges() -> None:
 
 def test_local_candidates_equal_the_localizer_on_a_topomap() -> None:
     """Against `VisualLocalizer.local_candidates` itself (the code the index replaces)."""
-    from litevloc.base.params.localization import LocalizationParams
+    from litevloc.base.params.localization import LocalizationParams, SecondLookParams
     from litevloc.pipelines.localization.vloc import VisualLocalizer
     from litevloc.pipelines.topomap.types import NodeFeatures, OccupancyGrid, TopoMap
 
@@ -167,7 +168,7 @@ def test_local_candidates_equal_the_localizer_on_a_topomap() -> None:
         grid=OccupancyGrid(np.zeros((0, 0), np.uint8), np.zeros(2), 0.1, np.array([0.0, 0, 1]),
                            np.array([[1.0, 0, 0], [0, 1, 0]])),
     )
-    p = LocalizationParams(second_look_candidates=0)  # its candidates only, no look
+    p = LocalizationParams(second_look=SecondLookParams(candidates=0))  # its candidates only, no look
     loc = VisualLocalizer(m, p, lambda im: f, lambda im: np.zeros(16, np.float32),
                           lambda a, b: (np.zeros(0, np.int64), np.zeros(0, np.int64)))
     for _ in range(200):
@@ -175,10 +176,11 @@ def test_local_candidates_equal_the_localizer_on_a_topomap() -> None:
         P[:3, :3] = Rotation.random(random_state=int(rng.integers(1 << 30))).as_matrix()
         P[:3, 3] = rng.uniform(-10, 30, 3) * [1, 1, 0.05]
         desc = rng.normal(size=16).astype(np.float32)
+        ls = p.local_search
         got = m.node_index.local_candidates(P, desc, m.vpr, m.T_map_camera, m.covisibility_lists,
-                                            p.candidate_radius_m, p.gl_trigger_distance_m, p.max_view_angle_deg,
-                                            p.ll_max_candidates)
-        ref = loc.local_candidates(P, desc)
+                                            ls.candidate_radius_m, ls.trigger_distance_m, ls.max_view_angle_deg,
+                                            ls.max_candidates)
+        ref = loc.local_search.candidates(loc.params, P, desc)
         assert [c for c, _ in got] == [c for c, _ in ref]
     # the covisibility lists are the localizer's neighbour order (strongest first, ties by id)
     assert m.covisibility_lists == [[k for k, _ in sorted(m.covisible_neighbours(i), key=lambda x: (-x[1], x[0]))]
