@@ -69,9 +69,12 @@ class Layout:
 
 
 _PUBLISH_BEFORE = ("litevloc.pipelines.fusion.online:OnlineFusion._output",)
-# issue 79's three changes; the layouts newest first (the lead adds the restructured tree's first)
+# issue 79's three changes; the layouts newest first
 CHANGES: dict[str, tuple[Layout, ...]] = {
     "Change how GL verifies a candidate": (
+        # a check's module and GL's ordered list of checks
+        Layout("after #79", ("litevloc.pipelines.localization.checks.support",
+                             "litevloc.pipelines.localization.global_search:GlobalSearch._search")),
         Layout("7bea613", ("litevloc.pipelines.localization.vloc:VisualLocalizer._verify*",
                            "litevloc.pipelines.localization.vloc:VisualLocalizer._ambiguity",
                            "litevloc.pipelines.localization.query", "litevloc.pipelines.localization.passes",
@@ -86,10 +89,14 @@ CHANGES: dict[str, tuple[Layout, ...]] = {
                            "litevloc.pipelines.localization.refine")),
     ),
     "Add a camera driver": (
+        # the new `StreamSource` module and its entry in the registry of source kinds
+        Layout("after #79", ("litevloc.runtime.sources",), new_files=1),
         # the new `StreamSource` module; its kind in the settings and each dispatch over the kinds
         Layout("7bea613", (), new_files=1, selector="litevloc.config.schema:SourceConfig.kind"),
     ),
     "Change how the fused pose is published": (
+        Layout("after #79", ("litevloc.runtime.service.core:LocalizationCore._publish_decision",
+                             "litevloc.runtime.transport.bus:LiteVLocPublisher.publish_pose")),
         Layout("728ecba", (*_PUBLISH_BEFORE, "litevloc.runtime.service.core:LocalizationCore.odometry",
                            "litevloc.runtime.service.shell:Service._handle_publish",
                            "litevloc.runtime.transport.bus:LiteVLocPublisher.publish_pose")),
