@@ -16,6 +16,7 @@ from pathlib import Path
 
 from litevloc.cli.common import add_config_args, add_json_arg, config_of
 from litevloc.cli.main import UserError
+from litevloc.pipelines.topomap.io import load_map
 from litevloc.runtime.tools.outputs import write_json
 
 
@@ -33,7 +34,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from litevloc.pipelines.topomap.io import load_map
     from litevloc.runtime.planner.node import PlannerService, build_planner
     from litevloc.runtime.service.app import with_endpoints
     from litevloc.runtime.transport.bus import Bus

@@ -348,11 +348,12 @@ def test_planner_section_loads_from_config() -> None:
 
 def test_plan_cli_writes_the_final_status_as_json(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """`litevloc plan --json` ends with the counters and the planner's status object."""
-    import litevloc.pipelines.topomap.io as topomap_io
+    import litevloc.cli.plan as plan_cli
     import litevloc.runtime.planner.node as node
     from litevloc.cli.main import main
 
-    monkeypatch.setattr(topomap_io, "load_map", lambda path: None)
+    # patched where `plan` binds it: patching topomap.io would leak into modules first imported meanwhile
+    monkeypatch.setattr(plan_cli, "load_map", lambda path: None)
     monkeypatch.setattr(node, "build_planner", lambda cfg, topomap: planner({}))
     out = tmp_path / "plan.json"
     assert main(["plan", "--map", str(tmp_path), "--listen", f"tcp/127.0.0.1:{free_port()}", "--duration", "0.2",
