@@ -45,6 +45,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     from litevloc.cli.map_update import add_update_parser
 
     add_update_parser(msub)
+    from litevloc.cli.map_fleet import add_fleet_parsers
+
+    add_fleet_parsers(msub)
 
 
 def info(args: argparse.Namespace) -> int:

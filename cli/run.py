@@ -27,7 +27,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def add_service_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--map", type=Path, default=None, help="map folder (default: the config's `map`)")
+    p.add_argument("--map", type=Path, default=None,
+                   help="map folder, or zenoh:NAME[@VERSION] fetched from the map service first (default: the "
+                        "config's `map`)")
     p.add_argument("--listen", action="append", default=[], metavar="ENDPOINT", help="e.g. tcp/127.0.0.1:7447")
     p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT")
     p.add_argument("--namespace", default=None, help="key-expression prefix, e.g. robot1")
@@ -78,6 +80,12 @@ def run_service(args: argparse.Namespace, source_path: Path | None, rate: float 
     map_path = args.map or (Path(cfg.map) if cfg.map else None)
     if map_path is None:
         raise UserError("no map: give --map MAP or set `map:` in the config")
+    if str(map_path).startswith("zenoh:"):
+        from litevloc.runtime.maps.app import resolve_map
+
+        fetched = resolve_map(str(map_path), cfg.zenoh, cfg.fleet)
+        assert fetched is not None
+        map_path = fetched.path
     faults = None
     if getattr(args, "fault", None):
         from litevloc.runtime.service.faults import FaultInjector, FaultSpecError

@@ -24,6 +24,7 @@ from litevloc.base.params.calibration import CalibrationParams, ColorDepthCalibr
 from litevloc.base.params.camera import CameraConfig
 from litevloc.base.params.depth import DepthOdometryParams, SgbmParams
 from litevloc.base.params.drift import DriftParams
+from litevloc.base.params.fleet import FleetParams
 from litevloc.base.params.fusion import FusionParams
 from litevloc.base.params.localization import LocalizationParams
 from litevloc.base.params.mapping import MappingParams
@@ -128,6 +129,9 @@ class LiteVLocConfig(Settings):
     stereo: SgbmParams = section(SgbmParams, "depth from a stereo pair (`pipelines.stereo_depth`, `bench/stereo.py`)")
     depth_odometry: DepthOdometryParams = section(
         DepthOdometryParams, "frame-to-frame RGB-D odometry (`pipelines.depth_odometry`, `bench/depth_odometry.py`)")
+    fleet: FleetParams = section(
+        FleetParams, "the map service and the robots' map fetch (`litevloc map serve|fetch|push`, `run --map "
+        "zenoh:NAME`)")
 
 
 # --------------------------------------------------------------------- runtime / Zenoh

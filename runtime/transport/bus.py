@@ -118,15 +118,16 @@ def _json5(value: Any) -> str:
     return value if isinstance(value, str) else json.dumps(value)
 
 
-def zenoh_config(cfg: ZenohConfig) -> Any:
-    """A `zenoh.Config` with every relevant key set explicitly from `cfg`."""
+def zenoh_config(cfg: ZenohConfig, mode: str | None = None) -> Any:
+    """A `zenoh.Config` with every relevant key set explicitly from `cfg`; `mode` overrides
+    `cfg.mode` (the map service runs as a `"router"` by default)."""
     import zenoh
 
     c = zenoh.Config()
     try:
-        c.insert_json5("mode", json.dumps(cfg.mode))
+        c.insert_json5("mode", json.dumps(mode or cfg.mode))
         c.insert_json5("scouting/multicast/enabled", json.dumps(cfg.multicast_scouting))
-        c.insert_json5("listen/endpoints", json.dumps([] if cfg.mode == "client" else list(cfg.listen)))
+        c.insert_json5("listen/endpoints", json.dumps([] if (mode or cfg.mode) == "client" else list(cfg.listen)))
         c.insert_json5("connect/endpoints", json.dumps(list(cfg.connect)))
         c.insert_json5("connect/timeout_ms", str(int(cfg.connect_timeout_s * 1000)))
         c.insert_json5("connect/exit_on_failure", json.dumps(bool(cfg.require_connect and cfg.connect)))
@@ -142,11 +143,12 @@ def zenoh_config(cfg: ZenohConfig) -> Any:
     return c
 
 
-def open_session(cfg: ZenohConfig) -> Any:
-    """Open a Zenoh session; BusError with the endpoints and Zenoh's reason on failure."""
+def open_session(cfg: ZenohConfig, mode: str | None = None) -> Any:
+    """Open a Zenoh session (`mode` overrides `cfg.mode`); BusError with the endpoints and
+    Zenoh's reason on failure."""
     import zenoh
 
-    conf = zenoh_config(cfg)
+    conf = zenoh_config(cfg, mode)
     try:
         return zenoh.open(conf)
     except Exception as exc:

@@ -100,12 +100,13 @@ def test_nothing_below_the_command_line_imports_it() -> None:
 
 # runtime's subsystems: what each may import of the others (the shared modules at runtime/'s top,
 # metrics, sources, model glue, child processes, import none of them)
-RUNTIME_SUBSYSTEMS = ("service", "transport", "planner", "tools")
+RUNTIME_SUBSYSTEMS = ("service", "transport", "planner", "maps", "tools")
 RUNTIME_MAY_IMPORT = {
     "transport": (),
     "service": ("transport",),
     "planner": ("transport",),
-    "tools": ("service", "transport", "planner"),
+    "maps": ("transport",),
+    "tools": ("service", "transport", "planner", "maps"),
 }
 
 
