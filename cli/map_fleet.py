@@ -21,7 +21,7 @@ def _add_endpoints(p: argparse.ArgumentParser) -> None:
     add_config_args(p)  # zenoh.* (TLS, user/password, access control) and fleet.*
 
 
-def add_fleet_parsers(msub: argparse._SubParsersAction) -> None:
+def add_fleet_parsers(msub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     s = msub.add_parser("serve", help="serve the versioned maps in DIR on Zenoh (router by default)")
     s.add_argument("dir", type=Path, help="the map store (created if missing)")
     s.add_argument("--mode", choices=("router", "peer", "client"), default="router",

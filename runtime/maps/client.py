@@ -140,7 +140,9 @@ def fetch_map(session: Any, name: str, version: str | None, cache_dir: str | Pat
     check_files(partial, m)
     cache.add_version(name, partial, move=True, expect=info, make_latest=version is None or _cached(
         cache, name, None) is None)
-    return FetchedMap(name, info.version, cache.map_path(name, info.version), **stats)
+    return FetchedMap(name, info.version, cache.map_path(name, info.version), bytes_fetched=stats["bytes_fetched"],
+                      chunks_fetched=stats["chunks_fetched"], chunks_resumed=stats["chunks_resumed"],
+                      chunks_refetched=stats["chunks_refetched"])
 
 
 def _transfer(session: Any, name: str, version: str, m: TransferManifest, partial: Path,

@@ -93,8 +93,8 @@ class TransferManifest:
     def from_json(cls, d: Any) -> TransferManifest:
         """Parse and check a manifest from a peer: safe paths, chunks that tile every file exactly."""
         try:
-            files = {safe_relpath(k): {"sha256": str(v["sha256"]), "bytes": int(v["bytes"])}
-                     for k, v in dict(d["files"]).items()}
+            files: dict[str, dict[str, Any]] = {safe_relpath(k): {"sha256": str(v["sha256"]), "bytes": int(v["bytes"])}
+                                                for k, v in dict(d["files"]).items()}
             chunks = tuple(Chunk(safe_relpath(c[0]), int(c[1]), int(c[2]), str(c[3])) for c in d["chunks"])
             m = cls(str(d["content_hash"]), int(d["chunk_bytes"]), files, chunks)
         except (KeyError, TypeError, ValueError, IndexError) as exc:
