@@ -74,6 +74,7 @@ class MapServer:
         self._uploads: dict[str, _Upload] = {}
         self._lock = threading.Lock()
         self._publishers: dict[str, Any] = {}
+        self._manifests: dict[tuple[str, str], TransferManifest] = {}  # versions never change: cached for good
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="map-push")
         self.counts = {"queries": 0, "chunks_served": 0, "bytes_served": 0, "errors": 0, "pushes_accepted": 0,
                        "pushes_refused": 0}
@@ -189,8 +190,16 @@ class MapServer:
             return self.rollback(name, d["version"]).to_json()
         raise MapServiceError(MapErrorKind.BAD_REQUEST, f"unknown map service key {'/'.join(parts)!r}")
 
+    def _manifest(self, name: str, version: str) -> TransferManifest:
+        m = self._manifests.get((name, version))
+        if m is None:
+            m = self.store.manifest(name, self.store.resolve(name, version))
+            with self._lock:
+                self._manifests[(name, m.content_hash)] = m
+        return m
+
     def _chunk(self, name: str, version: str, index: str) -> bytes:
-        m = self.store.manifest(name, self.store.resolve(name, version))
+        m = self._manifest(name, version)
         i = _index(index, len(m.chunks))
         return read_chunk(self.store.map_path(name, m.content_hash), m.chunks[i])
 

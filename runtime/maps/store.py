@@ -157,8 +157,10 @@ class MapStore:
 
     def map_path(self, name: str, version: str) -> Path:
         """The folder of a complete version (read it, never write it)."""
-        self._record(name, version)
-        return self._dir(name) / "versions" / version / "map"
+        vdir = self._dir(name) / "versions" / version
+        if not VERSION_RE.match(version) or not (vdir / "version.json").is_file():
+            raise MapServiceError(MapErrorKind.NOT_FOUND, f"map {name!r} has no version {version!r}")
+        return vdir / "map"
 
     def resolve(self, name: str, version: str) -> str:
         """The full version id of `version` (full id or a unique prefix of >= 8 hex digits)."""
