@@ -66,7 +66,7 @@ def resolve_map(text: str, zcfg: ZenohConfig, params: FleetParams, progress: Pro
     session = open_session(cfg)
     try:
         got = fetch_map(session, name, version, cache_dir_of(params), progress, timeout_s=params.query_timeout_s,
-                        retries=params.chunk_retries)
+                        retries=params.chunk_retries, window=params.fetch_window)
     finally:
         session.close()
     log.info("map %s version %s at %s%s", name, got.version[:12], got.path,
@@ -80,7 +80,7 @@ def fetch_to_folder(zcfg: ZenohConfig, params: FleetParams, name: str, version: 
     (a sibling `.partial` folder renamed into place)."""
     with robot_session(zcfg) as session:
         got = fetch_map(session, name, version, cache_dir_of(params), timeout_s=params.query_timeout_s,
-                        retries=params.chunk_retries)
+                        retries=params.chunk_retries, window=params.fetch_window)
     tmp = output.with_name(output.name + ".partial")
     shutil.rmtree(tmp, ignore_errors=True)
     shutil.copytree(got.path, tmp)

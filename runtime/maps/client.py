@@ -16,6 +16,7 @@ import hashlib
 import logging
 import shutil
 import threading
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -60,7 +61,11 @@ class FetchedMap:
 def ask(session: Any, key: str, payload: bytes | None = None, timeout_s: float = 5.0) -> bytes:
     """One query, one answer: the first reply's bytes; an error reply raises its `MapServiceError`;
     no reply at all (no route, refused by access control, timed out) raises UNREACHABLE."""
-    replies = session.get(key, payload=payload, timeout=timeout_s)
+    return answer(session.get(key, payload=payload, timeout=timeout_s), key, timeout_s)
+
+
+def answer(replies: Any, key: str, timeout_s: float) -> bytes:
+    """The bytes of the first reply of a pending `session.get` (see `ask`)."""
     for reply in replies:
         if reply.ok is not None:
             return bytes(reply.ok.payload.to_bytes())
@@ -103,10 +108,11 @@ def _cached(cache: MapStore, name: str, version: str | None) -> MapVersionInfo |
 
 
 def fetch_map(session: Any, name: str, version: str | None, cache_dir: str | Path, progress: Progress | None = None,
-              *, timeout_s: float = 5.0, retries: int = 3, allow_offline: bool = True) -> FetchedMap:
+              *, timeout_s: float = 5.0, retries: int = 3, allow_offline: bool = True, window: int = 4) -> FetchedMap:
     """Fetch version `version` (hash, unique prefix, or None: the latest) of map `name` into
     `cache_dir` and return its local folder. See the module docstring for resume, checks and the
-    offline case (`allow_offline=False` raises UNREACHABLE instead)."""
+    offline case (`allow_offline=False` raises UNREACHABLE instead). `progress(done, total)` in
+    bytes; `window`: chunk queries in flight."""
     check_name(name)
     cache = MapStore(cache_dir)
     if version is not None and VERSION_RE.match(version) and (hit := _cached(cache, name, version)):
@@ -136,7 +142,7 @@ def fetch_map(session: Any, name: str, version: str | None, cache_dir: str | Pat
         raise MapServiceError(MapErrorKind.BAD_REPLY, f"map {name!r}: manifest of {m.content_hash[:12]} served for "
                               f"version {info.version[:12]}")
     partial = cache.root / ".partial" / name / info.version
-    stats = _transfer(session, name, info.version, m, partial, progress, timeout_s, retries)
+    stats = _transfer(session, name, info.version, m, partial, progress, timeout_s, retries, max(1, window))
     check_files(partial, m)
     cache.add_version(name, partial, move=True, expect=info, make_latest=version is None or _cached(
         cache, name, None) is None)
@@ -146,30 +152,46 @@ def fetch_map(session: Any, name: str, version: str | None, cache_dir: str | Pat
 
 
 def _transfer(session: Any, name: str, version: str, m: TransferManifest, partial: Path,
-              progress: Progress | None, timeout_s: float, retries: int) -> dict[str, int]:
+              progress: Progress | None, timeout_s: float, retries: int, window: int) -> dict[str, int]:
+    """Fetch the chunks `partial` lacks, `window` queries in flight (a round trip per chunk would
+    bound a fetch over Wi-Fi by latency, not bandwidth); each checked before it is written."""
     partial.mkdir(parents=True, exist_ok=True)
     for rel, e in m.files.items():
         if int(e["bytes"]) == 0:
             write_chunk(partial, Chunk(rel, 0, 0, ""), b"")
     stats = {"bytes_fetched": 0, "chunks_fetched": 0, "chunks_resumed": 0, "chunks_refetched": 0}
     done, total = 0, m.size_bytes
+    needed: deque[int] = deque()
     for i, c in enumerate(m.chunks):
         if chunk_on_disk(partial, c):
             stats["chunks_resumed"] += 1
+            done += c.size
         else:
-            for attempt in range(retries + 1):
+            needed.append(i)
+    if progress is not None and done:
+        progress(done, total)
+    pending: deque[tuple[int, Any]] = deque()
+    while needed or pending:
+        while needed and len(pending) < window:
+            i = needed.popleft()
+            pending.append((i, session.get(keys.chunk_key(name, version, i), timeout=timeout_s)))
+        i, replies = pending.popleft()
+        c = m.chunks[i]
+        data = answer(replies, keys.chunk_key(name, version, i), timeout_s)
+        for attempt in range(retries + 1):
+            stats["bytes_fetched"] += len(data)
+            if len(data) == c.size and hashlib.sha256(data).hexdigest() == c.sha256:
+                write_chunk(partial, c, data)
+                break
+            stats["chunks_refetched"] += 1
+            log.warning("map %r %s: chunk %d does not match its sha256 (try %d of %d)", name, version[:12], i,
+                        attempt + 1, retries + 1)
+            if attempt < retries:
                 data = ask(session, keys.chunk_key(name, version, i), timeout_s=timeout_s)
-                stats["bytes_fetched"] += len(data)
-                if len(data) == c.size and hashlib.sha256(data).hexdigest() == c.sha256:
-                    write_chunk(partial, c, data)
-                    break
-                stats["chunks_refetched"] += 1
-                log.warning("map %r %s: chunk %d does not match its sha256 (try %d of %d)", name, version[:12], i,
-                            attempt + 1, retries + 1)
-            else:
-                raise MapServiceError(MapErrorKind.CHECKSUM, f"map {name!r} version {version[:12]}: chunk {i} "
-                                      f"({c.path} @ {c.offset}) failed its sha256 {retries + 1} times; refused")
-            stats["chunks_fetched"] += 1
+        else:
+            raise MapServiceError(MapErrorKind.CHECKSUM, f"map {name!r} version {version[:12]}: chunk {i} "
+                                  f"({c.path} @ {c.offset}) failed its sha256 {retries + 1} times; refused")
+        stats["chunks_fetched"] += 1
         done += c.size
         if progress is not None:
             progress(done, total)
