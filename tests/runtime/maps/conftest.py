@@ -48,9 +48,10 @@ def open_client(ep: str, **kw: Any) -> Any:
 class Service:
     """A running map service: `store`, `server`, its `endpoint`; `restart()` reopens it."""
 
-    def __init__(self, root: Path, gate: PushGate | None = None, **zenoh_kw: Any) -> None:
+    def __init__(self, root: Path, gate: PushGate | None = None, endpoint: str | None = None,
+                 **zenoh_kw: Any) -> None:
         self.root, self.gate, self.zenoh_kw = root, gate, zenoh_kw
-        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+        self.endpoint = endpoint or f"tcp/127.0.0.1:{free_port()}"
         self._open()
 
     def _open(self) -> None:

@@ -131,3 +131,42 @@ def test_acl_block_shape() -> None:
                    and any(k.startswith("litevloc/maps") for k in r["key_exprs"]) for r in acl["rules"])
     with pytest.raises(ValueError):
         map_acl([], [])
+
+
+@pytest.mark.timeout(60)
+def test_tls_identity_by_certificate_common_name(tmp_path: Path) -> None:
+    """With mutual TLS the ACL names robots by their certificate's common name."""
+    pytest.importorskip("cryptography.x509")
+    from litevloc.runtime.transport.security import tls_config
+    from tests.runtime.test_tls import make_pki
+    from tests.runtime.zenoh_helpers import free_port
+
+    make_pki(tmp_path, "ca", ["mapsvc", "robot1", "viewer"])
+    svc = Service(tmp_path / "store", gate=seed_gate,
+                  tls=tls_config(str(tmp_path / "ca.pem"), str(tmp_path / "mapsvc.pem"), str(tmp_path / "mapsvc.key")),
+                  access_control=map_acl(["viewer"], ["robot1"], by="cert_common_name"),
+                  endpoint=f"tls/127.0.0.1:{free_port()}")
+    try:
+        v1 = svc.server.publish("office", tiny_map(tmp_path / "a", seed=0))
+
+        def robot(cn: str) -> Any:
+            tls = tls_config(str(tmp_path / "ca.pem"), str(tmp_path / f"{cn}.pem"), str(tmp_path / f"{cn}.key"),
+                             listen=False)
+            return open_session(ZenohConfig(mode="client", listen=(), connect=(svc.endpoint,), connect_timeout_s=2.0,
+                                            tls=tls))
+
+        viewer = robot("viewer")
+        try:
+            assert mc.fetch_map(viewer, "office", None, tmp_path / "cv").version == v1.version
+            with pytest.raises(MapServiceError) as e:
+                mc.push_map(viewer, "office", tiny_map(tmp_path / "v", seed=2), chunk_bytes=4096, timeout_s=0.5)
+            assert e.value.kind is MapErrorKind.UNREACHABLE
+        finally:
+            viewer.close()
+        r1 = robot("robot1")
+        try:
+            assert mc.push_map(r1, "office", tiny_map(tmp_path / "e", seed=2), chunk_bytes=4096).published
+        finally:
+            r1.close()
+    finally:
+        svc.close()
