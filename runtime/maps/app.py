@@ -15,11 +15,11 @@ from typing import Any, Literal
 
 from litevloc.base.params.fleet import FleetParams
 from litevloc.config.schema import ZenohConfig
-from litevloc.runtime.maps.client import FetchedMap, Progress, fetch_map
+from litevloc.runtime.maps.client import FetchedMap, Progress, cached_map, fetch_map
 from litevloc.runtime.maps.errors import MapErrorKind, MapServiceError
 from litevloc.runtime.maps.server import MapServer, PushGate
 from litevloc.runtime.maps.store import MapStore, check_name
-from litevloc.runtime.transport.bus import open_session
+from litevloc.runtime.transport.bus import BusError, open_session
 
 log = logging.getLogger(__name__)
 URI_SCHEME = "zenoh:"
@@ -63,12 +63,18 @@ def resolve_map(text: str, zcfg: ZenohConfig, params: FleetParams, progress: Pro
         return None
     name, version = parsed
     cfg = dataclasses.replace(robot_zenoh(zcfg), require_connect=False)  # offline: start from the cache
-    session = open_session(cfg)
     try:
-        got = fetch_map(session, name, version, cache_dir_of(params), progress, timeout_s=params.query_timeout_s,
-                        retries=params.chunk_retries, window=params.fetch_window)
-    finally:
-        session.close()
+        session = open_session(cfg)
+    except BusError as exc:  # a client whose router is down cannot open a session at all
+        got = cached_map(cache_dir_of(params), name, version)
+        if got is None:
+            raise MapServiceError(MapErrorKind.UNREACHABLE, f"map {name!r}: {exc}; and no cached version") from exc
+    else:
+        try:
+            got = fetch_map(session, name, version, cache_dir_of(params), progress, timeout_s=params.query_timeout_s,
+                            retries=params.chunk_retries, window=params.fetch_window)
+        finally:
+            session.close()
     log.info("map %s version %s at %s%s", name, got.version[:12], got.path,
              " (map service unreachable: the cached version)" if got.offline else "")
     return got

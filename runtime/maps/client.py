@@ -107,6 +107,15 @@ def _cached(cache: MapStore, name: str, version: str | None) -> MapVersionInfo |
         raise
 
 
+def cached_map(cache_dir: str | Path, name: str, version: str | None) -> FetchedMap | None:
+    """The cached latest (or named) version of `name` as an offline `FetchedMap`, None if not cached."""
+    cache = MapStore(cache_dir)
+    hit = _cached(cache, check_name(name), version)
+    if hit is None:
+        return None
+    return FetchedMap(name, hit.version, cache.map_path(name, hit.version), offline=True, from_cache=True)
+
+
 def fetch_map(session: Any, name: str, version: str | None, cache_dir: str | Path, progress: Progress | None = None,
               *, timeout_s: float = 5.0, retries: int = 3, allow_offline: bool = True, window: int = 4) -> FetchedMap:
     """Fetch version `version` (hash, unique prefix, or None: the latest) of map `name` into

@@ -16,6 +16,7 @@ from litevloc.base.params.fleet import FleetParams
 from litevloc.cli.main import main
 from litevloc.config.schema import ZenohConfig
 from litevloc.runtime.maps.app import parse_map_uri, resolve_map
+from litevloc.runtime.maps.errors import MapErrorKind, MapServiceError
 from litevloc.runtime.maps.transfer import file_entries
 from tests.runtime.maps.conftest import Service, tiny_map
 from tests.runtime.zenoh_helpers import free_port
@@ -79,8 +80,16 @@ def test_run_map_uri_resolves_to_the_fetched_folder(service: Service, tmp_path: 
     assert parse_map_uri("maps/office") is None
     v = service.server.publish("office", tiny_map(tmp_path / "a", seed=1))
     z = ZenohConfig(mode="client", listen=(), connect=(service.endpoint,))
-    got = resolve_map("zenoh:office", z, FleetParams(cache_dir=str(tmp_path / "c")))
-    assert got is not None and got.version == v.version
+    params = FleetParams(cache_dir=str(tmp_path / "c"), query_timeout_s=0.5)
+    got = resolve_map("zenoh:office", z, params)
+    assert got is not None and got.version == v.version and not got.offline
+    # a robot whose router is down starts from its cache (a client cannot even open a session then)
+    down = ZenohConfig(mode="client", listen=(), connect=(f"tcp/127.0.0.1:{free_port()}",), connect_timeout_s=0.3)
+    off = resolve_map("zenoh:office", down, params)
+    assert off is not None and off.offline and off.version == v.version
+    with pytest.raises(MapServiceError) as e:
+        resolve_map("zenoh:attic", down, params)
+    assert e.value.kind is MapErrorKind.UNREACHABLE
     seen: dict[str, Any] = {}
 
     class Started(Exception):
