@@ -24,7 +24,7 @@ from typing import Any
 
 from litevloc.runtime.maps import keys
 from litevloc.runtime.maps.errors import MapErrorKind, MapServiceError
-from litevloc.runtime.maps.store import VERSION_RE, MapStore, MapVersionInfo, check_name
+from litevloc.runtime.maps.store import VERSION_RE, MapStore, MapVersionInfo, check_name, file_lock
 from litevloc.runtime.maps.transfer import (
     Chunk,
     TransferManifest,
@@ -151,10 +151,15 @@ def fetch_map(session: Any, name: str, version: str | None, cache_dir: str | Pat
         raise MapServiceError(MapErrorKind.BAD_REPLY, f"map {name!r}: manifest of {m.content_hash[:12]} served for "
                               f"version {info.version[:12]}")
     partial = cache.root / ".partial" / name / info.version
-    stats = _transfer(session, name, info.version, m, partial, progress, timeout_s, retries, max(1, window))
-    check_files(partial, m)
-    cache.add_version(name, partial, move=True, expect=info, make_latest=version is None or _cached(
-        cache, name, None) is None)
+    with file_lock(partial.with_name(info.version + ".lock")):  # robots sharing a cache fetch a version once
+        if not _cached(cache, name, info.version):
+            stats = _transfer(session, name, info.version, m, partial, progress, timeout_s, retries, max(1, window))
+            check_files(partial, m)
+            cache.add_version(name, partial, move=True, expect=info, make_latest=False)
+        else:
+            stats = dict.fromkeys(("bytes_fetched", "chunks_fetched", "chunks_resumed", "chunks_refetched"), 0)
+    if version is None or _cached(cache, name, None) is None:
+        cache.set_latest(name, info.version, "fetch")
     return FetchedMap(name, info.version, cache.map_path(name, info.version), bytes_fetched=stats["bytes_fetched"],
                       chunks_fetched=stats["chunks_fetched"], chunks_resumed=stats["chunks_resumed"],
                       chunks_refetched=stats["chunks_refetched"])

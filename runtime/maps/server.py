@@ -13,6 +13,7 @@ The service never deletes a version and has no handler that writes one from a pu
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import logging
 import shutil
@@ -26,7 +27,7 @@ from typing import Any, Protocol
 
 from litevloc.runtime.maps import keys
 from litevloc.runtime.maps.errors import MapErrorKind, MapServiceError
-from litevloc.runtime.maps.store import MapStore, MapVersionInfo, check_name
+from litevloc.runtime.maps.store import MapStore, MapVersionInfo, check_name, file_lock
 from litevloc.runtime.maps.transfer import Chunk, TransferManifest, check_files, read_chunk, write_chunk
 
 log = logging.getLogger(__name__)
@@ -78,8 +79,11 @@ class MapServer:
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="map-push")
         self.counts = {"queries": 0, "chunks_served": 0, "bytes_served": 0, "errors": 0, "pushes_accepted": 0,
                        "pushes_refused": 0}
-        up = store.root / ".uploads"
-        shutil.rmtree(up, ignore_errors=True)  # uploads cut by a restart: the robot pushes again
+        self._owner = contextlib.ExitStack()
+        if not self._owner.enter_context(file_lock(store.root / ".service.lock", wait=False)):
+            self._owner.close()
+            raise MapServiceError(MapErrorKind.CONFLICT, f"another map service is serving {store.root}")
+        shutil.rmtree(store.root / ".uploads", ignore_errors=True)  # uploads cut by a restart: the robot pushes again
         self._queryables = [session.declare_queryable(k, self._on_query, complete=True)
                             for k in (*keys.READ_KEYS, *keys.PUSH_KEYS, *keys.ROLLBACK_KEYS)]
 
@@ -90,6 +94,7 @@ class MapServer:
         for pub in self._publishers.values():
             pub.undeclare()
         self._publishers.clear()
+        self._owner.close()
 
     def __enter__(self) -> MapServer:
         return self

@@ -7,7 +7,7 @@ Layout under the store's root (one folder per map name):
 <name>/versions/<version>/version.json   MapVersionInfo + the transfer manifest (files, chunks)
 <name>/latest.json                       {"version": ...}: the version robots get by default
 <name>/history.jsonl                     one line per move of `latest` (publish, rollback), append-only
-<name>/.staging/                         versions being written; never listed, emptied at open
+<name>/.staging/<pid>-<id>/              versions being written; never listed; removed once their writer is gone
 ```
 
 `version` is the sha256 (hex) of the canonical file list (`content_hash`): the same files give
@@ -21,12 +21,15 @@ same way (temp file, fsync, `os.replace`). Nothing here deletes a version: `roll
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import re
 import shutil
 import time
 import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -99,6 +102,38 @@ def _fsync_tree(root: Path) -> None:
         _fsync_dir(Path(dirpath))
 
 
+def _writer_alive(staging_name: str) -> bool:
+    """Whether the process that named a staging folder `<pid>-<id>` still runs (other processes,
+    robots sharing one cache, may be writing their own versions right now)."""
+    pid = staging_name.partition("-")[0]
+    if not pid.isdigit():
+        return False
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+@contextmanager
+def file_lock(path: Path, wait: bool = True) -> Iterator[bool]:
+    """An exclusive `flock` on `path` (created) while the block runs; yields False at once instead
+    of waiting when `wait` is off and another process holds it."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a+b") as f:
+        try:
+            fcntl.flock(f, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+        except BlockingIOError:
+            yield False
+            return
+        try:
+            yield True
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
 def write_json_atomic(path: Path, obj: Any) -> None:
     """Replace `path` by `obj` as JSON: temp file in the same folder, fsync, `os.replace`, fsync folder."""
     tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex}.tmp")
@@ -120,8 +155,9 @@ class MapStore:
         if self.chunk_bytes < 1024:
             raise ValueError("chunk_bytes must be >= 1024")
         self.root.mkdir(parents=True, exist_ok=True)
-        for staging in self.root.glob("*/.staging"):
-            shutil.rmtree(staging, ignore_errors=True)  # versions a killed writer left half-written
+        for staging in self.root.glob("*/.staging/*"):
+            if not _writer_alive(staging.name):  # a version a killed writer left half-written
+                shutil.rmtree(staging, ignore_errors=True)
 
     # ------------------------------------------------------------------ reading
     def names(self) -> list[str]:
@@ -219,26 +255,16 @@ class MapStore:
                 parent = self.latest(name).version
             info = expect or MapVersionInfo(name, version, parent, sum(e["bytes"] for e in entries.values()),
                                             time.time_ns())
-            staging = ndir / ".staging" / uuid.uuid4().hex
+            staging = ndir / ".staging" / f"{os.getpid()}-{uuid.uuid4().hex}"
             staging.mkdir(parents=True)
-            if move:
-                src.rename(staging / "map")
-            else:
-                shutil.copytree(src, staging / "map")
-            if content_hash(file_entries(staging / "map")) != version:
-                shutil.rmtree(staging)
-                raise MapServiceError(MapErrorKind.CHECKSUM, f"{src}: files changed while being stored")
-            rec = {"info": info.to_json(),
-                   "transfer": transfer_manifest(staging / "map", self.chunk_bytes, entries).to_json()}
-            (staging / "version.json").write_text(json.dumps(rec, sort_keys=True), encoding="utf-8")
-            _fsync_tree(staging)
-            (ndir / "versions").mkdir(exist_ok=True)
             try:
+                self._stage(src, staging, move, version, info, entries)
+                (ndir / "versions").mkdir(exist_ok=True)
                 os.rename(staging, final)
-            except OSError:
+            except BaseException as exc:
                 shutil.rmtree(staging, ignore_errors=True)
-                if not (final / "version.json").is_file():  # not a concurrent identical publish
-                    raise
+                if not (isinstance(exc, OSError) and (final / "version.json").is_file()):
+                    raise  # (an OSError with the version in place: a concurrent identical publish won)
             _fsync_dir(final.parent)
         elif move:
             shutil.rmtree(src)
@@ -246,6 +272,19 @@ class MapStore:
         if make_latest:
             self.set_latest(name, version, "publish")
         return info
+
+    def _stage(self, src: Path, staging: Path, move: bool, version: str, info: MapVersionInfo,
+               entries: dict[str, dict[str, Any]]) -> None:
+        if move:
+            src.rename(staging / "map")
+        else:
+            shutil.copytree(src, staging / "map")
+        if content_hash(file_entries(staging / "map")) != version:
+            raise MapServiceError(MapErrorKind.CHECKSUM, f"{src}: files changed while being stored")
+        transfer = transfer_manifest(staging / "map", self.chunk_bytes, entries)
+        rec = {"info": info.to_json(), "transfer": transfer.to_json()}
+        (staging / "version.json").write_text(json.dumps(rec, sort_keys=True), encoding="utf-8")
+        _fsync_tree(staging)
 
     def rollback(self, name: str, version: str) -> MapVersionInfo:
         """Move `latest` of `name` to an existing `version` (older or not); nothing is deleted."""

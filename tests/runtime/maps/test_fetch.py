@@ -149,3 +149,34 @@ def test_announcements_on_publish_and_rollback(service: Service, client: Any, tm
         time.sleep(0.02)
     assert sub.rejected == 2 and len(got) == 3
     sub.close()
+
+
+def test_robots_sharing_a_cache_fetch_concurrently(service: Service, tmp_path: Path) -> None:
+    v = service.server.publish("office", tiny_map(tmp_path / "a", seed=1))
+    clients = [open_client(service.endpoint) for _ in range(3)]
+    got: list[mc.FetchedMap] = []
+    errors: list[BaseException] = []
+
+    def one(c: Any) -> None:
+        try:
+            got.append(mc.fetch_map(c, "office", None, tmp_path / "shared"))
+        except BaseException as exc:
+            errors.append(exc)
+
+    threads = [threading.Thread(target=one, args=(c,)) for c in clients]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(30)
+    for c in clients:
+        c.close()
+    assert errors == [] and [g.version for g in got] == [v.version] * 3
+    assert sum(g.chunks_fetched for g in got) == len(service.store.manifest("office", v.version).chunks)
+
+
+def test_one_service_per_store(service: Service) -> None:
+    from litevloc.runtime.maps.server import MapServer
+
+    with pytest.raises(MapServiceError) as e:
+        MapServer(service.session, service.store)
+    assert e.value.kind is MapErrorKind.CONFLICT
