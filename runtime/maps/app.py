@@ -7,6 +7,7 @@ import dataclasses
 import logging
 import os
 import shutil
+import signal
 import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -100,7 +101,7 @@ def serve_maps(root: Path, zcfg: ZenohConfig, params: FleetParams, mode: Service
                gate: PushGate | None = None, add: dict[str, Path] | None = None,
                stop: threading.Event | None = None, on_ready: Callable[[MapServer], None] | None = None
                ) -> dict[str, Any]:
-    """Run the map service on `root` until `stop` is set (or SIGINT): `add` publishes map folders
+    """Run the map service on `root` until `stop` is set (or SIGINT / SIGTERM): `add` publishes map folders
     first (name -> folder). Returns the service's counters."""
     if mode == "client" and not zcfg.connect:
         raise MapServiceError(MapErrorKind.BAD_REQUEST, "map serve in client mode needs --connect ROUTER")
@@ -115,6 +116,8 @@ def serve_maps(root: Path, zcfg: ZenohConfig, params: FleetParams, mode: Service
             for name in store.names():
                 log.info("serving map %s: %d versions, latest %s", name, len(store.versions(name)),
                          store.latest(name).version[:12])
+            if threading.current_thread() is threading.main_thread():  # systemd stops a service with SIGTERM
+                signal.signal(signal.SIGTERM, lambda *_: stop.set())
             if on_ready is not None:
                 on_ready(server)
             try:

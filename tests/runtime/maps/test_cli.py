@@ -59,7 +59,7 @@ def test_serve_user_errors_exit_2(tmp_path: Path) -> None:
 
 
 @pytest.mark.timeout(60)
-def test_serve_process_serves_and_stops_on_sigint(tmp_path: Path) -> None:
+def test_serve_process_serves_and_stops_on_sigterm(tmp_path: Path) -> None:
     ep = f"tcp/127.0.0.1:{free_port()}"
     proc = subprocess.Popen([sys.executable, "-m", "litevloc.cli.main", "map", "serve", str(tmp_path / "store"),
                              "--add", f"office={tiny_map(tmp_path / 'a', seed=1)}", "--listen", ep],
@@ -70,7 +70,7 @@ def test_serve_process_serves_and_stops_on_sigint(tmp_path: Path) -> None:
         assert main(["map", "fetch", "office", "-o", str(tmp_path / "out"), "--connect", ep]) == 0
         assert file_entries(tmp_path / "out") == file_entries(tmp_path / "a")
     finally:
-        os.kill(proc.pid, signal.SIGINT)
+        os.kill(proc.pid, signal.SIGTERM)
         assert proc.wait(20) == 0
 
 
