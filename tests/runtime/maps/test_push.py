@@ -73,3 +73,51 @@ def test_held_out_comparison() -> None:
     ok, why = not_worse(HeldOutScore(10, 9, 0.08), cur, 0.01)
     assert not ok and "median error 8.0 cm" in why
     assert not_worse(HeldOutScore(10, 0, math.nan), HeldOutScore(10, 0, math.nan), 0.01)[0]
+
+
+@pytest.mark.timeout(60)
+def test_service_killed_during_a_push_serves_the_previous_version(tmp_path: Path) -> None:
+    import os
+    import signal
+    import subprocess
+    import sys
+    import threading
+
+    from litevloc.runtime.maps.store import MapStore
+    from tests.runtime.zenoh_helpers import free_port
+
+    root, ep = tmp_path / "store", f"tcp/127.0.0.1:{free_port()}"
+    v1 = MapStore(root, chunk_bytes=4096).add_version("office", tiny_map(tmp_path / "a", seed=0))
+    proc = subprocess.Popen([sys.executable, "-m", "tests.runtime.maps.killable_service", str(root), ep],
+                            stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().strip() == "READY"
+        c = open_client(ep)
+        pushed: list[BaseException] = []
+
+        def push() -> None:
+            try:
+                mc.push_map(c, "office", tiny_map(tmp_path / "b", seed=2), chunk_bytes=4096, commit_timeout_s=20)
+            except BaseException as exc:  # the service dies before it answers
+                pushed.append(exc)
+
+        t = threading.Thread(target=push)
+        t.start()
+        assert proc.stdout.readline().strip() == "STAGED"  # the candidate is on disk, not yet a version
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(10)
+        t.join(30)
+        c.close()
+        assert pushed and isinstance(pushed[0], MapServiceError)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    svc = Service(root)  # the restarted service: the previous version, nothing half-written
+    try:
+        assert svc.store.latest("office") == v1 and svc.store.versions("office") == [v1]
+        assert not list((root / "office" / ".staging").iterdir()) and not (root / ".uploads").exists()
+        c = open_client(svc.endpoint)
+        assert mc.fetch_map(c, "office", None, tmp_path / "cache").version == v1.version
+        c.close()
+    finally:
+        svc.close()
