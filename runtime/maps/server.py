@@ -18,6 +18,7 @@ import hashlib
 import logging
 import shutil
 import threading
+import time
 import uuid
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
@@ -32,6 +33,7 @@ from litevloc.runtime.maps.transfer import Chunk, TransferManifest, check_files,
 
 log = logging.getLogger(__name__)
 PUSH_KINDS = ("map", "recording")
+UPLOAD_TTL_S = 3600.0
 
 
 @dataclass(frozen=True)
@@ -62,6 +64,7 @@ class _Upload:
     manifest: TransferManifest
     folder: Path
     received: set[int] = field(default_factory=set)
+    t_begin: float = field(default_factory=time.monotonic)
 
 
 class MapServer:
@@ -220,6 +223,7 @@ class MapServer:
                                   f"limit of {self.max_push_bytes}")
         if kind == "recording" and len(m.files) != 1:
             raise MapServiceError(MapErrorKind.BAD_REQUEST, "a pushed recording is one file")
+        self._drop_stale_uploads()
         upload = uuid.uuid4().hex
         folder = self.store.root / ".uploads" / upload
         folder.mkdir(parents=True)
@@ -229,6 +233,14 @@ class MapServer:
         with self._lock:
             self._uploads[upload] = _Upload(name, str(kind), m, folder)
         return {"upload": upload, "chunks": len(m.chunks)}
+
+    def _drop_stale_uploads(self) -> None:
+        """Forget pushes not committed within `UPLOAD_TTL_S` (a robot that lost its link pushes again)."""
+        now = time.monotonic()
+        with self._lock:
+            stale = [k for k, u in self._uploads.items() if now - u.t_begin > UPLOAD_TTL_S]
+            for k in stale:
+                shutil.rmtree(self._uploads.pop(k).folder, ignore_errors=True)
 
     def _upload(self, name: str, upload: str) -> _Upload:
         with self._lock:

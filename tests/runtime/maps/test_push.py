@@ -121,3 +121,16 @@ def test_service_killed_during_a_push_serves_the_previous_version(tmp_path: Path
         c.close()
     finally:
         svc.close()
+
+
+def test_an_abandoned_push_is_forgotten(service: Service, client: Any, tmp_path: Path,
+                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    src = tiny_map(tmp_path / "b", seed=2)
+    m = transfer_manifest(src, 4096).to_json()
+    first = mc.ask_json(client, keys.push_begin_key("office"), {"kind": "map", "transfer": m})["upload"]
+    monkeypatch.setattr("litevloc.runtime.maps.server.UPLOAD_TTL_S", -1.0)
+    mc.ask_json(client, keys.push_begin_key("office"), {"kind": "map", "transfer": m})
+    assert not (tmp_path / "store" / ".uploads" / first).exists()
+    with pytest.raises(MapServiceError) as e:
+        mc.ask(client, keys.push_commit_key("office", first))
+    assert e.value.kind is MapErrorKind.NOT_FOUND
