@@ -101,9 +101,8 @@ class HeldOutGate:
         if current is None:
             if kind != "map":
                 return PushVerdict(False, f"map {name!r} has no version yet: push a map folder first")
-            cand = load_map(upload)
-            save_map(cand, out, descriptor_bytes=self.cfg.mapping.descriptor_bytes)
-            score = self.score(cand)
+            save_map(load_map(upload), out, descriptor_bytes=self.cfg.mapping.descriptor_bytes)
+            score = self.score(load_map(out))
             return PushVerdict(score.accepted > 0, f"first version of {name!r}: {score.accepted}/{score.queries} "
                                "held-out frames localized", {"candidate": score.to_json()})
         base = load_map(current)
@@ -114,13 +113,13 @@ class HeldOutGate:
         key = str(current)
         if key not in self._scores:
             self._scores[key] = self.score(base)
-        cur, new = self._scores[key], self.score(cand)
+        # the check reads the candidate as it will be served: saved (descriptors encoded) and loaded back
+        cand.meta.update({"parent_map": name, "fleet_push": json.dumps(build)})
+        save_map(cand, out, descriptor_bytes=self.cfg.mapping.descriptor_bytes)
+        cur, new = self._scores[key], self.score(load_map(out))
         ok, reason = not_worse(new, cur, self.median_tolerance_m)
         details = {"current": cur.to_json(), "candidate": new.to_json(), "build": build,
                    "seconds": time.perf_counter() - t0}
-        if ok:
-            cand.meta.update({"parent_map": name, "fleet_push": json.dumps(build)})
-            save_map(cand, out, descriptor_bytes=self.cfg.mapping.descriptor_bytes)
         log.info("push to %s: %s", name, reason)
         return PushVerdict(ok, reason, details)
 
