@@ -82,6 +82,26 @@ class MapVersionInfo:
         return cls(str(name), str(version), parent, int(size), int(created))  # type: ignore[arg-type]
 
 
+def check_map_folder(src: Path, entries: dict[str, dict[str, Any]]) -> None:
+    """`src` is a map as `map build` writes it: its manifest reads, lists every other file, and each
+    listed file has the size and sha256 the manifest gives; else `MapServiceError(BAD_REQUEST)`."""
+    from litevloc.pipelines.topomap.io import MANIFEST, MapFormatError, read_manifest
+
+    try:
+        listed = read_manifest(src)["files"]
+    except MapFormatError as exc:
+        raise MapServiceError(MapErrorKind.BAD_REQUEST, f"not a map folder: {exc}") from exc
+    others = {k: v for k, v in entries.items() if k != MANIFEST}
+    if set(others) != set(listed):
+        extra, missing = sorted(set(others) - set(listed)), sorted(set(listed) - set(others))
+        raise MapServiceError(MapErrorKind.BAD_REQUEST, f"map {src}: files not in its manifest {extra[:3]}, "
+                              f"listed but missing {missing[:3]}")
+    for rel, e in others.items():
+        le = listed[rel]
+        if not isinstance(le, dict) or le.get("sha256") != e["sha256"] or le.get("bytes") != e["bytes"]:
+            raise MapServiceError(MapErrorKind.BAD_REQUEST, f"map {src}: {rel} does not match its manifest entry")
+
+
 def _fsync_dir(path: Path) -> None:
     fd = os.open(path, os.O_RDONLY)
     try:
@@ -243,8 +263,7 @@ class MapStore:
         ndir = self._dir(name)
         src = Path(src)
         entries = file_entries(src)
-        if "manifest.json" not in entries:
-            raise MapServiceError(MapErrorKind.BAD_REQUEST, f"{src}: not a map folder (no manifest.json)")
+        check_map_folder(src, entries)
         version = content_hash(entries)
         if expect is not None and version != expect.version:
             raise MapServiceError(MapErrorKind.CHECKSUM, f"{src}: files hash to {version}, expected "

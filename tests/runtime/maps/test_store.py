@@ -63,6 +63,19 @@ def test_bad_names_and_non_map_folders_are_refused(tmp_path: Path) -> None:
     with pytest.raises(MapServiceError) as e:
         store.add_version("office", tmp_path / "empty")
     assert e.value.kind is MapErrorKind.BAD_REQUEST
+    # a map whose files are not what its manifest lists (damaged, half-copied, edited) is refused
+    for damage in ("modify", "extra", "remove"):
+        m = tiny_map(tmp_path / damage)
+        if damage == "modify":
+            (m / "nodes/blob.bin").write_bytes(b"other bytes")
+        elif damage == "extra":
+            (m / "notes.txt").write_text("x")
+        else:
+            (m / "images/000000.jpg").unlink()
+        with pytest.raises(MapServiceError) as e:
+            store.add_version("office", m)
+        assert e.value.kind is MapErrorKind.BAD_REQUEST, damage
+    assert store.versions("office") == []
 
 
 def test_failure_while_writing_leaves_the_previous_version(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
