@@ -146,7 +146,7 @@ def fetch_map(session: Any, name: str, version: str | None, cache_dir: str | Pat
         if version is None:
             cache.set_latest(name, info.version, "fetch")
         return FetchedMap(name, info.version, cache.map_path(name, info.version), from_cache=True)
-    m = TransferManifest.from_json(man.get("transfer"))
+    m = TransferManifest.from_json(man.get("transfer") if isinstance(man, dict) else None)
     if m.content_hash != info.version:
         raise MapServiceError(MapErrorKind.BAD_REPLY, f"map {name!r}: manifest of {m.content_hash[:12]} served for "
                               f"version {info.version[:12]}")
@@ -154,7 +154,11 @@ def fetch_map(session: Any, name: str, version: str | None, cache_dir: str | Pat
     with file_lock(partial.with_name(info.version + ".lock")):  # robots sharing a cache fetch a version once
         if not _cached(cache, name, info.version):
             stats = _transfer(session, name, info.version, m, partial, progress, timeout_s, retries, max(1, window))
-            check_files(partial, m)
+            try:
+                check_files(partial, m)
+            except MapServiceError:
+                shutil.rmtree(partial, ignore_errors=True)  # every chunk hashed right, the files not: start over
+                raise
             cache.add_version(name, partial, move=True, expect=info, make_latest=False)
         else:
             stats = dict.fromkeys(("bytes_fetched", "chunks_fetched", "chunks_resumed", "chunks_refetched"), 0)
