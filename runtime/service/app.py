@@ -84,7 +84,8 @@ class App(Lifecycle):
     configure: the VLoc (models and map in this process, or the VLoc child process), fusion, the
     live view, the Zenoh session, the publishers and the service's wiring; activate: the live
     inputs on the bus (/initialpose) and the models' provider line; deactivate: stop the service;
-    cleanup: release all of it, newest first. `build_app` configures and activates one."""
+    cleanup: release all of it, newest first. `build_app` configures and activates one.
+    `request_map_switch`: a new version of the map, switched to while running (`runtime.service.map_switch`)."""
 
     def __init__(self, cfg: LiteVLocConfig, map_path: Path, source: Iterable[SourceMessage], rate: float, *,
                  on_fused: Callable[[Any], None] | None = None, record: bool = True,
