@@ -260,6 +260,19 @@ class ZenohConfig(Settings):
 
 
 @dataclass(frozen=True)
+class MapSwitchConfig(Settings):
+    """Switching to a new version of the map while running (`runtime.service.map_switch`): the
+    version is refused when the keyframes both versions hold disagree (another map frame)."""
+
+    frame_tolerance_m: float = setting(
+        0.10, "largest median position difference of the keyframes both versions hold", unit="m", low=0,
+        low_open=True)
+    frame_tolerance_deg: float = setting(
+        2.0, "largest median rotation difference of the keyframes both versions hold", unit="deg", low=0,
+        low_open=True)
+
+
+@dataclass(frozen=True)
 class RuntimeConfig(Settings):
     """Threads, queues, status and tracking-loss policy of the onboard service."""
 
@@ -324,6 +337,7 @@ class RuntimeConfig(Settings):
         OdometryCheckParams, "checks and frame handling of received odometry")
     deterministic_timeout_s: float = setting(
         120.0, "deterministic mode: lockstep wait per frame before failing", unit="s", low=0, low_open=True)
+    map_switch: MapSwitchConfig = section(MapSwitchConfig, "switching to a new version of the map while running")
 
     def check_relations(self) -> None:
         if not self.odometry_key or any(c in self.odometry_key for c in "$?#") or self.odometry_key.startswith("/"):

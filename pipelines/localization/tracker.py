@@ -151,6 +151,17 @@ class Tracker:
         mode = "GL" if res.mode == "global" else "LL"
         return refused(res, QueryRefusal.HELD, refusal_text(QueryRefusal.HELD, mode=mode, detail=why))
 
+    def carry_over(self, old: Tracker, t_ns: int, reason: str) -> None:
+        """Continue `old`'s tracking in this tracker (a new version of the same map, same map frame):
+        its state, LL failures, last pose, held pose and LL costs, all in the map frame, so the next
+        query is LL around the fused prior, not a cold GL. Nothing here names a node of either map."""
+        self.state, self.failures = old.state, old.failures
+        self.last_pose, self.last_pose_t_ns = old.last_pose, old.last_pose_t_ns
+        self.held = old.held
+        self.ll_wall_ms = deque(old.ll_wall_ms, maxlen=LL_COST_WINDOW)
+        self.transitions = deque(old.transitions, maxlen=old.transitions.maxlen)
+        self.transitions.append(Transition(t_ns, old.state, self.state, reason))
+
     def _go(self, t_ns: int, to: TrackingState, reason: str) -> None:
         if to != self.state:
             self.transitions.append(Transition(t_ns, self.state, to, reason))

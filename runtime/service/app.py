@@ -32,7 +32,9 @@ from litevloc.runtime.service.diagnostics import DiagnosticsPublisher
 from litevloc.runtime.service.frame_guard import FrameGuard
 from litevloc.runtime.service.fusion_port import fusion_port
 from litevloc.runtime.service.lifecycle import Lifecycle
-from litevloc.runtime.service.shell import OdometryReceiverFactory, Service, ServicePorts, VlocFn, localizer_callable
+from litevloc.runtime.service.map_switch import MapSwitcher, MapVersion, SwitchableVloc
+from litevloc.runtime.service.map_versions import ThreadVloc
+from litevloc.runtime.service.shell import OdometryReceiverFactory, Service, ServicePorts, VlocFn
 from litevloc.runtime.service.stages import call_in_low_priority_thread
 from litevloc.runtime.service.vloc_process import VlocProcess, VlocWorkerSpec
 from litevloc.runtime.transport.bus import Bus, LiteVLocPublisher
@@ -82,21 +84,38 @@ class App(Lifecycle):
     configure: the VLoc (models and map in this process, or the VLoc child process), fusion, the
     live view, the Zenoh session, the publishers and the service's wiring; activate: the live
     inputs on the bus (/initialpose) and the models' provider line; deactivate: stop the service;
-    cleanup: release all of it, newest first. `build_app` configures and activates one."""
+    cleanup: release all of it, newest first. `build_app` configures and activates one.
+    `request_map_switch`: a new version of the map, switched to while running (`runtime.service.map_switch`)."""
 
     def __init__(self, cfg: LiteVLocConfig, map_path: Path, source: Iterable[SourceMessage], rate: float, *,
                  on_fused: Callable[[Any], None] | None = None, record: bool = True,
-                 view_spawn: bool = False, view_save: Path | None = None) -> None:
+                 view_spawn: bool = False, view_save: Path | None = None,
+                 map_name: str | None = None, map_version: str | None = None) -> None:
         super().__init__()
         self.cfg, self.map_path, self.source, self.rate = cfg, Path(map_path), source, rate
+        self.map_name, self.map_version = map_name, map_version  # as the map service names them, if it does
         self.on_fused, self.view_spawn, self.view_save = on_fused, view_spawn, view_save
         self.recorder = Recorder(enabled=record)
         self.T_base_camera: NDArray[np.float64] = cfg.fusion.T_base_camera()
-        self.localizer: VisualLocalizer | None = None  # None when VLoc runs in its own process (`vloc_process`)
+        self._thread_vloc: ThreadVloc | None = None  # None when VLoc runs in its own process (`vloc_process`)
+        self.map_switcher: MapSwitcher | None = None  # `request_map_switch`
         self.vloc_process: VlocProcess | None = None  # runtime.vloc_process: the child that runs the localizer
         self.view: Any = None  # runtime.service.view.LiveView with --view / --view-save
         self.fusion = OnlineFusion(cfg.fusion.params, self.T_base_camera)
         self._topomap: TopoMap | None = None
+
+    @property
+    def localizer(self) -> VisualLocalizer | None:
+        """The localizer on the map in use (None when VLoc runs in its own process)."""
+        return None if self._thread_vloc is None else self._thread_vloc.localizer
+
+    def request_map_switch(self, path: Path, name: str, version: str) -> None:
+        """Switch to the map version in folder `path` without a restart (thread-safe, returns at
+        once): loaded and verified in the background, switched to between two VLoc results, refused
+        (counted, logged, in the status's `map` entry) if it fails; see `runtime.service.map_switch`."""
+        if self.map_switcher is None:
+            raise RuntimeError("request_map_switch before the node was configured")
+        self.map_switcher.request(Path(path), name, version)
 
     @property
     def wants_view(self) -> bool:
@@ -108,18 +127,20 @@ class App(Lifecycle):
 
     # ------------------------------------------------------------------ configure
     def on_configure(self) -> None:
-        inner_vloc = self._configure_vloc()
+        backend = self._configure_vloc()
         if self.wants_view:
             self.view = self.hold(self._open_view())
         self.bus = self.hold(Bus(self.cfg.zenoh))
         self.publisher = self.hold(self._open_publisher())
-        vloc_fn = FrameGuard(inner_vloc)
+        current = MapVersion(self.map_path, self.map_name, self.map_version, map_id(self.map_path), self._map_nodes())
+        self.map_switcher = self.hold(MapSwitcher(backend, current, map_id_of=map_id, nice=self.cfg.runtime.vloc_nice))
+        vloc_fn = FrameGuard(self.map_switcher)
         if self.view is not None:
             vloc_fn = self.view.wrap_vloc(vloc_fn)
             self.publisher.on_status = self.view.put_status
         self.service = self._wire_service(vloc_fn)
 
-    def _configure_vloc(self) -> VlocFn:
+    def _configure_vloc(self) -> SwitchableVloc:
         """The VLoc callable: a child process that loads the models and the map itself (realtime and
         deterministic modes with `runtime.vloc_process`; this process then loads the map only for the
         live view), or the localizer built here with its models."""
@@ -132,9 +153,10 @@ class App(Lifecycle):
         # Sessions made in a low-priority thread: their intra-op threads inherit the VLoc thread's nice.
         bundle = call_in_low_priority_thread(lambda: load_bundle(models), cfg.runtime.vloc_nice)
         topomap = self._topomap = check_map_models(load_map(self.map_path), bundle)
-        self.localizer = VisualLocalizer(topomap, cfg.localization, bundle.extract, bundle.describe, bundle.match,
-                                         second_look=second_look_for(topomap, models, cfg.localization, bundle))
-        return localizer_callable(self.localizer)
+        localizer = VisualLocalizer(topomap, cfg.localization, bundle.extract, bundle.describe, bundle.match,
+                                    second_look=second_look_for(topomap, models, cfg.localization, bundle))
+        self._thread_vloc = ThreadVloc(topomap, localizer, bundle, cfg)
+        return self._thread_vloc
 
     def _open_view(self) -> Any:
         """The live view (`runtime.service.view`, imported only then), fed off the hot path from the
@@ -149,11 +171,13 @@ class App(Lifecycle):
             lambda: LiveView(save=self.view_save, spawn=self.view_spawn, topomap=self._topomap,
                              T_base_camera=self.T_base_camera, nice=nice), nice)
 
-    def _open_publisher(self) -> LiteVLocPublisher:
+    def _map_nodes(self) -> int:
         # (with the VLoc process, the child validated the whole map; the node count is the manifest's)
         topomap = self._topomap
-        n_nodes = topomap.n_nodes if topomap is not None else int(read_manifest(self.map_path)["nodes"])
-        diagnostics = DiagnosticsPublisher(self.cfg.diagnostics, map_id(self.map_path), n_nodes)
+        return topomap.n_nodes if topomap is not None else int(read_manifest(self.map_path)["nodes"])
+
+    def _open_publisher(self) -> LiteVLocPublisher:
+        diagnostics = DiagnosticsPublisher(self.cfg.diagnostics, map_id(self.map_path), self._map_nodes())
         return LiteVLocPublisher(self.bus, tf=self.cfg.zenoh.tf, diagnostics=diagnostics,
                                  T_base_camera=self.T_base_camera)
 
@@ -172,7 +196,10 @@ class App(Lifecycle):
         port = fusion_port(self.fusion, defer_updates=cfg.runtime.defer_fusion_updates)
         core = LocalizationCore(port, cfg.runtime, T_base_camera=self.T_base_camera, on_fused=fused_hook)
         ports = ServicePorts(self.publisher, self._odometry_receiver(), recorder.on_ground_truth)
-        return Service(self.source, vloc_fn, core, ports, rate=self.rate)
+        service = Service(self.source, vloc_fn, core, ports, rate=self.rate)
+        if self.map_switcher is not None:
+            service.map_report = self.map_switcher.report
+        return service
 
     def _odometry_receiver(self) -> OdometryReceiverFactory | None:
         """`runtime.odometry_input: zenoh`: the robot's odometry from the bus, made when the run starts."""
@@ -234,12 +261,13 @@ def build_app(
     cfg: LiteVLocConfig, map_path: Path, source: Iterable[SourceMessage], rate: float,
     on_fused: Callable[[Any], None] | None = None, record: bool = True,
     view_spawn: bool = False, view_save: Path | None = None,
+    map_name: str | None = None, map_version: str | None = None,
 ) -> App:
     """The onboard node configured and activated (nothing runs yet: `app.service.run()`, then
     `app.close()`). Everything that can be missing is checked here, before any thread starts;
     on a failure what was acquired is released (newest first) and the error raised."""
     app = App(cfg, map_path, source, rate, on_fused=on_fused, record=record, view_spawn=view_spawn,
-              view_save=view_save)
+              view_save=view_save, map_name=map_name, map_version=map_version)
     app.configure()
     app.activate()
     return app

@@ -18,7 +18,10 @@ the previous snapshot (for rates over the last period), with levels from
 * `litevloc/vloc`: VLoc rate (Hz) and acceptance (accepted / calls) over the last period
   plus totals; "lower is worse" thresholds, judged once `min_vloc_calls` calls were made.
 * `litevloc/tracking`: INIT (WARN), TRACKING (OK), LOST or FAILED (ERROR), with the reasons.
-* `litevloc/map`: the map id (folder name and manifest hash) and node count.
+* `litevloc/map`: the map in use (id: folder name and manifest hash; name and version as the map
+  service names them), its node count and its switches (`runtime.service.map_switch`): requests,
+  switches, refusals, the last switch's time and the last refusal's kind; WARN while the last
+  version offered was refused (the service keeps the map it has).
 * `litevloc/models` (when the status has a `models` entry, `models.ort.ProviderReport.as_dict`): the
   onnxruntime build and the provider each model runs on; WARN when a provider asked for is not in
   use (`ProviderState.FALLBACK`: "models: tensorrt asked for, running on CPUExecutionProvider ...").
@@ -181,12 +184,28 @@ def diagnostic_statuses(
     out.append((lvl, "litevloc/tracking", state + (f": {reasons[0]}" if reasons else ""), hw, [
         ("state", state), ("reason", "; ".join(reasons)), ("vloc_state", str(status.get("vloc_state") or "")),
         ("last_fusion_reason", str(status.get("last_fusion_reason") or ""))]))
-    out.append((OK, "litevloc/map", map_id or "(no map id)", hw, [
-        ("map_id", map_id), ("nodes", "" if n_nodes is None else str(n_nodes))]))
+    out.append(map_status(status.get("map"), map_id, n_nodes, hw))
     models = status.get("models")
     if models:
         out.append(models_status(models, hw))
     return out
+
+
+def map_status(m: Mapping[str, Any] | None, map_id: str, n_nodes: int | None, hw: str) -> Status:
+    """`litevloc/map` from the status's `map` entry (`MapSwitcher.report`; without one, the id and node
+    count of the map the service started with): WARN while the last version offered was refused."""
+    if not m:
+        return OK, "litevloc/map", map_id or "(no map id)", hw, [
+            ("map_id", map_id), ("nodes", "" if n_nodes is None else str(n_nodes))]
+    name = f"{m.get('name')}@{m.get('version')}" if m.get("version") is not None else str(m.get("map_id") or "")
+    lvl, msg = OK, name or "(no map id)"
+    if m.get("refused_since_switch"):
+        lvl = WARN
+        msg += f"; version {m.get('last_refused_version')} refused ({m.get('last_refusal')})"
+    keys = ("map_id", "name", "version", "nodes", "requests", "switches", "refusals",
+            "last_switch_wall", "last_switch_s", "last_refusal", "last_refused_version", "last_refusal_detail",
+            "loading", "pending")
+    return lvl, "litevloc/map", msg, hw, [(k, "" if m.get(k) is None else str(m.get(k))) for k in keys]
 
 
 def models_status(models: Mapping[str, Any], hw: str) -> Status:

@@ -147,6 +147,8 @@ class Service:
         # the models' onnxruntime build and providers (`models.ort.provider_report`, or the VLoc process's):
         # the status's `models` entry, which `runtime.service.diagnostics` turns into `litevloc/models`
         self.models_report: Callable[[], ProviderReportLike] | None = None
+        # the map in use and its switches (`runtime.service.map_switch.MapSwitcher.report`): the status's `map`
+        self.map_report: Callable[[], dict[str, Any]] | None = None
         if configure_thread_counts:
             self.threads = configure_threads(p.cv_threads, p.ort_intra_op_threads, p.ort_inter_op_threads,
                                              p.gil_switch_interval_s)

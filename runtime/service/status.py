@@ -1,5 +1,6 @@
 """The service's status report (`litevloc/status`, JSON): the core's report, then what the
-shell sees (stages, queues, odometry input, staleness of the inputs, the bus, live inputs, models).
+shell sees (stages, queues, odometry input, staleness of the inputs, the bus, live inputs, models,
+the map in use with its version and switches).
 
 Read from the service's public surface only (`Service.liveness()`, its queues, stages, core,
 publisher); called from the status thread, or inline in sequential mode.
@@ -69,6 +70,8 @@ def build_status(svc: Service) -> dict[str, Any]:
         out["inputs"] = {name: inp.report() for name, inp in svc.inputs.items()}
     if svc.models_report is not None:
         out["models"] = svc.models_report().as_dict()
+    if svc.map_report is not None:
+        out["map"] = svc.map_report()
     return dict(jsonable(out))
 
 

@@ -105,6 +105,7 @@ class Scene:
         self._trail_n = 0
         self.logged = {"fused": 0, "vloc": 0, "status": 0}
         self._last_state: tuple[str, str] | None = None
+        self._last_map: tuple[Any, ...] | None = None
         self._last_plan: tuple[str, str, str] | None = None
         self._kf_resized: dict[tuple[int, int], NDArray[np.uint8]] = {}
         self._trail_logged_ns: int | None = None
@@ -293,6 +294,20 @@ class Scene:
         self._log("images/matches/lines", rr.LineStrips2D(segs, colors=colors, radii=0.6))
         self.logged["matches"] = self.logged.get("matches", 0) + len(a)
 
+    def _log_map_status(self, m: Mapping[str, Any] | None) -> None:
+        """The map in use and its switches (the status's `map` entry), logged when they change."""
+        if not m:
+            return
+        key = (m.get("map_id"), m.get("version"), m.get("switches"), m.get("refusals"))
+        if key == self._last_map:
+            return
+        self._last_map = key
+        text = f"map {m.get('name')}@{m.get('version')} ({m.get('map_id')}), {m.get('switches')} switch(es)"
+        refused = bool(m.get("refused_since_switch"))
+        if refused:
+            text += f"; version {m.get('last_refused_version')} refused: {m.get('last_refusal')}"
+        self._log("status/map", self.rr.TextLog(text, level="WARN" if refused else "INFO"))
+
     def _log_status(self, st: Mapping[str, Any]) -> None:
         rr = self.rr
         t = st.get("sensor_time_ns")
@@ -308,6 +323,7 @@ class Scene:
             level = levels.get(state, "ERROR")
             self._log("status/tracking", rr.TextLog(f"{state}" + (f": {reasons}" if reasons else ""),
                                                        level=level))
+        self._log_map_status(st.get("map"))
         stages = st.get("stages") or {}
         series = {
             "fusion_p99": ((stages.get("fusion") or {}).get("latency", {}).get("odometry") or {}).get("p99_ms"),

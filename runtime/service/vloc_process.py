@@ -21,6 +21,9 @@ parent VLoc thread --(frame, prior)--> pipe --> child: VisualLocalizer.process
   computed in the child. An exception in the child's query comes back as `VlocProcessError`
   carrying its traceback summary (the VLoc stage counts it as it counts an in-process one); a
   child that died is `VlocProcessError` naming its exit code, on this and every later call.
+* `prepare_map(path)` / `commit_map()` / `discard_map()` (`runtime.service.map_switch`): the child
+  loads and checks a new map version in a thread of its own while it answers queries (the parent
+  polls it), and switches to it between two queries when told.
 * `close()` asks the child to end, then terminates it after `join_timeout_s`. The child ignores
   SIGINT/SIGTERM (a terminal's Ctrl-C or systemd reaches the whole process group: the parent
   decides when VLoc ends) and ends by itself when the parent's end of the pipe closes; one left
@@ -53,6 +56,7 @@ if TYPE_CHECKING:
     from litevloc.hw.messages import RgbdFrame
     from litevloc.models.ort import ProviderReport
     from litevloc.runtime.service.core import VlocOutcome
+    from litevloc.runtime.service.map_versions import ThreadVloc
     from litevloc.runtime.service.vloc_prior import VlocPrior
 
 log = logging.getLogger(__name__)
@@ -72,6 +76,46 @@ class VlocWorkerSpec:
     join_timeout_s: float = 5.0
 
 
+class _ChildMaps:
+    """The child's side of a map switch: `prepare` loads a version in a thread of the child (the
+    queries go on), `poll` says how far it got, `commit` switches between two queries (the
+    parent's `VlocProcess.prepare_map` / `commit_map`)."""
+
+    def __init__(self, vloc: ThreadVloc) -> None:
+        self.vloc = vloc
+        self.state: tuple[Any, ...] = ("idle",)
+        self._lock = threading.Lock()
+
+    def _prepare(self, path: Path) -> None:
+        from litevloc.runtime.service.map_versions import MapRefusal, MapRefused
+
+        try:
+            state: tuple[Any, ...] = ("prepared", self.vloc.prepare_map(path))
+        except MapRefused as exc:
+            state = ("refused", exc.kind.value, str(exc))
+        except Exception as exc:
+            state = ("refused", MapRefusal.LOAD_FAILED.value, f"{type(exc).__name__}: {exc}")
+        with self._lock:
+            self.state = state
+
+    def command(self, msg: tuple[Any, ...]) -> tuple[Any, ...]:
+        kind = msg[0]
+        if kind == "prepare":
+            with self._lock:
+                self.state = ("pending",)
+            threading.Thread(target=self._prepare, args=(Path(msg[1]),), name="map-load", daemon=True).start()
+            return ("preparing",)
+        if kind == "poll":
+            with self._lock:
+                return self.state
+        if kind in ("commit", "discard"):
+            (self.vloc.commit_map if kind == "commit" else self.vloc.discard_map)()
+            with self._lock:
+                self.state = ("idle",)
+            return ("done",)
+        return ("raised", f"unknown command {kind!r}")
+
+
 def _worker_main(spec: VlocWorkerSpec, conn: Connection) -> None:
     """The child: load models and map, then answer `("frame", frame, prior)` until told to stop."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -81,7 +125,7 @@ def _worker_main(spec: VlocWorkerSpec, conn: Connection) -> None:
 
         from litevloc.pipelines.localization.vloc import VisualLocalizer
         from litevloc.pipelines.topomap.io import load_map
-        from litevloc.runtime.service.shell import localizer_callable
+        from litevloc.runtime.service.map_versions import ThreadVloc
         from litevloc.runtime.service.stages import configure_threads, lower_thread_priority, traceback_summary
         from litevloc.runtime.vloc_models import check_map_models, load_bundle, second_look_for
 
@@ -94,7 +138,7 @@ def _worker_main(spec: VlocWorkerSpec, conn: Connection) -> None:
         lp = spec.config.localization
         localizer = VisualLocalizer(topomap, lp, bundle.extract, bundle.describe, bundle.match,
                                     second_look=second_look_for(topomap, models, lp, bundle))
-        vloc = localizer_callable(localizer)
+        vloc = ThreadVloc(topomap, localizer, bundle, spec.config)
     except BaseException as exc:  # reported to the parent, which raises it as a user error
         conn.send(("error", type(exc).__name__, str(exc), isinstance(exc, LiteVLocError)))
         conn.close()
@@ -102,6 +146,7 @@ def _worker_main(spec: VlocWorkerSpec, conn: Connection) -> None:
     from litevloc.models.ort import provider_report
 
     conn.send(("ready", os.getpid(), nice, provider_report()))
+    maps = _ChildMaps(vloc)
     while True:
         try:
             msg = conn.recv()
@@ -110,11 +155,14 @@ def _worker_main(spec: VlocWorkerSpec, conn: Connection) -> None:
         if msg[0] == "stop":
             conn.close()
             return
-        _, frame, prior = msg
-        try:
-            reply: tuple[Any, ...] = ("result", vloc(frame, prior))
-        except Exception as exc:
-            reply = ("raised", traceback_summary(exc))
+        if msg[0] != "frame":
+            reply: tuple[Any, ...] = maps.command(msg)
+        else:
+            _, frame, prior = msg
+            try:
+                reply = ("result", vloc(frame, prior))
+            except Exception as exc:
+                reply = ("raised", traceback_summary(exc))
         try:
             conn.send(reply)
         except (EOFError, OSError, BrokenPipeError):
@@ -181,6 +229,45 @@ class VlocProcess:
             raise VlocProcessError(f"VLoc query failed in the VLoc process: {msg[1]}")
         result: VlocOutcome = msg[1]
         return result
+
+    def _command(self, msg: tuple[Any, ...]) -> tuple[Any, ...]:
+        """One map command to the child and its reply; MapRefused (VLOC_PROCESS) if the child is gone."""
+        from litevloc.runtime.service.map_versions import MapRefusal, MapRefused
+
+        with self._lock:
+            if self._dead is not None:
+                raise MapRefused(MapRefusal.VLOC_PROCESS, self._dead)
+            try:
+                self._conn.send(msg)
+                reply: tuple[Any, ...] = self._conn.recv()
+            except (EOFError, OSError, BrokenPipeError) as exc:
+                self._proc.join(1.0)
+                self._dead = f"the VLoc process died (exit code {self._proc.exitcode})"
+                raise MapRefused(MapRefusal.VLOC_PROCESS, self._dead) from exc
+        if reply[0] == "raised":
+            raise MapRefused(MapRefusal.VLOC_PROCESS, f"the VLoc process refused {msg[0]!r}: {reply[1]}")
+        return reply
+
+    def prepare_map(self, path: Path, poll_s: float = 0.05) -> int:
+        """The child loads and verifies the version at `path` beside its map (queries go on
+        meanwhile); its node count, or MapRefused (`map_versions.prepare_localizer`)."""
+        from litevloc.runtime.service.map_versions import MapRefusal, MapRefused
+
+        self._command(("prepare", str(path)))
+        while True:
+            time.sleep(poll_s)
+            reply = self._command(("poll",))
+            if reply[0] == "prepared":
+                return int(reply[1])
+            if reply[0] == "refused":
+                raise MapRefused(MapRefusal(reply[1]), str(reply[2]))
+
+    def commit_map(self) -> None:
+        """The child switches to the prepared version (call between two queries)."""
+        self._command(("commit",))
+
+    def discard_map(self) -> None:
+        self._command(("discard",))
 
     def close(self) -> None:
         """End the child (asked first, terminated after `join_timeout_s`); idempotent."""

@@ -125,7 +125,9 @@ def test_saved_stream_holds_every_part_of_the_view(tmp_path: Path) -> None:
         if i % 10 == 0:
             view.put_status({"sensor_time_ns": t, "state": "TRACKING" if i else "INIT", "reasons": [],
                              "queues": {"odometry": {"depth": 2}}, "latency": {"odometry_to_publish": {"p99_ms": 2.0}},
-                             "stages": {"fusion": {"latency": {"odometry": {"p99_ms": 0.5}}}}})
+                             "stages": {"fusion": {"latency": {"odometry": {"p99_ms": 0.5}}}},
+                             "map": {"name": "office", "version": f"v{1 + i // 10}", "map_id": "m@1",
+                                     "switches": i // 10, "refusals": 0}})
     rep = view.close()
     assert rep["errors"] == 0, rep["last_error"]
     assert rep["logged"] == {"fused": 10, "vloc": 5, "status": 2, "matches": 4 * 40}  # 200 Hz thinned to 10 Hz
@@ -143,6 +145,7 @@ def test_saved_stream_holds_every_part_of_the_view(tmp_path: Path) -> None:
     assert rows["/images/matches"] == 5  # every result
     assert rows["/images/matches/lines"] == 5  # 4 accepted results, and the rejected one clears them
     assert rows["/world/vloc/covariance"] == 4  # the rejected result moves nothing
+    assert rows["/status/map"] == 2  # the map version, logged when it changes
 
 
 def test_view_needs_a_sink() -> None:
