@@ -72,6 +72,33 @@ def open_configured_source(cfg: Any, path: Path | None, frames: slice = slice(No
     return kind.open(cfg, parse_frames(cfg.source.frames or None), SourceUse.SERVICE)
 
 
+def follow_map(cfg: Any, uri: str, fetched: Any, app: Any) -> Any:
+    """A map follower for `--map zenoh:NAME` (no @VERSION, `fleet.follow_latest`): announced versions
+    are fetched and switched to while the service runs; None when the map is pinned or followed not."""
+    from litevloc.runtime.maps.app import parse_map_uri, robot_session
+    from litevloc.runtime.maps.follow import MapFollower
+
+    parsed = parse_map_uri(uri)
+    if parsed is None or parsed[1] is not None or not cfg.fleet.follow_latest or fetched.offline:
+        return None
+    return _Following(robot_session(cfg.zenoh), lambda session: MapFollower(
+        session, fetched.name, fetched.version, cfg.fleet, app.request_map_switch))
+
+
+class _Following:
+    """A robot session held open for a `MapFollower`; `close()` closes both, follower first."""
+
+    def __init__(self, session_cm: Any, make: Any) -> None:
+        self._cm = session_cm
+        self.follower = make(session_cm.__enter__())
+
+    def close(self) -> None:
+        try:
+            self.follower.close()
+        finally:
+            self._cm.__exit__(None, None, None)
+
+
 def run_service(args: argparse.Namespace, source_path: Path | None, rate: float | None, record: bool = True) -> dict:
     from litevloc.runtime.service.app import build_app, with_endpoints
 
@@ -80,6 +107,7 @@ def run_service(args: argparse.Namespace, source_path: Path | None, rate: float 
     map_path = args.map or (Path(cfg.map) if cfg.map else None)
     if map_path is None:
         raise UserError("no map: give --map MAP or set `map:` in the config")
+    fetched = None
     if str(map_path).startswith("zenoh:"):
         from litevloc.runtime.maps.app import resolve_map
 
@@ -101,7 +129,8 @@ def run_service(args: argparse.Namespace, source_path: Path | None, rate: float 
 
         msgs = service_messages(src, reader_process=cfg.runtime.recording_process and cfg.runtime.mode != "sequential")
         app = build_app(cfg, map_path, msgs, cfg.replay.rate if rate is None else rate,
-                        record=record, view_spawn=view_spawn, view_save=view_save)
+                        record=record, view_spawn=view_spawn, view_save=view_save,
+                        map_name=fetched.name if fetched else None, map_version=fetched.version if fetched else None)
     except Exception as exc:
         if view_spawn or view_save is not None:  # (rerun is imported only then)
             from litevloc.runtime.service.view import ViewError
@@ -111,9 +140,12 @@ def run_service(args: argparse.Namespace, source_path: Path | None, rate: float 
         raise
     if faults is not None:
         faults.apply(app.service)
+    follow = follow_map(cfg, str(args.map or cfg.map), fetched, app) if fetched is not None else None
     try:
         result = app.service.run(install_signals=True)
     finally:
+        if follow is not None:
+            follow.close()
         app.close()
     status = result.status
     if app.view is not None:

@@ -20,6 +20,9 @@ class FleetParams(Settings):
     query_timeout_s: float = setting(
         5.0, "wait for one answer of the map service (a chunk, the latest version); then it counts as unreachable",
         unit="s", low=0, low_open=True, high=600)
+    follow_latest: bool = setting(
+        True, "run --map zenoh:NAME (no @VERSION) follows the map: each announced new version is fetched and "
+        "switched to while running; NAME@VERSION always stays on that version")
     fetch_window: int = setting(
         4, "chunk queries a fetch keeps in flight (hides the round trip of a Wi-Fi link)", low=1, high=256)
     chunk_retries: int = setting(3, "fetches again of a chunk that fails its sha256 before the fetch is refused",
