@@ -40,7 +40,7 @@ from litevloc.pipelines.localization.query import Query, StageTimer
 from litevloc.pipelines.localization.refusals import QueryRefusal, refusal_text
 from litevloc.pipelines.localization.results import CandidateAttempt, LocalizationResult, ProvisionalPose
 from litevloc.pipelines.localization.search_region import SearchRegion, nodes_within
-from litevloc.pipelines.localization.verifier import Best
+from litevloc.pipelines.localization.verifier import Best, Check
 from litevloc.pipelines.pnp import Refusal
 
 
@@ -144,10 +144,10 @@ class GlobalSearch:
         trusted = prior is not None and pg.fresh(p, growth)
         floor = p.pnp.min_inliers  # a weaker candidate passes only pooled (see `passes.pooled_short`)
         min_kf = p.refine.min_keyframes
-        checks = [PnpCheck(v, pooled(p), evidence=evidence), SupportCheck(v),
-                  JointCheck(v, [int(n) for n in order], lambda c, weak: min_kf if p.confirm.gl or weak else 1, floor,
-                             refuse=False),
-                  PooledCheck(floor, min_kf)]
+        joint_check = JointCheck(v, [int(n) for n in order],
+                                 lambda c, weak: min_kf if p.confirm.gl or weak else 1, floor, refuse=False)
+        checks: list[Check] = [PnpCheck(v, pooled(p), evidence=evidence), SupportCheck(v), joint_check,
+                               PooledCheck(floor, min_kf)]
         budget = p.global_search.time_budget_ms
         candidates_ms = 0.0  # verification time (match, PnP, joint refinement) of the candidates so far
         for k, node in enumerate(int(n) for n in order):

@@ -29,7 +29,7 @@ from litevloc.pipelines.localization.prior import Prior
 from litevloc.pipelines.localization.query import Query, StageTimer
 from litevloc.pipelines.localization.refusals import QueryRefusal, refusal_text
 from litevloc.pipelines.localization.results import CandidateAttempt, LocalizationResult
-from litevloc.pipelines.localization.verifier import Best, Candidate, CandidateVerifier
+from litevloc.pipelines.localization.verifier import Best, Candidate, CandidateVerifier, Check
 
 Gate = tuple[float, float, NDArray[np.float64] | None]  # the prior's growth (m), gate radius (m), position covariance
 
@@ -101,9 +101,10 @@ class LocalSearch:
             close = dt <= p.confirm.skip_within_m and dr <= p.confirm.skip_within_deg and fresh and not weak
             return min_kf if (p.confirm.ll and not close) or weak else 1
 
-        checks = [PnpCheck(v, pooled(p), guided_prior=prior if guided_first else None),
-                  PriorGateCheck(prior, gate_m, cov),
-                  JointCheck(v, [n for n, _ in cands], need, floor, refuse=True), PooledCheck(floor, min_kf)]
+        checks: list[Check] = [PnpCheck(v, pooled(p), guided_prior=prior if guided_first else None),
+                               PriorGateCheck(prior, gate_m, cov),
+                               JointCheck(v, [n for n, _ in cands], need, floor, refuse=True),
+                               PooledCheck(floor, min_kf)]
         for node, sim in cands:
             c, refused_by = v.run(node, sim, q, checks)
             if refused_by is not None:

@@ -49,6 +49,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from functools import partial
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
@@ -79,6 +80,11 @@ if TYPE_CHECKING:
     from litevloc.pipelines.localization.vloc import VisualLocalizer
 
 log = logging.getLogger(__name__)
+
+
+def _reached(count: Callable[[], int], target: int) -> bool:
+    """Whether the running `count()` has reached `target` (the deterministic mode's hand-offs)."""
+    return count() >= target
 
 VlocFn = Callable[[RgbdFrame, VlocPrior | None], VlocOutcome]
 
@@ -262,12 +268,13 @@ class Service:
             elif isinstance(msg, RgbdFrame | EncodedRgbdFrame):
                 self.shell_counters["frames_in"] += 1
                 self._last_frame_wall = time.monotonic()
-                if det and not pg.wait(lambda n=pg.odom_pushed: pg.odom_done >= n, "odometry before a frame"):
+                if det and not pg.wait(partial(_reached, lambda: pg.odom_done, pg.odom_pushed),
+                                       "odometry before a frame"):
                     return
                 self.frames.put(msg)
                 pg.frames_pushed += 1
                 # an item skipped by a stage error counts as done
-                if det and not pg.wait(lambda k=pg.frames_pushed: pg.vloc_done + self._errors() >= k,
+                if det and not pg.wait(partial(_reached, lambda: pg.vloc_done + self._errors(), pg.frames_pushed),
                                        f"VLoc + fusion of frame {msg.index} (t={msg.t_ns} ns)"):
                     return
             elif isinstance(msg, GroundTruthPose):
