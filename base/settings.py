@@ -57,7 +57,8 @@ class Spec:
     low_open: bool = False
     # the upper bound itself is not allowed
     high_open: bool = False
-    # a value allowed besides the range, meaning "off" (0 for `0 = off, else in [16, 16384]`)
+    # a value allowed besides the range, meaning "off" (0 for `0 = off, else in [16, 16384]`; it may
+    # be inf, for a gate code opens: a configuration file gives finite numbers only)
     off: float | None = None
     # a nested settings class, not a leaf
     is_section: bool = False
@@ -187,6 +188,6 @@ def _check_number(v: Any, spec: Spec, integral: bool) -> str | None:
     # exact int/float first: the numbers ABCs (numpy scalars) are slower to test
     number = type(v) is int or (type(v) is float and not integral) or (
         not isinstance(v, bool) and isinstance(v, numbers.Integral if integral else numbers.Real))
-    if not number or not math.isfinite(float(v)) or not spec.admits(float(v)):
+    if not number or not (math.isfinite(float(v)) or float(v) == spec.off) or not spec.admits(float(v)):
         return f"{'an integer' if integral else 'a finite number'} in {spec.range_text()}"
     return None

@@ -13,11 +13,7 @@ or a `--set` override. `litevloc.config.render` prints them.
 
 from __future__ import annotations
 
-import ast
 import dataclasses
-import functools
-import inspect
-import textwrap
 import types
 import typing
 from collections.abc import Iterator, Mapping, Sequence
@@ -93,11 +89,12 @@ def load_with_origins(name_or_path: str | Path | None = None, overrides: Sequenc
 
 
 def declaration(cls: type, name: str) -> Spec:
-    """The declaration of field `name` of settings class `cls` (`base/settings.py`); a field not
-    declared with `setting`/`section` gets its one `#` comment line as description."""
+    """The declaration of field `name` of settings class `cls` (`base/settings.py`)."""
     f = {f.name: f for f in dataclasses.fields(cls)}[name]
     spec = spec_of(f)
-    return spec if spec is not None else Spec(_comment_lines(cls).get(name, ""))
+    if spec is None:  # tests/config/test_settings.py keeps every reachable field declared
+        raise TypeError(f"{cls.__name__}.{name} is not declared with `setting` or `section`")
+    return spec
 
 
 def choices_of(tp: Any) -> tuple[Any, ...]:
@@ -146,24 +143,6 @@ def description_problems(cls: type) -> list[str]:
             out.append(f"{cls.__name__}.{f.name}: not declared with `setting` or `section` (base/settings.py)")
         elif (why := standalone_problem(spec.description)) is not None:
             out.append(f"{cls.__name__}.{f.name}: {why}")
-    return out
-
-
-@functools.cache
-def _comment_lines(cls: type) -> dict[str, str]:
-    """{field: the one `#` comment line directly above it}, for a class whose fields are not yet
-    declared with `setting` (base/params/localization.py until it is converted)."""
-    lines, _ = inspect.getsourcelines(cls)
-    source = textwrap.dedent("".join(lines))
-    body = ast.parse(source).body[0]
-    assert isinstance(body, ast.ClassDef)
-    src_lines = source.splitlines()
-    out: dict[str, str] = {}
-    for node in body.body:
-        if isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
-            above = src_lines[node.lineno - 2].strip() if node.lineno >= 2 else ""
-            if above.startswith("#"):
-                out[node.target.id] = above.lstrip("#").strip()
     return out
 
 

@@ -47,7 +47,7 @@ def test_rivals_are_candidates_at_another_pose_and_the_ratio_decides() -> None:
     assert ambiguity(0, 101, Rival(2, 50, 10.0, 0.0), 2.0) == ""
     assert ambiguity(0, 100, Rival(2, 99, 10.0, 0.0), 0.0) == ""  # off
     assert ambiguity(0, 100, None, 2.0) == ""
-    with pytest.raises(ValueError, match="ratio must be 0"):
+    with pytest.raises(ValueError, match=r"ratio must be a finite number in 0 or \[1, inf\), got 0\.5"):
         LocalizationParams(distinctiveness=DistinctivenessParams(ratio=0.5))
 
 

@@ -193,7 +193,7 @@ def test_second_look_needs_its_models_and_the_maps_images() -> None:
         VisualLocalizer(m, p, s.extract, s.describe, s.match)
     with pytest.raises(ValueError, match="second look needs every keyframe's stored image"):
         SecondLook(replace(m, images_jpeg=[]), p, s.extract, s.describe, s.match, SMALLER)
-    with pytest.raises(ValueError, match="candidates and from_inliers"):
+    with pytest.raises(ValueError, match=r"candidates must be an integer in \[0, inf\), got -1"):
         replace(PARAMS, second_look=replace(PARAMS.second_look, candidates=-1))
 
 
