@@ -177,12 +177,12 @@ class GlobalSearch:
                   PooledCheck(floor, min_kf)]
         budget = p.global_search.time_budget_ms
         candidates_ms = 0.0  # verification time (match, PnP, joint refinement) of the candidates so far
+        first_ms = 0.0  # the first candidate's: with the front end, the nominal LL cost (`gl_budget_ms`)
         for k, node in enumerate(int(n) for n in order):
             spent = (v.clock() - t_all) * 1e3
             ahead = candidates_ms / max(k, 1)  # this query's mean cost per candidate so far
             if k == 1 and recovering_ll_ms is not None:
                 budget = gl_budget_ms(p, recovering_ll_ms, nominal_ll_ms=front_ms + candidates_ms)
-            self.budget_ms = budget
             if k > 0 and budget > 0 and spent + ahead > budget:
                 stop = (f"time budget ({budget:.0f} ms) would be overrun: {spent:.0f} ms spent + "
                         f"{ahead:.0f} ms per candidate, after {k} of {len(order)} candidates")
@@ -190,6 +190,7 @@ class GlobalSearch:
             t_cand = v.clock()
             c, refused_by = v.run(node, float(sims[node]), q, checks)
             candidates_ms += (v.clock() - t_cand) * 1e3
+            first_ms = candidates_ms if k == 0 else first_ms
             if refused_by is not None:
                 attempts.append(refused_by)
                 continue
@@ -218,6 +219,9 @@ class GlobalSearch:
             attempts.append(CandidateAttempt(node, att.similarity, att.matches, att.inliers,
                                              f"joint refinement rejected: {joint.reason}"))
             refusal = (QueryRefusal.UNCONFIRMED, refusal_text(QueryRefusal.UNCONFIRMED, node=node))
+        if recovering_ll_ms is not None and len(order):  # the bound, also where one candidate ended the pass
+            budget = gl_budget_ms(p, recovering_ll_ms, nominal_ll_ms=front_ms + first_ms)
+        self.budget_ms = max(self.budget_ms, budget)  # the widest bound of the query's passes bounds its look
         timer.add("total", t_all)
         out = replace(v.result(t_ns, "global", best, attempts, timer, refusal, q), stop_reason=stop,
                       candidates=tuple(int(n) for n in order))

@@ -335,3 +335,7 @@ def test_a_gl_query_looks_again_only_where_the_look_fits_in_its_time_budget() ->
     unbounded = localizer(replace(p, global_search=replace(p.global_search, time_budget_ms=0.0)))
     unbounded.global_search.look_ms.extend([2 * budget] * 3)
     assert unbounded.localize_global(0, IMG, depth, K).accepted  # no budget: the look always runs
+    # recovering after tracking was lost: the bound is 2x the LL cost, also with one candidate only
+    for only in (None, [1]):
+        rec = unbounded.global_search.localize(0, IMG, depth, K, unbounded.params, recovering_ll_ms=[1.0], only=only)
+        assert not rec.accepted and "no second look" in rec.stop_reason, rec.stop_reason
