@@ -16,6 +16,7 @@ says why in `stop_reason`.
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import replace
 
@@ -57,6 +58,9 @@ def gl_budget_ms(p: LocalizationParams, ll_wall_ms: Sequence[float], nominal_ll_
     return min(bounds) if bounds else 0.0
 
 
+LOOK_COST_WINDOW = 10  # second looks whose median wall time is the expected cost of the next one
+
+
 class GlobalSearch:
     """GL over `local`'s verifier's map; `local` also verifies the prior's place;
     `second_look` (None: none) looks again at a refused query, `pooling`: whether weak
@@ -65,6 +69,9 @@ class GlobalSearch:
     def __init__(self, local: LocalSearch, second_look: SecondLookFn | None = None, pooling: bool = True) -> None:
         self.local, self.verifier = local, local.verifier
         self.second_look, self.pooling = second_look, pooling
+        # wall times (ms) of the last second looks: the expected cost of the next (`_look_fits`)
+        self.look_ms: deque[float] = deque(maxlen=LOOK_COST_WINDOW)
+        self.budget_ms = 0.0  # the wall-time bound the last verification pass applied (0: none)
 
     def localize(self, t_ns: int, color: NDArray[np.uint8], depth: NDArray[np.float32] | None,
                  K: NDArray[np.float64], p: LocalizationParams, prior: Prior | None = None,
@@ -90,12 +97,32 @@ class GlobalSearch:
         def verify(pp: LocalizationParams) -> LocalizationResult:
             return self._search(t_ns, q.under(pp), sims, order, prior, recovering_ll_ms, (timer, t_all, front_ms))
 
+        self.budget_ms = 0.0
         res = with_second_passes(verify, p, q.timer, v.map_has_depth, pooling=self.pooling)
         if not res.accepted and self.second_look is not None:
-            res = look_again(self.second_look, p, res, (color, depth, K), prior)
+            short = self._look_short((v.clock() - t_all) * 1e3)
+            if short:
+                res = replace(res, stop_reason=f"{res.stop_reason}; no second look: {short}")
+            else:
+                res = look_again(self.second_look, p, res, (color, depth, K), prior)
+                if "second_look" in res.timings_ms:
+                    self.look_ms.append(res.timings_ms["second_look"])
         if not res.accepted or prior is None or not p.global_search.check_prior_place:
             return res
         return self._against_the_priors_place(res, q, desc, prior, t_all)
+
+    def _look_short(self, spent_ms: float) -> str:
+        """Why this GL query cannot afford the second look, '' when it can: `spent_ms` spent plus the
+        median wall time of the last second looks (`look_ms`; none measured yet: it fits) must fit in
+        the bound its verification passes applied (`global_search.time_budget_ms`, and while
+        recovering `gl_budget_ms`; none: it fits). The look is part of the query its budget bounds."""
+        if self.budget_ms <= 0 or not self.look_ms:
+            return ""
+        expected = float(np.median(self.look_ms))
+        if spent_ms + expected <= self.budget_ms:
+            return ""
+        return (f"{spent_ms:.0f} ms spent + {expected:.0f} ms per look (median of the last {len(self.look_ms)}) "
+                f"> the time budget ({self.budget_ms:.0f} ms)")
 
     def candidates(self, p: LocalizationParams, sims: NDArray[np.float32], q: Query,
                    region: SearchRegion | None = None) -> NDArray[np.int64]:
@@ -150,6 +177,7 @@ class GlobalSearch:
                                PooledCheck(floor, min_kf)]
         budget = p.global_search.time_budget_ms
         candidates_ms = 0.0  # verification time (match, PnP, joint refinement) of the candidates so far
+        first_ms = 0.0  # the first candidate's: with the front end, the nominal LL cost (`gl_budget_ms`)
         for k, node in enumerate(int(n) for n in order):
             spent = (v.clock() - t_all) * 1e3
             ahead = candidates_ms / max(k, 1)  # this query's mean cost per candidate so far
@@ -162,6 +190,7 @@ class GlobalSearch:
             t_cand = v.clock()
             c, refused_by = v.run(node, float(sims[node]), q, checks)
             candidates_ms += (v.clock() - t_cand) * 1e3
+            first_ms = candidates_ms if k == 0 else first_ms
             if refused_by is not None:
                 attempts.append(refused_by)
                 continue
@@ -190,6 +219,9 @@ class GlobalSearch:
             attempts.append(CandidateAttempt(node, att.similarity, att.matches, att.inliers,
                                              f"joint refinement rejected: {joint.reason}"))
             refusal = (QueryRefusal.UNCONFIRMED, refusal_text(QueryRefusal.UNCONFIRMED, node=node))
+        if recovering_ll_ms is not None and len(order):  # the bound, also where one candidate ended the pass
+            budget = gl_budget_ms(p, recovering_ll_ms, nominal_ll_ms=front_ms + first_ms)
+        self.budget_ms = max(self.budget_ms, budget)  # the widest bound of the query's passes bounds its look
         timer.add("total", t_all)
         out = replace(v.result(t_ns, "global", best, attempts, timer, refusal, q), stop_reason=stop,
                       candidates=tuple(int(n) for n in order))

@@ -300,3 +300,42 @@ def test_a_look_pose_that_sees_through_by_a_small_miss_is_moved_onto_the_live_de
     assert moved_onto_live_depth(look_at(turned), points, CORNER_K, depth, wider) is not None
     never = replace(p, see_through=replace(p.see_through, align_m=0))
     assert moved_onto_live_depth(look_at(ahead), points, CORNER_K, depth, never) is None
+
+
+def test_a_gl_query_looks_again_only_where_the_look_fits_in_its_time_budget() -> None:
+    """The look is part of the GL query its time budget bounds: with the median of the last looks
+    (the expected cost) past the budget the query is refused, saying why, and no look runs; with
+    no look measured yet, a cheaper expected look, or no budget at all, it looks and accepts."""
+    m = _with_images(make_map([0.0, 1.0, 2.0, 3.0]))
+    s = Scene(m)
+    depth = s.look(pose(1.3, 5.0), vpr_best=1)
+    few = matching_25_with_depth(s, depth)
+    budget = 1e6  # ms: far more than the synthetic first look spends
+    p = replace(PARAMS, passes=replace(PARAMS.passes, pooled_min_inliers=0),
+                second_look=replace(PARAMS.second_look, candidates=2, from_inliers=0),
+                global_search=replace(PARAMS.global_search, time_budget_ms=budget))
+    full = FullResolution(s, m)
+
+    def localizer(params: Any) -> VisualLocalizer:
+        return VisualLocalizer(m, params, s.extract, s.describe, few,
+                               second_look=SecondLook(m, params, full.extract, s.describe, match_by_id, SMALLER))
+
+    loc = localizer(p)
+    first = loc.localize_global(0, IMG, depth, K)  # no look measured yet: it runs, and is measured
+    assert first.accepted and "second_look" in first.timings_ms
+    assert list(loc.global_search.look_ms) == [first.timings_ms["second_look"]]
+    loc.global_search.look_ms.extend([2 * budget] * 3)  # the median look now costs twice the budget
+    n_calls = len(full.calls)
+    r = loc.localize_global(0, IMG, depth, K)
+    assert not r.accepted and "second_look" not in r.timings_ms and len(full.calls) == n_calls
+    assert "no second look" in r.stop_reason and "time budget" in r.stop_reason, r.stop_reason
+    loc.global_search.look_ms.clear()
+    loc.global_search.look_ms.extend([0.5 * budget] * 3)
+    assert loc.localize_global(0, IMG, depth, K).accepted  # an expected look that fits
+    unbounded = localizer(replace(p, global_search=replace(p.global_search, time_budget_ms=0.0)))
+    unbounded.global_search.look_ms.extend([2 * budget] * 3)
+    assert unbounded.localize_global(0, IMG, depth, K).accepted  # no budget: the look always runs
+    # recovering after tracking was lost: the bound is 2x the LL cost, also with one candidate only
+    for only in (None, [1]):
+        rec = unbounded.global_search.localize(0, IMG, depth, K, unbounded.params, recovering_ll_ms=[1.0], only=only)
+        assert not rec.accepted and "no second look" in rec.stop_reason, rec.stop_reason
