@@ -23,7 +23,6 @@ from litevloc.cli.common import add_json_arg
 from litevloc.cli.main import UserError
 from litevloc.runtime.tools.outputs import write_json
 
-
 # The demo's mapping pass at 5 Hz: the map build takes a keyframe candidate every 0.3 m or 12 deg
 # (2 frames while turning at 0.6 rad/s, 3 while driving at 0.5 m/s), so the map keeps its coverage
 # while recording, building and the MCAP shrink about threefold (`--full`: the camera's 15 Hz).

@@ -111,7 +111,7 @@ class App(Lifecycle):
         inner_vloc = self._configure_vloc()
         if self.wants_view:
             self.view = self.hold(self._open_view())
-        self.bus = self.hold(Bus(self.cfg.zenoh))
+        self.bus = self.hold(Bus(self.cfg.zenoh, rt_priority=self.cfg.runtime.transport_rt_priority))
         self.publisher = self.hold(self._open_publisher())
         vloc_fn = FrameGuard(inner_vloc)
         if self.view is not None:
