@@ -312,13 +312,14 @@ class FollowResult:
         return np.stack(out)
 
 
-def _track(path: NDArray[np.float64], idx: int, x: float, y: float, yaw: float,
+def _track(path: list[list[float]], idx: int, x: float, y: float, yaw: float,
            params: SimParams) -> tuple[float, float, int, bool]:
-    """Pure pursuit on `path` from waypoint `idx`: (v, omega, new idx, arrived)."""
-    while idx < len(path) - 1 and np.hypot(path[idx, 0] - x, path[idx, 1] - y) < LOOKAHEAD_M:
+    """Pure pursuit on `path` ((N, 2) waypoints as lists: indexing numpy per tick cost more
+    than the arithmetic) from waypoint `idx`: (v, omega, new idx, arrived)."""
+    while idx < len(path) - 1 and np.hypot(path[idx][0] - x, path[idx][1] - y) < LOOKAHEAD_M:
         idx += 1
     tx, ty = path[idx]
-    dist_goal = float(np.hypot(path[-1, 0] - x, path[-1, 1] - y))
+    dist_goal = float(np.hypot(path[-1][0] - x, path[-1][1] - y))
     if idx == len(path) - 1 and dist_goal < 0.15:
         return 0.0, 0.0, idx, True
     err = _wrap(float(np.arctan2(ty - y, tx - x)) - yaw)
@@ -351,6 +352,7 @@ def follow(
     collisions = 0
     for task in tasks:
         idx, turned = 0, 0.0
+        waypoints = None if task.path is None else task.path.tolist()
         while len(poses) <= max_ticks:
             if task.kind in ("turn", "face"):
                 remaining = task.angle - turned if task.kind == "turn" else _wrap(task.angle - yaw)
@@ -358,8 +360,8 @@ def follow(
                     break
                 v_cmd, w_cmd = 0.0, float(np.sign(remaining) * min(params.cruise_omega, 2.0 * abs(remaining) + 0.1))
             else:
-                assert task.path is not None
-                v_cmd, w_cmd, idx, arrived = _track(task.path, idx, x, y, yaw, params)
+                assert waypoints is not None
+                v_cmd, w_cmd, idx, arrived = _track(waypoints, idx, x, y, yaw, params)
                 if arrived:
                     break
             # acceleration limits
