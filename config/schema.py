@@ -310,6 +310,9 @@ class RuntimeConfig(Settings):
     fusion_rt_priority: int = setting(
         10, "SCHED_FIFO priority of the fusion and publisher threads (1-99; 0 = normal; needs CAP_SYS_NICE or rtprio)",
         low=0, high=99)
+    transport_rt_priority: int = setting(
+        10, "SCHED_FIFO priority of the service's Zenoh I/O threads, which put every fused pose on the wire "
+        "(1-99; 0 = normal; needs CAP_SYS_NICE or rtprio, else normal priority and a warning)", low=0, high=99)
     vloc_process: bool = setting(
         False, "run the localizer (models, map) in a child process at vloc_nice (realtime/deterministic mode)")
     recording_process: bool = setting(

@@ -10,6 +10,8 @@ Quaternions: ROS order x, y, z, w (as in `pipelines.geometry`).
 
 from __future__ import annotations
 
+import math
+import struct
 from functools import lru_cache
 from typing import Any
 
@@ -226,3 +228,58 @@ def diagnostic_array_msg(
         out.append(st(level=int(level), name=name, message=message, hardware_id=hw_id,
                       values=[kv(key=str(k), value=str(v)) for k, v in values]))
     return _t(DIAGNOSTIC_ARRAY)(header=header(t_ns, frame_id), status=out)
+
+
+_CDR_LE = b"\x00\x01\x00\x00"  # CDR encapsulation: plain CDR, little-endian
+
+
+def _cdr_string(buf: bytearray, text: str) -> None:
+    """Append a CDR string (uint32 length with the NUL, bytes, NUL), aligned to 4 first;
+    offsets count from after the encapsulation header, as CDR aligns."""
+    _cdr_align(buf, 4)
+    data = text.encode()
+    buf += struct.pack("<I", len(data) + 1) + data + b"\x00"
+
+
+def _cdr_align(buf: bytearray, n: int) -> None:
+    buf += b"\x00" * (-(len(buf) - len(_CDR_LE)) % n)
+
+
+def _quat_xyzw(R: list[list[float]]) -> tuple[float, float, float, float]:
+    """`matrix_to_quat_xyzw` on Python floats (Shepperd's method, w >= 0): the same branches
+    without numpy's per-scalar overhead."""
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R
+    tr = r00 + r11 + r22
+    if tr > 0:
+        s = 2.0 * math.sqrt(tr + 1.0)
+        w, x, y, z = 0.25 * s, (r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s
+    elif r00 > r11 and r00 > r22:
+        s = 2.0 * math.sqrt(1.0 + r00 - r11 - r22)
+        w, x, y, z = (r21 - r12) / s, 0.25 * s, (r01 + r10) / s, (r02 + r20) / s
+    elif r11 > r22:
+        s = 2.0 * math.sqrt(1.0 + r11 - r00 - r22)
+        w, x, y, z = (r02 - r20) / s, (r01 + r10) / s, 0.25 * s, (r12 + r21) / s
+    else:
+        s = 2.0 * math.sqrt(1.0 + r22 - r00 - r11)
+        w, x, y, z = (r10 - r01) / s, (r02 + r20) / s, (r12 + r21) / s, 0.25 * s
+    n = math.sqrt(x * x + y * y + z * z + w * w) * (-1.0 if w < 0 else 1.0)
+    return x / n, y / n, z / n, w / n
+
+
+def odometry_cdr(t_ns: int, T_parent_child: NDArray[np.floating], frame_id: str, child_frame_id: str,
+                 covariance: NDArray[np.floating] | None = None) -> bytes:
+    """The CDR bytes of `serialize(odometry_msg(...), ODOMETRY)` (zero twist), packed directly:
+    the fused pose's publish path, where building the message objects cost ~5x the packing."""
+    if t_ns < 0:
+        raise ValueError(f"negative timestamp {t_ns}")
+    T = np.asarray(T_parent_child, dtype=np.float64)
+    q = _quat_xyzw(T[:3, :3].tolist())
+    buf = bytearray(_CDR_LE)
+    buf += struct.pack("<iI", t_ns // 1_000_000_000, t_ns % 1_000_000_000)
+    _cdr_string(buf, frame_id)
+    _cdr_string(buf, child_frame_id)
+    _cdr_align(buf, 8)
+    buf += struct.pack("<7d", T[0, 3], T[1, 3], T[2, 3], q[0], q[1], q[2], q[3])
+    buf += _cov36(covariance).tobytes()
+    buf += bytes(8 * (6 + 36))  # twist (zero) and its covariance (zero)
+    return bytes(buf)

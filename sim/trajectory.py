@@ -279,6 +279,12 @@ def _loop_tasks(
     return base_pose(float(start[0]), float(start[1]), np.pi if reverse else 0.0), tasks
 
 
+def _clamp(a: float, lo: float, hi: float) -> float:
+    """`np.clip` of one float (same value; the follower calls it four times per tick, where
+    numpy's per-call overhead was most of a pass's planning time)."""
+    return min(max(a, lo), hi)
+
+
 def _wrap(a: float) -> float:
     return float((a + np.pi) % (2 * np.pi) - np.pi)
 
@@ -306,13 +312,14 @@ class FollowResult:
         return np.stack(out)
 
 
-def _track(path: NDArray[np.float64], idx: int, x: float, y: float, yaw: float,
+def _track(path: list[list[float]], idx: int, x: float, y: float, yaw: float,
            params: SimParams) -> tuple[float, float, int, bool]:
-    """Pure pursuit on `path` from waypoint `idx`: (v, omega, new idx, arrived)."""
-    while idx < len(path) - 1 and np.hypot(path[idx, 0] - x, path[idx, 1] - y) < LOOKAHEAD_M:
+    """Pure pursuit on `path` ((N, 2) waypoints as lists: indexing numpy per tick cost more
+    than the arithmetic) from waypoint `idx`: (v, omega, new idx, arrived)."""
+    while idx < len(path) - 1 and np.hypot(path[idx][0] - x, path[idx][1] - y) < LOOKAHEAD_M:
         idx += 1
     tx, ty = path[idx]
-    dist_goal = float(np.hypot(path[-1, 0] - x, path[-1, 1] - y))
+    dist_goal = float(np.hypot(path[-1][0] - x, path[-1][1] - y))
     if idx == len(path) - 1 and dist_goal < 0.15:
         return 0.0, 0.0, idx, True
     err = _wrap(float(np.arctan2(ty - y, tx - x)) - yaw)
@@ -345,6 +352,7 @@ def follow(
     collisions = 0
     for task in tasks:
         idx, turned = 0, 0.0
+        waypoints = None if task.path is None else task.path.tolist()
         while len(poses) <= max_ticks:
             if task.kind in ("turn", "face"):
                 remaining = task.angle - turned if task.kind == "turn" else _wrap(task.angle - yaw)
@@ -352,15 +360,15 @@ def follow(
                     break
                 v_cmd, w_cmd = 0.0, float(np.sign(remaining) * min(params.cruise_omega, 2.0 * abs(remaining) + 0.1))
             else:
-                assert task.path is not None
-                v_cmd, w_cmd, idx, arrived = _track(task.path, idx, x, y, yaw, params)
+                assert waypoints is not None
+                v_cmd, w_cmd, idx, arrived = _track(waypoints, idx, x, y, yaw, params)
                 if arrived:
                     break
             # acceleration limits
-            v_cmd = float(np.clip(v_cmd, v_prev - 1.0 * dt, v_prev + 1.0 * dt))
-            w_cmd = float(np.clip(w_cmd, w_prev - 4.0 * dt, w_prev + 4.0 * dt))
-            v_cmd = float(np.clip(v_cmd, -params.max_speed, params.max_speed))
-            w_cmd = float(np.clip(w_cmd, -params.max_omega, params.max_omega))
+            v_cmd = _clamp(v_cmd, v_prev - 1.0 * dt, v_prev + 1.0 * dt)
+            w_cmd = _clamp(w_cmd, w_prev - 4.0 * dt, w_prev + 4.0 * dt)
+            v_cmd = _clamp(v_cmd, -params.max_speed, params.max_speed)
+            w_cmd = _clamp(w_cmd, -params.max_omega, params.max_omega)
             mid = yaw + 0.5 * w_cmd * dt
             nx, ny = x + v_cmd * dt * np.cos(mid), y + v_cmd * dt * np.sin(mid)
             if world.is_free(np.array([nx, ny]), params.robot_radius):

@@ -101,13 +101,13 @@ class McapRecorder:
         return self._channels[topic]
 
     def _put(self, topic: str, t_ns: int, msg: Any) -> None:
+        self._put_cdr(topic, t_ns, ros_msgs.serialize(msg, TOPIC_TYPES[topic]))
+
+    def _put_cdr(self, topic: str, t_ns: int, data: bytes) -> None:
         ch = self._channel(topic)
         seq = self._seq.get(topic, 0)
         self._seq[topic] = seq + 1
-        self._writer.add_message(
-            channel_id=ch, log_time=t_ns, publish_time=t_ns, sequence=seq,
-            data=ros_msgs.serialize(msg, TOPIC_TYPES[topic]),
-        )
+        self._writer.add_message(channel_id=ch, log_time=t_ns, publish_time=t_ns, sequence=seq, data=data)
         self.counts[topic] = self.counts.get(topic, 0) + 1
 
     def write(self, msg: Message) -> None:
@@ -127,11 +127,9 @@ class McapRecorder:
                     raise StreamError(f"frame {msg.index}: JPEG encoding failed")
                 jpeg = enc.tobytes()
             self._put(TOPIC_COLOR, msg.t_ns, ros_msgs.compressed_image_msg(msg.t_ns, jpeg, "jpeg", msg.frame_id))
-        elif isinstance(msg, Odometry):
-            self._put(
-                TOPIC_ODOM, msg.t_ns,
-                ros_msgs.odometry_msg(msg.t_ns, msg.T_odom_base, msg.frame_id, msg.child_frame_id, msg.covariance),
-            )
+        elif isinstance(msg, Odometry):  # packed directly: a 200 Hz topic (same bytes as rosbags')
+            self._put_cdr(TOPIC_ODOM, msg.t_ns, ros_msgs.odometry_cdr(msg.t_ns, msg.T_odom_base, msg.frame_id,
+                                                                     msg.child_frame_id, msg.covariance))
         elif isinstance(msg, GroundTruthPose):
             self._put(TOPIC_GT, msg.t_ns, ros_msgs.pose_stamped_msg(msg.t_ns, msg.T_world_camera, msg.frame_id))
         else:  # pragma: no cover - Message is a closed union
@@ -252,7 +250,14 @@ class McapSource:
         colour is checked where it is decoded, the rest as `strict` says)."""
         return self._read(defer_color)
 
-    def _read(self, defer_color: bool) -> Iterator[SourceMessage]:
+    def without_odometry(self) -> Iterator[Message]:
+        """The messages as iterating gives them, /odom skipped undecoded: a map posed by
+        ground truth never reads the 200 Hz odometry, which was most of its reading time."""
+        for m in self._read(defer_color=False, skip_odometry=True):
+            assert not isinstance(m, EncodedRgbdFrame)  # only yielded when deferring
+            yield m
+
+    def _read(self, defer_color: bool, skip_odometry: bool = False) -> Iterator[SourceMessage]:
         selected = set(self._selected)
         pending: dict[int, dict[str, Any]] = {}
         frame_counter = 0
@@ -274,6 +279,8 @@ class McapSource:
                 topic = channel.topic
                 if topic not in TOPIC_TYPES:
                     self.stats.skip(f"unknown topic {topic}")
+                    continue
+                if skip_odometry and topic == TOPIC_ODOM:
                     continue
                 try:
                     msg = ros_msgs.deserialize(raw.data, TOPIC_TYPES[topic])

@@ -130,7 +130,7 @@ class App(Lifecycle):
         backend = self._configure_vloc()
         if self.wants_view:
             self.view = self.hold(self._open_view())
-        self.bus = self.hold(Bus(self.cfg.zenoh))
+        self.bus = self.hold(Bus(self.cfg.zenoh, rt_priority=self.cfg.runtime.transport_rt_priority))
         self.publisher = self.hold(self._open_publisher())
         current = MapVersion(self.map_path, self.map_name, self.map_version, map_id(self.map_path), self._map_nodes())
         self.map_switcher = self.hold(MapSwitcher(backend, current, map_id_of=map_id, nice=self.cfg.runtime.vloc_nice))

@@ -153,8 +153,10 @@ def _odometry_in_map(posed: Posed, cfg: Any) -> Posed:
 
 def posed_stream(kind: PoseSource, messages: Iterable[Message], cfg: Any, traj: Any) -> Posed:
     """(frame, T_map_camera or None) for a non-SLAM pose source."""
+    from litevloc.hw.streams.mcap_io import McapSource
+
     if kind == "ground-truth":
-        return posed_frames(messages)
+        return posed_frames(messages.without_odometry() if isinstance(messages, McapSource) else messages)
     if kind == "odometry":
         return _odometry_in_map(odometry_posed_frames(messages, cfg.fusion.T_base_camera()), cfg)
     return trajectory_posed_frames(messages, traj[0], traj[1], int(cfg.slam.file_max_gap_s * 1e9))

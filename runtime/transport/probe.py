@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import threading
 import time
@@ -58,6 +59,9 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--json", default=None, help="write the results here (default: stdout)")
     ap.add_argument("--keep", action="store_true", help="keep decoded poses/status in the JSON")
     ap.add_argument("--stamp-latency", action="store_true", help="pose: also receive time - header stamp")
+    ap.add_argument("--rt-priority", type=int, default=0, metavar="N",
+                    help="receive in SCHED_FIFO at N (1-99; 0 = normal): the probe's Zenoh threads inherit it, so "
+                         "the wire latency is the transport's, not the probe's wait for a core on a loaded machine")
     ap.add_argument("--send-odometry", default=None, metavar="KEY", help="sender mode: publish odometry on KEY")
     ap.add_argument("--rate", type=float, default=200.0, help="sender mode: Hz")
     ap.add_argument("--seconds", type=float, default=10.0, help="sender mode: duration")
@@ -176,6 +180,8 @@ def _receive(args: argparse.Namespace, topics: list[str]) -> int:
                       connect_timeout_s=min(args.timeout, 10.0), ros2=args.ros2,
                       ros2_distro=args.ros2_distro, node_name="litevloc_probe")
     warm_codecs()
+    if args.rt_priority > 0:  # before the session exists: its threads inherit the policy
+        _realtime(args.rt_priority)
     bus = Bus(cfg)
     tally = _Tally(topics, want, args)
     subs = [bus.subscribe_topic(t, TOPICS[t][1], tally.callback(t)) for t in topics]
@@ -197,6 +203,17 @@ def _receive(args: argparse.Namespace, topics: list[str]) -> int:
     else:
         print(text, flush=True)
     return 0 if (tally.done.is_set() or not want) else 3
+
+
+def _realtime(priority: int) -> None:
+    """This process's calling thread (and the threads it starts) in SCHED_FIFO at `priority`;
+    a probe without the privilege exits 2 naming it (its figures would not be the asked-for ones)."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except (OSError, AttributeError) as exc:
+        print(f"probe: SCHED_FIFO {priority} not permitted ({exc}); run without --rt-priority or give CAP_SYS_NICE",
+              file=sys.stderr)
+        raise SystemExit(2) from exc
 
 
 def _send(args: argparse.Namespace) -> int:

@@ -18,7 +18,7 @@ def free_port() -> int:
 
 def start_probe(endpoint: str, out: Path, topics: str, counts: dict[str, int], timeout: float = 20.0,
                 namespace: str = "", idle: float = 0.0, listen: bool = False,
-                ros2: str = "bridge") -> subprocess.Popen[str]:
+                ros2: str = "bridge", rt_priority: int = 0) -> subprocess.Popen[str]:
     """Start `python -m litevloc.runtime.transport.probe` and wait (bounded) for its READY line.
 
     The probe connects to `endpoint`, or with `listen=True` listens there (the service connects)."""
@@ -27,6 +27,8 @@ def start_probe(endpoint: str, out: Path, topics: str, counts: dict[str, int], t
            "--timeout", str(timeout), "--json", str(out), "--keep", "--namespace", namespace, "--ros2", ros2]
     if idle:
         cmd += ["--idle", str(idle)]
+    if rt_priority:
+        cmd += ["--rt-priority", str(rt_priority)]
     for k, n in counts.items():
         cmd += ["--count", f"{k}={n}"]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

@@ -190,3 +190,14 @@ def test_deferred_corrupt_colour_fails_at_decode_naming_the_frame(tmp_path: Path
     # read eagerly, the same frame is counted and skipped by the reader
     live = McapSource(tmp_path / "c.mcap", strict=False)
     assert sum(isinstance(m, RgbdFrame) for m in live) == 1 and live.stats.skipped == {"bad frame": 1}
+
+
+def test_without_odometry_gives_every_other_message_as_iterating_does(tmp_path: Path) -> None:
+    write(tmp_path / "a.mcap", synthetic_messages())
+    src = McapSource(tmp_path / "a.mcap")
+    full = [m for m in src if not isinstance(m, Odometry)]
+    lean = list(src.without_odometry())
+    assert [(type(m), m.t_ns) for m in lean] == [(type(m), m.t_ns) for m in full] and len(lean) == 12
+    for a, b in zip(full, lean, strict=True):
+        if isinstance(a, RgbdFrame):
+            assert np.array_equal(a.color, b.color) and a.index == b.index
