@@ -125,7 +125,7 @@ def apply_change(world: World, params: WorldChangeParams) -> ChangeTruth:
         return truth
 
     def stream(axis: str) -> np.random.Generator:
-        return np.random.default_rng([params.seed, 100 + CHANGE_AXES.index(axis)])  # type: ignore[arg-type]
+        return np.random.default_rng([params.seed, 100 + CHANGE_AXES.index(axis)])
 
     if params.pictures > 0:
         world.posters, replaced = change_pictures(world.posters, stream("pictures"), params.pictures, PICTURE_KINDS)

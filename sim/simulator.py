@@ -277,8 +277,8 @@ def render_frame(
 __all__ = [
     "SimParams",
     "SimStep",
-    "add_people",
     "Simulator",
+    "add_people",
     "base_pose",
     "bob_transform",
     "camera_pose",

@@ -96,7 +96,8 @@ class World:
         self.changes: dict[str, int] = {"posters": 0, "furniture": 0}
         # the building as generated: a changed one bakes these first, so what did not change looks the same
         self.generated = GeneratedParts(list(self.faces), self.boxes.copy(), list(self.box_kinds))
-        self.box_source: NDArray[np.intp] = np.arange(len(self.boxes), dtype=np.intp)  # generated box of each box, -1: new
+        # the generated box each box is (-1: one a change added)
+        self.box_source: NDArray[np.intp] = np.arange(len(self.boxes), dtype=np.intp)
         self.closed_doors: set[int] = set()  # indices into doors that a closed leaf blocks
         self.lighting: LightingChange | None = None
         self.people: Walkers | None = None

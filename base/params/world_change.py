@@ -82,7 +82,7 @@ def parse_change(items: list[str], base: WorldChangeParams | None = None) -> Wor
             kind = "an integer" if key in ("people", "seed") else "a number"
             raise ChangeSpecError(f"--change {item!r}: level must be {kind}, got {raw!r}") from None
         try:
-            out = replace(out, **{key: value})
+            out = replace(out, **{key: value})  # type: ignore[arg-type]
         except ValueError as exc:
             raise ChangeSpecError(f"--change {item!r}: {exc}") from None
     return out

@@ -197,10 +197,10 @@ def test_world_file_change_block(tmp_path: Path) -> None:
     p.write_text(src + "change:\n  furniture: 0.3\n  people: 2\n")
     assert load_world_spec(p).change == WorldChangeParams(furniture=0.3, people=2)
     p.write_text(src + "change:\n  furniture: 1.5\n")
-    with pytest.raises(ConfigError, match="change.furniture"):
+    with pytest.raises(ConfigError, match=r"change\.furniture"):
         load_world_spec(p)
     p.write_text(src + "change:\n  windows: 1\n")
-    with pytest.raises(ConfigError, match="change.windows"):
+    with pytest.raises(ConfigError, match=r"change\.windows"):
         load_world_spec(p)
 
 
