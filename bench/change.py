@@ -65,6 +65,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-goals", type=int, default=None)
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--no-nav", action="store_true", help="GL figures only (goal fields null)")
+    ap.add_argument("--query-every", type=int, default=None, help="every Nth query frame (default 15; quick 45)")
+    ap.add_argument("--session-every", type=int, default=None, help="every Nth frame of an update run (default 5; "
+                    "quick 10)")
     ap.add_argument("--query-duration", type=float, default=None, help="the query pass's first S seconds only")
     ap.add_argument("--out-dir", type=Path, default=OUT / "change")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
@@ -81,8 +84,8 @@ def main(argv: list[str] | None = None) -> int:
     settings = ChangeSettings(
         buildings=BenchSettings(out_dir=args.out_dir, max_goals=max_goals,
                                 goal_timeout_s=60.0 if args.quick else 120.0),
-        query_every=45 if args.quick else 15, query_duration_s=args.query_duration,
-        session_every=10 if args.quick else 5,
+        query_every=args.query_every or (45 if args.quick else 15), query_duration_s=args.query_duration,
+        session_every=args.session_every or (10 if args.quick else 5),
         cycles=args.cycles if args.cycles is not None else (2 if args.quick else 10), navigate=not args.no_nav)
     cfg, bundles = load_models("default", tuple(args.overrides))
     buildings = []

@@ -9,23 +9,15 @@ from pathlib import Path
 
 import pytest
 
-TINY = """name: tiny
-layout: grid
-rows: 1
-cols: 2
-room_size: [3.2, 3.0]
-room_size_jitter: 0.0
-furniture_per_room: [1, 1]
-clutter_per_room: [0, 1]
-posters_per_room: [2, 3]
-texture_poor_fraction: 0.0
-repetitive_fraction: 0.0
-"""
+from tests.bench.test_buildings_contract import TINY as BUILDINGS_TINY
+
+TINY = BUILDINGS_TINY.replace("furniture_per_room: [0, 1]", "furniture_per_room: [1, 1]")  # something to move
 KEYS = {"gl_accepted_of_covered", "wrong_over_0_5m", "gl_accepted_of_covered_unchanged", "goals_reached",
         "goals_total", "goals_reached_unchanged"}
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1200)  # three drives, three GL passes and two map updates per building
 def test_two_building_run_writes_the_json_contract(tmp_path: Path) -> None:
     sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
     import change as bench
