@@ -108,7 +108,9 @@ def _change_furniture(world: World, fraction: float, rng: np.random.Generator) -
 
 
 def _hang_doors(world: World, fraction: float, rng: np.random.Generator) -> list[dict[str, Any]]:
-    leaves = hang_leaves(world.doors, set(world.regions), fraction, world.wall_height, rng)
+    rooms = {k for k, r in world.regions.items() if r.kind == "room"}
+    leaves = hang_leaves(world.doors, rooms, set(world.regions), world.boxes, world.region_at, fraction,
+                         world.wall_height, rng)
     if leaves:
         world.boxes = np.concatenate([world.boxes, leaf_boxes(leaves)])
         world.box_kinds = world.box_kinds + ["door"] * len(leaves)

@@ -1,21 +1,25 @@
 """Door leaves for a changed building: doorways of the generated plan are open gaps; a changed
 building hangs a leaf in some of them, closed (a panel filling the doorway, so routes go round
-by another door) or standing open at 90 degrees against the jamb (the doorway stays passable).
+by another door) or standing open at 90 degrees beside the jamb (the doorway keeps its full width).
 
 A leaf is a thin box (`LEAF_THICKNESS_M`, `min(2.1 m, wall height - 0.1 m)` high) of kind "door".
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.sim.furnish import overlaps
 from litevloc.sim.layout import Door
 
 LEAF_THICKNESS_M = 0.04
-LEAF_SHARE_OF_WIDTH = 0.95  # an open leaf is a little narrower than its doorway
+HINGE_GAP_M = 0.12  # an open leaf stands this far beside the doorway (its frame, and the planner's 0.1 m grid)
+LEAF_SHARE_OF_WIDTH = 0.95
+LEAF_GAP_M = 0.7  # an open leaf this far from every box: the robot (0.6 m wide) passes  # an open leaf is a little narrower than its doorway
 
 
 @dataclass(frozen=True)
@@ -44,7 +48,8 @@ def _connected(n_doors: list[tuple[int, int]], regions: set[int]) -> bool:
     return seen == regions
 
 
-def _leaf_box(door: Door, closed: bool, side: float, hinge_low: bool, height: float) -> tuple[float, ...]:
+def _leaf_box(door: Door, closed: bool, side: float, hinge_low: bool,
+              height: float) -> tuple[float, float, float, float, float]:
     """The box of a leaf in doorway `door`: closed across it, or open into the half-plane `side`
     (+1: towards larger x or y) hinged at its low or high end."""
     _a, _b, x0, y0, x1, y1 = door
@@ -56,29 +61,45 @@ def _leaf_box(door: Door, closed: bool, side: float, hinge_low: bool, height: fl
     else:
         reach = LEAF_SHARE_OF_WIDTH * (hi - lo)
         a0, a1 = (c, c + reach) if side > 0 else (c - reach, c)
-        b0, b1 = (lo, lo + t) if hinge_low else (hi - t, hi)
-    box = (a0, b0, a1, b1) if plane_x else (b0, a0, b1, a1)
-    return (*box, height)
+        g = HINGE_GAP_M  # beside the opening, past its frame: the doorway keeps its full width
+        b0, b1 = (lo - g - t, lo - g) if hinge_low else (hi + g, hi + g + t)
+    return (a0, b0, a1, b1, height) if plane_x else (b0, a0, b1, a1, height)
 
 
-def hang_leaves(doors: list[Door], regions: set[int], fraction: float, wall_height: float,
+def _into_room(door: Door, rooms: set[int], region_at: Callable[[NDArray[np.float64]], int],
+               rng: np.random.Generator) -> float:
+    """The side (+1: larger x or y) an open leaf swings to: into a room (a corridor stays clear)."""
+    _a, _b, x0, y0, x1, y1 = door
+    mid = np.array([(x0 + x1) / 2, (y0 + y1) / 2])
+    normal = np.array([1.0, 0.0]) if x0 == x1 else np.array([0.0, 1.0])
+    sides = [s for s in (-1.0, 1.0) if region_at(mid + s * 0.3 * normal) in rooms]
+    return float(rng.choice(sides)) if sides else 0.0
+
+
+def hang_leaves(doors: list[Door], rooms: set[int], regions: set[int], boxes: NDArray[np.float64],
+                region_at: Callable[[NDArray[np.float64]], int], fraction: float, wall_height: float,
                 rng: np.random.Generator) -> list[DoorLeaf]:
     """Leaves in a `fraction` of the doorways (drawn from `rng`): closed (half of them) where every
-    region stays reachable through the doors left open, else open at 90 degrees."""
+    region stays reachable through the doors left open, else open at 90 degrees into a room,
+    where it stands `LEAF_GAP_M` clear of every box (else the doorway keeps no leaf)."""
     height = min(2.1, wall_height - 0.1)
     open_pairs = [(d[0], d[1]) for d in doors]
-    leaves = []
+    leaves: list[DoorLeaf] = []
     for i, door in enumerate(doors):
         if rng.random() >= fraction:
             continue
         want_closed = rng.random() < 0.5
-        side, hinge_low = float(rng.choice([-1.0, 1.0])), bool(rng.random() < 0.5)
+        side, hinge_low = _into_room(door, rooms, region_at, rng), bool(rng.random() < 0.5)
         rest = open_pairs.copy()
         rest.remove((door[0], door[1]))
         closed = want_closed and _connected(rest, regions)
+        box = _leaf_box(door, closed, side, hinge_low, height)
+        others = [*boxes.tolist(), *(lf.box for lf in leaves)]
+        if not closed and (side == 0.0 or overlaps(np.array(box[:4]), others, LEAF_GAP_M)):
+            continue
         if closed:
             open_pairs = rest
-        leaves.append(DoorLeaf(i, closed, _leaf_box(door, closed, side, hinge_low, height)))  # type: ignore[arg-type]
+        leaves.append(DoorLeaf(i, closed, box))
     return leaves
 
 

@@ -36,7 +36,7 @@ def _near_door(bx: NDArray[np.float64], door_pts: NDArray[np.float64]) -> bool:
     return bool(np.any(np.hypot(dx, dy) < DOOR_CLEAR_M))
 
 
-def _overlaps(bx: NDArray[np.float64], boxes: Sequence[tuple[float, ...]] | NDArray[np.float64], gap: float,
+def overlaps(bx: NDArray[np.float64], boxes: Sequence[tuple[float, ...]] | NDArray[np.float64], gap: float,
               skip: int = -1) -> bool:
     return any(bx[0] < o[2] + gap and o[0] < bx[2] + gap and bx[1] < o[3] + gap and o[1] < bx[3] + gap
                for j, o in enumerate(boxes) if j != skip)
@@ -92,7 +92,7 @@ def make_furniture(spec: WorldSpec, regions: dict[int, Region], doors: list[Door
                 box = (cx - depth / 2, cy - length / 2 * 0.5, cx + depth / 2, cy + length / 2 * 0.5, h)
             bx = np.array(box[:4])
             # keep doors clear and boxes apart (passages stay open)
-            if _near_door(bx, door_pts) or _overlaps(bx, boxes, BOX_GAP_M):
+            if _near_door(bx, door_pts) or overlaps(bx, boxes, BOX_GAP_M):
                 continue
             boxes.append(box)
             n -= 1
@@ -133,7 +133,7 @@ def make_clutter(spec: WorldSpec, regions: dict[int, Region], doors: list[Door],
                 bx0 = rng.uniform(x0 + BOX_GAP_M, x1 - BOX_GAP_M - w)
                 by0 = rng.uniform(y0 + BOX_GAP_M, y1 - BOX_GAP_M - d)
             bx = np.array([bx0, by0, bx0 + w, by0 + d])
-            if _near_door(bx, door_pts) or _overlaps(bx, placed, BOX_GAP_M):
+            if _near_door(bx, door_pts) or overlaps(bx, placed, BOX_GAP_M):
                 continue
             placed.append((*bx, h))
             out.append((float(bx[0]), float(bx[1]), float(bx[2]), float(bx[3]), float(h)))
@@ -186,7 +186,7 @@ def slide_box(boxes: NDArray[np.float64], k: int, reg: Region, door_pts: NDArray
             nb[[1, 3]] += shift
         if nb[0] < rx0 + 0.3 or nb[2] > rx1 - 0.3 or nb[1] < ry0 or nb[3] > ry1:
             continue
-        if _near_door(nb, door_pts) or _overlaps(nb, boxes, BOX_GAP_M, skip=k):
+        if _near_door(nb, door_pts) or overlaps(nb, boxes, BOX_GAP_M, skip=k):
             continue
         boxes[k] = nb
         return True

@@ -148,7 +148,7 @@ def test_doors_add_leaves_and_keep_the_building_connected() -> None:
     base = World(spec)
     w = World(dataclasses.replace(spec, change=WorldChangeParams(seed=5, doors=1.0)))
     leaves = w.change_truth.doors
-    assert len(leaves) == len(base.doors) and {lf["state"] for lf in leaves} == {"open", "closed"}
+    assert len(leaves) <= len(base.doors) and {lf["state"] for lf in leaves} == {"open", "closed"}
     assert _walls(w) == _walls(base) and w.posters == base.posters
     n = len(base.boxes)
     np.testing.assert_array_equal(w.boxes[:n], base.boxes)
@@ -165,9 +165,11 @@ def test_doors_add_leaves_and_keep_the_building_connected() -> None:
                     seen.add(y)
                     todo.append(y)
     assert seen == set(w.regions)
-    for i in closed:  # the leaf blocks the doorway
-        d = w.doors[i]
-        assert not w.is_free(np.array([(d[2] + d[4]) / 2, (d[3] + d[5]) / 2]), 0.1)
+    for i, d in enumerate(w.doors):  # a closed leaf blocks its doorway, an open one leaves it its full width
+        mid = np.array([(d[2] + d[4]) / 2, (d[3] + d[5]) / 2])
+        assert w.is_free(mid, 0.1) == (i not in closed)
+        if i not in closed:
+            assert w.clearance(mid)[0] >= base.clearance(mid)[0] - 1e-9
 
 
 def test_people_occlude_with_depth_and_change_nothing_else(base: World) -> None:
