@@ -61,6 +61,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--levels", action="append", default=[], metavar="AXIS=L1,L2",
                     help="levels of an axis (repeatable); given: only the axes named")
     ap.add_argument("--no-mix", action="store_true", help="leave out the months_later mix")
+    ap.add_argument("--mix-only", action="store_true", help="the months_later mix alone (no per-axis cases)")
     ap.add_argument("--cycles", type=int, default=None)
     ap.add_argument("--max-goals", type=int, default=None)
     ap.add_argument("--quick", action="store_true")
@@ -77,7 +78,7 @@ def main(argv: list[str] | None = None) -> int:
         levels = parse_levels(args.levels) if args.levels else dict(LEVELS)
     except argparse.ArgumentTypeError as exc:
         ap.error(str(exc))
-    cases = [Case(a, lv) for a, lvs in levels.items() for lv in lvs]
+    cases = [] if args.mix_only else [Case(a, lv) for a, lvs in levels.items() for lv in lvs]
     cases += [] if args.no_mix else [Case(MONTHS_LATER, 1.0)]
     runs = [BuildingRun(g, s) for s in args.seeds for g in args.generators][: args.buildings]
     max_goals = args.max_goals if args.max_goals is not None else (2 if args.quick else 6)

@@ -283,11 +283,14 @@ def plot(result: dict[str, Any], path: Path) -> Path:
 
     cases = result["cases"]
     axes = list(dict.fromkeys(c["axis"] for c in cases))
-    fig, ax = plt.subplots(1, len(axes), figsize=(3.0 * max(len(axes), 1), 3.4), squeeze=False, sharey=True)
+    fig, ax = plt.subplots(1, len(axes), figsize=(max(3.0 * len(axes), 6.0), 3.6), squeeze=False, sharey=True)
+    driven = any(c["goals_total"] is not None for c in cases)
     for a, name in zip(ax[0], axes, strict=True):
         rows = sorted((c for c in cases if c["axis"] == name), key=lambda c: c["level"])
         for key, label, style in (("gl_accepted_of_covered", "GL accepted / covered", "-o"),
                                   ("goals", "goals reached / unchanged", "-s")):
+            if key == "goals" and not driven:  # a run without navigation (--no-nav) has no goal figures
+                continue
             for part, suffix, alpha in ((None, "", 1.0), ("after_update", " (after update)", 0.5)):
                 xs, ys = [0.0], [1.0 if key == "goals" else rows[0]["gl_accepted_of_covered_unchanged"]]
                 for c in rows:
@@ -305,7 +308,7 @@ def plot(result: dict[str, Any], path: Path) -> Path:
     ax[0][0].set_ylabel("%")
     ax[0][0].set_ylim(0, 105)
     ax[0][-1].legend(fontsize=7, loc="lower left")
-    fig.suptitle("LiteVLoc in a changed building (map of the building as generated)")
+    fig.suptitle("LiteVLoc in a changed building (map of the building as generated)", fontsize=10)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)

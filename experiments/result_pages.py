@@ -106,7 +106,9 @@ def page_block(page: Page, path: Path) -> str:
     lacks a figure)."""
     d = json.loads(path.read_text())
     meta = d.get("meta", {})
-    lines = [f"Measured {measured_on(meta, path)} on {machine(meta)} with `{page.command}`.", "",
+    # the run's own command where the JSON records it (a smaller run than the page's default says so)
+    command = f"python bench/{meta['command']}" if meta.get("command") else page.command
+    lines = [f"Measured {measured_on(meta, path)} on {machine(meta)} with `{command}`.", "",
              "| " + " | ".join(page.columns) + " |", "|" + "---|" * len(page.columns)]
     lines += ["| " + " | ".join(cell(c) for c in row) + " |" for row in page.rows(d)]
     return "\n".join(lines)
