@@ -19,8 +19,8 @@ from litevloc.sim.layout import Door
 LEAF_THICKNESS_M = 0.04
 # an open leaf stands this far beside the doorway (past its frame, and clear on the planner's 0.1 m grid)
 HINGE_GAP_M = 0.12
-LEAF_SHARE_OF_WIDTH = 0.95
-LEAF_GAP_M = 0.7  # an open leaf this far from every box: the robot (0.6 m wide) passes  # an open leaf is a little narrower than its doorway
+LEAF_SHARE_OF_WIDTH = 0.95  # an open leaf is a little narrower than its doorway
+LEAF_GAP_M = 0.7  # an open leaf this far from every box: the robot (0.6 m wide) passes
 
 
 @dataclass(frozen=True)
