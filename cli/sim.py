@@ -1,6 +1,7 @@
 """`litevloc sim`: simulated worlds -> MCAP recordings, plans and contact sheets.
 
     litevloc sim record WORLD -o REC.mcap [--seed N] [--duration S] [--pass map|map-rooms|query|loop|...]
+                         [--change AXIS=LEVEL | --change months_later ...]
                         [--json PATH] [--plot PNG]
     litevloc sim plot WORLD -o PLAN.png [--seed N] [--duration S] [--sheet SHEET.png]
     litevloc sim goals WORLD -o DIR [--seed N] [--world-seed M]
@@ -57,6 +58,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument(
         "--plot", type=Path, default=None, help="also write a top-down PNG with the trajectory"
     )
+    r.add_argument(
+        "--change", action="append", default=[], metavar="AXIS=LEVEL",
+        help="record the building changed: AXIS one of lighting, furniture, pictures, doors (level 0-1), "
+        "people (a count), seed (of the change), or a named mix (months_later); repeatable, applied "
+        "in order over the world file's change: block. The ground truth of what changed is written "
+        "beside the recording (REC.change.json)",
+    )
     add_config_args(r)
     add_json_arg(r)
     r.set_defaults(func=run_record)
@@ -87,9 +95,18 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _world(args: argparse.Namespace):
+    from litevloc.base.params.world_change import ChangeSpecError, parse_change
+    from litevloc.sim.spec import load_world_spec
     from litevloc.sim.world import load_world
 
-    return load_world(args.world, seed=args.world_seed)
+    items = getattr(args, "change", None) or []
+    if not items:
+        return load_world(args.world, seed=args.world_seed)
+    try:
+        change = parse_change(items, load_world_spec(args.world).change)
+    except ChangeSpecError as exc:
+        raise UserError(str(exc)) from None
+    return load_world(args.world, seed=args.world_seed, change=change)
 
 
 def run_record(args: argparse.Namespace) -> int:

@@ -276,12 +276,18 @@ def placement_run(run: BuildingRun, settings: BenchSettings, cfgs: dict[str, Lit
 _WORKER: dict[str, Any] = {}
 
 
-def _init_worker(config: str, overrides: tuple[str, ...] = ()) -> None:
+def load_models(config: str, overrides: tuple[str, ...] = ()) -> tuple[LiteVLocConfig, dict[str, ModelBundle]]:
+    """The configuration (one ONNX Runtime thread) and its model bundles: "nav" (localization,
+    planner) and "build" (the mapping's covisibility matcher)."""
     cfg = load_config(config, overrides)
     models = dataclasses.replace(cfg.models, intra_op_threads=1)
     cfg = dataclasses.replace(cfg, models=models)
-    _WORKER.update(cfg=cfg, bundles={"nav": load_bundle(models),
-                                     "build": load_bundle(models, matcher=cfg.mapping.covisibility_matcher)})
+    return cfg, {"nav": load_bundle(models), "build": load_bundle(models, matcher=cfg.mapping.covisibility_matcher)}
+
+
+def _init_worker(config: str, overrides: tuple[str, ...] = ()) -> None:
+    cfg, bundles = load_models(config, overrides)
+    _WORKER.update(cfg=cfg, bundles=bundles)
 
 
 def _work(run: BuildingRun, settings: BenchSettings) -> dict[str, Any]:

@@ -65,6 +65,22 @@ def _slam_rows(d: Json) -> list[list[str]]:
              f"{_opt(c.get('map_keyframes'), 'd')} / {_opt(c.get('slam_keyframes'), 'd')}"] for name, c in cases]
 
 
+def _pct(v: float | None) -> str:
+    return _opt(v, ".1f", 100)
+
+
+def _goals(r: Json) -> str:
+    return "-" if r["goals_total"] is None else f"{r['goals_reached']}/{r['goals_total']}"
+
+
+def _change_rows(d: Json) -> list[list[str]]:
+    return [[c["axis"], f"{c['level']:g}", f"{_pct(c['gl_accepted_of_covered'])} "
+             f"({_pct(c['gl_accepted_of_covered_unchanged'])})", str(c["wrong_over_0_5m"]),
+             f"{_goals(c)} ({_opt(c['goals_reached_unchanged'], 'd')})",
+             _pct(c["after_update"]["gl_accepted_of_covered"]), str(c["after_update"]["wrong_over_0_5m"]),
+             _goals(c["after_update"])] for c in d["cases"]]
+
+
 PAGES: tuple[Page, ...] = (
     Page("splits", "7-Scenes cross-split localization", "bench/splits.json", "python bench/splits.py",
          "localization.md#the-cross-split-benchmark-python-benchsplitspy",
@@ -78,6 +94,10 @@ PAGES: tuple[Page, ...] = (
          "mapping.md#what-the-slam-does",
          ("case", "keyframe ATE cm", "odometry alone ATE cm", "without loops ATE cm", "loops kept", "wrong loops kept",
           "s per map keyframe (CPU-s)", "map / SLAM keyframes"), _slam_rows),
+    Page("change", "Localization and navigation in a changed building", "bench/change.json",
+         "python bench/change.py", "simulator.md#a-building-some-time-later-the-change-block",
+         ("axis", "level", "GL accepted among covered % (unchanged)", "> 0.5 m", "goals reached (unchanged)",
+          "after update: GL %", "after update: > 0.5 m", "after update: goals"), _change_rows),
 )
 
 
@@ -86,7 +106,9 @@ def page_block(page: Page, path: Path) -> str:
     lacks a figure)."""
     d = json.loads(path.read_text())
     meta = d.get("meta", {})
-    lines = [f"Measured {measured_on(meta, path)} on {machine(meta)} with `{page.command}`.", "",
+    # the run's own command where the JSON records it (a smaller run than the page's default says so)
+    command = f"python bench/{meta['command']}" if meta.get("command") else page.command
+    lines = [f"Measured {measured_on(meta, path)} on {machine(meta)} with `{command}`.", "",
              "| " + " | ".join(page.columns) + " |", "|" + "---|" * len(page.columns)]
     lines += ["| " + " | ".join(cell(c) for c in row) + " |" for row in page.rows(d)]
     return "\n".join(lines)

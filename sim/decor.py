@@ -271,17 +271,19 @@ def decorate(spec: WorldSpec, regions: dict[int, Region], faces: list[Face], doo
     return out
 
 
-def change_pictures(posters: list[Poster], rng: np.random.Generator, fraction: float) -> tuple[list[Poster], int]:
-    """A `fraction` of the posters and prints show another picture (months later); returns the
-    pictures and how many changed. Plates, signs and notice boards stay."""
-    out, changed = list(posters), 0
+def change_pictures(posters: list[Poster], rng: np.random.Generator, fraction: float,
+                    kinds: tuple[PictureKind, ...] = ("photo", "poster", "print")) -> tuple[list[Poster], list[int]]:
+    """A `fraction` of the pictures of `kinds` show another picture (months later): a photograph
+    another image, a generated picture another design; returns the pictures and the indices of
+    those that changed. Other kinds (by default plates, signs and notice boards) stay."""
+    out, changed = list(posters), []
     for i, p in enumerate(out):
-        if p.kind not in ("photo", "poster", "print") or rng.random() >= fraction:
+        if p.kind not in kinds or rng.random() >= fraction:
             continue
         if p.kind == "photo":
             others = [img for img in POSTER_IMAGES if img != p.image]
             out[i] = dataclasses.replace(p, image=str(rng.choice(others)))
         else:
             out[i] = dataclasses.replace(p, design=int(rng.integers(1, 2**31 - 1)))
-        changed += 1
+        changed.append(i)
     return out, changed

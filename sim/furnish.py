@@ -36,7 +36,7 @@ def _near_door(bx: NDArray[np.float64], door_pts: NDArray[np.float64]) -> bool:
     return bool(np.any(np.hypot(dx, dy) < DOOR_CLEAR_M))
 
 
-def _overlaps(bx: NDArray[np.float64], boxes: Sequence[tuple[float, ...]] | NDArray[np.float64], gap: float,
+def overlaps(bx: NDArray[np.float64], boxes: Sequence[tuple[float, ...]] | NDArray[np.float64], gap: float,
               skip: int = -1) -> bool:
     return any(bx[0] < o[2] + gap and o[0] < bx[2] + gap and bx[1] < o[3] + gap and o[1] < bx[3] + gap
                for j, o in enumerate(boxes) if j != skip)
@@ -92,7 +92,7 @@ def make_furniture(spec: WorldSpec, regions: dict[int, Region], doors: list[Door
                 box = (cx - depth / 2, cy - length / 2 * 0.5, cx + depth / 2, cy + length / 2 * 0.5, h)
             bx = np.array(box[:4])
             # keep doors clear and boxes apart (passages stay open)
-            if _near_door(bx, door_pts) or _overlaps(bx, boxes, BOX_GAP_M):
+            if _near_door(bx, door_pts) or overlaps(bx, boxes, BOX_GAP_M):
                 continue
             boxes.append(box)
             n -= 1
@@ -133,7 +133,7 @@ def make_clutter(spec: WorldSpec, regions: dict[int, Region], doors: list[Door],
                 bx0 = rng.uniform(x0 + BOX_GAP_M, x1 - BOX_GAP_M - w)
                 by0 = rng.uniform(y0 + BOX_GAP_M, y1 - BOX_GAP_M - d)
             bx = np.array([bx0, by0, bx0 + w, by0 + d])
-            if _near_door(bx, door_pts) or _overlaps(bx, placed, BOX_GAP_M):
+            if _near_door(bx, door_pts) or overlaps(bx, placed, BOX_GAP_M):
                 continue
             placed.append((*bx, h))
             out.append((float(bx[0]), float(bx[1]), float(bx[2]), float(bx[3]), float(h)))
@@ -164,24 +164,30 @@ def slide_furniture(boxes: NDArray[np.float64], kinds: list[str], doors: list[Do
     for k in range(len(boxes)):
         if kinds[k] not in FURNITURE_KINDS or kinds[k] == "pillar" or rng.random() >= fraction:
             continue
-        bx0, by0, bx1, by1, _h = boxes[k]
         reg = regions.get(region_of[k])
-        if reg is None:
-            continue
-        rx0, ry0, rx1, ry1 = reg.bbox
-        along_x = (bx1 - bx0) >= (by1 - by0)  # slide along the box's long side (its wall)
-        for _ in range(10):
-            shift = rng.uniform(0.5, 1.5) * rng.choice([-1.0, 1.0])
-            nb = boxes[k].copy()
-            if along_x:
-                nb[[0, 2]] += shift
-            else:
-                nb[[1, 3]] += shift
-            if nb[0] < rx0 + 0.3 or nb[2] > rx1 - 0.3 or nb[1] < ry0 or nb[3] > ry1:
-                continue
-            if _near_door(nb, door_pts) or _overlaps(nb, boxes, BOX_GAP_M, skip=k):
-                continue
-            boxes[k] = nb
+        if reg is not None and slide_box(boxes, k, reg, door_pts, rng):
             moved += 1
-            break
     return boxes, moved
+
+
+def slide_box(boxes: NDArray[np.float64], k: int, reg: Region, door_pts: NDArray[np.float64],
+              rng: np.random.Generator) -> bool:
+    """Slide box k (in place) 0.5-1.5 m along its long side, staying in room `reg`, clear of
+    doors and `BOX_GAP_M` from the other boxes (10 tries); whether it moved."""
+    bx0, by0, bx1, by1, _h = boxes[k]
+    rx0, ry0, rx1, ry1 = reg.bbox
+    along_x = (bx1 - bx0) >= (by1 - by0)  # slide along the box's long side (its wall)
+    for _ in range(10):
+        shift = rng.uniform(0.5, 1.5) * rng.choice([-1.0, 1.0])
+        nb = boxes[k].copy()
+        if along_x:
+            nb[[0, 2]] += shift
+        else:
+            nb[[1, 3]] += shift
+        if nb[0] < rx0 + 0.3 or nb[2] > rx1 - 0.3 or nb[1] < ry0 or nb[3] > ry1:
+            continue
+        if _near_door(nb, door_pts) or overlaps(nb, boxes, BOX_GAP_M, skip=k):
+            continue
+        boxes[k] = nb
+        return True
+    return False

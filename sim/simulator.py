@@ -33,6 +33,7 @@ from litevloc.base.geometry import GeometryError, PinholeIntrinsics, invert, mak
 from litevloc.base.params.sim import RealismParams, SimParams
 from litevloc.hw.messages import GroundTruthPose, Odometry, RgbdFrame
 from litevloc.pipelines.odometry_drift import IncrementalDrift
+from litevloc.sim.people import composite
 from litevloc.sim.realism import Lighting, apply_color, apply_depth, sample_lighting
 from litevloc.sim.render import Renderer
 from litevloc.sim.world import World
@@ -225,6 +226,7 @@ class Simulator:
             return None
         T = camera_pose(self.T_world_base, t_ns * 1e-9, self._speed, self.params)
         depth = self.renderer.render_depth(T, self.K)
+        add_people(self.world, T, self.K, t_ns, None, depth)
         rng = np.random.default_rng([self.seed, 13, self._frame_index])
         self._frame_index += 1
         return apply_depth(depth, self.params.realism, rng)
@@ -247,6 +249,13 @@ class Simulator:
         return frame
 
 
+def add_people(world: World, T_world_camera: NDArray[np.float64], K: PinholeIntrinsics, t_ns: int,
+               color: NDArray[np.uint8] | None, depth: NDArray[np.float32]) -> None:
+    """Composite the people of a changed world (`World.people`) into an ideal frame in place."""
+    if world.people is not None:
+        composite(world.people.at(t_ns * 1e-9, T_world_camera, world), T_world_camera, K, color, depth)
+
+
 def render_frame(
     renderer: Renderer,
     T_world_camera: NDArray[np.float64],
@@ -259,6 +268,7 @@ def render_frame(
 ) -> RgbdFrame:
     """Render one degraded RGB-D frame at a camera pose."""
     color, depth = renderer.render(T_world_camera, K)
+    add_people(renderer.world, T_world_camera, K, t_ns, color, depth)
     color = apply_color(color, lighting, realism, rng)
     depth = apply_depth(depth, realism, rng)
     return RgbdFrame(t_ns, color, depth, K.K, index=index)
@@ -268,6 +278,7 @@ __all__ = [
     "SimParams",
     "SimStep",
     "Simulator",
+    "add_people",
     "base_pose",
     "bob_transform",
     "camera_pose",

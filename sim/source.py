@@ -19,7 +19,7 @@ from litevloc.base.params.sim import SimParams
 from litevloc.hw.messages import GroundTruthPose, Message, Odometry, StreamStats
 from litevloc.sim.realism import Lighting, sample_lighting
 from litevloc.sim.render import Renderer
-from litevloc.sim.simulator import camera_pose, render_frame
+from litevloc.sim.simulator import add_people, camera_pose, render_frame
 from litevloc.sim.trajectory import (
     PASS_NAMES,
     FollowResult,
@@ -115,7 +115,9 @@ class SimSequenceSource:
         if self._renderer is None:
             self._renderer = Renderer(self.world)
         t = int(self.frame_times[index])
-        d = self._renderer.render_depth(self._cam_pose(t), self.params.intrinsics)
+        T = self._cam_pose(t)
+        d = self._renderer.render_depth(T, self.params.intrinsics)
+        add_people(self.world, T, self.params.intrinsics, t, None, d)
         return apply_depth(d, self.params.realism, np.random.default_rng([self._noise_seed, 13, index]))
 
     def __iter__(self) -> Iterator[Message]:

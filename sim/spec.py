@@ -9,11 +9,12 @@ on every machine.
 from __future__ import annotations
 
 import importlib.util
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
 from litevloc.base.loader import ConfigError, from_mapping, load_yaml
+from litevloc.base.params.world_change import WorldChangeParams
 
 
 def _worlds_dir() -> Path:
@@ -74,6 +75,9 @@ class WorldSpec:
     # (pillars excepted) slides 0.5-1.5 m along its wall where the room allows; < 0: as generated.
     change_seed: int = -1
     change_fraction: float = 0.5
+    # The building some time after it was mapped, graded per axis (`litevloc.sim.change`);
+    # all levels 0: as generated.
+    change: WorldChangeParams = field(default_factory=WorldChangeParams)
 
     def __post_init__(self) -> None:
         if not self.name:

@@ -117,9 +117,11 @@ def _wall_patch(world: World, fi: int, rows: int, w: int, looks: dict[int, Look]
 
 
 def _box_patch(world: World, f: Face, rows: int, w: int, rng: np.random.Generator,
-               palettes: dict[int, list[tuple[float, float, float]]]) -> NDArray[np.float32]:
+               palettes: dict[int, list[tuple[float, float, float]]], boxes: NDArray[np.float64],
+               kinds: list[str]) -> NDArray[np.float32]:
+    """Texture of box face `f` (`f.box` indexes `boxes` and `kinds`)."""
     ppm, H = world.spec.texels_per_m, world.wall_height
-    kind = world.box_kinds[f.box]
+    kind = kinds[f.box]
     patch = np.zeros((rows, w, 3), np.float32)
     r0 = int(np.floor((H - f.height) * ppm))
     bh = rows - r0
@@ -127,10 +129,12 @@ def _box_patch(world: World, f: Face, rows: int, w: int, rng: np.random.Generato
         sub = books(bh, w, ppm, rng)
     elif kind == "pillar":
         sub = material("plaster", bh, w, ppm, rng, (175, 175, 170), 1.0)
+    elif kind == "door":
+        sub = material("panel", bh, w, ppm, rng, pastel(rng, (0.1, 0.4), (0.45, 0.8)), 1.0)
     elif kind in ("bin", "plant", "stool", "crate"):
         sub = clutter_front(kind, bh, w, ppm, rng)
     elif world.spec.appearance == "varied":  # the room's own furniture colours
-        b = world.boxes[f.box]
+        b = boxes[f.box]
         pal = palettes.get(world.region_at(np.array([(b[0] + b[2]) / 2, (b[1] + b[3]) / 2])), [(150.0,) * 3])
         sub = cabinet(bh, w, ppm, rng, pal[f.box % len(pal)])
     else:
@@ -161,29 +165,85 @@ def _door_frames(world: World, atlas: NDArray[np.float32], offsets: NDArray[np.f
                 atlas[r0 : r0 + strip, max(c0, int(offsets[fi])) : c1] = colour * 0.8
 
 
+def _widths(faces: list[Face], ppm: float) -> tuple[list[int], NDArray[np.float64]]:
+    widths = [int(np.ceil((f.hi - f.lo) * ppm)) + 2 for f in faces]
+    return widths, np.concatenate([[0], np.cumsum(widths)[:-1]]).astype(np.float64)
+
+
+def _face_patches(world: World, faces: list[Face], boxes: NDArray[np.float64], kinds: list[str],
+                  rng: np.random.Generator, palettes: dict[int, list[tuple[float, float, float]]],
+                  looks: dict[int, Look], tiles: dict[int, NDArray[np.float32]]) -> NDArray[np.float32]:
+    """(rows, sum of widths, 3) atlas of `faces` (walls of `world`, boxes of `boxes`), in order."""
+    ppm, H = world.spec.texels_per_m, world.wall_height
+    rows = int(np.ceil(H * ppm))
+    widths, offsets = _widths(faces, ppm)
+    atlas = np.zeros((rows, int(sum(widths)), 3), np.float32)
+    z_row = H - (np.arange(rows) + 0.5) / ppm  # height of each atlas row
+    for fi, f in enumerate(faces):
+        w, o = widths[fi], int(offsets[fi])
+        patch = (_wall_patch(world, fi, rows, w, looks, tiles, rng) if f.kind == "wall"
+                 else _box_patch(world, f, rows, w, rng, palettes, boxes, kinds))
+        # soft shading near floor and ceiling
+        patch *= (0.8 + 0.2 * np.clip(z_row / 0.5, 0, 1) * np.clip((H - z_row) / 0.4, 0, 1))[:, None, None]
+        atlas[:, o : o + w] = patch
+    return atlas
+
+
+def _changed_atlas(world: World, generated: NDArray[np.float32], palettes: dict[int, list[tuple[float, float, float]]],
+                   rng: np.random.Generator) -> NDArray[np.float32]:
+    """The atlas of a changed world's faces from the generated building's: walls and the boxes
+    that stay (moved or not) keep their columns, new boxes (source -1) are baked from `rng`."""
+    ppm = world.spec.texels_per_m
+    gen_widths, gen_offsets = _widths(world.generated.faces, ppm)
+    widths, offsets = _widths(world.faces, ppm)
+    n_walls = sum(f.kind == "wall" for f in world.faces)
+    atlas = np.zeros((generated.shape[0], int(sum(widths)), 3), np.float32)
+    for fi, f in enumerate(world.faces):
+        w, o = widths[fi], int(offsets[fi])
+        src = fi if f.kind == "wall" else -1
+        if f.kind == "box" and world.box_source[f.box] >= 0:
+            src = n_walls + 4 * int(world.box_source[f.box]) + (fi - n_walls) % 4
+        if src >= 0:
+            atlas[:, o : o + w] = generated[:, int(gen_offsets[src]) : int(gen_offsets[src]) + gen_widths[src]]
+        else:
+            atlas[:, o : o + w] = _face_patches(world, [f], world.boxes, world.box_kinds, rng, palettes, {}, {})
+    return atlas
+
+
+def _face_regions(world: World) -> list[int]:
+    """Region each face is lit in: a wall's own, a box face's the region under its box."""
+    centres = (world.boxes[:, :2] + world.boxes[:, 2:4]) / 2
+    return [f.region if f.kind == "wall" else world.region_at(centres[f.box]) for f in world.faces]
+
+
+def _relit(img: NDArray[np.uint8], world: World) -> NDArray[np.uint8]:
+    """A floor or ceiling map (over `world.bounds`) under the world's lighting change."""
+    assert world.lighting is not None
+    lab = cv2.resize(world.labels.astype(np.float32), (img.shape[1], img.shape[0]),
+                     interpolation=cv2.INTER_NEAREST).astype(np.int32)
+    return np.clip(img * world.lighting.region_gain(lab)[..., None], 0, 255).astype(np.uint8)
+
+
 def bake(world: World) -> BakedTextures:
-    """Bake every face, the floor and the ceiling of `world` (deterministic in its seed)."""
+    """Bake every face, the floor and the ceiling of `world` (deterministic in its seed).
+
+    The building as generated (`world.generated`) is baked from the seed's stream; a changed
+    world then takes the columns of what stayed and bakes its new boxes from a stream of their
+    own, so every random draw of the generated building stays where it was."""
     rng = np.random.default_rng([world.spec.seed, 7])
+    extra = np.random.default_rng([world.spec.seed, 7, 1])
     ppm = world.spec.texels_per_m
     H = world.wall_height
-    rows = int(np.ceil(H * ppm))
-    widths = [int(np.ceil((f.hi - f.lo) * ppm)) + 2 for f in world.faces]
-    offsets = np.concatenate([[0], np.cumsum(widths)[:-1]]).astype(np.float64)
-    atlas = np.zeros((rows, int(sum(widths)), 3), np.float32)
+    gen = world.generated
+    widths, offsets = _widths(world.faces, ppm)
     looks = _looks(world, rng)
     varied = world.spec.appearance == "varied"
     tiles = _room_tiles(world, looks) if varied else {}
     palettes = {label: [pastel(np.random.default_rng([world.spec.seed, 9, label, k]), (0.1, 0.6), (0.3, 0.85))
                         for k in range(2)] for label in world.regions} if varied else {}
-    z_row = H - (np.arange(rows) + 0.5) / ppm  # height of each atlas row
-    for fi, f in enumerate(world.faces):
-        w = widths[fi]
-        o = int(offsets[fi])
-        patch = (_wall_patch(world, fi, rows, w, looks, tiles, rng) if f.kind == "wall"
-                 else _box_patch(world, f, rows, w, rng, palettes))
-        # soft shading near floor and ceiling
-        patch *= (0.8 + 0.2 * np.clip(z_row / 0.5, 0, 1) * np.clip((H - z_row) / 0.4, 0, 1))[:, None, None]
-        atlas[:, o : o + w] = patch
+    atlas = _face_patches(world, gen.faces, gen.boxes, gen.box_kinds, rng, palettes, looks, tiles)
+    if not np.array_equal(world.box_source, np.arange(len(gen.boxes))):
+        atlas = _changed_atlas(world, atlas, palettes, extra)
     if varied:
         _door_frames(world, atlas, offsets)
     for p in world.posters:
@@ -193,9 +253,12 @@ def bake(world: World) -> BakedTextures:
         atlas[r0:r1, c0:c1] = _picture(p, r1 - r0, c1 - c0, rng)
     # orientation shading: faces facing +-x slightly darker than +-y (one light direction)
     shade = np.ones(atlas.shape[1], np.float32)
+    gains = world.lighting.face_gains(world.faces, _face_regions(world)) if world.lighting is not None else None
     for fi, f in enumerate(world.faces):
         o = int(offsets[fi])
         shade[o : o + widths[fi]] = (0.86 if f.normal > 0 else 0.94) if f.axis == 0 else (1.0 if f.normal > 0 else 0.9)
+        if gains is not None:
+            shade[o : o + widths[fi]] *= gains[fi]
     atlas *= shade[None, :, None]
     atlas_u8 = np.clip(atlas, 0, 255).astype(np.uint8)
     mips = [atlas_u8]
@@ -208,8 +271,16 @@ def bake(world: World) -> BakedTextures:
     top_tile = cv2.GaussianBlur(grain, (0, 0), sigmaX=6, sigmaY=0.7).mean(axis=2, keepdims=True)
     top_tile = (0.75 + 0.25 * (top_tile - top_tile.mean()) / max(float(top_tile.std()), 1e-3) * 0.5).astype(
         np.float32)
-    top_color = np.array([pastel(rng, (0.2, 0.5), (0.4, 0.8)) for _ in range(len(world.boxes))],
+    gen_top = np.array([pastel(rng, (0.2, 0.5), (0.4, 0.8)) for _ in range(len(gen.boxes))],
+                       np.float32).reshape(-1, 3)
+    top_color = np.array([gen_top[s] if s >= 0 else pastel(extra, (0.2, 0.5), (0.4, 0.8)) for s in world.box_source],
                          np.float32).reshape(-1, 3)
+    if world.lighting is not None:
+        floor, ceiling = _relit(floor, world), _relit(ceiling, world)
+        lamps, exposure = world.lighting.lamps, world.lighting.exposure
+        centres = (world.boxes[:, :2] + world.boxes[:, 2:4]) / 2
+        top_color *= np.array([lamps.get(world.region_at(c), 1.0) * exposure for c in centres],
+                              np.float32).reshape(-1, 1)
     return BakedTextures(ppm, mips, offsets, floor, fppm, ceiling, cppm, np.repeat(top_tile, 3, axis=2), top_ppm,
                          top_color)
 

@@ -94,7 +94,9 @@ def plan_path(
 
 def _door_graph(world: World) -> dict[int, list[int]]:
     g: dict[int, list[int]] = {k: [] for k in world.regions}
-    for a, b, *_ in world.doors:
+    for i, (a, b, *_) in enumerate(world.doors):
+        if i in world.closed_doors:  # a closed leaf blocks it (a changed building)
+            continue
         if b not in g[a]:
             g[a].append(b)
             g[b].append(a)

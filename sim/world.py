@@ -30,6 +30,7 @@ Room sizes, clutter, picture designs and goal places each have their own stream
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
 
@@ -37,12 +38,24 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.sim.change import ChangeTruth, apply_change
 from litevloc.sim.decor import assign_materials, change_pictures, decorate, hang_posters
-from litevloc.sim.elements import Poster, Region
+from litevloc.sim.elements import Face, Poster, Region
 from litevloc.sim.furnish import box_faces, legacy_kind, make_clutter, make_furniture, slide_furniture
 from litevloc.sim.goals import GoalView, person_goals, poster_goals
 from litevloc.sim.layout import make_floor_plan
+from litevloc.sim.lighting import LightingChange
+from litevloc.sim.people import Walkers
 from litevloc.sim.spec import WorldSpec, load_world_spec
+
+
+@dataclass(frozen=True)
+class GeneratedParts:
+    """Faces, boxes (N, 5) and box kinds of a building as generated, before any change."""
+
+    faces: list[Face]
+    boxes: NDArray[np.float64]
+    box_kinds: list[str]
 
 
 def load_world(name_or_path: str | Path, seed: int | None = None, **overrides: object) -> World:
@@ -81,10 +94,18 @@ class World:
             person_goals(self, spec.seed) if spec.goal_rule == "person"
             else poster_goals(self, self.faces, self.posters, spec.seed))
         self.changes: dict[str, int] = {"posters": 0, "furniture": 0}
+        # the building as generated: a changed one bakes these first, so what did not change looks the same
+        self.generated = GeneratedParts(list(self.faces), self.boxes.copy(), list(self.box_kinds))
+        # the generated box each box is (-1: one a change added)
+        self.box_source: NDArray[np.intp] = np.arange(len(self.boxes), dtype=np.intp)
+        self.closed_doors: set[int] = set()  # indices into doors that a closed leaf blocks
+        self.lighting: LightingChange | None = None
+        self.people: Walkers | None = None
         if spec.change_seed >= 0:
             self._apply_changes(np.random.default_rng(spec.change_seed), spec.change_fraction)
         # where the robot stands for each room's robot-camera goal image (4x4 T_world_base)
         self.goal_places: dict[str, NDArray[np.float64]] = {k: v.T_world_base for k, v in self.goal_views.items()}
+        self.change_truth: ChangeTruth = apply_change(self, spec.change)
 
     @property
     def bounds(self) -> tuple[float, float, float, float]:
@@ -94,7 +115,8 @@ class World:
 
     def _apply_changes(self, rng: np.random.Generator, fraction: float) -> None:
         """Re-picture posters and slide furniture along its wall (see `WorldSpec.change_seed`)."""
-        self.posters, self.changes["posters"] = change_pictures(self.posters, rng, fraction)
+        self.posters, pictures = change_pictures(self.posters, rng, fraction)
+        self.changes["posters"] = len(pictures)
         centres = [self.region_at(np.array([(b[0] + b[2]) / 2, (b[1] + b[3]) / 2])) for b in self.boxes]
         self.boxes, self.changes["furniture"] = slide_furniture(self.boxes, self.box_kinds, self.doors,
                                                                 self.regions, centres, rng, fraction)

@@ -42,6 +42,9 @@ def record_pass(world: World, pass_name: PassName, seed: int, duration_s: float 
         from litevloc.sim.plot import plot_world
 
         plot_world(world, plot, [(pass_name, src.run.T_world_base[:, :2, 3])])
+    truth = change_truth_path(output)
+    if not world.spec.change.unchanged:
+        truth.write_text(json.dumps(world.change_truth.to_dict(), indent=1) + "\n", encoding="utf-8")
     size = output.stat().st_size
     print(
         f"wrote {output}: {counts['frames']} frames, {counts['odometry']} odometry, "
@@ -60,4 +63,12 @@ def record_pass(world: World, pass_name: PassName, seed: int, duration_s: float 
         "pass": pass_name,
         "world": world.summary(),
         "collisions": src.run.collisions,
+        "change": world.spec.change.levels(),
+        "change_truth": str(truth) if not world.spec.change.unchanged else None,
     }
+
+
+def change_truth_path(recording: Path) -> Path:
+    """Where the ground truth of a changed building's recording lies: REC.mcap -> REC.change.json
+    (for benchmarks; the map and the localizer never read it)."""
+    return recording.with_suffix(".change.json")

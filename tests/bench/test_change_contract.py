@@ -1,0 +1,54 @@
+"""bench/change.py end to end on two tiny buildings (two 3 x 3 m rooms each, one goal, one case,
+one update cycle): the JSON carries the keys issue 78 asks for, and the plot is written."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.bench.test_buildings_contract import TINY as BUILDINGS_TINY
+
+TINY = BUILDINGS_TINY.replace("furniture_per_room: [0, 1]", "furniture_per_room: [1, 1]")  # something to move
+KEYS = {"gl_accepted_of_covered", "wrong_over_0_5m", "gl_accepted_of_covered_unchanged", "goals_reached",
+        "goals_total", "goals_reached_unchanged"}
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(1200)  # three drives, three GL passes and two map updates per building
+def test_two_building_run_writes_the_json_contract(tmp_path: Path) -> None:
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
+    import change as bench
+
+    world = tmp_path / "tiny.yaml"
+    world.write_text(TINY)
+    out = tmp_path / "c.json"
+    assert bench.main(["--generators", str(world), "--seeds", "1:3", "--levels", "furniture=0.5", "--no-mix",
+                       "--cycles", "1", "--max-goals", "1", "--quick", "--out-dir", str(tmp_path / "maps"),
+                       "--json", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert out.with_suffix(".png").is_file()
+    (case,) = res["cases"]
+    assert (case["axis"], case["level"]) == ("furniture", 0.5)
+    assert set(case) >= KEYS and set(case["after_update"]) >= KEYS
+    assert case["goals_total"] == 2 and 0 <= case["goals_reached"] <= 2
+    assert 0 <= case["gl_accepted_of_covered"] <= 1 and isinstance(case["wrong_over_0_5m"], int)
+    (cycle,) = res["update_cycles"]
+    assert set(cycle) == {"cycle", "map_size_ratio", "gl_accepted_of_covered"} and cycle["cycle"] == 1
+    assert cycle["map_size_ratio"] > 0
+    assert [b["building"] for b in res["buildings"]] == ["tiny-1", "tiny-2"]
+    for b in res["buildings"]:
+        (c,) = b["cases"]
+        assert c["truth"]["levels"]["furniture"] == 0.5  # the ground truth of what changed rides along
+        assert c["update"]["nodes_after"] >= 1
+
+
+def test_bad_levels_are_a_usage_error(capsys: pytest.CaptureFixture[str]) -> None:
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
+    import change as bench
+
+    with pytest.raises(SystemExit) as exc:
+        bench.main(["--levels", "windows=1"])
+    assert exc.value.code == 2
