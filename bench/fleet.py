@@ -181,6 +181,7 @@ def _robot_cmd(args: argparse.Namespace, k: int, endpoint: str, port: int, tmp: 
     return [sys.executable, "-m", "litevloc.cli.main", "run", "--config", args.config, "--source", str(args.rec),
             "--rate", str(args.rate), "--map", f"zenoh:{NAME}", "--connect", endpoint, "--namespace", f"robot{k}",
             "--listen", f"tcp/127.0.0.1:{port}", "--set", f"fleet.cache_dir={tmp / f'cache{k}'}",
+            "--set", f"fleet.query_timeout_s={args.query_timeout:g}",
             *[a for o in args.overrides for a in ("--set", o)], "--json", str(tmp / f"robot{k}.json")]
 
 
@@ -214,7 +215,8 @@ def one_count(args: argparse.Namespace, n: int) -> dict[str, Any]:
         _wait_line(server, "READY", 120)
         with_session = open_session(ZenohConfig(mode="client", listen=(), connect=(ep,), connect_timeout_s=5.0))
         t0 = time.perf_counter()
-        fetched = fetch_map(with_session, NAME, None, tmp / "bench_cache", allow_offline=False)
+        fetched = fetch_map(with_session, NAME, None, tmp / "bench_cache", allow_offline=False,
+                            timeout_s=args.query_timeout)
         fetch_s = time.perf_counter() - t0
         with_session.close()
         names = [f"robot{k}" for k in range(n)]
@@ -318,6 +320,8 @@ def main() -> None:
     ap.add_argument("--switch-after", type=float, default=8.0,
                     help="publish version 2 this long after every robot's first fused pose (s)")
     ap.add_argument("--timeout", type=float, default=300.0, help="per robot count (s)")
+    ap.add_argument("--query-timeout", type=float, default=30.0,
+                    help="fleet.query_timeout_s of the bench's fetch and every robot (a loaded machine answers late)")
     ap.add_argument("--set", dest="overrides", action="append", default=[], help="config override for every robot")
     ap.add_argument("--quick", action="store_true", help="short run: replay rate 1, switch 4 s after the first poses")
     ap.add_argument("--keep-logs", default=None, metavar="DIR", help="keep each robot's log and status JSON here")
