@@ -347,7 +347,7 @@ def main() -> None:
                  "CPU s/VLoc", "server RSS MB", "server CPU %", "wire B/robot/min"], rows)
     missing = [k for e in entries for k in CONTRACT_KEYS if k not in e]
     assert not missing, missing
-    write_json(args.json, {"runs": entries, "estimate_50": fleet_estimate(entries[-1]), "rate": args.rate,
+    write_json(args.json, {"runs": entries, "estimate_50": fleet_estimate(entries), "rate": args.rate,
                            "config": args.config, "v1": str(args.v1), "v2": str(args.v2), "rec": str(args.rec)})
 
 

@@ -111,21 +111,26 @@ def _per_min_by_topic(robots: Sequence[RobotFigures]) -> dict[str, float]:
     return dict(sorted(out.items(), key=lambda kv: -kv[1]))
 
 
-def fleet_estimate(entry: dict[str, Any], robots: int = 50) -> dict[str, Any]:
-    """Paper figures for `robots` robots on one router and one map service, scaled linearly from one
-    measured entry: steady-state traffic through the router, the server's CPU (its idle serving
-    share per robot; a fetch or a candidate build comes on top), and a fetch of every robot at once
-    at the measured loopback rate (an upper bound of the wire's share: a LAN is slower)."""
+def fleet_estimate(entries: Sequence[dict[str, Any]], robots: int = 50) -> dict[str, Any]:
+    """Paper figures for `robots` robots on one router and one map service, scaled linearly from the
+    measured entries (the largest robot count for the per-robot figures): steady-state traffic
+    through the router, the server's CPU share, its RSS (the growth per robot between the smallest
+    and the largest run, extended), and a fetch of every robot at once at the measured loopback rate
+    (an upper bound of the wire's share: a LAN is slower)."""
+    first, entry = min(entries, key=lambda e: e["robots"]), max(entries, key=lambda e: e["robots"])
     n = max(int(entry["robots"]), 1)
     wire = entry.get("wire_bytes_per_robot_per_min") or 0.0
     cpu = entry.get("server_cpu_percent")
     rate = entry["fetch_bytes"] / entry["fetch_s"] if entry.get("fetch_s") else None
+    span = entry["robots"] - first["robots"]
+    rss_per_robot = (entry["server_rss_mb"] - first["server_rss_mb"]) / span if span else None
     return {
         "robots": robots,
         "router_bytes_per_s": robots * wire / 60.0,
         "router_mbit_per_s": robots * wire * 8 / 60.0 / 1e6,
         "server_cpu_percent": None if cpu is None else cpu / n * robots,
-        "server_rss_mb": entry["server_rss_mb"],
+        "server_rss_mb_per_robot": rss_per_robot,
+        "server_rss_mb": None if rss_per_robot is None else entry["server_rss_mb"] + rss_per_robot * (robots - n),
         "all_fetch_s_at_measured_rate": None if rate is None else robots * entry["fetch_bytes"] / rate,
         "scaled_from_robots": n,
     }

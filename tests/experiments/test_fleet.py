@@ -58,10 +58,13 @@ def test_a_robot_that_did_not_switch_leaves_no_switch_time() -> None:
 
 def test_estimate_scales_the_steady_state_per_robot() -> None:
     e = _entry([_robot(), _robot()])
-    est = fleet_estimate(e, robots=50)
+    one = {**_entry([_robot()]), "server_rss_mb": 123.0}
+    est = fleet_estimate([one, e], robots=50)
     assert est["router_bytes_per_s"] == pytest.approx(50 * e["wire_bytes_per_robot_per_min"] / 60)
     assert est["server_cpu_percent"] == pytest.approx(1.0 / 2 * 50)
     assert est["all_fetch_s_at_measured_rate"] == pytest.approx(50 * 0.64)
+    assert est["server_rss_mb_per_robot"] == pytest.approx(10.0)  # 123 MB with one robot, 133 with two
+    assert est["server_rss_mb"] == pytest.approx(133.0 + 48 * 10.0)
 
 
 def test_max_step_is_the_largest_consecutive_step_in_the_window() -> None:
