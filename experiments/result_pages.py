@@ -81,6 +81,18 @@ def _change_rows(d: Json) -> list[list[str]]:
              _goals(c["after_update"])] for c in d["cases"]]
 
 
+def _fleet_rows(d: Json) -> list[list[str]]:
+    def per_robot(xs: list[float | None], fmt: str) -> str:
+        return " ".join(_opt(x, fmt) for x in xs)
+
+    return [[str(r["robots"]), f"{r['fetch_s']:.2f} ({r['fetch_bytes'] / 1e6:.1f} MB)",
+             f"{_opt(r['switch_s_max'], '.1f')} ({r.get('robots_switched', '-')}/{r['robots']})",
+             str(r["lost_during_switch"]), _opt(r["max_jump_m"], ".1f", 100), per_robot(r["vloc_hz_per_robot"], ".2f"),
+             per_robot(r["cpu_s_per_vloc"], ".2f"),
+             f"{r['server_rss_mb']:.0f} / {_opt(r.get('server_cpu_percent'), '.1f')}",
+             _opt(r["wire_bytes_per_robot_per_min"], ".0f", 1e-3)] for r in d["runs"]]
+
+
 PAGES: tuple[Page, ...] = (
     Page("splits", "7-Scenes cross-split localization", "bench/splits.json", "python bench/splits.py",
          "localization.md#the-cross-split-benchmark-python-benchsplitspy",
@@ -98,6 +110,11 @@ PAGES: tuple[Page, ...] = (
          "python bench/change.py", "simulator.md#a-building-some-time-later-the-change-block",
          ("axis", "level", "GL accepted among covered % (unchanged)", "> 0.5 m", "goals reached (unchanged)",
           "after update: GL %", "after update: > 0.5 m", "after update: goals"), _change_rows),
+    Page("fleet", "Robots on one served map, and a new version switched to by all", "bench/fleet.json",
+         "python bench/fleet.py --robots 1 2 4", "fleet.md#the-fleet-benchmark",
+         ("robots", "fetch s (size)", "announce -> last switched s (switched)", "LOST poses after announce",
+          "pose step at the switch cm", "VLoc Hz per robot", "CPU-s per VLoc per robot", "server RSS MB / CPU %",
+          "wire kB per robot per min"), _fleet_rows),
 )
 
 

@@ -279,7 +279,10 @@ class Stage(_StageThread):
         self.waker.wake()
 
     def _ready(self) -> bool:
-        return self.stop_event.is_set() or any(inp.queue.ready() for inp in self.inputs)
+        # a closed input wakes the loop only once every input is closed: one closed beside an open,
+        # empty one would make every wait return at once (a busy loop after the source ends)
+        qs = [inp.queue for inp in self.inputs]
+        return self.stop_event.is_set() or any(len(q) for q in qs) or all(q.closed for q in qs)
 
     def _loop(self) -> None:
         n = len(self.inputs)

@@ -53,6 +53,33 @@ def test_priority_input_drained_first() -> None:
 
 
 @pytest.mark.timeout(20)
+def test_a_closed_input_beside_an_open_empty_one_does_not_spin() -> None:
+    stop = threading.Event()
+    odom: BoundedFifo[int] = BoundedFifo("odom", 10)
+    vloc: BoundedFifo[int] = BoundedFifo("vloc", 10)
+    seen: list[int] = []
+    st = Stage("fusion", [StageInput(odom, seen.append), StageInput(vloc, seen.append)], stop, wait_s=0.1)
+    waits = 0
+    wait = st.waker.wait
+
+    def counted(timeout: float, ready: object) -> bool:
+        nonlocal waits
+        waits += 1
+        return bool(wait(timeout, ready))  # type: ignore[arg-type]
+
+    st.waker.wait = counted  # type: ignore[method-assign]
+    st.start()
+    odom.close()  # the source ended; VLoc results may still come
+    time.sleep(0.5)
+    assert waits < 20, waits  # ~5 waits of wait_s, not a busy loop
+    vloc.put(7)
+    time.sleep(0.2)
+    assert seen == [7]
+    vloc.close()
+    assert st.join(5.0) and st.state == StageState.DONE
+
+
+@pytest.mark.timeout(20)
 def test_failure_is_reported_with_traceback() -> None:
     stop = threading.Event()
     inq: BoundedFifo[int] = BoundedFifo("in", 10)

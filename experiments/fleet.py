@@ -1,0 +1,136 @@
+"""Figures of the fleet benchmark (bench/fleet.py): what one robot process measured, turned into the
+benchmark's per-robot-count JSON entry, and the paper estimate for a larger fleet.
+
+Kept apart from the orchestration (processes, Zenoh) so the contract is tested on recorded figures.
+Times are wall-clock seconds (`time.time()`, one machine: the robots, the map service and the bench
+share the clock), positions metres in the map frame.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+#: the keys every per-robot-count entry carries (issue 77, item 5)
+CONTRACT_KEYS = ("robots", "fetch_s", "fetch_bytes", "switch_s_max", "lost_during_switch", "max_jump_m",
+                 "vloc_hz_per_robot", "cpu_s_per_vloc", "server_rss_mb", "wire_bytes_per_robot_per_min")
+
+
+@dataclass
+class PoseTrack:
+    """Fused poses of one robot as the bench received them: receive wall time (s) and position
+    (metres, map frame), in arrival order."""
+
+    wall_s: list[float] = field(default_factory=list)
+    xyz: list[tuple[float, float, float]] = field(default_factory=list)
+
+    def add(self, wall_s: float, xyz: tuple[float, float, float]) -> None:
+        self.wall_s.append(wall_s)
+        self.xyz.append(xyz)
+
+
+def max_step_m(track: PoseTrack, t0: float, t1: float) -> float | None:
+    """The largest distance between two consecutive fused poses received in [t0, t1] (metres);
+    None when fewer than two fall in the window."""
+    pts = [p for t, p in zip(track.wall_s, track.xyz, strict=True) if t0 <= t <= t1]
+    if len(pts) < 2:
+        return None
+    return max(math.dist(a, b) for a, b in itertools.pairwise(pts))
+
+
+@dataclass(frozen=True)
+class RobotFigures:
+    """What one robot process measured over its run.
+
+    `stream_s`: first to last fused pose received (the part of the run that localizes);
+    `cpu_s`: the process and its children's CPU seconds over that span; `vloc_calls`: VLoc
+    results in the run (status counter); `switch_wall`: `time.time()` of its map switch (None: it
+    did not switch); `lost`: LOST entries between the announcement and the end of the run;
+    `jump_m`: largest consecutive fused-pose step within the jump window around the switch;
+    `step_m`: the same away from the switch (the motion between two poses, for scale);
+    `wire_bytes`: payload bytes of its publications received by the bench over `stream_s`
+    (`wire_bytes_by_topic`: the same per key after the namespace)."""
+
+    vloc_calls: int
+    stream_s: float
+    cpu_s: float
+    switch_wall: float | None
+    lost: int
+    jump_m: float | None
+    step_m: float | None
+    wire_bytes: int
+    wire_bytes_by_topic: dict[str, int] = field(default_factory=dict)
+
+
+def _finite_or_none(x: float | None) -> float | None:
+    return None if x is None or not math.isfinite(x) else float(x)
+
+
+def fleet_entry(robots: Sequence[RobotFigures], *, fetch_s: float, fetch_bytes: int, announce_wall: float | None,
+                server_rss_mb: float, server_cpu_s: float, run_s: float) -> dict[str, Any]:
+    """The benchmark's JSON object for one robot count (`CONTRACT_KEYS` plus detail).
+
+    `switch_s_max` is the announcement to the last robot switched; None when no version was announced
+    or a robot did not switch (then `robots_switched` < `robots` says how many did). `server_cpu_s`
+    over `run_s` seconds of the robots' run gives `server_cpu_percent`."""
+    switched = [r.switch_wall for r in robots if r.switch_wall is not None]
+    all_switched = announce_wall is not None and len(switched) == len(robots) and bool(robots)
+    jumps = [r.jump_m for r in robots if r.jump_m is not None]
+    wire = [60.0 * r.wire_bytes / r.stream_s for r in robots if r.stream_s > 0]
+    return {
+        "robots": len(robots),
+        "fetch_s": float(fetch_s),
+        "fetch_bytes": int(fetch_bytes),
+        "switch_s_max": max(switched) - announce_wall if all_switched and announce_wall is not None else None,
+        "switch_s_per_robot": [None if r.switch_wall is None or announce_wall is None else r.switch_wall - announce_wall
+                               for r in robots],
+        "robots_switched": len(switched),
+        "lost_during_switch": sum(r.lost for r in robots),
+        "max_jump_m": max(jumps) if jumps else None,
+        "step_m_per_robot": [r.step_m for r in robots],
+        "vloc_hz_per_robot": [r.vloc_calls / r.stream_s if r.stream_s > 0 else 0.0 for r in robots],
+        "cpu_s_per_vloc": [_finite_or_none(r.cpu_s / r.vloc_calls) if r.vloc_calls else None for r in robots],
+        "server_rss_mb": float(server_rss_mb),
+        "server_cpu_percent": 100.0 * server_cpu_s / run_s if run_s > 0 else None,
+        "wire_bytes_per_robot_per_min": sum(wire) / len(wire) if wire else None,
+        "wire_bytes_per_min_per_robot": wire,
+        "wire_bytes_per_min_by_topic": _per_min_by_topic(robots),
+    }
+
+
+def _per_min_by_topic(robots: Sequence[RobotFigures]) -> dict[str, float]:
+    """Mean over robots of each topic's payload bytes per minute (topic: the key after the namespace)."""
+    out: dict[str, float] = {}
+    timed = [r for r in robots if r.stream_s > 0]
+    for r in timed:
+        for topic, b in r.wire_bytes_by_topic.items():
+            out[topic] = out.get(topic, 0.0) + 60.0 * b / r.stream_s / len(timed)
+    return dict(sorted(out.items(), key=lambda kv: -kv[1]))
+
+
+def fleet_estimate(entries: Sequence[dict[str, Any]], robots: int = 50) -> dict[str, Any]:
+    """Paper figures for `robots` robots on one router and one map service, scaled linearly from the
+    measured entries (the largest robot count for the per-robot figures): steady-state traffic
+    through the router, the server's CPU share, its RSS (the growth per robot between the smallest
+    and the largest run, extended), and a fetch of every robot at once at the measured loopback rate
+    (an upper bound of the wire's share: a LAN is slower)."""
+    first, entry = min(entries, key=lambda e: e["robots"]), max(entries, key=lambda e: e["robots"])
+    n = max(int(entry["robots"]), 1)
+    wire = entry.get("wire_bytes_per_robot_per_min") or 0.0
+    cpu = entry.get("server_cpu_percent")
+    rate = entry["fetch_bytes"] / entry["fetch_s"] if entry.get("fetch_s") else None
+    span = entry["robots"] - first["robots"]
+    rss_per_robot = (entry["server_rss_mb"] - first["server_rss_mb"]) / span if span else None
+    return {
+        "robots": robots,
+        "router_bytes_per_s": robots * wire / 60.0,
+        "router_mbit_per_s": robots * wire * 8 / 60.0 / 1e6,
+        "server_cpu_percent": None if cpu is None else cpu / n * robots,
+        "server_rss_mb_per_robot": rss_per_robot,
+        "server_rss_mb": None if rss_per_robot is None else entry["server_rss_mb"] + rss_per_robot * (robots - n),
+        "all_fetch_s_at_measured_rate": None if rate is None else robots * entry["fetch_bytes"] / rate,
+        "scaled_from_robots": n,
+    }

@@ -1,0 +1,90 @@
+"""The fleet benchmark's JSON entry (experiments/fleet.py) built from recorded figures, and the pose
+step at the switch; bench/fleet.py's smallest run end to end where the suite's cached inputs exist."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from litevloc.experiments.fleet import (
+    CONTRACT_KEYS,
+    PoseTrack,
+    RobotFigures,
+    fleet_entry,
+    fleet_estimate,
+    max_step_m,
+)
+
+ROOT = Path(__file__).resolve().parents[2]
+ANNOUNCE = 1000.0
+
+
+def _robot(switch: float | None = 1001.5, vloc: int = 17, cpu: float = 14.5, lost: int = 0) -> RobotFigures:
+    return RobotFigures(vloc_calls=vloc, stream_s=14.5, cpu_s=cpu, switch_wall=switch, lost=lost, jump_m=0.004,
+                        step_m=0.005, wire_bytes=1_200_000, wire_bytes_by_topic={"litevloc/pose": 1_000_000,
+                                                                                 "litevloc/status": 200_000})
+
+
+def _entry(robots: list[RobotFigures], announce: float | None = ANNOUNCE) -> dict:
+    return fleet_entry(robots, fetch_s=0.64, fetch_bytes=2_371_262, announce_wall=announce, server_rss_mb=133.0,
+                       server_cpu_s=0.4, run_s=40.0)
+
+
+def test_entry_has_the_contract_keys_and_the_figures_of_its_robots() -> None:
+    e = _entry([_robot(1001.5), _robot(1003.0, vloc=10, cpu=20.0, lost=2)])
+    assert set(CONTRACT_KEYS) <= set(e)
+    assert e["robots"] == 2 and e["robots_switched"] == 2
+    assert e["switch_s_max"] == pytest.approx(3.0)  # the announcement to the last robot switched
+    assert e["switch_s_per_robot"] == pytest.approx([1.5, 3.0])
+    assert e["lost_during_switch"] == 2
+    assert e["vloc_hz_per_robot"] == pytest.approx([17 / 14.5, 10 / 14.5])
+    assert e["cpu_s_per_vloc"] == pytest.approx([14.5 / 17, 2.0])
+    assert e["wire_bytes_per_robot_per_min"] == pytest.approx(60 * 1_200_000 / 14.5)
+    assert e["wire_bytes_per_min_by_topic"]["litevloc/pose"] == pytest.approx(60 * 1_000_000 / 14.5)
+    assert e["server_cpu_percent"] == pytest.approx(1.0)
+    json.dumps(e, allow_nan=False)  # what write_json writes: plain JSON
+
+
+def test_a_robot_that_did_not_switch_leaves_no_switch_time() -> None:
+    e = _entry([_robot(1001.5), _robot(None)])
+    assert e["switch_s_max"] is None and e["robots_switched"] == 1
+    assert _entry([_robot()], announce=None)["switch_s_max"] is None
+    assert _entry([_robot(vloc=0)])["cpu_s_per_vloc"] == [None]
+
+
+def test_estimate_scales_the_steady_state_per_robot() -> None:
+    e = _entry([_robot(), _robot()])
+    one = {**_entry([_robot()]), "server_rss_mb": 123.0}
+    est = fleet_estimate([one, e], robots=50)
+    assert est["router_bytes_per_s"] == pytest.approx(50 * e["wire_bytes_per_robot_per_min"] / 60)
+    assert est["server_cpu_percent"] == pytest.approx(1.0 / 2 * 50)
+    assert est["all_fetch_s_at_measured_rate"] == pytest.approx(50 * 0.64)
+    assert est["server_rss_mb_per_robot"] == pytest.approx(10.0)  # 123 MB with one robot, 133 with two
+    assert est["server_rss_mb"] == pytest.approx(133.0 + 48 * 10.0)
+
+
+def test_max_step_is_the_largest_consecutive_step_in_the_window() -> None:
+    tr = PoseTrack()
+    for i, x in enumerate([0.0, 0.01, 0.02, 0.12, 0.13]):  # a 10 cm step between t=2 and t=3
+        tr.add(float(i), (x, 0.0, 0.0))
+    assert max_step_m(tr, 0.0, 4.0) == pytest.approx(0.10)
+    assert max_step_m(tr, 0.0, 2.0) == pytest.approx(0.01)
+    assert max_step_m(tr, 3.5, 4.0) is None
+
+
+@pytest.mark.slow
+def test_smallest_fleet_run_writes_the_contract(tmp_path: Path) -> None:
+    inputs = ROOT / "out" / "bench" / "inputs" / "fleet"
+    cache = ROOT / "out" / "test_cache"
+    if not any((d / "manifest.json").is_file() for d in (inputs / "v2", cache / "map_switch" / "v2")):
+        pytest.skip("no cached fleet inputs (tests/runtime/test_map_switch_service.py builds them)")
+    out = tmp_path / "fleet.json"
+    subprocess.run([sys.executable, str(ROOT / "bench" / "fleet.py"), "--robots", "1", "--quick", "--json", str(out)],
+                   check=True, timeout=240)
+    e = json.loads(out.read_text())["runs"][0]
+    assert set(CONTRACT_KEYS) <= set(e) and e["robots"] == 1
+    assert e["fetch_bytes"] > 0 and e["vloc_hz_per_robot"][0] > 0
