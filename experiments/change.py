@@ -65,7 +65,7 @@ class Case:
     def params(self, seed: int = 0) -> WorldChangeParams:
         if self.axis == MONTHS_LATER:
             return dataclasses.replace(MIXES[MONTHS_LATER], seed=seed)
-        value: float | int = int(self.level) if self.axis == "people" else float(self.level)
+        value: Any = int(self.level) if self.axis == "people" else float(self.level)  # people: a count
         return dataclasses.replace(WorldChangeParams(seed=seed), **{self.axis: value})
 
 

@@ -28,6 +28,7 @@ import numpy as np
 from litevloc.base.params.world_change import CHANGE_AXES, WorldChangeParams
 from litevloc.sim.decor import change_pictures
 from litevloc.sim.doors import hang_leaves, leaf_boxes
+from litevloc.sim.elements import PictureKind
 from litevloc.sim.furnish import box_faces, door_centres, make_clutter, slide_box
 from litevloc.sim.lighting import draw_lighting
 from litevloc.sim.people import Walkers
@@ -37,7 +38,7 @@ if TYPE_CHECKING:
 
 GOAL_CLEAR_M = 0.8  # no changed box nearer a goal spot: the goal stays reachable
 MOVE_SHARE, REMOVE_SHARE = 0.6, 0.2  # of the changed furniture; the rest gets a new piece beside it
-PICTURE_KINDS = ("photo", "poster", "print", "notice")
+PICTURE_KINDS: tuple[PictureKind, ...] = ("photo", "poster", "print", "notice")
 
 
 @dataclass
