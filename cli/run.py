@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
@@ -72,31 +73,20 @@ def open_configured_source(cfg: Any, path: Path | None, frames: slice = slice(No
     return kind.open(cfg, parse_frames(cfg.source.frames or None), SourceUse.SERVICE)
 
 
-def follow_map(cfg: Any, uri: str, fetched: Any, app: Any) -> Any:
-    """A map follower for `--map zenoh:NAME` (no @VERSION, `fleet.follow_latest`): announced versions
-    are fetched and switched to while the service runs; None when the map is pinned or followed not."""
+def follow_map(cfg: Any, uri: str, fetched: Any, app: Any) -> ExitStack | None:
+    """A map follower for `--map zenoh:NAME` (no @VERSION, `fleet.follow_latest`) on a robot session
+    of its own: announced versions are fetched and switched to while the service runs; closing the
+    stack closes the follower, then the session. None when the map is pinned or not followed."""
     from litevloc.runtime.maps.app import parse_map_uri, robot_session
     from litevloc.runtime.maps.follow import MapFollower
 
     parsed = parse_map_uri(uri)
     if parsed is None or parsed[1] is not None or not cfg.fleet.follow_latest or fetched.offline:
         return None
-    return _Following(robot_session(cfg.zenoh), lambda session: MapFollower(
-        session, fetched.name, fetched.version, cfg.fleet, app.request_map_switch))
-
-
-class _Following:
-    """A robot session held open for a `MapFollower`; `close()` closes both, follower first."""
-
-    def __init__(self, session_cm: Any, make: Any) -> None:
-        self._cm = session_cm
-        self.follower = make(session_cm.__enter__())
-
-    def close(self) -> None:
-        try:
-            self.follower.close()
-        finally:
-            self._cm.__exit__(None, None, None)
+    stack = ExitStack()
+    session = stack.enter_context(robot_session(cfg.zenoh))
+    stack.callback(MapFollower(session, fetched.name, fetched.version, cfg.fleet, app.request_map_switch).close)
+    return stack
 
 
 def run_service(args: argparse.Namespace, source_path: Path | None, rate: float | None, record: bool = True) -> dict:
