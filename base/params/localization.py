@@ -299,7 +299,7 @@ class SecondLookParams(Settings):
     from_inliers: int = setting(
         10, "only candidates whose first look found at least this many PnP inliers get a second look", low=0)
     precheck_min_inliers: int = setting(
-        0, "a candidate is matched at full resolution only if the mutual nearest neighbours of its full-resolution "
+        8, "a candidate is matched at full resolution only if the mutual nearest neighbours of its full-resolution "
         "features reach this many PnP inliers (no model run; 0 = off)", low=0)
     precheck_min_similarity: float = setting(
         0.5, "the pre-check's mutual nearest neighbours need at least this descriptor similarity (cosine)", low=-1,
