@@ -10,6 +10,10 @@ map whose features are these, without the pooled pass and without a look after t
 has no keypoint depth (the map's depth belongs to its stored keypoints), so only the live depth
 lifts points.
 
+Before LightGlue runs on a candidate at full resolution, a cheap pre-check (`checks.look_precheck`:
+mutual nearest neighbours of the two full-resolution feature sets + PnP with the live depth, no model)
+drops a candidate that shares too little with the query (`second_look.precheck_min_inliers`).
+
 Denser features also let a wrong pose collect more inliers (a band of repeated leaflets): a pose
 the second look accepts must not see through the map (`checks.see_through`: the keyframes' stored
 points with map depth against the live depth image).
@@ -140,22 +144,27 @@ class SecondLook:
         no larger than `first_size`."""
         if color.shape[0] <= self.first_size[0] and color.shape[1] <= self.first_size[1]:
             return None
+        refused: tuple[CandidateAttempt, ...] = ()
+        pre_ms = 0.0
         if self.params.second_look.precheck_min_inliers > 0 and depth is not None:
             t0 = self.clock()
             nodes, refused = self.prechecked(color, depth, K, nodes)
+            pre_ms = (self.clock() - t0) * 1e3
             if not nodes:
-                ms = {"precheck": (self.clock() - t0) * 1e3}
-                ms["total"] = ms["precheck"]
-                kind = QueryRefusal.NO_CANDIDATE
                 return LocalizationResult(t_ns, "local" if local else "global", False,
                                           "no candidate passed the full-resolution pre-check", attempts=refused,
-                                          timings_ms=ms, refusal=kind)
+                                          timings_ms={"precheck": pre_ms, "total": pre_ms},
+                                          refusal=QueryRefusal.NO_CANDIDATE)
         if not local:
             res = self.global_.localize(t_ns, color, depth, K, self.params, prior, only=nodes)
         else:
             if prior is None:
                 raise ValueError("a local second look needs the prior")
             res = self.local.localize(t_ns, color, depth, K, self.params, prior, only=nodes)
+        if pre_ms > 0:  # the pre-check's time and refusals belong to this look
+            ms = dict(res.timings_ms)
+            ms["precheck"], ms["total"] = pre_ms, ms.get("total", 0.0) + pre_ms
+            res = replace(res, attempts=refused + res.attempts, timings_ms=ms)
         return checked_against_live_depth(self.map, res, K, depth, self.params)
 
     def prechecked(self, color: NDArray[np.uint8], depth: NDArray[np.float32], K: NDArray[np.float64],
