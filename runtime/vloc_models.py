@@ -124,8 +124,8 @@ def second_look_for(topomap: TopoMap, models: ModelsConfig, params: Localization
                     clock: Clock = time.perf_counter) -> SecondLook | None:
     """The full-resolution second look on `topomap` where `params.second_look.candidates` > 0
     (its extractor at `models.second_look_size` / `second_look_keypoints`, loaded on the first
-    look, the bundle's matcher over all keypoints; ModelError naming the export command when that
-    extractor is missing), else None."""
+    look, the bundle's matcher over the strongest `models.second_look_match_keypoints` of them (0: all);
+    ModelError naming the export command when that extractor is missing), else None."""
     if params.second_look.candidates <= 0:
         return None
     full = dataclasses.replace(models, extractor_size=models.second_look_size,
@@ -133,5 +133,5 @@ def second_look_for(topomap: TopoMap, models: ModelsConfig, params: Localization
     name = bundle.extractor.name
     check_extractor(name, full)  # a missing model fails here, not at the first look
     extract = ExtractOnFirstCall(lambda: load_extractor(name, full))
-    every_keypoint = dataclasses.replace(bundle, max_keypoints=0)
-    return SecondLook(topomap, params, extract, bundle.describe, every_keypoint.match, models.extractor_size, clock)
+    strongest = dataclasses.replace(bundle, max_keypoints=models.second_look_match_keypoints)
+    return SecondLook(topomap, params, extract, bundle.describe, strongest.match, models.extractor_size, clock)

@@ -298,6 +298,12 @@ class SecondLookParams(Settings):
         "are only as good as the prior's gate)")
     from_inliers: int = setting(
         10, "only candidates whose first look found at least this many PnP inliers get a second look", low=0)
+    precheck_min_inliers: int = setting(
+        8, "a candidate is matched at full resolution only if the mutual nearest neighbours of its full-resolution "
+        "features reach this many PnP inliers (no model run; 0 = off)", low=0)
+    precheck_min_similarity: float = setting(
+        0.5, "the pre-check's mutual nearest neighbours need at least this descriptor similarity (cosine)", low=-1,
+        high=1)
     prior_gate_m: float = setting(
         0.25, "LL's second look: its pose must lie this close to a last-VLoc-pose prior (for prior_gate.radius_m; "
         "the gate's growth adds)", unit="m", low=0, low_open=True)

@@ -88,8 +88,11 @@ class ModelsConfig(Settings):
         (480, 640), "extractor input size (h, w) of the second look (localization.second_look.candidates)", unit="px",
         low=32, high=4096)
     second_look_keypoints: int = setting(
-        2048, "keypoints per image of the second look, for the query and the keyframes' stored images (all matched)",
+        2048, "keypoints per image of the second look, for the query and the keyframes' stored images",
         low=16, high=16384)
+    second_look_match_keypoints: int = setting(
+        1024, "the second look matches only the strongest N of its keypoints per image (LightGlue's cost grows about "
+        "as N squared; 0 = all)", low=0)
     match_threshold: float = setting(0.1, "LightGlue match score threshold", low=0, high=1, high_open=True)
     depth_confidence: float = setting(
         0.95, "lightglue-adaptive: early-stopping confidence (<= 0 = off)", low=-math.inf, high=1, high_open=True)

@@ -72,3 +72,17 @@ def test_the_second_look_s_extractor_is_loaded_on_its_first_call_only() -> None:
     extract(image)
     extract(image)
     assert loads == [1]
+
+
+def test_the_second_look_matches_only_its_strongest_keypoints_where_configured(monkeypatch: pytest.MonkeyPatch) -> None:
+    from litevloc.runtime import vloc_models
+    from tests.pipelines.localization.test_vloc import make_map
+
+    monkeypatch.setattr(vloc_models, "check_extractor", lambda name, cfg: None)  # no model cache needed
+    on = LocalizationParams(second_look=SecondLookParams(candidates=2))
+    bundle = ModelBundle(EchoExtractor(), EchoMatcher(), None, max_keypoints=1)  # type: ignore[arg-type]
+    a, b = feats([0.1, 0.9, 0.5, 0.8]), feats([0.7, 0.2, 0.95])
+    for n, want in ((2, [1, 3]), (0, [0, 1, 2])):  # 0: every keypoint, not the first look's strongest 1
+        look = second_look_for(make_map([0.0, 1.0]), ModelsConfig(second_look_match_keypoints=n), on, bundle)
+        assert look is not None
+        assert look.local.verifier.match(a, b)[0].tolist() == want

@@ -14,6 +14,7 @@ import pytest
 from numpy.typing import NDArray
 
 from litevloc.base import geometry as g
+from litevloc.pipelines.localization.checks.look_precheck import precheck_inliers
 from litevloc.pipelines.localization.checks.see_through import moved_onto_live_depth, see_through
 from litevloc.pipelines.localization.passes import second_look_nodes
 from litevloc.pipelines.localization.prior import Prior
@@ -339,3 +340,53 @@ def test_a_gl_query_looks_again_only_where_the_look_fits_in_its_time_budget() ->
     for only in (None, [1]):
         rec = unbounded.global_search.localize(0, IMG, depth, K, unbounded.params, recovering_ll_ms=[1.0], only=only)
         assert not rec.accepted and "no second look" in rec.stop_reason, rec.stop_reason
+
+
+def test_the_pre_check_keeps_a_pair_that_shares_the_scene_and_refuses_one_that_does_not() -> None:
+    """Mutual nearest neighbours of the descriptors + PnP with the live depth: the true pair
+    (same points seen from 0.3 m and 5 deg apart) keeps most of its points as inliers (some lie
+    outside the keyframe); against a keyframe whose descriptors are another scene's (scrambled)
+    almost none survive RANSAC."""
+    m = make_map([0.0, 1.0])
+    s = Scene(m)
+    depth = s.look(pose(0.3, 5.0), vpr_best=0)
+    live = s.current
+    assert live is not None
+    mnn, inl = precheck_inliers(live, depth, K, m.features[0], m.K[0], PARAMS)
+    assert mnn > 100 and inl > 0.6 * mnn
+    f = m.features[0]
+    scrambled = replace(f, descriptors=f.descriptors[np.random.default_rng(1).permutation(len(f.descriptors))])
+    _, inl_bad = precheck_inliers(live, depth, K, scrambled, m.K[0], PARAMS)
+    assert inl_bad < 10
+
+
+def test_a_candidate_the_pre_check_refuses_is_never_matched_at_full_resolution() -> None:
+    m = _with_images(make_map([0.0, 1.0, 2.0, 3.0]))
+    s = Scene(m)
+    T_true = pose(1.3, 5.0)
+    depth = s.look(T_true, vpr_best=1)
+    few = matching_25_with_depth(s, depth)
+    p = replace(PARAMS, passes=replace(PARAMS.passes, pooled_min_inliers=0),
+                second_look=replace(PARAMS.second_look, candidates=2, from_inliers=0, precheck_min_inliers=30))
+    matched: list[int] = []
+
+    def counting(a: Feats, b: NodeFeatures) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        matched.append(len(b.keypoints))
+        return match_by_id(a, b)
+
+    full = FullResolution(s, m)
+    r = VisualLocalizer(m, p, s.extract, s.describe, few,
+                        second_look=SecondLook(m, p, full.extract, s.describe, counting, SMALLER)
+                        ).localize_global(0, IMG, depth, K)
+    assert r.accepted and r.stop_reason.startswith("looked at again at full resolution") and matched
+    # the keyframes' full-resolution descriptors scrambled: the pre-check refuses both, no match runs
+    full.feats = [replace(f, descriptors=f.descriptors[np.random.default_rng(k).permutation(len(f.descriptors))])
+                  for k, f in enumerate(full.feats)]
+    matched.clear()
+    r2 = VisualLocalizer(m, p, s.extract, s.describe, few,
+                         second_look=SecondLook(m, p, full.extract, s.describe, counting, SMALLER)
+                         ).localize_global(0, IMG, depth, K)
+    assert not r2.accepted and not matched
+    assert "no candidate passed the full-resolution pre-check" in r2.stop_reason
+    assert any(a.reason.startswith("full-resolution pre-check") for a in r2.attempts)
+    assert r2.timings_ms["second_look"] > 0
