@@ -167,7 +167,8 @@ def update_map(map_dir: Path, world: World, cfg: LiteVLocConfig, bundle: ModelBu
     save_map(res.new_map, out, overwrite=True, descriptor_bytes=cfg.mapping.descriptor_bytes)
     r = res.report
     return {"nodes_before": topomap.n_nodes, "nodes_after": res.new_map.n_nodes, "added": len(r.added),
-            "retired": len(r.retired), "known_place": r.known, "new_place": r.new_place,
+            "retired": len(r.retired), "replaced": len(r.replaced), "replace_outcomes": r.replace_outcomes,
+            "known_place": r.known, "new_place": r.new_place,
             "changed_place": r.changed_place, "frames": res.frames, "seconds": round(time.perf_counter() - t0, 1)}
 
 
