@@ -65,6 +65,8 @@ class ReplaceParams(Settings):
         low=0)
     max_per_place: int = setting(
         2, "keyframes at most at one place (within place_radius_m and place_angle_deg of a candidate)", low=1)
+    new_places: bool = setting(
+        True, "a new-place candidate also replaces the stale keyframes within match_radius_m that it explains")
 
 
 @dataclass(frozen=True)

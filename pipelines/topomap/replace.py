@@ -84,12 +84,15 @@ class Keyframes:
 
 def plan_replacements(
     old: Keyframes, candidates: Sequence[tuple[int, F64, FeatureSet, F64]], probes: Sequence[tuple[int, F64]],
-    score: ScoreFn, params: UpdateParams, retired: set[int],
+    score: ScoreFn, params: UpdateParams, retired: set[int], new_places: bool = False,
 ) -> list[Decision]:
     """Decisions for changed-place candidates `(frame index, T_map_camera, features, K)`, in order;
     `probes` are the held-out pool `(frame index, T_map_camera)`; `score(probe, ...)` counts a
     probe's explained matches with a keyframe. Old keyframes in `retired` (already retired by
-    the visit rule) count for nothing; the caller retires `Decision.replaced` too."""
+    the visit rule) count for nothing; the caller retires `Decision.replaced` too.
+
+    `new_places`: the candidates are of places no keyframe covers; each replaces the stale
+    keyframes within `match_radius_m` (and the place angle) that it explains, and is always kept."""
     p, rp = params, params.replace
     cos = float(np.cos(np.radians(p.place_angle_deg)))
     gone = set(retired)
@@ -97,8 +100,9 @@ def plan_replacements(
     out: list[Decision] = []
     thr = p.changed_max_consistent
     for k, (index, T, feats, K) in enumerate(candidates):
+        reach = p.match_radius_m if new_places else p.place_radius_m
         place = tuple(n for n in range(len(old.T_map_camera)) if n not in gone
-                      and same_place(old.T_map_camera[n], T, p.place_radius_m, cos))
+                      and same_place(old.T_map_camera[n], T, reach, cos))
         def held_out(T_at: F64, index: int = index) -> list[tuple[int, F64]]:
             return sorted((q for q in probes if q[0] != index and same_place(q[1], T_at, p.place_radius_m, cos)),
                           key=lambda q: float(np.linalg.norm(q[1][:3, 3] - T_at[:3, 3])))[: rp.held_out_frames]
@@ -109,7 +113,12 @@ def plan_replacements(
         held = held_out(T)
         added_here = sum(same_place(a, T, p.place_radius_m, cos) for a in added)
         density = len(place) + added_here
-        if len(held) < rp.min_held_out:
+        if new_places:
+            stale = tuple(n for n in place if _replaces(held_out(old.T_map_camera[n]), n, median, old, feats, T, K,
+                                                        thr, rp.min_gain))
+            d = Decision(k, Outcome.REPLACED if stale else Outcome.ADDED, place, len(held), median(held, feats, T, K),
+                         replaced=stale)
+        elif len(held) < rp.min_held_out:
             d = Decision(k, Outcome.NO_EVIDENCE if density < rp.max_per_place else Outcome.DENSE, place, len(held),
                          float("nan"))
         else:

@@ -285,10 +285,10 @@ class MapUpdate:
         return sorted(n for n, v in r.visits.items()
                       if v >= p.retire_min_visits and r.best_consistent.get(n, 0) <= p.retire_max_consistent)
 
-    def replacements(self, retired: set[int]) -> list[Decision]:
-        """The decisions on the changed-place candidates (`pipelines.topomap.replace`), given the
-        keyframes the visit rule retires."""
-        changed = [c for c, ch in zip(self.candidates, self._changed, strict=True) if ch]
+    def replacements(self, retired: set[int], new_places: bool = False) -> list[Decision]:
+        """The decisions on the changed-place candidates (`new_places`: on the new-place ones;
+        `pipelines.topomap.replace`), given the keyframes the visit rule retires."""
+        changed = [c for c, ch in zip(self.candidates, self._changed, strict=True) if ch != new_places]
         probes = [(i, o.T_map_camera) for i, o in self._probes.items()]
 
         def score(i: int, feats: FeatureSet, T: NDArray[np.float64], K: NDArray[np.float64]) -> int:
@@ -297,27 +297,29 @@ class MapUpdate:
         m = self.map
         return plan_replacements(Keyframes(m.T_map_camera, m.K, m.features),
                                  [(c.index, c.T_map_camera, c.features, c.K) for c in changed], probes, score,
-                                 self.params, retired)
+                                 self.params, retired, new_places)
 
     def _replace(self, retired: set[int]) -> list[Observation]:
         """The candidates kept; stale keyframes they replace added to `retired`."""
         if not self.params.replace.enabled:
             return self.candidates
         decisions = iter(self.replacements(retired))
+        fresh = iter(self.replacements(retired, new_places=True) if self.params.replace.new_places else [])
         kept: list[Observation] = []
         outcomes: dict[str, int] = {}
         for c, changed in zip(self.candidates, self._changed, strict=True):
-            if not changed:
+            d = next(decisions) if changed else next(fresh, None)
+            if d is None:
                 kept.append(c)
                 continue
-            d = next(decisions)
-            outcomes[d.outcome.value] = outcomes.get(d.outcome.value, 0) + 1
+            key = d.outcome.value if changed else f"new_place_{d.outcome.value}"
+            outcomes[key] = outcomes.get(key, 0) + 1
             retired.update(d.replaced)
             self.report.replaced.extend(d.replaced)
             if d.kept:
                 kept.append(c)
         self.report.replace_outcomes = outcomes
-        self.report.replaced.sort()
+        self.report.replaced = sorted(set(self.report.replaced))
         return kept
 
     def finish(

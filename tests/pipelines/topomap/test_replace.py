@@ -121,3 +121,15 @@ def test_density_cap_and_no_evidence() -> None:
     assert d1.outcome is Outcome.DENSE and d1.replaced == ()  # the stale keyframe fills the place
     d1, d2 = plan_replacements(keyframes(nodes), two, [], b.score, UpdateParams(), set())
     assert d1.outcome is Outcome.NO_EVIDENCE and d2.outcome is Outcome.DENSE and not d1.replaced
+
+
+def test_a_new_place_candidate_replaces_a_stale_keyframe_it_explains_and_is_kept() -> None:
+    b = Building(1)
+    nodes = [(pose(0.0), Look(0, 0))]
+    _, probes = b.visit(1, 0)  # place 0 changed (epoch 1); its frames lie around x = 0
+    fresh = [(700, pose(1.0), Look(0, 1), K)]  # 1 m off: no keyframe covers it, within match_radius_m
+    d, = plan_replacements(keyframes(nodes), fresh, probes, b.score, PARAMS, set(), new_places=True)
+    assert d.outcome is Outcome.REPLACED and d.replaced == (0,)
+    unrelated = [(700, pose(1.0), Look(5, 1), K)]  # explains nothing of place 0: kept, replaces nothing
+    d, = plan_replacements(keyframes(nodes), unrelated, probes, b.score, PARAMS, set(), new_places=True)
+    assert d.outcome is Outcome.ADDED and d.replaced == ()
