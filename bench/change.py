@@ -114,6 +114,9 @@ def main(argv: list[str] | None = None) -> int:
                     "cycles": settings.cycles, "max_goals": max_goals, "overrides": args.overrides}
     payload = {"meta": run_meta(), "settings": run_settings, **result, "buildings": buildings}
     args.json.write_text(json.dumps(payload, indent=1, default=float) + "\n")
+    if not result["cases"]:  # update cycles only (--mix-only --no-mix): nothing to plot against a level
+        print(f"wrote {args.json}")
+        return 0
     png = plot(result, args.json.with_suffix(".png"))
     print(f"wrote {args.json} and {png}")
     return 0
