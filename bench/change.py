@@ -70,6 +70,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--session-every", type=int, default=None, help="every Nth frame of an update run (default 5; "
                     "quick 10)")
     ap.add_argument("--query-duration", type=float, default=None, help="the query pass's first S seconds only")
+    ap.add_argument("--session-duration", type=float, default=None,
+                    help="an update run's first S seconds only (default: the whole mapping pass)")
     ap.add_argument("--out-dir", type=Path, default=OUT / "change")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--json", type=Path, default=OUT / "change.json")
@@ -86,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
         buildings=BenchSettings(out_dir=args.out_dir, max_goals=max_goals,
                                 goal_timeout_s=60.0 if args.quick else 120.0),
         query_every=args.query_every or (45 if args.quick else 15), query_duration_s=args.query_duration,
-        session_every=args.session_every or (10 if args.quick else 5),
+        session_every=args.session_every or (10 if args.quick else 5), session_duration_s=args.session_duration,
         cycles=args.cycles if args.cycles is not None else (2 if args.quick else 10), navigate=not args.no_nav)
     cfg, bundles = load_models("default", tuple(args.overrides))
     buildings = []
@@ -108,9 +110,13 @@ def main(argv: list[str] | None = None) -> int:
     args.json.parent.mkdir(parents=True, exist_ok=True)
     run_settings = {"runs": [r.name for r in runs], "cases": [dataclasses.asdict(c) for c in cases],
                     "query_every": settings.query_every, "session_every": settings.session_every,
+                    "session_duration_s": settings.session_duration_s,
                     "cycles": settings.cycles, "max_goals": max_goals, "overrides": args.overrides}
     payload = {"meta": run_meta(), "settings": run_settings, **result, "buildings": buildings}
     args.json.write_text(json.dumps(payload, indent=1, default=float) + "\n")
+    if not result["cases"]:  # update cycles only (--mix-only --no-mix): nothing to plot against a level
+        print(f"wrote {args.json}")
+        return 0
     png = plot(result, args.json.with_suffix(".png"))
     print(f"wrote {args.json} and {png}")
     return 0

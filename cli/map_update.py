@@ -84,7 +84,8 @@ def update(args: argparse.Namespace) -> int:
         "unreliable": report.unreliable, "known_by_added": report.known_by_added,
         "known_by_localization": report.known_by_localization,
         "nodes_before": topomap.n_nodes, "nodes_after": new_map.n_nodes, "added": len(report.added),
-        "retired": len(report.retired), "retired_ids": report.retired,
+        "retired": len(report.retired), "retired_ids": report.retired, "replaced": len(report.replaced),
+        "replace_outcomes": report.replace_outcomes,
         "added_fraction": len(report.added) / topomap.n_nodes, "seconds": time.perf_counter() - t0,
         "posed_session_aligned_by": res.posed_session_aligned_by,
     }
@@ -100,6 +101,7 @@ def update(args: argparse.Namespace) -> int:
           f"added: {report.known_by_added}; by the localization, no keyframe covering them: "
           f"{report.known_by_localization})")
     print(f"wrote {args.output}: {topomap.n_nodes} -> {new_map.n_nodes} keyframes (+{len(report.added)} added, "
-          f"-{len(report.retired)} retired) in {summary['seconds']:.1f} s; parent {args.map}")
+          f"-{len(report.retired)} retired, {len(report.replaced)} of them replaced by a fresh keyframe) in "
+          f"{summary['seconds']:.1f} s; parent {args.map}")
     write_json(args.json, summary)
     return 0

@@ -77,6 +77,7 @@ class ChangeSettings:
     query_every: int = 15  # every 15th query frame: 1 Hz of the 15 Hz camera
     query_duration_s: float | None = None  # the query pass's first seconds only (None: all of it)
     session_every: int = 5
+    session_duration_s: float | None = None  # an update run's first seconds only (None: the whole mapping pass)
     cycles: int = 10
     navigate: bool = True
 
@@ -139,8 +140,8 @@ def nav_figures(run: BuildingRun, world: World, map_dir: Path, cfg: LiteVLocConf
 
 
 # ------------------------------------------------------------------ map update
-def _session(world: World, cfg: LiteVLocConfig, every: int) -> list[SessionFrame]:
-    src = SimSequenceSource(world, "map", SESSION_SEED, params=cfg.sim)
+def _session(world: World, cfg: LiteVLocConfig, every: int, duration_s: float | None) -> list[SessionFrame]:
+    src = SimSequenceSource(world, "map", SESSION_SEED, duration_s, cfg.sim)
     poses = src.camera_poses()
     out = []
     for i in range(0, src.frame_count(), every):
@@ -150,14 +151,14 @@ def _session(world: World, cfg: LiteVLocConfig, every: int) -> list[SessionFrame
 
 
 def update_map(map_dir: Path, world: World, cfg: LiteVLocConfig, bundle: ModelBundle, out: Path,
-               every: int) -> dict[str, Any]:
+               every: int, duration_s: float | None = None) -> dict[str, Any]:
     """`map_dir` updated with one mapping run through `world` (as `litevloc map update`), saved
-    at `out`; the update's figures."""
+    at `out` (the run's first `duration_s` seconds; None: all of it); the update's figures."""
     topomap = check_map_models(load_map(map_dir), bundle)
     extract, describe = OncePerImage(bundle.extract), OncePerImage(bundle.describe)
     loc = VisualLocalizer(topomap, cfg.localization, extract, describe, bundle.match,
                           second_look=second_look_for(topomap, cfg.models, cfg.localization, bundle))
-    frames = _session(world, cfg, every)
+    frames = _session(world, cfg, every, duration_s)
 
     def session() -> Iterator[SessionFrame]:
         return iter(frames)
@@ -167,7 +168,8 @@ def update_map(map_dir: Path, world: World, cfg: LiteVLocConfig, bundle: ModelBu
     save_map(res.new_map, out, overwrite=True, descriptor_bytes=cfg.mapping.descriptor_bytes)
     r = res.report
     return {"nodes_before": topomap.n_nodes, "nodes_after": res.new_map.n_nodes, "added": len(r.added),
-            "retired": len(r.retired), "known_place": r.known, "new_place": r.new_place,
+            "retired": len(r.retired), "replaced": len(r.replaced), "replace_outcomes": r.replace_outcomes,
+            "known_place": r.known, "new_place": r.new_place,
             "changed_place": r.changed_place, "frames": res.frames, "seconds": round(time.perf_counter() - t0, 1)}
 
 
@@ -192,7 +194,8 @@ def run_building(run: BuildingRun, cases: list[Case], settings: ChangeSettings, 
         w = changed_world(run, case.params())
         before = _figures(run, w, map_dir, cfg, bundles, settings)
         upd_dir = out / f"map_{case.axis}_{case.level:g}"
-        upd = update_map(map_dir, w, cfg, bundles["build"], upd_dir, settings.session_every)
+        upd = update_map(map_dir, w, cfg, bundles["build"], upd_dir, settings.session_every,
+                         settings.session_duration_s)
         after = _figures(run, w, upd_dir, cfg, bundles, settings)
         rec["cases"].append({"axis": case.axis, "level": case.level, "truth": w.change_truth.to_dict(),
                              "before": before, "update": upd, "after": after})
@@ -210,7 +213,8 @@ def update_cycles(run: BuildingRun, map_dir: Path, first_nodes: int, cfg: LiteVL
     for c in range(1, settings.cycles + 1):
         w = changed_world(run, Case(MONTHS_LATER, 1.0).params(seed=c))
         nxt = out / f"map_cycle_{c}"
-        upd = update_map(current, w, cfg, bundles["build"], nxt, settings.session_every)
+        upd = update_map(current, w, cfg, bundles["build"], nxt, settings.session_every,
+                             settings.session_duration_s)
         gl = gl_figures(w, nxt, cfg, bundles["nav"], settings)
         cycles.append({"cycle": c, "nodes": upd["nodes_after"], "update": upd, "gl": gl["summary"],
                        "map_size_ratio": round(upd["nodes_after"] / first_nodes, 4)})

@@ -51,6 +51,25 @@ class MergeParams(Settings):
 
 
 @dataclass(frozen=True)
+class ReplaceParams(Settings):
+    """Replacing changed places' keyframes, judged on the session's other frames there (counts)."""
+
+    enabled: bool = setting(
+        True, "a changed-place candidate replaces the stale keyframes of its place (false: it is only added)")
+    held_out_frames: int = setting(
+        5, "the session's other frames at a candidate's place that judge it, nearest first", low=1)
+    min_held_out: int = setting(
+        1, "with fewer held-out frames a candidate replaces nothing and is added only below max_per_place", low=1)
+    min_gain: float = setting(
+        10.0, "a candidate must explain this many more held-out matches (median) than the best old keyframe there",
+        low=0)
+    max_per_place: int = setting(
+        2, "keyframes at most at one place (within place_radius_m and place_angle_deg of a candidate)", low=1)
+    new_places: bool = setting(
+        True, "a new-place candidate also replaces the stale keyframes within match_radius_m that it explains")
+
+
+@dataclass(frozen=True)
 class UpdateParams(Settings):
     """Change detection and keyframe addition/retirement (metres, degrees, pixels, counts)."""
 
@@ -86,6 +105,7 @@ class UpdateParams(Settings):
     align_every: int = setting(5, "a posed session is aligned to the map by localizing every this-many-th frame", low=1)
     align_frames: int = setting(
         40, "the alignment of a posed session stops once this many of its frames localized", low=1)
+    replace: ReplaceParams = section(ReplaceParams, "changed places: which stale keyframes a new one replaces")
 
     def check_relations(self) -> None:
         if self.match_radius_m < self.place_radius_m:

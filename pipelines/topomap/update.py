@@ -37,7 +37,10 @@ is the match quality. A keyframe *covers* the frame's place when it is also with
   has already added (nearest first, the same reach and test): if one explains it, it is
   known by the added keyframe (`UpdateReport.known_by_added`), not a new candidate. The
   session's frames thus extend the map as a keyframe would serve them: along a new path a
-  keyframe is added where the last added one stops matching, not at every `min_spacing_m`.
+  keyframe is added where the last added one stops matching, not at every `min_spacing_m`;
+* a changed-place candidate *replaces* the stale keyframes of its place, or is dropped, as the
+  session's other frames there measure it (`pipelines.topomap.replace`, `UpdateParams.replace`):
+  a place is refreshed, not stacked with a keyframe per visit.
 
 `MapUpdate.finish` writes nothing: it returns the new map (old nodes minus retired, plus
 added; covisibility verified by PnP for every new node, matched as the map build matches
@@ -62,6 +65,7 @@ from litevloc.base.params.mapping import ConnectivityParams, CovisibilityParams,
 from litevloc.pipelines.guided_matching import match_by_projection
 from litevloc.pipelines.topomap.graphs import MatchFn, lift_keypoints, pair_inliers
 from litevloc.pipelines.topomap.occupancy import build_occupancy, segment_is_free
+from litevloc.pipelines.topomap.replace import Decision, Keyframes, plan_replacements
 from litevloc.pipelines.topomap.types import FeatureSet, NodeFeatures, OccupancyGrid, TopoMap
 
 
@@ -93,6 +97,8 @@ class UpdateReport:
     known_by_localization: int = 0  # no keyframe covers it, but the map localizes it well (in `known` too)
     added: list[int] = field(default_factory=list)  # new node ids in the updated map
     retired: list[int] = field(default_factory=list)  # node ids of the old map
+    replaced: list[int] = field(default_factory=list)  # of `retired`: stale keyframes a candidate replaced
+    replace_outcomes: dict[str, int] = field(default_factory=dict)  # changed-place candidates by `Outcome`
     visits: dict[int, int] = field(default_factory=dict)
     best_consistent: dict[int, int] = field(default_factory=dict)
 
@@ -153,6 +159,8 @@ class MapUpdate:
         self._tree = cKDTree(topomap.positions)
         self._cos_place = float(np.cos(np.radians(self.params.place_angle_deg)))
         self.candidates: list[Observation] = []
+        self._changed: list[bool] = []  # per candidate: a changed place (else a new one)
+        self._probes: dict[int, Observation] = {}  # well-matched frames by index: the held-out pool
         self.cameras: list[NDArray[np.float64]] = []
         self.points: list[NDArray[np.float32]] = []
         self.report = UpdateReport()
@@ -210,6 +218,7 @@ class MapUpdate:
             support = max(support, int(localize()))
         matchable = max(best, support) >= thr or by_added
         if matchable:  # visits (for retirement) only by keyframes matched at the frame's own place
+            self._probes[obs.index] = obs
             for node in cover:
                 if node in quality:
                     r.visits[node] = r.visits.get(node, 0) + 1
@@ -241,6 +250,7 @@ class MapUpdate:
         self.points.append(obs.points_map)
         if keep:
             self.candidates.append(obs)
+            self._changed.append(status == "changed place")
         return status
 
     def _consistent(self, obs: Observation, node_feats: FeatureSet, T_map_node: NDArray[np.float64],
@@ -275,6 +285,43 @@ class MapUpdate:
         return sorted(n for n, v in r.visits.items()
                       if v >= p.retire_min_visits and r.best_consistent.get(n, 0) <= p.retire_max_consistent)
 
+    def replacements(self, retired: set[int], new_places: bool = False) -> list[Decision]:
+        """The decisions on the changed-place candidates (`new_places`: on the new-place ones;
+        `pipelines.topomap.replace`), given the keyframes the visit rule retires."""
+        changed = [c for c, ch in zip(self.candidates, self._changed, strict=True) if ch != new_places]
+        probes = [(i, o.T_map_camera) for i, o in self._probes.items()]
+
+        def score(i: int, feats: FeatureSet, T: NDArray[np.float64], K: NDArray[np.float64]) -> int:
+            return self._consistent(self._probes[i], feats, T, K)
+
+        m = self.map
+        return plan_replacements(Keyframes(m.T_map_camera, m.K, m.features),
+                                 [(c.index, c.T_map_camera, c.features, c.K) for c in changed], probes, score,
+                                 self.params, retired, new_places)
+
+    def _replace(self, retired: set[int]) -> list[Observation]:
+        """The candidates kept; stale keyframes they replace added to `retired`."""
+        if not self.params.replace.enabled:
+            return self.candidates
+        decisions = iter(self.replacements(retired))
+        fresh = iter(self.replacements(retired, new_places=True) if self.params.replace.new_places else [])
+        kept: list[Observation] = []
+        outcomes: dict[str, int] = {}
+        for c, changed in zip(self.candidates, self._changed, strict=True):
+            d = next(decisions) if changed else next(fresh, None)
+            if d is None:
+                kept.append(c)
+                continue
+            key = d.outcome.value if changed else f"new_place_{d.outcome.value}"
+            outcomes[key] = outcomes.get(key, 0) + 1
+            retired.update(d.replaced)
+            self.report.replaced.extend(d.replaced)
+            if d.kept:
+                kept.append(c)
+        self.report.replace_outcomes = outcomes
+        self.report.replaced = sorted(set(self.report.replaced))
+        return kept
+
     def finish(
         self, covisibility: CovisibilityParams, connectivity: ConnectivityParams, occupancy: OccupancyParams,
         on_pair: Callable[[], None] | None = None,
@@ -282,10 +329,10 @@ class MapUpdate:
         """The updated map (see the module docstring) and what changed."""
         m, r = self.map, self.report
         retired = set(self.retired_nodes())
+        cands = self._replace(retired)
         kept = [i for i in range(m.n_nodes) if i not in retired]
         new_id = {old: k for k, old in enumerate(kept)}
         n_kept = len(kept)
-        cands = self.candidates
         T = np.concatenate([m.T_map_camera[kept], _stack([c.T_map_camera for c in cands], (4, 4))])
         K = np.concatenate([m.K[kept], _stack([c.K for c in cands], (3, 3))])
         feats: list[NodeFeatures] = [*(m.stored_features(i) for i in kept), *(c.features for c in cands)]

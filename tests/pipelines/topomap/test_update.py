@@ -15,6 +15,7 @@ from scipy.spatial import cKDTree
 from litevloc.base.frames import parse_frames
 from litevloc.base.geometry import backproject_depth
 from litevloc.base.params.localization import DepthLookupParams
+from litevloc.base.params.map_maintenance import ReplaceParams
 from litevloc.hw.messages import GroundTruthPose, RgbdFrame
 from litevloc.hw.streams.sevenscenes import SevenScenesSource
 from litevloc.pipelines.depth_lookup import depth_at
@@ -154,6 +155,12 @@ def test_changed_appearance_retires_and_replaces(base_map: TopoMap, seven_scenes
     assert r.changed_place > 0 and len(r.added) > 0
     assert len(r.added) < 0.3 * base_map.n_nodes + len(changed)
     assert new.n_nodes == base_map.n_nodes - len(r.retired) + len(r.added)
+    assert set(r.replaced) <= set(r.retired)
+    assert sum(r.replace_outcomes.values()) >= 1  # the changed-place candidates were judged
+    # without replacement every changed-place candidate is added: never fewer keyframes than with it
+    plain, _ = run_update(m, seven_scenes_dir, "1:250:4", quality_map=base_map,
+                          params=UpdateParams(replace=ReplaceParams(enabled=False)))
+    assert plain is not None and new.n_nodes <= plain.n_nodes
 
 
 def test_params_validated() -> None:
