@@ -146,8 +146,6 @@ bench: $(VENV)/.dev-installed models $(BENCH_7S_MAP)/manifest.json $(BENCH_7S_SP
 	$(VENV)/bin/python bench/goal_placement.py
 	$(VENV)/bin/python bench/buildings.py
 	$(VENV)/bin/python bench/change.py
-	# bench/fleet.py serves the map-switch test's cached 7-Scenes versions: that test builds them
-	$(VENV)/bin/python -m pytest -q tests/runtime/test_map_switch_service.py
 	$(VENV)/bin/python bench/fleet.py --robots 1 2 4
 	$(VENV)/bin/python bench/slam.py --inject --queries
 	$(VENV)/bin/python bench/vo_bias.py

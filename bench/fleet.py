@@ -14,8 +14,8 @@ from /proc, sampled every 0.25 s.
 Input: the 7-Scenes held-out map (frames 0:500:5) as version 1, a rebuild from other frames
 (2:500:5, same ground-truth frame, no node in common) as version 2, and the held-out query
 recording (frames 500:1000:10: 50 frames at 3 Hz with 100 Hz odometry) replayed at `--rate` —
-the test suite's cached inputs (`out/test_cache/held_out`, `out/test_cache/map_switch/v2`), copied
-to out/bench/inputs/fleet, or `--v1 --v2 --rec`.
+built here on first use (experiments/fleet_inputs.py, cached under out/bench/inputs/fleet), or
+`--v1 --v2 --rec`.
 
     python bench/fleet.py --robots 1 2 4 --json out/bench/fleet.json [--quick]
 """
@@ -37,9 +37,18 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from _common import INPUTS, ROOT, print_table, write_json
+from _common import INPUTS, ROOT, print_table, require_7scenes, write_json
 
-from litevloc.experiments.fleet import CONTRACT_KEYS, PoseTrack, RobotFigures, fleet_entry, fleet_estimate, max_step_m
+from litevloc.experiments.fleet import (
+    CONTRACT_KEYS,
+    PoseTrack,
+    RobotFigures,
+    error_split,
+    fleet_entry,
+    fleet_estimate,
+    max_step_m,
+)
+from litevloc.experiments.fleet_inputs import fleet_inputs
 
 NAME = "fleet"
 LOST_VARIANCE = 1.0e4  # runtime.lost_variance: a LOST-flagged pose's covariance diagonal is at least this
@@ -138,7 +147,7 @@ class Wire:
     """A client of the router subscribed to every key: payload bytes per robot namespace as
     (wall time, bytes) and each robot's fused poses (position, LOST flag)."""
 
-    def __init__(self, endpoint: str, namespaces: list[str]) -> None:
+    def __init__(self, endpoint: str, namespaces: list[str], T_base_camera: Any) -> None:
         from litevloc.config.schema import ZenohConfig
         from litevloc.runtime.transport.bus import open_session
 
@@ -146,6 +155,9 @@ class Wire:
         self.bytes: dict[str, list[tuple[float, int, str]]] = {ns: [] for ns in namespaces}  # (wall, bytes, topic)
         self.poses: dict[str, PoseTrack] = {ns: PoseTrack() for ns in namespaces}
         self.lost_wall: dict[str, list[float]] = {ns: [] for ns in namespaces}
+        #: (receive wall s, stamp ns, camera position in the map frame m) per fused pose
+        self.cam: dict[str, list[tuple[float, int, tuple[float, float, float]]]] = {ns: [] for ns in namespaces}
+        self.T_base_camera = T_base_camera
         self.session = open_session(ZenohConfig(mode="client", listen=(), connect=(endpoint,), connect_timeout_s=5.0))
         self.sub = self.session.declare_subscriber("**", self._on_sample)
 
@@ -161,14 +173,17 @@ class Wire:
         pose = None
         if key == f"{ns}/litevloc/pose":
             try:
-                _, T, cov = ros_msgs.odometry_to_matrix(ros_msgs.deserialize(payload, ros_msgs.ODOMETRY))
-                pose = (tuple(float(v) for v in T[:3, 3]), cov is not None and float(cov[0, 0]) >= LOST_VARIANCE)
+                t_ns, T, cov = ros_msgs.odometry_to_matrix(ros_msgs.deserialize(payload, ros_msgs.ODOMETRY))
+                cam = tuple(float(v) for v in (T @ self.T_base_camera)[:3, 3])
+                pose = (tuple(float(v) for v in T[:3, 3]), cov is not None and float(cov[0, 0]) >= LOST_VARIANCE,
+                        t_ns, cam)
             except ros_msgs.MessageDecodeError:
                 pass
         with self.lock:
             self.bytes[ns].append((t, len(payload), key[len(ns) + 1:]))
             if pose is not None:
-                self.poses[ns].add(t, pose[0])  # type: ignore[arg-type]
+                self.poses[ns].add(t, pose[0])
+                self.cam[ns].append((t, pose[2], pose[3]))  # type: ignore[arg-type]
                 if pose[1]:
                     self.lost_wall[ns].append(t)
 
@@ -199,6 +214,7 @@ def _wait_line(proc: subprocess.Popen[str], prefix: str, timeout_s: float) -> st
 
 def one_count(args: argparse.Namespace, n: int) -> dict[str, Any]:
     """Run the fleet of `n` robots once; the contract entry (see experiments/fleet.py)."""
+    from litevloc.config import load_config
     from litevloc.config.schema import ZenohConfig
     from litevloc.runtime.maps.client import fetch_map
     from litevloc.runtime.transport.bus import open_session
@@ -220,7 +236,8 @@ def one_count(args: argparse.Namespace, n: int) -> dict[str, Any]:
         fetch_s = time.perf_counter() - t0
         with_session.close()
         names = [f"robot{k}" for k in range(n)]
-        wire = Wire(ep, names)
+        gt = ground_truth(args.rec)
+        wire = Wire(ep, names, load_config(args.config).fusion.T_base_camera())
         logs = [open(tmp / f"robot{k}.log", "w") for k in range(n)]  # noqa: SIM115 (closed below)
         procs = {f"robot{k}": subprocess.Popen(_robot_cmd(args, k, ep, free_port(), tmp), stdout=logs[k],
                                                stderr=subprocess.STDOUT) for k in range(n)}
@@ -251,7 +268,7 @@ def one_count(args: argparse.Namespace, n: int) -> dict[str, Any]:
         server.wait(timeout=30)
         robots = []
         for k, ns in enumerate(names):
-            robots.append(_robot_figures(tmp, k, ns, wire, sampler, announce_wall))
+            robots.append(_robot_figures(tmp, k, ns, wire, sampler, announce_wall, gt))
             if not (tmp / f"robot{k}.json").is_file():
                 print((tmp / f"robot{k}.log").read_text()[-3000:], file=sys.stderr)
         server_cpu = sampler.cpu_between("server", t_start, t_start + run_s)
@@ -269,8 +286,17 @@ def one_count(args: argparse.Namespace, n: int) -> dict[str, Any]:
         return entry
 
 
-def _robot_figures(tmp: Path, k: int, ns: str, wire: Wire, sampler: Sampler, announce_wall: float | None
-                   ) -> RobotFigures:
+def ground_truth(rec: Path) -> dict[int, tuple[float, float, float]]:
+    """The recording's ground-truth camera positions (metres, world = map frame) per stamp (ns)."""
+    from litevloc.hw.messages import GroundTruthPose
+    from litevloc.hw.streams.mcap_io import McapSource
+
+    return {m.t_ns: tuple(float(v) for v in m.T_world_camera[:3, 3])  # type: ignore[misc]
+            for m in McapSource(rec).messages(defer_color=True) if isinstance(m, GroundTruthPose)}
+
+
+def _robot_figures(tmp: Path, k: int, ns: str, wire: Wire, sampler: Sampler, announce_wall: float | None,
+                   gt: dict[int, tuple[float, float, float]]) -> RobotFigures:
     js = tmp / f"robot{k}.json"
     status = json.loads(js.read_text())["status"] if js.is_file() else {}
     track = wire.poses[ns]
@@ -284,7 +310,9 @@ def _robot_figures(tmp: Path, k: int, ns: str, wire: Wire, sampler: Sampler, ann
     by_topic: dict[str, int] = {}
     for _, b, topic in in_window:
         by_topic[topic] = by_topic.get(topic, 0) + b
+    err = error_split(wire.cam[ns], gt, switch)
     return RobotFigures(
+        error_before_m=err.before_m, error_after_m=err.after_m,
         vloc_calls=int(status.get("counters", {}).get("vloc_calls", 0)), stream_s=t1 - t0,
         cpu_s=sampler.cpu_between(ns, t0, t1), switch_wall=switch,
         lost=sum(1 for t in wire.lost_wall[ns] if announce_wall is not None and t >= announce_wall),
@@ -292,21 +320,14 @@ def _robot_figures(tmp: Path, k: int, ns: str, wire: Wire, sampler: Sampler, ann
 
 
 def _inputs(args: argparse.Namespace) -> None:
-    """Default inputs: the suite's cached held-out map, its v2 rebuild and query recording (copied)."""
-    d = INPUTS / "fleet"
-    cache = ROOT / "out" / "test_cache"
-    srcs = {"v1": cache / "held_out" / "map", "v2": cache / "map_switch" / "v2",
-            "rec": cache / "held_out" / "query.mcap"}
-    for key, src in srcs.items():
-        dst = d / ("query.mcap" if key == "rec" else key)
-        if getattr(args, key) is None:
-            if not dst.exists():
-                if not src.exists():
-                    raise SystemExit(f"no {dst} nor {src}: run tests/runtime/test_map_switch_service.py once "
-                                     f"(it builds them) or give --v1 --v2 --rec")
-                d.mkdir(parents=True, exist_ok=True)
-                (shutil.copytree if src.is_dir() else shutil.copy)(src, dst)
-            setattr(args, key, dst)
+    """Default inputs: built here from the 7-Scenes data (cached under out/bench/inputs/fleet)."""
+    if None in (args.v1, args.v2, args.rec):
+        made = fleet_inputs(require_7scenes(), INPUTS / "fleet")
+        args.v1, args.v2, args.rec = args.v1 or made.v1, args.v2 or made.v2, args.rec or made.rec
+
+
+def _cm(x: float | None) -> str:
+    return "-" if x is None else f"{100 * x:.1f}"
 
 
 def main() -> None:
@@ -341,10 +362,14 @@ def main() -> None:
     rows = [[e["robots"], e["fetch_s"], e["fetch_bytes"], e["switch_s_max"], e["robots_switched"],
              e["lost_during_switch"], e["max_jump_m"], " ".join(f"{h:.2f}" for h in e["vloc_hz_per_robot"]),
              " ".join("-" if c is None else f"{c:.2f}" for c in e["cpu_s_per_vloc"]), e["server_rss_mb"],
-             e["server_cpu_percent"], e["wire_bytes_per_robot_per_min"]] for e in entries]
+             e["server_cpu_percent"], e["wire_bytes_per_robot_per_min"],
+             " ".join(_cm(b) + "/" + _cm(a) for b, a in zip(e["fused_error_m_before_switch"],
+                                                         e["fused_error_m_after_switch"], strict=True))]
+            for e in entries]
     print_table(f"{len(entries)} fleet runs on loopback ({os.cpu_count()} CPUs), replay rate {args.rate:g}",
                 ["robots", "fetch s", "fetch bytes", "switch s max", "switched", "LOST", "jump m", "VLoc Hz",
-                 "CPU s/VLoc", "server RSS MB", "server CPU %", "wire B/robot/min"], rows)
+                 "CPU s/VLoc", "server RSS MB", "server CPU %", "wire B/robot/min",
+                 "error cm before/after"], rows)
     missing = [k for e in entries for k in CONTRACT_KEYS if k not in e]
     assert not missing, missing
     write_json(args.json, {"runs": entries, "estimate_50": fleet_estimate(entries), "rate": args.rate,

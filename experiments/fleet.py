@@ -8,8 +8,10 @@ share the clock), positions metres in the map frame.
 
 from __future__ import annotations
 
+import bisect
 import itertools
 import math
+import statistics
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -52,7 +54,9 @@ class RobotFigures:
     `jump_m`: largest consecutive fused-pose step within the jump window around the switch;
     `step_m`: the same away from the switch (the motion between two poses, for scale);
     `wire_bytes`: payload bytes of its publications received by the bench over `stream_s`
-    (`wire_bytes_by_topic`: the same per key after the namespace)."""
+    (`wire_bytes_by_topic`: the same per key after the namespace); `error_before_m` /
+    `error_after_m`: median fused camera position error against ground truth before and after its
+    switch (see `error_split`; None without ground truth or a switch)."""
 
     vloc_calls: int
     stream_s: float
@@ -63,6 +67,8 @@ class RobotFigures:
     step_m: float | None
     wire_bytes: int
     wire_bytes_by_topic: dict[str, int] = field(default_factory=dict)
+    error_before_m: float | None = None
+    error_after_m: float | None = None
 
 
 def _finite_or_none(x: float | None) -> float | None:
@@ -98,7 +104,50 @@ def fleet_entry(robots: Sequence[RobotFigures], *, fetch_s: float, fetch_bytes: 
         "wire_bytes_per_robot_per_min": sum(wire) / len(wire) if wire else None,
         "wire_bytes_per_min_per_robot": wire,
         "wire_bytes_per_min_by_topic": _per_min_by_topic(robots),
+        "fused_error_m_before_switch": [r.error_before_m for r in robots],
+        "fused_error_m_after_switch": [r.error_after_m for r in robots],
     }
+
+
+@dataclass(frozen=True)
+class ErrorSplit:
+    """Median fused position error (metres) of the poses received before and after a wall time,
+    and how many poses each median is over."""
+
+    before_m: float | None
+    after_m: float | None
+    n_before: int
+    n_after: int
+
+
+def error_split(poses: Sequence[tuple[float, int, tuple[float, float, float]]],
+                gt: dict[int, tuple[float, float, float]], split_wall: float | None,
+                max_dt_ns: int = 20_000_000) -> ErrorSplit:
+    """Fused camera positions against ground truth, split at `split_wall` (a robot's map switch).
+
+    `poses`: (receive wall time s, stamp ns, camera position in the map frame, metres), one per
+    fused pose; `gt`: ground-truth camera position per stamp (ns; the map frame is the ground
+    truth's world frame, as for a map posed by ground truth). Each ground-truth stamp is matched to
+    the fused pose stamped nearest to it within `max_dt_ns` (fused poses come at the odometry rate,
+    ground truth at the frame rate); `split_wall` None puts every pose before."""
+    if not poses or not gt:
+        return ErrorSplit(None, None, 0, 0)
+    stamps = sorted(gt)
+    order = sorted(range(len(poses)), key=lambda i: poses[i][1])
+    t_sorted = [poses[i][1] for i in order]
+    before: list[float] = []
+    after: list[float] = []
+    for t in stamps:
+        k = bisect.bisect_left(t_sorted, t)
+        near = [j for j in (k - 1, k) if 0 <= j < len(t_sorted)]
+        j = min(near, key=lambda j: abs(t_sorted[j] - t))
+        if abs(t_sorted[j] - t) > max_dt_ns:
+            continue
+        wall, _, xyz = poses[order[j]]
+        err = math.dist(xyz, gt[t])
+        (after if split_wall is not None and wall >= split_wall else before).append(err)
+    return ErrorSplit(statistics.median(before) if before else None, statistics.median(after) if after else None,
+                      len(before), len(after))
 
 
 def _per_min_by_topic(robots: Sequence[RobotFigures]) -> dict[str, float]:

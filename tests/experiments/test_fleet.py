@@ -1,5 +1,6 @@
 """The fleet benchmark's JSON entry (experiments/fleet.py) built from recorded figures, and the pose
-step at the switch; bench/fleet.py's smallest run end to end where the suite's cached inputs exist."""
+step at the switch; bench/fleet.py's smallest run end to end on the 7-Scenes inputs it shares with the
+map-switch tests (built once by experiments/fleet_inputs.py)."""
 
 from __future__ import annotations
 
@@ -14,10 +15,12 @@ from litevloc.experiments.fleet import (
     CONTRACT_KEYS,
     PoseTrack,
     RobotFigures,
+    error_split,
     fleet_entry,
     fleet_estimate,
     max_step_m,
 )
+from litevloc.experiments.fleet_inputs import FleetInputs
 
 ROOT = Path(__file__).resolve().parents[2]
 ANNOUNCE = 1000.0
@@ -76,15 +79,30 @@ def test_max_step_is_the_largest_consecutive_step_in_the_window() -> None:
     assert max_step_m(tr, 3.5, 4.0) is None
 
 
+def test_error_split_matches_ground_truth_stamps_and_splits_at_the_switch() -> None:
+    gt = {1000: (0.0, 0.0, 0.0), 2000: (1.0, 0.0, 0.0), 3000: (2.0, 0.0, 0.0), 9_000_000_000: (5.0, 0.0, 0.0)}
+    # fused poses: stamp 1001 is 2 cm off, 1990 (nearest to 2000) 4 cm off, 2500 is no GT's nearest,
+    # 3000 (received after the switch at wall 10) 10 cm off; no pose near the last GT stamp
+    poses = [(1.0, 1001, (0.02, 0.0, 0.0)), (2.0, 1990, (1.04, 0.0, 0.0)), (3.0, 2500, (9.0, 0.0, 0.0)),
+             (11.0, 3000, (2.0, 0.1, 0.0))]
+    e = error_split(poses, gt, split_wall=10.0)
+    assert (e.n_before, e.n_after) == (2, 1)
+    assert e.before_m == pytest.approx(0.03) and e.after_m == pytest.approx(0.1)
+    assert error_split(poses, gt, None).n_after == 0
+    assert error_split([], gt, 10.0).before_m is None
+
+
 @pytest.mark.slow
-def test_smallest_fleet_run_writes_the_contract(tmp_path: Path) -> None:
-    inputs = ROOT / "out" / "bench" / "inputs" / "fleet"
-    cache = ROOT / "out" / "test_cache"
-    if not any((d / "manifest.json").is_file() for d in (inputs / "v2", cache / "map_switch" / "v2")):
-        pytest.skip("no cached fleet inputs (tests/runtime/test_map_switch_service.py builds them)")
+@pytest.mark.shared_data
+@pytest.mark.timeout(300)
+def test_smallest_fleet_run_writes_the_contract(seven_scenes_fleet: FleetInputs, tmp_path: Path) -> None:
     out = tmp_path / "fleet.json"
-    subprocess.run([sys.executable, str(ROOT / "bench" / "fleet.py"), "--robots", "1", "--quick", "--json", str(out)],
-                   check=True, timeout=240)
+    ins = seven_scenes_fleet
+    subprocess.run([sys.executable, str(ROOT / "bench" / "fleet.py"), "--robots", "1", "--quick", "--json", str(out),
+                    "--v1", str(ins.v1), "--v2", str(ins.v2), "--rec", str(ins.rec)], check=True, timeout=240)
     e = json.loads(out.read_text())["runs"][0]
     assert set(CONTRACT_KEYS) <= set(e) and e["robots"] == 1
     assert e["fetch_bytes"] > 0 and e["vloc_hz_per_robot"][0] > 0
+    assert e["robots_switched"] == 1 and e["lost_during_switch"] == 0
+    before, after = e["fused_error_m_before_switch"][0], e["fused_error_m_after_switch"][0]
+    assert before is not None and after is not None and before < 0.5 and after < 0.5

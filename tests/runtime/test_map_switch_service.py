@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 
 from litevloc.config import load_config
+from litevloc.experiments.fleet_inputs import FleetInputs
 from litevloc.hw.messages import EncodedRgbdFrame, RgbdFrame, SourceMessage
 from litevloc.pipelines.localization.tracking import TrackingState
 from litevloc.runtime.service.app import build_app, with_endpoints
 from litevloc.runtime.sources import open_source
-from tests.conftest import TEST_CACHE, HeldOut, cached_cli
 
 from .zenoh_helpers import free_port
 
@@ -34,14 +34,11 @@ SWITCH_FRAME = 7
 
 
 @pytest.fixture(scope="module")
-def versions(seven_scenes_held_out: HeldOut, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+def versions(seven_scenes_fleet: FleetInputs, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     """v1 (the held-out map), v2 (rebuilt from other frames of the mapping pass: no keyframe, no node
     id in common), and three versions that must be refused: its keyframes 1 m off (another map frame),
     one image corrupted, the models of another extractor."""
-    out = TEST_CACHE / "map_switch"
-    cached_cli(("map", "build", "$D", "--frames", "2:500:5", "-o", "$OUT/v2", "--config", "7scenes"),
-               out / "v2", out / "v2" / "manifest.json", {"$D": str(seven_scenes_held_out.data), "$OUT": str(out)})
-    v1 = seven_scenes_held_out.map_dir
+    v1 = seven_scenes_fleet.v1
     tmp = tmp_path_factory.mktemp("versions")
     shifted = _copy(v1, tmp / "shifted")
     T = np.load(shifted / "nodes/T_map_camera.npy")
@@ -57,8 +54,8 @@ def versions(seven_scenes_held_out: HeldOut, tmp_path_factory: pytest.TempPathFa
     man = json.loads((other / "manifest.json").read_text())
     man["extractor"] = "superpoint"
     (other / "manifest.json").write_text(json.dumps(man))
-    return {"v1": v1, "v2": out / "v2", "shifted": shifted, "corrupt": corrupt, "other_models": other,
-            "queries": seven_scenes_held_out.queries}
+    return {"v1": v1, "v2": seven_scenes_fleet.v2, "shifted": shifted, "corrupt": corrupt, "other_models": other,
+            "queries": seven_scenes_fleet.rec}
 
 
 def _copy(src: Path, dst: Path) -> Path:
