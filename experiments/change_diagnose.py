@@ -1,0 +1,103 @@
+"""Where GL fails under one change axis, per query frame (issue #78 item 4): the rank of the first right
+keyframe (within `RIGHT` of the truth) among the VPR candidates GL verified, what each verified candidate
+gave (matches, inliers, refusal), and what the right keyframe alone gives when GL is told to verify it
+(`only=`): place recognition failing vs verification failing.
+
+    .venv/bin/python -m litevloc.experiments.change_diagnose GENERATOR SEED [--every N] [--duration S]
+        [--axes lighting=0.5 furniture=0.3 ...] [--set KEY=VALUE ...] [--json PATH]
+
+Tuning buildings only (never the report set, `bench/buildings.py`'s default seeds).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from litevloc.base.geometry import relative_pose_error
+from litevloc.base.params.world_change import WorldChangeParams
+from litevloc.experiments.buildings import BenchSettings, BuildingRun, ensure_map, load_models
+from litevloc.experiments.change import MONTHS_LATER, QUERY_SEED, Case, changed_world
+from litevloc.experiments.splits import COVER, coverage
+from litevloc.pipelines.localization.vloc import VisualLocalizer
+from litevloc.pipelines.topomap.io import load_map
+from litevloc.runtime.vloc_models import check_map_models, second_look_for
+from litevloc.sim.source import SimSequenceSource
+
+RIGHT = (1.0, 30.0)  # metres, degrees: a keyframe that views the query's place
+
+
+def diagnose(run: BuildingRun, case: Case | None, every: int, duration: float | None,
+             overrides: tuple[str, ...], out_dir: Path) -> dict[str, Any]:
+    """Per-frame GL records of `run` changed by `case` (None: unchanged) against its unchanged map."""
+    cfg, bundles = load_models("default", overrides)
+    settings = BenchSettings(out_dir=out_dir)
+    map_dir, _ = ensure_map(run, changed_world(run, WorldChangeParams()), settings, cfg, bundles["build"])
+    world = changed_world(run, case.params() if case else WorldChangeParams())
+    bundle = bundles["nav"]
+    topomap = check_map_models(load_map(map_dir), bundle)
+    look = second_look_for(topomap, cfg.models, cfg.localization, bundle)
+    src = SimSequenceSource(world, "query", QUERY_SEED, duration, cfg.sim)
+    poses = src.camera_poses()
+    frames = []
+    for i in range(0, src.frame_count(), every):
+        f = src.frame(i)
+        d, a = coverage(topomap, poses[i])
+        if not ((d <= COVER[0][0]) & (a <= COVER[0][1])).any():
+            continue
+        right = [int(n) for n in np.argsort(d) if d[n] <= RIGHT[0] and a[n] <= RIGHT[1]]
+        loc = VisualLocalizer(topomap, cfg.localization, bundle.extract, bundle.describe, bundle.match,
+                              second_look=look)
+        res = loc.localize_global(f.t_ns, f.color, f.depth, f.K)
+        cands = list(res.candidates)
+        rank = next((k for k, n in enumerate(cands) if n in right), None)
+        rec: dict[str, Any] = {"frame": i, "accepted": bool(res.accepted), "reason": res.reason,
+                               "stop": res.stop_reason, "rank_right": rank, "n_right": len(right),
+                               "gray_mean": float(np.mean(f.color)),
+                               "attempts": [(a_.node, a_.matches, a_.inliers, a_.reason, a_.node in right)
+                                            for a_ in res.attempts]}
+        if res.accepted and res.T_map_camera is not None:
+            rec["error_m"] = relative_pose_error(res.T_map_camera, poses[i])[0]
+        if not res.accepted and right:
+            loc2 = VisualLocalizer(topomap, cfg.localization, bundle.extract, bundle.describe, bundle.match,
+                                   second_look=look)
+            o = loc2.localize_global(f.t_ns, f.color, f.depth, f.K, only=right[:3])
+            rec["oracle"] = {"accepted": bool(o.accepted), "reason": o.reason,
+                             "attempts": [(a_.node, a_.matches, a_.inliers, a_.reason) for a_ in o.attempts]}
+        frames.append(rec)
+        print(json.dumps(rec, default=str), flush=True)
+    ok = sum(r["accepted"] for r in frames)
+    wrong = sum(r["accepted"] and r.get("error_m", 0) > 0.5 for r in frames)
+    summary = {"case": dataclasses.asdict(case) if case else None, "covered": len(frames), "accepted": ok,
+               "wrong": wrong, "right_in_topk": sum(r["rank_right"] is not None for r in frames)}
+    print("SUMMARY", json.dumps(summary), flush=True)
+    return {"summary": summary, "frames": frames}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("generator")
+    ap.add_argument("seed", type=int)
+    ap.add_argument("--every", type=int, default=30)
+    ap.add_argument("--duration", type=float, default=None)
+    ap.add_argument("--axes", nargs="*", default=[], help="AXIS=LEVEL or months_later; none: unchanged")
+    ap.add_argument("--set", dest="overrides", action="append", default=[])
+    ap.add_argument("--out-dir", type=Path, default=Path("out/bench/change_diag"))
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args(argv)
+    run = BuildingRun(args.generator, args.seed)
+    cases = [Case(MONTHS_LATER, 1.0) if s == MONTHS_LATER else Case(s.split("=")[0], float(s.split("=")[1]))
+             for s in args.axes] or [None]
+    out = [diagnose(run, c, args.every, args.duration, tuple(args.overrides), args.out_dir) for c in cases]
+    if args.json:
+        args.json.write_text(json.dumps(out, default=str))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
