@@ -91,8 +91,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
     run = BuildingRun(args.generator, args.seed)
-    cases = [Case(MONTHS_LATER, 1.0) if s == MONTHS_LATER else Case(s.split("=")[0], float(s.split("=")[1]))
-             for s in args.axes] or [None]
+    cases: list[Case | None] = [
+        Case(MONTHS_LATER, 1.0) if s == MONTHS_LATER else Case(s.split("=")[0], float(s.split("=")[1]))
+        for s in args.axes] or [None]
     out = [diagnose(run, c, args.every, args.duration, tuple(args.overrides), args.out_dir) for c in cases]
     if args.json:
         args.json.write_text(json.dumps(out, default=str))
