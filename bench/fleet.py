@@ -46,6 +46,7 @@ from litevloc.experiments.fleet import (
     error_split,
     fleet_entry,
     fleet_estimate,
+    keyframe_path_m,
     max_step_m,
 )
 from litevloc.experiments.fleet_inputs import fleet_inputs
@@ -212,29 +213,64 @@ def _wait_line(proc: subprocess.Popen[str], prefix: str, timeout_s: float) -> st
     raise SystemExit(f"map service: no {prefix} line within {timeout_s:g} s (exit code {proc.poll()})")
 
 
-def one_count(args: argparse.Namespace, n: int) -> dict[str, Any]:
-    """Run the fleet of `n` robots once; the contract entry (see experiments/fleet.py)."""
-    from litevloc.config import load_config
+def _start_server(tmp: Path, v1: Path) -> tuple[subprocess.Popen[str], str]:
+    """The map service in its own process on a free loopback port, `v1` served as `NAME`; READY awaited."""
+    sys.path.insert(0, str(ROOT / "tests" / "runtime"))
+    from zenoh_helpers import free_port
+
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    server = subprocess.Popen([sys.executable, __file__, "--serve", str(tmp / "store"), ep, str(v1)],
+                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    _wait_line(server, "READY", 120)
+    return server, ep
+
+
+def _timed_fetch(ep: str, tmp: Path, timeout_s: float) -> tuple[Any, float]:
+    """Fetch the latest `NAME` from the service at `ep` into an empty cache; (FetchedMap, seconds)."""
     from litevloc.config.schema import ZenohConfig
     from litevloc.runtime.maps.client import fetch_map
     from litevloc.runtime.transport.bus import open_session
 
+    session = open_session(ZenohConfig(mode="client", listen=(), connect=(ep,), connect_timeout_s=5.0))
+    try:
+        t0 = time.perf_counter()
+        fetched = fetch_map(session, NAME, None, tmp / "bench_cache", allow_offline=False, timeout_s=timeout_s)
+        return fetched, time.perf_counter() - t0
+    finally:
+        session.close()
+
+
+def large_map_fetch(map_dir: Path, timeout_s: float) -> dict[str, Any]:
+    """Serve `map_dir` and fetch it once over loopback: bytes, chunks, seconds and the map's keyframe
+    path length (metres), the issue's "fetch of a 100 m map" figure."""
+    import numpy as np
+
+    with tempfile.TemporaryDirectory() as tmp_s:
+        tmp = Path(tmp_s)
+        server, ep = _start_server(tmp, map_dir)
+        try:
+            fetched, fetch_s = _timed_fetch(ep, tmp, timeout_s)
+        finally:
+            assert server.stdin is not None
+            server.stdin.close()
+            server.wait(timeout=60)
+    nodes = map_dir / "nodes"
+    return {"map": str(map_dir), "keyframes": int(np.load(nodes / "t_ns.npy").shape[0]),
+            "keyframe_path_m": keyframe_path_m(np.load(nodes / "T_map_camera.npy"), np.load(nodes / "t_ns.npy")),
+            "fetch_s": fetch_s, "fetch_bytes": fetched.bytes_fetched, "chunks": fetched.chunks_fetched}
+
+
+def one_count(args: argparse.Namespace, n: int) -> dict[str, Any]:
+    """Run the fleet of `n` robots once; the contract entry (see experiments/fleet.py)."""
+    from litevloc.config import load_config
     sys.path.insert(0, str(ROOT / "tests" / "runtime"))
     from zenoh_helpers import free_port
 
     with tempfile.TemporaryDirectory() as tmp_s:
         tmp = Path(tmp_s)
-        ep = f"tcp/127.0.0.1:{free_port()}"
-        server = subprocess.Popen([sys.executable, __file__, "--serve", str(tmp / "store"), ep, str(args.v1)],
-                                  stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        server, ep = _start_server(tmp, args.v1)
         assert server.stdin is not None
-        _wait_line(server, "READY", 120)
-        with_session = open_session(ZenohConfig(mode="client", listen=(), connect=(ep,), connect_timeout_s=5.0))
-        t0 = time.perf_counter()
-        fetched = fetch_map(with_session, NAME, None, tmp / "bench_cache", allow_offline=False,
-                            timeout_s=args.query_timeout)
-        fetch_s = time.perf_counter() - t0
-        with_session.close()
+        fetched, fetch_s = _timed_fetch(ep, tmp, args.query_timeout)
         names = [f"robot{k}" for k in range(n)]
         gt = ground_truth(args.rec)
         wire = Wire(ep, names, load_config(args.config).fusion.T_base_camera())
@@ -347,6 +383,9 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="short run: replay rate 1, switch 4 s after the first poses")
     ap.add_argument("--keep-logs", default=None, metavar="DIR", help="keep each robot's log and status JSON here")
     ap.add_argument("--json", default="fleet", help="JSON name under out/bench, or a path ending .json")
+    ap.add_argument("--large-map", type=Path, default=None, metavar="MAP",
+                    help="also serve this map folder alone and time one fetch of it (e.g. the simulated office's "
+                         "map, ~150 m of keyframe path: out/bench/inputs/office/map)")
     ap.add_argument("--serve", nargs=3, metavar=("STORE", "ENDPOINT", "V1"), help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.serve:
@@ -372,8 +411,14 @@ def main() -> None:
                  "error cm before/after"], rows)
     missing = [k for e in entries for k in CONTRACT_KEYS if k not in e]
     assert not missing, missing
-    write_json(args.json, {"runs": entries, "estimate_50": fleet_estimate(entries), "rate": args.rate,
-                           "config": args.config, "v1": str(args.v1), "v2": str(args.v2), "rec": str(args.rec)})
+    large = None
+    if args.large_map:
+        large = large_map_fetch(args.large_map, args.query_timeout)
+        print(f"large map: {large['keyframes']} keyframes, {large['keyframe_path_m']:.0f} m of keyframe path, "
+              f"{large['fetch_bytes']} bytes in {large['chunks']} chunks fetched in {large['fetch_s']:.2f} s")
+    write_json(args.json, {"runs": entries, "large_map_fetch": large, "estimate_50": fleet_estimate(entries),
+                           "rate": args.rate, "config": args.config, "v1": str(args.v1), "v2": str(args.v2),
+                           "rec": str(args.rec)})
 
 
 if __name__ == "__main__":

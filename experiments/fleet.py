@@ -16,6 +16,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
 #: the keys every per-robot-count entry carries (issue 77, item 5)
 CONTRACT_KEYS = ("robots", "fetch_s", "fetch_bytes", "switch_s_max", "lost_during_switch", "max_jump_m",
                  "vloc_hz_per_robot", "cpu_s_per_vloc", "server_rss_mb", "wire_bytes_per_robot_per_min")
@@ -183,3 +185,10 @@ def fleet_estimate(entries: Sequence[dict[str, Any]], robots: int = 50) -> dict[
         "all_fetch_s_at_measured_rate": None if rate is None else robots * entry["fetch_bytes"] / rate,
         "scaled_from_robots": n,
     }
+
+
+def keyframe_path_m(T_map_camera: np.ndarray, t_ns: np.ndarray) -> float:
+    """Length of the path through a map's keyframes in time order (metres): a lower bound of the
+    mapping trajectory it was built from. `T_map_camera` (N, 4, 4), `t_ns` (N,) nanoseconds."""
+    positions = T_map_camera[np.argsort(t_ns), :3, 3]
+    return float(np.linalg.norm(np.diff(positions, axis=0), axis=1).sum())
