@@ -192,6 +192,10 @@ class ConfirmParams(Settings):
     """Confirmation of a pose by the joint refinement's second keyframe, and when a fresh prior stands in for it."""
 
     gl: bool = setting(True, "a GL pose must explain matches with a second keyframe besides its own")
+    gl_single_distinct_ratio: float = setting(
+        2.0, "a GL pose no second keyframe confirms but whose own keyframe explains global_search.vote_min_inliers "
+        "matches is accepted when no candidate at another place has >= 1/this of its PnP inliers (0 = off)",
+        low=1, off=0)
     ll: bool = setting(
         True, "an LL pose must explain matches with a second keyframe besides its own (unless it lies close to a "
         "fresh prior)")
@@ -282,6 +286,9 @@ class DistinctivenessParams(Settings):
     max_rivals: int = setting(
         3, "candidates verified after the accepted one for the distinctiveness check at most (those with >= 1/ratio "
         "of its re-ranking count)", low=0)
+    stronger_rival: bool = setting(
+        True, "with the ratio test off, GL still refuses a pose when a candidate verified before it at another place "
+        "has at least as many PnP inliers")
     screen: bool = setting(
         True, "the distinctiveness check skips the later candidates whose PnP on the re-ranking's matches (no model "
         "run) agrees with the pose")

@@ -7,9 +7,13 @@ stops when the time budget would be overrun (`global_search.time_budget_ms`; whi
 tracking was lost, `global_search.lost_cost_ratio` x the median wall time of the last LL queries); the result
 says why in `stop_reason`.
 
-* A candidate that only its own keyframe confirms strongly (`global_search.vote_min_inliers`) is returned,
-  not accepted, as `LocalizationResult.provisional`; with a fresh fused prior it agrees with
-  (within the prior gate), it is accepted (the prior is the independent second view).
+* A candidate that only its own keyframe confirms strongly (`global_search.vote_min_inliers`) is accepted
+  with a fresh fused prior it agrees with (within the prior gate: the prior is the independent second
+  view), or without a trusted prior where no candidate at another place verifies near as well
+  (`confirm.gl_single_distinct_ratio`: distinctiveness stands in for the second keyframe); else it
+  is returned, not accepted, as `LocalizationResult.provisional`.
+* With the distinctiveness test off, a pose is still refused where a candidate verified before it at
+  another place had at least as many PnP inliers (`distinctiveness.stronger_rival`).
 * A GL pose outside a fused prior's gate gives way to a pose LL verifies at the prior's place
   (`global_search.check_prior_place`): in a repeating corridor both verify, the odometry tells them apart.
 """
@@ -201,6 +205,8 @@ class GlobalSearch:
                 best = (node, res, joint)
                 stop = f"candidate {k + 1} of {len(order)} passed the joint check"
                 amb = "" if trusted else ambiguous(v, node, res, joint, q, order[k + 1:], sims, evidence)
+                if not amb and not trusted and p.distinctiveness.ratio <= 0 and p.distinctiveness.stronger_rival:
+                    amb = ambiguous(v, node, res, joint, q, order[:0], sims, evidence, ratio=1.0)
                 if amb:
                     best, provisional = None, None
                     refusal = (QueryRefusal.AMBIGUOUS, refusal_text(QueryRefusal.AMBIGUOUS, detail=amb))
@@ -213,6 +219,14 @@ class GlobalSearch:
                                                  "one keyframe only; agrees with the prior", Refusal.NONE))
                 best = (node, res, replace(joint, accepted=True, reason="ok"))
                 stop = f"candidate {k + 1} of {len(order)}: one keyframe, agrees with the prior"
+                break
+            single_ratio = p.confirm.gl_single_distinct_ratio
+            if single is not None and not trusted and single_ratio > 0 and not ambiguous(
+                    v, node, res, joint, q, order[k + 1:], sims, evidence, ratio=single_ratio):
+                attempts.append(CandidateAttempt(node, att.similarity, att.matches, att.inliers,
+                                                 "one keyframe only; no other place verifies near it", Refusal.NONE))
+                best = (node, res, replace(joint, accepted=True, reason="ok"))
+                stop = f"candidate {k + 1} of {len(order)}: one keyframe, no rival within x{single_ratio:g}"
                 break
             if single is not None and (provisional is None or single.n_inliers > provisional.n_inliers):
                 provisional = single

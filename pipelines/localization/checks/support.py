@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+from numpy.typing import NDArray
 
 from litevloc.pipelines.localization.query import Query
 from litevloc.pipelines.localization.results import CandidateAttempt
@@ -35,14 +36,28 @@ def support_height_spread(verifier: CandidateVerifier, node: int, res: PnpResult
     horizontal plane (the floor or the ceiling)."""
     if res.T_target_source is None or res.n_inliers == 0:
         return float("inf")
+    return height_spread_at(verifier, node, verifier.map.T_map_camera[node] @ res.T_target_source, q)
+
+
+def height_spread_at(verifier: CandidateVerifier, node: int, T_map_camera: NDArray[np.float64], q: Query) -> float:
+    """`support_height_spread` of the matches with keyframe `node` that the camera pose
+    `T_map_camera` (4x4, map frame) explains; inf without such matches."""
     m = verifier.map
-    explained, pts = verifier.explained_matches(node, m.T_map_camera[node] @ res.T_target_source, q)
+    explained, pts = verifier.explained_matches(node, T_map_camera, q)
     pts = pts[explained]
     if len(pts) == 0:
         return float("inf")
     h = pts @ np.asarray(m.grid.up, dtype=np.float64)
     lo, hi = np.percentile(h, [10.0, 90.0])
     return float(hi - lo)
+
+
+def flat_at(verifier: CandidateVerifier, node: int, T_map_camera: NDArray[np.float64], q: Query) -> bool:
+    """Whether the pose `T_map_camera` (4x4) through keyframe `node` rests on one horizontal plane
+    under the query's `support.min_height_m` (never when the check is off): such a pose is no
+    evidence of a place, for GL's winner or for a rival of it."""
+    need = q.params.support.min_height_m
+    return need > 0 and height_spread_at(verifier, node, T_map_camera, q) < need
 
 
 def flat_support(verifier: CandidateVerifier, node: int, res: PnpResult, q: Query) -> str:

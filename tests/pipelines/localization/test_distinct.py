@@ -127,3 +127,66 @@ def test_the_screen_verifies_only_candidates_the_reranking_puts_elsewhere() -> N
     depth = s.look(pose(0.3, 4.0), vpr_best=0)
     r = VisualLocalizer(m, screen, s.extract, s.describe, s.match).localize_global(0, IMG, depth, K)
     assert not r.accepted and "ambiguous" in r.reason and "10.00 m" in r.reason, r.reason
+
+
+def _copy_of_one_place() -> TopoMap:
+    """Keyframes at x = 0 and x = 10, the second's features a copy of the first's: one place
+    seen by one keyframe, and its copy 10 m along; no neighbour confirms either."""
+    m = make_map([0.0, 10.0])
+    f = m.features[0]
+    return replace(m, features=[f, NodeFeatures(f.keypoints.copy(), f.descriptors.copy(), f.scores.copy(),
+                                                f.image_size)])
+
+
+def test_one_keyframe_pose_is_accepted_where_no_other_place_verifies_near_it() -> None:
+    # one keyframe sees the place: no second keyframe, and no rival; without a trusted prior
+    m = make_map([0.0])
+    s = Scene(m)
+    T_true = pose(0.3, 5.0)
+    depth = s.look(T_true, vpr_best=0)
+    p = replace(GUARD, distinctiveness=replace(GUARD.distinctiveness, ratio=0.0))
+    r = VisualLocalizer(m, p, s.extract, s.describe, s.match).localize_global(0, IMG, depth, K)
+    assert r.accepted and "one keyframe, no rival within x2" in r.stop_reason, r.stop_reason
+    assert g.relative_pose_error(r.T_map_camera, T_true)[0] < 0.01
+    off = replace(p, confirm=replace(p.confirm, gl_single_distinct_ratio=0.0))
+    r = VisualLocalizer(m, off, s.extract, s.describe, s.match).localize_global(0, IMG, depth, K)
+    assert not r.accepted and r.provisional is not None  # the second keyframe is required again
+    # a copy of the place 10 m along verifies as well: neither is accepted on one keyframe
+    m = _copy_of_one_place()
+    s = Scene(m)
+    depth = s.look(T_true, vpr_best=0)
+    r = VisualLocalizer(m, p, s.extract, s.describe, s.match).localize_global(0, IMG, depth, K)
+    assert not r.accepted and r.provisional is not None, r.stop_reason
+
+
+def test_a_rival_resting_on_floor_tiles_alone_is_no_evidence_of_another_place(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    import litevloc.pipelines.localization.checks.distinctiveness as dist
+
+    m = _corridor()
+    s = Scene(m)
+    depth = s.look(pose(0.3, 4.0), vpr_best=0)
+    s.vpr[2] = 0.9
+    loc = VisualLocalizer(m, GUARD, s.extract, s.describe, s.match)
+    assert not loc.localize_global(0, IMG, depth, K).accepted  # the copy 10 m along decides
+    real = dist.flat_at
+    monkeypatch.setattr(dist, "flat_at", lambda v, node, T, q: node in (2, 3) or real(v, node, T, q))
+    r = loc.localize_global(0, IMG, depth, K)
+    assert r.accepted and g.relative_pose_error(r.T_map_camera, pose(0.3, 4.0))[0] < 0.01, r.reason
+
+
+def test_a_pose_is_refused_where_a_place_verified_before_it_had_more_inliers() -> None:
+    # the true place (x = 0, 1) and its copy (x = 10, 11); the true place's neighbour does not
+    # match (a changed scene), so only the copy passes the joint check, after the true place
+    m = _corridor()
+    s = Scene(m)
+    s.broken_nodes = {1}
+    depth = s.look(pose(0.3, 4.0), vpr_best=0)
+    s.vpr[2] = 0.9
+    off = replace(GUARD, distinctiveness=replace(GUARD.distinctiveness, ratio=0.0, stronger_rival=False),
+                  confirm=replace(GUARD.confirm, gl_single_distinct_ratio=0.0))
+    r = VisualLocalizer(m, off, s.extract, s.describe, s.match).localize_global(0, IMG, depth, K)
+    assert r.accepted and r.ref_node == 2, r.stop_reason  # the wrong pose, 10 m along
+    on = replace(off, distinctiveness=replace(off.distinctiveness, stronger_rival=True))
+    r = VisualLocalizer(m, on, s.extract, s.describe, s.match).localize_global(0, IMG, depth, K)
+    assert not r.accepted and "ambiguous: node 2" in r.reason, r.reason
