@@ -5,7 +5,7 @@ whose appearance no longer matches are retired and replaced."""
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -68,10 +68,13 @@ def base_map(seven_scenes_dir: Path) -> TopoMap:
 
 
 def run_update(m: TopoMap, folder: Path, frames: str, quality_map: TopoMap | None = None,
-               params: UpdateParams | None = None, finish: bool = True) -> tuple[TopoMap | None, MapUpdate]:
-    """The updated map (None without `finish`: the report and candidates only) and the update."""
+               params: UpdateParams | None = None, finish: bool = True,
+               observed: Iterable[Observation] | None = None) -> tuple[TopoMap | None, MapUpdate]:
+    """The updated map (None without `finish`: the report and candidates only) and the update.
+    `observed`: the frames' observations made once beforehand (`observations(folder, frames,
+    quality_map)`), for two updates of the same frames."""
     upd = MapUpdate(m, orb_match, params or UpdateParams())
-    for obs in observations(folder, frames, quality_map):
+    for obs in observations(folder, frames, quality_map) if observed is None else observed:
         upd.observe(obs)
     if not finish:
         return None, upd
@@ -148,7 +151,8 @@ def test_changed_appearance_retires_and_replaces(base_map: TopoMap, seven_scenes
         feats[i] = NodeFeatures(f.keypoints, rng.integers(0, 256, f.descriptors.shape, dtype=np.uint8), f.scores,
                                 f.image_size)
     m = dataclasses.replace(base_map, features=feats)
-    new, upd = run_update(m, seven_scenes_dir, "1:250:4", quality_map=base_map)
+    observed = list(observations(seven_scenes_dir, "1:250:4", base_map))  # both updates below see these frames
+    new, upd = run_update(m, seven_scenes_dir, "1:250:4", quality_map=base_map, observed=observed)
     r = upd.report
     assert set(changed) <= set(r.retired), r.retired
     assert len(r.retired) <= len(changed) + 1
@@ -159,7 +163,7 @@ def test_changed_appearance_retires_and_replaces(base_map: TopoMap, seven_scenes
     assert sum(r.replace_outcomes.values()) >= 1  # the changed-place candidates were judged
     # without replacement every changed-place candidate is added: never fewer keyframes than with it
     plain, _ = run_update(m, seven_scenes_dir, "1:250:4", quality_map=base_map,
-                          params=UpdateParams(replace=ReplaceParams(enabled=False)))
+                          params=UpdateParams(replace=ReplaceParams(enabled=False)), observed=observed)
     assert plain is not None and new.n_nodes <= plain.n_nodes
 
 
