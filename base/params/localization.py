@@ -171,6 +171,10 @@ class LocalSearchParams(Settings):
     guided_min_matches: int = setting(
         60, "LL with a fresh prior: guided matches stand in for the matcher's when at least this many (0 = off)",
         low=0)
+    guided_global_mutual: bool = setting(
+        False, "LL's guided matches (fresh prior) must also be mutual nearest neighbours over all keypoints (off: the "
+        "best pair within refine.guided_radius_px; the prior gate and the joint refinement still check the pose; "
+        "the second look keeps the rule)")
     failures_before_lost: int = setting(
         3, "consecutive LL failures that make the state LOST (the next query runs GL)", low=1)
 

@@ -172,12 +172,13 @@ class Query:
         return None if z is None else np.asarray(z, np.float64)[i_kf]
 
     def try_guided(self, node: int, T_map_live: NDArray[np.float64], min_matches: int) -> bool:
-        """Match `node` by projecting with `T_map_live` (a fresh prior) instead of the matcher;
-        the matches are kept (and returned by `matches`) only when at least `min_matches`."""
+        """Match `node` by projecting with `T_map_live` (a fresh prior) instead of the matcher
+        (global-mutual rule: `local_search.guided_global_mutual`); the matches are kept (and
+        returned by `matches`) only when at least `min_matches`."""
         if node in self._matches:
             return False
         t0 = self.timer.now()
-        i_live, i_kf = self._guided(node, T_map_live)
+        i_live, i_kf = self._guided(node, T_map_live, self.params.local_search.guided_global_mutual)
         self.timer.add("guided_match", t0)
         if len(i_live) < min_matches:
             return False
@@ -188,13 +189,14 @@ class Query:
         """Drop `node`'s cached matches (the next `matches` runs the matcher)."""
         self._matches.pop(node, None)
 
-    def _guided(self, node: int, T_map_live: NDArray[np.float64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    def _guided(self, node: int, T_map_live: NDArray[np.float64],
+                global_mutual: bool | None = None) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
         """(live, keyframe) indices of the matches with `node` found by projecting the live
-        points with `T_map_live` (no model)."""
+        points with `T_map_live` (no model; `global_mutual`: as for `guided_matches`)."""
         m = self.map
         f = m.features[node]
         return guided_matches(self.points(), self.feats.descriptors, T_map_live, f.keypoints, f.descriptors,
-                              m.K[node], m.T_map_camera[node], self.params.refine)
+                              m.K[node], m.T_map_camera[node], self.params.refine, global_mutual)
 
     def guided_observations(self, node: int, T_map_live: NDArray[np.float64]) -> KeyframeObservations:
         """Matches with `node` found by projecting with `T_map_live` (no model): the live points

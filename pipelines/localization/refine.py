@@ -439,9 +439,10 @@ def joint_covariance(information: list[F64], params: RefineParams, view_angle_ra
 def guided_matches(
     points_live: NDArray[np.floating], desc_live: NDArray[Any], T_map_live: NDArray[np.floating],
     kf_keypoints: NDArray[np.floating], kf_desc: NDArray[Any], K_kf: NDArray[np.floating],
-    T_map_kf: NDArray[np.floating], params: RefineParams,
+    T_map_kf: NDArray[np.floating], params: RefineParams, global_mutual: bool | None = None,
 ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """`pipelines.guided_matching.match_by_projection` with the refinement's radius,
-    similarity threshold and global-mutual rule (see `RefineParams`)."""
+    similarity threshold and global-mutual rule (see `RefineParams`; `global_mutual` given: that rule instead)."""
+    mutual = params.guided_global_mutual if global_mutual is None else global_mutual
     return match_by_projection(points_live, desc_live, T_map_live, kf_keypoints, kf_desc, K_kf, T_map_kf,
-                               params.guided_radius_px, params.guided_min_similarity, params.guided_global_mutual)
+                               params.guided_radius_px, params.guided_min_similarity, mutual)

@@ -11,15 +11,18 @@
   at full resolution, its pose checked against the live depth (`checks.see_through`).
 * `Tracker.process` runs the state machine INIT -> GLOBAL -> TRACKING -> LOST -> GLOBAL
   (`tracking.TrackingState`) and holds a pose its prior cannot confirm until it repeats.
+* Each query runs its geometry on one BLAS thread (`OneBlasThread`).
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from typing import TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
+from threadpoolctl import ThreadpoolController
 
 from litevloc.base.loader import ConfigError
 from litevloc.base.params.localization import LocalizationParams
@@ -33,6 +36,25 @@ from litevloc.pipelines.localization.search_region import SearchRegion
 from litevloc.pipelines.localization.tracker import Tracker
 from litevloc.pipelines.localization.verifier import CandidateVerifier, DescribeFn, ExtractFn
 from litevloc.pipelines.topomap.types import TopoMap
+
+R = TypeVar("R")
+
+
+class OneBlasThread:
+    """Runs a call with BLAS (OpenBLAS, MKL: numpy's and scipy's) limited to one thread, the
+    previous limit restored after it. A query's matrix products are small (512 x 512 descriptor
+    similarities, the joint solve's SVD of a few thousand x 6 Jacobian), where waking and
+    spin-waiting BLAS threads costs more than the work: on a shared 2-core machine a 512 x 128 x 512
+    product took 50 ms on OpenBLAS's two threads and 1.6 ms on one, an SVD of 3000 x 6 46 ms and 1.7 ms.
+    The model runtimes keep their own thread pools (onnxruntime does not use BLAS). The libraries
+    are looked up once, here (the pipelines' imports have loaded scipy's OpenBLAS by then)."""
+
+    def __init__(self) -> None:
+        self._controller = ThreadpoolController()
+
+    def __call__(self, fn: Callable[[], R]) -> R:
+        with self._controller.limit(limits=1, user_api="blas"):
+            return fn()
 
 
 class VisualLocalizer:
@@ -53,20 +75,23 @@ class VisualLocalizer:
         self.local_search = LocalSearch(self.verifier, look)
         self.global_search = GlobalSearch(self.local_search, look)
         self.tracker = Tracker(params, self.global_search, self.local_search)
+        self.one_blas_thread = OneBlasThread()
 
     def process(self, t_ns: int, color: NDArray[np.uint8], depth: NDArray[np.float32] | None,
                 K: NDArray[np.float64], prior: Prior | None = None,
                 region: SearchRegion | None = None) -> LocalizationResult:
         """One frame through the state machine (`Tracker.process`)."""
-        return self.tracker.process(t_ns, color, depth, K, prior, region)
+        return self.one_blas_thread(lambda: self.tracker.process(t_ns, color, depth, K, prior, region))
 
     def localize_global(self, t_ns: int, color: NDArray[np.uint8], depth: NDArray[np.float32] | None,
                         K: NDArray[np.float64], prior: Prior | None = None, region: SearchRegion | None = None,
                         only: Sequence[int] | None = None) -> LocalizationResult:
         """One GL query outside the state machine (`GlobalSearch.localize`, not recovering)."""
-        return self.global_search.localize(t_ns, color, depth, K, self.params, prior, region=region, only=only)
+        return self.one_blas_thread(lambda: self.global_search.localize(t_ns, color, depth, K, self.params, prior,
+                                                                        region=region, only=only))
 
     def localize_local(self, t_ns: int, color: NDArray[np.uint8], depth: NDArray[np.float32] | None,
                        K: NDArray[np.float64], prior: Prior, only: Sequence[int] | None = None) -> LocalizationResult:
         """One LL query from `prior` outside the state machine (`LocalSearch.localize`)."""
-        return self.local_search.localize(t_ns, color, depth, K, self.params, prior, only)
+        return self.one_blas_thread(lambda: self.local_search.localize(t_ns, color, depth, K, self.params, prior,
+                                                                       only))

@@ -222,6 +222,26 @@ def test_guided_matches_recover_true_pairs() -> None:
     assert len(il) < 10
 
 
+def test_guided_matches_without_the_global_mutual_rule_keep_pairs_a_repeated_texture_hides() -> None:
+    """A keyframe where each true keypoint's texture repeats elsewhere (an exact copy of its
+    descriptor far away): the global-mutual rule drops the true pairs, `global_mutual=False`
+    (LL's guided PnP matches, `local_search.guided_global_mutual`) keeps the best pair in reach."""
+    from litevloc.pipelines.localization.refine import guided_matches
+
+    rng = np.random.default_rng(7)
+    obs = _observations(rng, 200, 0.5)[1]
+    desc = rng.normal(size=(200, 32)).astype(np.float32)
+    desc /= np.linalg.norm(desc, axis=1, keepdims=True)
+    copies = (obs.pixels + np.array([320.0, 0.0])) % np.array([640.0, 480.0])  # 320 px away from each true one
+    kp = np.vstack([obs.pixels, copies])
+    kd = np.vstack([desc + 0.1 * rng.normal(size=(200, 32)), desc]).astype(np.float32)
+    params = RefineParams(guided_min_similarity=0.7)
+    il, _ = guided_matches(obs.points_live, desc, T_MAP_LIVE, kp, kd, K, obs.T_map_kf, params)
+    assert len(il) < 10  # the default (joint refinement's extra keyframes): the copies win globally
+    il, ik = guided_matches(obs.points_live, desc, T_MAP_LIVE, kp, kd, K, obs.T_map_kf, params, global_mutual=False)
+    assert len(il) > 190 and np.all(ik == il)
+
+
 
 def _depth_noisy_observations(rng: np.random.Generator, n: int) -> list[KeyframeObservations]:
     """One keyframe; live and keyframe depths with the default depth noise model, live and

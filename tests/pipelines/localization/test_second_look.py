@@ -390,3 +390,13 @@ def test_a_candidate_the_pre_check_refuses_is_never_matched_at_full_resolution()
     assert "no candidate passed the full-resolution pre-check" in r2.stop_reason
     assert any(a.reason.startswith("full-resolution pre-check") for a in r2.attempts)
     assert r2.timings_ms["second_look"] > 0
+
+
+def test_the_looks_guided_matches_keep_the_global_mutual_rule_that_lls_first_look_drops() -> None:
+    """LL's first look matches by the prior without the global-mutual rule
+    (`local_search.guided_global_mutual` off); the second look's denser features keep it."""
+    m = _with_images(make_map([0.0, 1.0, 2.0, 3.0]))
+    s = Scene(m)
+    assert not PARAMS.local_search.guided_global_mutual
+    look = SecondLook(m, PARAMS, FullResolution(s, m).extract, s.describe, match_by_id, SMALLER)
+    assert look.params.local_search.guided_global_mutual and look.local.verifier.map.features is look.features

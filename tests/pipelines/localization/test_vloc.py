@@ -712,3 +712,28 @@ def test_a_weak_candidate_is_known_by_its_refusal_kind_not_by_the_wording_of_its
     assert weak(CandidateAttempt(3, 0.5, 25, 0, "refused", Refusal.MATCHES), 20)
     assert not weak(CandidateAttempt(3, 0.5, 30, 25, "too few inliers (25 < 40)", Refusal.LATER), 20)
     assert not weak(CandidateAttempt(3, 0.5, 25, 0, "too few matches (25)", Refusal.DEPTH), 20)
+
+
+def test_queries_run_their_geometry_on_one_blas_thread() -> None:
+    """Every entry point runs under one BLAS thread (small products are slower threaded on a
+    shared machine, see `OneBlasThread`); the process's own limit is back afterwards."""
+    from threadpoolctl import ThreadpoolController, threadpool_limits
+
+    m = make_map([0.0, 1.0, 2.0, 3.0])
+    s = Scene(m)
+    seen: list[int] = []
+
+    def describe(img: NDArray[np.uint8]) -> NDArray[np.float32]:
+        seen.append(max(lib.num_threads for lib in ThreadpoolController().select(user_api="blas").lib_controllers))
+        return s.describe(img)
+
+    loc = VisualLocalizer(m, PARAMS, s.extract, describe, s.match)
+    T_true = pose(1.3, 5.0)
+    with threadpool_limits(limits=2, user_api="blas"):
+        depth = s.look(T_true, vpr_best=1)
+        assert loc.process(0, IMG, depth, K).accepted
+        assert loc.localize_global(1, IMG, depth, K).accepted
+        assert loc.localize_local(2, IMG, depth, K, Prior(T_true, 0.0, fused=False)).accepted
+        after = [lib.num_threads for lib in ThreadpoolController().select(user_api="blas").lib_controllers]
+    assert seen == [1, 1, 1]
+    assert after and set(after) == {2}
