@@ -458,6 +458,9 @@ def _robot_figures(tmp: Path, k: int, ns: str, wire: Wire, sampler: Sampler, ann
         vloc_calls=int(status.get("counters", {}).get("vloc_calls", 0)), stream_s=t1 - t0,
         cpu_s=sampler.cpu_between(ns, t0, t1), switch_wall=switch,
         lost=sum(1 for t in wire.lost_wall[ns] if announce_wall is not None and t >= announce_wall),
+        first_lost_after_switch_s=None if switch is None else
+        next((t - switch for t in wire.lost_wall[ns] if t >= switch), None),
+        streamed_after_switch_s=None if switch is None else t1 - switch,
         jump_m=jump, step_m=step, wire_bytes=sum(by_topic.values()), wire_bytes_by_topic=by_topic)
 
 
@@ -481,10 +484,10 @@ def main() -> None:
     ap.add_argument("--rec", type=Path, default=None, help="recording each robot replays")
     ap.add_argument("--push", type=Path, default=None, help="recording robot0 pushes (`map push REC --to fleet`)")
     ap.add_argument("--held-out", type=Path, default=None, help="posed recording of the service's held-out gate")
-    ap.add_argument("--held-out-every", type=int, default=30,
-                    help="the gate localizes every N-th frame of --held-out (600 frames: 20 at the default)")
+    ap.add_argument("--held-out-every", type=int, default=60,
+                    help="the gate localizes every N-th frame of --held-out (600 frames: 10 at the default)")
     ap.add_argument("--config", default="default")
-    ap.add_argument("--rate", type=float, default=0.25,
+    ap.add_argument("--rate", type=float, default=0.2,
                     help="replay rate (a real-time factor; slow enough that the push's candidate build, on the same "
                          "CPUs as the robots, ends within the robots' run)")
     ap.add_argument("--switch-after", type=float, default=4.0,

@@ -60,7 +60,9 @@ class RobotFigures:
     `wire_bytes`: payload bytes of its publications received by the bench over `stream_s`
     (`wire_bytes_by_topic`: the same per key after the namespace); `error_before_m` /
     `error_after_m`: median fused camera position error against ground truth before and after its
-    switch (see `error_split`; None without ground truth or a switch)."""
+    switch (see `error_split`; None without ground truth or a switch); `first_lost_after_switch_s`:
+    its switch to the first LOST pose after it (None: none, or no switch), `streamed_after_switch_s`:
+    its switch to its last fused pose (how long the run went on on the new version)."""
 
     vloc_calls: int
     stream_s: float
@@ -73,6 +75,8 @@ class RobotFigures:
     wire_bytes_by_topic: dict[str, int] = field(default_factory=dict)
     error_before_m: float | None = None
     error_after_m: float | None = None
+    first_lost_after_switch_s: float | None = None
+    streamed_after_switch_s: float | None = None
 
 
 def _finite_or_none(x: float | None) -> float | None:
@@ -99,6 +103,9 @@ def fleet_entry(robots: Sequence[RobotFigures], *, fetch_s: float, fetch_bytes: 
                                for r in robots],
         "robots_switched": len(switched),
         "lost_during_switch": sum(r.lost for r in robots),
+        "lost_after_announce_per_robot": [r.lost for r in robots],
+        "first_lost_after_switch_s": [r.first_lost_after_switch_s for r in robots],
+        "streamed_after_switch_s": [r.streamed_after_switch_s for r in robots],
         "max_jump_m": max(jumps) if jumps else None,
         "step_m_per_robot": [r.step_m for r in robots],
         "vloc_hz_per_robot": [r.vloc_calls / r.stream_s if r.stream_s > 0 else 0.0 for r in robots],

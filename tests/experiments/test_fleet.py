@@ -31,6 +31,7 @@ ANNOUNCE = 1000.0
 
 def _robot(switch: float | None = 1001.5, vloc: int = 17, cpu: float = 14.5, lost: int = 0) -> RobotFigures:
     return RobotFigures(vloc_calls=vloc, stream_s=14.5, cpu_s=cpu, switch_wall=switch, lost=lost, jump_m=0.004,
+                        first_lost_after_switch_s=None if not lost else 7.0,
                         step_m=0.005, wire_bytes=1_200_000, wire_bytes_by_topic={"litevloc/pose": 1_000_000,
                                                                                  "litevloc/status": 200_000})
 
@@ -46,7 +47,8 @@ def test_entry_has_the_contract_keys_and_the_figures_of_its_robots() -> None:
     assert e["robots"] == 2 and e["robots_switched"] == 2
     assert e["switch_s_max"] == pytest.approx(3.0)  # the announcement to the last robot switched
     assert e["switch_s_per_robot"] == pytest.approx([1.5, 3.0])
-    assert e["lost_during_switch"] == 2
+    assert e["lost_during_switch"] == 2 and e["lost_after_announce_per_robot"] == [0, 2]
+    assert e["first_lost_after_switch_s"] == [None, 7.0]
     assert e["vloc_hz_per_robot"] == pytest.approx([17 / 14.5, 10 / 14.5])
     assert e["cpu_s_per_vloc"] == pytest.approx([14.5 / 17, 2.0])
     assert e["wire_bytes_per_robot_per_min"] == pytest.approx(60 * 1_200_000 / 14.5)
