@@ -219,12 +219,14 @@ def _per_min_by_topic(robots: Sequence[RobotFigures]) -> dict[str, float]:
 def fleet_estimate(entries: Sequence[dict[str, Any]], robots: int = 50) -> dict[str, Any]:
     """Paper figures for `robots` robots on one router and one map service, scaled linearly from the
     measured entries (the largest robot count for the per-robot figures): steady-state traffic
-    through the router, the server's CPU share, its RSS (the growth per robot between the smallest
-    and the largest run, extended), and a fetch of every robot at once at the measured loopback rate
-    (an upper bound of the wire's share: a LAN is slower)."""
+    through the router (per robot at real time where the entry has
+    `wire_bytes_per_robot_per_min_real_time`), the server's CPU share, its RSS (the growth per robot
+    between the smallest and the largest run, extended), and a fetch of every robot at once at the
+    measured loopback rate (an upper bound of the wire's share: a LAN is slower)."""
     first, entry = min(entries, key=lambda e: e["robots"]), max(entries, key=lambda e: e["robots"])
     n = max(int(entry["robots"]), 1)
-    wire = entry.get("wire_bytes_per_robot_per_min") or 0.0
+    # a replay slower than real time sends its poses slower: the real-time figure where the run has it
+    wire = entry.get("wire_bytes_per_robot_per_min_real_time") or entry.get("wire_bytes_per_robot_per_min") or 0.0
     cpu = entry.get("server_cpu_percent")
     rate = entry["fetch_bytes"] / entry["fetch_s"] if entry.get("fetch_s") else None
     span = entry["robots"] - first["robots"]

@@ -71,6 +71,9 @@ def test_estimate_scales_the_steady_state_per_robot() -> None:
     assert est["router_bytes_per_s"] == pytest.approx(50 * e["wire_bytes_per_robot_per_min"] / 60)
     assert est["server_cpu_percent"] == pytest.approx(1.0 / 2 * 50)
     assert est["all_fetch_s_at_measured_rate"] == pytest.approx(50 * 0.64)
+    slow = {**e, "wire_bytes_per_robot_per_min_real_time": 5 * e["wire_bytes_per_robot_per_min"]}  # rate 0.2
+    assert fleet_estimate([one, slow], robots=50)["router_bytes_per_s"] == pytest.approx(
+        5 * est["router_bytes_per_s"])
     assert est["server_rss_mb_per_robot"] == pytest.approx(10.0)  # 123 MB with one robot, 133 with two
     assert est["server_rss_mb"] == pytest.approx(133.0 + 48 * 10.0)
 
