@@ -393,13 +393,13 @@ def one_count(args: argparse.Namespace, n: int) -> dict[str, Any]:
                             run_s=steady_end - t_start)
         entry.update(push_entry(_push_figures(args, push, push_wall, slog, announce_wall, tmp),
                                 [r.switch_wall for r in robots]))
-        wire = entry["wire_bytes_per_robot_per_min"]
+        wire_min = entry["wire_bytes_per_robot_per_min"]
         entry.update({"run_s": run_s, "server_cpu_s_total": usage["cpu_s"], "rate": args.rate,
                       # per minute of a robot running in real time: the fused pose (most of the bytes) goes
                       # out per odometry message, so at the replay rate's pace; status is on the wall clock,
                       # so this overstates it a little
-                      "wire_bytes_per_robot_per_min_real_time": None if wire is None or not args.rate else
-                      wire / args.rate,
+                      "wire_bytes_per_robot_per_min_real_time": None if wire_min is None or not args.rate else
+                      wire_min / args.rate,
                       "server_cpu_s_push": None if push_wall is None else
                       sampler.cpu_between("server", push_wall, t_start + run_s),
                       "gate_current_version": ready,
