@@ -21,6 +21,8 @@ import numpy as np
 #: the keys every per-robot-count entry carries (issue 77, item 5)
 CONTRACT_KEYS = ("robots", "fetch_s", "fetch_bytes", "switch_s_max", "lost_during_switch", "max_jump_m",
                  "vloc_hz_per_robot", "cpu_s_per_vloc", "server_rss_mb", "wire_bytes_per_robot_per_min")
+#: and the pushed version's (the switch comes from one robot's `map push`)
+PUSH_KEYS = ("push_s", "push_verdict_s", "push_to_all_switched_s", "push_published", "push_reason")
 
 
 @dataclass
@@ -58,7 +60,9 @@ class RobotFigures:
     `wire_bytes`: payload bytes of its publications received by the bench over `stream_s`
     (`wire_bytes_by_topic`: the same per key after the namespace); `error_before_m` /
     `error_after_m`: median fused camera position error against ground truth before and after its
-    switch (see `error_split`; None without ground truth or a switch)."""
+    switch (see `error_split`; None without ground truth or a switch); `first_lost_after_switch_s`:
+    its switch to the first LOST pose after it (None: none, or no switch), `streamed_after_switch_s`:
+    its switch to its last fused pose (how long the run went on on the new version)."""
 
     vloc_calls: int
     stream_s: float
@@ -71,6 +75,8 @@ class RobotFigures:
     wire_bytes_by_topic: dict[str, int] = field(default_factory=dict)
     error_before_m: float | None = None
     error_after_m: float | None = None
+    first_lost_after_switch_s: float | None = None
+    streamed_after_switch_s: float | None = None
 
 
 def _finite_or_none(x: float | None) -> float | None:
@@ -97,6 +103,9 @@ def fleet_entry(robots: Sequence[RobotFigures], *, fetch_s: float, fetch_bytes: 
                                for r in robots],
         "robots_switched": len(switched),
         "lost_during_switch": sum(r.lost for r in robots),
+        "lost_after_announce_per_robot": [r.lost for r in robots],
+        "first_lost_after_switch_s": [r.first_lost_after_switch_s for r in robots],
+        "streamed_after_switch_s": [r.streamed_after_switch_s for r in robots],
         "max_jump_m": max(jumps) if jumps else None,
         "step_m_per_robot": [r.step_m for r in robots],
         "vloc_hz_per_robot": [r.vloc_calls / r.stream_s if r.stream_s > 0 else 0.0 for r in robots],
@@ -108,6 +117,51 @@ def fleet_entry(robots: Sequence[RobotFigures], *, fetch_s: float, fetch_bytes: 
         "wire_bytes_per_min_by_topic": _per_min_by_topic(robots),
         "fused_error_m_before_switch": [r.error_before_m for r in robots],
         "fused_error_m_after_switch": [r.error_after_m for r in robots],
+    }
+
+
+@dataclass(frozen=True)
+class PushFigures:
+    """One robot's `litevloc map push` as the bench saw it (wall-clock seconds, one machine).
+
+    `start_wall`: the push command started; `verdict_wall`: the map service decided (None: no
+    verdict, e.g. the push did not finish); `published` / `reason` / `details`: the service's
+    verdict (the held-out gate's figures in `details`); `announce_wall`: the pushed version's
+    announcement (None when refused); `exit_code`: of `map push` (0 published, 1 refused, None
+    still running when the bench gave up); `bytes`: the pushed recording's size."""
+
+    start_wall: float
+    verdict_wall: float | None
+    published: bool | None
+    reason: str | None
+    announce_wall: float | None
+    exit_code: int | None
+    bytes: int
+    details: dict[str, Any] = field(default_factory=dict)
+
+
+def push_entry(push: PushFigures | None, switch_walls: Sequence[float | None]) -> dict[str, Any]:
+    """The push's part of a robot-count entry: `push_s` (push start to the new version published
+    and announced; None when refused or undecided), `push_verdict_s` (push start to the verdict,
+    either way), `push_to_all_switched_s` (push start to the last robot's switch; None unless every
+    robot switched after the announcement), and the verdict (`push_published`, `push_reason`,
+    `push_details`); `push` None: no push was made (every key None but the reason)."""
+    if push is None:
+        return {"push_s": None, "push_verdict_s": None, "push_to_all_switched_s": None, "push_published": None,
+                "push_reason": "no push: the robots ended before every one had published fused poses",
+                "push_details": {}, "push_exit_code": None, "push_bytes": None}
+    ann = push.announce_wall if push.published else None
+    all_switched = ann is not None and bool(switch_walls) and all(w is not None and w >= ann for w in switch_walls)
+    return {
+        "push_s": None if ann is None else ann - push.start_wall,
+        "push_verdict_s": None if push.verdict_wall is None else push.verdict_wall - push.start_wall,
+        "push_to_all_switched_s": max(w for w in switch_walls if w is not None) - push.start_wall
+        if all_switched else None,
+        "push_published": push.published,
+        "push_reason": push.reason,
+        "push_details": push.details,
+        "push_exit_code": push.exit_code,
+        "push_bytes": push.bytes,
     }
 
 
@@ -165,12 +219,14 @@ def _per_min_by_topic(robots: Sequence[RobotFigures]) -> dict[str, float]:
 def fleet_estimate(entries: Sequence[dict[str, Any]], robots: int = 50) -> dict[str, Any]:
     """Paper figures for `robots` robots on one router and one map service, scaled linearly from the
     measured entries (the largest robot count for the per-robot figures): steady-state traffic
-    through the router, the server's CPU share, its RSS (the growth per robot between the smallest
-    and the largest run, extended), and a fetch of every robot at once at the measured loopback rate
-    (an upper bound of the wire's share: a LAN is slower)."""
+    through the router (per robot at real time where the entry has
+    `wire_bytes_per_robot_per_min_real_time`), the server's CPU share, its RSS (the growth per robot
+    between the smallest and the largest run, extended), and a fetch of every robot at once at the
+    measured loopback rate (an upper bound of the wire's share: a LAN is slower)."""
     first, entry = min(entries, key=lambda e: e["robots"]), max(entries, key=lambda e: e["robots"])
     n = max(int(entry["robots"]), 1)
-    wire = entry.get("wire_bytes_per_robot_per_min") or 0.0
+    # a replay slower than real time sends its poses slower: the real-time figure where the run has it
+    wire = entry.get("wire_bytes_per_robot_per_min_real_time") or entry.get("wire_bytes_per_robot_per_min") or 0.0
     cpu = entry.get("server_cpu_percent")
     rate = entry["fetch_bytes"] / entry["fetch_s"] if entry.get("fetch_s") else None
     span = entry["robots"] - first["robots"]

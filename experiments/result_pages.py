@@ -81,13 +81,41 @@ def _change_rows(d: Json) -> list[list[str]]:
              _goals(c["after_update"])] for c in d["cases"]]
 
 
+def _verdict(r: Json) -> str:
+    """robot0's push: published or refused (absent from a run without a push)."""
+    pub = r.get("push_published")
+    return "-" if pub is None else "published" if pub else "refused"
+
+
+def _held_out(r: Json) -> str:
+    """The push gate's held-out check: frames localized with the current version -> the candidate."""
+    d = r.get("push_details") or {}
+    cur, cand = d.get("current"), d.get("candidate")
+    if not cur or not cand:
+        return "-"
+    return f"{cur['accepted']}/{cur['queries']} -> {cand['accepted']}/{cand['queries']}"
+
+
+def _total(xs: list[int] | None) -> int | None:
+    return None if xs is None else sum(xs)
+
+
+def _earliest(xs: list[float | None] | None) -> float | None:
+    vals = [x for x in xs or [] if x is not None]
+    return min(vals) if vals else None
+
+
 def _fleet_rows(d: Json) -> list[list[str]]:
     def per_robot(xs: list[float | None], fmt: str) -> str:
         return " ".join(_opt(x, fmt) for x in xs)
 
     return [[str(r["robots"]), f"{r['fetch_s']:.2f} ({r['fetch_bytes'] / 1e6:.1f} MB)",
+             f"{_opt(r.get('push_s'), '.1f')} ({_verdict(r)})", _held_out(r),
+             _opt(r.get("push_to_all_switched_s"), ".1f"),
              f"{_opt(r['switch_s_max'], '.1f')} ({r.get('robots_switched', '-')}/{r['robots']})",
-             str(r["lost_during_switch"]), _opt(r["max_jump_m"], ".1f", 100), per_robot(r["vloc_hz_per_robot"], ".2f"),
+             f"{_opt(_total(r.get('lost_poses_before_announce')), 'd')} / {r['lost_during_switch']}",
+             _opt(_earliest(r.get("first_lost_after_switch_s")), ".1f"), _opt(r["max_jump_m"], ".1f", 100),
+             per_robot(r["vloc_hz_per_robot"], ".2f"),
              per_robot(r["cpu_s_per_vloc"], ".2f"),
              f"{r['server_rss_mb']:.0f} / {_opt(r.get('server_cpu_percent'), '.1f')}",
              _opt(r["wire_bytes_per_robot_per_min"], ".0f", 1e-3)] for r in d["runs"]]
@@ -110,9 +138,11 @@ PAGES: tuple[Page, ...] = (
          "python bench/change.py", "simulator.md#a-building-some-time-later-the-change-block",
          ("axis", "level", "GL accepted among covered % (unchanged)", "> 0.5 m", "goals reached (unchanged)",
           "after update: GL %", "after update: > 0.5 m", "after update: goals"), _change_rows),
-    Page("fleet", "Robots on one served map, and a new version switched to by all", "bench/fleet.json",
+    Page("fleet", "Robots on one served map, and one robot's pushed update switched to by all", "bench/fleet.json",
          "python bench/fleet.py --robots 1 2 4", "fleet.md#the-fleet-benchmark",
-         ("robots", "fetch s (size)", "announce -> last switched s (switched)", "LOST poses after announce",
+         ("robots", "fetch s (size)", "push -> published s (verdict)", "held-out localized: current -> candidate",
+          "push -> last switched s", "announce -> last switched s (switched)",
+          "LOST poses before / after announce", "switch -> first LOST s",
           "pose step at the switch cm", "VLoc Hz per robot", "CPU-s per VLoc per robot", "server RSS MB / CPU %",
           "wire kB per robot per min"), _fleet_rows),
 )

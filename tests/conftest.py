@@ -13,9 +13,11 @@ from litevloc.experiments.fleet_inputs import (
     QUERY_ARGS,
     V1_ARGS,
     FleetInputs,
+    SimFleetInputs,
     fleet_inputs,
     held_out_inputs,
     litevloc_exe,
+    sim_fleet_inputs,
 )
 
 __all__ = ["HELD_OUT_MAP_ARGS", "HELD_OUT_QUERY_ARGS", "TEST_CACHE", "HeldOut", "litevloc_exe"]
@@ -60,3 +62,10 @@ def seven_scenes_fleet(seven_scenes_held_out: HeldOut) -> FleetInputs:
     """The held-out map, its rebuild from other frames (2:500:5) and the query recording: the fleet
     benchmark's inputs and the map-switch tests' two versions, built once and cached."""
     return fleet_inputs(seven_scenes_held_out.data, TEST_CACHE / "held_out")
+
+
+@pytest.fixture(scope="session")
+def sim_fleet() -> SimFleetInputs:
+    """The fleet benchmark's simulated office: a map of the first room and recordings of it after a
+    change (the robots', the pushing robot's, the held-out check's), rendered once and cached."""
+    return sim_fleet_inputs(TEST_CACHE / "fleet_sim")

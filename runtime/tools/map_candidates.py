@@ -96,6 +96,15 @@ class HeldOutGate:
             raise ValueError(f"{self.held_out}: no posed frames to check maps with")
         return HeldOutScore(n, len(errs), float(np.median(errs)) if errs else float("nan"))
 
+    def prepare(self, current: Path) -> HeldOutScore:
+        """Score the version in folder `current` now and keep the score (versions never change): a
+        push against it then scores only its candidate. A service does this when a version becomes
+        latest, or pays for it on the first push."""
+        key = str(current)
+        if key not in self._scores:
+            self._scores[key] = self.score(load_map(current))
+        return self._scores[key]
+
     def __call__(self, name: str, current: Path | None, upload: Path, kind: str, out: Path) -> PushVerdict:
         t0 = time.perf_counter()
         if current is None:
@@ -110,13 +119,11 @@ class HeldOutGate:
             cand, build = self._merge(base, upload) if kind == "map" else self._update(base, upload)
         except (MapMergeError, ValueError) as exc:
             return PushVerdict(False, f"candidate not built: {exc}")
-        key = str(current)
-        if key not in self._scores:
-            self._scores[key] = self.score(base)
+        cur = self.prepare(current)
         # the check reads the candidate as it will be served: saved (descriptors encoded) and loaded back
         cand.meta.update({"parent_map": name, "fleet_push": json.dumps(build)})
         save_map(cand, out, descriptor_bytes=self.cfg.mapping.descriptor_bytes)
-        cur, new = self._scores[key], self.score(load_map(out))
+        new = self.score(load_map(out))
         ok, reason = not_worse(new, cur, self.median_tolerance_m)
         details = {"current": cur.to_json(), "candidate": new.to_json(), "build": build,
                    "seconds": time.perf_counter() - t0}

@@ -1,6 +1,6 @@
-"""The fleet benchmark's JSON entry (experiments/fleet.py) built from recorded figures, and the pose
-step at the switch; bench/fleet.py's smallest run end to end on the 7-Scenes inputs it shares with the
-map-switch tests (built once by experiments/fleet_inputs.py)."""
+"""The fleet benchmark's JSON entry (experiments/fleet.py) built from recorded figures, the pose step
+at the switch and the push's figures; bench/fleet.py's smallest run end to end on the simulated
+office (its inputs rendered once by experiments/fleet_inputs.py and cached under out/test_cache)."""
 
 from __future__ import annotations
 
@@ -13,14 +13,17 @@ import pytest
 
 from litevloc.experiments.fleet import (
     CONTRACT_KEYS,
+    PUSH_KEYS,
     PoseTrack,
+    PushFigures,
     RobotFigures,
     error_split,
     fleet_entry,
     fleet_estimate,
     max_step_m,
+    push_entry,
 )
-from litevloc.experiments.fleet_inputs import FleetInputs
+from litevloc.experiments.fleet_inputs import SimFleetInputs
 
 ROOT = Path(__file__).resolve().parents[2]
 ANNOUNCE = 1000.0
@@ -28,6 +31,7 @@ ANNOUNCE = 1000.0
 
 def _robot(switch: float | None = 1001.5, vloc: int = 17, cpu: float = 14.5, lost: int = 0) -> RobotFigures:
     return RobotFigures(vloc_calls=vloc, stream_s=14.5, cpu_s=cpu, switch_wall=switch, lost=lost, jump_m=0.004,
+                        first_lost_after_switch_s=None if not lost else 7.0,
                         step_m=0.005, wire_bytes=1_200_000, wire_bytes_by_topic={"litevloc/pose": 1_000_000,
                                                                                  "litevloc/status": 200_000})
 
@@ -43,7 +47,8 @@ def test_entry_has_the_contract_keys_and_the_figures_of_its_robots() -> None:
     assert e["robots"] == 2 and e["robots_switched"] == 2
     assert e["switch_s_max"] == pytest.approx(3.0)  # the announcement to the last robot switched
     assert e["switch_s_per_robot"] == pytest.approx([1.5, 3.0])
-    assert e["lost_during_switch"] == 2
+    assert e["lost_during_switch"] == 2 and e["lost_after_announce_per_robot"] == [0, 2]
+    assert e["first_lost_after_switch_s"] == [None, 7.0]
     assert e["vloc_hz_per_robot"] == pytest.approx([17 / 14.5, 10 / 14.5])
     assert e["cpu_s_per_vloc"] == pytest.approx([14.5 / 17, 2.0])
     assert e["wire_bytes_per_robot_per_min"] == pytest.approx(60 * 1_200_000 / 14.5)
@@ -66,6 +71,9 @@ def test_estimate_scales_the_steady_state_per_robot() -> None:
     assert est["router_bytes_per_s"] == pytest.approx(50 * e["wire_bytes_per_robot_per_min"] / 60)
     assert est["server_cpu_percent"] == pytest.approx(1.0 / 2 * 50)
     assert est["all_fetch_s_at_measured_rate"] == pytest.approx(50 * 0.64)
+    slow = {**e, "wire_bytes_per_robot_per_min_real_time": 5 * e["wire_bytes_per_robot_per_min"]}  # rate 0.2
+    assert fleet_estimate([one, slow], robots=50)["router_bytes_per_s"] == pytest.approx(
+        5 * est["router_bytes_per_s"])
     assert est["server_rss_mb_per_robot"] == pytest.approx(10.0)  # 123 MB with one robot, 133 with two
     assert est["server_rss_mb"] == pytest.approx(133.0 + 48 * 10.0)
 
@@ -92,17 +100,51 @@ def test_error_split_matches_ground_truth_stamps_and_splits_at_the_switch() -> N
     assert error_split([], gt, 10.0).before_m is None
 
 
+def _push(published: bool | None = True, announce: float | None = 1060.0) -> PushFigures:
+    return PushFigures(start_wall=1000.0, verdict_wall=1059.9, published=published, reason="held-out check ...",
+                       announce_wall=announce, exit_code=0 if published else 1, bytes=16_000_000,
+                       details={"candidate": {"accepted": 2}})
+
+
+def test_push_entry_times_the_push_and_the_last_switch() -> None:
+    e = push_entry(_push(), [1061.0, 1063.5])
+    assert set(PUSH_KEYS) <= set(e)
+    assert e["push_s"] == pytest.approx(60.0) and e["push_verdict_s"] == pytest.approx(59.9)
+    assert e["push_to_all_switched_s"] == pytest.approx(63.5)
+    assert e["push_published"] is True and e["push_details"] == {"candidate": {"accepted": 2}}
+    json.dumps(e, allow_nan=False)
+
+
+def test_push_entry_of_a_refused_or_unfinished_push_or_none() -> None:
+    refused = push_entry(_push(False, None), [None, None])
+    assert refused["push_s"] is None and refused["push_to_all_switched_s"] is None
+    assert refused["push_published"] is False and refused["push_verdict_s"] == pytest.approx(59.9)
+    # published, but one robot never switched, or switched before the announcement (not to this version)
+    assert push_entry(_push(), [1061.0, None])["push_to_all_switched_s"] is None
+    assert push_entry(_push(), [1061.0, 1059.0])["push_to_all_switched_s"] is None
+    none = push_entry(None, [None])
+    assert set(PUSH_KEYS) <= set(none) and none["push_published"] is None and "no push" in none["push_reason"]
+
+
 @pytest.mark.slow
-@pytest.mark.shared_data
-@pytest.mark.timeout(300)
-def test_smallest_fleet_run_writes_the_contract(seven_scenes_fleet: FleetInputs, tmp_path: Path) -> None:
+@pytest.mark.timeout(420)
+def test_smallest_fleet_run_writes_the_contract(sim_fleet: SimFleetInputs, tmp_path: Path) -> None:
     out = tmp_path / "fleet.json"
-    ins = seven_scenes_fleet
+    ins = sim_fleet
     subprocess.run([sys.executable, str(ROOT / "bench" / "fleet.py"), "--robots", "1", "--quick", "--json", str(out),
-                    "--v1", str(ins.v1), "--v2", str(ins.v2), "--rec", str(ins.rec)], check=True, timeout=240)
+                    "--v1", str(ins.v1), "--rec", str(ins.rec), "--push", str(ins.push), "--held-out",
+                    str(ins.held_out)], check=True, timeout=400)
     e = json.loads(out.read_text())["runs"][0]
-    assert set(CONTRACT_KEYS) <= set(e) and e["robots"] == 1
+    assert set(CONTRACT_KEYS) <= set(e) and set(PUSH_KEYS) <= set(e) and e["robots"] == 1
     assert e["fetch_bytes"] > 0 and e["vloc_hz_per_robot"][0] > 0
-    assert e["robots_switched"] == 1 and e["lost_during_switch"] == 0
-    before, after = e["fused_error_m_before_switch"][0], e["fused_error_m_after_switch"][0]
-    assert before is not None and after is not None and before < 0.5 and after < 0.5
+    assert e["fused_error_m_before_switch"][0] is not None and e["fused_error_m_before_switch"][0] < 0.5
+    # robot0's push was decided by the held-out gate, either way, with its reason and figures
+    assert isinstance(e["push_published"], bool) and e["push_reason"] and e["push_verdict_s"] > 0
+    assert e["push_exit_code"] == (0 if e["push_published"] else 1)
+    if e["push_published"]:
+        assert e["push_s"] > 0 and {"current", "candidate", "build"} <= set(e["push_details"])
+    else:
+        assert e["push_s"] is None and e["robots_switched"] == 0
+    if e["robots_switched"]:  # the version switched to is the pushed one, announced after the push began
+        assert e["push_published"] and e["lost_during_switch"] == 0
+        assert e["push_to_all_switched_s"] == pytest.approx(e["push_s"] + e["switch_s_max"])
