@@ -129,9 +129,8 @@ class SecondLook:
         view = replace(topomap, features=self.features)
         # denser features also make wrong poses near a tracked one: LL's look stays closer to its prior
         radius = min(params.prior_gate.radius_m, params.second_look.prior_gate_m)
-        # and its guided matches keep the global-mutual rule whatever LL's first look does
-        # (`local_search.guided_global_mutual`): without it, on 7-Scenes 825-878 the look's 2048-keypoint
-        # guided matches verified poses 15-27 cm off where LightGlue's were 5-9 cm off
+        # and its guided matches keep the global-mutual rule whatever LL's first look does: over 2048
+        # keypoints the best pair within the radius is too often another keypoint's (b8066da)
         self.params = replace(params, prior_gate=replace(params.prior_gate, radius_m=radius),
                               local_search=replace(params.local_search, guided_global_mutual=True))
         # no look after this one, and no pooled pass (denser features need no pooling of weak candidates)

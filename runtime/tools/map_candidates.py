@@ -96,13 +96,13 @@ class HeldOutGate:
             raise ValueError(f"{self.held_out}: no posed frames to check maps with")
         return HeldOutScore(n, len(errs), float(np.median(errs)) if errs else float("nan"))
 
-    def prepare(self, current: Path) -> HeldOutScore:
-        """Score the version in folder `current` now and keep the score (versions never change): a
-        push against it then scores only its candidate. A service does this when a version becomes
-        latest, or pays for it on the first push."""
+    def prepare(self, current: Path, loaded: TopoMap | None = None) -> HeldOutScore:
+        """Score the version in folder `current` (`loaded`: that map, already read) now and keep the
+        score (versions never change): a push against it then scores only its candidate. A service
+        does this when a version becomes latest, or pays for it on the first push."""
         key = str(current)
         if key not in self._scores:
-            self._scores[key] = self.score(load_map(current))
+            self._scores[key] = self.score(load_map(current) if loaded is None else loaded)
         return self._scores[key]
 
     def __call__(self, name: str, current: Path | None, upload: Path, kind: str, out: Path) -> PushVerdict:
@@ -119,7 +119,7 @@ class HeldOutGate:
             cand, build = self._merge(base, upload) if kind == "map" else self._update(base, upload)
         except (MapMergeError, ValueError) as exc:
             return PushVerdict(False, f"candidate not built: {exc}")
-        cur = self.prepare(current)
+        cur = self.prepare(current, base)
         # the check reads the candidate as it will be served: saved (descriptors encoded) and loaded back
         cand.meta.update({"parent_map": name, "fleet_push": json.dumps(build)})
         save_map(cand, out, descriptor_bytes=self.cfg.mapping.descriptor_bytes)
