@@ -59,6 +59,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--plot", type=Path, default=None, help="also write a top-down PNG with the trajectory"
     )
     r.add_argument(
+        "--workers", type=int, default=None, metavar="N",
+        help="processes that render frames (default: one per CPU; 1: render in this process); "
+        "the recording is the same for any N",
+    )
+    r.add_argument(
         "--change", action="append", default=[], metavar="AXIS=LEVEL",
         help="record the building changed: AXIS one of lighting, furniture, pictures, doors (level 0-1), "
         "people (a count), seed (of the change), or a named mix (months_later); repeatable, applied "
@@ -110,14 +115,18 @@ def _world(args: argparse.Namespace):
 
 
 def run_record(args: argparse.Namespace) -> int:
+    from litevloc.runtime.tools.parallel_frames import default_workers
     from litevloc.runtime.tools.sim_recording import record_pass
 
     if args.output.suffix.lower() != ".mcap":
         raise UserError(f"output must be a .mcap file, got {args.output}")
     if args.duration is not None and args.duration <= 0:
         raise UserError("--duration must be > 0")
+    if args.workers is not None and args.workers < 1:
+        raise UserError(f"--workers must be >= 1, got {args.workers}")
+    workers = args.workers if args.workers is not None else default_workers()
     summary = record_pass(_world(args), args.pass_name, args.seed, args.duration, config_of(args).sim, args.output,
-                          args.plot)
+                          args.plot, workers)
     write_json(args.json, summary)
     return 0
 

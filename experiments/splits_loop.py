@@ -45,6 +45,7 @@ def record_loop_frames(frames_dir: Path, indices: Sequence[int]) -> None:
     T_world_camera = src.camera_poses()
     for i in missing:
         f = src.frame(i)
+        assert f.depth is not None  # the simulator always renders depth
         np.savez_compressed(_frame_file(frames_dir, i), color=f.color, depth=f.depth, K=f.K,
                             t_ns=np.int64(f.t_ns), T_world_camera=T_world_camera[i])
 

@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 
 from litevloc.base.geometry import interpolate_pose_at
 from litevloc.base.params.sim import SimParams
-from litevloc.hw.messages import GroundTruthPose, Message, Odometry, StreamStats
+from litevloc.hw.messages import GroundTruthPose, Message, Odometry, RgbdFrame, StreamStats
 from litevloc.sim.realism import Lighting, sample_lighting
 from litevloc.sim.render import Renderer
 from litevloc.sim.simulator import add_people, camera_pose, render_frame
@@ -90,10 +90,10 @@ class SimSequenceSource:
         k = min(int(np.searchsorted(self.run.t_ns, t_ns)), len(self.run.speed) - 1)
         return camera_pose(T_base, t_ns * 1e-9, float(self.run.speed[k]), self.params)
 
-    def frame(self, index: int):
+    def frame(self, index: int) -> RgbdFrame:
         """Render frame `index` (deterministic: same seed -> identical arrays)."""
-        if self._renderer is None:
-            self._renderer = Renderer(self.world)
+        self.prepare_renderer()
+        assert self._renderer is not None
         t = int(self.frame_times[index])
         return render_frame(
             self._renderer,
@@ -112,19 +112,27 @@ class SimSequenceSource:
         the noise realisation differs from `frame(index).depth` (colour noise draws first)."""
         from litevloc.sim.realism import apply_depth
 
-        if self._renderer is None:
-            self._renderer = Renderer(self.world)
+        self.prepare_renderer()
+        assert self._renderer is not None
         t = int(self.frame_times[index])
         T = self._cam_pose(t)
         d = self._renderer.render_depth(T, self.params.intrinsics)
         add_people(self.world, T, self.params.intrinsics, t, None, d)
         return apply_depth(d, self.params.realism, np.random.default_rng([self._noise_seed, 13, index]))
 
-    def __iter__(self) -> Iterator[Message]:
-        # the renderer (seconds in a large world) is built before the first message, where a
-        # replay paced in real time starts its clock
+    def prepare_renderer(self) -> None:
+        """Build the renderer now (seconds in a large world): before a replay paced in real time
+        starts its clock, or before worker processes fork so that they share it."""
         if self._renderer is None:
             self._renderer = Renderer(self.world)
+
+    def __iter__(self) -> Iterator[Message]:
+        return self.messages()
+
+    def messages(self, frames: Iterator[RgbdFrame] | None = None) -> Iterator[Message]:
+        """The pass's messages in time order. `frames`: the rendered frames in index order from
+        elsewhere (e.g. worker processes, `frame(i)` for i = 0, 1, ...); None renders them here."""
+        self.prepare_renderer()
         odo_t, odo_T = self.run.t_ns, self.run.T_odom_base
         k = 0
         for i, t in enumerate(self.frame_times):
@@ -132,7 +140,9 @@ class SimSequenceSource:
                 self.stats.messages += 1
                 yield Odometry(int(odo_t[k]), odo_T[k].copy())
                 k += 1
-            frame = self.frame(i)
+            frame = self.frame(i) if frames is None else next(frames)
+            if frame.index != i:
+                raise ValueError(f"frames out of order: got frame {frame.index} where frame {i} belongs")
             self.stats.messages += 2
             yield frame
             yield GroundTruthPose(int(t), self._cam_pose(int(t)), index=i)

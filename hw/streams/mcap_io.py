@@ -28,6 +28,7 @@ import numpy as np
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
+from numpy.typing import NDArray
 
 from litevloc.hw import ros_msgs
 from litevloc.hw.messages import (
@@ -73,10 +74,23 @@ except ImportError:  # pragma: no cover - mcap depends on zstandard
 _CORRUPT_OR_OS: tuple[type[BaseException], ...] = (*_CORRUPT, OSError)
 
 
+JPEG_QUALITY = 95  # of recorded colour frames
+
+
+def encode_jpeg(color: NDArray[np.uint8], quality: int = JPEG_QUALITY, index: int = 0) -> bytes:
+    """The JPEG bytes a recording stores for an (H, W, 3) RGB colour image (frame `index` names
+    it in the StreamError if encoding fails)."""
+    ok, enc = cv2.imencode(".jpg", color[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise StreamError(f"frame {index}: JPEG encoding failed")
+    return bytes(enc.tobytes())
+
+
 class McapRecorder:
     """Write `Message`s to an MCAP file (zstd chunks). Use as a context manager."""
 
-    def __init__(self, path: str | Path, jpeg_quality: int = 95, metadata: dict[str, str] | None = None) -> None:
+    def __init__(self, path: str | Path, jpeg_quality: int = JPEG_QUALITY,
+                 metadata: dict[str, str] | None = None) -> None:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.jpeg_quality = int(jpeg_quality)
@@ -122,10 +136,7 @@ class McapRecorder:
                 self._put(TOPIC_DEPTH, msg.t_ns, depth_msg)
             jpeg = msg.color_jpeg
             if jpeg is None:
-                ok, enc = cv2.imencode(".jpg", msg.color[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality])
-                if not ok:
-                    raise StreamError(f"frame {msg.index}: JPEG encoding failed")
-                jpeg = enc.tobytes()
+                jpeg = encode_jpeg(msg.color, self.jpeg_quality, msg.index)
             self._put(TOPIC_COLOR, msg.t_ns, ros_msgs.compressed_image_msg(msg.t_ns, jpeg, "jpeg", msg.frame_id))
         elif isinstance(msg, Odometry):  # packed directly: a 200 Hz topic (same bytes as rosbags')
             self._put_cdr(TOPIC_ODOM, msg.t_ns, ros_msgs.odometry_cdr(msg.t_ns, msg.T_odom_base, msg.frame_id,

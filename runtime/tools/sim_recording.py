@@ -14,12 +14,14 @@ from litevloc.sim.world import World
 
 
 def record_pass(world: World, pass_name: PassName, seed: int, duration_s: float | None, params: SimParams,
-                output: Path, plot: Path | None = None) -> dict[str, Any]:
+                output: Path, plot: Path | None = None, workers: int = 1) -> dict[str, Any]:
     """Simulate `pass_name` through `world` (`duration_s` simulated seconds; None: the whole
     pass) and record it to the MCAP file `output` (and, with `plot`, a top-down PNG of the
-    path). Returns the summary (`sim record --json`): message counts, bytes, wall and simulated
-    seconds, the world and its collisions."""
+    path), its frames rendered by `workers` processes (the same bytes for any number). Returns
+    the summary (`sim record --json`): message counts, bytes, wall and simulated seconds, the
+    world and its collisions."""
     from litevloc.hw.streams.mcap_io import record_messages
+    from litevloc.runtime.tools.parallel_frames import rendered_frames
     from litevloc.sim.source import SimSequenceSource
 
     t0 = time.perf_counter()
@@ -36,7 +38,8 @@ def record_pass(world: World, pass_name: PassName, seed: int, duration_s: float 
     counts = {"frames": 0, "odometry": 0, "ground_truth": 0}
     t1 = time.perf_counter()
     with progress(src.frame_count(), f"sim {pass_name}") as bar:
-        counts.update(record_messages(src, output, meta, on_frame=lambda: bar.update(1)))
+        messages = src.messages(rendered_frames(src, workers))
+        counts.update(record_messages(messages, output, meta, on_frame=lambda: bar.update(1)))
     dt = time.perf_counter() - t1
     if plot is not None:
         from litevloc.sim.plot import plot_world
@@ -50,7 +53,7 @@ def record_pass(world: World, pass_name: PassName, seed: int, duration_s: float 
         f"wrote {output}: {counts['frames']} frames, {counts['odometry']} odometry, "
         f"{counts['ground_truth']} "
         f"ground-truth poses, {src.duration_s:.1f} s simulated, {size / 1e6:.1f} MB in {dt:.1f} s "
-        f"({counts['frames'] / max(dt, 1e-9):.1f} frames/s; planning {t_plan:.1f} s)"
+        f"({counts['frames'] / max(dt, 1e-9):.1f} frames/s, {workers} render process(es); planning {t_plan:.1f} s)"
     )
     return {
         "output": str(output),
@@ -58,6 +61,7 @@ def record_pass(world: World, pass_name: PassName, seed: int, duration_s: float 
         "bytes": size,
         "seconds": dt,
         "planning_seconds": t_plan,
+        "render_workers": workers,
         "simulated_seconds": src.duration_s,
         "seed": seed,
         "pass": pass_name,
