@@ -256,10 +256,11 @@ class McapSource:
             assert not isinstance(m, EncodedRgbdFrame)  # only yielded when deferring
             yield m
 
-    def messages(self, defer_color: bool = False) -> Iterator[SourceMessage]:
+    def messages(self, defer_color: bool = False, skip_odometry: bool = False) -> Iterator[SourceMessage]:
         """The recording's messages; with `defer_color`, frames as `EncodedRgbdFrame` (the
-        colour is checked where it is decoded, the rest as `strict` says)."""
-        return self._read(defer_color)
+        colour is checked where it is decoded, the rest as `strict` says); `skip_odometry`:
+        /odom skipped undecoded (see `without_odometry`)."""
+        return self._read(defer_color, skip_odometry)
 
     def without_odometry(self) -> Iterator[Message]:
         """The messages as iterating gives them, /odom skipped undecoded: a map posed by

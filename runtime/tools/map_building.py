@@ -33,7 +33,7 @@ from litevloc.base.errors import LiteVLocError
 from litevloc.base.frames import parse_frames
 from litevloc.base.process_usage import cpu_seconds, peak_rss_mb
 from litevloc.config.schema import LiteVLocConfig
-from litevloc.hw.messages import Message, RgbdFrame
+from litevloc.hw.messages import EncodedRgbdFrame, Message, RgbdFrame
 from litevloc.hw.streams.base import StreamSource
 from litevloc.pipelines.slam.frames import interpolate_trajectory
 from litevloc.pipelines.slam.session import SlamError, map_frame
@@ -44,7 +44,7 @@ from litevloc.runtime.tools.outputs import progress
 from litevloc.runtime.tools.posed import odometry_posed_frames, posed_frames, trajectory_posed_frames
 
 PoseSource = str  # "ground-truth" | "odometry" | "slam" | "file"
-Posed = Iterator[tuple[RgbdFrame, NDArray[np.float64] | None]]
+Posed = Iterator[tuple[RgbdFrame | EncodedRgbdFrame, NDArray[np.float64] | None]]
 
 
 class MapBuildError(LiteVLocError):
@@ -152,11 +152,22 @@ def _odometry_in_map(posed: Posed, cfg: Any) -> Posed:
 
 
 def posed_stream(kind: PoseSource, messages: Iterable[Message], cfg: Any, traj: Any) -> Posed:
-    """(frame, T_map_camera or None) for a non-SLAM pose source."""
+    """(frame, T_map_camera or None) for a non-SLAM pose source. A recording's frames come with
+    their colour still encoded (`EncodedRgbdFrame`): pass 1 reads depth only and pass 2 decodes
+    the keyframes' colour alone (decoding every frame twice was a sixth of a build's time)."""
     from litevloc.hw.streams.mcap_io import McapSource
 
+    if isinstance(messages, McapSource):
+        lean = messages.messages(defer_color=True, skip_odometry=kind != "odometry")
+        if kind == "ground-truth":
+            return posed_frames(lean, frame_type=EncodedRgbdFrame)
+        if kind == "odometry":
+            odo = odometry_posed_frames(lean, cfg.fusion.T_base_camera(), frame_type=EncodedRgbdFrame)
+            return _odometry_in_map(odo, cfg)
+        return trajectory_posed_frames(lean, traj[0], traj[1], int(cfg.slam.file_max_gap_s * 1e9),
+                                       frame_type=EncodedRgbdFrame)
     if kind == "ground-truth":
-        return posed_frames(messages.without_odometry() if isinstance(messages, McapSource) else messages)
+        return posed_frames(messages)
     if kind == "odometry":
         return _odometry_in_map(odometry_posed_frames(messages, cfg.fusion.T_base_camera()), cfg)
     return trajectory_posed_frames(messages, traj[0], traj[1], int(cfg.slam.file_max_gap_s * 1e9))
@@ -201,6 +212,8 @@ def two_passes(req: MapBuildRequest, cfg: Any, builder: MapBuilder, kind: PoseSo
             pos = want.get(frame.index)
             if T is None or pos is None or builder.candidates[pos].features is not None:
                 continue
+            if isinstance(frame, EncodedRgbdFrame):
+                frame = frame.decode()  # StreamError naming the frame if its colour is corrupt
             if frame.depth is None:
                 raise MapBuildError(f"{req.src}: frame {frame.index} lost its depth between the passes")
             builder.attach(pos, frame.color, frame.depth, frame.color_jpeg)

@@ -117,3 +117,36 @@ def test_faulted_recording_is_bridged_and_reported(recording: Path, tmp_path: Pa
     assert {"odometry gap", "odometry jump"} <= kinds
     assert s["frames_tracked"] > 0 and s["keyframes_left_out"] == 0
     assert s["evaluation"]["keyframe_ate_m"] < 0.05
+
+
+def test_a_ground_truth_build_decodes_the_colour_of_its_keyframes_only(recording: Path, tmp_path: Path,
+                                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Pass 1 needs depth and poses alone; pass 2 decodes the keyframes' colour. A keyframe whose
+    colour does not decode is still refused, naming the frame."""
+    import dataclasses
+
+    from litevloc.hw.messages import EncodedRgbdFrame, RgbdFrame
+
+    decoded: list[int] = []
+    decode = EncodedRgbdFrame.decode
+
+    def counting(self: EncodedRgbdFrame, *a: object) -> RgbdFrame:
+        decoded.append(self.index)
+        return decode(self, *a)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(EncodedRgbdFrame, "decode", counting)
+    assert main(["map", "build", str(recording), "--poses", "ground-truth", "-o", str(tmp_path / "gt"), *CHEAP]) == 0
+    m = load_map(tmp_path / "gt")
+    assert sorted(decoded) == sorted(int(i) for i in m.frame_index)
+    first = int(m.frame_index[0])
+
+    def cut() -> object:  # the first keyframe's JPEG cut short
+        for msg in McapSource(recording):
+            if isinstance(msg, RgbdFrame) and msg.index == first:
+                assert msg.color_jpeg is not None
+                msg = dataclasses.replace(msg, color_jpeg=msg.color_jpeg[:-64])
+            yield msg
+
+    bad = tmp_path / "bad.mcap"
+    record_messages(cut(), bad)
+    assert main(["map", "build", str(bad), "--poses", "ground-truth", "-o", str(tmp_path / "bad"), *CHEAP]) == 2
