@@ -44,6 +44,9 @@ def add_parser(ss: argparse._SubParsersAction) -> None:
                         "moved into the world frame by the SE(3) alignment of its keyframes, for the ground-truth "
                         "baseline and the plots; cached in OUT_DIR-slam)")
     n.add_argument("--localization", choices=("litevloc", "ground-truth", "both"), default="both")
+    n.add_argument("--concurrent-baseline", action="store_true",
+                   help="with --localization both: run the ground-truth baseline in a second process alongside "
+                        "the LiteVLoc run (each run's wall time then includes the other's load)")
     n.add_argument("--vloc-hz", type=float, default=None,
                    help="frames to VLoc per simulated second (default: config sim_navigation.vloc_hz)")
     n.add_argument("--goal-timeout", type=float, default=None, metavar="S",
@@ -104,7 +107,8 @@ def run_navigate(args: argparse.Namespace) -> int:
         raise UserError(str(exc)) from exc
     png = args.output or args.out_dir / "navigate.png"
     res = navigate(args.world, cfg, map_path, args.goals, args.start, modes, params, args.world_seed, png,
-                   view_spawn=bool(args.view), view_save=args.view_save, goal_camera=args.goal_camera)
+                   view_spawn=bool(args.view), view_save=args.view_save, goal_camera=args.goal_camera,
+                   concurrent_baseline=args.concurrent_baseline)
     res["map_info"] = map_summary(map_path)
     for k in ("keyframes", "coverage", "bytes", "build_seconds"):
         res[f"map_{k}"] = res["map_info"][k]

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import os
 import socket
 import time
 from collections.abc import Callable, Iterator
@@ -227,7 +228,8 @@ def run_navigation(
     sim = Simulator(world, cfg.sim, seed=params.seed)
     closers: list[Callable[[], None]] = []
     extra: dict[str, Any] = {"mode": "sequential" if localization == "litevloc" else "ground-truth pose",
-                             "vloc_hz": params.vloc_hz, "control_hz": params.control_hz}
+                             "vloc_hz": params.vloc_hz, "control_hz": params.control_hz,
+                             "pid": os.getpid()}  # the process that drove it (a concurrent baseline's is another)
     placements: list[GoalResult] = []  # each goal image's placement, in the order they arrive
     try:
         side = (_litevloc_side(cfg, z_rt, map_path, view_spawn, view_save, closers) if localization == "litevloc"

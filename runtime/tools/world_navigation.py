@@ -4,13 +4,20 @@ simulated mapping pass, cached), its goal images, one run per localization mode 
 
 from __future__ import annotations
 
+import contextlib
+import multiprocessing
 from collections.abc import Sequence
+from concurrent.futures import Future, ProcessPoolExecutor
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from litevloc.base.errors import LiteVLocError
 from litevloc.runtime.tools.map_building import MapBuildRequest, build_map
 from litevloc.runtime.tools.outputs import write_json
+
+if TYPE_CHECKING:
+    from litevloc.runtime.tools.sim_driver import Goal
+    from litevloc.runtime.tools.sim_navigation import NavRun
 
 
 class NavigationSetupError(LiteVLocError, ValueError):
@@ -93,8 +100,12 @@ def map_summary(map_path: Path) -> dict[str, Any]:
 
 def navigate(world_name: str, cfg: Any, map_path: Path, goal_args: list[str] | None, start: str | None,
              modes: list[str], params: Any, world_seed: int | None = None, png: Path | None = None,
-             view_spawn: bool = False, view_save: Path | None = None, goal_camera: str = "robot") -> dict[str, Any]:
-    """Run the loop for each localization mode; returns the results dict (and writes the PNG)."""
+             view_spawn: bool = False, view_save: Path | None = None, goal_camera: str = "robot",
+             concurrent_baseline: bool = False) -> dict[str, Any]:
+    """Run the loop for each localization mode; returns the results dict (and writes the PNG).
+    `concurrent_baseline`: the ground-truth run goes to a second process alongside the others
+    (each run's wall time then includes the other's load; a loaded run's goal transitions can
+    differ by a control step, see `test_concurrent_baseline`)."""
     from litevloc.pipelines.topomap.io import load_map
     from litevloc.runtime.tools.sim_driver import Goal
     from litevloc.runtime.tools.sim_navigation import goal_ratios, plot_navigation, render_goals, run_navigation
@@ -119,25 +130,32 @@ def navigate(world_name: str, cfg: Any, map_path: Path, goal_args: list[str] | N
         else:
             raise NavigationSetupError(f"goal {g!r} is neither a goal place of {world_name} ({places}) "
                                        "nor an image file")
-    bundle = load_bundle(cfg.models)
-    runs = {}
     for mode in modes:
-        localization: Literal["litevloc", "ground-truth"]
-        if mode == "litevloc":
-            localization = "litevloc"
-        elif mode == "ground-truth":
-            localization = "ground-truth"
-        else:
+        if mode not in ("litevloc", "ground-truth"):
             raise NavigationSetupError(f"unknown localization mode {mode!r}: litevloc or ground-truth")
-        print(f"== navigating {len(goals)} goals with {mode} localization", flush=True)
-        view = localization == "litevloc"  # the live view shows the runtime: litevloc only
-        runs[mode] = run_navigation(world, cfg, map_path, goals, world.goal_places[start], localization, params,
-                                    bundle, view_spawn=view_spawn and view, view_save=view_save if view else None)
-        s = runs[mode].summary()
-        first = "no pose" if s.get("first_pose_s") is None else f"first pose after {s['first_pose_s']:.0f} s"
-        moves = f", {s['search_legs']} moves to find it" if s.get("search_legs") else ""
-        print(f"   {s['goals_reached']}/{s['goals_total']} reached, {s['time_s']:.0f} s simulated, "
-              f"{s['path_length_m']:.1f} m driven ({s['wall_s']:.0f} s wall); {first}{moves}", flush=True)
+    aside = concurrent_baseline and "ground-truth" in modes and len(modes) > 1
+    runs: dict[str, NavRun] = {}
+    with contextlib.ExitStack() as stack:
+        baseline: Future[NavRun] | None = None
+        if aside:  # spawned before this process loads models: the child loads its own
+            pool = stack.enter_context(ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")))
+            print(f"== navigating {len(goals)} goals with ground-truth localization (in a second process)",
+                  flush=True)
+            baseline = pool.submit(_ground_truth_run, world_name, world_seed, cfg, map_path, goals, start, params)
+        bundle = load_bundle(cfg.models)
+        for mode in modes:
+            if aside and mode == "ground-truth":
+                continue
+            localization: Literal["litevloc", "ground-truth"] = "litevloc" if mode == "litevloc" else "ground-truth"
+            print(f"== navigating {len(goals)} goals with {mode} localization", flush=True)
+            view = localization == "litevloc"  # the live view shows the runtime: litevloc only
+            runs[mode] = run_navigation(world, cfg, map_path, goals, world.goal_places[start], localization, params,
+                                        bundle, view_spawn=view_spawn and view, view_save=view_save if view else None)
+            _print_run(mode, runs[mode])
+        if baseline is not None:
+            runs["ground-truth"] = baseline.result()
+            _print_run("ground-truth", runs["ground-truth"])
+    runs = {m: runs[m] for m in modes}
     main_mode = modes[0]
     out: dict[str, Any] = {"world": world_name, "start": start, "goals": [g.name for g in goals],
                            "map": str(map_path)}
@@ -154,3 +172,23 @@ def navigate(world_name: str, cfg: Any, map_path: Path, goal_args: list[str] | N
                                          f"LiteVLoc image-goal navigation: {world_name}"))
     out["per_goal_time_s"] = [g["time_s"] for g in res["goals"]]
     return out
+
+
+def _print_run(mode: str, run: NavRun) -> None:
+    s = run.summary()
+    first = "no pose" if s.get("first_pose_s") is None else f"first pose after {s['first_pose_s']:.0f} s"
+    moves = f", {s['search_legs']} moves to find it" if s.get("search_legs") else ""
+    print(f"   {mode}: {s['goals_reached']}/{s['goals_total']} reached, {s['time_s']:.0f} s simulated, "
+          f"{s['path_length_m']:.1f} m driven ({s['wall_s']:.0f} s wall); {first}{moves}", flush=True)
+
+
+def _ground_truth_run(world_name: str, world_seed: int | None, cfg: Any, map_path: Path, goals: list[Goal],
+                      start: str, params: Any) -> NavRun:
+    """The ground-truth baseline in a process of its own (`navigate(concurrent_baseline=True)`)."""
+    from litevloc.runtime.tools.sim_navigation import run_navigation
+    from litevloc.runtime.vloc_models import load_bundle
+    from litevloc.sim.world import load_world
+
+    world = load_world(world_name, seed=world_seed)
+    return run_navigation(world, cfg, map_path, goals, world.goal_places[start], "ground-truth", params,
+                          load_bundle(cfg.models))

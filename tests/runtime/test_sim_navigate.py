@@ -215,3 +215,23 @@ def test_a_far_goal_gets_time_for_its_path() -> None:
     assert d_far >= float(np.linalg.norm(far - start))  # a path, not the straight line through walls
     assert t_far == pytest.approx(4.0 * d_far) and t_near == max(120.0, 4.0 * d_near)
     assert goal_budget(world, start, far, 0.3, dataclasses.replace(p, goal_timeout_s_per_m=0.0)) == (120.0, None)
+
+
+def test_concurrent_baseline(small_map: Path, tmp_path: Path) -> None:
+    """`sim navigate --concurrent-baseline` (the demo's): the ground-truth run in a second
+    process comes back as the baseline beside the LiteVLoc run (goal time 10 s: the baseline
+    reaches the goal in about 8 s; the LiteVLoc run, three VLoc queries at 0.3 Hz to keep the
+    test short, need not)."""
+    import os
+
+    from litevloc.base.params.sim_navigation import NavParams
+    from litevloc.config import load_config
+    from litevloc.runtime.tools.world_navigation import navigate
+
+    res = navigate("office", load_config("default"), small_map, ["room_00"], "room_00", ["litevloc", "ground-truth"],
+                   NavParams(goal_timeout_s=10.0, vloc_hz=0.3), png=tmp_path / "nav.png", concurrent_baseline=True)
+    assert res["mode"] == "sequential" and res["goals_total"] == 1 and res["pid"] == os.getpid()
+    b = res["baseline"]
+    assert b["mode"] == "ground-truth pose" and b["goals_reached"] == 1, b["goals"]
+    assert b["pid"] != os.getpid()
+    assert (tmp_path / "nav.png").is_file()
