@@ -104,8 +104,7 @@ def navigate(world_name: str, cfg: Any, map_path: Path, goal_args: list[str] | N
              concurrent_baseline: bool = False) -> dict[str, Any]:
     """Run the loop for each localization mode; returns the results dict (and writes the PNG).
     `concurrent_baseline`: the ground-truth run goes to a second process alongside the others
-    (each run's wall time then includes the other's load; a loaded run's goal transitions can
-    differ by a control step, see `test_concurrent_baseline`)."""
+    (each run's wall time then includes the other's load)."""
     from litevloc.pipelines.topomap.io import load_map
     from litevloc.runtime.tools.sim_driver import Goal
     from litevloc.runtime.tools.sim_navigation import goal_ratios, plot_navigation, render_goals, run_navigation
