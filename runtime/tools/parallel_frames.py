@@ -1,7 +1,7 @@
 """A simulated pass's colour frames rendered in worker processes, handed back in index order.
 
-Rendering is most of a recording's CPU time (ray casting, shading, noise; ~37 ms of ~45 ms per
-320x240 frame on this x86 core) and each frame is a pure function of its index
+Rendering is most of a recording's CPU time (ray casting, shading, noise) and each frame is a
+pure function of its index
 (`SimSequenceSource.frame`), so N processes render N frames at once and the recording is
 byte-identical to one rendered in-process. Workers are forked after the renderer is built, so
 they share it instead of rebuilding it; each also JPEG-encodes its frame (the bytes the

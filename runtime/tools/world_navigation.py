@@ -104,7 +104,8 @@ def navigate(world_name: str, cfg: Any, map_path: Path, goal_args: list[str] | N
              concurrent_baseline: bool = False) -> dict[str, Any]:
     """Run the loop for each localization mode; returns the results dict (and writes the PNG).
     `concurrent_baseline`: the ground-truth run goes to a second process alongside the others
-    (each run's wall time then includes the other's load)."""
+    (each run's wall time then includes the other's load). That process is spawned, so a script
+    calling this with it must do so under `if __name__ == "__main__":` (multiprocessing's rule)."""
     from litevloc.pipelines.topomap.io import load_map
     from litevloc.runtime.tools.sim_driver import Goal
     from litevloc.runtime.tools.sim_navigation import goal_ratios, plot_navigation, render_goals, run_navigation
