@@ -74,7 +74,7 @@ def run_runtime(args: argparse.Namespace) -> int:
     import numpy as np
 
     from litevloc.cli.run import run_service
-    from litevloc.pipelines.evaluation.trajectory import associate, ate, write_tum
+    from litevloc.pipelines.evaluation.trajectory import write_tum
 
     res = run_service(args, args.rec, args.rate)
     rec = res["recorder"]
@@ -84,13 +84,9 @@ def run_runtime(args: argparse.Namespace) -> int:
         poses = np.stack(rec.fused_T) if rec.fused_t else np.zeros((0, 4, 4))
         write_tum(args.output, np.array(rec.fused_t, np.float64) * 1e-9, poses)
         summary["output"] = str(args.output)
-    if rec.fused_t and rec.gt_t:
-        T_bc = res["T_base_camera"]
-        cam = np.stack(rec.fused_T) @ T_bc
-        ia, ib = associate(np.array(rec.fused_t) * 1e-9, np.array(rec.gt_t) * 1e-9, 0.006)
-        if len(ia) >= 3:
-            r = ate(cam[ia], np.stack(rec.gt_T)[ib], align=False)
-            summary["ate_m"] = {"rmse": r.rmse, "median": r.median, "max": r.max, "n": r.n}
+    r = rec.camera_ate(res["T_base_camera"])
+    if r is not None:
+        summary["ate_m"] = {"rmse": r.rmse, "median": r.median, "max": r.max, "n": r.n}
     for key in ("state", "reasons", "counters", "last_vloc_reason", "last_fusion_reason", "vloc_state", "latency",
                 "frames_dropped", "queues", "stages", "faults", "models"):
         if key in status:

@@ -302,7 +302,7 @@ class RuntimeConfig(Settings):
     latency_window: int = setting(1024, "samples per stage in the latency window (status percentiles)", low=1)
     cv_threads: int = setting(2, "OpenCV threads of the onboard service", low=1)
     ort_intra_op_threads: int = setting(
-        1, "onnxruntime intra-op threads of the service's models (run/replay/plan; models.intra_op_threads elsewhere)",
+        2, "onnxruntime intra-op threads of the service's models (run/replay/plan; models.intra_op_threads elsewhere)",
         low=1)
     ort_inter_op_threads: int = setting(1, "onnxruntime inter-op threads of the service's models", low=1)
     vloc_nice: int = setting(

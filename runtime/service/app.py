@@ -23,6 +23,7 @@ from litevloc.hw import ros_msgs
 from litevloc.hw.messages import GroundTruthPose, SourceMessage
 from litevloc.models.ort import ProviderReport, provider_report
 from litevloc.models.types import ProviderState
+from litevloc.pipelines.evaluation.trajectory import AteResult, associate, ate
 from litevloc.pipelines.fusion.online import OnlineFusion
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map, read_manifest
@@ -75,6 +76,16 @@ class Recorder:
             return
         self.gt_t.append(gt.t_ns)
         self.gt_T.append(gt.T_world_camera)
+
+    def camera_ate(self, T_base_camera: NDArray[np.float64], max_dt_s: float = 0.006) -> AteResult | None:
+        """The fused camera positions (`T_map_base @ T_base_camera`) against the ground truth
+        recorded beside them, associated within `max_dt_s`, no alignment (the map frame is the
+        ground truth's); None with fewer than 3 associated pairs."""
+        if not self.fused_t or not self.gt_t:
+            return None
+        cam = np.stack(self.fused_T) @ T_base_camera
+        ia, ib = associate(np.array(self.fused_t) * 1e-9, np.array(self.gt_t) * 1e-9, max_dt_s)
+        return ate(cam[ia], np.stack(self.gt_T)[ib], align=False) if len(ia) >= 3 else None
 
 
 class App(Lifecycle):
