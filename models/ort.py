@@ -449,7 +449,9 @@ def make_session(
     session's pool busy after every run, and with several sessions in a row (adaptive
     LightGlue's parts, extractor then matcher) on 2 cores the spinning pools starve the one
     that runs: measured 1024 ms vs 383 ms per adaptive LightGlue pair with 2 threads.
-    CPU tensors come from the process-wide arena (`register_shared_cpu_arena`).
+    CPU tensors come from the process-wide arena (`register_shared_cpu_arena`), and ORT's memory
+    pattern is off: it pre-plans one block per input shape on top of the arena (ALIKED 240x320,
+    RSS +63 MB after its first run) and bought no speed here (extract 63-64 vs 71 ms, 2 threads).
     The session is recorded for `provider_report`; one that does not run on the first provider
     asked for is logged at WARNING (once per process per provider).
     """
@@ -460,6 +462,7 @@ def make_session(
     so.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
     so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
     so.log_severity_level = 3
+    so.enable_mem_pattern = False
     so.add_session_config_entry("session.intra_op.allow_spinning", "0")
     register_shared_cpu_arena()
     so.add_session_config_entry("session.use_env_allocators", "1")

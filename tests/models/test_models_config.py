@@ -55,6 +55,7 @@ def test_session_threads_and_optimisation(model_cache: Path) -> None:
     assert so.graph_optimization_level == ort.GraphOptimizationLevel.ORT_ENABLE_ALL
     assert sess.get_providers() == ["CPUExecutionProvider"]
     assert so.get_session_config_entry("session.use_env_allocators") == "1"
+    assert not so.enable_mem_pattern  # its per-shape block sits on top of the shared arena (RSS)
 
 
 _ARENA_PROBE = """
