@@ -316,6 +316,10 @@ class SecondLookParams(Settings):
     precheck_min_similarity: float = setting(
         0.5, "the pre-check's mutual nearest neighbours need at least this descriptor similarity (cosine)", low=-1,
         high=1)
+    stay: bool = setting(
+        False, "after an LL query that only the second look accepted, the next LL query with a fresh prior runs the "
+        "matcher model in its first look only for the keyframes that accepted that one (guided matches for all) "
+        "before its second look; false: the first look runs the model for every candidate")
     prior_gate_m: float = setting(
         0.25, "LL's second look: its pose must lie this close to a last-VLoc-pose prior (for prior_gate.radius_m; "
         "the gate's growth adds)", unit="m", low=0, low_open=True)

@@ -6,6 +6,13 @@ until one passes every check (a rejected candidate hands over to the next): PnP 
 guided by a fresh prior first), the prior gate, the joint refinement (unless the pose lies close
 to a fresh prior) and, for a weak candidate, the pooled inlier count. A query every pass refused
 is looked at again at full resolution where that is configured (`checks.second_look`).
+
+Where only the second look accepted the last LL query (views the first look's coarser features do
+not hold, e.g. close to a finely textured surface), the next one with a fresh prior does not spend
+the matcher model on every candidate first (`second_look.stay`, off by default: on 7-Scenes it
+costs a point at 25 cm / 5 deg): its first look runs the model only for the keyframes that
+accepted last time (guided matches for all), and a refusal goes to the second look, which takes
+those keyframes where the first look's attempts leave room. A first-look acceptance ends this.
 """
 
 from __future__ import annotations
@@ -41,6 +48,8 @@ class LocalSearch:
     def __init__(self, verifier: CandidateVerifier, second_look: SecondLookFn | None = None,
                  pooling: bool = True) -> None:
         self.verifier, self.second_look, self.pooling = verifier, second_look, pooling
+        # the keyframes of the last LL query if only its second look accepted it, else ()
+        self.full_resolution: tuple[int, ...] = ()
 
     def candidates(self, p: LocalizationParams, prior: NDArray[np.float64],
                    desc: NDArray[np.float32]) -> list[tuple[int, float]]:
@@ -74,11 +83,16 @@ class LocalSearch:
             cands = [(int(n), float(sims[int(n)])) for n in only]
         growth = pg.growth_m(p, prior.age_s, prior.fused, prior.travel_m)
         gate = (growth, pg.gate_m(p, growth, prior.fused), prior.cov)
-        res = with_second_passes(lambda pp: self.attempts(t_ns, q.under(pp), cands, T_prior, gate, timer, t_all),
-                                 p, q.timer, v.map_has_depth, allowed=pg.fresh(p, growth), pooling=self.pooling)
-        if not res.accepted and self.second_look is not None and p.second_look.local:
+        fresh = pg.fresh(p, growth)
+        looks = self.second_look is not None and p.second_look.local
+        stay = self.full_resolution if looks and fresh and p.second_look.stay else ()
+        first = q.matching_only(stay) if stay else q
+        res = with_second_passes(lambda pp: self.attempts(t_ns, first.under(pp), cands, T_prior, gate, timer, t_all),
+                                 p, q.timer, v.map_has_depth, allowed=fresh, pooling=self.pooling)
+        if not res.accepted and self.second_look is not None and looks:
             res = look_again(self.second_look, p, res, (color, depth, K),
-                             replace(prior, T_map_camera=T_prior), local=True)
+                             replace(prior, T_map_camera=T_prior), local=True, also=stay)
+        self.full_resolution = res.keyframes if res.accepted and res.second_look else ()
         return res
 
     def attempts(self, t_ns: int, q: Query, cands: list[tuple[int, float]], prior: NDArray[np.float64],

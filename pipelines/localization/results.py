@@ -80,6 +80,7 @@ class LocalizationResult:
     candidates: tuple[int, ...] = ()  # GL: the nodes it would verify, in order (`global_candidates`)
     tracking_state: TrackingState | None = None  # the localizer's state after this query, when the caller reports it
     refusal: QueryRefusal = QueryRefusal.NONE  # why it was not localized, by kind (NONE: accepted)
+    second_look: bool = False  # accepted by the full-resolution second look (`checks.second_look.look_again`)
 
 
 def refused(res: LocalizationResult, refusal: QueryRefusal, reason: str) -> LocalizationResult:

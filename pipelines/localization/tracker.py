@@ -94,6 +94,7 @@ class Tracker:
                     self.failures = 0
                 return res
         recovering = self.ll_wall_ms if self.last_pose is not None else None  # it has tracked
+        self.local_search.full_resolution = ()  # LL after GL starts with the whole first look
         res = self.global_search.localize(t_ns, color, depth, K, p, prior, recovering_ll_ms=recovering, region=region)
         if res.accepted and prior is not None:
             res = self.hold_unless_repeated(res, prior)

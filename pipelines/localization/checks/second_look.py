@@ -33,12 +33,14 @@ class SecondLookFn(Protocol):
 
 
 def look_again(second_look: SecondLookFn, p: LocalizationParams, res: LocalizationResult, frame: Frame,
-               prior: Prior | None, local: bool = False) -> LocalizationResult:
+               prior: Prior | None, local: bool = False, also: Sequence[int] = ()) -> LocalizationResult:
     """The refused GL (or LL: `local`) result `res` after the second look at the candidates
-    `second_look_nodes` picks from its attempts (`second_look.candidates`, `second_look.from_inliers`):
-    its result where it accepts, else `res`; either way with both looks' attempts and time
-    ("second_look" ms, in "total")."""
-    nodes = second_look_nodes(res.attempts, p.second_look.candidates, p.second_look.from_inliers)
+    `second_look_nodes` picks from its attempts and then `also` (other nodes worth a look), at most
+    `second_look.candidates` in all (`second_look.from_inliers`): its result where it accepts
+    (`second_look` True), else `res`; either way with both looks' attempts and time ("second_look"
+    ms, in "total")."""
+    picked = second_look_nodes(res.attempts, p.second_look.candidates, p.second_look.from_inliers)
+    nodes = list(dict.fromkeys([*picked, *also]))[:p.second_look.candidates]
     if not nodes:
         return res
     look = second_look(res.t_ns, *frame, nodes, prior, local=local)
@@ -49,7 +51,7 @@ def look_again(second_look: SecondLookFn, p: LocalizationParams, res: Localizati
     ms["total"] = ms.get("total", 0.0) + ms["second_look"]
     attempts = res.attempts + look.attempts
     if look.accepted:
-        return replace(look, attempts=attempts, timings_ms=ms, stop_reason=(
+        return replace(look, attempts=attempts, timings_ms=ms, second_look=True, stop_reason=(
             f"looked at again at full resolution (nodes {nodes}): {look.stop_reason}; first look: "
             f"{res.stop_reason}"))
     return replace(res, attempts=attempts, timings_ms=ms, stop_reason=(

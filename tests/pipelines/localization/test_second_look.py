@@ -20,6 +20,7 @@ from litevloc.pipelines.localization.passes import second_look_nodes
 from litevloc.pipelines.localization.prior import Prior
 from litevloc.pipelines.localization.results import CandidateAttempt, LocalizationResult
 from litevloc.pipelines.localization.second_look import SecondLook, StoredImageFeatures
+from litevloc.pipelines.localization.tracking import TrackingState
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.pnp import Refusal
 from litevloc.pipelines.topomap.types import NodeFeatures, TopoMap
@@ -243,6 +244,49 @@ def test_an_ll_query_the_first_look_refuses_is_accepted_by_the_second_within_the
     assert dt < 0.005 and dr < 0.2
     far = loc.localize_local(0, IMG, depth, K, Prior(pose(3.3, 5.0), fused=False))
     assert not far.accepted and any("inconsistent with the prior" in a.reason for a in far.attempts)
+
+
+def test_after_an_ll_query_only_the_second_look_accepted_the_next_matches_those_keyframes_alone() -> None:
+    """`second_look.stay`: the LL query after one the second look alone accepted runs the matcher
+    model in its first look only for that query's keyframes (fewer model calls) and is again
+    accepted at full resolution; off, the first look runs the model for every candidate again.
+    A GL query in between ends it."""
+    m = _with_images(make_map([0.0, 1.0, 2.0, 3.0]))
+    s = Scene(m)
+    depth = s.look(pose(1.3, 5.0), vpr_best=1)
+    few = matching_25_with_depth(s, depth)
+    p = replace(PARAMS, passes=replace(PARAMS.passes, pooled_min_inliers=0),
+                second_look=replace(PARAMS.second_look, candidates=2, from_inliers=0, local=True, stay=True))
+    prior = Prior(pose(1.4, 5.0), fused=False)
+
+    def run(params: Any) -> tuple[VisualLocalizer, list[list[int]], list[LocalizationResult]]:
+        matched: list[int] = []
+        loc: VisualLocalizer | None = None
+
+        def counting(a: Feats, b: NodeFeatures) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+            assert loc is not None
+            matched.append(next(k for k, f in enumerate(loc.verifier.map.features) if f is b))
+            return few(a, b)
+
+        loc = VisualLocalizer(m, params, s.extract, s.describe, counting,
+                              second_look=SecondLook(m, params, FullResolution(s, m).extract, s.describe,
+                                                     match_by_id, SMALLER))
+        calls, results = [], []
+        for t in range(2):
+            results.append(loc.localize_local(t, IMG, depth, K, prior))
+            calls.append(list(matched))
+            matched.clear()
+        return loc, calls, results
+
+    loc, calls, (r1, r2) = run(p)
+    assert r1.accepted and r1.second_look and r2.accepted and r2.second_look, (r1.reason, r2.reason)
+    assert set(calls[1]) <= set(r1.keyframes) and len(calls[1]) < len(calls[0]), (calls, r1.keyframes)
+    assert loc.local_search.full_resolution == r2.keyframes
+    _, calls_off, (o1, o2) = run(replace(p, second_look=replace(p.second_look, stay=False)))
+    assert o1.accepted and o2.accepted and calls_off[1] == calls_off[0] == calls[0]
+    loc.tracker.state = TrackingState.LOST  # LOST -> GL: what LL does after it starts afresh
+    loc.process(2, IMG, depth, K, prior)
+    assert loc.local_search.full_resolution == ()
 
 
 def test_the_ll_look_keeps_closer_to_a_last_pose_prior_than_ll_does() -> None:
