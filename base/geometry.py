@@ -125,8 +125,9 @@ def matrix_to_quat_xyzw(R: NDArray[np.floating]) -> F64:
     else:
         s = 2.0 * np.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1])
         w, x, y, z = (R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s
-    q = np.array([x, y, z, w])
-    q /= np.linalg.norm(q)
+    # the norm summed in this fixed order (not a BLAS dot): the same bits on every CPU, and as
+    # `hw.ros_msgs.odometry_cdr` packs them
+    q: F64 = np.array([x, y, z, w], dtype=np.float64) / float(np.sqrt(x * x + y * y + z * z + w * w))
     return -q if q[3] < 0 else q
 
 
