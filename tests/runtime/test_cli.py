@@ -44,15 +44,15 @@ def test_a_replay_without_a_fused_pose_still_writes_its_output_and_says_why(
     """A run where fusion never started (no two agreeing fixes) leaves an empty TUM file, not the
     previous run's, and names the reasons."""
     import argparse
-    from types import SimpleNamespace
 
     import numpy as np
 
     from litevloc.cli import replay
+    from litevloc.runtime.service.app import Recorder
 
     out = tmp_path / "fused.txt"
     out.write_text("0.0 1 2 3 0 0 0 1\n")  # an earlier run's poses
-    rec = SimpleNamespace(fused_t=[], fused_T=[], gt_t=[], gt_T=[])
+    rec = Recorder()
     status = {"last_fusion_reason": None, "last_vloc_reason": "not localized: no VPR candidate verified"}
     monkeypatch.setattr("litevloc.cli.run.run_service", lambda *a, **k: {
         "ok": True, "reason": "end of source", "status": status, "recorder": rec, "T_base_camera": np.eye(4)})
