@@ -23,7 +23,6 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any, BinaryIO
 
-import cv2
 import numpy as np
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
@@ -80,6 +79,8 @@ JPEG_QUALITY = 95  # of recorded colour frames
 def encode_jpeg(color: NDArray[np.uint8], quality: int = JPEG_QUALITY, index: int = 0) -> bytes:
     """The JPEG bytes a recording stores for an (H, W, 3) RGB colour image (frame `index` names
     it in the StreamError if encoding fails)."""
+    import cv2  # here: a reader (the replay's child process) loads no OpenCV
+
     ok, enc = cv2.imencode(".jpg", color[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
     if not ok:
         raise StreamError(f"frame {index}: JPEG encoding failed")

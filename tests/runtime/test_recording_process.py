@@ -87,3 +87,16 @@ def test_a_strict_source_is_refused() -> None:
 
     with pytest.raises(ValueError, match="non-strictly"):
         RecordingReaderProcess(Strict())  # type: ignore[arg-type]
+
+
+def test_the_reader_child_loads_no_opencv() -> None:
+    """What the spawned reader imports (the recording reader and the message types) leaves OpenCV
+    unloaded: colour stays JPEG until the service decodes it, and cv2 is ~15 MB of the child's RSS."""
+    import subprocess
+    import sys
+
+    code = ("import sys; import litevloc.runtime.recording_process, litevloc.hw.streams.mcap_io, "
+            "litevloc.hw.messages; print('cv2' in sys.modules)")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.strip() == "False"
