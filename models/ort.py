@@ -450,8 +450,8 @@ def make_session(
     LightGlue's parts, extractor then matcher) on 2 cores the spinning pools starve the one
     that runs: measured 1024 ms vs 383 ms per adaptive LightGlue pair with 2 threads.
     CPU tensors come from the process-wide arena (`register_shared_cpu_arena`), and ORT's memory
-    pattern is off: it pre-plans one block per input shape on top of the arena (ALIKED 240x320,
-    RSS +63 MB after its first run) and bought no speed here (extract 63-64 vs 71 ms, 2 threads).
+    pattern is off: it pre-plans one more block per input shape beside the arena, resident memory
+    that bought no speed on these models.
     The session is recorded for `provider_report`; one that does not run on the first provider
     asked for is logged at WARNING (once per process per provider).
     """

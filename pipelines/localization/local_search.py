@@ -84,13 +84,13 @@ class LocalSearch:
         growth = pg.growth_m(p, prior.age_s, prior.fused, prior.travel_m)
         gate = (growth, pg.gate_m(p, growth, prior.fused), prior.cov)
         fresh = pg.fresh(p, growth)
-        looks = self.second_look is not None and p.second_look.local
-        stay = self.full_resolution if looks and fresh and p.second_look.stay else ()
+        look = self.second_look if p.second_look.local else None
+        stay = self.full_resolution if look is not None and fresh and p.second_look.stay else ()
         first = q.matching_only(stay) if stay else q
         res = with_second_passes(lambda pp: self.attempts(t_ns, first.under(pp), cands, T_prior, gate, timer, t_all),
                                  p, q.timer, v.map_has_depth, allowed=fresh, pooling=self.pooling)
-        if not res.accepted and self.second_look is not None and looks:
-            res = look_again(self.second_look, p, res, (color, depth, K),
+        if not res.accepted and look is not None:
+            res = look_again(look, p, res, (color, depth, K),
                              replace(prior, T_map_camera=T_prior), local=True, also=stay)
         self.full_resolution = res.keyframes if res.accepted and res.second_look else ()
         return res

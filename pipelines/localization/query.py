@@ -100,12 +100,6 @@ def reprojects(pts: NDArray[np.float64], T_target_source: NDArray[np.float64], K
     return np.asarray(np.isfinite(err) & (p[:, 2] > 0) & (err <= threshold_px), dtype=bool)
 
 
-def _no_matches(a: FeatureSet, b: FeatureSet) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-    """The matcher of `Query.guided_only`: no matches."""
-    empty = np.zeros(0, np.int64)
-    return empty, empty
-
-
 class Query:
     """One live frame being localized: its features, depth, the live points lifted once and
     the matches with each keyframe computed at most once (verification, refinement and
@@ -116,8 +110,7 @@ class Query:
         self.map, self.params, self.match = topomap, params, match
         self.feats, self.depth, self.K, self.timer = feats, depth, K, timer
         self._matches: dict[int, tuple[NDArray[np.int64], NDArray[np.int64]]] = {}
-        self._model_nodes: frozenset[int] = frozenset()  # `matching_only`: the nodes `_model_match` matches
-        self._model_match: MatchFn = match
+        self._model_nodes: frozenset[int] | None = None  # `matching_only`: the nodes the matcher runs for (None: all)
         self._lifted: dict[str, NDArray[np.float64]] = {}  # "points": the lifted live keypoints, once
         self.pnp_fits: PnpFits = {}  # PnP fits, reused when a later pass verifies a keyframe again
         self.rerank_counts: dict[int, int] = {}  # GL: mutual-nearest-neighbour count per re-ranked node
@@ -136,19 +129,17 @@ class Query:
         matches (`try_guided`) has none. Shares the features, lifted points and PnP fits with this
         one; its matches start as a copy of this one's, so the empty ones it records stay its own."""
         view = copy.copy(self)
-        allowed, match = frozenset(int(n) for n in nodes), self.match
-        view.match = _no_matches
         view._matches = dict(self._matches)
-        view._model_nodes = allowed
-        view._model_match = match
+        view._model_nodes = frozenset(int(n) for n in nodes)
         return view
 
     def matches(self, node: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
         """(live indices, keyframe indices) of the matches with `node`."""
         if node not in self._matches:
+            if self._model_nodes is not None and node not in self._model_nodes:
+                return np.zeros(0, np.int64), np.zeros(0, np.int64)
             t0 = self.timer.now()
-            match = self._model_match if node in self._model_nodes else self.match
-            i_live, i_ref = match(self.feats, self.map.features[node])
+            i_live, i_ref = self.match(self.feats, self.map.features[node])
             self._matches[node] = (np.asarray(i_live, dtype=np.int64), np.asarray(i_ref, dtype=np.int64))
             self.timer.add("match", t0)
         return self._matches[node]
