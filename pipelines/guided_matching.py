@@ -13,12 +13,12 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-F64 = NDArray[np.float64]
 
-
-def _similarity(a: NDArray[Any], b: NDArray[Any]) -> F64:
-    """(Na, Nb) descriptor similarity in [-1, 1]: cosine for float descriptors, 1 - 2 * normalised
-    Hamming distance for binary (uint8) ones."""
+def _similarity(a: NDArray[Any], b: NDArray[Any]) -> NDArray[np.floating]:
+    """(Na, Nb) descriptor similarity in [-1, 1]: cosine for float descriptors, in their
+    precision (float32 in, float32 out: half the memory of a float64 copy, the same values), and
+    1 - 2 * normalised Hamming distance for binary (uint8) ones, float64. Callers compare with a
+    threshold in float64."""
     if a.dtype == np.uint8:
         bits = np.unpackbits(a, axis=1).astype(np.float32)
         bbits = np.unpackbits(b, axis=1).astype(np.float32)
@@ -27,7 +27,19 @@ def _similarity(a: NDArray[Any], b: NDArray[Any]) -> F64:
         return np.asarray(1.0 - 2.0 * ham / bits.shape[1], dtype=np.float64)
     an = a / np.maximum(np.linalg.norm(a, axis=1, keepdims=True), 1e-12)
     bn = b / np.maximum(np.linalg.norm(b, axis=1, keepdims=True), 1e-12)
-    return np.asarray(an @ bn.T, dtype=np.float64)
+    return np.asarray(an @ bn.T)
+
+
+def _is_column_argmax(S: NDArray[np.floating], rows: NDArray[np.int64], cols: NDArray[np.int64]) -> NDArray[np.bool_]:
+    """Per pair k: whether `rows[k]` is `np.argmax(S[:, cols[k]])` (the first row holding the
+    column's maximum). Same answer as the argmax over axis 0, without its strided pass over
+    every column (~25 ms for 2048 x 2048 against ~4 ms)."""
+    col_max = S.max(axis=0)
+    hit = S[rows, cols] == col_max[cols]
+    tied = np.count_nonzero(col_max == S, axis=0) > 1
+    for k in np.nonzero(hit & tied[cols])[0]:  # a tie: argmax's answer is the first such row
+        hit[k] = int(np.argmax(S[:, cols[k]])) == rows[k]
+    return np.asarray(hit)
 
 
 def match_by_projection(
@@ -63,12 +75,11 @@ def match_by_projection(
         return empty
     cols = np.fromiter((c for n in near for c in n), dtype=np.int64, count=len(rows))
     S = _similarity(np.asarray(desc_live)[idx], np.asarray(kf_desc))
-    sim = S[rows, cols]
+    sim = S[rows, cols].astype(np.float64)
     keep = sim >= min_similarity
     if global_mutual:
-        best_kf = np.argmax(S, axis=1)
-        best_live = np.argmax(S, axis=0)
-        keep &= (best_kf[rows] == cols) & (best_live[cols] == rows)
+        keep &= np.argmax(S, axis=1)[rows] == cols
+        keep[keep] = _is_column_argmax(S, rows[keep], cols[keep])
     rows, cols, sim = rows[keep], cols[keep], sim[keep]
     if len(rows) == 0:
         return empty
@@ -101,7 +112,7 @@ def mutual_nn_pairs(desc_a: NDArray[Any], desc_b: NDArray[Any],
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     S = _similarity(a, b)
     best_b = np.argmax(S, axis=1)
-    best_a = np.argmax(S, axis=0)
     rows = np.arange(len(a))
-    keep = (best_a[best_b] == rows) & (S[rows, best_b] >= min_similarity)
+    keep = S[rows, best_b].astype(np.float64) >= min_similarity
+    keep[keep] = _is_column_argmax(S, rows[keep], best_b[keep])
     return rows[keep].astype(np.int64), best_b[keep].astype(np.int64)
