@@ -56,6 +56,7 @@ from litevloc.experiments.fleet import (
     fleet_entry,
     fleet_estimate,
     keyframe_path_m,
+    lost_spans,
     max_step_m,
     push_entry,
 )
@@ -217,6 +218,7 @@ class Wire:
         self.bytes: dict[str, list[tuple[float, int, str]]] = {ns: [] for ns in namespaces}  # (wall, bytes, topic)
         self.poses: dict[str, PoseTrack] = {ns: PoseTrack() for ns in namespaces}
         self.lost_wall: dict[str, list[float]] = {ns: [] for ns in namespaces}
+        self.lost_stamp_ns: dict[str, list[int]] = {ns: [] for ns in namespaces}  # the LOST poses' stamps
         #: (receive wall s, stamp ns, camera position in the map frame m) per fused pose
         self.cam: dict[str, list[tuple[float, int, tuple[float, float, float]]]] = {ns: [] for ns in namespaces}
         self.T_base_camera = T_base_camera
@@ -248,6 +250,7 @@ class Wire:
                 self.cam[ns].append((t, pose[2], pose[3]))  # type: ignore[arg-type]
                 if pose[1]:
                     self.lost_wall[ns].append(t)
+                    self.lost_stamp_ns[ns].append(int(pose[2]))
 
     def close(self) -> None:
         self.sub.undeclare()
@@ -356,11 +359,17 @@ def one_count(args: argparse.Namespace, n: int) -> dict[str, Any]:
                 if all(f is not None for f in firsts) and \
                         time.time() - max(f for f in firsts if f is not None) >= args.switch_after:
                     push_wall = time.time()
+                    if args.no_push:  # the control: the same run without the push and its switch
+                        print(f"  control run: no push ({push_wall - t_start:.1f} s into the run)", flush=True)
+                        while any(p.poll() is None for p in procs.values()) and time.monotonic() < deadline:
+                            time.sleep(0.2)
+                        break
                     with open(tmp / "push.log", "w") as push_log:
                         push = subprocess.Popen(_push_cmd(args, ep, tmp), stdout=push_log, stderr=subprocess.STDOUT)
                     print(f"  robot0 pushes {args.push.name} {push_wall - t_start:.1f} s into the run", flush=True)
                 continue
             if announce_wall is None and (line := slog.get("ANNOUNCED")) is not None:
+                assert push_wall is not None  # set with the push
                 announce_wall = float(line.split()[1])
                 print(f"  pushed version announced {announce_wall - push_wall:.1f} s after the push began",
                       flush=True)
@@ -392,7 +401,9 @@ def one_count(args: argparse.Namespace, n: int) -> dict[str, Any]:
                             server_cpu_s=sampler.cpu_between("server", t_start, steady_end),
                             run_s=steady_end - t_start)
         entry.update(push_entry(_push_figures(args, push, push_wall, slog, announce_wall, tmp),
-                                [r.switch_wall for r in robots]))
+                                [r.switch_wall for r in robots],
+                                no_push="control run (--no-push): no push" if args.no_push else None))
+        entry["control"] = bool(args.no_push)
         wire_min = entry["wire_bytes_per_robot_per_min"]
         entry.update({"run_s": run_s, "server_cpu_s_total": usage["cpu_s"], "rate": args.rate,
                       # per minute of a robot running in real time: the fused pose (most of the bytes) goes
@@ -467,6 +478,7 @@ def _robot_figures(tmp: Path, k: int, ns: str, wire: Wire, sampler: Sampler, ann
         first_lost_after_switch_s=None if switch is None else
         next((t - switch for t in wire.lost_wall[ns] if t >= switch), None),
         streamed_after_switch_s=None if switch is None else t1 - switch,
+        lost_spans_s=lost_spans(wire.lost_stamp_ns[ns], min(gt, default=0)),
         jump_m=jump, step_m=step, wire_bytes=sum(by_topic.values()), wire_bytes_by_topic=by_topic)
 
 
@@ -498,6 +510,9 @@ def main() -> None:
                          "CPUs as the robots, ends within the robots' run)")
     ap.add_argument("--switch-after", type=float, default=4.0,
                     help="robot0 pushes this long after every robot's first fused pose (s)")
+    ap.add_argument("--no-push", action="store_true",
+                    help="control run: the same robots and recording without robot0's push (its LOST spans against a "
+                         "run with the push tell LOST caused by the switch from LOST where the map does not cover)")
     ap.add_argument("--timeout", type=float, default=300.0, help="per robot count (s)")
     ap.add_argument("--query-timeout", type=float, default=30.0,
                     help="fleet.query_timeout_s of the bench's fetch and every robot (a loaded machine answers late)")
@@ -540,6 +555,9 @@ def main() -> None:
                  "error cm before/after"], rows)
     for e in entries:
         print(f"  {e['robots']} robot(s), robot0's push: {e['push_reason']}")
+        for k, spans in enumerate(e["lost_spans_s_per_robot"]):
+            text = ", ".join(f"{a:.1f}-{b:.1f}" for a, b in spans) or "never"
+            print(f"    robot{k} LOST over recording s: {text}")
     missing = [k for e in entries for k in (*CONTRACT_KEYS, *PUSH_KEYS) if k not in e]
     assert not missing, missing
     large = None

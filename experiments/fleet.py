@@ -62,7 +62,10 @@ class RobotFigures:
     `error_after_m`: median fused camera position error against ground truth before and after its
     switch (see `error_split`; None without ground truth or a switch); `first_lost_after_switch_s`:
     its switch to the first LOST pose after it (None: none, or no switch), `streamed_after_switch_s`:
-    its switch to its last fused pose (how long the run went on on the new version)."""
+    its switch to its last fused pose (how long the run went on on the new version); `lost_spans_s`:
+    the stretches of the recording (seconds from its start, `lost_spans`) in which its fused poses were
+    LOST, over the whole run: where a control run without a push (`bench/fleet.py --no-push`) has the
+    same spans, the switch did not cause them."""
 
     vloc_calls: int
     stream_s: float
@@ -77,6 +80,7 @@ class RobotFigures:
     error_after_m: float | None = None
     first_lost_after_switch_s: float | None = None
     streamed_after_switch_s: float | None = None
+    lost_spans_s: list[tuple[float, float]] = field(default_factory=list)
 
 
 def _finite_or_none(x: float | None) -> float | None:
@@ -117,7 +121,21 @@ def fleet_entry(robots: Sequence[RobotFigures], *, fetch_s: float, fetch_bytes: 
         "wire_bytes_per_min_by_topic": _per_min_by_topic(robots),
         "fused_error_m_before_switch": [r.error_before_m for r in robots],
         "fused_error_m_after_switch": [r.error_after_m for r in robots],
+        "lost_spans_s_per_robot": [[list(span) for span in r.lost_spans_s] for r in robots],
     }
+
+
+def lost_spans(stamps_ns: Sequence[int], start_ns: int, gap_s: float = 1.0) -> list[tuple[float, float]]:
+    """Stretches of recording time covered by LOST poses: `stamps_ns` (the LOST poses' stamps, ns,
+    any order) as seconds from `start_ns`, joined where consecutive stamps lie at most `gap_s`
+    apart; [(first s, last s)], earliest first."""
+    spans: list[tuple[float, float]] = []
+    for t in sorted((int(x) - int(start_ns)) * 1e-9 for x in stamps_ns):
+        if spans and t - spans[-1][1] <= gap_s:
+            spans[-1] = (spans[-1][0], t)
+        else:
+            spans.append((t, t))
+    return spans
 
 
 @dataclass(frozen=True)
@@ -140,15 +158,17 @@ class PushFigures:
     details: dict[str, Any] = field(default_factory=dict)
 
 
-def push_entry(push: PushFigures | None, switch_walls: Sequence[float | None]) -> dict[str, Any]:
+def push_entry(push: PushFigures | None, switch_walls: Sequence[float | None],
+               no_push: str | None = None) -> dict[str, Any]:
     """The push's part of a robot-count entry: `push_s` (push start to the new version published
     and announced; None when refused or undecided), `push_verdict_s` (push start to the verdict,
     either way), `push_to_all_switched_s` (push start to the last robot's switch; None unless every
     robot switched after the announcement), and the verdict (`push_published`, `push_reason`,
-    `push_details`); `push` None: no push was made (every key None but the reason)."""
+    `push_details`); `push` None: no push was made (every key None but the reason: `no_push`, else
+    the robots ended before the push was due)."""
     if push is None:
         return {"push_s": None, "push_verdict_s": None, "push_to_all_switched_s": None, "push_published": None,
-                "push_reason": "no push: the robots ended before every one had published fused poses",
+                "push_reason": no_push or "no push: the robots ended before every one had published fused poses",
                 "push_details": {}, "push_exit_code": None, "push_bytes": None}
     ann = push.announce_wall if push.published else None
     all_switched = ann is not None and bool(switch_walls) and all(w is not None and w >= ann for w in switch_walls)

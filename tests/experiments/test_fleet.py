@@ -21,6 +21,7 @@ from litevloc.experiments.fleet import (
     error_split,
     fleet_entry,
     fleet_estimate,
+    lost_spans,
     max_step_m,
     push_entry,
 )
@@ -152,3 +153,13 @@ def test_smallest_fleet_run_writes_the_contract(sim_fleet: SimFleetInputs, tmp_p
     if e["robots_switched"]:  # the version switched to is the pushed one, announced after the push began
         assert e["push_published"] and e["lost_during_switch"] == 0
         assert e["push_to_all_switched_s"] == pytest.approx(e["push_s"] + e["switch_s_max"])
+
+
+def test_lost_spans_join_close_stamps_and_split_at_gaps() -> None:
+    s = 10**9
+    start = 5 * s
+    # out of order; 0.5 s apart joins, 2 s apart splits; one stamp alone is a span of zero length
+    stamps = [start + 3 * s, start + int(3.5 * s), start + 4 * s, start + 9 * s, start + 6 * s]
+    assert lost_spans(stamps, start) == [(3.0, 4.0), (6.0, 6.0), (9.0, 9.0)]
+    assert lost_spans(stamps, start, gap_s=3.0) == [(3.0, 9.0)]
+    assert lost_spans([], start) == []
