@@ -147,7 +147,7 @@ bench: $(VENV)/.dev-installed models $(BENCH_7S_MAP)/manifest.json $(BENCH_7S_SP
 	$(VENV)/bin/python bench/goal_placement.py
 	$(VENV)/bin/python bench/buildings.py
 	$(VENV)/bin/python bench/change.py
-	$(VENV)/bin/python bench/fleet.py --robots 1 2 4 --large-map $(BENCH_OFFICE)/map
+	$(VENV)/bin/python bench/fleet.py --robots 1 2 4 --control --large-map $(BENCH_OFFICE)/map
 	$(VENV)/bin/python bench/slam.py --inject --queries
 	$(VENV)/bin/python bench/vo_bias.py
 	$(VENV)/bin/python bench/runtime_queues.py

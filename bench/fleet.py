@@ -52,6 +52,7 @@ from litevloc.experiments.fleet import (
     PoseTrack,
     PushFigures,
     RobotFigures,
+    control_entry,
     error_split,
     fleet_entry,
     fleet_estimate,
@@ -324,8 +325,9 @@ def large_map_fetch(map_dir: Path, timeout_s: float) -> dict[str, Any]:
             "fetch_s": fetch_s, "fetch_bytes": fetched.bytes_fetched, "chunks": fetched.chunks_fetched}
 
 
-def one_count(args: argparse.Namespace, n: int) -> dict[str, Any]:
-    """Run the fleet of `n` robots once; the contract entry (see experiments/fleet.py)."""
+def one_count(args: argparse.Namespace, n: int, push_update: bool = True) -> dict[str, Any]:
+    """Run the fleet of `n` robots once, robot0 pushing unless not `push_update` (the control);
+    the contract entry (see experiments/fleet.py)."""
     from litevloc.config import load_config
     sys.path.insert(0, str(ROOT / "tests" / "runtime"))
     from zenoh_helpers import free_port
@@ -359,7 +361,7 @@ def one_count(args: argparse.Namespace, n: int) -> dict[str, Any]:
                 if all(f is not None for f in firsts) and \
                         time.time() - max(f for f in firsts if f is not None) >= args.switch_after:
                     push_wall = time.time()
-                    if args.no_push:  # the control: the same run without the push and its switch
+                    if not push_update:  # the control: the same run without the push and its switch
                         print(f"  control run: no push ({push_wall - t_start:.1f} s into the run)", flush=True)
                         while any(p.poll() is None for p in procs.values()) and time.monotonic() < deadline:
                             time.sleep(0.2)
@@ -402,8 +404,8 @@ def one_count(args: argparse.Namespace, n: int) -> dict[str, Any]:
                             run_s=steady_end - t_start)
         entry.update(push_entry(_push_figures(args, push, push_wall, slog, announce_wall, tmp),
                                 [r.switch_wall for r in robots],
-                                no_push="control run (--no-push): no push" if args.no_push else None))
-        entry["control"] = bool(args.no_push)
+                                no_push=None if push_update else "control run: no push"))
+        entry["control"] = not push_update
         wire_min = entry["wire_bytes_per_robot_per_min"]
         entry.update({"run_s": run_s, "server_cpu_s_total": usage["cpu_s"], "rate": args.rate,
                       # per minute of a robot running in real time: the fused pose (most of the bytes) goes
@@ -513,6 +515,9 @@ def main() -> None:
     ap.add_argument("--no-push", action="store_true",
                     help="control run: the same robots and recording without robot0's push (its LOST spans against a "
                          "run with the push tell LOST caused by the switch from LOST where the map does not cover)")
+    ap.add_argument("--control", action="store_true",
+                    help="after each robot count's run, its control without the push; the entry gains the control's "
+                         "LOST stretches and the run's stretches the control does not have")
     ap.add_argument("--timeout", type=float, default=300.0, help="per robot count (s)")
     ap.add_argument("--query-timeout", type=float, default=30.0,
                     help="fleet.query_timeout_s of the bench's fetch and every robot (a loaded machine answers late)")
@@ -538,7 +543,11 @@ def main() -> None:
     entries = []
     for n in args.robots:
         print(f"fleet of {n} robot(s) ...", flush=True)
-        entries.append(one_count(args, n))
+        entry = one_count(args, n, push_update=not args.no_push)
+        if args.control and not args.no_push:
+            print(f"fleet of {n} robot(s), the control without the push ...", flush=True)
+            entry.update(control_entry(entry, one_count(args, n, push_update=False)))
+        entries.append(entry)
     rows = [[e["robots"], e["fetch_s"], e["fetch_bytes"], e["push_s"], e["push_to_all_switched_s"],
              "published" if e["push_published"] else "refused" if e["push_published"] is False else "-",
              e["switch_s_max"], e["robots_switched"],
@@ -558,6 +567,9 @@ def main() -> None:
         for k, spans in enumerate(e["lost_spans_s_per_robot"]):
             text = ", ".join(f"{a:.1f}-{b:.1f}" for a, b in spans) or "never"
             print(f"    robot{k} LOST over recording s: {text}")
+        for k, spans in enumerate(e.get("lost_spans_not_in_control_per_robot") or []):
+            text = ", ".join(f"{a:.1f}-{b:.1f}" for a, b in spans) or "none"
+            print(f"    robot{k} LOST stretches the control does not have: {text}")
     missing = [k for e in entries for k in (*CONTRACT_KEYS, *PUSH_KEYS) if k not in e]
     assert not missing, missing
     large = None

@@ -125,6 +125,26 @@ def fleet_entry(robots: Sequence[RobotFigures], *, fetch_s: float, fetch_bytes: 
     }
 
 
+def spans_not_in(spans: Sequence[Sequence[float]], control: Sequence[Sequence[float]],
+                 tolerance_s: float = 1.0) -> list[tuple[float, float]]:
+    """The `spans` ((first s, last s) of recording time) that overlap none of `control`'s, each of
+    those widened by `tolerance_s` on both sides (a robot's VLoc fixes land a frame earlier or later
+    from run to run)."""
+    return [(float(a), float(b)) for a, b in spans
+            if not any(a <= d + tolerance_s and b >= c - tolerance_s for c, d in control)]
+
+
+def control_entry(run: dict[str, Any], control: dict[str, Any]) -> dict[str, Any]:
+    """What a run with the push adds from its control (the same robot count without the push):
+    the control's LOST stretches per robot and, per robot, the run's stretches the control does not
+    have (`spans_not_in`): LOST the push or the switch caused."""
+    ctrl = control["lost_spans_s_per_robot"]
+    return {"control_lost_spans_s_per_robot": ctrl,
+            "lost_spans_not_in_control_per_robot": [
+                [list(sp) for sp in spans_not_in(spans, c)]
+                for spans, c in zip(run["lost_spans_s_per_robot"], ctrl, strict=True)]}
+
+
 def lost_spans(stamps_ns: Sequence[int], start_ns: int, gap_s: float = 1.0) -> list[tuple[float, float]]:
     """Stretches of recording time covered by LOST poses: `stamps_ns` (the LOST poses' stamps, ns,
     any order) as seconds from `start_ns`, joined where consecutive stamps lie at most `gap_s`

@@ -105,6 +105,18 @@ def _earliest(xs: list[float | None] | None) -> float | None:
     return min(vals) if vals else None
 
 
+def _not_in_control(r: Json) -> str:
+    """LOST stretches of the run that its control without the push does not have, all robots
+    ('-': no control was run)."""
+    per_robot = r.get("lost_spans_not_in_control_per_robot")
+    if per_robot is None:
+        return "-"
+    own = [f"{a:.1f}-{b:.1f} s" for spans in per_robot for a, b in spans]
+    total = sum(len(spans) for spans in r["lost_spans_s_per_robot"])
+    ctrl = sum(len(spans) for spans in r["control_lost_spans_s_per_robot"])
+    return f"{len(own)} of {total} (control: {ctrl})" + (f": {', '.join(own)}" if own else "")
+
+
 def _fleet_rows(d: Json) -> list[list[str]]:
     def per_robot(xs: list[float | None], fmt: str) -> str:
         return " ".join(_opt(x, fmt) for x in xs)
@@ -114,7 +126,8 @@ def _fleet_rows(d: Json) -> list[list[str]]:
              _opt(r.get("push_to_all_switched_s"), ".1f"),
              f"{_opt(r['switch_s_max'], '.1f')} ({r.get('robots_switched', '-')}/{r['robots']})",
              f"{_opt(_total(r.get('lost_poses_before_announce')), 'd')} / {r['lost_during_switch']}",
-             _opt(_earliest(r.get("first_lost_after_switch_s")), ".1f"), _opt(r["max_jump_m"], ".1f", 100),
+             _opt(_earliest(r.get("first_lost_after_switch_s")), ".1f"), _not_in_control(r),
+             _opt(r["max_jump_m"], ".1f", 100),
              per_robot(r["vloc_hz_per_robot"], ".2f"),
              per_robot(r["cpu_s_per_vloc"], ".2f"),
              f"{r['server_rss_mb']:.0f} / {_opt(r.get('server_cpu_percent'), '.1f')}",
@@ -139,10 +152,11 @@ PAGES: tuple[Page, ...] = (
          ("axis", "level", "GL accepted among covered % (unchanged)", "> 0.5 m", "goals reached (unchanged)",
           "after update: GL %", "after update: > 0.5 m", "after update: goals"), _change_rows),
     Page("fleet", "Robots on one served map, and one robot's pushed update switched to by all", "bench/fleet.json",
-         "python bench/fleet.py --robots 1 2 4", "fleet.md#the-fleet-benchmark",
+         "python bench/fleet.py --robots 1 2 4 --control", "fleet.md#the-fleet-benchmark",
          ("robots", "fetch s (size)", "push -> published s (verdict)", "held-out localized: current -> candidate",
           "push -> last switched s", "announce -> last switched s (switched)",
           "LOST poses before / after announce", "switch -> first LOST s",
+          "LOST stretches not in the control (all robots)",
           "pose step at the switch cm", "VLoc Hz per robot", "CPU-s per VLoc per robot", "server RSS MB / CPU %",
           "wire kB per robot per min"), _fleet_rows),
 )

@@ -18,12 +18,14 @@ from litevloc.experiments.fleet import (
     PoseTrack,
     PushFigures,
     RobotFigures,
+    control_entry,
     error_split,
     fleet_entry,
     fleet_estimate,
     lost_spans,
     max_step_m,
     push_entry,
+    spans_not_in,
 )
 from litevloc.experiments.fleet_inputs import SimFleetInputs
 
@@ -163,3 +165,16 @@ def test_lost_spans_join_close_stamps_and_split_at_gaps() -> None:
     assert lost_spans(stamps, start) == [(3.0, 4.0), (6.0, 6.0), (9.0, 9.0)]
     assert lost_spans(stamps, start, gap_s=3.0) == [(3.0, 9.0)]
     assert lost_spans([], start) == []
+
+
+def test_spans_not_in_the_control_are_the_runs_own_lost_stretches() -> None:
+    control = [(2.4, 2.7), (13.4, 13.7), (38.3, 39.7)]
+    run = [(2.6, 2.8), (14.4, 14.7), (20.0, 21.0), (38.3, 39.7)]
+    # 14.4 lies within the tolerance of the control's 13.7: the same stretch a frame later
+    assert spans_not_in(run, control) == [(20.0, 21.0)]
+    assert spans_not_in(run, control, tolerance_s=0.0) == [(14.4, 14.7), (20.0, 21.0)]
+    assert spans_not_in(run, []) == run
+    entry = control_entry({"lost_spans_s_per_robot": [[list(s) for s in run], []]},
+                          {"lost_spans_s_per_robot": [[list(s) for s in control], [[1.0, 2.0]]]})
+    assert entry["lost_spans_not_in_control_per_robot"] == [[[20.0, 21.0]], []]
+    assert entry["control_lost_spans_s_per_robot"][1] == [[1.0, 2.0]]
