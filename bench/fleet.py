@@ -24,7 +24,11 @@ mapped from the first 40 s of its mapping pass (the first room); the building af
 pass of the changed room (what it pushes), and the service's held-out recording (every
 `--held-out-every`-th frame checked).
 
-    python bench/fleet.py --robots 1 2 4 --json out/bench/fleet.json [--quick]
+Each robot's LOST stretches are kept in recording time; `--control` runs each robot count again
+without the push, so a stretch the control has too is told from one the switch caused (`--no-push`:
+the control alone).
+
+    python bench/fleet.py --robots 1 2 4 --json out/bench/fleet.json [--control] [--quick]
 """
 
 from __future__ import annotations
@@ -513,8 +517,8 @@ def main() -> None:
     ap.add_argument("--switch-after", type=float, default=4.0,
                     help="robot0 pushes this long after every robot's first fused pose (s)")
     ap.add_argument("--no-push", action="store_true",
-                    help="control run: the same robots and recording without robot0's push (its LOST spans against a "
-                         "run with the push tell LOST caused by the switch from LOST where the map does not cover)")
+                    help="control run: the same robots and recording without robot0's push (its LOST stretches against "
+                         "a run with the push tell LOST caused by the switch from LOST where the map does not cover)")
     ap.add_argument("--control", action="store_true",
                     help="after each robot count's run, its control without the push; the entry gains the control's "
                          "LOST stretches and the run's stretches the control does not have")
