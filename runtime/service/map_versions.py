@@ -11,6 +11,7 @@ fails is `MapRefused` with a `MapRefusal` kind; the localizer in use is not touc
 from __future__ import annotations
 
 import dataclasses
+import logging
 from enum import Enum
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -23,6 +24,8 @@ from litevloc.pipelines.topomap.frame_check import frame_agreement
 from litevloc.pipelines.topomap.io import MapFormatError, load_map
 from litevloc.pipelines.topomap.types import TopoMap
 from litevloc.runtime.vloc_models import ModelBundle, check_map_models, second_look_for
+
+log = logging.getLogger(__name__)
 
 if TYPE_CHECKING:
     from litevloc.config.schema import LiteVLocConfig
@@ -81,8 +84,12 @@ def prepare_localizer(path: Path, current: TopoMap, bundle: ModelBundle, cfg: Li
 
 
 def switch_localizer(old: VisualLocalizer, new: VisualLocalizer, t_ns: int) -> VisualLocalizer:
-    """`new` continuing `old`'s tracking (`Tracker.carry_over`): call between two queries only."""
+    """`new` continuing `old`'s tracking (`Tracker.carry_over`): call between two queries only. The
+    log says what was carried: LL failures carried can end in LOST at the first refusal on the new
+    version, as they would have on the old one."""
     new.tracker.carry_over(old.tracker, t_ns, "map version switched")
+    log.info("tracking carried across the map switch: %s, %d consecutive LL failures (LOST at %d)",
+             new.tracker.state.value, new.tracker.failures, new.tracker.params.local_search.failures_before_lost)
     return new
 
 

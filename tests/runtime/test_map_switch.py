@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import threading
 import time
+import types
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +20,7 @@ from litevloc.pipelines.localization.tracking import TrackingState
 from litevloc.pipelines.topomap.frame_check import frame_agreement
 from litevloc.runtime.service.diagnostics import OK, WARN, map_status
 from litevloc.runtime.service.map_switch import MapSwitcher, MapVersion
-from litevloc.runtime.service.map_versions import MapRefusal, MapRefused
+from litevloc.runtime.service.map_versions import MapRefusal, MapRefused, switch_localizer
 
 
 class FakeBackend:
@@ -195,3 +196,13 @@ def test_a_tracker_continues_the_old_ones_tracking() -> None:
     assert new.state is TrackingState.TRACKING and new.failures == 1 and new.last_pose_t_ns == 42
     assert np.array_equal(new.last_pose, _pose(3)) and new.held is old.held and list(new.ll_wall_ms) == [10.0, 12.0]
     assert new.transitions[-1].reason == "map version switched" and new.transitions[-1].t_ns == 50
+
+
+def test_the_switch_logs_the_ll_failures_it_carries(caplog: pytest.LogCaptureFixture) -> None:
+    p = LocalizationParams()
+    old, new = Tracker(p, None, None), Tracker(p, None, None)
+    old.state, old.failures = TrackingState.TRACKING, 2
+    with caplog.at_level("INFO", logger="litevloc.runtime.service.map_versions"):
+        got = switch_localizer(types.SimpleNamespace(tracker=old), types.SimpleNamespace(tracker=new), 7)
+    assert got.tracker is new and new.failures == 2
+    assert f"TRACKING, 2 consecutive LL failures (LOST at {p.local_search.failures_before_lost})" in caplog.text
