@@ -37,8 +37,9 @@ def _is_column_argmax(S: NDArray[np.floating], rows: NDArray[np.int64], cols: ND
     col_max = S.max(axis=0)
     hit = S[rows, cols] == col_max[cols]
     tied = np.count_nonzero(col_max == S, axis=0) > 1
-    for k in np.nonzero(hit & tied[cols])[0]:  # a tie: argmax's answer is the first such row
-        hit[k] = int(np.argmax(S[:, cols[k]])) == rows[k]
+    k = np.nonzero(hit & tied[cols])[0]  # a tie: argmax's answer is the first such row
+    if len(k):  # one gather of those columns (binary descriptors tie often)
+        hit[k] = np.argmax(S[:, cols[k]], axis=0) == rows[k]
     return np.asarray(hit)
 
 

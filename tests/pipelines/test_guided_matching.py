@@ -70,3 +70,18 @@ def test_match_by_projection_global_mutual_keeps_only_global_mutual_pairs() -> N
     mutual = set(zip(ra.tolist(), ca.tolist(), strict=True))
     pairs = set(zip(li.tolist(), ki.tolist(), strict=True))
     assert len(pairs) > 100 and pairs <= mutual
+
+
+def test_mutual_pairs_of_binary_descriptors_resolve_their_many_ties_as_argmax_does() -> None:
+    rng = np.random.default_rng(5)
+    for _ in range(10):  # 32-bit strings: 33 similarity values, ties in most columns
+        a = rng.integers(0, 256, size=(300, 4), dtype=np.uint8)
+        b = rng.integers(0, 256, size=(280, 4), dtype=np.uint8)
+        bits_a = np.unpackbits(a, axis=1).astype(np.float64)
+        bits_b = np.unpackbits(b, axis=1).astype(np.float64)
+        S = 1.0 - 2.0 * (bits_a[:, None, :] != bits_b[None, :, :]).mean(axis=2)
+        best_b, best_a = S.argmax(axis=1), S.argmax(axis=0)
+        rows = np.arange(len(a))
+        keep = (best_a[best_b] == rows) & (S[rows, best_b] >= 0.0)
+        got = mutual_nn_pairs(a, b, 0.0)
+        assert np.array_equal(got[0], rows[keep]) and np.array_equal(got[1], best_b[keep])
