@@ -18,23 +18,47 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
-from litevloc.base.geometry import relative_pose_error
+from litevloc.base.geometry import backproject_pixels, relative_pose_error
 from litevloc.base.params.world_change import WorldChangeParams
 from litevloc.experiments.buildings import BenchSettings, BuildingRun, ensure_map, load_models
 from litevloc.experiments.change import MONTHS_LATER, QUERY_SEED, Case, changed_world
 from litevloc.experiments.splits import COVER, coverage
+from litevloc.pipelines.localization.checks.support import layer_share
+from litevloc.pipelines.localization.results import LocalizationResult
 from litevloc.pipelines.localization.vloc import VisualLocalizer
 from litevloc.pipelines.topomap.io import load_map
+from litevloc.pipelines.topomap.types import TopoMap
 from litevloc.runtime.vloc_models import check_map_models, second_look_for
 from litevloc.sim.source import SimSequenceSource
 
 RIGHT = (1.0, 30.0)  # metres, degrees: a keyframe that views the query's place
 
 
+def inlier_layers(topomap: TopoMap, res: LocalizationResult, depth: NDArray[np.float32] | None,
+                  K: NDArray[np.float64]) -> tuple[int, float] | None:
+    """How many of the accepted pose's inliers with its keyframe, lifted with the live depth (what
+    the support check sees, less the matches only the map's depth explains), and which share of
+    them lie on their two densest horizontal layers (`support.layer_share`); None without depth
+    or matches."""
+    m = res.matches
+    if m is None or depth is None or res.T_map_camera is None:
+        return None
+    px = np.asarray(m.live_px, np.float64)[m.inlier]
+    z = np.asarray(depth, np.float64)[px[:, 1].astype(int), px[:, 0].astype(int)]
+    ok = np.isfinite(z) & (z > 0)
+    if not ok.any():
+        return None
+    T = res.T_map_camera
+    pts = backproject_pixels(K, px[ok], z[ok]) @ T[:3, :3].T + T[:3, 3]
+    return len(pts), layer_share(pts @ np.asarray(topomap.grid.up, np.float64))
+
+
 def diagnose(run: BuildingRun, case: Case | None, every: int, duration: float | None,
-             overrides: tuple[str, ...], out_dir: Path) -> dict[str, Any]:
-    """Per-frame GL records of `run` changed by `case` (None: unchanged) against its unchanged map."""
+             overrides: tuple[str, ...], out_dir: Path, uncovered: bool = False) -> dict[str, Any]:
+    """Per-frame GL records of `run` changed by `case` (None: unchanged) against its unchanged map;
+    with `uncovered`, frames the map does not cover too (their accepted poses can be wrong as well)."""
     cfg, bundles = load_models("default", overrides)
     settings = BenchSettings(out_dir=out_dir)
     map_dir, _ = ensure_map(run, changed_world(run, WorldChangeParams()), settings, cfg, bundles["build"])
@@ -48,7 +72,8 @@ def diagnose(run: BuildingRun, case: Case | None, every: int, duration: float | 
     for i in range(0, src.frame_count(), every):
         f = src.frame(i)
         d, a = coverage(topomap, poses[i])
-        if not ((d <= COVER[0][0]) & (a <= COVER[0][1])).any():
+        covered = bool(((d <= COVER[0][0]) & (a <= COVER[0][1])).any())
+        if not covered and not uncovered:
             continue
         right = [int(n) for n in np.argsort(d) if d[n] <= RIGHT[0] and a[n] <= RIGHT[1]]
         loc = VisualLocalizer(topomap, cfg.localization, bundle.extract, bundle.describe, bundle.match,
@@ -56,13 +81,18 @@ def diagnose(run: BuildingRun, case: Case | None, every: int, duration: float | 
         res = loc.localize_global(f.t_ns, f.color, f.depth, f.K)
         cands = list(res.candidates)
         rank = next((k for k, n in enumerate(cands) if n in right), None)
-        rec: dict[str, Any] = {"frame": i, "accepted": bool(res.accepted), "reason": res.reason,
+        rec: dict[str, Any] = {"frame": i, "covered": covered, "accepted": bool(res.accepted), "reason": res.reason,
                                "stop": res.stop_reason, "rank_right": rank, "n_right": len(right),
                                "gray_mean": float(np.mean(f.color)),
                                "attempts": [(a_.node, a_.matches, a_.inliers, a_.reason, a_.node in right)
                                             for a_ in res.attempts]}
         if res.accepted and res.T_map_camera is not None:
             rec["error_m"] = relative_pose_error(res.T_map_camera, poses[i])[0]
+            kf_m, kf_deg = relative_pose_error(res.T_map_camera, topomap.T_map_camera[res.ref_node])
+            rec["inliers_layer_share"] = inlier_layers(topomap, res, f.depth, f.K)
+            rec.update(ref_node=res.ref_node, keyframes=list(res.keyframes), inliers=res.n_inliers,
+                       second_look=res.second_look, from_keyframe_m=kf_m, from_keyframe_deg=kf_deg,
+                       truth_from_keyframe_m=float(d[res.ref_node]), truth_from_keyframe_deg=float(a[res.ref_node]))
         if not res.accepted and right:
             loc2 = VisualLocalizer(topomap, cfg.localization, bundle.extract, bundle.describe, bundle.match,
                                    second_look=look)
@@ -71,10 +101,12 @@ def diagnose(run: BuildingRun, case: Case | None, every: int, duration: float | 
                              "attempts": [(a_.node, a_.matches, a_.inliers, a_.reason) for a_ in o.attempts]}
         frames.append(rec)
         print(json.dumps(rec, default=str), flush=True)
-    ok = sum(r["accepted"] for r in frames)
+    cov = [r for r in frames if r["covered"]]
     wrong = sum(r["accepted"] and r.get("error_m", 0) > 0.5 for r in frames)
-    summary = {"case": dataclasses.asdict(case) if case else None, "covered": len(frames), "accepted": ok,
-               "wrong": wrong, "right_in_topk": sum(r["rank_right"] is not None for r in frames)}
+    summary = {"case": dataclasses.asdict(case) if case else None, "covered": len(cov),
+               "accepted": sum(r["accepted"] for r in cov), "queries": len(frames),
+               "accepted_all": sum(r["accepted"] for r in frames), "wrong": wrong,
+               "right_in_topk": sum(r["rank_right"] is not None for r in cov)}
     print("SUMMARY", json.dumps(summary), flush=True)
     return {"summary": summary, "frames": frames}
 
@@ -86,6 +118,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--every", type=int, default=30)
     ap.add_argument("--duration", type=float, default=None)
     ap.add_argument("--axes", nargs="*", default=[], help="AXIS=LEVEL or months_later; none: unchanged")
+    ap.add_argument("--uncovered", action="store_true", help="diagnose frames the map does not cover too")
     ap.add_argument("--set", dest="overrides", action="append", default=[])
     ap.add_argument("--out-dir", type=Path, default=Path("out/bench/change_diag"))
     ap.add_argument("--json", type=Path, default=None)
@@ -94,7 +127,8 @@ def main(argv: list[str] | None = None) -> int:
     cases: list[Case | None] = [
         Case(MONTHS_LATER, 1.0) if s == MONTHS_LATER else Case(s.split("=")[0], float(s.split("=")[1]))
         for s in args.axes] or [None]
-    out = [diagnose(run, c, args.every, args.duration, tuple(args.overrides), args.out_dir) for c in cases]
+    out = [diagnose(run, c, args.every, args.duration, tuple(args.overrides), args.out_dir,
+                    args.uncovered) for c in cases]
     if args.json:
         args.json.write_text(json.dumps(out, default=str))
     return 0

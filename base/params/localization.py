@@ -214,11 +214,14 @@ class ConfirmParams(Settings):
 
 @dataclass(frozen=True)
 class SupportParams(Settings):
-    """The support check of a GL pose: the height its inliers span."""
+    """The support check of a GL pose: the height its inliers span, and how many lie on floor and ceiling."""
 
     min_height_m: float = setting(
         0.15, "a GL candidate whose inliers span less height than this rests on floor or ceiling: refused (0 = off)",
         unit="m", low=0)
+    min_off_layer_inliers: int = setting(
+        8, "a GL candidate needs this many inliers off its two densest horizontal layers (floor and ceiling, each "
+        "10 cm thick); fewer: it rests on floor and ceiling tiles only and is refused (0 = off)", low=0)
 
 
 @dataclass(frozen=True)

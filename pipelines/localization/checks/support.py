@@ -1,7 +1,10 @@
-"""The support check (GL): a pose resting on one horizontal plane only is refused.
+"""The support check (GL): a pose resting on horizontal planes only is refused.
 
 Floor and ceiling tiles repeat in every room and under 90-degree turns: a GL pose whose
-supporting points all lie on one horizontal plane is no evidence of the place.
+supporting points all lie on one horizontal plane is no evidence of the place
+(`support.min_height_m`), nor is one whose points lie on the floor and the ceiling alone: a
+corridor seen from either end, or a tile period farther along, shows the same tiles above and
+below (`support.min_off_layer_inliers`).
 """
 
 from __future__ import annotations
@@ -29,45 +32,69 @@ class SupportCheck:
         return replace(c.attempt, reason=flat, refusal=Refusal.LATER) if flat else None
 
 
-def support_height_spread(verifier: CandidateVerifier, node: int, res: PnpResult, q: Query) -> float:
-    """Extent (m) along the map's up vector of the points that support a verified pose (10th to
-    90th percentile of the heights of the matches it explains, `CandidateVerifier.explained_matches`);
-    inf when the pose or the support is missing. Near 0: every supporting point lies on one
-    horizontal plane (the floor or the ceiling)."""
-    if res.T_target_source is None or res.n_inliers == 0:
-        return float("inf")
-    return height_spread_at(verifier, node, verifier.map.T_map_camera[node] @ res.T_target_source, q)
+# Half the thickness of a horizontal layer: a floor's points under room-range depth noise and a
+# right pose's tilt (fixed, not tuned).
+LAYER_HALF_M = 0.05
 
 
-def height_spread_at(verifier: CandidateVerifier, node: int, T_map_camera: NDArray[np.float64], q: Query) -> float:
-    """`support_height_spread` of the matches with keyframe `node` that the camera pose
-    `T_map_camera` (4x4, map frame) explains; inf without such matches."""
-    m = verifier.map
+def layer_share(heights: NDArray[np.float64], layers: int = 2, half_m: float = LAYER_HALF_M) -> float:
+    """Share of the finite `heights` (N,) (metres along up) within `half_m` of the `layers`
+    densest heights, each found among the points the denser ones left; 0 for no points."""
+    h = np.asarray(heights, np.float64)
+    h = h[np.isfinite(h)]
+    return 1.0 - off_layers(h, layers, half_m) / len(h) if len(h) else 0.0
+
+
+def off_layers(heights: NDArray[np.float64], layers: int = 2, half_m: float = LAYER_HALF_M) -> int:
+    """How many of the finite `heights` (N,) (metres along up) lie farther than `half_m` from
+    each of the `layers` densest heights (each found among the points the denser ones left)."""
+    h = np.sort(np.asarray(heights, np.float64)[np.isfinite(heights)])
+    left = np.ones(len(h), dtype=bool)
+    for _ in range(layers):
+        rest = h[left]
+        if len(rest) == 0:
+            break
+        near = np.searchsorted(rest, rest + half_m, "right") - np.searchsorted(rest, rest - half_m, "left")
+        left &= np.abs(h - rest[int(np.argmax(near))]) > half_m
+    return int(left.sum())
+
+
+def support_heights(verifier: CandidateVerifier, node: int, T_map_camera: NDArray[np.float64],
+                    q: Query) -> NDArray[np.float64]:
+    """(N,) heights (m, along the map's up) of the matches with keyframe `node` that the camera
+    pose `T_map_camera` (4x4, map frame) explains."""
     explained, pts = verifier.explained_matches(node, T_map_camera, q)
-    pts = pts[explained]
-    if len(pts) == 0:
-        return float("inf")
-    h = pts @ np.asarray(m.grid.up, dtype=np.float64)
-    lo, hi = np.percentile(h, [10.0, 90.0])
-    return float(hi - lo)
+    return np.asarray(pts[explained] @ np.asarray(verifier.map.grid.up, dtype=np.float64), np.float64)
+
+
+def flat_reason(verifier: CandidateVerifier, node: int, T_map_camera: NDArray[np.float64], q: Query) -> str:
+    """Why the pose `T_map_camera` (4x4) through keyframe `node` rests on horizontal planes only
+    under the query's `support` parameters ('' where it does not, or the checks are off)."""
+    sp = q.params.support
+    if sp.min_height_m <= 0 and sp.min_off_layer_inliers <= 0:
+        return ""
+    h = support_heights(verifier, node, T_map_camera, q)
+    if len(h) == 0:
+        return ""
+    lo, hi = np.percentile(h, [10.0, 90.0])  # the support's height span; near 0: one horizontal plane
+    if sp.min_height_m > 0 and hi - lo < sp.min_height_m:
+        return (f"support on one horizontal plane only (inliers span {hi - lo:.2f} m < {sp.min_height_m:g} "
+                "along up: floor or ceiling tiles repeat)")
+    off = off_layers(h)
+    if off < sp.min_off_layer_inliers:
+        return (f"support on floor and ceiling only ({off} of {len(h)} inliers off the two densest horizontal "
+                f"layers < {sp.min_off_layer_inliers}: floor and ceiling tiles repeat)")
+    return ""
 
 
 def flat_at(verifier: CandidateVerifier, node: int, T_map_camera: NDArray[np.float64], q: Query) -> bool:
-    """Whether the pose `T_map_camera` (4x4) through keyframe `node` rests on one horizontal plane
-    under the query's `support.min_height_m` (never when the check is off): such a pose is no
-    evidence of a place, for GL's winner or for a rival of it."""
-    need = q.params.support.min_height_m
-    return need > 0 and height_spread_at(verifier, node, T_map_camera, q) < need
+    """Whether the pose `T_map_camera` (4x4) through keyframe `node` rests on horizontal planes only
+    (`flat_reason`): such a pose is no evidence of a place, for GL's winner or for a rival of it."""
+    return bool(flat_reason(verifier, node, T_map_camera, q))
 
 
 def flat_support(verifier: CandidateVerifier, node: int, res: PnpResult, q: Query) -> str:
-    """The refusal reason when a GL pose rests on one horizontal plane only (see
-    `LocalizationParams.support.min_height_m`, the query's), else ''."""
-    need = q.params.support.min_height_m
-    if need <= 0:
+    """The refusal reason when a GL pose rests on horizontal planes only (`flat_reason`), else ''."""
+    if res.T_target_source is None or res.n_inliers == 0:
         return ""
-    spread = support_height_spread(verifier, node, res, q)
-    if spread >= need:
-        return ""
-    return (f"support on one horizontal plane only (inliers span {spread:.2f} m < {need:g} "
-            "along up: floor or ceiling tiles repeat)")
+    return flat_reason(verifier, node, verifier.map.T_map_camera[node] @ res.T_target_source, q)

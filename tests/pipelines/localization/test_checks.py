@@ -11,7 +11,7 @@ from litevloc.pipelines.localization.checks.joint import JointCheck
 from litevloc.pipelines.localization.checks.pnp import PnpCheck
 from litevloc.pipelines.localization.checks.pooled import PooledCheck
 from litevloc.pipelines.localization.checks.prior_gate import PriorGateCheck
-from litevloc.pipelines.localization.checks.support import SupportCheck
+from litevloc.pipelines.localization.checks.support import SupportCheck, layer_share, off_layers
 from litevloc.pipelines.localization.distinct import VerifiedPose
 from litevloc.pipelines.localization.query import Query, StageTimer
 from litevloc.pipelines.localization.results import CandidateAttempt
@@ -82,6 +82,30 @@ def test_support_refuses_a_pose_whose_inliers_lie_on_one_plane_only() -> None:
     tall = replace(q.params, support=replace(q.params.support, min_height_m=100.0))
     refusal = SupportCheck(v)(c, q.under(tall))
     assert refusal is not None and "one horizontal plane" in refusal.reason and refusal.refusal is Refusal.LATER
+
+
+def test_support_refuses_a_pose_whose_inliers_lie_on_floor_and_ceiling_only() -> None:
+    v, q, _ = _setup(pose(1.2), 1)
+    c = Candidate(1, 0.9)
+    assert PnpCheck(v, PARAMS)(c, q) is None
+    assert c.res is not None
+    some = replace(q.params, support=replace(q.params.support, min_off_layer_inliers=c.res.n_inliers // 2))
+    assert SupportCheck(v)(c, q.under(some)) is None  # the scene's points spread over 3 m of height
+    every = replace(q.params, support=replace(q.params.support, min_off_layer_inliers=c.res.n_inliers + 1))
+    refusal = SupportCheck(v)(c, q.under(every))
+    assert refusal is not None and "floor and ceiling only" in refusal.reason and refusal.refusal is Refusal.LATER
+
+
+def test_layer_share_counts_the_two_densest_horizontal_layers() -> None:
+    rng = np.random.default_rng(0)
+    floor, ceiling = rng.normal(0.0, 0.015, 60), rng.normal(2.6, 0.015, 30)
+    wall = rng.uniform(0.3, 2.3, 30)
+    assert layer_share(np.concatenate([floor, ceiling])) == 1.0
+    assert abs(layer_share(np.concatenate([floor, ceiling, wall])) - 90 / 120) < 0.02
+    assert layer_share(np.concatenate([floor, ceiling, wall]), layers=1) < 0.55  # the floor alone
+    assert layer_share(rng.uniform(0.3, 2.3, 300)) < 0.2  # a wall's points spread over its height
+    assert layer_share(np.array([np.nan, 0.0, 0.01])) == 1.0 and layer_share(np.array([])) == 0.0
+    assert off_layers(np.concatenate([floor, ceiling, wall])) == 30 and off_layers(np.array([])) == 0
 
 
 def test_joint_refinement_and_the_pooled_count() -> None:

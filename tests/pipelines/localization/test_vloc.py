@@ -443,9 +443,31 @@ def test_gl_refuses_a_pose_resting_on_the_floor_alone(monkeypatch: pytest.Monkey
     assert not res.accepted and res.provisional is None
     assert any("one horizontal plane" in a.reason for a in res.attempts), res.attempts
     off = VisualLocalizer(m, replace(PARAMS, local_search=replace(PARAMS.local_search, guided_min_matches=60),
-                                     support=replace(PARAMS.support, min_height_m=0.0)),
+                                     support=replace(PARAMS.support, min_height_m=0.0, min_off_layer_inliers=0)),
                           s.extract, s.describe, s.match)
     res = off.localize_global(0, IMG, depth, K)
+    assert res.accepted and res.T_map_camera is not None
+    assert np.linalg.norm(res.T_map_camera[:3, 3] - pose(1.1)[:3, 3]) < 0.02
+
+
+def test_gl_refuses_a_pose_resting_on_floor_and_ceiling_alone(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every point on the floor or the ceiling (they span 2.6 m of height, so the height-span check
+    passes): a corridor's tiles above and below repeat, so GL refuses the pose; with the check off
+    the same scene is accepted."""
+    import sys
+
+    mod = sys.modules[__name__]
+    two = POINTS.copy()
+    two[:, 1] = np.where(np.arange(len(two)) % 2 == 0, 1.4, -1.2)  # floor 1.4 m below, ceiling 1.2 m above (y down)
+    monkeypatch.setattr(mod, "POINTS", two)
+    m = make_map([0.0, 1.0, 2.0, 3.0])
+    s = Scene(m)
+    depth = s.look(pose(1.1), vpr_best=1)
+    res = VisualLocalizer(m, PARAMS, s.extract, s.describe, s.match).localize_global(0, IMG, depth, K)
+    assert not res.accepted and res.provisional is None
+    assert any("floor and ceiling only" in a.reason for a in res.attempts), res.attempts
+    off = replace(PARAMS, support=replace(PARAMS.support, min_off_layer_inliers=0))
+    res = VisualLocalizer(m, off, s.extract, s.describe, s.match).localize_global(0, IMG, depth, K)
     assert res.accepted and res.T_map_camera is not None
     assert np.linalg.norm(res.T_map_camera[:3, 3] - pose(1.1)[:3, 3]) < 0.02
 
