@@ -80,7 +80,7 @@ def flat_reason(verifier: CandidateVerifier, node: int, T_map_camera: NDArray[np
     if sp.min_height_m > 0 and hi - lo < sp.min_height_m:
         return (f"support on one horizontal plane only (inliers span {hi - lo:.2f} m < {sp.min_height_m:g} "
                 "along up: floor or ceiling tiles repeat)")
-    off = off_layers(h)
+    off = off_layers(h) if sp.min_off_layer_inliers > 0 else 0
     if off < sp.min_off_layer_inliers:
         return (f"support on floor and ceiling only ({off} of {len(h)} inliers off the two densest horizontal "
                 f"layers < {sp.min_off_layer_inliers}: floor and ceiling tiles repeat)")
