@@ -1,10 +1,12 @@
 """Where GL fails under one change axis, per query frame (issue #78 item 4): the rank of the first right
 keyframe (within `RIGHT` of the truth) among the VPR candidates GL verified, what each verified candidate
 gave (matches, inliers, refusal), and what the right keyframe alone gives when GL is told to verify it
-(`only=`): place recognition failing vs verification failing.
+(`only=`): place recognition failing vs verification failing. With `--update-every N`, against the
+map after one update run through the changed building (every Nth frame, as `bench/change.py
+--session-every`): what the update changed for each frame.
 
     .venv/bin/python -m litevloc.experiments.change_diagnose GENERATOR SEED [--every N] [--duration S]
-        [--axes lighting=0.5 furniture=0.3 ...] [--set KEY=VALUE ...] [--json PATH]
+        [--axes lighting=0.5 furniture=0.3 ...] [--update-every N] [--set KEY=VALUE ...] [--json PATH]
 
 Tuning buildings only (never the report set, `bench/buildings.py`'s default seeds).
 """
@@ -23,7 +25,7 @@ from numpy.typing import NDArray
 from litevloc.base.geometry import backproject_pixels, relative_pose_error
 from litevloc.base.params.world_change import WorldChangeParams
 from litevloc.experiments.buildings import BenchSettings, BuildingRun, ensure_map, load_models
-from litevloc.experiments.change import MONTHS_LATER, QUERY_SEED, Case, changed_world
+from litevloc.experiments.change import MONTHS_LATER, QUERY_SEED, Case, changed_world, update_map
 from litevloc.experiments.splits import COVER, coverage
 from litevloc.pipelines.localization.checks.support import layer_share
 from litevloc.pipelines.localization.results import LocalizationResult
@@ -56,13 +58,23 @@ def inlier_layers(topomap: TopoMap, res: LocalizationResult, depth: NDArray[np.f
 
 
 def diagnose(run: BuildingRun, case: Case | None, every: int, duration: float | None,
-             overrides: tuple[str, ...], out_dir: Path, uncovered: bool = False) -> dict[str, Any]:
-    """Per-frame GL records of `run` changed by `case` (None: unchanged) against its unchanged map;
-    with `uncovered`, frames the map does not cover too (their accepted poses can be wrong as well)."""
+             overrides: tuple[str, ...], out_dir: Path, uncovered: bool = False,
+             update_every: int = 0) -> dict[str, Any]:
+    """Per-frame GL records of `run` changed by `case` (None: unchanged) against its unchanged map,
+    or with `update_every` > 0 against that map after one update run through the changed building
+    (every `update_every`-th frame of it); with `uncovered`, frames the map does not cover too
+    (their accepted poses can be wrong as well)."""
     cfg, bundles = load_models("default", overrides)
     settings = BenchSettings(out_dir=out_dir)
     map_dir, _ = ensure_map(run, changed_world(run, WorldChangeParams()), settings, cfg, bundles["build"])
     world = changed_world(run, case.params() if case else WorldChangeParams())
+    update: dict[str, Any] | None = None
+    if update_every > 0:
+        name = f"map_{case.axis}_{case.level:g}" if case else "map_unchanged"
+        upd_dir = out_dir / run.name / f"{name}_update_every_{update_every}"
+        update = update_map(map_dir, world, cfg, bundles["build"], upd_dir, update_every)
+        print("UPDATE", json.dumps(update, default=str), flush=True)
+        map_dir = upd_dir
     bundle = bundles["nav"]
     topomap = check_map_models(load_map(map_dir), bundle)
     look = second_look_for(topomap, cfg.models, cfg.localization, bundle)
@@ -103,7 +115,7 @@ def diagnose(run: BuildingRun, case: Case | None, every: int, duration: float | 
         print(json.dumps(rec, default=str), flush=True)
     cov = [r for r in frames if r["covered"]]
     wrong = sum(r["accepted"] and r.get("error_m", 0) > 0.5 for r in frames)
-    summary = {"case": dataclasses.asdict(case) if case else None, "covered": len(cov),
+    summary = {"case": dataclasses.asdict(case) if case else None, "update": update, "covered": len(cov),
                "accepted": sum(r["accepted"] for r in cov), "queries": len(frames),
                "accepted_all": sum(r["accepted"] for r in frames), "wrong": wrong,
                "right_in_topk": sum(r["rank_right"] is not None for r in cov)}
@@ -119,6 +131,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--duration", type=float, default=None)
     ap.add_argument("--axes", nargs="*", default=[], help="AXIS=LEVEL or months_later; none: unchanged")
     ap.add_argument("--uncovered", action="store_true", help="diagnose frames the map does not cover too")
+    ap.add_argument("--update-every", type=int, default=0,
+                    help="diagnose the map after one update run through the changed building, every Nth frame of it")
     ap.add_argument("--set", dest="overrides", action="append", default=[])
     ap.add_argument("--out-dir", type=Path, default=Path("out/bench/change_diag"))
     ap.add_argument("--json", type=Path, default=None)
@@ -128,7 +142,7 @@ def main(argv: list[str] | None = None) -> int:
         Case(MONTHS_LATER, 1.0) if s == MONTHS_LATER else Case(s.split("=")[0], float(s.split("=")[1]))
         for s in args.axes] or [None]
     out = [diagnose(run, c, args.every, args.duration, tuple(args.overrides), args.out_dir,
-                    args.uncovered) for c in cases]
+                    args.uncovered, args.update_every) for c in cases]
     if args.json:
         args.json.write_text(json.dumps(out, default=str))
     return 0

@@ -36,7 +36,7 @@ from litevloc.pipelines.localization.checks.joint import JointCheck, single_keyf
 from litevloc.pipelines.localization.checks.pnp import PnpCheck
 from litevloc.pipelines.localization.checks.pooled import PooledCheck
 from litevloc.pipelines.localization.checks.second_look import SecondLookFn, look_again
-from litevloc.pipelines.localization.checks.support import SupportCheck
+from litevloc.pipelines.localization.checks.support import PooledSupportCheck, SupportCheck
 from litevloc.pipelines.localization.distinct import VerifiedPose
 from litevloc.pipelines.localization.local_search import LocalSearch
 from litevloc.pipelines.localization.passes import pooled, with_pooled, with_second_passes
@@ -178,7 +178,7 @@ class GlobalSearch:
         joint_check = JointCheck(v, [int(n) for n in order],
                                  lambda c, weak: min_kf if p.confirm.gl or weak else 1, floor, refuse=False)
         checks: list[Check] = [PnpCheck(v, pooled(p), evidence=evidence), SupportCheck(v), joint_check,
-                               PooledCheck(floor, min_kf)]
+                               PooledCheck(floor, min_kf), PooledSupportCheck(v, floor)]
         budget = p.global_search.time_budget_ms
         candidates_ms = 0.0  # verification time (match, PnP, joint refinement) of the candidates so far
         first_ms = 0.0  # the first candidate's: with the front end, the nominal LL cost (`gl_budget_ms`)

@@ -103,6 +103,8 @@ class RefineResult:
     median_reprojection_px: float = float("nan")
     shift_m: float = 0.0
     shift_deg: float = 0.0
+    # (N, 3) metres, map frame: the consistent keyframes' inlier points (what the pose rests on)
+    inlier_points_map: F64 = field(default_factory=lambda: np.zeros((0, 3)))
 
     @property
     def n_inliers(self) -> int:
@@ -285,6 +287,14 @@ class _Terms:
             errors.append(re)
         return np.concatenate(out_r), np.concatenate(out_J), np.concatenate(errors)
 
+    def map_points(self, T: F64) -> F64:
+        """(N, 3) metres, map frame, in `whitened`'s row order: the live points under the live
+        pose `T`, then the keyframe points reprojected into the live image (map depth)."""
+        out = [_camera_points(T, self.pts)]
+        if self.rev is not None:
+            out.append(_camera_points(self.ob.T_map_kf, self.rev.P_kf))
+        return np.concatenate(out)
+
 
 def _perturb(T: F64, d: NDArray[np.floating]) -> F64:
     return T @ make_T(so3_exp(np.asarray(d[3:], dtype=np.float64)), np.asarray(d[:3], dtype=np.float64))
@@ -309,14 +319,25 @@ def _solve_terms(observations: list[KeyframeObservations], T0: F64, p: RefinePar
     return used
 
 
-def _consistent_keyframes(used: list[_Terms], T: F64,
-                          p: RefineParams) -> tuple[dict[int, int], list[F64], list[F64]]:
-    """Under the joint pose `T`: the inliers (within `inlier_px`) of each keyframe with at least
+@dataclass(frozen=True)
+class _Consistent:
+    """Under a joint pose: the inliers (within `inlier_px`) of each keyframe with at least
     `min_keyframe_inliers` of them, by node; their pixel errors; their 6x6 information matrices
-    (whitened Gauss-Newton, scaled by the residual variance where it exceeds 1)."""
+    (whitened Gauss-Newton, scaled by the residual variance where it exceeds 1); their map-frame
+    points (N, 3) metres."""
+
+    inliers: dict[int, int]
+    errors: list[F64]
+    info: list[F64]
+    points_map: F64
+
+
+def _consistent_keyframes(used: list[_Terms], T: F64, p: RefineParams) -> _Consistent:
+    """The keyframes of `used` consistent with the joint pose `T` (see `_Consistent`)."""
     inl: dict[int, int] = {}
     errs: list[F64] = []
     info: list[F64] = []
+    pts: list[F64] = [np.zeros((0, 3))]
     for t in used:
         _, _, e = t.whitened(T)
         ok = e <= p.inlier_px
@@ -324,10 +345,11 @@ def _consistent_keyframes(used: list[_Terms], T: F64,
             continue
         inl[t.ob.node] = int(ok.sum())
         errs.append(e[ok])
+        pts.append(t.map_points(T)[ok])
         rw, Jw, _ = t.whitened(T, ok)
         s2 = max(float(rw @ rw) / max(len(rw) - 6, 1), 1.0)
         info.append(Jw.T @ Jw / s2)
-    return inl, errs, info
+    return _Consistent(inl, errs, info, np.concatenate(pts))
 
 
 def refine_pose(
@@ -379,7 +401,8 @@ def refine_pose(
     dR = T0[:3, :3].T @ T[:3, :3]
     shift_deg = float(np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1))))
 
-    inl, errs, info = _consistent_keyframes(used, T, p)
+    cons = _consistent_keyframes(used, T, p)
+    inl, errs, info = cons.inliers, cons.errors, cons.info
     med = float(np.median(np.concatenate(errs))) if errs else float("nan")
     kfs = np.stack([t.ob.T_map_kf for t in used if t.ob.node in inl]) if inl else np.zeros((0, 4, 4))
     cov = joint_covariance(info, p, viewpoint_angle_rad(T, kfs), keyframe_distance_m(T, kfs)) if info else None
@@ -389,7 +412,7 @@ def refine_pose(
         reason = f"joint pose moved {shift_m:.2f} m / {shift_deg:.1f} deg from the initial pose"
     else:
         reason = "ok"
-    return RefineResult(reason == "ok", reason, T, cov, inl, matches, med, shift_m, shift_deg)
+    return RefineResult(reason == "ok", reason, T, cov, inl, matches, med, shift_m, shift_deg, cons.points_map)
 
 
 def viewpoint_angle_rad(T_map_camera: NDArray[np.floating], T_map_keyframes: NDArray[np.floating]) -> float:

@@ -4,7 +4,8 @@ Floor and ceiling tiles repeat in every room and under 90-degree turns: a GL pos
 supporting points all lie on one horizontal plane is no evidence of the place
 (`support.min_height_m`), nor is one whose points lie on the floor and the ceiling alone: a
 corridor seen from either end, or a tile period farther along, shows the same tiles above and
-below (`support.min_off_layer_inliers`).
+below (`support.min_off_layer_inliers`). A weak candidate accepted on the joint refinement's
+pooled inliers is held to the same rule over the pool (`PooledSupportCheck`).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
+from litevloc.base.params.localization import SupportParams
 from litevloc.pipelines.localization.query import Query
 from litevloc.pipelines.localization.results import CandidateAttempt
 from litevloc.pipelines.localization.verifier import Candidate, CandidateVerifier
@@ -30,6 +32,24 @@ class SupportCheck:
         assert c.res is not None and c.attempt is not None
         flat = flat_support(self.verifier, c.node, c.res, q)
         return replace(c.attempt, reason=flat, refusal=Refusal.LATER) if flat else None
+
+
+@dataclass(frozen=True, eq=False)
+class PooledSupportCheck:
+    """GL's check of a weak candidate (fewer PnP inliers than `floor`) that passed pooled: the
+    joint pose's pooled inliers, over every consistent keyframe, must not rest on horizontal
+    planes only either (its own few inliers may pass where the pool's do not)."""
+
+    verifier: CandidateVerifier
+    floor: int
+
+    def __call__(self, c: Candidate, q: Query) -> CandidateAttempt | None:
+        assert c.res is not None and c.attempt is not None
+        if c.res.n_inliers >= self.floor or c.joint is None:
+            return None
+        up = np.asarray(self.verifier.map.grid.up, dtype=np.float64)
+        flat = flat_heights_reason(np.asarray(c.joint.inlier_points_map @ up, np.float64), q.params.support)
+        return replace(c.attempt, reason=f"pooled {flat}", refusal=Refusal.LATER) if flat else None
 
 
 # Half the thickness of a horizontal layer: a floor's points under room-range depth noise and a
@@ -73,7 +93,12 @@ def flat_reason(verifier: CandidateVerifier, node: int, T_map_camera: NDArray[np
     sp = q.params.support
     if sp.min_height_m <= 0 and sp.min_off_layer_inliers <= 0:
         return ""
-    h = support_heights(verifier, node, T_map_camera, q)
+    return flat_heights_reason(support_heights(verifier, node, T_map_camera, q), sp)
+
+
+def flat_heights_reason(h: NDArray[np.float64], sp: SupportParams) -> str:
+    """Why a pose whose support lies at heights `h` (N,) (metres along the map's up) rests on
+    horizontal planes only under `sp` ('' where it does not, or `h` is empty)."""
     if len(h) == 0:
         return ""
     lo, hi = np.percentile(h, [10.0, 90.0])  # the support's height span; near 0: one horizontal plane

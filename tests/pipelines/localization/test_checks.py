@@ -11,13 +11,13 @@ from litevloc.pipelines.localization.checks.joint import JointCheck
 from litevloc.pipelines.localization.checks.pnp import PnpCheck
 from litevloc.pipelines.localization.checks.pooled import PooledCheck
 from litevloc.pipelines.localization.checks.prior_gate import PriorGateCheck
-from litevloc.pipelines.localization.checks.support import SupportCheck, layer_share, off_layers
+from litevloc.pipelines.localization.checks.support import PooledSupportCheck, SupportCheck, layer_share, off_layers
 from litevloc.pipelines.localization.distinct import VerifiedPose
 from litevloc.pipelines.localization.query import Query, StageTimer
 from litevloc.pipelines.localization.results import CandidateAttempt
 from litevloc.pipelines.localization.verifier import Candidate, CandidateVerifier
 from litevloc.pipelines.pnp import Refusal
-from tests.pipelines.localization.test_vloc import IMG, PARAMS, K, Scene, make_map, pose
+from tests.pipelines.localization.test_vloc import IMG, PARAMS, POINTS, K, Scene, make_map, pose
 
 
 def _setup(T_true: np.ndarray, vpr_best: int, broken: set[int] | None = None
@@ -122,3 +122,24 @@ def test_joint_refinement_and_the_pooled_count() -> None:
     assert PooledCheck(c.res.n_inliers, 2)(c, q) is None  # at the floor: nothing to pool
     short = PooledCheck(c.res.n_inliers + 1, 2)(c, q)  # under it, its joint's keyframes (only 1) are too few
     assert short is not None and short.refusal is Refusal.INLIERS and short.reason.startswith("too few inliers")
+
+
+def test_a_weak_candidate_accepted_pooled_is_held_to_the_support_rule_over_the_pool() -> None:
+    v, q, _ = _setup(pose(1.2), 1)
+    c = Candidate(1, 0.9)
+    assert PnpCheck(v, PARAMS)(c, q) is None and c.res is not None
+    assert JointCheck(v, [0, 1, 2, 3], lambda c, weak: 2, PARAMS.pnp.min_inliers, refuse=True)(c, q) is None
+    assert c.joint is not None and c.joint.consistent_keyframes >= 2
+    pool = c.joint.inlier_points_map
+    assert pool.shape == (c.joint.n_inliers, 3) and c.joint.n_inliers > c.res.n_inliers
+    near = np.min(np.linalg.norm(pool[:, None] - POINTS[None], axis=2), axis=1)
+    assert np.median(near) < 0.02 and near.max() < 0.2  # the scene's points (live depth read at whole pixels)
+    off = off_layers(pool @ np.array([0.0, -1.0, 0.0]))
+    weak = c.res.n_inliers + 1  # a floor above the candidate's own inliers: it passed pooled
+    at_pool = replace(q.params, support=replace(q.params.support, min_off_layer_inliers=off))
+    assert PooledSupportCheck(v, weak)(c, q.under(at_pool)) is None  # the pool's count, not its own (fewer)
+    above = replace(q.params, support=replace(q.params.support, min_off_layer_inliers=off + 1))
+    refusal = PooledSupportCheck(v, weak)(c, q.under(above))
+    assert refusal is not None and refusal.reason.startswith("pooled support on floor and ceiling only")
+    assert refusal.refusal is Refusal.LATER
+    assert PooledSupportCheck(v, c.res.n_inliers)(c, q.under(above)) is None  # strong: its own inliers decide
