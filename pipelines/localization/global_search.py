@@ -178,7 +178,7 @@ class GlobalSearch:
         joint_check = JointCheck(v, [int(n) for n in order],
                                  lambda c, weak: min_kf if p.confirm.gl or weak else 1, floor, refuse=False)
         checks: list[Check] = [PnpCheck(v, pooled(p), evidence=evidence), SupportCheck(v), joint_check,
-                               PooledCheck(floor, min_kf), PooledSupportCheck(v, floor)]
+                               PooledCheck(floor, min_kf), PooledSupportCheck(v, floor, min_kf)]
         budget = p.global_search.time_budget_ms
         candidates_ms = 0.0  # verification time (match, PnP, joint refinement) of the candidates so far
         first_ms = 0.0  # the first candidate's: with the front end, the nominal LL cost (`gl_budget_ms`)

@@ -103,8 +103,8 @@ class RefineResult:
     median_reprojection_px: float = float("nan")
     shift_m: float = 0.0
     shift_deg: float = 0.0
-    # (N, 3) metres, map frame: the consistent keyframes' inlier points (what the pose rests on)
-    inlier_points_map: F64 = field(default_factory=lambda: np.zeros((0, 3)))
+    # per consistent keyframe, its inliers' points (N_k, 3), metres, map frame: what the pose rests on
+    inlier_points_map: dict[int, F64] = field(default_factory=dict)
 
     @property
     def n_inliers(self) -> int:
@@ -244,6 +244,7 @@ class _Terms:
     def __init__(self, ob: KeyframeObservations, pts: F64, px: F64, z_kf: F64 | None, T0: F64,
                  p: RefineParams, rev: _LiveReprojections | None = None) -> None:
         self.ob, self.pts, self.px, self.rev = ob, pts, px, rev
+        self.z_kf = np.full(len(pts), np.nan) if z_kf is None else np.asarray(z_kf, np.float64)
         _, _, g = _residuals_and_jacobian(T0, ob, pts, px)
         self.W2 = _whitener(g, pts[:, 2], p)
         use3 = (np.isfinite(z_kf) & (z_kf > 0)) if (p.map_depth and z_kf is not None) else np.zeros(len(pts), bool)
@@ -288,9 +289,14 @@ class _Terms:
         return np.concatenate(out_r), np.concatenate(out_J), np.concatenate(errors)
 
     def map_points(self, T: F64) -> F64:
-        """(N, 3) metres, map frame, in `whitened`'s row order: the live points under the live
-        pose `T`, then the keyframe points reprojected into the live image (map depth)."""
-        out = [_camera_points(T, self.pts)]
+        """(N, 3) metres, map frame, in `whitened`'s row order: each live point's keyframe keypoint
+        lifted with the map's depth where it has some (where it lies whatever the live pose), else
+        the live point under the live pose `T`; then the keyframe points reprojected into the live
+        image."""
+        has = np.isfinite(self.z_kf) & (self.z_kf > 0)
+        rays = np.c_[self.px, np.ones(len(self.px))] @ np.linalg.inv(self.ob.K).T
+        kf = _camera_points(self.ob.T_map_kf, rays * np.where(has, self.z_kf, 0.0)[:, None])
+        out = [np.where(has[:, None], kf, _camera_points(T, self.pts))]
         if self.rev is not None:
             out.append(_camera_points(self.ob.T_map_kf, self.rev.P_kf))
         return np.concatenate(out)
@@ -324,12 +330,12 @@ class _Consistent:
     """Under a joint pose: the inliers (within `inlier_px`) of each keyframe with at least
     `min_keyframe_inliers` of them, by node; their pixel errors; their 6x6 information matrices
     (whitened Gauss-Newton, scaled by the residual variance where it exceeds 1); their map-frame
-    points (N, 3) metres."""
+    points (N_k, 3) metres, by node."""
 
     inliers: dict[int, int]
     errors: list[F64]
     info: list[F64]
-    points_map: F64
+    points_map: dict[int, F64]
 
 
 def _consistent_keyframes(used: list[_Terms], T: F64, p: RefineParams) -> _Consistent:
@@ -337,7 +343,7 @@ def _consistent_keyframes(used: list[_Terms], T: F64, p: RefineParams) -> _Consi
     inl: dict[int, int] = {}
     errs: list[F64] = []
     info: list[F64] = []
-    pts: list[F64] = [np.zeros((0, 3))]
+    pts: dict[int, F64] = {}
     for t in used:
         _, _, e = t.whitened(T)
         ok = e <= p.inlier_px
@@ -345,11 +351,11 @@ def _consistent_keyframes(used: list[_Terms], T: F64, p: RefineParams) -> _Consi
             continue
         inl[t.ob.node] = int(ok.sum())
         errs.append(e[ok])
-        pts.append(t.map_points(T)[ok])
+        pts[t.ob.node] = t.map_points(T)[ok]
         rw, Jw, _ = t.whitened(T, ok)
         s2 = max(float(rw @ rw) / max(len(rw) - 6, 1), 1.0)
         info.append(Jw.T @ Jw / s2)
-    return _Consistent(inl, errs, info, np.concatenate(pts))
+    return _Consistent(inl, errs, info, pts)
 
 
 def refine_pose(

@@ -5,7 +5,7 @@ supporting points all lie on one horizontal plane is no evidence of the place
 (`support.min_height_m`), nor is one whose points lie on the floor and the ceiling alone: a
 corridor seen from either end, or a tile period farther along, shows the same tiles above and
 below (`support.min_off_layer_inliers`). A weak candidate accepted on the joint refinement's
-pooled inliers is held to the same rule over the pool (`PooledSupportCheck`).
+pooled inliers counts only the keyframes that pass the rule on their own (`PooledSupportCheck`).
 """
 
 from __future__ import annotations
@@ -36,20 +36,30 @@ class SupportCheck:
 
 @dataclass(frozen=True, eq=False)
 class PooledSupportCheck:
-    """GL's check of a weak candidate (fewer PnP inliers than `floor`) that passed pooled: the
-    joint pose's pooled inliers, over every consistent keyframe, must not rest on horizontal
-    planes only either (its own few inliers may pass where the pool's do not)."""
+    """GL's check of a weak candidate (fewer PnP inliers than `floor`) that passed pooled: only
+    keyframes whose inliers under the joint pose do not rest on horizontal planes alone count in
+    the pool (a keyframe refused for that as a candidate is no evidence pooled either), and those
+    must still be `min_keyframes` explaining `floor` inliers together."""
 
     verifier: CandidateVerifier
     floor: int
+    min_keyframes: int
 
     def __call__(self, c: Candidate, q: Query) -> CandidateAttempt | None:
         assert c.res is not None and c.attempt is not None
         if c.res.n_inliers >= self.floor or c.joint is None:
             return None
         up = np.asarray(self.verifier.map.grid.up, dtype=np.float64)
-        flat = flat_heights_reason(np.asarray(c.joint.inlier_points_map @ up, np.float64), q.params.support)
-        return replace(c.attempt, reason=f"pooled {flat}", refusal=Refusal.LATER) if flat else None
+        flat = {k: flat_heights_reason(np.asarray(pts @ up, np.float64), q.params.support)
+                for k, pts in c.joint.inlier_points_map.items()}
+        kept = [k for k, why in flat.items() if not why]
+        n = sum(c.joint.inliers_per_keyframe[k] for k in kept)
+        if len(kept) >= self.min_keyframes and n >= self.floor:
+            return None
+        why = next((f"keyframe {k}: {w}" for k, w in flat.items() if w), "")
+        return replace(c.attempt, refusal=Refusal.LATER, reason=(
+            f"pooled support too weak ({n} inliers over {len(kept)} keyframe(s) not resting on floor and "
+            f"ceiling alone; {why})"))
 
 
 # Half the thickness of a horizontal layer: a floor's points under room-range depth noise and a

@@ -124,22 +124,29 @@ def test_joint_refinement_and_the_pooled_count() -> None:
     assert short is not None and short.refusal is Refusal.INLIERS and short.reason.startswith("too few inliers")
 
 
-def test_a_weak_candidate_accepted_pooled_is_held_to_the_support_rule_over_the_pool() -> None:
+def test_a_weak_candidate_accepted_pooled_counts_only_keyframes_that_pass_the_support_rule() -> None:
     v, q, _ = _setup(pose(1.2), 1)
     c = Candidate(1, 0.9)
     assert PnpCheck(v, PARAMS)(c, q) is None and c.res is not None
     assert JointCheck(v, [0, 1, 2, 3], lambda c, weak: 2, PARAMS.pnp.min_inliers, refuse=True)(c, q) is None
-    assert c.joint is not None and c.joint.consistent_keyframes >= 2
-    pool = c.joint.inlier_points_map
-    assert pool.shape == (c.joint.n_inliers, 3) and c.joint.n_inliers > c.res.n_inliers
-    near = np.min(np.linalg.norm(pool[:, None] - POINTS[None], axis=2), axis=1)
+    assert c.joint is not None and c.joint.consistent_keyframes >= 3
+    pts = c.joint.inlier_points_map
+    assert {k: len(p) for k, p in pts.items()} == c.joint.inliers_per_keyframe
+    near = np.min(np.linalg.norm(np.concatenate(list(pts.values()))[:, None] - POINTS[None], axis=2), axis=1)
     assert np.median(near) < 0.02 and near.max() < 0.2  # the scene's points (live depth read at whole pixels)
-    off = off_layers(pool @ np.array([0.0, -1.0, 0.0]))
+    off = sorted((off_layers(p @ np.array([0.0, -1.0, 0.0])), k) for k, p in pts.items())
     weak = c.res.n_inliers + 1  # a floor above the candidate's own inliers: it passed pooled
-    at_pool = replace(q.params, support=replace(q.params.support, min_off_layer_inliers=off))
-    assert PooledSupportCheck(v, weak)(c, q.under(at_pool)) is None  # the pool's count, not its own (fewer)
-    above = replace(q.params, support=replace(q.params.support, min_off_layer_inliers=off + 1))
-    refusal = PooledSupportCheck(v, weak)(c, q.under(above))
-    assert refusal is not None and refusal.reason.startswith("pooled support on floor and ceiling only")
-    assert refusal.refusal is Refusal.LATER
-    assert PooledSupportCheck(v, c.res.n_inliers)(c, q.under(above)) is None  # strong: its own inliers decide
+
+    def rule(n: int) -> Query:
+        return q.under(replace(q.params, support=replace(q.params.support, min_off_layer_inliers=n)))
+
+    n_kf = len(off)
+    assert PooledSupportCheck(v, weak, n_kf)(c, rule(off[0][0])) is None  # every keyframe passes on its own
+    assert off[0][0] < off[1][0]
+    dropped = PooledSupportCheck(v, weak, n_kf)(c, rule(off[0][0] + 1))  # the weakest keyframe drops out
+    assert dropped is not None and dropped.refusal is Refusal.LATER
+    assert dropped.reason.startswith(f"pooled support too weak ({c.joint.n_inliers - len(pts[off[0][1]])} inliers "
+                                     f"over {n_kf - 1} keyframe(s)")
+    assert f"keyframe {off[0][1]}: support on floor and ceiling only" in dropped.reason
+    assert PooledSupportCheck(v, weak, n_kf - 1)(c, rule(off[0][0] + 1)) is None  # the others still suffice
+    assert PooledSupportCheck(v, c.res.n_inliers, n_kf)(c, rule(10_000)) is None  # strong: its own inliers decide
