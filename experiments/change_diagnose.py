@@ -72,7 +72,12 @@ def diagnose(run: BuildingRun, case: Case | None, every: int, duration: float | 
     if update_every > 0:
         name = f"map_{case.axis}_{case.level:g}" if case else "map_unchanged"
         upd_dir = out_dir / run.name / f"{name}_update_every_{update_every}"
-        update = update_map(map_dir, world, cfg, bundles["build"], upd_dir, update_every)
+        record = upd_dir / "update.json"  # an update run kept from an earlier diagnosis of the same case
+        if (upd_dir / "manifest.json").is_file() and record.is_file():
+            update = {**json.loads(record.read_text()), "reused": True}
+        else:
+            update = update_map(map_dir, world, cfg, bundles["build"], upd_dir, update_every)
+            record.write_text(json.dumps(update, default=str))
         print("UPDATE", json.dumps(update, default=str), flush=True)
         map_dir = upd_dir
     bundle = bundles["nav"]
