@@ -146,15 +146,6 @@ class GlobalSearchParams(Settings):
         low=-1, high=1)
     rerank_depth: int = setting(
         0, "VPR shortlist GL's re-ranking orders, its first top_k verified (0 = top_k)", low=0)
-    hub_penalty: float = setting(
-        0.0, "GL ranks keyframes by VPR similarity less this times each keyframe's hubness, its mean similarity "
-        "to the hub_neighbours keyframes most like it farther than hub_exclude_m: a generic view that resembles "
-        "many other places gives way (0 = off)", low=0, high=2)
-    hub_neighbours: int = setting(
-        10, "keyframes of other places whose mean VPR similarity is a keyframe's hubness (see hub_penalty)", low=1)
-    hub_exclude_m: float = setting(
-        3.0, "keyframes nearer than this are the same place, left out of a keyframe's hubness (see hub_penalty)",
-        unit="m", low=0)
     lost_cost_ratio: float = setting(
         2.0, "once tracked, a GL query may cost this many times the median LL query (0 = no bound)", low=0)
     vote_min_inliers: int = setting(

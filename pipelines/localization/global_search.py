@@ -38,7 +38,6 @@ from litevloc.pipelines.localization.checks.pooled import PooledCheck
 from litevloc.pipelines.localization.checks.second_look import SecondLookFn, look_again
 from litevloc.pipelines.localization.checks.support import PooledSupportCheck, SupportCheck
 from litevloc.pipelines.localization.distinct import VerifiedPose
-from litevloc.pipelines.localization.hubness import hubness
 from litevloc.pipelines.localization.local_search import LocalSearch
 from litevloc.pipelines.localization.passes import pooled, with_pooled, with_second_passes
 from litevloc.pipelines.localization.prior import Prior
@@ -77,7 +76,6 @@ class GlobalSearch:
         # wall times (ms) of the last second looks: the expected cost of the next (`_look_fits`)
         self.look_ms: deque[float] = deque(maxlen=LOOK_COST_WINDOW)
         self.budget_ms = 0.0  # the wall-time bound the last verification pass applied (0: none)
-        self._hubness: dict[tuple[int, float], NDArray[np.float32]] = {}  # by (hub_neighbours, hub_exclude_m)
 
     def localize(self, t_ns: int, color: NDArray[np.uint8], depth: NDArray[np.float32] | None,
                  K: NDArray[np.float64], p: LocalizationParams, prior: Prior | None = None,
@@ -137,22 +135,11 @@ class GlobalSearch:
         keyframes within `region` (an initial pose) where one is given, re-ordered by local
         matches (`_rerank`), the first `global_search.top_k` of them. The one place where GL's candidate
         list is made: a filter on the candidates belongs here."""
-        gs = p.global_search
-        score = sims if gs.hub_penalty <= 0 else sims - gs.hub_penalty * self.hubness(gs.hub_neighbours,
-                                                                                      gs.hub_exclude_m)
-        ranked = np.argsort(-score, kind="stable")
+        ranked = np.argsort(-sims, kind="stable")
         if region is not None:
             ranked = nodes_within(ranked, self.verifier.map.positions, region)
         shortlist = ranked[: max(p.global_search.top_k, p.global_search.rerank_depth if p.global_search.rerank else 0)]
         return self._rerank(p, shortlist, q)[: p.global_search.top_k]
-
-    def hubness(self, k: int, exclude_m: float) -> NDArray[np.float32]:
-        """(N,) the map keyframes' hubness (`hubness.hubness`), computed once per (k, exclude_m)."""
-        key = (k, exclude_m)
-        if key not in self._hubness:
-            m = self.verifier.map
-            self._hubness[key] = hubness(m.vpr, m.positions, k, exclude_m)
-        return self._hubness[key]
 
     def _rerank(self, p: LocalizationParams, order: NDArray[np.int64], q: Query) -> NDArray[np.int64]:
         """The VPR candidates `order` (best first) re-ordered by their mutual-nearest-neighbour
