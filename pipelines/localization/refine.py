@@ -52,7 +52,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
-from litevloc.base.geometry import make_T, rotation_angle, so3_exp
+from litevloc.base.geometry import backproject_pixels, make_T, rotation_angle, so3_exp
 from litevloc.base.params.localization import RefineParams
 from litevloc.pipelines.guided_matching import match_by_projection
 
@@ -103,8 +103,12 @@ class RefineResult:
     median_reprojection_px: float = float("nan")
     shift_m: float = 0.0
     shift_deg: float = 0.0
-    # per consistent keyframe, its inliers' points (N_k, 3), metres, map frame: what the pose rests on
-    inlier_points_map: dict[int, F64] = field(default_factory=dict)
+    inlier_rows: _InlierRows | None = field(default=None, repr=False)
+
+    def inlier_points_map(self) -> dict[int, F64]:
+        """Per consistent keyframe (by node), its inliers' points (N_k, 3), metres, map frame:
+        what the pose rests on (computed on demand: only GL's pooled support check reads them)."""
+        return {} if self.inlier_rows is None else self.inlier_rows.points_map()
 
     @property
     def n_inliers(self) -> int:
@@ -252,10 +256,7 @@ class _Terms:
         self.P_kf = np.zeros((int(self.use3.sum()), 3))
         self.W3 = np.zeros((0, 3, 3))
         if self.use3.any():
-            zk = np.asarray(z_kf, np.float64)[self.use3]
-            Kinv = np.linalg.inv(ob.K)
-            rays = np.c_[px[self.use3], np.ones(len(zk))] @ Kinv.T
-            self.P_kf = rays * zk[:, None]
+            self.P_kf = backproject_pixels(ob.K, px[self.use3], np.asarray(z_kf, np.float64)[self.use3])
             T_kl = np.linalg.inv(ob.T_map_kf) @ T0
             self.W3 = _point_whitener(T_kl, pts[self.use3], self.P_kf, ob.K, p)
 
@@ -294,8 +295,7 @@ class _Terms:
         the live point under the live pose `T`; then the keyframe points reprojected into the live
         image."""
         has = np.isfinite(self.z_kf) & (self.z_kf > 0)
-        rays = np.c_[self.px, np.ones(len(self.px))] @ np.linalg.inv(self.ob.K).T
-        kf = _camera_points(self.ob.T_map_kf, rays * np.where(has, self.z_kf, 0.0)[:, None])
+        kf = _camera_points(self.ob.T_map_kf, backproject_pixels(self.ob.K, self.px, np.where(has, self.z_kf, 0.0)))
         out = [np.where(has[:, None], kf, _camera_points(T, self.pts))]
         if self.rev is not None:
             out.append(_camera_points(self.ob.T_map_kf, self.rev.P_kf))
@@ -325,17 +325,30 @@ def _solve_terms(observations: list[KeyframeObservations], T0: F64, p: RefinePar
     return used
 
 
+@dataclass(frozen=True, eq=False)
+class _InlierRows:
+    """Under the joint pose `T` (4x4 T_map_camera): per consistent keyframe (by node), its solve
+    terms and which of their rows (`_Terms.whitened`'s order) are inliers."""
+
+    T: F64
+    terms: dict[int, _Terms]
+    rows: dict[int, NDArray[np.bool_]]
+
+    def points_map(self) -> dict[int, F64]:
+        """Per keyframe, its inliers' map-frame points (N_k, 3), metres (see `_Terms.map_points`)."""
+        return {k: self.terms[k].map_points(self.T)[ok] for k, ok in self.rows.items()}
+
+
 @dataclass(frozen=True)
 class _Consistent:
     """Under a joint pose: the inliers (within `inlier_px`) of each keyframe with at least
     `min_keyframe_inliers` of them, by node; their pixel errors; their 6x6 information matrices
-    (whitened Gauss-Newton, scaled by the residual variance where it exceeds 1); their map-frame
-    points (N_k, 3) metres, by node."""
+    (whitened Gauss-Newton, scaled by the residual variance where it exceeds 1); which rows they are."""
 
     inliers: dict[int, int]
     errors: list[F64]
     info: list[F64]
-    points_map: dict[int, F64]
+    rows: _InlierRows
 
 
 def _consistent_keyframes(used: list[_Terms], T: F64, p: RefineParams) -> _Consistent:
@@ -343,7 +356,7 @@ def _consistent_keyframes(used: list[_Terms], T: F64, p: RefineParams) -> _Consi
     inl: dict[int, int] = {}
     errs: list[F64] = []
     info: list[F64] = []
-    pts: dict[int, F64] = {}
+    rows = _InlierRows(T, {}, {})
     for t in used:
         _, _, e = t.whitened(T)
         ok = e <= p.inlier_px
@@ -351,11 +364,11 @@ def _consistent_keyframes(used: list[_Terms], T: F64, p: RefineParams) -> _Consi
             continue
         inl[t.ob.node] = int(ok.sum())
         errs.append(e[ok])
-        pts[t.ob.node] = t.map_points(T)[ok]
+        rows.terms[t.ob.node], rows.rows[t.ob.node] = t, ok
         rw, Jw, _ = t.whitened(T, ok)
         s2 = max(float(rw @ rw) / max(len(rw) - 6, 1), 1.0)
         info.append(Jw.T @ Jw / s2)
-    return _Consistent(inl, errs, info, pts)
+    return _Consistent(inl, errs, info, rows)
 
 
 def refine_pose(
@@ -418,7 +431,7 @@ def refine_pose(
         reason = f"joint pose moved {shift_m:.2f} m / {shift_deg:.1f} deg from the initial pose"
     else:
         reason = "ok"
-    return RefineResult(reason == "ok", reason, T, cov, inl, matches, med, shift_m, shift_deg, cons.points_map)
+    return RefineResult(reason == "ok", reason, T, cov, inl, matches, med, shift_m, shift_deg, cons.rows)
 
 
 def viewpoint_angle_rad(T_map_camera: NDArray[np.floating], T_map_keyframes: NDArray[np.floating]) -> float:

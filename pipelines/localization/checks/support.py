@@ -51,7 +51,7 @@ class PooledSupportCheck:
             return None
         up = np.asarray(self.verifier.map.grid.up, dtype=np.float64)
         flat = {k: flat_heights_reason(np.asarray(pts @ up, np.float64), q.params.support)
-                for k, pts in c.joint.inlier_points_map.items()}
+                for k, pts in c.joint.inlier_points_map().items()}
         kept = [k for k, why in flat.items() if not why]
         n = sum(c.joint.inliers_per_keyframe[k] for k in kept)
         if len(kept) >= self.min_keyframes and n >= self.floor:

@@ -130,7 +130,7 @@ def test_a_weak_candidate_accepted_pooled_counts_only_keyframes_that_pass_the_su
     assert PnpCheck(v, PARAMS)(c, q) is None and c.res is not None
     assert JointCheck(v, [0, 1, 2, 3], lambda c, weak: 2, PARAMS.pnp.min_inliers, refuse=True)(c, q) is None
     assert c.joint is not None and c.joint.consistent_keyframes >= 3
-    pts = c.joint.inlier_points_map
+    pts = c.joint.inlier_points_map()
     assert {k: len(p) for k, p in pts.items()} == c.joint.inliers_per_keyframe
     near = np.min(np.linalg.norm(np.concatenate(list(pts.values()))[:, None] - POINTS[None], axis=2), axis=1)
     assert np.median(near) < 0.02 and near.max() < 0.2  # the scene's points (live depth read at whole pixels)
