@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import time
 from pathlib import Path
 from typing import Any
 
@@ -95,11 +96,13 @@ def diagnose(run: BuildingRun, case: Case | None, every: int, duration: float | 
         right = [int(n) for n in np.argsort(d) if d[n] <= RIGHT[0] and a[n] <= RIGHT[1]]
         loc = VisualLocalizer(topomap, cfg.localization, bundle.extract, bundle.describe, bundle.match,
                               second_look=look)
+        t0 = time.perf_counter()
         res = loc.localize_global(f.t_ns, f.color, f.depth, f.K)
+        gl_ms = 1e3 * (time.perf_counter() - t0)
         cands = list(res.candidates)
         rank = next((k for k, n in enumerate(cands) if n in right), None)
         rec: dict[str, Any] = {"frame": i, "covered": covered, "accepted": bool(res.accepted), "reason": res.reason,
-                               "stop": res.stop_reason, "rank_right": rank, "n_right": len(right),
+                               "stop": res.stop_reason, "gl_ms": gl_ms, "rank_right": rank, "n_right": len(right),
                                "gray_mean": float(np.mean(f.color)),
                                "attempts": [(a_.node, a_.matches, a_.inliers, a_.reason, a_.node in right)
                                             for a_ in res.attempts]}
@@ -123,7 +126,8 @@ def diagnose(run: BuildingRun, case: Case | None, every: int, duration: float | 
     summary = {"case": dataclasses.asdict(case) if case else None, "update": update, "covered": len(cov),
                "accepted": sum(r["accepted"] for r in cov), "queries": len(frames),
                "accepted_all": sum(r["accepted"] for r in frames), "wrong": wrong,
-               "right_in_topk": sum(r["rank_right"] is not None for r in cov)}
+               "right_in_topk": sum(r["rank_right"] is not None for r in cov),
+               "gl_ms_median": float(np.median([r["gl_ms"] for r in frames])) if frames else None}
     print("SUMMARY", json.dumps(summary), flush=True)
     return {"summary": summary, "frames": frames}
 
