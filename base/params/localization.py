@@ -145,7 +145,7 @@ class GlobalSearchParams(Settings):
         0.7, "smallest descriptor similarity of a mutual nearest neighbour counted by GL's re-ranking (cosine)",
         low=-1, high=1)
     rerank_depth: int = setting(
-        0, "VPR shortlist GL's re-ranking orders, its first top_k verified (0 = top_k)", low=0)
+        30, "VPR shortlist GL's re-ranking orders, its first top_k verified (0 = top_k)", low=0)
     lost_cost_ratio: float = setting(
         2.0, "once tracked, a GL query may cost this many times the median LL query (0 = no bound)", low=0)
     vote_min_inliers: int = setting(
