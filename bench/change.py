@@ -16,9 +16,10 @@ goals, two cycles (a development run, not the report).
 
 `--json PATH` writes `cases` (per axis and level: `gl_accepted_of_covered`, `wrong_over_0_5m`,
 `gl_accepted_of_covered_unchanged`, `goals_reached`, `goals_total`, `goals_reached_unchanged`,
-and `after_update` with the same keys), `update_cycles` (`cycle`, `map_size_ratio`,
-`gl_accepted_of_covered`) and `buildings` (every per-frame and per-goal record). A plot of the
-figures against the level per axis goes beside it (PATH with .png).
+and `after_update` with the same keys), `update_cycles` (`cycle`, `map_size_ratio` to the map
+before any update, `map_size_ratio_to_first_update`, `gl_accepted_of_covered`) and `buildings`
+(every per-frame and per-goal record). A plot of the figures against the level per axis goes
+beside it (PATH with .png).
 """
 
 from __future__ import annotations
@@ -105,8 +106,9 @@ def main(argv: list[str] | None = None) -> int:
     print_table(f"Change benchmark, {len(runs)} buildings (GL from no prior; wrong: accepted > 0.5 m off)", cols, rows)
     if result["update_cycles"]:
         print_table("Update cycles (months-later building, a new change seed each cycle)",
-                    ["cycle", "map size ratio", "GL acc/cov"],
-                    [[c["cycle"], c["map_size_ratio"], c["gl_accepted_of_covered"]] for c in result["update_cycles"]])
+                    ["cycle", "map size ratio", "to the first update", "GL acc/cov"],
+                    [[c["cycle"], c["map_size_ratio"], c["map_size_ratio_to_first_update"], c["gl_accepted_of_covered"]]
+                     for c in result["update_cycles"]])
     args.json.parent.mkdir(parents=True, exist_ok=True)
     run_settings = {"runs": [r.name for r in runs], "cases": [dataclasses.asdict(c) for c in cases],
                     "query_every": settings.query_every, "session_every": settings.session_every,

@@ -247,7 +247,9 @@ def _sums(figs: list[dict[str, Any]]) -> dict[str, Any]:
 
 def contract(buildings: list[dict[str, Any]]) -> dict[str, Any]:
     """`cases` and `update_cycles` over all buildings (see `bench/change.py`): shares pooled over
-    the buildings' frames and goals; a cycle's map size ratio is the buildings' mean."""
+    the buildings' frames and goals; a cycle's map size ratios (to the map before any update, and to
+    the map after the first cycle: once a session's path is in the map, what the later cycles add)
+    are the buildings' means."""
     ok = [b for b in buildings if "error" not in b]
     base = _sums([b["unchanged"] for b in ok])
     keys = [(c["axis"], c["level"]) for c in ok[0]["cases"]] if ok else []
@@ -272,6 +274,8 @@ def contract(buildings: list[dict[str, Any]]) -> dict[str, Any]:
         gl = [b["cycles"][c]["gl"] for b in ok]
         cycles.append({"cycle": c + 1,
                        "map_size_ratio": round(float(np.mean([b["cycles"][c]["map_size_ratio"] for b in ok])), 4),
+                       "map_size_ratio_to_first_update": round(float(np.mean(
+                           [b["cycles"][c]["nodes"] / b["cycles"][0]["nodes"] for b in ok])), 4),
                        "gl_accepted_of_covered": _ratio(sum(g["accepted_covered"] for g in gl),
                                                         sum(g["covered"] for g in gl))})
     return {"cases": cases, "update_cycles": cycles}

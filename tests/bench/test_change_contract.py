@@ -39,8 +39,9 @@ def test_two_building_run_writes_the_json_contract(tmp_path: Path) -> None:
     assert case["goals_total"] == 2 and 0 <= case["goals_reached"] <= 2
     assert 0 <= case["gl_accepted_of_covered"] <= 1 and isinstance(case["wrong_over_0_5m"], int)
     (cycle,) = res["update_cycles"]
-    assert set(cycle) == {"cycle", "map_size_ratio", "gl_accepted_of_covered"} and cycle["cycle"] == 1
-    assert cycle["map_size_ratio"] > 0
+    assert set(cycle) == {"cycle", "map_size_ratio", "map_size_ratio_to_first_update",
+                          "gl_accepted_of_covered"} and cycle["cycle"] == 1
+    assert cycle["map_size_ratio"] > 0 and cycle["map_size_ratio_to_first_update"] == 1.0
     assert [b["building"] for b in res["buildings"]] == ["tiny-1", "tiny-2"]
     for b in res["buildings"]:
         (c,) = b["cases"]

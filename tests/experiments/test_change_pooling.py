@@ -17,8 +17,9 @@ def _building(scale: int) -> dict[str, Any]:
     return {"unchanged": _fig(10 * scale, 10 * scale, 0, 4, 4),
             "cases": [{"axis": "furniture", "level": 0.3, "before": _fig(10 * scale, 5 * scale, 1, 2, 4),
                        "after": _fig(10 * scale, 9 * scale, 0, 4, 4)}],
-            "cycles": [{"cycle": 1, "map_size_ratio": 1.0 + 0.1 * scale,
-                        "gl": gl_summary([{"covered": True, "accepted": k < scale} for k in range(2)])}]}
+            "cycles": [{"cycle": c, "map_size_ratio": (10 + scale + c) / 10, "nodes": 10 + scale + c,
+                        "gl": gl_summary([{"covered": True, "accepted": k < scale} for k in range(2)])}
+                       for c in (1, 2)]}
 
 
 def test_cases_pool_frames_and_goals_over_buildings() -> None:
@@ -30,8 +31,11 @@ def test_cases_pool_frames_and_goals_over_buildings() -> None:
     assert (c["goals_reached"], c["goals_total"], c["goals_reached_unchanged"]) == (4, 8, 8)
     a = c["after_update"]
     assert a["gl_accepted_of_covered"] == 0.9 and a["wrong_over_0_5m"] == 0 and a["goals_reached"] == 8
-    (cy,) = res["update_cycles"]
-    assert cy == {"cycle": 1, "map_size_ratio": 1.15, "gl_accepted_of_covered": 0.75}
+    first, second = res["update_cycles"]
+    assert first == {"cycle": 1, "map_size_ratio": 1.25, "map_size_ratio_to_first_update": 1.0,
+                     "gl_accepted_of_covered": 0.75}
+    assert second["map_size_ratio"] == 1.35  # (13 / 10 + 14 / 10) / 2
+    assert second["map_size_ratio_to_first_update"] == round((13 / 12 + 14 / 13) / 2, 4)
 
 
 def test_a_wrong_pose_counts_covered_or_not() -> None:
