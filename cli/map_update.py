@@ -81,7 +81,8 @@ def update(args: argparse.Namespace) -> int:
         "map": str(args.map), "src": str(args.src), "frames": res.frames, "compared": res.compared,
         "skipped_not_moved": res.skipped_not_moved,
         "known_place": report.known, "new_place": report.new_place, "changed_place": report.changed_place,
-        "unreliable": report.unreliable, "known_by_added": report.known_by_added,
+        "unreliable": report.unreliable, "mapped_view_unmatched": report.mapped_view_unmatched,
+        "known_by_added": report.known_by_added,
         "known_by_localization": report.known_by_localization,
         "nodes_before": topomap.n_nodes, "nodes_after": new_map.n_nodes, "added": len(report.added),
         "retired": len(report.retired), "retired_ids": report.retired, "replaced": len(report.replaced),
@@ -97,7 +98,8 @@ def update(args: argparse.Namespace) -> int:
     save_map(new_map, args.output, overwrite=args.force, descriptor_bytes=cfg.mapping.descriptor_bytes)
     print(f"{args.src}: {res.compared}/{res.frames} frames compared with the map ({res.skipped_not_moved} closer "
           f"than the mapping pre-filter to the last one); places known {report.known}, new {report.new_place}, "
-          f"changed {report.changed_place}, unreliable {report.unreliable} (known by a keyframe this update "
+          f"changed {report.changed_place}, unreliable {report.unreliable} ({report.mapped_view_unmatched} of them "
+          f"views the map saw from elsewhere; known by a keyframe this update "
           f"added: {report.known_by_added}; by the localization, no keyframe covering them: "
           f"{report.known_by_localization})")
     print(f"wrote {args.output}: {topomap.n_nodes} -> {new_map.n_nodes} keyframes (+{len(report.added)} added, "

@@ -170,7 +170,9 @@ def update_map(map_dir: Path, world: World, cfg: LiteVLocConfig, bundle: ModelBu
     return {"nodes_before": topomap.n_nodes, "nodes_after": res.new_map.n_nodes, "added": len(r.added),
             "retired": len(r.retired), "replaced": len(r.replaced), "replace_outcomes": r.replace_outcomes,
             "known_place": r.known, "new_place": r.new_place,
-            "changed_place": r.changed_place, "frames": res.frames, "seconds": round(time.perf_counter() - t0, 1)}
+            "changed_place": r.changed_place, "unreliable": r.unreliable,
+            "mapped_view_unmatched": r.mapped_view_unmatched, "frames": res.frames,
+            "seconds": round(time.perf_counter() - t0, 1)}
 
 
 # ------------------------------------------------------------------ one building

@@ -27,22 +27,17 @@ from numpy.typing import NDArray
 from litevloc.base.errors import LiteVLocError
 from litevloc.base.params.mapping import KeyframeParams
 from litevloc.pipelines.topomap.diff import node_identities
-from litevloc.pipelines.topomap.graphs import lift_keypoints
 from litevloc.pipelines.topomap.io import load_map
-from litevloc.pipelines.topomap.keyframes import coverage_keys
+from litevloc.pipelines.topomap.keyframes import keypoint_view_keys
 from litevloc.pipelines.topomap.types import TopoMap
 
 
 def keyframe_view(topomap: TopoMap, node: int, ref_height: float, params: KeyframeParams) -> NDArray[np.int64]:
-    """Coverage keys of a keyframe's keypoints with depth (within `max_depth_m`), map frame;
+    """Coverage keys of a keyframe's keypoints with depth (`keyframes.keypoint_view_keys`);
     `ref_height`: the camera height (metres along up) the height band is measured from."""
     f = topomap.stored_features(node)
-    if f.depth is None:
-        return np.zeros(0, np.int64)
-    P = lift_keypoints(topomap.K[node], f.keypoints, f.depth)
-    P = P[np.isfinite(P[:, 0]) & (P[:, 2] <= params.max_depth_m)]
-    T = topomap.T_map_camera[node]
-    return coverage_keys(P @ T[:3, :3].T + T[:3, 3], T[:3, 3], topomap.grid.up, ref_height, params)
+    return keypoint_view_keys(topomap.K[node], f.keypoints, f.depth, topomap.T_map_camera[node], topomap.grid.up,
+                              ref_height, params)
 
 
 def added_nodes(before: TopoMap, after: TopoMap) -> list[int]:

@@ -92,6 +92,13 @@ class UpdateParams(Settings):
     changed_max_consistent: int = setting(
         40, "a place whose keyframes explain fewer matches than this is changed or new (above retire_max_consistent)",
         low=0)
+    mapped_view: bool = setting(
+        True, "a frame no keyframe covers is a new place only where the map's keyframes did not already see its view "
+        "(mapped_view_share); one they saw is a mapped place the map no longer matches")
+    mapped_view_share: float = setting(
+        0.8, "share of a frame's view (its keypoints' ground-plane cells and heading bins, as map building counts "
+        "coverage) the map's keyframes must have seen for the frame to be at a mapped place", low=0, high=1,
+        low_open=True)
     retire_max_consistent: int = setting(
         15, "a keyframe explaining at most this many matches of well-matching frames is retired", low=0)
     retire_min_visits: int = setting(2, "visits by well-matching frames before a keyframe may be retired", low=1)

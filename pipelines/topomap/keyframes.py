@@ -35,7 +35,7 @@ import heapq
 import numpy as np
 from numpy.typing import NDArray
 
-from litevloc.base.geometry import rotation_angle
+from litevloc.base.geometry import backproject_pixels, rotation_angle
 from litevloc.base.params.mapping import KeyframeParams
 
 _OFF = 1 << 20
@@ -92,6 +92,24 @@ def coverage_keys(
     if len(p) == 0:
         return np.zeros(0, dtype=np.int64)
     return np.unique(_cell_heading_keys(p, camera_map, axes, params))
+
+
+def keypoint_view_keys(
+    K: NDArray[np.float64], keypoints: NDArray[np.floating], depth: NDArray[np.floating] | None,
+    T_map_camera: NDArray[np.float64], up: NDArray[np.float64], ref_height: float, params: KeyframeParams,
+) -> NDArray[np.int64]:
+    """`coverage_keys` of one view from its keypoints (N, 2) pixels lifted with their depth (N,)
+    metres (NaN = none; None: no keys) and its pose (4x4): what a stored keyframe, which keeps no
+    depth image, saw."""
+    if depth is None or len(keypoints) == 0:
+        return np.zeros(0, dtype=np.int64)
+    z = np.asarray(depth, np.float64).reshape(-1)
+    ok = np.isfinite(z) & (z > 0) & (z <= params.max_depth_m)
+    if not ok.any():
+        return np.zeros(0, dtype=np.int64)
+    pts = backproject_pixels(K, np.asarray(keypoints, np.float64).reshape(-1, 2)[ok], z[ok])
+    T = np.asarray(T_map_camera, np.float64)
+    return coverage_keys(pts @ T[:3, :3].T + T[:3, 3], T[:3, 3], up, ref_height, params)
 
 
 def _cell_heading_keys(

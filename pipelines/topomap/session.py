@@ -139,7 +139,7 @@ def update_from_session(
     `describe` should be `OncePerImage`-wrapped with the ones `localizer` uses, so a frame's
     features are computed once. Raises ValueError when no frame could be compared with the map."""
     T_map_session, aligned = align_session(frames(), localizer, params)
-    upd = MapUpdate(topomap, match, params.update)
+    upd = MapUpdate(topomap, match, params.update, params.keyframes)
     out = SessionUpdate(topomap, upd.report, posed_session_aligned_by=aligned)
     last_T: F64 | None = None
     for f in frames():

@@ -11,9 +11,15 @@ is the match quality. A keyframe *covers* the frame's place when it is also with
   (the map already localizes this view, even between keyframes more than `place_radius_m`
   apart) -> nothing to add;
 * **new place**: no keyframe covers the frame's place, none nearby explains enough
-  matches, and the frame's own localization against the map (the localizer reaches farther
+  matches, the frame's own localization against the map (the localizer reaches farther
   keyframes, at other angles, with the matcher) has fewer than `changed_max_consistent`
-  inliers -> the frame is a keyframe candidate. A frame the map localizes well from
+  inliers, and the map's keyframes did not see its view (`mapped_view`: less than
+  `mapped_view_share` of its keypoints' ground-plane cells and heading bins, map building's
+  coverage, among theirs) -> the frame is a keyframe candidate. A frame whose view the map
+  saw from elsewhere but no longer matches is at a mapped place and, matching nothing, is
+  skipped as a covered frame would be (`UpdateReport.mapped_view_unmatched`): months after
+  mapping most unmatched frames are views the map has, and adding each as a new place grew
+  the map every update. A frame the map localizes well from
   elsewhere is a known place (`UpdateReport.known_by_localization`): a new keyframe is
   added where the map fails to localize, not wherever the session left the mapped path;
 * **changed place**: keyframes cover it but explain fewer than `changed_max_consistent`
@@ -61,9 +67,10 @@ from scipy.spatial import cKDTree
 
 from litevloc.base.geometry import backproject_pixels, invert, rotation_angle
 from litevloc.base.params.map_maintenance import MergeParams, UpdateParams
-from litevloc.base.params.mapping import ConnectivityParams, CovisibilityParams, OccupancyParams
+from litevloc.base.params.mapping import ConnectivityParams, CovisibilityParams, KeyframeParams, OccupancyParams
 from litevloc.pipelines.guided_matching import match_by_projection
 from litevloc.pipelines.topomap.graphs import MatchFn, lift_keypoints, pair_inliers
+from litevloc.pipelines.topomap.keyframes import keypoint_view_keys
 from litevloc.pipelines.topomap.occupancy import build_occupancy, segment_is_free
 from litevloc.pipelines.topomap.replace import Decision, Keyframes, plan_replacements
 from litevloc.pipelines.topomap.types import FeatureSet, NodeFeatures, OccupancyGrid, TopoMap
@@ -93,6 +100,7 @@ class UpdateReport:
     new_place: int = 0
     changed_place: int = 0
     unreliable: int = 0  # at a mapped place, but neither the place's keyframes nor the localization matched well
+    mapped_view_unmatched: int = 0  # of `unreliable`: no keyframe covers it, but the map saw its view
     known_by_added: int = 0  # explained by a keyframe this update added (counted in `known` too)
     known_by_localization: int = 0  # no keyframe covers it, but the map localizes it well (in `known` too)
     added: list[int] = field(default_factory=list)  # new node ids in the updated map
@@ -152,10 +160,13 @@ def _stack(arrays: list[NDArray[np.floating]], shape: tuple[int, ...]) -> NDArra
 class MapUpdate:
     """Feed localized frames with `observe`, then `finish` into the updated map."""
 
-    def __init__(self, topomap: TopoMap, match: MatchFn, params: UpdateParams | None = None) -> None:
+    def __init__(self, topomap: TopoMap, match: MatchFn, params: UpdateParams | None = None,
+                 keyframes: KeyframeParams | None = None) -> None:
         self.map = topomap
         self.match = match
         self.params = params or UpdateParams()
+        self._view_params = keyframes or KeyframeParams()  # the cells and heading bins of a view
+        self._seen: NDArray[np.int64] | None = None  # every keyframe's view keys, once a frame asks
         self._tree = cKDTree(topomap.positions)
         self._cos_place = float(np.cos(np.radians(self.params.place_angle_deg)))
         self.candidates: list[Observation] = []
@@ -234,6 +245,10 @@ class MapUpdate:
             r.known += 1
             r.known_by_localization += 1
             return "known"
+        if not cover and self.params.mapped_view and self.seen_share(obs) >= self.params.mapped_view_share:
+            r.unreliable += 1  # a mapped view that nothing here matches, as a covered frame that matched nothing
+            r.mapped_view_unmatched += 1
+            return "unreliable"
         if not cover:
             status = "new place"
             r.new_place += 1
@@ -252,6 +267,20 @@ class MapUpdate:
             self.candidates.append(obs)
             self._changed.append(status == "changed place")
         return status
+
+    def seen_share(self, obs: Observation) -> float:
+        """Share of the frame's view (`keyframes.keypoint_view_keys` of its keypoints with depth) that
+        the map's keyframes saw (theirs, the same way); 0 for a frame without keypoint depth."""
+        up = self.map.grid.up
+        ref = float(np.median(self.map.T_map_camera[:, :3, 3] @ up))
+        if self._seen is None:
+            views = [keypoint_view_keys(self.map.K[i], self.map.features[i].keypoints, self.map.keypoint_depth(i),
+                                        self.map.T_map_camera[i], up, ref, self._view_params)
+                     for i in range(self.map.n_nodes)]
+            self._seen = np.unique(np.concatenate([np.zeros(0, np.int64), *views]))
+        v = keypoint_view_keys(obs.K, obs.features.keypoints, obs.keypoint_depth, obs.T_map_camera, up, ref,
+                               self._view_params)
+        return float(np.isin(v, self._seen).mean()) if len(v) else 0.0
 
     def _consistent(self, obs: Observation, node_feats: FeatureSet, T_map_node: NDArray[np.float64],
                     K_node: NDArray[np.float64]) -> int:

@@ -94,7 +94,7 @@ def test_frames_between_keyframes_that_match_are_known_places(base_map: TopoMap,
     # a place radius too small for any keyframe to cover a frame: only the matches of the
     # nearby keyframes can tell that the map already knows these views (#18: corridor frames
     # between keyframes more than place_radius_m apart counted as new places)
-    tight = UpdateParams(place_radius_m=1e-3, match_radius_m=1e-3, min_spacing_m=0.01)
+    tight = UpdateParams(mapped_view=False, place_radius_m=1e-3, match_radius_m=1e-3, min_spacing_m=0.01)
     _, radius_only = run_update(base_map, seven_scenes_dir, "1:250:12", params=tight, finish=False)
     _, by_matches = run_update(base_map, seven_scenes_dir, "1:250:12",
                                params=dataclasses.replace(tight, match_radius_m=1.5), finish=False)
@@ -125,7 +125,7 @@ def test_frames_an_added_keyframe_explains_add_nothing(base_map: TopoMap, seven_
     at every spacing step."""
     # (a place radius too small for any old keyframe to cover or explain a frame: every frame
     # is at a new place, as on a path the map never saw)
-    tight = UpdateParams(place_radius_m=1e-3, match_radius_m=1e-3, min_spacing_m=0.01, min_spacing_deg=1.0)
+    tight = UpdateParams(mapped_view=False, place_radius_m=1e-3, match_radius_m=1e-3, min_spacing_m=0.01, min_spacing_deg=1.0)
     reach = dataclasses.replace(tight, match_radius_m=1.5)  # ... but added keyframes reach 1.5 m
     frames = list(observations(seven_scenes_dir, "250:500:10"))
     only_spacing = MapUpdate(base_map, orb_match, tight)
@@ -203,7 +203,7 @@ def test_localization_is_asked_for_only_where_the_keyframes_do_not_match(base_ma
     assert known >= 0.8 * len(statuses) and 0 < len(asked) <= len(statuses) - known, (statuses, asked)
     assert upd.report.known_by_localization == 0  # (every localization here failed)
     # a frame no keyframe covers: a new place unless the map localizes it well from elsewhere
-    tight = UpdateParams(place_radius_m=1e-3, match_radius_m=1e-3, min_spacing_m=0.01)
+    tight = UpdateParams(mapped_view=False, place_radius_m=1e-3, match_radius_m=1e-3, min_spacing_m=0.01)
     obs = next(iter(observations(seven_scenes_dir, "1:250:12")))
     assert MapUpdate(base_map, orb_match, tight).observe(obs, localize=lambda: 0) == "new place"
     by_loc = MapUpdate(base_map, orb_match, tight)
@@ -271,3 +271,22 @@ def test_guided_consistency_counts_what_the_pose_explains(base_map: TopoMap, sev
                                  f.image_size)
         assert guided_consistent_matches(obs.T_map_camera, *args[:3], scrambled, *args[4:], 4.0, 0.6) < 10
     assert pairs >= 3
+
+
+def test_a_view_the_map_saw_from_elsewhere_is_not_a_new_place(base_map: TopoMap, seven_scenes_dir: Path) -> None:
+    """No keyframe covers the frame and none nearby matches it (a radius too small), but the map's
+    keyframes saw its view: it is a mapped place that nothing matches, skipped and counted, not a
+    keyframe candidate; the same frame 50 m away, a view the map never saw, is a new place."""
+    tight = UpdateParams(place_radius_m=1e-3, match_radius_m=1e-3, min_spacing_m=0.01)
+    probe = MapUpdate(base_map, orb_match, tight)
+    obs = next(o for o in observations(seven_scenes_dir, "1:250:12") if probe.seen_share(o) >= 0.9)
+    upd = MapUpdate(base_map, orb_match, tight)
+    assert upd.observe(obs, localize=lambda: 0) == "unreliable"
+    assert (upd.report.mapped_view_unmatched, upd.report.new_place, upd.candidates) == (1, 0, [])
+    T_far = obs.T_map_camera.copy()
+    T_far[:3, 3] += [50.0, 0.0, 0.0]
+    far = dataclasses.replace(obs, T_map_camera=T_far)
+    assert upd.seen_share(far) == 0.0
+    assert upd.observe(far, localize=lambda: 0) == "new place" and len(upd.candidates) == 1
+    off = MapUpdate(base_map, orb_match, dataclasses.replace(tight, mapped_view=False))
+    assert off.observe(obs, localize=lambda: 0) == "new place"
