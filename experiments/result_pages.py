@@ -81,6 +81,11 @@ def _change_rows(d: Json) -> list[list[str]]:
              _goals(c["after_update"])] for c in d["cases"]]
 
 
+def _cycle_rows(d: Json) -> list[list[str]]:
+    return [[str(c["cycle"]), f"{c['map_size_ratio']:.2f}", f"{c['map_size_ratio_to_first_update']:.2f}",
+             _pct(c["gl_accepted_of_covered"])] for c in d["update_cycles"]]
+
+
 def _verdict(r: Json) -> str:
     """robot0's push: published or refused (absent from a run without a push)."""
     pub = r.get("push_published")
@@ -151,6 +156,11 @@ PAGES: tuple[Page, ...] = (
          "python bench/change.py", "simulator.md#a-building-some-time-later-the-change-block",
          ("axis", "level", "GL accepted among covered % (unchanged)", "> 0.5 m", "goals reached (unchanged)",
           "after update: GL %", "after update: > 0.5 m", "after update: goals"), _change_rows),
+    Page("change_cycles", "A map updated again and again in a building that keeps changing", "bench/change_cycles.json",
+         "python bench/change.py --mix-only --cycles 10 --json out/bench/change_cycles.json",
+         "simulator.md#a-building-some-time-later-the-change-block",
+         ("cycle", "map size / before any update", "map size / after the first update",
+          "GL accepted among covered %"), _cycle_rows),
     Page("fleet", "Robots on one served map, and one robot's pushed update switched to by all", "bench/fleet.json",
          "python bench/fleet.py --robots 1 2 4 --control", "fleet.md#the-fleet-benchmark",
          ("robots", "fetch s (size)", "push -> published s (verdict)", "held-out localized: current -> candidate",

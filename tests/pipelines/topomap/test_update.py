@@ -125,7 +125,8 @@ def test_frames_an_added_keyframe_explains_add_nothing(base_map: TopoMap, seven_
     at every spacing step."""
     # (a place radius too small for any old keyframe to cover or explain a frame: every frame
     # is at a new place, as on a path the map never saw)
-    tight = UpdateParams(mapped_view=False, place_radius_m=1e-3, match_radius_m=1e-3, min_spacing_m=0.01, min_spacing_deg=1.0)
+    tight = UpdateParams(mapped_view=False, place_radius_m=1e-3, match_radius_m=1e-3, min_spacing_m=0.01,
+                         min_spacing_deg=1.0)
     reach = dataclasses.replace(tight, match_radius_m=1.5)  # ... but added keyframes reach 1.5 m
     frames = list(observations(seven_scenes_dir, "250:500:10"))
     only_spacing = MapUpdate(base_map, orb_match, tight)
