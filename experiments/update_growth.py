@@ -2,7 +2,7 @@
 series of maps (the one before any update, then each update's result), the keyframes each one
 added and, per added keyframe, the share of its view the previous map's keyframes already saw:
 the (ground-plane cell, heading bin) pairs of its keypoints lifted with their depth, as map
-building counts coverage (`pipelines.topomap.keyframes.coverage_keys`), found among the pairs of
+building counts coverage (`pipelines.topomap.update.map_view_keys`, the map update's own test), found among the pairs of
 the previous map's keyframes. A share near 1 is a view the map had and no longer matched (an
 appearance change), near 0 one it never had (a new place).
 
@@ -22,22 +22,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from litevloc.base.errors import LiteVLocError
 from litevloc.base.params.mapping import KeyframeParams
 from litevloc.pipelines.topomap.diff import node_identities
 from litevloc.pipelines.topomap.io import load_map
-from litevloc.pipelines.topomap.keyframes import keypoint_view_keys
 from litevloc.pipelines.topomap.types import TopoMap
-
-
-def keyframe_view(topomap: TopoMap, node: int, ref_height: float, params: KeyframeParams) -> NDArray[np.int64]:
-    """Coverage keys of a keyframe's keypoints with depth (`keyframes.keypoint_view_keys`);
-    `ref_height`: the camera height (metres along up) the height band is measured from."""
-    f = topomap.stored_features(node)
-    return keypoint_view_keys(topomap.K[node], f.keypoints, f.depth, topomap.T_map_camera[node], topomap.grid.up,
-                              ref_height, params)
+from litevloc.pipelines.topomap.update import keyframe_view_keys, map_view_keys
 
 
 def added_nodes(before: TopoMap, after: TopoMap) -> list[int]:
@@ -49,12 +40,10 @@ def added_nodes(before: TopoMap, after: TopoMap) -> list[int]:
 
 def seen_shares(before: TopoMap, after: TopoMap, params: KeyframeParams) -> dict[int, float]:
     """Per node `after` added: the share of its view's coverage keys among `before`'s (NaN: none)."""
-    ref = float(np.median(before.T_map_camera[:, :3, 3] @ before.grid.up))
-    seen = np.unique(np.concatenate([keyframe_view(before, i, ref, params) for i in range(before.n_nodes)]
-                                    or [np.zeros(0, np.int64)]))
+    seen, ref = map_view_keys(before, params)
     out = {}
     for i in added_nodes(before, after):
-        v = keyframe_view(after, i, ref, params)
+        v = keyframe_view_keys(after, i, ref, params)
         out[i] = float(np.isin(v, seen).mean()) if len(v) else float("nan")
     return out
 

@@ -157,6 +157,21 @@ def _stack(arrays: list[NDArray[np.floating]], shape: tuple[int, ...]) -> NDArra
     return np.stack(arrays).astype(np.float64) if arrays else np.zeros((0, *shape))
 
 
+def keyframe_view_keys(topomap: TopoMap, node: int, ref_height: float, params: KeyframeParams) -> NDArray[np.int64]:
+    """`keyframes.keypoint_view_keys` of a keyframe (its keypoints with the map's depth);
+    `ref_height`: the camera height (metres along up) the height band is measured from."""
+    return keypoint_view_keys(topomap.K[node], topomap.features[node].keypoints, topomap.keypoint_depth(node),
+                              topomap.T_map_camera[node], topomap.grid.up, ref_height, params)
+
+
+def map_view_keys(topomap: TopoMap, params: KeyframeParams) -> tuple[NDArray[np.int64], float]:
+    """(the unique view keys of all the map's keyframes, their median camera height along up (m)):
+    what the map saw, and the height reference to compare other views with."""
+    ref = float(np.median(topomap.T_map_camera[:, :3, 3] @ topomap.grid.up))
+    views = [keyframe_view_keys(topomap, i, ref, params) for i in range(topomap.n_nodes)]
+    return np.unique(np.concatenate([np.zeros(0, np.int64), *views])), ref
+
+
 class MapUpdate:
     """Feed localized frames with `observe`, then `finish` into the updated map."""
 
@@ -166,7 +181,7 @@ class MapUpdate:
         self.match = match
         self.params = params or UpdateParams()
         self._view_params = keyframes or KeyframeParams()  # the cells and heading bins of a view
-        self._seen: NDArray[np.int64] | None = None  # every keyframe's view keys, once a frame asks
+        self._seen: tuple[NDArray[np.int64], float] | None = None  # `map_view_keys`, once a frame asks
         self._tree = cKDTree(topomap.positions)
         self._cos_place = float(np.cos(np.radians(self.params.place_angle_deg)))
         self.candidates: list[Observation] = []
@@ -271,16 +286,12 @@ class MapUpdate:
     def seen_share(self, obs: Observation) -> float:
         """Share of the frame's view (`keyframes.keypoint_view_keys` of its keypoints with depth) that
         the map's keyframes saw (theirs, the same way); 0 for a frame without keypoint depth."""
-        up = self.map.grid.up
-        ref = float(np.median(self.map.T_map_camera[:, :3, 3] @ up))
         if self._seen is None:
-            views = [keypoint_view_keys(self.map.K[i], self.map.features[i].keypoints, self.map.keypoint_depth(i),
-                                        self.map.T_map_camera[i], up, ref, self._view_params)
-                     for i in range(self.map.n_nodes)]
-            self._seen = np.unique(np.concatenate([np.zeros(0, np.int64), *views]))
-        v = keypoint_view_keys(obs.K, obs.features.keypoints, obs.keypoint_depth, obs.T_map_camera, up, ref,
-                               self._view_params)
-        return float(np.isin(v, self._seen).mean()) if len(v) else 0.0
+            self._seen = map_view_keys(self.map, self._view_params)
+        seen, ref = self._seen
+        v = keypoint_view_keys(obs.K, obs.features.keypoints, obs.keypoint_depth, obs.T_map_camera, self.map.grid.up,
+                               ref, self._view_params)
+        return float(np.isin(v, seen).mean()) if len(v) else 0.0
 
     def _consistent(self, obs: Observation, node_feats: FeatureSet, T_map_node: NDArray[np.float64],
                     K_node: NDArray[np.float64]) -> int:
