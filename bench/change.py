@@ -3,6 +3,7 @@ buildings that changed since they were mapped, before and after one `map update`
 
     python bench/change.py [--generators office floor bland] [--seeds 10:17] [--buildings N]
         [--levels AXIS=L1,L2 ...] [--no-mix] [--cycles 10] [--quick] [--no-nav] [--json PATH]
+    python bench/change.py --merge A.json B.json ... [--json PATH]
 
 Per building (generators x seeds; the default is the buildings report set, 10:17 of every
 generator; `--buildings N` keeps the first N): the map of the building as generated, then for
@@ -20,6 +21,10 @@ and `after_update` with the same keys), `update_cycles` (`cycle`, `map_size_rati
 before any update, `map_size_ratio_to_first_update`, `gl_accepted_of_covered`) and `buildings`
 (every per-frame and per-goal record). A plot of the figures against the level per axis goes
 beside it (PATH with .png).
+
+`--merge` pools the buildings of runs made apart (one process per core: buildings run one after
+another, each model on one thread) into one JSON, as one run over all of them would write it; the
+runs must share their settings but the buildings.
 """
 
 from __future__ import annotations
@@ -29,6 +34,7 @@ import dataclasses
 import json
 import sys
 from pathlib import Path
+from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
@@ -76,7 +82,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out-dir", type=Path, default=OUT / "change")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--json", type=Path, default=OUT / "change.json")
+    ap.add_argument("--merge", type=Path, nargs="+", default=None, metavar="RUN_JSON",
+                    help="pool these runs' buildings (same settings) instead of running")
     args = ap.parse_args(argv)
+    if args.merge:
+        try:
+            return write_result(*merged(args.merge), args.json)
+        except (OSError, ValueError, KeyError) as exc:
+            print(f"change: --merge: {exc}", file=sys.stderr)
+            return 2
     try:
         levels = parse_levels(args.levels) if args.levels else dict(LEVELS)
     except argparse.ArgumentTypeError as exc:
@@ -96,6 +110,38 @@ def main(argv: list[str] | None = None) -> int:
     for run in runs:
         print(f"[{run.name}] {len(cases)} cases, {settings.cycles} update cycles ...", flush=True)
         buildings.append(run_building(run, cases, settings, cfg, bundles))
+    run_settings = {"runs": [r.name for r in runs], "cases": [dataclasses.asdict(c) for c in cases],
+                    "query_every": settings.query_every, "session_every": settings.session_every,
+                    "session_duration_s": settings.session_duration_s,
+                    "cycles": settings.cycles, "max_goals": max_goals, "navigate": settings.navigate,
+                    "overrides": args.overrides}
+    return write_result({"meta": run_meta(), "settings": run_settings}, buildings, args.json)
+
+
+def merged(paths: list[Path]) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """(meta and settings, buildings) of the runs `paths` (their JSON) pooled; ValueError where
+    their settings differ but for the buildings, or a building comes twice."""
+    runs = [json.loads(p.read_text()) for p in paths]
+    head = {k: v for k, v in runs[0]["settings"].items() if k != "runs"}
+    for p, r in zip(paths[1:], runs[1:], strict=True):
+        other = {k: v for k, v in r["settings"].items() if k != "runs"}
+        if other != head:
+            diff = sorted(k for k in head.keys() | other.keys() if head.get(k) != other.get(k))
+            raise ValueError(f"{p} was run with other settings than {paths[0]} ({', '.join(diff)})")
+    buildings = [b for r in runs for b in r["buildings"]]
+    names = [b["building"] for b in buildings]
+    if len(set(names)) < len(names):
+        raise ValueError(f"a building comes twice: {names}")
+    metas = [r["meta"] for r in runs]
+    # the busiest run's load and the last run's end: what the pooled figures were measured under
+    meta = {**run_meta(), "time": max(m["time"] for m in metas), "load_avg": max(m["load_avg"] for m in metas),
+            "merged": [{"json": str(p), **m} for p, m in zip(paths, metas, strict=True)]}
+    return {"meta": meta, "settings": {**head, "runs": names}}, buildings
+
+
+def write_result(head: dict[str, Any], buildings: list[dict[str, Any]], path: Path) -> int:
+    """Print the tables of `buildings` (`contract`), write them with `head` (meta, settings) to
+    `path` and the plot beside it; the exit status."""
     result = contract(buildings)
     cols = ["axis", "level", "GL acc/cov", "unchanged", "wrong", "goals", "unchanged goals", "GL after upd",
             "goals after upd"]
@@ -103,26 +149,22 @@ def main(argv: list[str] | None = None) -> int:
              c["wrong_over_0_5m"], f"{c['goals_reached']}/{c['goals_total']}", c["goals_reached_unchanged"],
              c["after_update"]["gl_accepted_of_covered"],
              f"{c['after_update']['goals_reached']}/{c['after_update']['goals_total']}"] for c in result["cases"]]
-    print_table(f"Change benchmark, {len(runs)} buildings (GL from no prior; wrong: accepted > 0.5 m off)", cols, rows)
+    print_table(f"Change benchmark, {len(buildings)} buildings (GL from no prior; wrong: accepted > 0.5 m off)",
+                cols, rows)
     if result["update_cycles"]:
         print_table("Update cycles (months-later building, a new change seed each cycle)",
                     ["cycle", "map size ratio", "to the first update", "GL acc/cov"],
                     [[c["cycle"], c["map_size_ratio"], c["map_size_ratio_to_first_update"], c["gl_accepted_of_covered"]]
                      for c in result["update_cycles"]])
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    run_settings = {"runs": [r.name for r in runs], "cases": [dataclasses.asdict(c) for c in cases],
-                    "query_every": settings.query_every, "session_every": settings.session_every,
-                    "session_duration_s": settings.session_duration_s,
-                    "cycles": settings.cycles, "max_goals": max_goals, "overrides": args.overrides}
-    payload = {"meta": run_meta(), "settings": run_settings, **result, "buildings": buildings}
-    args.json.write_text(json.dumps(payload, indent=1, default=float) + "\n")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    payload = {**head, **result, "buildings": buildings}
+    path.write_text(json.dumps(payload, indent=1, default=float) + "\n")
     if not result["cases"]:  # update cycles only (--mix-only --no-mix): nothing to plot against a level
-        print(f"wrote {args.json}")
+        print(f"wrote {path}")
         return 0
-    png = plot(result, args.json.with_suffix(".png"))
-    print(f"wrote {args.json} and {png}")
+    png = plot(result, path.with_suffix(".png"))
+    print(f"wrote {path} and {png}")
     return 0
-
 
 if __name__ == "__main__":
     raise SystemExit(main())

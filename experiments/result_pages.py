@@ -179,7 +179,9 @@ def page_block(page: Page, path: Path) -> str:
     meta = d.get("meta", {})
     # the run's own command where the JSON records it (a smaller run than the page's default says so)
     command = f"python bench/{meta['command']}" if meta.get("command") else page.command
-    lines = [f"Measured {measured_on(meta, path)} on {machine(meta)} with `{command}`.", "",
+    pooled = " and ".join(f"`python bench/{m['command']}`" for m in meta.get("merged", []))
+    runs = f", pooling {pooled}" if pooled else ""
+    lines = [f"Measured {measured_on(meta, path)} on {machine(meta)} with `{command}`{runs}.", "",
              "| " + " | ".join(page.columns) + " |", "|" + "---|" * len(page.columns)]
     lines += ["| " + " | ".join(cell(c) for c in row) + " |" for row in page.rows(d)]
     return "\n".join(lines)

@@ -76,3 +76,17 @@ def test_a_slam_case_without_ground_truth_shows_a_dash_and_non_cases_are_skipped
     rows = [line for line in (results / "slam.md").read_text().splitlines() if line.startswith("| ")][1:]
     assert rows == ["| office | 0.6 | 223 | - | 181 | 0 | 0.94 (1.4) | 158 / 1164 |",
                     "| robot | - | - | - | 181 | - | 0.94 (1.4) | 158 / 1164 |"]
+
+
+def test_a_page_of_pooled_runs_names_each_run_s_command(tmp_path: Path) -> None:
+    out, results = tmp_path / "out", tmp_path / "results"
+    (out / "bench").mkdir(parents=True)
+    results.mkdir()
+    (out / "bench" / "splits.json").write_text(json.dumps({
+        "meta": {"time": "2031-02-03T04:05:06+0000", "cpu": "Orin", "cpus": 8, "load_avg": 2.0,
+                 "command": "splits.py --merge a.json b.json",
+                 "merged": [{"command": "splits.py --splits B0>B1"}, {"command": "splits.py --splits published"}]},
+        "splits": [_split("B0>B1", "choose", 24.4), _split("published", "report", 64.0)]}))
+    update_pages(out, results, lambda _: None)
+    assert ("with `python bench/splits.py --merge a.json b.json`, pooling `python bench/splits.py --splits B0>B1` "
+            "and `python bench/splits.py --splits published`.") in (results / "splits.md").read_text()

@@ -13,7 +13,7 @@ def _fig(covered: int, accepted: int, wrong: int, reached: int, total: int) -> d
     return {"gl": {"summary": gl_summary(frames)}, "nav": {"goals_reached": reached, "goals_total": total}}
 
 
-def _building(scale: int) -> dict[str, Any]:
+def fake_building(scale: int) -> dict[str, Any]:
     return {"unchanged": _fig(10 * scale, 10 * scale, 0, 4, 4),
             "cases": [{"axis": "furniture", "level": 0.3, "before": _fig(10 * scale, 5 * scale, 1, 2, 4),
                        "after": _fig(10 * scale, 9 * scale, 0, 4, 4)}],
@@ -23,7 +23,7 @@ def _building(scale: int) -> dict[str, Any]:
 
 
 def test_cases_pool_frames_and_goals_over_buildings() -> None:
-    res = contract([_building(1), _building(2), {"building": "x", "error": "boom"}])
+    res = contract([fake_building(1), fake_building(2), {"building": "x", "error": "boom"}])
     (c,) = res["cases"]
     assert (c["axis"], c["level"]) == ("furniture", 0.3)
     assert c["gl_accepted_of_covered"] == 0.5 and c["wrong_over_0_5m"] == 2
