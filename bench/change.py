@@ -159,7 +159,7 @@ def write_result(head: dict[str, Any], buildings: list[dict[str, Any]], path: Pa
     path.parent.mkdir(parents=True, exist_ok=True)
     payload = {**head, **result, "buildings": buildings}
     path.write_text(json.dumps(payload, indent=1, default=float) + "\n")
-    if not result["cases"]:  # update cycles only (--mix-only --no-mix): nothing to plot against a level
+    if not result["cases"] and not result["update_cycles"]:
         print(f"wrote {path}")
         return 0
     png = plot(result, path.with_suffix(".png"))

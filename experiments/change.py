@@ -285,17 +285,19 @@ def contract(buildings: list[dict[str, Any]]) -> dict[str, Any]:
 
 def plot(result: dict[str, Any], path: Path) -> Path:
     """Per axis: GL accepted among covered frames and goals reached (share of the unchanged
-    building's) against the change level (0: unchanged), before and after one map update."""
+    building's) against the change level (0: unchanged), before and after one map update; with
+    update cycles, a last panel: the map's size (to the map before any update) and GL per cycle."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    cases = result["cases"]
+    cases, cycles = result["cases"], result["update_cycles"]
     axes = list(dict.fromkeys(c["axis"] for c in cases))
-    fig, ax = plt.subplots(1, len(axes), figsize=(max(3.0 * len(axes), 6.0), 3.6), squeeze=False, sharey=True)
+    panels = len(axes) + bool(cycles)
+    fig, ax = plt.subplots(1, panels, figsize=(max(3.0 * panels, 6.0), 3.6), squeeze=False)
     driven = any(c["goals_total"] is not None for c in cases)
-    for a, name in zip(ax[0], axes, strict=True):
+    for a, name in zip(ax[0], axes, strict=False):
         rows = sorted((c for c in cases if c["axis"] == name), key=lambda c: c["level"])
         for key, label, style in (("gl_accepted_of_covered", "GL accepted / covered", "-o"),
                                   ("goals", "goals reached / unchanged", "-s")):
@@ -315,12 +317,35 @@ def plot(result: dict[str, Any], path: Path) -> Path:
         a.set_title(name)
         a.set_xlabel("level" if name != "people" else "people in view")
         a.grid(alpha=0.3)
-    ax[0][0].set_ylabel("%")
-    ax[0][0].set_ylim(0, 105)
-    ax[0][-1].legend(fontsize=7, loc="lower left")
+    for a in ax[0][: len(axes)]:
+        a.set_ylim(0, 105)
+    if axes:
+        ax[0][0].set_ylabel("%")
+        ax[0][len(axes) - 1].legend(fontsize=7, loc="lower left")
+    if cycles:
+        _plot_cycles(ax[0][-1], cycles)
     fig.suptitle("LiteVLoc in a changed building (map of the building as generated)", fontsize=10)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def _plot_cycles(a: Any, cycles: list[dict[str, Any]]) -> None:
+    """Map size ratios (left axis) and GL accepted among covered frames (right axis, %) per update cycle."""
+    xs = [0] + [c["cycle"] for c in cycles]
+    a.plot(xs, [1.0] + [c["map_size_ratio"] for c in cycles], "-o", color="#444444", label="map size / before updates")
+    a.axhline(1.3, color="#444444", ls=":", lw=1, label="1.3x")
+    a.set_xlabel("update cycle")
+    a.set_ylabel("map size ratio")
+    a.set_title("update cycles")
+    a.grid(alpha=0.3)
+    gl = a.twinx()
+    gl.plot([c["cycle"] for c in cycles],
+            [np.nan if c["gl_accepted_of_covered"] is None else 100 * c["gl_accepted_of_covered"] for c in cycles],
+            "-s", color="#2b7bba", label="GL accepted / covered (%)")
+    gl.set_ylim(0, 105)
+    gl.set_ylabel("GL accepted / covered %")
+    lines = a.get_legend_handles_labels()[0] + gl.get_legend_handles_labels()[0]
+    a.legend(lines, [str(h.get_label()) for h in lines], fontsize=7, loc="lower right")

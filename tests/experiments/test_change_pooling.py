@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
-from litevloc.experiments.change import Case, contract, gl_summary
+from litevloc.experiments.change import Case, contract, gl_summary, plot
 
 
 def _fig(covered: int, accepted: int, wrong: int, reached: int, total: int) -> dict[str, Any]:
@@ -48,3 +49,9 @@ def test_months_later_case_is_the_fixed_mix() -> None:
     p = Case("months_later", 1.0).params(seed=3)
     assert (p.seed, p.lighting, p.furniture, p.pictures, p.people, p.doors) == (3, 0.5, 0.3, 0.3, 2, 0.0)
     assert Case("people", 2.0).params().people == 2
+
+
+def test_the_plot_has_a_panel_per_axis_and_one_for_the_update_cycles(tmp_path: Path) -> None:
+    res = contract([fake_building(1), fake_building(2)])
+    assert plot(res, tmp_path / "c.png").stat().st_size > 0
+    assert plot({**res, "cases": []}, tmp_path / "cycles.png").stat().st_size > 0  # --mix-only --no-mix: cycles alone
