@@ -98,11 +98,8 @@ class GlobalSearch:
         order = (np.asarray(list(only), dtype=np.int64) if only is not None
                  else self.candidates(p, sims, q, region))
 
-        flat: set[int] = set()  # keyframes the support check refused as candidates, in any pass of this query
-
         def verify(pp: LocalizationParams) -> LocalizationResult:
-            return self._search(t_ns, q.under(pp), sims, order, prior, recovering_ll_ms, (timer, t_all, front_ms),
-                                flat)
+            return self._search(t_ns, q.under(pp), sims, order, prior, recovering_ll_ms, (timer, t_all, front_ms))
 
         self.budget_ms = 0.0
         res = with_second_passes(verify, p, q.timer, v.map_has_depth, pooling=self.pooling)
@@ -161,12 +158,11 @@ class GlobalSearch:
 
     def _search(self, t_ns: int, q: Query, sims: NDArray[np.float32], order: NDArray[np.int64],
                 prior: Prior | None, recovering_ll_ms: Sequence[float] | None,
-                clock: tuple[StageTimer, float, float], flat: set[int]) -> LocalizationResult:
+                clock: tuple[StageTimer, float, float]) -> LocalizationResult:
         """One verification pass under the query's parameters: candidates in order, each verified
         and jointly refined at once; the first that passes the joint check wins (then the
         distinctiveness check), or one that agrees with a fresh prior; the time budget stops the
-        search (`clock`: the query's timer, its start and its front end's ms). `flat`: the keyframes
-        the support check refused as candidates in the query's passes so far (this pass adds to it)."""
+        search (`clock`: the query's timer, its start and its front end's ms)."""
         p, v = q.params, self.verifier
         timer, t_all, front_ms = clock
         attempts: list[CandidateAttempt] = []
@@ -181,8 +177,8 @@ class GlobalSearch:
         min_kf = p.refine.min_keyframes
         joint_check = JointCheck(v, [int(n) for n in order],
                                  lambda c, weak: min_kf if p.confirm.gl or weak else 1, floor, refuse=False)
-        checks: list[Check] = [PnpCheck(v, pooled(p), evidence=evidence), SupportCheck(v, flat), joint_check,
-                               PooledCheck(floor, min_kf), PooledSupportCheck(v, floor, min_kf, flat)]
+        checks: list[Check] = [PnpCheck(v, pooled(p), evidence=evidence), SupportCheck(v), joint_check,
+                               PooledCheck(floor, min_kf), PooledSupportCheck(v, floor, min_kf)]
         budget = p.global_search.time_budget_ms
         candidates_ms = 0.0  # verification time (match, PnP, joint refinement) of the candidates so far
         first_ms = 0.0  # the first candidate's: with the front end, the nominal LL cost (`gl_budget_ms`)

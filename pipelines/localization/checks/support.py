@@ -5,13 +5,12 @@ supporting points all lie on one horizontal plane is no evidence of the place
 (`support.min_height_m`), nor is one whose points lie on the floor and the ceiling alone: a
 corridor seen from either end, or a tile period farther along, shows the same tiles above and
 below (`support.min_off_layer_inliers`). A weak candidate accepted on the joint refinement's
-pooled inliers must pass the rule on the pool's inliers, without the keyframes the rule refused as
-candidates in the same query (`PooledSupportCheck`).
+pooled inliers counts only the keyframes that pass the rule on their own (`PooledSupportCheck`).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -25,50 +24,42 @@ from litevloc.pipelines.pnp import PnpResult, Refusal
 
 @dataclass(frozen=True, eq=False)
 class SupportCheck:
-    """GL's check of a PnP-verified candidate: refused when its pose rests on horizontal planes only.
-    `refused` collects the keyframes it refused (one query's, over its passes: `PooledSupportCheck`
-    reads them)."""
+    """GL's check of a PnP-verified candidate: refused when its pose rests on one horizontal plane."""
 
     verifier: CandidateVerifier
-    refused: set[int] = field(default_factory=set)
 
     def __call__(self, c: Candidate, q: Query) -> CandidateAttempt | None:
         assert c.res is not None and c.attempt is not None
         flat = flat_support(self.verifier, c.node, c.res, q)
-        if not flat:
-            return None
-        self.refused.add(c.node)
-        return replace(c.attempt, reason=flat, refusal=Refusal.LATER)
+        return replace(c.attempt, reason=flat, refusal=Refusal.LATER) if flat else None
 
 
 @dataclass(frozen=True, eq=False)
 class PooledSupportCheck:
-    """GL's check of a weak candidate (fewer PnP inliers than `floor`) that passed pooled: the
-    keyframes `flat_keyframes` refused as candidates earlier in the query (any pass) (their own pose rests on
-    horizontal planes) leave the pool, and the rest must still be `min_keyframes` explaining `floor`
-    inliers whose union does not rest on horizontal planes only. The rule judges the union, not
-    each keyframe: its absolute counts are sized for a whole pose's inliers, and a keyframe's 15-30
-    put a third of their points in two 10 cm layers by chance."""
+    """GL's check of a weak candidate (fewer PnP inliers than `floor`) that passed pooled: only
+    keyframes whose inliers under the joint pose do not rest on horizontal planes alone count in
+    the pool (a keyframe refused for that as a candidate is no evidence pooled either), and those
+    must still be `min_keyframes` explaining `floor` inliers together."""
 
     verifier: CandidateVerifier
     floor: int
     min_keyframes: int
-    flat_keyframes: set[int] = field(default_factory=set)
 
     def __call__(self, c: Candidate, q: Query) -> CandidateAttempt | None:
         assert c.res is not None and c.attempt is not None
         if c.res.n_inliers >= self.floor or c.joint is None:
             return None
-        pts = {k: p for k, p in c.joint.inlier_points_map().items() if k not in self.flat_keyframes}
-        n = sum(len(p) for p in pts.values())
-        dropped = sorted(set(c.joint.inliers_per_keyframe) & self.flat_keyframes)
-        without = f" without keyframe(s) {', '.join(map(str, dropped))} refused as flat" if dropped else ""
-        if not pts or len(pts) < self.min_keyframes or n < self.floor:
-            return replace(c.attempt, refusal=Refusal.LATER, reason=(
-                f"pooled support too weak ({n} inliers over {len(pts)} keyframe(s){without})"))
         up = np.asarray(self.verifier.map.grid.up, dtype=np.float64)
-        flat = flat_heights_reason(np.concatenate(list(pts.values())) @ up, q.params.support)
-        return replace(c.attempt, refusal=Refusal.LATER, reason=f"pooled {flat}{without}") if flat else None
+        flat = {k: flat_heights_reason(np.asarray(pts @ up, np.float64), q.params.support)
+                for k, pts in c.joint.inlier_points_map().items()}
+        kept = [k for k, why in flat.items() if not why]
+        n = sum(c.joint.inliers_per_keyframe[k] for k in kept)
+        if len(kept) >= self.min_keyframes and n >= self.floor:
+            return None
+        why = next((f"keyframe {k}: {w}" for k, w in flat.items() if w), "")
+        return replace(c.attempt, refusal=Refusal.LATER, reason=(
+            f"pooled support too weak ({n} inliers over {len(kept)} keyframe(s) not resting on floor and "
+            f"ceiling alone; {why})"))
 
 
 # Half the thickness of a horizontal layer: a floor's points under room-range depth noise and a
