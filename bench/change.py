@@ -166,5 +166,6 @@ def write_result(head: dict[str, Any], buildings: list[dict[str, Any]], path: Pa
     print(f"wrote {path} and {png}")
     return 0
 
+
 if __name__ == "__main__":
     raise SystemExit(main())
