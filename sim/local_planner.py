@@ -21,6 +21,9 @@ summed: a robot turning back and forth in place (a wall behind it, the subgoal f
 keeps the wall it can no longer see, where a count of every radian turned forgot it after one
 swing and the local path then ran through it; a yaw-rate scale error, the drift of turning in
 place, also cancels on the way back. A door jamb seen on the way in likewise stays known.
+A remembered point on ground the current image sees free, past it along its column, is
+forgotten (`clear_seen_through`, a costmap's ray-trace clearing): a person walking across the
+view otherwise left a wall of points across the corridor for `memory_travel_m` of driving.
 Contacts (a bumper: where the robot touched something, `add_contacts`) are kept the same way
 and block arcs like seen obstacles: a door frame beside the robot, which the forward camera
 cannot see, is otherwise driven into again and again. After a bump the robot backs up until
@@ -50,7 +53,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from litevloc.base.params.sim_navigation import LocalPlannerParams
-from litevloc.sim.seen_ground import grid_lookup, local_grid_cells, seen_ray_points, unseen_distance
+from litevloc.sim.seen_ground import (
+    ColumnView,
+    column_view,
+    grid_lookup,
+    local_grid_cells,
+    seen_ray_points,
+    seen_through,
+    unseen_distance,
+)
 
 
 @dataclass(frozen=True)
@@ -115,6 +126,11 @@ class _RecentPoints:
         keep = (np.hypot(*(pts - xy).T) <= p.memory_radius_m) & (age <= p.memory_travel_m)
         idx = np.flatnonzero(keep)[_voxel_firsts(pts[keep], self.voxel_m)]  # this frame's points come first
         self.pts, self.driven, self.heading = pts[idx], drv[idx], hdg[idx]
+
+    def drop(self, gone: NDArray[np.bool_]) -> None:
+        """Forget the points where `gone` (M,) is true."""
+        keep = ~np.asarray(gone, bool)
+        self.pts, self.driven, self.heading = self.pts[keep], self.driven[keep], self.heading[keep]
 
 
 class LocalPlanner:
@@ -192,11 +208,14 @@ class LocalPlanner:
         return R, xy
 
     def _remember(self, pts_base: NDArray[np.float64], T_odom_base: NDArray[np.floating],
-                  seen_base: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+                  seen_base: NDArray[np.float64] | None = None, view: ColumnView | None = None) -> NDArray[np.float64]:
         """Merge this frame's (N, 2) obstacle points and (S, 2) seen ground points (base frame)
-        into the rolling local maps (odometry frame); returns every remembered obstacle point in
+        into the rolling local maps (odometry frame), first forgetting the remembered obstacle points
+        `view` (this frame's `column_view`) sees past; returns every remembered obstacle point in
         the base frame."""
         R, xy = self._odom_pose(T_odom_base)
+        if view is not None and len(self._obstacles.pts):
+            self._obstacles.drop(seen_through(view, (self._obstacles.pts - xy) @ R))
         self._obstacles.merge(pts_base @ R.T + xy, self._driven, self._heading, xy, self.params)
         if seen_base is not None:
             self._seen.merge(seen_base @ R.T + xy, self._driven, self._heading, xy, self.params)
@@ -230,8 +249,10 @@ class LocalPlanner:
         p = self.params
         pts = np.zeros((0, 2)) if depth is None else self._thin(obstacle_points(depth, K, T_base_camera, p))
         if T_odom_base is not None and p.memory_travel_m > 0:
-            looked = seen_ray_points(depth, K, T_base_camera, p) if depth is not None and self._seen_rule_on else None
-            pts = self._remember(pts, T_odom_base, looked)
+            view = column_view(depth, K, T_base_camera, p) if depth is not None else None
+            looked = seen_ray_points(depth, K, T_base_camera, p, view) if view is not None and self._seen_rule_on \
+                else None
+            pts = self._remember(pts, T_odom_base, looked, view if p.clear_seen_through else None)
         return np.concatenate([pts, self.contacts_base(T_odom_base)])
 
     def command(

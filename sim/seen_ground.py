@@ -7,7 +7,9 @@ Each depth image marks the ground along every (strided) column's ray, from the c
 column's first obstacle point (or `max_range_m`; a column without depth counts as open to
 `max_range_m`, as it yields no obstacle point), as seen; `unseen_distance` rasterises what was
 seen around the robot on the local grid and returns the distance from each cell to the nearest
-ground not seen, so arcs can refuse to sweep the robot over it.
+ground not seen, so arcs can refuse to sweep the robot over it. The same columns say which
+remembered obstacle points the camera now sees past (`seen_through`: on ground it saw free, from
+the column's nearest ground to short of its first obstacle), so the planner forgets them.
 
 Frames: `base_link` x forward, y left, z up on the floor; the depth image is in the camera
 optical frame mounted at `T_base_camera`; the local grid is centred on the robot, axis 0 = y,
@@ -16,6 +18,8 @@ axis 1 = x of the base frame, `grid_m` cells out to `grid_radius_m`.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
 from numpy.typing import NDArray
@@ -23,13 +27,25 @@ from numpy.typing import NDArray
 from litevloc.base.params.sim_navigation import LocalPlannerParams
 
 
-def seen_ray_points(
+@dataclass(frozen=True)
+class ColumnView:
+    """What each `stride_px`-th column of one depth image saw along the ground, base frame: its
+    horizontal unit direction from the camera (w, 2), the nearest ground it saw (`near`, m from the
+    camera, horizontally: its lowest valid pixel; inf where none) and how far it saw free ground
+    (`reach`: one `grid_m` cell short of its nearest obstacle point in the height band, at most
+    `max_range_m`). `origin`: the camera's (2,) position in the base frame."""
+
+    origin: NDArray[np.float64]
+    direction: NDArray[np.float64]
+    near: NDArray[np.float64]
+    reach: NDArray[np.float64]
+
+
+def column_view(
     depth: NDArray[np.floating], K: NDArray[np.floating], T_base_camera: NDArray[np.floating],
     params: LocalPlannerParams = LocalPlannerParams(),
-) -> NDArray[np.float64]:
-    """(N, 2) x, y (base frame, m) of ground points seen in `depth` (HxW metres, NaN / <= 0
-    invalid; K 3x3; T_base_camera 4x4): every `grid_m` along each `stride_px`-th column's ray from
-    the camera, stopping one cell short of the column's nearest obstacle point in the height band."""
+) -> ColumnView:
+    """The `ColumnView` of `depth` (HxW metres, NaN / <= 0 invalid; K 3x3; T_base_camera 4x4)."""
     p, s = params, params.stride_px
     d = np.asarray(depth, np.float64)[::s, ::s]
     v, u = np.mgrid[0 : depth.shape[0] : s, 0 : depth.shape[1] : s]
@@ -42,12 +58,47 @@ def seen_ray_points(
     band = ok & (P[..., 2] > lo) & (P[..., 2] < hi)
     horiz = np.hypot(P[..., 0] - T[0, 3], P[..., 1] - T[1, 3])
     reach = np.minimum(np.where(band, horiz, np.inf).min(axis=0), p.max_range_m) - p.grid_m  # (w,)
+    near = np.where(ok, horiz, np.inf).min(axis=0)
     cols = np.arange(0, depth.shape[1], s)
     direction = np.stack([(cols - K[0, 2]) / K[0, 0], np.zeros(len(cols)), np.ones(len(cols))], 1) @ T[:3, :3].T
     direction = direction[:, :2] / np.linalg.norm(direction[:, :2], axis=1, keepdims=True)
+    return ColumnView(T[:2, 3].copy(), direction, near, reach)
+
+
+def seen_ray_points(
+    depth: NDArray[np.floating], K: NDArray[np.floating], T_base_camera: NDArray[np.floating],
+    params: LocalPlannerParams = LocalPlannerParams(), view: ColumnView | None = None,
+) -> NDArray[np.float64]:
+    """(N, 2) x, y (base frame, m) of ground points seen in `depth` (HxW metres, NaN / <= 0
+    invalid; K 3x3; T_base_camera 4x4): every `grid_m` along each `stride_px`-th column's ray from
+    the camera, stopping one cell short of the column's nearest obstacle point in the height band.
+    `view`: the image's `column_view`, where already computed."""
+    p = params
+    cv = view or column_view(depth, K, T_base_camera, p)
     t = np.arange(0.0, p.max_range_m, p.grid_m)
-    pts = T[:2, 3] + t[None, :, None] * direction[:, None, :]  # (w, T, 2)
-    return np.asarray(pts[t[None, :] <= reach[:, None]], np.float64)
+    pts = cv.origin + t[None, :, None] * cv.direction[:, None, :]  # (w, T, 2)
+    return np.asarray(pts[t[None, :] <= cv.reach[:, None]], np.float64)
+
+
+def seen_through(view: ColumnView, pts: NDArray[np.floating]) -> NDArray[np.bool_]:
+    """(M,) whether each of `pts` (M, 2, base frame, m) lies on ground this view saw free: within
+    the columns' fan, at least its column's `near` and short of its `reach` (the camera looks past
+    it: what was there has moved away)."""
+    q = np.asarray(pts, np.float64) - view.origin
+    if not len(q) or not len(view.direction):
+        return np.zeros(len(q), bool)
+    r = np.hypot(q[:, 0], q[:, 1])
+    ang = np.arctan2(view.direction[:, 1], view.direction[:, 0])  # columns' bearings, right to left: decreasing
+    order = np.argsort(ang)
+    a_sorted = ang[order]
+    b = np.arctan2(q[:, 1], q[:, 0])
+    k = np.clip(np.searchsorted(a_sorted, b), 1, len(a_sorted) - 1) if len(a_sorted) > 1 else np.zeros(len(b), int)
+    if len(a_sorted) > 1:
+        k = np.where(np.abs(a_sorted[k - 1] - b) < np.abs(a_sorted[k] - b), k - 1, k)
+    col = order[k]
+    step = float(np.median(np.abs(np.diff(a_sorted)))) if len(a_sorted) > 1 else 0.0
+    inside = (b >= a_sorted[0] - step / 2) & (b <= a_sorted[-1] + step / 2)
+    return np.asarray(inside & (r >= view.near[col]) & (r < view.reach[col]), bool)
 
 
 def local_grid_cells(xy: NDArray[np.floating], grid_radius_m: float, grid_m: float) -> tuple[NDArray[np.int64], int]:

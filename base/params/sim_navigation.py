@@ -19,7 +19,9 @@ class LocalPlannerParams(Settings):
     Obstacle memory: points are kept in the odometry frame while they stay within
     `memory_radius_m` and were seen less than `memory_travel_m` of odometry ago (metres driven
     since, plus `memory_m_per_rad` per radian of net heading change since: turning back and
-    forth in place keeps them), so odometry drift cannot move them far.
+    forth in place keeps them), so odometry drift cannot move them far. A remembered point the
+    camera now sees past (free ground beyond it along its column) is forgotten
+    (`clear_seen_through`, a costmap's ray-trace clearing): people walking by leave no trails.
     Recovery: after `recover_after` commands without a drivable arc (e.g. diagonally in a
     doorway) the robot backs straight up for `recover_commands` commands, each only while the
     `rear_check_m` behind it is clear of known obstacles and of ground not seen (as arcs are),
@@ -69,6 +71,9 @@ class LocalPlannerParams(Settings):
     memory_m_per_rad: float = setting(
         0.1, "a radian of net heading change since a sighting counts as this many metres of odometry", unit="m/rad",
         low=0)
+    clear_seen_through: bool = setting(
+        True, "remembered obstacle points on ground the current depth image sees free (its column reaches past "
+        "them) are forgotten, as a costmap's ray-trace clearing: moving people leave no trails")
     voxel_m: float = setting(0.05, "obstacle points are thinned to one per voxel of this size", unit="m", low=-math.inf)
     contact_points: int = setting(64, "bumper contacts remembered in the odometry frame, newest kept", low=-math.inf)
     contact_clear_m: float = setting(

@@ -346,3 +346,37 @@ def test_after_backing_up_to_recover_the_robot_faces_the_subgoal_before_driving(
     side = np.array([np.cos(np.radians(70.0)), np.sin(np.radians(70.0))]) * 2.0
     c = lp.command(side, None, K, T_BC)
     assert c.reason == "turn" and c.v == 0.0 and c.omega > 0, c
+
+
+def test_remembered_obstacles_the_camera_now_sees_past_are_forgotten() -> None:
+    """A person crossing 2 m ahead leaves obstacle points in the memory; the next frame sees the
+    floor and a wall 4 m ahead past where they were: forgotten (ray-trace clearing), so people
+    walking by leave no trail for the arcs to avoid. Off: the trail stays for memory_travel_m."""
+    person = floor_depth(4.0)
+    u = np.arange(P.width)[None, :].repeat(P.height, 0)
+    person[np.abs((u - K[0, 2]) / K[0, 0]) < 0.15] = 2.0  # camera x within 0.3 m at 2 m: a person's width
+    left = floor_depth(4.0)
+    for clear, kept in ((True, False), (False, True)):
+        lp = LocalPlanner(LocalPlannerParams(clear_seen_through=clear))
+        lp.observe(person, K, T_BC, np.eye(4))
+        near = lambda pts: int((np.abs(pts[:, 0] - 2.25) < 0.15).sum())  # noqa: E731 (2 m + the camera's 0.25 m)
+        assert near(lp._remember(np.zeros((0, 2)), np.eye(4))) > 10
+        after = lp.observe(left, K, T_BC, np.eye(4))
+        assert (near(after) > 10) == kept, (clear, near(after))
+        assert near(after) == 0 or not clear
+
+
+def test_what_the_camera_does_not_see_now_is_not_forgotten() -> None:
+    """Clearing needs free ground seen past a point: nothing in view (NaN depth), a point nearer
+    than the lowest ground the camera sees, or one beyond the wall it sees, stays remembered."""
+    lp = LocalPlanner()
+    lp.observe(wall_depth(2.0), K, T_BC, np.eye(4))
+    n0 = len(lp._remember(np.zeros((0, 2)), np.eye(4)))
+    lp.observe(np.full((P.height, P.width), np.nan, np.float32), K, T_BC, np.eye(4))
+    assert len(lp._remember(np.zeros((0, 2)), np.eye(4))) == n0
+    lp.observe(floor_depth(1.5), K, T_BC, np.eye(4))  # a nearer wall hides where the old one was
+    pts = lp._remember(np.zeros((0, 2)), np.eye(4))
+    assert int((np.abs(pts[:, 0] - 2.25) < 0.15).sum()) > 10
+    lp._remember(np.array([[0.4, 0.0]]), np.eye(4))  # at the bumper, under the view's lowest ray
+    pts = lp.observe(floor_depth(4.0), K, T_BC, np.eye(4))
+    assert np.hypot(*(pts - [0.4, 0.0]).T).min() < 1e-9
