@@ -88,7 +88,7 @@ def seen_through(view: ColumnView, pts: NDArray[np.floating]) -> NDArray[np.bool
     if not len(q) or not len(view.direction):
         return np.zeros(len(q), bool)
     r = np.hypot(q[:, 0], q[:, 1])
-    ang = np.arctan2(view.direction[:, 1], view.direction[:, 0])  # columns' bearings, right to left: decreasing
+    ang = np.arctan2(view.direction[:, 1], view.direction[:, 0])  # (w,) the columns' bearings (rad, base frame)
     order = np.argsort(ang)
     a_sorted = ang[order]
     b = np.arctan2(q[:, 1], q[:, 0])
