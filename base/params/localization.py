@@ -223,6 +223,10 @@ class SupportParams(Settings):
     min_off_layer_inliers: int = setting(
         8, "a GL candidate needs this many inliers off its two densest horizontal layers (floor and ceiling, each "
         "10 cm thick); fewer: it rests on floor and ceiling tiles only and is refused (0 = off)", low=0)
+    min_off_plane_inliers: int = setting(
+        0, "a GL candidate needs this many inliers farther than 5 cm from the plane holding most of them (any "
+        "orientation); fewer: it rests on one surface, whose repeating texture (bricks, tiles) verifies at its other "
+        "copies too, and is refused (0 = off)", low=0)
 
 
 @dataclass(frozen=True)

@@ -4,8 +4,10 @@ Floor and ceiling tiles repeat in every room and under 90-degree turns: a GL pos
 supporting points all lie on one horizontal plane is no evidence of the place
 (`support.min_height_m`), nor is one whose points lie on the floor and the ceiling alone: a
 corridor seen from either end, or a tile period farther along, shows the same tiles above and
-below (`support.min_off_layer_inliers`). A weak candidate accepted on the joint refinement's
-pooled inliers counts only the keyframes that pass the rule on their own (`PooledSupportCheck`).
+below (`support.min_off_layer_inliers`). Opt-in, any plane (`support.min_off_plane_inliers`): a
+wall of repeating bricks seen alone verifies at every other copy of its texture. A weak candidate
+accepted on the joint refinement's pooled inliers counts only the keyframes that pass the rule on
+their own (`PooledSupportCheck`).
 """
 
 from __future__ import annotations
@@ -50,7 +52,7 @@ class PooledSupportCheck:
         if c.res.n_inliers >= self.floor or c.joint is None:
             return None
         up = np.asarray(self.verifier.map.grid.up, dtype=np.float64)
-        flat = {k: flat_heights_reason(np.asarray(pts @ up, np.float64), q.params.support)
+        flat = {k: flat_points_reason(np.asarray(pts, np.float64), up, q.params.support)
                 for k, pts in c.joint.inlier_points_map().items()}
         kept = [k for k, why in flat.items() if not why]
         n = sum(c.joint.inliers_per_keyframe[k] for k in kept)
@@ -89,21 +91,58 @@ def off_layers(heights: NDArray[np.float64], layers: int = 2, half_m: float = LA
     return int(left.sum())
 
 
-def support_heights(verifier: CandidateVerifier, node: int, T_map_camera: NDArray[np.float64],
-                    q: Query) -> NDArray[np.float64]:
-    """(N,) heights (m, along the map's up) of the matches with keyframe `node` that the camera
-    pose `T_map_camera` (4x4, map frame) explains."""
+def support_points(verifier: CandidateVerifier, node: int, T_map_camera: NDArray[np.float64],
+                   q: Query) -> NDArray[np.float64]:
+    """(N, 3) map-frame points (m) of the matches with keyframe `node` that the camera pose
+    `T_map_camera` (4x4, map frame) explains."""
     explained, pts = verifier.explained_matches(node, T_map_camera, q)
-    return np.asarray(pts[explained] @ np.asarray(verifier.map.grid.up, dtype=np.float64), np.float64)
+    return np.asarray(pts[explained], np.float64)
+
+
+def off_plane(points: NDArray[np.float64], half_m: float = LAYER_HALF_M, tries: int = 200) -> int:
+    """How many of the finite `points` (N, 3, metres) lie farther than `half_m` from the plane that
+    holds most of them (RANSAC over `tries` point triples, seeded: the same points give the same
+    count); all of them for fewer than three points."""
+    P = np.asarray(points, np.float64)
+    P = P[np.isfinite(P).all(axis=1)]
+    if len(P) < 3:
+        return len(P)
+    rng = np.random.default_rng(0)
+    best = 0
+    for _ in range(tries):
+        a, b, c = P[rng.choice(len(P), 3, replace=False)]
+        n = np.cross(b - a, c - a)
+        norm = float(np.linalg.norm(n))
+        if norm < 1e-9:
+            continue
+        best = max(best, int((np.abs((P - a) @ (n / norm)) <= half_m).sum()))
+        if best == len(P):
+            break
+    return len(P) - best
 
 
 def flat_reason(verifier: CandidateVerifier, node: int, T_map_camera: NDArray[np.float64], q: Query) -> str:
     """Why the pose `T_map_camera` (4x4) through keyframe `node` rests on horizontal planes only
     under the query's `support` parameters ('' where it does not, or the checks are off)."""
     sp = q.params.support
-    if sp.min_height_m <= 0 and sp.min_off_layer_inliers <= 0:
+    if sp.min_height_m <= 0 and sp.min_off_layer_inliers <= 0 and sp.min_off_plane_inliers <= 0:
         return ""
-    return flat_heights_reason(support_heights(verifier, node, T_map_camera, q), sp)
+    up = np.asarray(verifier.map.grid.up, dtype=np.float64)
+    return flat_points_reason(support_points(verifier, node, T_map_camera, q), up, sp)
+
+
+def flat_points_reason(pts: NDArray[np.float64], up: NDArray[np.float64], sp: SupportParams) -> str:
+    """Why a pose whose support lies at `pts` (N, 3, map frame, m; `up` the map's (3,) up) rests on
+    planes only under `sp`: the horizontal rules on the heights (`flat_heights_reason`), then the
+    one-plane rule ('' where neither refuses, or `pts` is empty)."""
+    why = flat_heights_reason(np.asarray(pts @ up, np.float64), sp)
+    if why or sp.min_off_plane_inliers <= 0 or len(pts) == 0:
+        return why
+    off = off_plane(pts)
+    if off < sp.min_off_plane_inliers:
+        return (f"support on one plane only ({off} of {len(pts)} inliers off it < {sp.min_off_plane_inliers}: "
+                "a wall of repeating bricks or tiles verifies its other copies)")
+    return ""
 
 
 def flat_heights_reason(h: NDArray[np.float64], sp: SupportParams) -> str:

@@ -11,7 +11,13 @@ from litevloc.pipelines.localization.checks.joint import JointCheck
 from litevloc.pipelines.localization.checks.pnp import PnpCheck
 from litevloc.pipelines.localization.checks.pooled import PooledCheck
 from litevloc.pipelines.localization.checks.prior_gate import PriorGateCheck
-from litevloc.pipelines.localization.checks.support import PooledSupportCheck, SupportCheck, layer_share, off_layers
+from litevloc.pipelines.localization.checks.support import (
+    PooledSupportCheck,
+    SupportCheck,
+    layer_share,
+    off_layers,
+    off_plane,
+)
 from litevloc.pipelines.localization.distinct import VerifiedPose
 from litevloc.pipelines.localization.query import Query, StageTimer
 from litevloc.pipelines.localization.results import CandidateAttempt
@@ -94,6 +100,33 @@ def test_support_refuses_a_pose_whose_inliers_lie_on_floor_and_ceiling_only() ->
     every = replace(q.params, support=replace(q.params.support, min_off_layer_inliers=c.res.n_inliers + 1))
     refusal = SupportCheck(v)(c, q.under(every))
     assert refusal is not None and "floor and ceiling only" in refusal.reason and refusal.refusal is Refusal.LATER
+
+
+def test_support_refuses_a_pose_whose_inliers_lie_on_one_plane_of_any_orientation() -> None:
+    v, q, _ = _setup(pose(1.2), 1)
+    c = Candidate(1, 0.9)
+    assert PnpCheck(v, PARAMS)(c, q) is None
+    assert c.res is not None
+    assert SupportCheck(v)(c, q) is None  # off by default
+    some = replace(q.params, support=replace(q.params.support, min_off_plane_inliers=3))
+    assert SupportCheck(v)(c, q.under(some)) is None  # the scene's points are spread in depth
+    every = replace(q.params, support=replace(q.params.support, min_off_plane_inliers=c.res.n_inliers + 1))
+    refusal = SupportCheck(v)(c, q.under(every))
+    assert refusal is not None and "one plane only" in refusal.reason and refusal.refusal is Refusal.LATER
+
+
+def test_off_plane_counts_the_points_off_the_plane_holding_most() -> None:
+    rng = np.random.default_rng(1)
+    n = np.array([0.6, 0.8, 0.0])  # a vertical wall, neither along x nor y
+    in_wall = np.cross(n, [0.0, 0.0, 1.0])
+    wall = 2.0 * n + rng.uniform(-2, 2, (80, 1)) * in_wall + rng.uniform(0, 2.5, (80, 1)) * np.array([0, 0, 1.0])
+    wall += rng.normal(0, 0.01, wall.shape) * n  # depth noise across the wall
+    desk = rng.uniform([0, 0, 0.7], [1, 1, 0.8], (12, 3))
+    assert off_plane(wall) == 0
+    assert off_plane(np.concatenate([wall, desk])) == 12
+    assert off_plane(np.concatenate([wall, desk])) == off_plane(np.concatenate([wall, desk]))  # seeded
+    assert off_plane(np.array([[0.0, 0, 0], [1, 1, 1]])) == 2 and off_plane(np.zeros((0, 3))) == 0
+    assert off_plane(np.concatenate([wall, np.full((3, 3), np.nan)])) == 0  # no depth: not counted
 
 
 def test_layer_share_counts_the_two_densest_horizontal_layers() -> None:
