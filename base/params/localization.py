@@ -217,8 +217,7 @@ class SupportParams(Settings):
     """The support check of a GL pose: the height its inliers span, and how many lie on floor and ceiling."""
 
     min_height_m: float = setting(
-        0.0, "a GL candidate whose inliers span less height than this rests on floor or ceiling: refused (0 = off; "
-        "min_off_layer_inliers refuses those poses too)",
+        0.15, "a GL candidate whose inliers span less height than this rests on floor or ceiling: refused (0 = off)",
         unit="m", low=0)
     min_off_layer_inliers: int = setting(
         8, "a GL candidate needs this many inliers off its two densest horizontal layers (floor and ceiling, each "
