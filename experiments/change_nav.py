@@ -19,7 +19,7 @@ import dataclasses
 import json
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from litevloc.base.params.world_change import ChangeSpecError, WorldChangeParams, parse_change
 from litevloc.experiments.buildings import BenchSettings, BuildingRun, building_goals, ensure_map, load_models
@@ -27,6 +27,7 @@ from litevloc.experiments.change import changed_world
 from litevloc.pipelines.topomap.io import load_map
 from litevloc.runtime.tools.sim_navigation import NavRun, plot_navigation, run_navigation
 
+Localization = Literal["litevloc", "ground-truth"]
 GOAL_KEYS = ("name", "outcome", "reason", "time_s", "timeout_s", "shortest_path_m", "distance_to_goal_m",
              "placed_node", "placement_error_m")
 
@@ -36,8 +37,9 @@ def goal_rows(run: NavRun) -> list[dict[str, Any]]:
     return [{k: g[k] for k in GOAL_KEYS} for g in run.summary()["goals"]]
 
 
-def navigate(run: BuildingRun, change: WorldChangeParams, modes: list[str], max_goals: int, goal_timeout_s: float,
-             overrides: tuple[str, ...], out_dir: Path, plot: Path | None = None) -> dict[str, Any]:
+def navigate(run: BuildingRun, change: WorldChangeParams, modes: list[Localization], max_goals: int,
+             goal_timeout_s: float, overrides: tuple[str, ...], out_dir: Path,
+             plot: Path | None = None) -> dict[str, Any]:
     """The goals of `run` driven once per localization in `modes` in the building changed by `change`;
     per mode: goals reached, each goal's record, the longest LOST stretch and the fused error."""
     cfg, bundles = load_models("default", overrides)

@@ -249,9 +249,10 @@ class LocalPlanner:
         p = self.params
         pts = np.zeros((0, 2)) if depth is None else self._thin(obstacle_points(depth, K, T_base_camera, p))
         if T_odom_base is not None and p.memory_travel_m > 0:
-            view = column_view(depth, K, T_base_camera, p) if depth is not None else None
-            looked = seen_ray_points(depth, K, T_base_camera, p, view) if view is not None and self._seen_rule_on \
-                else None
+            view = looked = None
+            if depth is not None:
+                view = column_view(depth, K, T_base_camera, p)
+                looked = seen_ray_points(depth, K, T_base_camera, p, view) if self._seen_rule_on else None
             pts = self._remember(pts, T_odom_base, looked, view if p.clear_seen_through else None)
         return np.concatenate([pts, self.contacts_base(T_odom_base)])
 
