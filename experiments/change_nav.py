@@ -43,11 +43,11 @@ def navigate(run: BuildingRun, change: WorldChangeParams, modes: list[Localizati
     """The goals of `run` driven once per localization in `modes` in the building changed by `change`;
     per mode: goals reached, each goal's record, the longest LOST stretch and the fused error."""
     cfg, bundles = load_models("default", overrides)
-    map_dir, _ = ensure_map(run, changed_world(run, WorldChangeParams()), BenchSettings(out_dir=out_dir), cfg,
+    bench = BenchSettings(out_dir=out_dir)
+    map_dir, _ = ensure_map(run, changed_world(run, WorldChangeParams()), bench, cfg,
                             bundles["build"])  # the benchmarks' map of the building
     world = changed_world(run, change)
     start, goals, _other = building_goals(world, cfg, run.seed, max_goals)
-    bench = BenchSettings(out_dir=out_dir)
     params = dataclasses.replace(cfg.sim_navigation, goal_timeout_s=goal_timeout_s, vloc_hz=bench.vloc_hz)
     out: dict[str, Any] = {"building": run.name, "change": change.levels(), "start": start, "runs": {}}
     runs = []

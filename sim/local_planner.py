@@ -252,7 +252,7 @@ class LocalPlanner:
             view = looked = None
             if depth is not None:
                 view = column_view(depth, K, T_base_camera, p)
-                looked = seen_ray_points(depth, K, T_base_camera, p, view) if self._seen_rule_on else None
+                looked = seen_ray_points(view, p) if self._seen_rule_on else None
             pts = self._remember(pts, T_odom_base, looked, view if p.clear_seen_through else None)
         return np.concatenate([pts, self.contacts_base(T_odom_base)])
 

@@ -65,19 +65,13 @@ def column_view(
     return ColumnView(T[:2, 3].copy(), direction, near, reach)
 
 
-def seen_ray_points(
-    depth: NDArray[np.floating], K: NDArray[np.floating], T_base_camera: NDArray[np.floating],
-    params: LocalPlannerParams = LocalPlannerParams(), view: ColumnView | None = None,
-) -> NDArray[np.float64]:
-    """(N, 2) x, y (base frame, m) of ground points seen in `depth` (HxW metres, NaN / <= 0
-    invalid; K 3x3; T_base_camera 4x4): every `grid_m` along each `stride_px`-th column's ray from
-    the camera, stopping one cell short of the column's nearest obstacle point in the height band.
-    `view`: the image's `column_view`, where already computed."""
-    p = params
-    cv = view or column_view(depth, K, T_base_camera, p)
-    t = np.arange(0.0, p.max_range_m, p.grid_m)
-    pts = cv.origin + t[None, :, None] * cv.direction[:, None, :]  # (w, T, 2)
-    return np.asarray(pts[t[None, :] <= cv.reach[:, None]], np.float64)
+def seen_ray_points(view: ColumnView, params: LocalPlannerParams = LocalPlannerParams()) -> NDArray[np.float64]:
+    """(N, 2) x, y (base frame, m) of the ground a depth image's `column_view` saw: every `grid_m`
+    along each column's ray from the camera, stopping at the column's `reach` (one cell short of
+    its nearest obstacle point in the height band)."""
+    t = np.arange(0.0, params.max_range_m, params.grid_m)
+    pts = view.origin + t[None, :, None] * view.direction[:, None, :]  # (w, T, 2)
+    return np.asarray(pts[t[None, :] <= view.reach[:, None]], np.float64)
 
 
 def seen_through(view: ColumnView, pts: NDArray[np.floating]) -> NDArray[np.bool_]:
